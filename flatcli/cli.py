@@ -1,0 +1,203 @@
+"""The ``flatcli`` command line: each command a few lines of wiring.
+
+Every user error (a bad spec, option or file, an infeasible request) ends as one line on
+stderr, ``error: ...``, with exit status 2, no traceback, and no output written.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import sys
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any, NoReturn, TypeVar
+
+import click
+import pandas as pd
+
+from flatcli import __version__
+from flatcli.core.model import FlatcliError, constraint_coefficients, flatness_check
+from flatcli.experiment import plan_from, plant_from, robot_from, run_track
+from flatcli.report import (
+    metrics_text,
+    plan_summary,
+    plan_text,
+    plot_plan,
+    plot_track,
+    table,
+)
+from flatcli.spec import Spec, load_spec
+from flatcli.storage import run_record, write_json, write_parquet
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+EXIT_USAGE = 2
+
+
+def fail(message: str) -> NoReturn:
+    click.echo(f"error: {message}", err=True)
+    sys.exit(EXIT_USAGE)
+
+
+@contextlib.contextmanager
+def user_errors() -> Iterator[None]:
+    """Turn domain errors into one line and exit status 2."""
+    try:
+        yield
+    except FlatcliError as exc:
+        fail(str(exc))
+
+
+class Cli(click.Group):
+    """A group whose usage errors are one line too."""
+
+    def main(self, *args: Any, **kwargs: Any) -> Any:
+        kwargs["standalone_mode"] = False
+        try:
+            return super().main(*args, **kwargs)
+        except click.exceptions.Exit as exc:
+            sys.exit(exc.exit_code)
+        except click.exceptions.Abort:
+            click.echo("error: interrupted", err=True)
+            sys.exit(130)
+        except click.ClickException as exc:
+            hint = ""
+            ctx = getattr(exc, "ctx", None)
+            if ctx is not None:
+                hint = f" (see '{ctx.command_path} --help')"
+            click.echo(f"error: {exc.format_message()}{hint}", err=True)
+            sys.exit(exc.exit_code)
+
+
+def spec_options(fn: F) -> F:
+    """SPEC argument, --set, --out, -q: shared by the commands that read a spec."""
+    fn = click.option("-q", "--quiet", is_flag=True, help="Print nothing but errors.")(fn)
+    fn = click.option(
+        "--out",
+        type=click.Path(path_type=Path, file_okay=False),
+        help="Output directory [default: runs/<name>/].",
+    )(fn)
+    fn = click.option(
+        "--set",
+        "sets",
+        multiple=True,
+        metavar="KEY=VALUE",
+        help="Override a spec key (dotted; VALUE in TOML), repeatable.",
+    )(fn)
+    return click.argument("spec", required=False, type=click.Path(path_type=Path, dir_okay=True))(
+        fn
+    )
+
+
+def out_dir(spec: Spec, out: Path | None) -> Path:
+    return out if out is not None else Path("runs") / spec.name
+
+
+def say(quiet: bool, text: str) -> None:
+    if not quiet:
+        click.echo(text)
+
+
+@click.group(cls=Cli)
+@click.version_option(__version__, prog_name="flatcli")
+def main() -> None:
+    """Flatness-based planning, feedback control and Monte Carlo studies of planar
+    free-floating space robots (Franch, Agrawal, Oh, Fattah, IROS 2003).
+
+    With no SPEC file a command runs the paper's example.
+    """
+
+
+@main.command()
+@spec_options
+@click.option("--plot", is_flag=True, help="Also write plan.png.")
+def plan(
+    spec: Path | None, sets: tuple[str, ...], out: Path | None, quiet: bool, plot: bool
+) -> None:
+    """Plan a point-to-point maneuver through the flat outputs; write plan.parquet."""
+    with user_errors():
+        s = load_spec(spec, sets)
+        planned = plan_from(s)
+        samples = planned.sample(planned.grid(s.get("plan.samples")))
+    frame = pd.DataFrame({"t": samples.t})
+    for i in range(3):
+        frame[f"theta{i}"] = samples.theta[:, i]
+    for i in range(3):
+        frame[f"theta{i}_dot"] = samples.theta_dot[:, i]
+    frame["u1_dot"] = samples.u1_dot
+    frame["u2"] = samples.u2
+    for name, arr in (("", samples.y), ("_dot", samples.y_dot), ("_ddot", samples.y_ddot)):
+        frame[f"y1{name}"] = arr[:, 0]
+        frame[f"y2{name}"] = arr[:, 1]
+    frame["margin"] = samples.margin
+    frame["momentum"] = samples.momentum
+    directory = out_dir(s, out)
+    summary = plan_summary(planned, samples)
+    record = run_record("plan", s.tree, summary=summary)
+    write_parquet(directory / "plan.parquet", frame, record)
+    write_json(directory / "run.json", record)
+    if plot:
+        plot_plan(samples, directory / "plan.png", f"plan {s.name!r} ({planned.model} model)")
+    say(quiet, plan_text(s.name, planned, samples))
+    say(quiet, f"wrote {directory}/plan.parquet" + (" and plan.png" if plot else ""))
+
+
+@main.command()
+@spec_options
+@click.option("--plot", is_flag=True, help="Also write track.png.")
+def track(
+    spec: Path | None, sets: tuple[str, ...], out: Path | None, quiet: bool, plot: bool
+) -> None:
+    """Track the plan in closed loop from a perturbed initial state; write track.parquet."""
+    with user_errors():
+        s = load_spec(spec, sets)
+        run = run_track(s)
+    cols = run.columns()
+    metrics = run.metrics
+    directory = out_dir(s, out)
+    record = run_record("track", s.tree, metrics=metrics)
+    write_parquet(directory / "track.parquet", pd.DataFrame(cols), record)
+    write_json(directory / "metrics.json", metrics)
+    write_json(directory / "run.json", record)
+    if plot:
+        plot_track(
+            cols,
+            directory / "track.png",
+            f"track {s.name!r}: kp = {s.get('track.kp')}, kv = {s.get('track.kv')}",
+        )
+    say(quiet, metrics_text(s.name, metrics))
+    say(quiet, f"wrote {directory}/track.parquet, metrics.json" + (", track.png" if plot else ""))
+
+
+@main.command()
+@click.argument("spec", required=False, type=click.Path(path_type=Path))
+@click.option(
+    "--set",
+    "sets",
+    multiple=True,
+    metavar="KEY=VALUE",
+    help="Override a spec key (dotted; VALUE in TOML), repeatable.",
+)
+def design(spec: Path | None, sets: tuple[str, ...]) -> None:
+    """Check whether a design is differentially flat; print its constraint coefficients.
+
+    Exit status 0 when the robot is flat, 1 when it is not.
+    """
+    with user_errors():
+        s = load_spec(spec, sets)
+        robot = robot_from(s)
+        plant = plant_from(s)
+    check = flatness_check(robot)
+    model = s.get("robot.model")
+    k = constraint_coefficients(robot.links, model)
+    rows = [[name, float(v)] for name, v in zip(k._fields, k, strict=True)]
+    click.echo(f"robot {s.name!r}, {model} coefficients [kg^2 m^2]:")
+    click.echo(table(["coefficient", "value"], rows, 6))
+    if check.is_flat:
+        click.echo("flat: yes (d2 = 0, c0 a1 != 0); singular where sin th1 = 0 or th1' = 0")
+    else:
+        click.echo(f"flat: no: {check.message()}")
+    if plant != robot:
+        pc = flatness_check(plant)
+        click.echo(f"plant: {'flat' if pc.is_flat else 'not flat: ' + pc.message()}")
+    sys.exit(0 if check.is_flat else 1)

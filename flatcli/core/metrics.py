@@ -1,0 +1,188 @@
+"""Per-trial metrics of a closed-loop run, computed from its trace on the simulation grid.
+
+A trace holds the prolonged state (th0, th1, th2, u1) at the n + 1 grid times t_j = j dt.
+For each trial (definitions repeated in the README):
+
+* ``err_theta_*``: e_j = |th_j - th_ref,j| (Euclidean norm over the three angles) [rad];
+  ``_rms`` = sqrt(mean_j e_j^2), ``_max`` = max_j e_j, ``_final`` = e_n.
+* ``err_y_*``: the same for the flat outputs y = (y1, y2) computed from the true state with
+  the controller's (nominal) flat map, against the plan's y [rad].
+* ``singular_hits``: samples whose margin |sin th1 * u1| is below the threshold;
+  ``first_hit_time`` [s] (nan if none); ``min_margin`` [rad/s].
+* ``momentum_drift``: max_j |H_j - H0| [kg m^2/s], H_j from the full link kinematics of the
+  plant with rates from the trace itself (second-order differences: central inside,
+  one-sided at the ends, as numpy.gradient with edge_order=2). The integrated system conserves
+  H0 exactly, so this measures the integration error; it shrinks as dt^2.
+* ``plan_momentum_residual``: max_j |H(th_ref,j, th_ref',j) - H0| over the plan's own
+  sample grid (``plan.samples`` points, the rows of plan.parquet), with the plant's true
+  parameters [kg m^2/s]: zero only when the controller's model is right.
+
+A diverged trial (non-finite state, or a state beyond the divergence bound) keeps the
+metrics of its samples up to divergence, and nan final errors.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from flatcli.core._jit import jitable
+from flatcli.core.flatness import chart
+from flatcli.core.model import Coefficients, Links, momentum, momentum_at
+
+Array = NDArray[np.float64]
+
+METRIC_NAMES: tuple[str, ...] = (
+    "err_theta_rms",
+    "err_theta_max",
+    "err_theta_final",
+    "err_y_rms",
+    "err_y_max",
+    "err_y_final",
+    "singular_hits",
+    "first_hit_time",
+    "min_margin",
+    "momentum_drift",
+    "plan_momentum_residual",
+)
+N_METRICS = len(METRIC_NAMES)
+
+STATUS_OK = 0
+STATUS_SINGULAR = 1
+STATUS_DIVERGED = 2
+STATUS_NAMES: tuple[str, ...] = ("ok", "singular", "diverged", "error")
+
+
+@jitable
+def trace_rates(trace: Array, j: int, last: int, inv_2dt: float) -> tuple[float, float, float]:
+    """th' at sample j of a trace (rows 0..last) by second-order differences [rad/s]."""
+    if j == 0:
+        a, b, c, wa, wb, wc = 0, 1, 2, -3.0, 4.0, -1.0
+    elif j == last:
+        a, b, c, wa, wb, wc = last - 2, last - 1, last, 1.0, -4.0, 3.0
+    else:
+        a, b, c, wa, wb, wc = j - 1, j, j + 1, -1.0, 0.0, 1.0
+    r0 = (wa * trace[a, 0] + wb * trace[b, 0] + wc * trace[c, 0]) * inv_2dt
+    r1 = (wa * trace[a, 1] + wb * trace[b, 1] + wc * trace[c, 1]) * inv_2dt
+    r2 = (wa * trace[a, 2] + wb * trace[b, 2] + wc * trace[c, 2]) * inv_2dt
+    return r0, r1, r2
+
+
+@jitable
+def trace_metrics(
+    out: Array,
+    trace: Array,
+    last: int,
+    diverged: bool,
+    ref: Array,
+    theta_ref: Array,
+    plan_theta: Array,
+    plan_theta_dot: Array,
+    kc: Coefficients,
+    links: Links,
+    h0: float,
+    dt: float,
+    threshold: float,
+) -> int:
+    """Fill ``out`` (N_METRICS,) from a trace; return the first hit sample (-1 if none).
+
+    Parameters
+    ----------
+    out : (N_METRICS,) float, written in the order of METRIC_NAMES
+    trace : (>= last + 1, >= 4) th0, th1, th2 [rad], u1 [rad/s] per grid sample
+    last : index of the last valid sample
+    diverged : whether the run stopped early (final errors are then nan)
+    ref : (2 n + 1, 6) plan y1, y2, y1', y2', y1'', y2'' at half steps
+    theta_ref : (n + 1, 3) plan angles on the grid [rad]
+    plan_theta, plan_theta_dot : (m, 3) plan angles [rad] and exact rates [rad/s] on the
+        plan's own grid, for the plan's momentum residual
+    kc : Coefficients of the controller; links : Links of the plant; h0 [kg m^2/s]
+    dt : grid step [s]; threshold : singularity threshold on the margin [rad/s]
+    """
+    sum_et = 0.0
+    max_et = 0.0
+    sum_ey = 0.0
+    max_ey = 0.0
+    et = 0.0
+    ey = 0.0
+    hits = 0
+    first = -1
+    min_margin = math.inf
+    drift = 0.0
+    inv_2dt = 0.5 / dt
+    for j in range(last + 1):
+        d0 = trace[j, 0] - theta_ref[j, 0]
+        d1 = trace[j, 1] - theta_ref[j, 1]
+        d2 = trace[j, 2] - theta_ref[j, 2]
+        et = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        th1 = trace[j, 1]
+        c1, s1 = np.cos(th1), np.sin(th1)
+        inv_A, _, _ = chart(kc, c1, s1)  # y = flat_outputs(kc, ...), sharing c1 and s1
+        e1 = th1 - ref[2 * j, 0]
+        e2 = trace[j, 0] - kc.c0 * trace[j, 2] * inv_A - ref[2 * j, 1]
+        ey = math.sqrt(e1 * e1 + e2 * e2)
+        sum_et += et * et
+        sum_ey += ey * ey
+        max_et = max(max_et, et)
+        max_ey = max(max_ey, ey)
+        margin = abs(s1 * trace[j, 3])  # singularity_margin
+        if margin < threshold:
+            hits += 1
+            if first < 0:
+                first = j
+        min_margin = min(min_margin, margin)
+        if last >= 2:
+            r0, r1, r2 = trace_rates(trace, j, last, inv_2dt)
+            th12 = th1 + trace[j, 2]
+            h = momentum_at(links, c1, s1, np.cos(th12), np.sin(th12), r0, r1, r2)
+            drift = max(drift, abs(h - h0))  # type: ignore[call-overload]
+    residual = 0.0
+    for j in range(plan_theta.shape[0]):
+        h = momentum(
+            links,
+            plan_theta[j, 0],
+            plan_theta[j, 1],
+            plan_theta[j, 2],
+            plan_theta_dot[j, 0],
+            plan_theta_dot[j, 1],
+            plan_theta_dot[j, 2],
+        )
+        residual = max(residual, abs(h - h0))  # type: ignore[call-overload]
+    count = last + 1
+    out[0] = math.sqrt(sum_et / count)
+    out[1] = max_et
+    out[2] = math.nan if diverged else et
+    out[3] = math.sqrt(sum_ey / count)
+    out[4] = max_ey
+    out[5] = math.nan if diverged else ey
+    out[6] = hits
+    out[7] = first * dt if first >= 0 else math.nan
+    out[8] = min_margin
+    out[9] = drift if last >= 2 else math.nan
+    out[10] = residual
+    return first
+
+
+def describe_status(
+    code: int, event_time: float, metrics: Array, threshold: float, bound: float
+) -> tuple[str, str]:
+    """Status name and a one-line reason for a trial.
+
+    Parameters
+    ----------
+    code : STATUS_OK, STATUS_SINGULAR or STATUS_DIVERGED
+    event_time : time of divergence [s] (ignored otherwise)
+    metrics : (N_METRICS,) as filled by ``trace_metrics``
+    threshold : singularity threshold [rad/s]; bound : divergence bound
+    """
+    if code == STATUS_DIVERGED:
+        return "diverged", (f"state non-finite or beyond {bound:g} at t = {event_time:.6g} s")
+    if code == STATUS_SINGULAR:
+        hits = int(metrics[6])
+        return "singular", (
+            f"margin |sin th1 * u1| below {threshold:g} rad/s at {hits} samples, first at "
+            f"t = {metrics[7]:.6g} s, min {metrics[8]:.3g}"
+        )
+    return "ok", ""

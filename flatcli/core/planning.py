@@ -1,0 +1,377 @@
+"""Point-to-point plans in flat outputs, and everything a plan implies along its time grid.
+
+A plan is a pair of curves y(t) = (y1, y2) written in a basis (polynomials of any degree or
+clamped B-splines), with the boundary values of y and y' imposed exactly. The start and goal
+configurations fix y(0), y(T) and, through the forward map, y2'(0) and y2'(T) once the free
+end rates th1'(0) = y1'(0) and th1'(T) = y1'(T) are chosen (the paper picks 0.1 and 0.5).
+Coefficients the boundary conditions leave free are chosen to minimise the acceleration
+energy of y (for a cubic there are none); ``flatcli.core.optimize`` chooses them otherwise.
+
+Everything else follows from y: th(t) from the inverse map, th'(t) by exact differentiation
+of that map (complex step along the flat flag: no finite difference, and never from the
+constraint), u1' and u2, the singularity margin, and H from the full link kinematics.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.interpolate import BSpline
+
+from flatcli.core.flatness import flat_outputs, flat_state, singularity_margin
+from flatcli.core.model import (
+    Coefficients,
+    FlatcliError,
+    Model,
+    RobotParams,
+    constraint_coefficients,
+    momentum,
+    require_flat,
+)
+
+Array = NDArray[np.float64]
+
+#: Complex-step size: derivatives exact to rounding, since no difference is taken.
+COMPLEX_STEP = 1e-30
+
+
+class Basis(Protocol):
+    """A family of scalar functions phi_j(t), j < size, on [0, duration]."""
+
+    @property
+    def size(self) -> int: ...
+
+    @property
+    def duration(self) -> float: ...
+
+    @property
+    def breakpoints(self) -> Array:
+        """Times where the basis may lose smoothness, including 0 and T [s]."""
+        ...
+
+    def matrix(self, t: Array, order: int) -> Array:
+        """(n, size): d^order phi_j / dt^order at the times t (n,) [s]."""
+        ...
+
+
+@dataclass(frozen=True)
+class PolynomialBasis:
+    """Scaled monomials phi_j(t) = (t/T)^j, j = 0..degree (well conditioned up to ~12)."""
+
+    degree: int
+    duration: float
+
+    def __post_init__(self) -> None:
+        if self.degree < 3:
+            raise FlatcliError(f"plan.degree: must be >= 3 (a cubic), got {self.degree}")
+        if not self.duration > 0:
+            raise FlatcliError(f"plan.duration: must be > 0 s, got {self.duration}")
+
+    @property
+    def size(self) -> int:
+        return self.degree + 1
+
+    @property
+    def breakpoints(self) -> Array:
+        return np.array([0.0, self.duration])
+
+    def matrix(self, t: Array, order: int) -> Array:
+        s = np.asarray(t, dtype=float)[:, None] / self.duration
+        j = np.arange(self.size)
+        falling = np.ones(self.size)
+        for r in range(order):
+            falling = falling * (j - r)
+        power = np.maximum(j - order, 0)
+        return falling * s**power / self.duration**order
+
+
+@dataclass(frozen=True)
+class BSplineBasis:
+    """Clamped B-splines of a given degree on uniform knots over [0, duration] (scipy)."""
+
+    size: int
+    duration: float
+    degree: int = 5
+    knots: Array = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        if self.degree < 3:
+            raise FlatcliError(f"plan.degree: must be >= 3 for B-splines, got {self.degree}")
+        if self.size < max(4, self.degree + 1):
+            raise FlatcliError(
+                f"plan.size: a degree-{self.degree} B-spline needs >= {max(4, self.degree + 1)} "
+                f"coefficients, got {self.size}"
+            )
+        if not self.duration > 0:
+            raise FlatcliError(f"plan.duration: must be > 0 s, got {self.duration}")
+        inner = np.linspace(0.0, self.duration, self.size - self.degree + 1)
+        knots = np.concatenate(
+            [np.full(self.degree, 0.0), inner, np.full(self.degree, self.duration)]
+        )
+        object.__setattr__(self, "knots", knots)
+
+    @property
+    def breakpoints(self) -> Array:
+        return np.unique(self.knots)
+
+    def matrix(self, t: Array, order: int) -> Array:
+        spline = BSpline(self.knots, np.eye(self.size), self.degree, extrapolate=False)
+        if order:
+            spline = spline.derivative(order)
+        tt = np.clip(np.asarray(t, dtype=float), 0.0, self.duration)
+        return np.asarray(spline(tt), dtype=float)
+
+
+@dataclass(frozen=True)
+class FlatTrajectory:
+    """y(t) = coefficients @ phi(t): coefficients (2, size) in a basis."""
+
+    basis: Basis
+    coefficients: Array
+
+    def derivative(self, t: Array, order: int) -> Array:
+        """(n, 2): d^order y / dt^order at times t (n,) [rad/s^order]."""
+        return self.basis.matrix(np.atleast_1d(np.asarray(t, dtype=float)), order) @ (
+            self.coefficients.T
+        )
+
+
+@dataclass(frozen=True)
+class Boundary:
+    """Flat boundary conditions: y and y' at t = 0 and t = T, each (2,)."""
+
+    y_start: Array
+    y_dot_start: Array
+    y_goal: Array
+    y_dot_goal: Array
+
+
+def boundary_conditions(
+    k: Coefficients,
+    start: Array,
+    goal: Array,
+    start_rate: float,
+    goal_rate: float,
+) -> Boundary:
+    """Flat boundary values for moving from configuration ``start`` to ``goal``.
+
+    Parameters
+    ----------
+    k : Coefficients (d2 = 0)
+    start, goal : (3,) th0, th1, th2 [rad]
+    start_rate, goal_rate : th1' at the two ends [rad/s], the free choice of the paper
+
+    Raises
+    ------
+    FlatcliError if an end lies on the singular set (sin th1 = 0 or th1' = 0).
+    """
+    for key, theta, rate, rate_key in (
+        ("plan.start", start, start_rate, "plan.start_rate"),
+        ("plan.goal", goal, goal_rate, "plan.goal_rate"),
+    ):
+        if rate == 0:
+            raise FlatcliError(f"{rate_key}: must be != 0, the flat map is singular where th1' = 0")
+        if abs(math.sin(theta[1])) < 1e-9:
+            raise FlatcliError(
+                f"{key}[1] = {theta[1]:g} rad lies on the singular set sin th1 = 0; "
+                "choose th1 away from multiples of pi"
+            )
+    ys = np.array(flat_outputs(k, start[0], start[1], start[2], start_rate))
+    yg = np.array(flat_outputs(k, goal[0], goal[1], goal[2], goal_rate))
+    return Boundary(ys[:2], ys[2:], yg[:2], yg[2:])
+
+
+def quadrature(basis: Basis, count: int) -> tuple[Array, Array]:
+    """Gauss-Legendre nodes and weights, ``count`` per smooth piece of the basis [s]."""
+    x, w = np.polynomial.legendre.leggauss(count)
+    edges = basis.breakpoints
+    lo, hi = edges[:-1, None], edges[1:, None]
+    nodes = 0.5 * (hi - lo) * (x + 1.0) + lo
+    weights = 0.5 * (hi - lo) * w
+    return nodes.ravel(), weights.ravel()
+
+
+def boundary_matrix(basis: Basis) -> Array:
+    """(4, size): rows phi(0), phi'(0), phi(T), phi'(T)."""
+    ends = np.array([0.0, basis.duration])
+    return np.vstack(
+        [
+            basis.matrix(ends[:1], 0),
+            basis.matrix(ends[:1], 1),
+            basis.matrix(ends[1:], 0),
+            basis.matrix(ends[1:], 1),
+        ]
+    )
+
+
+def boundary_rhs(boundary: Boundary) -> Array:
+    """(4, 2): y(0), y'(0), y(T), y'(T) for both outputs, matching ``boundary_matrix``."""
+    return np.vstack([boundary.y_start, boundary.y_dot_start, boundary.y_goal, boundary.y_dot_goal])
+
+
+def acceleration_gram(basis: Basis) -> Array:
+    """(size, size): integral over [0, T] of phi''(t) phi''(t)^T (exact Gauss quadrature)."""
+    nodes, weights = quadrature(basis, basis.size + 2)
+    d2 = basis.matrix(nodes, 2)
+    return (d2 * weights[:, None]).T @ d2
+
+
+def min_acceleration_trajectory(basis: Basis, boundary: Boundary) -> FlatTrajectory:
+    """The y(t) in the basis meeting the boundary conditions with least integral of |y''|^2.
+
+    For a cubic the boundary conditions fix it; for a richer basis this is still the cubic
+    when the basis contains it (the cubic Hermite curve minimises that integral).
+    """
+    E = boundary_matrix(basis)
+    if basis.size < E.shape[0]:
+        raise FlatcliError(f"plan basis: needs >= 4 coefficients, got {basis.size}")
+    rhs = boundary_rhs(boundary)
+    particular, *_ = np.linalg.lstsq(E, rhs, rcond=None)
+    if not np.allclose(E @ particular, rhs, rtol=1e-10, atol=1e-12):
+        raise FlatcliError("plan basis: cannot meet the boundary conditions")
+    null = null_space(E)
+    if null.shape[1]:
+        Q = acceleration_gram(basis)
+        reduced = null.T @ Q @ null
+        z = -np.linalg.solve(reduced, null.T @ Q @ particular)
+        particular = particular + null @ z
+    return FlatTrajectory(basis, np.ascontiguousarray(particular.T))
+
+
+def null_space(E: Array) -> Array:
+    """(size, size - rank): an orthonormal basis of the null space of E."""
+    _, s, vt = np.linalg.svd(E)
+    rank = int(np.sum(s > s[0] * 1e-12))
+    return np.ascontiguousarray(vt[rank:].T)
+
+
+@dataclass(frozen=True)
+class PlanSamples:
+    """A plan evaluated on a time grid; every array has the grid (n,) as leading axis."""
+
+    t: Array  # (n,) [s]
+    theta: Array  # (n, 3) [rad]
+    theta_dot: Array  # (n, 3) [rad/s], exact derivative of the inverse map
+    u1_dot: Array  # (n,) [rad/s^2]
+    y: Array  # (n, 2) [rad]
+    y_dot: Array  # (n, 2) [rad/s]
+    y_ddot: Array  # (n, 2) [rad/s^2]
+    margin: Array  # (n,) |sin y1 y1'| [rad/s]
+    momentum: Array  # (n,) H from the full kinematics of the planning robot [kg m^2/s]
+
+    @property
+    def u2(self) -> Array:
+        """(n,) th2' [rad/s]."""
+        return self.theta_dot[:, 2]
+
+
+def state_and_rates(k: Coefficients, y: Array, y_dot: Array, y_ddot: Array) -> tuple[Array, Array]:
+    """State and its exact time derivative along a flat curve.
+
+    Parameters
+    ----------
+    k : Coefficients (d2 = 0)
+    y, y_dot, y_ddot : (..., 2) flat outputs and two derivatives
+
+    Returns
+    -------
+    state : (..., 4) th0, th1, th2 [rad], u1 [rad/s]
+    state_dot : (..., 4) th0', th1', th2' [rad/s], u1' [rad/s^2] (complex step)
+    """
+    z = [y[..., 0], y[..., 1], y_dot[..., 0], y_dot[..., 1]]
+    dz = [y_dot[..., 0], y_dot[..., 1], y_ddot[..., 0], y_ddot[..., 1]]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        state = np.stack(flat_state(k, *z), axis=-1)
+        perturbed = [zi + 1j * COMPLEX_STEP * dzi for zi, dzi in zip(z, dz, strict=True)]
+        state_dot = np.stack(flat_state(k, *perturbed), axis=-1).imag / COMPLEX_STEP
+    return state, state_dot
+
+
+@dataclass(frozen=True)
+class FlatPlan:
+    """A planned maneuver: the flat curve, the robot and model it was planned for."""
+
+    robot: RobotParams
+    model: Model
+    coefficients: Coefficients
+    trajectory: FlatTrajectory
+    duration: float
+
+    def sample(self, t: Array) -> PlanSamples:
+        """Evaluate the plan at times t (n,) [s] within [0, duration]."""
+        t = np.asarray(t, dtype=float)
+        y = self.trajectory.derivative(t, 0)
+        y_dot = self.trajectory.derivative(t, 1)
+        y_ddot = self.trajectory.derivative(t, 2)
+        state, state_dot = state_and_rates(self.coefficients, y, y_dot, y_ddot)
+        theta, theta_dot = state[:, :3], state_dot[:, :3]
+        H = momentum(self.robot.links, *theta.T, *theta_dot.T)
+        return PlanSamples(
+            t=t,
+            theta=theta,
+            theta_dot=theta_dot,
+            u1_dot=state_dot[:, 3],
+            y=y,
+            y_dot=y_dot,
+            y_ddot=y_ddot,
+            margin=np.asarray(singularity_margin(y[:, 0], y_dot[:, 0])),
+            momentum=np.asarray(H),
+        )
+
+    def grid(self, samples: int) -> Array:
+        """(samples,) equally spaced times over [0, duration] [s]."""
+        return np.linspace(0.0, self.duration, samples)
+
+    def input_energy(self, pieces: int = 64, order: int = 8) -> float:
+        """Integral over [0, T] of th1'^2 + th2'^2 [rad^2/s] (composite Gauss-Legendre)."""
+        x, w = np.polynomial.legendre.leggauss(order)
+        edges = np.linspace(0.0, self.duration, pieces + 1)
+        half = 0.5 * np.diff(edges)[:, None]
+        t = (half * (x + 1.0) + edges[:-1, None]).ravel()
+        weights = (half * w).ravel()
+        rates = self.sample(t).theta_dot
+        return float(weights @ (rates[:, 1] ** 2 + rates[:, 2] ** 2))
+
+
+def plan_point_to_point(
+    robot: RobotParams,
+    start: Array,
+    goal: Array,
+    start_rate: float,
+    goal_rate: float,
+    duration: float,
+    model: Model = "derived",
+    basis: Basis | None = None,
+) -> FlatPlan:
+    """Flatness-based plan from ``start`` to ``goal`` in ``duration`` seconds.
+
+    Parameters
+    ----------
+    robot : a flat design (d2 = 0); otherwise FlatcliError says which condition fails
+    start, goal : (3,) configurations th0, th1, th2 [rad]
+    start_rate, goal_rate : th1' at the ends [rad/s] (non-zero)
+    duration : T [s] > 0
+    model : which constraint coefficients the planner believes
+    basis : default: cubic polynomials, the paper's choice
+
+    Returns
+    -------
+    FlatPlan
+    """
+    require_flat(robot)
+    if not duration > 0:
+        raise FlatcliError(f"plan.duration: must be > 0 s, got {duration}")
+    k = constraint_coefficients(robot.links, model)
+    if basis is None:
+        basis = PolynomialBasis(3, duration)
+    elif not math.isclose(basis.duration, duration):
+        raise FlatcliError("plan basis: its duration differs from plan.duration")
+    bc = boundary_conditions(
+        k, np.asarray(start, float), np.asarray(goal, float), start_rate, goal_rate
+    )
+    trajectory = min_acceleration_trajectory(basis, bc)
+    return FlatPlan(robot, model, k, trajectory, float(duration))

@@ -1,0 +1,135 @@
+"""All file output of flatcli: atomic writes, Parquet with provenance, and run records.
+
+Every file is written to a temporary name in its own directory, flushed to disk, then
+renamed over its final name, so a reader (or a resumed sweep) sees either the old file or
+the complete new one, never a half-written file.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import os
+import platform
+import socket
+import subprocess
+import sys
+import tempfile
+from collections.abc import Iterator, Mapping
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+import flatcli
+
+#: Key of the Parquet schema metadata holding flatcli's provenance (JSON).
+PARQUET_META_KEY = b"flatcli"
+
+
+@contextlib.contextmanager
+def atomic_path(path: Path) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; on success rename it over ``path``."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    tmp = Path(tmp_name)
+    try:
+        yield tmp
+        with tmp.open("rb+") as fh:
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def write_text(path: Path, text: str) -> None:
+    with atomic_path(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+
+
+def to_jsonable(value: Any) -> Any:
+    """JSON-ready copy: numpy scalars and arrays as Python values, non-finite floats as strings."""
+    if isinstance(value, Mapping):
+        return {str(k): to_jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple | np.ndarray):
+        return [to_jsonable(v) for v in value]
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)
+    return value
+
+
+def write_json(path: Path, obj: Any) -> None:
+    """Pretty JSON with sorted keys (non-finite floats as "inf", "nan")."""
+    write_text(path, json.dumps(to_jsonable(obj), indent=2, sort_keys=True) + "\n")
+
+
+def write_parquet(path: Path, frame: pd.DataFrame, provenance: Mapping[str, Any]) -> None:
+    """Write a DataFrame as Parquet, with ``provenance`` as JSON in the schema metadata."""
+    table = pa.Table.from_pandas(frame, preserve_index=False)
+    meta = dict(table.schema.metadata or {})
+    meta[PARQUET_META_KEY] = json.dumps(to_jsonable(provenance), sort_keys=True).encode()
+    table = table.replace_schema_metadata(meta)
+    with atomic_path(path) as tmp:
+        pq.write_table(table, tmp)
+
+
+def read_provenance(path: Path) -> dict[str, Any]:
+    """The provenance a Parquet file was written with ({} if none)."""
+    meta = pq.read_schema(path).metadata or {}
+    raw = meta.get(PARQUET_META_KEY)
+    return json.loads(raw) if raw else {}
+
+
+def git_state() -> dict[str, Any]:
+    """The git commit of flatcli's source tree (if a checkout), and whether it is dirty."""
+    source = Path(flatcli.__file__).resolve().parent
+
+    def run(*args: str) -> str:
+        return subprocess.run(
+            ["git", *args], capture_output=True, text=True, timeout=5, check=True, cwd=source
+        ).stdout.strip()
+
+    try:
+        commit = run("rev-parse", "HEAD")
+        dirty = bool(run("status", "--porcelain", "--untracked-files=no"))
+    except (OSError, subprocess.SubprocessError):
+        return {"commit": None, "dirty": None}
+    return {"commit": commit, "dirty": dirty}
+
+
+def versions() -> dict[str, str]:
+    import numba
+    import scipy
+
+    return {
+        "flatcli": flatcli.__version__,
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "scipy": scipy.__version__,
+        "numba": numba.__version__,
+        "pandas": pd.__version__,
+        "pyarrow": pa.__version__,
+    }
+
+
+def run_record(command: str, spec_tree: Mapping[str, Any], **extra: Any) -> dict[str, Any]:
+    """What a run directory's run.json holds: the resolved spec, versions, git, time, host."""
+    return {
+        "command": command,
+        "argv": sys.argv,
+        "spec": spec_tree,
+        "versions": versions(),
+        "git": git_state(),
+        "time": datetime.now(UTC).isoformat(timespec="seconds"),
+        "host": socket.gethostname(),
+        "platform": platform.platform(),
+        **extra,
+    }
