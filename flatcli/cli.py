@@ -19,10 +19,12 @@ from flatcli import __version__
 from flatcli.core.model import FlatcliError, constraint_coefficients, flatness_check
 from flatcli.experiment import plan_from, plant_from, robot_from, run_track
 from flatcli.report import (
+    Progress,
     metrics_text,
     plan_summary,
     plan_text,
     plot_plan,
+    plot_sweep,
     plot_track,
     table,
 )
@@ -201,3 +203,128 @@ def design(spec: Path | None, sets: tuple[str, ...]) -> None:
         pc = flatness_check(plant)
         click.echo(f"plant: {'flat' if pc.is_flat else 'not flat: ' + pc.message()}")
     sys.exit(0 if check.is_flat else 1)
+
+
+@main.command()
+@click.argument("spec", type=click.Path(path_type=Path))
+@click.option("--out", type=click.Path(path_type=Path, file_okay=False),
+              help="Output directory [default: runs/<name>/].")
+@click.option("--workers", type=int, help="Worker processes [default: one per core].")
+@click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
+              help="Override a spec key (dotted; VALUE in TOML), repeatable.")
+@click.option("-q", "--quiet", is_flag=True, help="No progress and no tables.")
+@click.option("--fail-fast", is_flag=True,
+              help="Stop at the first trial that raises or diverges (exit status 1).")
+@click.option("--force", is_flag=True, help="Start over in a directory holding another sweep.")
+@click.option("--executor", type=click.Choice(["local", "dask"]), default="local",
+              show_default=True, help="Run chunks on this machine or on a Dask cluster.")
+@click.option("--scheduler", metavar="ADDRESS",
+              help="Dask scheduler address (tcp://host:8786), or 'local' for a LocalCluster.")
+@click.option("--rerun", "rerun", type=int, metavar="TRIAL",
+              help="Re-run one finished trial alone (as flatcli track) and compare.")
+@click.option("--print-spec", is_flag=True, help="With --rerun: print that trial's track spec.")
+@click.option("--plot", is_flag=True, help="Also write the summary figures.")
+def sweep(spec: Path, out: Path | None, workers: int | None, sets: tuple[str, ...],
+          quiet: bool, fail_fast: bool, force: bool, executor: str, scheduler: str | None,
+          rerun: int | None, print_spec: bool, plot: bool) -> None:
+    """Run a Monte Carlo sweep from a TOML spec with a [sweep] table (resumable)."""
+    from flatcli.sweep import FailFastError, run_sweep
+
+    with user_errors():
+        s = load_spec(spec, sets, sweep=True)
+        directory = out_dir(s, out)
+        if rerun is not None:
+            _rerun(s, directory, rerun, print_spec, quiet)
+            return
+        if print_spec:
+            fail("--print-spec: only with --rerun TRIAL")
+        try:
+            result = run_sweep(s, directory, executor, workers, scheduler, force, fail_fast,
+                               Progress(s.name, quiet))
+        except FailFastError as exc:
+            click.echo(f"error: {exc}", err=True)
+            sys.exit(1)
+        except KeyboardInterrupt:
+            click.echo(f"error: interrupted; finished chunks are kept in {directory}/trials; "
+                       "run the same command again to resume", err=True)
+            sys.exit(130)
+    if plot:
+        plot_sweep(directory)
+    say(quiet, result.summary_text)
+    say(quiet, f"{result.layout.total} trials ({result.simulated} simulated now) in "
+               f"{result.wall_seconds:.1f} s; wrote {directory}/trials.parquet, summary.md")
+
+
+def _rerun(s: Spec, directory: Path, trial: int, print_spec: bool, quiet: bool) -> None:
+    from flatcli.sweep import layout, rerun_spec, spec_toml
+
+    trials_path = directory / "trials.parquet"
+    if not trials_path.exists():
+        fail(f"--rerun: {trials_path} not found; run the sweep first")
+    frame = pd.read_parquet(trials_path, filters=[("trial", "==", trial)])
+    if frame.empty:
+        fail(f"--rerun: no trial {trial} in {trials_path}")
+    row = {str(k): v for k, v in frame.iloc[0].items()}
+    if row["status"] == "error":
+        fail(f"--rerun: trial {trial} did not simulate ({row['reason']})")
+    track_spec = rerun_spec(layout(s), row)
+    if print_spec:
+        click.echo(spec_toml(track_spec), nl=False)
+        return
+    run = run_track(track_spec)
+    metrics = run.metrics
+    target = directory / f"rerun-{trial}"
+    record = run_record("sweep --rerun", track_spec.tree, metrics=metrics, trial=trial)
+    write_parquet(target / "track.parquet", pd.DataFrame(run.columns()), record)
+    write_json(target / "metrics.json", metrics)
+    write_json(target / "run.json", record)
+    plot_track(run.columns(), target / "track.png", f"{s.name}: trial {trial}")
+    rows = [[k, row[k], v, "yes" if _same(row[k], v) else "NO"]
+            for k, v in metrics.items() if k != "reason"]
+    say(quiet, f"trial {trial} of {s.name!r} re-run alone:")
+    say(quiet, table(["metric", "in trials.parquet", "re-run", "identical"], rows, 6))
+    say(quiet, f"wrote {target}/track.parquet, metrics.json, track.png")
+    if not all(r[3] == "yes" for r in rows):
+        fail(f"--rerun: trial {trial} did not reproduce")
+
+
+def _same(a: Any, b: Any) -> bool:
+    if isinstance(a, float | int) and isinstance(b, float | int):
+        return (a == b) or (a != a and b != b)
+    return bool(a == b)
+
+
+@main.command()
+@click.argument("directory", type=click.Path(path_type=Path, file_okay=False))
+@click.option("--plot", is_flag=True, help="Also write the summary figures.")
+def summarize(directory: Path, plot: bool) -> None:
+    """Print a finished sweep's summary tables again (and --plot its figures)."""
+    summary_md = directory / "summary.md"
+    if not summary_md.exists():
+        fail(f"{summary_md} not found: not a finished sweep directory")
+    click.echo(summary_md.read_text(), nl=False)
+    if plot:
+        paths = plot_sweep(directory)
+        click.echo("wrote " + ", ".join(str(p) for p in paths))
+
+
+@main.command()
+@click.option("--out", type=click.Path(path_type=Path, file_okay=False),
+              default=Path("runs/paper"), show_default=True, help="Output directory.")
+@click.option("--montecarlo", "montecarlo", type=click.Path(path_type=Path),
+              default=Path("configs/paper_montecarlo.toml"), show_default=True,
+              help="Sweep spec of the Monte Carlo study.")
+@click.option("--no-montecarlo", is_flag=True, help="Skip the Monte Carlo study.")
+@click.option("--workers", type=int, help="Worker processes for the study.")
+@click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
+              help="Override a key of the study's spec, repeatable.")
+@click.option("-q", "--quiet", is_flag=True, help="Print nothing but errors.")
+def reproduce(out: Path, montecarlo: Path, no_montecarlo: bool, workers: int | None,
+              sets: tuple[str, ...], quiet: bool) -> None:
+    """The paper's Figs. 2-4 and numbers, and the Monte Carlo study, with REPORT.md."""
+    from flatcli.reproduce import reproduce as run
+
+    with user_errors():
+        path = run(out, None if no_montecarlo else montecarlo, quiet, workers, sets)
+    if not quiet:
+        click.echo(path.read_text())

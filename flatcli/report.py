@@ -8,10 +8,14 @@ pyplot state, no display needed).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+import sys
+import time
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any, TextIO
 
 import numpy as np
+import pandas as pd
 from matplotlib.figure import Figure
 from numpy.typing import NDArray
 
@@ -190,3 +194,221 @@ def plot_track(cols: dict[str, Array], path: Path, title: str) -> None:
     fig.suptitle(title)
     fig.tight_layout()
     _save(fig, path)
+
+
+# ---------------------------------------------------------------------------------------
+# Sweeps: progress while running, summary statistics and tables after.
+
+#: Trials whose errors enter the tracking-error statistics: those that ran to the end.
+COMPLETED = ("ok", "singular")
+STATUSES = ("ok", "singular", "diverged", "error")
+ERROR_METRICS = ("err_theta_rms", "err_theta_final", "err_y_rms", "err_y_final")
+
+
+class Progress:
+    """A progress bar on a terminal, plain periodic lines otherwise, nothing when quiet."""
+
+    def __init__(self, name: str, quiet: bool = False, stream: TextIO | None = None,
+                 interval: float = 10.0) -> None:
+        self.name = name
+        self.quiet = quiet
+        self.stream = stream if stream is not None else sys.stderr
+        self.interval = interval
+        self._bar: Any = None
+        self._total = 0
+        self._done = 0
+        self._fresh = 0
+        self._t0 = 0.0
+        self._last = 0.0
+
+    def start(self, total: int, done: int, description: str) -> None:
+        self._total, self._done, self._fresh = total, done, 0
+        self._t0 = self._last = time.perf_counter()
+        if self.quiet:
+            return
+        resumed = f", resuming with {done} done" if done else ""
+        print(f"sweep {self.name!r}: {total} trials on {description}{resumed}",
+              file=self.stream, flush=True)
+        if self.stream.isatty():
+            from tqdm import tqdm
+
+            self._bar = tqdm(total=total, initial=done, unit="trial", file=self.stream,
+                             dynamic_ncols=True, smoothing=0.1)
+
+    def advance(self, n: int) -> None:
+        self._done += n
+        self._fresh += n
+        if self.quiet:
+            return
+        if self._bar is not None:
+            self._bar.update(n)
+            return
+        now = time.perf_counter()
+        if now - self._last >= self.interval or self._done >= self._total:
+            self._last = now
+            rate = self._fresh / max(now - self._t0, 1e-9)
+            eta = (self._total - self._done) / rate if rate > 0 else math.inf
+            print(f"  {self._done}/{self._total} trials ({100 * self._done / self._total:.0f}%)"
+                  f", {rate:.0f} trials/s, ETA {eta:.0f} s", file=self.stream, flush=True)
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None
+
+
+def summarize_trials(frame: pd.DataFrame, cells: Mapping[int, Mapping[str, Any]]
+                     ) -> pd.DataFrame:
+    """Per-cell statistics of a sweep's trials (definitions in the README).
+
+    Parameters
+    ----------
+    frame : one row per trial with columns cell, status, singular_hits and the metrics
+    cells : cell index -> {grid key: value as stored in the trials' column}
+    """
+    rows = []
+    for cell, values in cells.items():
+        group = frame[frame["cell"] == cell]
+        done = group[group["status"].isin(COMPLETED)]
+        simulated = group[group["status"] != "error"]
+        row: dict[str, Any] = {"cell": cell, **values, "trials": len(group)}
+        for status in STATUSES:
+            row[status] = int((group["status"] == status).sum())
+        for metric in ERROR_METRICS:
+            values_ = done[metric].to_numpy(dtype=float)
+            row[f"{metric}_median"] = _stat(np.median, values_)
+            row[f"{metric}_p95"] = _stat(lambda v: np.percentile(v, 95), values_)
+            row[f"{metric}_max"] = _stat(np.max, values_)
+        hits = simulated["singular_hits"].to_numpy()
+        row["singular_fraction"] = float(np.mean(hits > 0)) if len(hits) else math.nan
+        row["min_margin_median"] = _stat(np.median, simulated["min_margin"].to_numpy(float))
+        drift = done["momentum_drift"].to_numpy(dtype=float)
+        row["momentum_drift_median"] = _stat(np.median, drift)
+        row["momentum_drift_max"] = _stat(np.max, drift)
+        row["plan_momentum_residual_max"] = _stat(
+            np.max, simulated["plan_momentum_residual"].to_numpy(float))
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def _stat(fn: Any, values: Array) -> float:
+    return float(fn(values)) if len(values) else math.nan
+
+
+def short_key(key: str) -> str:
+    """A grid key as a column heading: perturbation keys without their 'sweep.perturb.'."""
+    return key.removeprefix("sweep.perturb.")
+
+
+def summary_markdown(summary: pd.DataFrame, grid_keys: Sequence[str]) -> str:
+    """The sweep's summary as Markdown tables, each readable on an 80-column terminal."""
+    def rows(cols: Sequence[str]) -> list[list[object]]:
+        return [[int(r["cell"]), *(r[c] for c in cols)] for _, r in summary.iterrows()]
+
+    parts = []
+    if grid_keys:
+        parts += ["### Cells\n", table(["cell", *(short_key(k) for k in grid_keys)],
+                                       rows(list(grid_keys))), ""]
+    parts += [
+        "### Trials by status\n",
+        table(["cell", "trials", *STATUSES], rows(["trials", *STATUSES])),
+    ]
+    for name in ("theta", "y"):
+        cols = [f"err_{name}_{kind}_{stat}" for kind in ("rms", "final")
+                for stat in ("median", "p95", "max")]
+        parts += [
+            f"\n### Tracking error of {name} [rad] (trials that ran to the end)\n",
+            table(["cell", "rms med", "rms p95", "rms max", "final med", "final p95",
+                   "final max"], rows(cols), 3),
+        ]
+    parts += [
+        "\n### Singularity and momentum\n",
+        table(["cell", "hit frac", "min margin med", "drift med", "drift max", "plan res max"],
+              rows(["singular_fraction", "min_margin_median", "momentum_drift_median",
+                    "momentum_drift_max", "plan_momentum_residual_max"]), 3),
+        "\nhit frac: share of simulated trials with a sample of margin below "
+        "track.singular_threshold;\nmargin [rad/s]; drift and plan res(idual) of H "
+        "[kg m^2/s].",
+    ]
+    return "\n".join(parts)
+
+
+def plot_sweep(directory: Path) -> list[Path]:
+    """Figures of a finished sweep: error distributions, singular-hit rate, momentum drift."""
+    summary = pd.read_parquet(directory / "summary.parquet")
+    trials = pd.read_parquet(
+        directory / "trials.parquet",
+        columns=["cell", "status", "err_theta_rms", "err_y_rms", "err_y_final",
+                 "momentum_drift", "singular_hits"],
+    )
+    cells = summary["cell"].tolist()
+    done = trials[trials["status"].isin(COMPLETED)]
+    positions = np.arange(len(cells))
+    paths = []
+
+    fig = Figure(figsize=(max(8, 0.6 * len(cells) + 4), 8))
+    axes = fig.subplots(3, 1, sharex=True)
+    for ax, metric in zip(axes, ("err_theta_rms", "err_y_rms", "err_y_final"), strict=True):
+        data = [np.log10(np.maximum(done.loc[done["cell"] == c, metric].to_numpy(), 1e-16))
+                for c in cells]
+        ax.boxplot([d if len(d) else [np.nan] for d in data], positions=positions,
+                   widths=0.6, showfliers=True, flierprops={"markersize": 2})
+        ax.set_ylabel(f"log10 {metric} [rad]")
+        ax.grid(alpha=0.3)
+    axes[-1].set_xticks(positions, [str(c) for c in cells])
+    axes[-1].set_xlabel("cell (see summary.md for its grid values)")
+    fig.suptitle("Tracking error distribution per cell (trials that ran to the end)")
+    fig.tight_layout()
+    paths.append(directory / "sweep_errors.png")
+    _save(fig, paths[-1])
+
+    fig = Figure(figsize=(max(8, 0.6 * len(cells) + 4), 5))
+    ax = fig.subplots()
+    size_key = next((k for k in summary.columns if k.startswith("sweep.perturb.")
+                     and pd.api.types.is_numeric_dtype(summary[k])), None)
+    if size_key is not None:
+        others = [k for k in summary.columns
+                  if k not in (size_key, "cell") and k in _grid_columns(summary)]
+        groups = summary.groupby(others, sort=False) if others else [((), summary)]
+        for key, group in groups:
+            key_t = key if isinstance(key, tuple) else (key,)
+            label = ", ".join(f"{short_key(k)}={v}" for k, v in zip(others, key_t,
+                                                                    strict=True))
+            g = group.sort_values(size_key)
+            ax.plot(g[size_key], g["singular_fraction"], "o-", label=label or "all")
+        ax.set_xlabel(short_key(size_key))
+        ax.set_xscale("log")
+        ax.legend(fontsize=7)
+    else:
+        ax.bar(positions, summary["singular_fraction"].to_numpy(dtype=float))
+        ax.set_xticks(positions, [str(c) for c in cells])
+        ax.set_xlabel("cell (grid values: summary.md)")
+    ax.set_ylabel("fraction of trials with a singular hit")
+    ax.set_ylim(-0.02, 1.02)
+    ax.grid(alpha=0.3)
+    fig.suptitle("Singularity-hit rate vs perturbation size")
+    fig.tight_layout()
+    paths.append(directory / "sweep_singular.png")
+    _save(fig, paths[-1])
+
+    fig = Figure(figsize=(max(8, 0.6 * len(cells) + 4), 4.5))
+    ax = fig.subplots()
+    data = [np.log10(np.maximum(done.loc[done["cell"] == c, "momentum_drift"].to_numpy(),
+                                1e-18)) for c in cells]
+    ax.boxplot([d if len(d) else [np.nan] for d in data], positions=positions, widths=0.6,
+               flierprops={"markersize": 2})
+    ax.set_xticks(positions, [str(c) for c in cells])
+    ax.set_xlabel("cell")
+    ax.set_ylabel("log10 momentum drift [kg m^2/s]")
+    ax.grid(alpha=0.3)
+    fig.suptitle("Momentum drift of the integrated motion (full kinematics) per cell")
+    fig.tight_layout()
+    paths.append(directory / "sweep_momentum.png")
+    _save(fig, paths[-1])
+    return paths
+
+
+def _grid_columns(summary: pd.DataFrame) -> list[str]:
+    """The grid-key columns of a summary: those between 'cell' and 'trials'."""
+    cols = list(summary.columns)
+    return cols[cols.index("cell") + 1: cols.index("trials")]

@@ -499,29 +499,50 @@ def _perturb_numbers(where: str, value: Any, vector: bool) -> None:
             raise SpecError(f"{where}: expected finite numbers, got {value!r}")
 
 
-def grid_target(dotted: str) -> str:
-    """The kind of a grid key: 'spec' or 'perturb' (sweep.perturb.NAME.PARAM)."""
-    if dotted.startswith("sweep.perturb."):
-        return "perturb"
-    return "spec"
+def grid_overrides(key: str, value: Any) -> dict[str, Any]:
+    """The dotted spec keys one grid value sets: itself, or a group's table (minus its label)."""
+    if isinstance(value, dict):
+        return {k: v for k, v in value.items() if k != "label"}
+    return {key: value}
 
 
 def validate_grid_entry(tree: dict[str, Any], dotted: str, values: Any) -> None:
-    """Check one ``[sweep.grid]`` entry: a spec key and a non-empty list of valid values."""
+    """Check one ``[sweep.grid]`` entry and its non-empty list of values.
+
+    An entry is a spec key with a list of values, or a *group*: any other name with a list
+    of inline tables of spec keys, varied together (e.g. paired gains), each table
+    optionally carrying a ``label`` shown in tables and the trials' column.
+    """
     where = f"sweep.grid.{dotted!r}"
     if not isinstance(values, list) or not values:
         raise SpecError(f"{where}: expected a non-empty list of values, got {values!r}")
-    if grid_target(dotted) == "perturb":
+    if all(isinstance(v, dict) for v in values):
+        for table in values:
+            if "label" in table and not isinstance(table["label"], str):
+                raise SpecError(f"{where}: a group's label must be a string")
+            keys = [k for k in table if k != "label"]
+            if not keys:
+                raise SpecError(f"{where}: a group table needs at least one spec key")
+            for key in keys:
+                _validate_grid_value(tree, f"{where} group key {key!r}", key, table[key])
+        return
+    if any(isinstance(v, dict) for v in values):
+        raise SpecError(f"{where}: mixes tables and plain values")
+    for value in values:
+        _validate_grid_value(tree, where, dotted, value)
+
+
+def _validate_grid_value(tree: dict[str, Any], where: str, dotted: str, value: Any) -> None:
+    if dotted.startswith("sweep.perturb."):
         parts = dotted.split(".")
         if len(parts) != 4 or parts[2] not in tree["sweep"]["perturb"]:
             raise SpecError(
                 f"{where}: a perturbation grid key is sweep.perturb.NAME.PARAM with NAME one of "
                 f"the [sweep.perturb] entries {sorted(tree['sweep']['perturb'])}"
             )
-        for value in values:
-            table = dict(tree["sweep"]["perturb"][parts[2]])
-            table[parts[3]] = value
-            validate_perturbation(parts[2], table)
+        table = dict(tree["sweep"]["perturb"][parts[2]])
+        table[parts[3]] = value
+        validate_perturbation(parts[2], table)
         return
     if dotted.startswith("sweep.") or dotted == "name":
         raise SpecError(f"{where}: cannot grid over {dotted!r}")
@@ -529,5 +550,4 @@ def validate_grid_entry(tree: dict[str, Any], dotted: str, values: Any) -> None:
         _lookup(dotted)
     except SpecError:
         raise SpecError(f"{where}: not a spec key{_suggest(dotted, all_keys())}") from None
-    for value in values:
-        check_value(dotted, value)
+    check_value(dotted, value)
