@@ -55,6 +55,7 @@ class Cli(click.Group):
 
     def main(self, *args: Any, **kwargs: Any) -> Any:
         kwargs["standalone_mode"] = False
+        kwargs.setdefault("prog_name", "flatcli")
         try:
             return super().main(*args, **kwargs)
         except click.exceptions.Exit as exc:
@@ -328,3 +329,7 @@ def reproduce(out: Path, montecarlo: Path, no_montecarlo: bool, workers: int | N
         path = run(out, None if no_montecarlo else montecarlo, quiet, workers, sets)
     if not quiet:
         click.echo(path.read_text())
+
+
+if __name__ == "__main__":
+    main()

@@ -168,7 +168,7 @@ def make_executor(kind: str, workers: int | None, scheduler: str | None) -> Exec
     if kind == "local":
         if scheduler is not None:
             raise FlatcliError("--scheduler: only used with --executor dask")
-        return LocalExecutor(workers or default_workers())
+        return LocalExecutor(workers if workers is not None else default_workers())
     if kind == "dask":
         return DaskExecutor(scheduler or "local", workers)
     raise FlatcliError(f"--executor: expected one of {list(EXECUTORS)}, got {kind!r}")

@@ -290,7 +290,9 @@ def defaults() -> dict[str, Any]:
     out: dict[str, Any] = {}
     for section, keys in SCHEMA.items():
         for name, key in keys.items():
-            set_dotted(out, f"{section}.{name}" if section else name, copy.deepcopy(key.default))
+            dotted = f"{section}.{name}" if section else name
+            value = copy.deepcopy(key.default)
+            set_dotted(out, dotted, value if value is None else check_value(dotted, value))
     return out
 
 
@@ -407,7 +409,8 @@ def load_spec(path: Path | None, sets: Iterable[str] = (), sweep: bool = False) 
     ----------
     path : a TOML spec file, or None for the embedded paper example
     sets : ``KEY=VALUE`` strings, applied in order
-    sweep : whether a ``[sweep]`` table is expected (``flatcli sweep``)
+    sweep : whether the spec is run as a sweep (``flatcli sweep``); other commands validate
+        a ``[sweep]`` table but do not use it
     """
     user = read_toml(path) if path is not None else {}
     return resolve(user, parse_set(sets), sweep=sweep)
@@ -424,8 +427,6 @@ def resolve(
         if dotted in SCHEMA:  # a whole section given as a scalar
             raise SpecError(f"{dotted}: expected a table")
         set_dotted(tree, dotted, check_value(dotted, value))
-    if not sweep and ("sweep" in user or any(k.startswith("sweep.") for k in flat)):
-        raise SpecError("[sweep]: this command does not run sweeps; use 'flatcli sweep'")
     return _finish(tree, sweep)
 
 

@@ -1,0 +1,5 @@
+"""``python -m flatcli`` is the ``flatcli`` command."""
+
+from flatcli.cli import main
+
+main()

@@ -1,0 +1,153 @@
+"""The command line end to end (click's CliRunner): outputs, summaries, and bad input."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from click.testing import CliRunner
+
+from flatcli.cli import main
+
+#: Physics note, "The paper's example, recomputed": y2'(0) and y2'(2) with the correct b1.
+Y2_DOT_START = -0.066880
+Y2_DOT_GOAL = -0.343458
+PLAN_COLUMNS = ["t", "theta0", "theta1", "theta2", "theta0_dot", "theta1_dot", "theta2_dot",
+                "u1_dot", "y1", "y2", "y1_dot", "y2_dot", "y1_ddot", "y2_ddot", "margin",
+                "momentum"]
+TRACK_COLUMNS = ["t", "theta0", "theta1", "theta2", "theta0_ref", "theta1_ref", "theta2_ref",
+                 "u1", "u2", "y1", "y2", "y1_ref", "y2_ref", "margin", "momentum"]
+METRICS = ["err_theta_rms", "err_theta_max", "err_theta_final", "err_y_rms", "err_y_max",
+           "err_y_final", "singular_hits", "first_hit_time", "min_margin", "momentum_drift",
+           "plan_momentum_residual", "status", "reason"]
+
+
+def run(*args: str) -> tuple[int, str]:
+    result = CliRunner().invoke(main, list(args))
+    return result.exit_code, result.output
+
+
+def test_plan_writes_the_papers_plan(tmp_path: Path) -> None:
+    code, out = run("plan", "--out", str(tmp_path / "p"), "--plot")
+    assert code == 0, out
+    frame = pd.read_parquet(tmp_path / "p" / "plan.parquet")
+    assert set(PLAN_COLUMNS) <= set(frame.columns)
+    assert len(frame) == 201
+    assert frame["y2_dot"].iloc[0] == pytest.approx(Y2_DOT_START, abs=1e-6)
+    assert frame["y2_dot"].iloc[-1] == pytest.approx(Y2_DOT_GOAL, abs=1e-6)
+    assert frame["momentum"].abs().max() < 1e-12
+    assert (tmp_path / "p" / "plan.png").stat().st_size > 10_000
+    record = json.loads((tmp_path / "p" / "run.json").read_text())
+    assert record["command"] == "plan"
+    assert record["spec"]["plan"]["start"] == [1.8, 1.0, 0.0]
+    assert {"flatcli", "numpy", "scipy"} <= set(record["versions"])
+    assert "commit" in record["git"] and record["time"]
+    assert "max abs(H) along the plan" in out and "wrote" in out
+
+
+def test_plan_with_the_papers_coefficients(tmp_path: Path) -> None:
+    code, out = run("plan", "--out", str(tmp_path / "p"), "--set", "robot.model=paper", "-q")
+    assert code == 0 and out == ""
+    frame = pd.read_parquet(tmp_path / "p" / "plan.parquet")
+    # the paper's printed boundary values (Sec. VI) and the note's 1.39e-3 momentum residual
+    assert round(frame["y2_dot"].iloc[0], 3) == -0.065
+    assert round(frame["y2_dot"].iloc[-1], 4) == -0.3512
+    assert frame["momentum"].abs().max() == pytest.approx(1.39e-3, rel=0.01)
+
+
+def test_track_writes_trace_metrics_and_figure(tmp_path: Path) -> None:
+    out_dir = tmp_path / "t"
+    code, out = run("track", "--out", str(out_dir), "--plot")
+    assert code == 0, out
+    frame = pd.read_parquet(out_dir / "track.parquet")
+    assert set(TRACK_COLUMNS) <= set(frame.columns)
+    assert len(frame) == 2001
+    metrics = json.loads((out_dir / "metrics.json").read_text())
+    assert list(metrics) == sorted(METRICS)
+    assert metrics["status"] == "ok"
+    # physics note: with the gains as printed, y - y_ref at t = 2 is (-0.164, 0.105)
+    end = frame.iloc[-1]
+    assert end["y1"] - end["y1_ref"] == pytest.approx(-0.164, abs=5e-4)
+    assert end["y2"] - end["y2_ref"] == pytest.approx(0.105, abs=5e-4)
+    assert metrics["err_y_final"] == pytest.approx(np.hypot(-0.1639, 0.1054), abs=1e-3)
+    assert (out_dir / "track.png").exists()
+    assert "status ok" in out
+
+
+def test_track_spec_file_and_sets_apply_in_order(tmp_path: Path) -> None:
+    spec = tmp_path / "s.toml"
+    spec.write_text('name = "mine"\n[track]\nkp = [1, 1]\n')
+    code, out = run("track", str(spec), "--set", "track.kp=[100,110]",
+                    "--set", "track.kv=[10,13]", "-q", "--out", str(tmp_path / "o"))
+    assert code == 0, out
+    record = json.loads((tmp_path / "o" / "run.json").read_text())
+    assert record["spec"]["name"] == "mine"
+    assert record["spec"]["track"]["kp"] == [100.0, 110.0]
+    metrics = json.loads((tmp_path / "o" / "metrics.json").read_text())
+    assert metrics["err_y_final"] < 1e-4  # swapped gains: ~1e-5 (physics note)
+
+
+def test_default_output_directory_is_runs_name(tmp_path: Path,
+                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    code, _ = run("plan", "-q", "--set", "name=demo")
+    assert code == 0
+    assert (tmp_path / "runs" / "demo" / "plan.parquet").exists()
+
+
+def test_design_reports_flatness(tmp_path: Path) -> None:
+    code, out = run("design")
+    assert code == 0 and "flat: yes" in out and "-0.03" in out
+    code, out = run("design", "--set", "robot.com=[0.1,0.1,0.002]")
+    assert code == 1 and "flat: no" in out and "com[2] = d2 = 0.002 m" in out
+    code, out = run("design", "--set", "robot.com=[0.2,0.1,0]")
+    assert code == 1 and "l0 - d0 = 0" in out
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["plan", "--set", "plan.duraton=3"], "unknown key 'plan.duraton' (did you mean "
+                                              "'plan.duration'?)"),
+        (["plan", "--set", "track.kp=[1,2,3]"], "track.kp: expected a list of 2 numbers"),
+        (["track", "--set", "robot.mass=[1,-1,1]"], "robot.mass[1]: must be > 0 kg"),
+        (["plan", "--set", "robot.com=[0.1,0.1,0.003]"], "robot is not differentially flat: "
+                                                         "com[2] = d2 = 0.003 m"),
+        (["plan", "--set", "plan.start_rate=0"], "plan.start_rate: must be != 0"),
+        (["plan", "--set", "plan.start=[1.8,0,0]"], "plan.start[1] = 0 rad lies on the "
+                                                    "singular set"),
+        (["track", "--set", "track.dt=0.0007"], "track.dt: must divide plan.duration"),
+        (["plan", "MISSING.toml"], "spec file not found: MISSING.toml"),
+        (["track", "--set", "track.integrator=euler"], "track.integrator: expected one of"),
+        (["plan", "--bogus"], "No such option '--bogus'"),
+        (["sweep"], "Missing argument 'SPEC'"),
+        (["sweep", "MISSING.toml"], "spec file not found"),
+        (["summarize", "nowhere"], "nowhere/summary.md not found"),
+    ],
+)
+def test_bad_input_is_one_line_exit_2_and_writes_nothing(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, args: list[str], message: str
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    code, out = run(*args)
+    assert code == 2, out
+    assert out.startswith("error: ") and out.count("\n") == 1, out
+    assert message in out
+    assert "Traceback" not in out
+    assert not (tmp_path / "runs").exists()
+
+
+def test_unparsable_spec_file(tmp_path: Path) -> None:
+    spec = tmp_path / "bad.toml"
+    spec.write_text("[plan\n")
+    code, out = run("plan", str(spec), "--out", str(tmp_path / "o"))
+    assert code == 2 and "is not valid TOML" in out and out.count("\n") == 1
+    assert not (tmp_path / "o").exists()
+
+
+def test_version() -> None:
+    code, out = run("--version")
+    assert code == 0 and out.startswith("flatcli, version")

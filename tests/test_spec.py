@@ -1,0 +1,156 @@
+"""Specs: defaults are the paper's example, overrides, and one-line errors for bad input."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+
+from flatcli.spec import (
+    SCHEMA,
+    SpecError,
+    all_keys,
+    defaults,
+    get_dotted,
+    load_spec,
+    parse_set,
+    resolve,
+)
+
+README = Path(__file__).resolve().parents[1] / "README.md"
+
+
+def test_defaults_are_the_papers_example() -> None:
+    # Franch et al. (2003), Sec. VI: robot, maneuver and Fig. 4's initial state and gains.
+    spec = resolve({})
+    assert spec.get("robot.mass") == (1.0, 1.0, 1.0)
+    assert spec.get("robot.inertia") == (0.0533, 0.0533, 0.0533)
+    assert spec.get("robot.length") == (0.2, 0.2, 0.2)
+    assert spec.get("robot.com") == (0.1, 0.1, 0.0)
+    assert spec.get("plan.start") == (1.8, 1.0, 0.0)
+    assert spec.get("plan.goal") == (1.2, 2.0, 0.0)
+    assert (spec.get("plan.start_rate"), spec.get("plan.goal_rate")) == (0.1, 0.5)
+    assert spec.get("track.initial") == (1.96, 0.8, -0.1)
+    assert spec.get("track.kv") == (100.0, 110.0)
+    assert spec.get("track.kp") == (10.0, 13.0)
+
+
+def test_configs_paper_toml_equals_the_embedded_default() -> None:
+    path = Path(__file__).resolve().parents[1] / "configs" / "paper.toml"
+    assert load_spec(path).digest() == resolve({}).digest()
+
+
+def test_set_overrides_with_toml_values_and_bare_words(tmp_path: Path) -> None:
+    path = tmp_path / "s.toml"
+    path.write_text('name = "x"\n[track]\nkp = [1, 2]\n')
+    spec = load_spec(path, ["track.kp=[25,25]", "plan.duration=3", "robot.model=paper"])
+    assert spec.get("track.kp") == (25.0, 25.0)
+    assert spec.get("plan.duration") == 3.0
+    assert spec.get("robot.model") == "paper"
+    assert spec.name == "x"
+
+
+def test_inf_is_allowed_only_where_it_means_no_limit() -> None:
+    assert resolve({}, {"track.rate_limit": math.inf}).get("track.rate_limit") == math.inf
+    with pytest.raises(SpecError, match=r"track\.dt"):
+        resolve({}, {"track.dt": math.inf})
+
+
+def test_digest_changes_with_any_value_and_not_with_key_order() -> None:
+    a = resolve({"track": {"dt": 0.002, "kp": [1, 2]}})
+    b = resolve({"track": {"kp": [1, 2], "dt": 0.002}})
+    c = resolve({"track": {"kp": [1, 2], "dt": 0.001}})
+    assert a.digest() == b.digest() != c.digest()
+
+
+@pytest.mark.parametrize(
+    ("user", "sets", "message"),
+    [
+        ({"track": {"kpp": 1}}, [], "unknown key 'track.kpp' (did you mean 'track.kp'?)"),
+        ({"robott": {"mass": 1}}, [], "unknown key 'robott' (did you mean 'robot'?)"),
+        ({"track": {"kp": [1, 2, 3]}}, [], "track.kp: expected a list of 2 numbers"),
+        ({"track": {"kp": "fast"}}, [], "track.kp: expected a list of 2 numbers"),
+        ({"robot": {"mass": [1, 0, 1]}}, [], "robot.mass[1]: must be > 0 kg, got 0"),
+        ({"robot": {"inertia": [1, -1, 1]}}, [], "robot.inertia[1]: must be > 0"),
+        ({"robot": {"model": "papr"}}, [], "did you mean 'paper'"),
+        ({"plan": {"duration": -1}}, [], "plan.duration: must be > 0 s"),
+        ({"plan": {"samples": 1.5}}, [], "plan.samples: expected an integer"),
+        ({"track": {"dt": True}}, [], "track.dt: expected a number"),
+        ({"robot": 3}, [], "robot: expected a table"),
+        ({}, ["track.kp"], "--set: expected KEY=VALUE"),
+        ({}, ["track.kp=[1,"], "--set track.kp: cannot read"),
+        ({"name": "../evil"}, [], "name: must not contain '/'"),
+    ],
+)
+def test_bad_input_is_one_line_naming_the_key(
+    user: dict[str, object], sets: list[str], message: str
+) -> None:
+    with pytest.raises(SpecError) as info:
+        resolve(user, parse_set(sets))
+    text = str(info.value)
+    assert message in text
+    assert "\n" not in text
+
+
+@pytest.mark.parametrize(
+    ("sweep", "message"),
+    [
+        ({"perturb": {"masss": {"dist": "normal", "std": 0.1}}},
+         "sweep.perturb.masss: unknown perturbation"),
+        ({"perturb": {"mass": {"dist": "gauss", "std": 0.1}}},
+         "sweep.perturb.mass.dist: expected one of ['normal', 'uniform']"),
+        ({"perturb": {"mass": {"dist": "normal"}}}, "sweep.perturb.mass.std: required"),
+        ({"perturb": {"mass": {"dist": "normal", "std": -1}}}, "std: must be >= 0"),
+        ({"perturb": {"mass": {"dist": "uniform", "low": 1, "high": 0}}}, "low must be <= high"),
+        ({"perturb": {"mass": {"dist": "normal", "std": 0.1, "sigma": 1}}},
+         "sweep.perturb.mass.sigma: not a parameter"),
+        ({"perturb": {"initial": {"dist": "normal", "std": 0.1, "relative": True}}},
+         "only mass, inertia, length and com can be relative"),
+        ({"perturb": {"momentum": {"dist": "normal", "std": [1, 2, 3]}}},
+         "sweep.perturb.momentum.std: expected a number"),
+        ({"grid": {"track.kp": []}}, "expected a non-empty list"),
+        ({"grid": {"track.kpp": [[1, 2]]}}, "not a spec key (did you mean 'track.kp'?)"),
+        ({"grid": {"track.kp": [[1, 2, 3]]}}, "track.kp: expected a list of 2 numbers"),
+        ({"grid": {"sweep.trials": [1, 2]}}, "cannot grid over 'sweep.trials'"),
+        ({"grid": {"sweep.perturb.mass.std": [0.1]}}, "a perturbation grid key"),
+        ({"grid": {"gains": [{"track.kpx": [1, 2]}]}}, "not a spec key"),
+        ({"trials": -5}, "sweep.trials: must be >= 1, got -5"),
+        ({"trials": 0}, "sweep.trials: must be >= 1"),
+        ({"chunk": 0}, "sweep.chunk: must be >= 1"),
+    ],
+)
+def test_bad_sweep_tables_are_one_line(sweep: dict[str, object], message: str) -> None:
+    with pytest.raises(SpecError) as info:
+        resolve({"sweep": sweep}, sweep=True)
+    assert message in str(info.value)
+    assert "\n" not in str(info.value)
+
+
+def test_grid_groups_vary_keys_together() -> None:
+    spec = resolve({"sweep": {"grid": {"gains": [
+        {"label": "printed", "track.kp": [10, 13], "track.kv": [100, 110]},
+        {"label": "swapped", "track.kp": [100, 110], "track.kv": [10, 13]},
+    ]}}}, sweep=True)
+    assert len(spec.get("sweep.grid")["gains"]) == 2
+
+
+def test_missing_and_unparsable_files(tmp_path: Path) -> None:
+    with pytest.raises(SpecError, match="spec file not found"):
+        load_spec(tmp_path / "nope.toml")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[track\nkp = 1")
+    with pytest.raises(SpecError, match="not valid TOML"):
+        load_spec(bad)
+    with pytest.raises(SpecError, match="is a directory"):
+        load_spec(tmp_path)
+
+
+def test_every_key_has_a_default_and_is_in_the_readme() -> None:
+    tree = defaults()
+    readme = README.read_text()
+    for key in all_keys():
+        get_dotted(tree, key)  # raises KeyError if the embedded default lacks the key
+        name = key.rpartition(".")[2]
+        assert f"`{name}`" in readme, f"README does not document spec key {key}"
+    assert set(SCHEMA) >= {"robot", "plan", "track", "plant", "sweep"}

@@ -1,0 +1,272 @@
+"""Sweeps: reproducible across workers and chunkings, resumable after kill -9, failures kept."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from click.testing import CliRunner
+
+from flatcli.cli import main
+from flatcli.spec import resolve
+from flatcli.sweep import PERTURB_SLOTS, draw_perturbations, layout, nominal_values
+
+#: A small but real study: two cells, perturbations of the initial state and the plant.
+SPEC = """
+name = "small"
+[plan]
+duration = 1.0
+start = [1.8, 1.0, 0.0]
+goal = [1.5, 1.5, 0.0]
+[track]
+initial = [1.8, 1.0, 0.0]
+dt = 0.002
+kp = [100, 110]
+kv = [20, 21]
+[sweep]
+trials = 60
+seed = 11
+chunk = 25
+[sweep.perturb]
+initial = { dist = "normal", std = 0.02 }
+initial_rate = { dist = "uniform", low = -0.01, high = 0.01 }
+mass = { dist = "uniform", low = -0.05, high = 0.05, relative = true }
+com = { dist = "uniform", low = [0, 0, 0], high = [0, 0, 0.002] }
+[sweep.grid]
+"track.sensor_noise" = [0.0, 0.001]
+"""
+
+
+def write_spec(tmp_path: Path, text: str = SPEC, name: str = "spec.toml") -> Path:
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def sweep(*args: str) -> tuple[int, str]:
+    result = CliRunner().invoke(main, ["sweep", *args])
+    return result.exit_code, result.output
+
+
+def trials(directory: Path) -> pd.DataFrame:
+    return pd.read_parquet(directory / "trials.parquet")
+
+
+def test_results_identical_across_workers_and_chunk_sizes(tmp_path: Path) -> None:
+    spec = write_spec(tmp_path)
+    runs = {
+        "w1": ["--workers", "1"],
+        "w2": ["--workers", "2"],
+        "w2c7": ["--workers", "2", "--set", "sweep.chunk=7"],
+        "w1c60": ["--workers", "1", "--set", "sweep.chunk=60"],
+    }
+    frames = {}
+    for name, extra in runs.items():
+        code, out = sweep(str(spec), "--out", str(tmp_path / name), "-q", *extra)
+        assert code == 0, out
+        frames[name] = trials(tmp_path / name)
+    reference = frames["w1"]
+    assert len(reference) == 120
+    assert reference["trial"].tolist() == list(range(120))
+    assert (reference["status"] == "ok").mean() > 0.9
+    for name, frame in frames.items():
+        pd.testing.assert_frame_equal(frame, reference, check_exact=True, obj=name)
+
+
+def test_a_killed_sweep_resumes_to_the_uninterrupted_result(tmp_path: Path) -> None:
+    text = SPEC.replace("trials = 60", "trials = 1500").replace("chunk = 25", "chunk = 30")
+    spec = write_spec(tmp_path, text)
+    whole = tmp_path / "whole"
+    assert sweep(str(spec), "--out", str(whole), "-q", "--workers", "2")[0] == 0
+
+    cut = tmp_path / "cut"
+    command = [sys.executable, "-m", "flatcli.cli", "sweep", str(spec), "--out", str(cut),
+               "-q", "--workers", "2"]
+    process = subprocess.Popen(command, start_new_session=True)
+    deadline = time.monotonic() + 120
+    chunks = cut / "trials"
+    while time.monotonic() < deadline:
+        if chunks.exists() and len(list(chunks.glob("chunk-*.parquet"))) >= 4:
+            break
+        if process.poll() is not None:
+            pytest.fail("the sweep finished before it could be killed; make it longer")
+        time.sleep(0.01)
+    os.killpg(process.pid, signal.SIGKILL)
+    process.wait()
+    done_before = len(list(chunks.glob("chunk-*.parquet")))
+    assert not (cut / "trials.parquet").exists(), "killed too late to test a resume"
+    assert 0 < done_before < 100
+
+    code, out = sweep(str(spec), "--out", str(cut), "--workers", "2")
+    assert code == 0, out
+    assert f"resuming with {done_before * 30} done" in out
+    pd.testing.assert_frame_equal(trials(cut), trials(whole), check_exact=True)
+
+
+def test_a_failing_trial_is_recorded_and_the_others_finish(tmp_path: Path) -> None:
+    text = SPEC.replace(
+        'mass = { dist = "uniform", low = -0.05, high = 0.05, relative = true }',
+        'mass = { dist = "uniform", low = -1.6, high = 0.0, relative = true }',
+    )
+    spec = write_spec(tmp_path, text)
+    code, out = sweep(str(spec), "--out", str(tmp_path / "d"), "-q")
+    assert code == 0, out
+    frame = trials(tmp_path / "d")
+    failed = frame[frame["status"] == "error"]
+    # mass * (1 + U(-1.6, 0)) <= 0 exactly when some link draws below -1: P = 1 - (0.6/1.6)^3
+    assert 0 < len(failed) < len(frame)
+    pattern = r"perturbed plant.mass\[\d\] = -?[\d.e-]+ is not > 0"
+    assert failed["reason"].str.contains(pattern).all()
+    assert failed["err_y_rms"].isna().all()
+    others = frame[frame["status"] != "error"]
+    assert np.isfinite(others["err_y_rms"]).all()
+    bad_mass = (frame[["mass_0", "mass_1", "mass_2"]] <= 0).any(axis=1)
+    assert (bad_mass == (frame["status"] == "error")).all()
+
+
+def test_fail_fast_stops_with_status_1_and_keeps_finished_chunks(tmp_path: Path) -> None:
+    text = SPEC.replace(
+        'mass = { dist = "uniform", low = -0.05, high = 0.05, relative = true }',
+        'mass = { dist = "uniform", low = -1.6, high = 0.0, relative = true }',
+    )
+    spec = write_spec(tmp_path, text)
+    code, out = sweep(str(spec), "--out", str(tmp_path / "d"), "-q", "--fail-fast",
+                      "--workers", "1")
+    assert code == 1
+    assert "--fail-fast: trial" in out and "error: perturbed plant.mass" in out
+    assert not (tmp_path / "d" / "trials.parquet").exists()
+    assert list((tmp_path / "d" / "trials").glob("chunk-*.parquet"))
+
+
+def test_a_changed_spec_in_an_existing_directory_is_refused(tmp_path: Path) -> None:
+    spec = write_spec(tmp_path)
+    out_dir = tmp_path / "d"
+    assert sweep(str(spec), "--out", str(out_dir), "-q")[0] == 0
+    before = (out_dir / "trials.parquet").read_bytes()
+    code, out = sweep(str(spec), "--out", str(out_dir), "-q", "--set", "sweep.seed=12")
+    assert code == 2
+    assert out.startswith("error: ") and out.count("\n") == 1
+    assert "holds a sweep of a different spec" in out and "--force" in out
+    assert (out_dir / "trials.parquet").read_bytes() == before
+    code, out = sweep(str(spec), "--out", str(out_dir), "-q", "--set", "sweep.seed=12",
+                      "--force")
+    assert code == 0, out
+    assert (out_dir / "trials.parquet").read_bytes() != before
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (("initial = {", "initiall = {"), "sweep.perturb.initiall: unknown perturbation"),
+        (('initial = { dist = "normal"', 'initial = { dist = "gaussian"'),
+         "sweep.perturb.initial.dist: expected one of"),
+        (('"track.sensor_noise" = [0.0, 0.001]', '"track.sensor_noise" = []'),
+         "expected a non-empty list"),
+        (("trials = 60", "trials = -3"), "sweep.trials: must be >= 1, got -3"),
+        (('"track.sensor_noise" = [0.0, 0.001]', '"track.sensor_nois" = [0.0]'),
+         "not a spec key (did you mean 'track.sensor_noise'?)"),
+        (('"track.sensor_noise" = [0.0, 0.001]', '"plan.start_rate" = [0.1, 0.0]'),
+         "plan.start_rate: must be != 0"),
+    ],
+)
+def test_bad_sweep_specs_exit_2_with_one_line_and_write_nothing(
+    tmp_path: Path, edit: tuple[str, str], message: str
+) -> None:
+    assert edit[0] in SPEC
+    spec = write_spec(tmp_path, SPEC.replace(*edit))
+    code, out = sweep(str(spec), "--out", str(tmp_path / "d"), "-q")
+    assert code == 2
+    assert out.startswith("error: ") and out.count("\n") == 1, out
+    assert message in out
+    assert not (tmp_path / "d").exists()
+
+
+def test_summary_matches_pandas_on_trials_parquet(tmp_path: Path) -> None:
+    text = SPEC.replace('"track.sensor_noise" = [0.0, 0.001]',
+                        '"track.sensor_noise" = [0.0, 0.001]\n"track.kp" = [[100, 110], [30, 30]]')
+    spec = write_spec(tmp_path, text)
+    assert sweep(str(spec), "--out", str(tmp_path / "d"), "-q")[0] == 0
+    frame = trials(tmp_path / "d")
+    summary = pd.read_parquet(tmp_path / "d" / "summary.parquet")
+    assert len(summary) == 4
+    # independent computation with pandas: the README's definitions
+    for cell, group in frame.groupby("cell"):
+        row = summary[summary["cell"] == cell].iloc[0]
+        assert row["trials"] == len(group)
+        for status in ("ok", "singular", "diverged", "error"):
+            assert row[status] == (group["status"] == status).sum()
+        done = group[group["status"].isin(["ok", "singular"])]
+        for metric in ("err_theta_rms", "err_theta_final", "err_y_rms", "err_y_final"):
+            assert row[f"{metric}_median"] == pytest.approx(done[metric].median(), rel=1e-12)
+            assert row[f"{metric}_p95"] == pytest.approx(done[metric].quantile(0.95), rel=1e-12)
+            assert row[f"{metric}_max"] == done[metric].max()
+        simulated = group[group["status"] != "error"]
+        assert row["singular_fraction"] == pytest.approx((simulated["singular_hits"] > 0).mean())
+        assert row["min_margin_median"] == pytest.approx(simulated["min_margin"].median())
+        assert row["momentum_drift_median"] == pytest.approx(done["momentum_drift"].median())
+        assert row["momentum_drift_max"] == done["momentum_drift"].max()
+    assert summary["ok"].min() > 0  # every cell has statistics to check
+    assert (tmp_path / "d" / "summary.md").read_text().count("| cell |") >= 4
+
+
+def test_rerun_reproduces_a_trial_exactly(tmp_path: Path) -> None:
+    spec = write_spec(tmp_path)
+    out_dir = tmp_path / "d"
+    assert sweep(str(spec), "--out", str(out_dir), "-q")[0] == 0
+    code, out = sweep(str(spec), "--out", str(out_dir), "--rerun", "97")
+    assert code == 0, out
+    assert "NO" not in out and "identical" in out
+    rerun = pd.read_parquet(out_dir / "rerun-97" / "track.parquet")
+    assert len(rerun) == 501
+    code, text = sweep(str(spec), "--out", str(out_dir), "--rerun", "97", "--print-spec")
+    assert code == 0
+    assert "trial = 97" in text and "sensor_noise = 0.001" in text
+
+
+def test_progress_lines_when_not_a_terminal(tmp_path: Path) -> None:
+    spec = write_spec(tmp_path)
+    code, out = sweep(str(spec), "--out", str(tmp_path / "d"), "--workers", "1")
+    assert code == 0
+    assert "120/120 trials (100%)" in out and "trials/s" in out
+
+
+def test_perturbation_draws_are_independent_of_each_other_and_well_distributed() -> None:
+    base = {"initial": {"dist": "normal", "std": 0.1},
+            "mass": {"dist": "uniform", "low": -0.2, "high": 0.1, "relative": True}}
+    spec = resolve({"sweep": {"perturb": base}}, sweep=True)
+    nominal = nominal_values(spec)
+    ids = list(range(4000))
+    both = draw_perturbations(base, nominal, 5, ids)
+    alone = draw_perturbations({"mass": base["mass"]}, nominal, 5, ids)
+    np.testing.assert_array_equal(both["mass"], alone["mass"])
+    # relative uniform: m (1 + U(-0.2, 0.1)) with m = 1
+    assert both["mass"].min() >= 0.8 and both["mass"].max() <= 1.1
+    assert abs(both["mass"].mean() - 0.95) < 0.01  # mean of U(0.8, 1.1); 3 sigma ~ 0.008
+    # normal: initial + N(0, 0.1^2) per component
+    deviation = both["initial"] - nominal["initial"]
+    assert np.allclose(deviation.std(axis=0), 0.1, rtol=0.05)
+    assert np.allclose(deviation.mean(axis=0), 0.0, atol=0.006)
+    # the draw of a trial depends on its id only
+    again = draw_perturbations(base, nominal, 5, [17, 3])
+    np.testing.assert_array_equal(again["initial"], both["initial"][[17, 3]])
+    assert len(PERTURB_SLOTS) == 7
+
+
+def test_layout_is_the_cartesian_product_in_written_order() -> None:
+    spec = resolve({"sweep": {"trials": 3, "chunk": 2, "grid": {
+        "track.dt": [0.001, 0.002], "gains": [{"label": "a", "track.kp": [1, 2]},
+                                              {"label": "b", "track.kp": [3, 4]}]}}},
+                   sweep=True)
+    lay = layout(spec)
+    assert [c.values["track.dt"] for c in lay.cells] == [0.001, 0.001, 0.002, 0.002]
+    assert [c.spec.get("track.kp") for c in lay.cells] == [(1, 2), (3, 4)] * 2
+    chunks = list(lay.chunks())
+    assert [(c.cell, c.start, c.stop) for c in chunks[:3]] == [(0, 0, 2), (0, 2, 3), (1, 3, 5)]
+    assert lay.total == 12
