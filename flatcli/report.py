@@ -12,15 +12,17 @@ import sys
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 import numpy as np
 import pandas as pd
-from matplotlib.figure import Figure
 from numpy.typing import NDArray
 
 from flatcli.core.planning import FlatPlan, PlanSamples
 from flatcli.storage import atomic_path
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 Array = NDArray[np.float64]
 
@@ -135,14 +137,22 @@ def metrics_text(name: str, metrics: dict[str, float | int | str]) -> str:
     return head + "\n" + table(["metric", "value"], rows, 5)
 
 
-def _save(fig: Figure, path: Path) -> None:
+def new_figure(width: float, height: float) -> Figure:
+    """A matplotlib Figure (imported on first use: plotting is optional work)."""
+    from matplotlib.figure import Figure
+
+    return Figure(figsize=(width, height))
+
+
+def save_figure(fig: Figure, path: Path) -> None:
+    """Write a figure as PNG, atomically."""
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=120, format="png")
 
 
 def plot_plan(samples: PlanSamples, path: Path, title: str) -> None:
     """Flat outputs (Fig. 2), angles (Fig. 3), rates and margin of a plan, as one PNG."""
-    fig = Figure(figsize=(11, 7))
+    fig = new_figure(11, 7)
     ax = fig.subplots(2, 2, sharex=True)
     t = samples.t
     ax[0, 0].plot(t, samples.y[:, 0], label="y1 = th1")
@@ -162,12 +172,12 @@ def plot_plan(samples: PlanSamples, path: Path, title: str) -> None:
         a.set_xlabel("t [s]")
     fig.suptitle(title)
     fig.tight_layout()
-    _save(fig, path)
+    save_figure(fig, path)
 
 
 def plot_track(cols: dict[str, Array], path: Path, title: str) -> None:
     """Closed-loop run against its reference (the paper's Fig. 4), as one PNG."""
-    fig = Figure(figsize=(11, 7))
+    fig = new_figure(11, 7)
     ax = fig.subplots(2, 2, sharex=True)
     t = cols["t"]
     for name in ("y1", "y2"):
@@ -193,7 +203,7 @@ def plot_track(cols: dict[str, Array], path: Path, title: str) -> None:
         a.set_xlabel("t [s]")
     fig.suptitle(title)
     fig.tight_layout()
-    _save(fig, path)
+    save_figure(fig, path)
 
 
 # ---------------------------------------------------------------------------------------
@@ -346,7 +356,7 @@ def plot_sweep(directory: Path) -> list[Path]:
     positions = np.arange(len(cells))
     paths = []
 
-    fig = Figure(figsize=(max(8, 0.6 * len(cells) + 4), 8))
+    fig = new_figure(max(8, 0.6 * len(cells) + 4), 8)
     axes = fig.subplots(3, 1, sharex=True)
     for ax, metric in zip(axes, ("err_theta_rms", "err_y_rms", "err_y_final"), strict=True):
         data = [np.log10(np.maximum(done.loc[done["cell"] == c, metric].to_numpy(), 1e-16))
@@ -360,9 +370,9 @@ def plot_sweep(directory: Path) -> list[Path]:
     fig.suptitle("Tracking error distribution per cell (trials that ran to the end)")
     fig.tight_layout()
     paths.append(directory / "sweep_errors.png")
-    _save(fig, paths[-1])
+    save_figure(fig, paths[-1])
 
-    fig = Figure(figsize=(max(8, 0.6 * len(cells) + 4), 5))
+    fig = new_figure(max(8, 0.6 * len(cells) + 4), 5)
     ax = fig.subplots()
     size_key = next((k for k in summary.columns if k.startswith("sweep.perturb.")
                      and pd.api.types.is_numeric_dtype(summary[k])), None)
@@ -389,9 +399,9 @@ def plot_sweep(directory: Path) -> list[Path]:
     fig.suptitle("Singularity-hit rate vs perturbation size")
     fig.tight_layout()
     paths.append(directory / "sweep_singular.png")
-    _save(fig, paths[-1])
+    save_figure(fig, paths[-1])
 
-    fig = Figure(figsize=(max(8, 0.6 * len(cells) + 4), 4.5))
+    fig = new_figure(max(8, 0.6 * len(cells) + 4), 4.5)
     ax = fig.subplots()
     data = [np.log10(np.maximum(done.loc[done["cell"] == c, "momentum_drift"].to_numpy(),
                                 1e-18)) for c in cells]
@@ -404,7 +414,7 @@ def plot_sweep(directory: Path) -> list[Path]:
     fig.suptitle("Momentum drift of the integrated motion (full kinematics) per cell")
     fig.tight_layout()
     paths.append(directory / "sweep_momentum.png")
-    _save(fig, paths[-1])
+    save_figure(fig, paths[-1])
     return paths
 
 

@@ -15,14 +15,22 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-from matplotlib.figure import Figure
 
 from flatcli.core.model import constraint_coefficients
 from flatcli.core.planning import FlatPlan, PlanSamples
 from flatcli.experiment import TrackRun, plan_from, run_track
-from flatcli.report import Progress, fmt, plan_summary, plot_sweep, plot_track, table
+from flatcli.report import (
+    Progress,
+    fmt,
+    new_figure,
+    plan_summary,
+    plot_sweep,
+    plot_track,
+    save_figure,
+    table,
+)
 from flatcli.spec import Spec, load_spec, resolve
-from flatcli.storage import atomic_path, run_record, write_json, write_parquet, write_text
+from flatcli.storage import run_record, write_json, write_parquet, write_text
 
 #: The paper's printed values (Franch et al. 2003, Sec. VI).
 PAPER_Y2_DOT_START = -0.065
@@ -52,15 +60,10 @@ def _say(quiet: bool, text: str) -> None:
         print(text, flush=True)
 
 
-def _save(fig: Figure, path: Path) -> None:
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=120, format="png")
-
-
 def plan_figures(plans: dict[str, tuple[FlatPlan, PlanSamples]], out: Path) -> None:
     """Fig. 2 (flat outputs) and Fig. 3 (angles) for both coefficient sets."""
     styles = {"derived": "-", "paper": "--"}
-    fig = Figure(figsize=(8, 4.5))
+    fig = new_figure(8, 4.5)
     ax = fig.subplots()
     for model, (_, s) in plans.items():
         ax.plot(s.t, s.y[:, 0], styles[model], color="C0", label=f"y1d ({model})")
@@ -71,9 +74,9 @@ def plan_figures(plans: dict[str, tuple[FlatPlan, PlanSamples]], out: Path) -> N
     ax.legend()
     fig.suptitle("Fig. 2: planned flat outputs (cubic, th1'(0) = 0.1, th1'(2) = 0.5)")
     fig.tight_layout()
-    _save(fig, out / "fig2_flat_outputs.png")
+    save_figure(fig, out / "fig2_flat_outputs.png")
 
-    fig = Figure(figsize=(8, 4.5))
+    fig = new_figure(8, 4.5)
     ax = fig.subplots()
     for model, (_, s) in plans.items():
         for i in range(3):
@@ -85,7 +88,7 @@ def plan_figures(plans: dict[str, tuple[FlatPlan, PlanSamples]], out: Path) -> N
     ax.legend(ncol=2, fontsize=8)
     fig.suptitle("Fig. 3: planned angles (dashed: the paper's printed coefficients)")
     fig.tight_layout()
-    _save(fig, out / "fig3_angles.png")
+    save_figure(fig, out / "fig3_angles.png")
 
 
 def _errors_at(run: TrackRun, times: tuple[float, ...]) -> list[tuple[float, float, float]]:

@@ -20,7 +20,6 @@ from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.interpolate import BSpline
 
 from flatcli.core.flatness import flat_outputs, flat_state, singularity_margin
 from flatcli.core.model import (
@@ -119,6 +118,8 @@ class BSplineBasis:
         return np.unique(self.knots)
 
     def matrix(self, t: Array, order: int) -> Array:
+        from scipy.interpolate import BSpline  # imported when B-splines are used
+
         spline = BSpline(self.knots, np.eye(self.size), self.degree, extrapolate=False)
         if order:
             spline = spline.derivative(order)
