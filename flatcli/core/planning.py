@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from flatcli.core.flatness import flat_outputs, flat_state, singularity_margin
 from flatcli.core.model import (
@@ -129,16 +129,15 @@ class BSplineBasis:
 
 @dataclass(frozen=True)
 class FlatTrajectory:
-    """y(t) = coefficients @ phi(t): coefficients (2, size) in a basis."""
+    """y(t) = coefficients @ phi(t): coefficients (..., 2, size) in a basis."""
 
     basis: Basis
     coefficients: Array
 
     def derivative(self, t: Array, order: int) -> Array:
-        """(n, 2): d^order y / dt^order at times t (n,) [rad/s^order]."""
-        return self.basis.matrix(np.atleast_1d(np.asarray(t, dtype=float)), order) @ (
-            self.coefficients.T
-        )
+        """(..., n, 2): d^order y / dt^order at times t (n,) [rad/s^order]."""
+        phi = self.basis.matrix(np.atleast_1d(np.asarray(t, dtype=float)), order)
+        return phi @ np.swapaxes(self.coefficients, -1, -2)
 
 
 @dataclass(frozen=True)
@@ -153,37 +152,48 @@ class Boundary:
 
 def boundary_conditions(
     k: Coefficients,
-    start: Array,
-    goal: Array,
-    start_rate: float,
-    goal_rate: float,
+    start: ArrayLike,
+    goal: ArrayLike,
+    start_rate: ArrayLike,
+    goal_rate: ArrayLike,
 ) -> Boundary:
     """Flat boundary values for moving from configuration ``start`` to ``goal``.
 
     Parameters
     ----------
     k : Coefficients (d2 = 0)
-    start, goal : (3,) th0, th1, th2 [rad]
-    start_rate, goal_rate : th1' at the two ends [rad/s], the free choice of the paper
+    start, goal : (..., 3) th0, th1, th2 [rad]
+    start_rate, goal_rate : (...) th1' at the two ends [rad/s], the free choice of the paper
+
+    Returns
+    -------
+    Boundary with fields (..., 2)
 
     Raises
     ------
     FlatcliError if an end lies on the singular set (sin th1 = 0 or th1' = 0).
     """
+    start, goal = np.asarray(start, dtype=float), np.asarray(goal, dtype=float)
+    start_rate, goal_rate = np.asarray(start_rate, float), np.asarray(goal_rate, float)
     for key, theta, rate, rate_key in (
         ("plan.start", start, start_rate, "plan.start_rate"),
         ("plan.goal", goal, goal_rate, "plan.goal_rate"),
     ):
-        if rate == 0:
+        if np.any(rate == 0):
             raise FlatcliError(f"{rate_key}: must be != 0, the flat map is singular where th1' = 0")
-        if abs(math.sin(theta[1])) < 1e-9:
+        near = np.abs(np.sin(theta[..., 1])) < 1e-9
+        if np.any(near):
+            th1 = float(np.asarray(theta[..., 1])[near].flat[0])
             raise FlatcliError(
-                f"{key}[1] = {theta[1]:g} rad lies on the singular set sin th1 = 0; "
+                f"{key}[1] = {th1:g} rad lies on the singular set sin th1 = 0; "
                 "choose th1 away from multiples of pi"
             )
-    ys = np.array(flat_outputs(k, start[0], start[1], start[2], start_rate))
-    yg = np.array(flat_outputs(k, goal[0], goal[1], goal[2], goal_rate))
-    return Boundary(ys[:2], ys[2:], yg[:2], yg[2:])
+    ends = []
+    for theta, rate in ((start, start_rate), (goal, goal_rate)):
+        flag = flat_outputs(k, theta[..., 0], theta[..., 1], theta[..., 2], rate)
+        ends.append(np.stack(np.broadcast_arrays(*flag), axis=-1))
+    ys, yg = ends
+    return Boundary(ys[..., :2], ys[..., 2:], yg[..., :2], yg[..., 2:])
 
 
 def quadrature(basis: Basis, count: int) -> tuple[Array, Array]:
@@ -210,8 +220,10 @@ def boundary_matrix(basis: Basis) -> Array:
 
 
 def boundary_rhs(boundary: Boundary) -> Array:
-    """(4, 2): y(0), y'(0), y(T), y'(T) for both outputs, matching ``boundary_matrix``."""
-    return np.vstack([boundary.y_start, boundary.y_dot_start, boundary.y_goal, boundary.y_dot_goal])
+    """(..., 4, 2): y(0), y'(0), y(T), y'(T) of both outputs, matching ``boundary_matrix``."""
+    return np.stack(
+        [boundary.y_start, boundary.y_dot_start, boundary.y_goal, boundary.y_dot_goal], axis=-2
+    )
 
 
 def acceleration_gram(basis: Basis) -> Array:
@@ -221,26 +233,35 @@ def acceleration_gram(basis: Basis) -> Array:
     return (d2 * weights[:, None]).T @ d2
 
 
-def min_acceleration_trajectory(basis: Basis, boundary: Boundary) -> FlatTrajectory:
-    """The y(t) in the basis meeting the boundary conditions with least integral of |y''|^2.
+def min_acceleration_operator(basis: Basis) -> Array:
+    """(size, 4): coefficients = K @ (y(0), y'(0), y(T), y'(T)) of one output.
 
-    For a cubic the boundary conditions fix it; for a richer basis this is still the cubic
-    when the basis contains it (the cubic Hermite curve minimises that integral).
+    The least integral of |y''|^2 among the curves of the basis meeting the boundary
+    conditions: c = (I - N (N^T Q N)^-1 N^T Q) E^+ r, with E the boundary matrix, N a basis
+    of its null space and Q the acceleration Gram matrix.
     """
     E = boundary_matrix(basis)
     if basis.size < E.shape[0]:
         raise FlatcliError(f"plan basis: needs >= 4 coefficients, got {basis.size}")
-    rhs = boundary_rhs(boundary)
-    particular, *_ = np.linalg.lstsq(E, rhs, rcond=None)
-    if not np.allclose(E @ particular, rhs, rtol=1e-10, atol=1e-12):
+    K: Array = np.linalg.pinv(E).astype(float)
+    if not np.allclose(E @ K, np.eye(E.shape[0]), atol=1e-9):
         raise FlatcliError("plan basis: cannot meet the boundary conditions")
     null = null_space(E)
     if null.shape[1]:
         Q = acceleration_gram(basis)
-        reduced = null.T @ Q @ null
-        z = -np.linalg.solve(reduced, null.T @ Q @ particular)
-        particular = particular + null @ z
-    return FlatTrajectory(basis, np.ascontiguousarray(particular.T))
+        K = K - null @ np.linalg.solve(null.T @ Q @ null, null.T @ Q @ K)
+    return K
+
+
+def min_acceleration_trajectory(basis: Basis, boundary: Boundary) -> FlatTrajectory:
+    """The y(t) in the basis meeting the boundary conditions with least integral of |y''|^2.
+
+    For a cubic the boundary conditions fix it; for a richer basis this is still the cubic
+    when the basis contains it (the cubic Hermite curve minimises that integral). A batch of
+    boundary conditions (fields (..., 2)) gives a batch of curves.
+    """
+    coefficients = min_acceleration_operator(basis) @ boundary_rhs(boundary)  # (..., size, 2)
+    return FlatTrajectory(basis, np.ascontiguousarray(np.swapaxes(coefficients, -1, -2)))
 
 
 def null_space(E: Array) -> Array:
@@ -252,22 +273,22 @@ def null_space(E: Array) -> Array:
 
 @dataclass(frozen=True)
 class PlanSamples:
-    """A plan evaluated on a time grid; every array has the grid (n,) as leading axis."""
+    """A plan evaluated on a time grid of n points; a batch of plans adds leading axes (...)."""
 
     t: Array  # (n,) [s]
-    theta: Array  # (n, 3) [rad]
-    theta_dot: Array  # (n, 3) [rad/s], exact derivative of the inverse map
-    u1_dot: Array  # (n,) [rad/s^2]
-    y: Array  # (n, 2) [rad]
-    y_dot: Array  # (n, 2) [rad/s]
-    y_ddot: Array  # (n, 2) [rad/s^2]
-    margin: Array  # (n,) |sin y1 y1'| [rad/s]
-    momentum: Array  # (n,) H from the full kinematics of the planning robot [kg m^2/s]
+    theta: Array  # (..., n, 3) [rad]
+    theta_dot: Array  # (..., n, 3) [rad/s], exact derivative of the inverse map
+    u1_dot: Array  # (..., n) [rad/s^2]
+    y: Array  # (..., n, 2) [rad]
+    y_dot: Array  # (..., n, 2) [rad/s]
+    y_ddot: Array  # (..., n, 2) [rad/s^2]
+    margin: Array  # (..., n) |sin y1 y1'| [rad/s]
+    momentum: Array  # (..., n) H from the full kinematics of the planning robot [kg m^2/s]
 
     @property
     def u2(self) -> Array:
-        """(n,) th2' [rad/s]."""
-        return self.theta_dot[:, 2]
+        """(..., n) th2' [rad/s]."""
+        return self.theta_dot[..., 2]
 
 
 def state_and_rates(k: Coefficients, y: Array, y_dot: Array, y_ddot: Array) -> tuple[Array, Array]:
@@ -309,17 +330,17 @@ class FlatPlan:
         y_dot = self.trajectory.derivative(t, 1)
         y_ddot = self.trajectory.derivative(t, 2)
         state, state_dot = state_and_rates(self.coefficients, y, y_dot, y_ddot)
-        theta, theta_dot = state[:, :3], state_dot[:, :3]
-        H = momentum(self.robot.links, *theta.T, *theta_dot.T)
+        theta, theta_dot = state[..., :3], state_dot[..., :3]
+        H = momentum(self.robot.links, *np.moveaxis(theta, -1, 0), *np.moveaxis(theta_dot, -1, 0))
         return PlanSamples(
             t=t,
             theta=theta,
             theta_dot=theta_dot,
-            u1_dot=state_dot[:, 3],
+            u1_dot=state_dot[..., 3],
             y=y,
             y_dot=y_dot,
             y_ddot=y_ddot,
-            margin=np.asarray(singularity_margin(y[:, 0], y_dot[:, 0])),
+            margin=np.asarray(singularity_margin(y[..., 0], y_dot[..., 0])),
             momentum=np.asarray(H),
         )
 
@@ -335,15 +356,17 @@ class FlatPlan:
         t = (half * (x + 1.0) + edges[:-1, None]).ravel()
         weights = (half * w).ravel()
         rates = self.sample(t).theta_dot
+        if rates.ndim > 2:
+            raise ValueError("input_energy: one plan at a time")
         return float(weights @ (rates[:, 1] ** 2 + rates[:, 2] ** 2))
 
 
 def plan_point_to_point(
     robot: RobotParams,
-    start: Array,
-    goal: Array,
-    start_rate: float,
-    goal_rate: float,
+    start: ArrayLike,
+    goal: ArrayLike,
+    start_rate: ArrayLike,
+    goal_rate: ArrayLike,
     duration: float,
     model: Model = "derived",
     basis: Basis | None = None,
@@ -353,8 +376,9 @@ def plan_point_to_point(
     Parameters
     ----------
     robot : a flat design (d2 = 0); otherwise FlatcliError says which condition fails
-    start, goal : (3,) configurations th0, th1, th2 [rad]
-    start_rate, goal_rate : th1' at the ends [rad/s] (non-zero)
+    start, goal : (..., 3) configurations th0, th1, th2 [rad]; a batch of configurations
+        (and of rates) plans a batch of maneuvers at once
+    start_rate, goal_rate : (...) th1' at the ends [rad/s] (non-zero)
     duration : T [s] > 0
     model : which constraint coefficients the planner believes
     basis : default: cubic polynomials, the paper's choice
@@ -371,8 +395,6 @@ def plan_point_to_point(
         basis = PolynomialBasis(3, duration)
     elif not math.isclose(basis.duration, duration):
         raise FlatcliError("plan basis: its duration differs from plan.duration")
-    bc = boundary_conditions(
-        k, np.asarray(start, float), np.asarray(goal, float), start_rate, goal_rate
-    )
+    bc = boundary_conditions(k, start, goal, start_rate, goal_rate)
     trajectory = min_acceleration_trajectory(basis, bc)
     return FlatPlan(robot, model, k, trajectory, float(duration))
