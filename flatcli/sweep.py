@@ -242,18 +242,19 @@ def nominal_values(spec: Spec) -> dict[str, Array]:
     }
 
 
-def _invalid_plant(links: Array) -> str:
-    """Why a (12,) plant is not a valid robot, or '' if it is."""
-    names = ("mass", "inertia", "length")
-    for group, name in enumerate(names):
-        values = links[3 * group: 3 * group + 3]
-        bad = np.flatnonzero(~(values > 0))
-        if bad.size:
-            i = int(bad[0])
-            return f"perturbed plant.{name}[{i}] = {values[i]:.6g} is not > 0"
-    if not np.all(np.isfinite(links)):
-        return "perturbed plant has non-finite parameters"
-    return ""
+def invalid_plants(links: Array) -> list[str]:
+    """For (N, 12) plants: why each is not a valid robot, or '' if it is."""
+    bad = ~(np.isfinite(links).all(axis=1) & (links[:, :9] > 0).all(axis=1))
+    reasons = [""] * len(links)
+    for row in np.flatnonzero(bad):
+        values = links[row]
+        if not np.all(np.isfinite(values)):
+            reasons[row] = "perturbed plant has non-finite parameters"
+            continue
+        first = int(np.flatnonzero(~(values[:9] > 0))[0])
+        name = ("mass", "inertia", "length")[first // 3]
+        reasons[row] = f"perturbed plant.{name}[{first % 3}] = {values[first]:.6g} is not > 0"
+    return reasons
 
 
 #: Per-process cache of the scenario of each (spec digest, cell).
@@ -293,7 +294,7 @@ def _simulate_chunk(digest: str, cell: Cell, chunk: Chunk, started: float) -> di
     links = np.hstack([value["mass"], value["inertia"], value["length"], value["com"]])
     initial = np.hstack([value["initial"], value["initial_rate"]])
     momentum = value["momentum"][:, 0]
-    reasons = [_invalid_plant(row) for row in links]
+    reasons = invalid_plants(links)
     valid = np.array([not r for r in reasons], dtype=bool)
     std = float(spec.get("track.sensor_noise"))
     noise = None
