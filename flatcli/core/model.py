@@ -86,7 +86,10 @@ Triple = tuple[float, float, float]
 
 
 def _triple(name: str, value: ArrayLike) -> Triple:
-    arr = np.asarray(value, dtype=float)
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise FlatcliError(f"{name}: expected 3 numbers (links 0, 1, 2), got {value!r}") from None
     if arr.shape != (3,):
         raise FlatcliError(f"{name}: expected 3 numbers (links 0, 1, 2), got shape {arr.shape}")
     if not np.all(np.isfinite(arr)):
@@ -341,8 +344,9 @@ def flatness_check(params: RobotParams) -> FlatnessCheck:
     The conditions (Franch et al. 2003, Sec. V, with the errata of the physics note):
     d2 = 0 (link 2's centre of mass on joint 2), and c0 a1 != 0, i.e. I2 != 0, m0 != 0,
     l0 != d0 and m1 d1 + m2 l1 != 0, since det[g1, g2, [g1, g2]] = c0 a1 sin th1 / A^2.
+    I2 > 0 and m0 > 0 hold for every valid RobotParams, so only the others can fail here.
     """
-    m0, m1, m2 = params.mass
+    _, m1, m2 = params.mass
     l0, l1, _ = params.length
     d0, d1, d2 = params.com
     scale = max(params.length)
@@ -353,10 +357,6 @@ def flatness_check(params: RobotParams) -> FlatnessCheck:
             "constraint depends on th2 and the flat outputs y1 = th1, "
             "y2 = th0 - c0 th2/(a0 + a1 cos th1) do not exist"
         )
-    if params.inertia[2] <= 0:
-        failures.append("inertia[2] = I2 must be != 0: c0 = -M I2 vanishes and th2 is unobservable")
-    if m0 <= 0:
-        failures.append("mass[0] = m0 must be != 0: a1 vanishes and the system is not controllable")
     if abs(l0 - d0) <= DESIGN_ZERO_TOL * scale:
         failures.append(
             f"length[0] = com[0] = {l0:g} m: l0 - d0 = 0 makes a1 = 0, so "
