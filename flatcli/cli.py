@@ -229,6 +229,7 @@ def sweep(spec: Path, out: Path | None, workers: int | None, sets: tuple[str, ..
           quiet: bool, fail_fast: bool, force: bool, executor: str, scheduler: str | None,
           rerun: int | None, print_spec: bool, plot: bool) -> None:
     """Run a Monte Carlo sweep from a TOML spec with a [sweep] table (resumable)."""
+    from flatcli.executors import WorkerLostError
     from flatcli.sweep import FailFastError, run_sweep
 
     with user_errors():
@@ -244,6 +245,10 @@ def sweep(spec: Path, out: Path | None, workers: int | None, sets: tuple[str, ..
                                Progress(s.name, quiet))
         except FailFastError as exc:
             click.echo(f"error: {exc}", err=True)
+            sys.exit(1)
+        except WorkerLostError as exc:
+            click.echo(f"error: {exc}; finished chunks are kept in {directory}/trials; "
+                       "run the same command again to resume", err=True)
             sys.exit(1)
         except KeyboardInterrupt:
             click.echo(f"error: interrupted; finished chunks are kept in {directory}/trials; "

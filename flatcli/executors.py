@@ -12,6 +12,7 @@ import os
 import sys
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from typing import Any, Protocol, TypeVar
 
 from flatcli.core.model import FlatcliError
@@ -19,6 +20,13 @@ from flatcli.core.model import FlatcliError
 T = TypeVar("T")
 
 EXECUTORS = ("local", "dask")
+
+#: How long the Dask executor tries to reach a scheduler before giving up.
+CONNECT_TIMEOUT = "10s"
+
+
+class WorkerLostError(RuntimeError):
+    """A worker process died (killed, out of memory) and its task could not be run."""
 
 
 class Executor(Protocol):
@@ -85,7 +93,12 @@ class LocalExecutor:
             done, _ = wait(pending, return_when=FIRST_COMPLETED)
             for future in done:
                 tag = pending.pop(future)
-                yield tag, future.result()
+                try:
+                    result = future.result()
+                except BrokenProcessPool:
+                    message = "a worker process died (killed or out of memory)"
+                    raise WorkerLostError(message) from None
+                yield tag, result
 
     def close(self) -> None:
         if self._pool is not None:
@@ -114,17 +127,23 @@ class DaskExecutor:
             if scheduler == "local":
                 n = workers or default_workers()
                 self._cluster = LocalCluster(
-                    n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None
+                    n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0"
                 )
                 self._client = Client(self._cluster)
             else:
-                self._client = Client(scheduler, timeout="10s")
-        except OSError as exc:
-            raise FlatcliError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+                self._client = Client(scheduler, timeout=CONNECT_TIMEOUT)
+        except (OSError, ValueError) as exc:  # unreachable; malformed address or scheme
+            if self._cluster is not None:
+                self._cluster.close()
+            reason = f"cannot connect ({exc})" if isinstance(exc, OSError) else str(exc)
+            raise FlatcliError(f"--scheduler {scheduler}: {reason}") from None
         info = self._client.scheduler_info()
         threads = sum(w.get("nthreads", 1) for w in info.get("workers", {}).values())
         self.workers = max(threads, 1)
-        self.description = f"dask at {info.get('address', scheduler)}, {self.workers} threads"
+        plural = "s" if self.workers > 1 else ""
+        self.description = (
+            f"dask at {info.get('address', scheduler)}, {self.workers} worker thread{plural}"
+        )
 
     @property
     def client(self) -> Any:
@@ -134,6 +153,7 @@ class DaskExecutor:
         self, fn: Callable[..., Any], tasks: Iterable[tuple[T, tuple[Any, ...]]]
     ) -> Iterator[tuple[T, Any]]:
         from dask.distributed import as_completed
+        from distributed import KilledWorker
 
         queue = iter(tasks)
         window = max(2 * self.workers, 4)
@@ -148,7 +168,10 @@ class DaskExecutor:
         stream = as_completed(futures)
         for future in stream:
             tag = tags.pop(future.key)
-            result = future.result()
+            try:
+                result = future.result()
+            except KilledWorker as exc:
+                raise WorkerLostError(f"Dask workers kept dying on a chunk ({exc})") from None
             future.release()
             yield tag, result
             nxt = next(queue, None)

@@ -1,0 +1,275 @@
+"""The Dask executor: the same chunks, files, resume and results (bit for bit) as the local
+executor, on a LocalCluster of 2 worker processes, also when a worker is killed mid-sweep."""
+
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from click.testing import CliRunner
+from dask.distributed import Client, LocalCluster, get_task_stream
+
+import flatcli.executors
+from flatcli.cli import main
+
+#: A small but real study (as in test_sweep): two cells, 6 chunks (25, 25, 10 trials per
+#: cell), perturbations of the initial state and the plant, sensor noise in one cell.
+SPEC = """
+name = "small"
+[plan]
+duration = 1.0
+start = [1.8, 1.0, 0.0]
+goal = [1.5, 1.5, 0.0]
+[track]
+initial = [1.8, 1.0, 0.0]
+dt = 0.002
+kp = [100, 110]
+kv = [20, 21]
+[sweep]
+trials = 60
+seed = 11
+chunk = 25
+[sweep.perturb]
+initial = { dist = "normal", std = 0.02 }
+initial_rate = { dist = "uniform", low = -0.01, high = 0.01 }
+mass = { dist = "uniform", low = -0.05, high = 0.05, relative = true }
+com = { dist = "uniform", low = [0, 0, 0], high = [0, 0, 0.002] }
+[sweep.grid]
+"track.sensor_noise" = [0.0, 0.001]
+"""
+
+#: Long enough that a worker can be killed with most chunks still to run (seconds of work
+#: after the first chunk is written, against milliseconds to kill): 2 x 500 trials in 50
+#: chunks of 20.
+LONG_TRIALS, LONG_CHUNK = 500, 20
+LONG_SPEC = SPEC.replace("trials = 60", f"trials = {LONG_TRIALS}").replace(
+    "chunk = 25", f"chunk = {LONG_CHUNK}"
+)
+LONG_CHUNKS = 2 * LONG_TRIALS // LONG_CHUNK
+
+MISSING = ("error: --executor dask: dask.distributed is not installed; "
+           "pip install 'flatcli[dask]'\n")
+
+
+def write_spec(directory: Path, text: str = SPEC) -> Path:
+    directory.mkdir(parents=True, exist_ok=True)
+    path = directory / "spec.toml"
+    path.write_text(text)
+    return path
+
+
+def sweep(*args: str) -> tuple[int, str]:
+    result = CliRunner().invoke(main, ["sweep", *args])
+    return result.exit_code, result.output
+
+
+def chunk_files(directory: Path) -> list[str]:
+    trials = directory / "trials"
+    return sorted(p.name for p in trials.glob("chunk-*.parquet")) if trials.exists() else []
+
+
+def assert_same_sweep(directory: Path, reference: Path) -> None:
+    """Same chunk files with the same rows, same trials.parquet, summary.parquet, summary.md."""
+    assert chunk_files(directory) == chunk_files(reference)
+    for name in chunk_files(reference):
+        pd.testing.assert_frame_equal(pd.read_parquet(directory / "trials" / name),
+                                      pd.read_parquet(reference / "trials" / name),
+                                      check_exact=True, obj=name)
+    for name in ("trials.parquet", "summary.parquet"):
+        pd.testing.assert_frame_equal(pd.read_parquet(directory / name),
+                                      pd.read_parquet(reference / name),
+                                      check_exact=True, obj=name)
+    assert (directory / "summary.md").read_text() == (reference / "summary.md").read_text()
+
+
+@pytest.fixture(scope="module")
+def cluster() -> Iterator[LocalCluster]:
+    """The CI cluster: 2 single-threaded worker processes, each under a nanny."""
+    logger = logging.getLogger("distributed")
+    level = logger.level
+    logger.setLevel(logging.ERROR)  # a killed worker is expected here, not worth a warning
+    try:
+        with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                          dashboard_address=None) as local_cluster:
+            yield local_cluster
+    finally:
+        logger.setLevel(level)
+
+
+@pytest.fixture(scope="module")
+def client(cluster: LocalCluster) -> Iterator[Client]:
+    with Client(cluster) as dask_client:
+        dask_client.wait_for_workers(2, timeout=120)
+        yield dask_client
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """SPEC swept by the local executor in this process (also compiles the kernel, so the
+    Dask workers load it from numba's disk cache)."""
+    base = tmp_path_factory.mktemp("reference")
+    out = base / "out"
+    code, text = sweep(str(write_spec(base)), "--out", str(out), "-q", "--workers", "1")
+    assert code == 0, text
+    assert len(chunk_files(out)) == 6
+    return out
+
+
+def test_a_dask_cluster_writes_the_local_executors_files_bit_for_bit(
+    tmp_path: Path, client: Client, cluster: LocalCluster, reference: Path
+) -> None:
+    out = tmp_path / "dask"
+    with get_task_stream(client) as stream:
+        code, text = sweep(str(write_spec(tmp_path)), "--out", str(out), "--executor", "dask",
+                           "--scheduler", cluster.scheduler_address)
+    assert code == 0, text
+    assert f"120 trials on dask at {cluster.scheduler_address}, 2 worker threads" in text
+    # the 6 chunks ran on the cluster, on both workers
+    tasks = [t for t in stream.data if str(t["key"]).startswith("run_chunk")]
+    assert len(tasks) == 6
+    assert {t["worker"] for t in tasks} == set(client.run(os.getpid))
+    assert "resuming" not in text
+    assert_same_sweep(out, reference)
+    frame = pd.read_parquet(out / "trials.parquet")
+    assert frame["trial"].tolist() == list(range(120))
+    assert (frame["status"] == "ok").mean() > 0.9
+
+
+def test_scheduler_local_starts_its_own_cluster_with_the_same_result(
+    tmp_path: Path, reference: Path
+) -> None:
+    out = tmp_path / "dask-local"
+    code, text = sweep(str(write_spec(tmp_path)), "--out", str(out), "--executor", "dask",
+                       "--scheduler", "local", "--workers", "1")
+    assert code == 0, text
+    assert "120 trials on dask at tcp://127.0.0.1:" in text
+    assert_same_sweep(out, reference)
+
+
+def test_a_local_sweep_with_lost_chunks_is_finished_by_dask_identically(
+    tmp_path: Path, cluster: LocalCluster, reference: Path
+) -> None:
+    # What a local sweep killed mid-way leaves: some chunks written, one lost (never renamed
+    # into place: only its temp file is there), one torn, and no final tables.
+    out = tmp_path / "cut"
+    shutil.copytree(reference, out)
+    for name in ("trials.parquet", "summary.parquet", "summary.md", "run.json"):
+        (out / name).unlink()
+    trials = out / "trials"
+    lost, torn = trials / "chunk-000000000025.parquet", trials / "chunk-000000000110.parquet"
+    lost.rename(trials / f".{lost.name}.x1y2z3.tmp")
+    torn.write_bytes(torn.read_bytes()[:100])
+    kept = {name: (trials / name).stat() for name in chunk_files(out) if name != torn.name}
+    assert len(kept) == 4
+
+    code, text = sweep(str(write_spec(tmp_path)), "--out", str(out), "--executor", "dask",
+                       "--scheduler", cluster.scheduler_address)
+    assert code == 0, text
+    assert f"on dask at {cluster.scheduler_address}" in text
+    assert "120 trials" in text and "resuming with 85 done" in text  # 120 - 25 - 10
+    assert "(35 simulated now)" in text
+    assert_same_sweep(out, reference)
+    assert not list(trials.glob("*.tmp"))
+    for name, before in kept.items():  # finished chunks are kept, not simulated again
+        after = (trials / name).stat()
+        assert (after.st_ino, after.st_mtime_ns) == (before.st_ino, before.st_mtime_ns), name
+
+
+def test_a_worker_killed_mid_sweep_changes_nothing(
+    tmp_path: Path, client: Client, cluster: LocalCluster
+) -> None:
+    spec = write_spec(tmp_path, LONG_SPEC)
+    whole = tmp_path / "local"  # one worker: no fork of this process, which runs threads
+    code, text = sweep(str(spec), "--out", str(whole), "-q", "--workers", "1")
+    assert code == 0, text
+
+    out = tmp_path / "dask"
+    command = [sys.executable, "-m", "flatcli.cli", "sweep", str(spec), "--out", str(out),
+               "-q", "--executor", "dask", "--scheduler", cluster.scheduler_address]
+    log = tmp_path / "sweep.log"
+    with log.open("w") as sink:
+        process = subprocess.Popen(command, stdout=sink, stderr=subprocess.STDOUT)
+    try:
+        pids: dict[str, int] = client.run(os.getpid)
+        assert len(pids) == 2
+        # Wait until chunks are being written and a worker is busy with one, then kill it.
+        victim = None
+        deadline = time.monotonic() + 120
+        while victim is None:
+            assert time.monotonic() < deadline, "the sweep never got going"
+            if process.poll() is not None:
+                pytest.fail("the sweep finished before a worker could be killed; make it "
+                            "longer\n" + log.read_text())
+            if chunk_files(out):
+                busy = [w for w, keys in client.processing().items() if keys and w in pids]
+                victim = busy[0] if busy else None
+            if victim is None:
+                time.sleep(0.005)
+        os.kill(pids[victim], signal.SIGKILL)
+        written_at_kill = len(chunk_files(out))
+        running_at_kill = process.poll() is None
+        code = process.wait(timeout=180)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+    assert code == 0, log.read_text()
+    # the kill landed mid-way: the sweep was running, with chunks done and chunks to do
+    assert running_at_kill
+    assert 1 <= written_at_kill < LONG_CHUNKS
+    # the nanny restarted the killed worker (a new process)
+    client.wait_for_workers(2, timeout=120)
+    now = client.run(os.getpid)
+    assert pids[victim] not in now.values()
+    # the result is complete and identical
+    assert len(chunk_files(out)) == LONG_CHUNKS
+    frame = pd.read_parquet(out / "trials.parquet")
+    assert frame["trial"].tolist() == list(range(2 * LONG_TRIALS))
+    assert_same_sweep(out, whole)
+
+
+@pytest.mark.parametrize("scheduler", [[], ["--scheduler", "local"],
+                                       ["--scheduler", "tcp://127.0.0.1:8786"]],
+                         ids=["default", "local", "address"])
+def test_without_dask_the_dask_executor_is_a_one_line_error(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, scheduler: list[str]
+) -> None:
+    # as if dask.distributed were not installed: importing it raises ImportError
+    monkeypatch.setitem(sys.modules, "dask.distributed", None)
+    with pytest.raises(ImportError):
+        from dask.distributed import Client  # noqa: F401
+    out = tmp_path / "d"
+    code, text = sweep(str(write_spec(tmp_path)), "--out", str(out), "-q",
+                       "--executor", "dask", *scheduler)
+    assert code == 2
+    assert text == MISSING
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("address", "message"),
+    [
+        ("tcp://127.0.0.1:1", "cannot connect"),  # nothing listens there
+        ("foo://127.0.0.1:8786", "unknown address scheme 'foo'"),
+    ],
+)
+def test_a_bad_scheduler_address_is_a_one_line_error(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, address: str, message: str
+) -> None:
+    monkeypatch.setattr(flatcli.executors, "CONNECT_TIMEOUT", "1s")  # 10 s by default
+    out = tmp_path / "d"
+    code, text = sweep(str(write_spec(tmp_path)), "--out", str(out), "-q",
+                       "--executor", "dask", "--scheduler", address)
+    assert code == 2, text
+    assert text.startswith(f"error: --scheduler {address}: ") and text.count("\n") == 1, text
+    assert message in text
+    assert not out.exists()
