@@ -76,6 +76,15 @@ class LocalExecutor:
             for tag, args in tasks:
                 yield tag, fn(*args)
             return
+        try:
+            yield from self._run_pool(self._pool, fn, tasks)
+        except BrokenProcessPool:
+            raise WorkerLostError("a worker process died (killed or out of memory)") from None
+
+    def _run_pool(
+        self, pool: ProcessPoolExecutor, fn: Callable[..., Any],
+        tasks: Iterable[tuple[T, tuple[Any, ...]]],
+    ) -> Iterator[tuple[T, Any]]:
         pending: dict[Future[Any], T] = {}
         queue = iter(tasks)
         window = 2 * self.workers
@@ -87,18 +96,13 @@ class LocalExecutor:
                 except StopIteration:
                     exhausted = True
                     break
-                pending[self._pool.submit(fn, *args)] = tag
+                pending[pool.submit(fn, *args)] = tag
             if not pending:
                 return
             done, _ = wait(pending, return_when=FIRST_COMPLETED)
             for future in done:
                 tag = pending.pop(future)
-                try:
-                    result = future.result()
-                except BrokenProcessPool:
-                    message = "a worker process died (killed or out of memory)"
-                    raise WorkerLostError(message) from None
-                yield tag, result
+                yield tag, future.result()
 
     def close(self) -> None:
         if self._pool is not None:

@@ -270,3 +270,36 @@ def test_layout_is_the_cartesian_product_in_written_order() -> None:
     chunks = list(lay.chunks())
     assert [(c.cell, c.start, c.stop) for c in chunks[:3]] == [(0, 0, 2), (0, 2, 3), (1, 3, 5)]
     assert lay.total == 12
+
+
+def _children(pid: int) -> list[int]:
+    path = Path(f"/proc/{pid}/task/{pid}/children")
+    return [int(p) for p in path.read_text().split()] if path.exists() else []
+
+
+def test_a_dead_worker_process_ends_the_sweep_cleanly_and_it_resumes(tmp_path: Path) -> None:
+    text = SPEC.replace("trials = 60", "trials = 1500").replace("chunk = 25", "chunk = 30")
+    spec = write_spec(tmp_path, text)
+    out_dir = tmp_path / "d"
+    command = [sys.executable, "-m", "flatcli.cli", "sweep", str(spec), "--out", str(out_dir),
+               "-q", "--workers", "2"]
+    process = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:
+        chunks = list((out_dir / "trials").glob("chunk-*.parquet")) if out_dir.exists() else []
+        if len(chunks) >= 2 and _children(process.pid):
+            break
+        if process.poll() is not None:
+            pytest.fail("the sweep finished before a worker could be killed; make it longer")
+        time.sleep(0.01)
+    os.kill(_children(process.pid)[0], signal.SIGKILL)  # as the out-of-memory killer would
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == 1, err
+    assert err.startswith("error: a worker process died") and err.count("\n") == 1, err
+    assert "run the same command again to resume" in err
+    assert not (out_dir / "trials.parquet").exists()
+    code, out = sweep(str(spec), "--out", str(out_dir), "-q", "--workers", "2")
+    assert code == 0, out
+    whole = tmp_path / "whole"
+    assert sweep(str(spec), "--out", str(whole), "-q", "--workers", "1")[0] == 0
+    pd.testing.assert_frame_equal(trials(out_dir), trials(whole), check_exact=True)
