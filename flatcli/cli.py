@@ -17,10 +17,13 @@ import pandas as pd
 
 from flatcli import __version__
 from flatcli.core.model import FlatcliError, constraint_coefficients, flatness_check
-from flatcli.experiment import plan_from, plant_from, robot_from, run_track
+from flatcli.core.optimize import OBJECTIVES
+from flatcli.experiment import plan_and_optimization, plant_from, robot_from, run_track
 from flatcli.report import (
     Progress,
     metrics_text,
+    optimization_summary,
+    optimization_text,
     plan_summary,
     plan_text,
     plot_plan,
@@ -111,16 +114,27 @@ def main() -> None:
     """
 
 
+def optimize_option(fn: F) -> F:
+    return click.option(
+        "--optimize", "objective", type=click.Choice(list(OBJECTIVES)),
+        help="Optimise the plan (shorthand for --set plan.optimize.objective=...).",
+    )(fn)
+
+
+def with_objective(sets: tuple[str, ...], objective: str | None) -> tuple[str, ...]:
+    return sets if objective is None else (*sets, f"plan.optimize.objective={objective}")
+
+
 @main.command()
 @spec_options
+@optimize_option
 @click.option("--plot", is_flag=True, help="Also write plan.png.")
-def plan(
-    spec: Path | None, sets: tuple[str, ...], out: Path | None, quiet: bool, plot: bool
-) -> None:
+def plan(spec: Path | None, sets: tuple[str, ...], out: Path | None, quiet: bool,
+         objective: str | None, plot: bool) -> None:
     """Plan a point-to-point maneuver through the flat outputs; write plan.parquet."""
     with user_errors():
-        s = load_spec(spec, sets)
-        planned = plan_from(s)
+        s = load_spec(spec, with_objective(sets, objective))
+        planned, optimization = plan_and_optimization(s)
         samples = planned.sample(planned.grid(s.get("plan.samples")))
     frame = pd.DataFrame({"t": samples.t})
     for i in range(3):
@@ -136,24 +150,28 @@ def plan(
     frame["momentum"] = samples.momentum
     directory = out_dir(s, out)
     summary = plan_summary(planned, samples)
-    record = run_record("plan", s.tree, summary=summary)
+    opt = None if optimization is None else optimization_summary(
+        optimization, s.get("plan.optimize.objective"))
+    record = run_record("plan", s.tree, summary=summary, optimization=opt)
     write_parquet(directory / "plan.parquet", frame, record)
     write_json(directory / "run.json", record)
     if plot:
         plot_plan(samples, directory / "plan.png", f"plan {s.name!r} ({planned.model} model)")
     say(quiet, plan_text(s.name, planned, samples))
+    if opt is not None:
+        say(quiet, "\n" + optimization_text(opt))
     say(quiet, f"wrote {directory}/plan.parquet" + (" and plan.png" if plot else ""))
 
 
 @main.command()
 @spec_options
+@optimize_option
 @click.option("--plot", is_flag=True, help="Also write track.png.")
-def track(
-    spec: Path | None, sets: tuple[str, ...], out: Path | None, quiet: bool, plot: bool
-) -> None:
+def track(spec: Path | None, sets: tuple[str, ...], out: Path | None, quiet: bool,
+          objective: str | None, plot: bool) -> None:
     """Track the plan in closed loop from a perturbed initial state; write track.parquet."""
     with user_errors():
-        s = load_spec(spec, sets)
+        s = load_spec(spec, with_objective(sets, objective))
         run = run_track(s)
     cols = run.columns()
     metrics = run.metrics

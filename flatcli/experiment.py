@@ -14,6 +14,7 @@ from flatcli.core.control import Gains
 from flatcli.core.flatness import flat_outputs, singularity_margin
 from flatcli.core.metrics import METRIC_NAMES, describe_status
 from flatcli.core.model import RobotParams, momentum
+from flatcli.core.optimize import DEFAULT_BSPLINE_DEGREE, OptimizeResult, PlanLimits, optimize_plan
 from flatcli.core.planning import (
     Basis,
     BSplineBasis,
@@ -46,27 +47,52 @@ def plant_from(spec: Spec) -> RobotParams:
 
 
 def basis_from(spec: Spec) -> Basis:
+    """The flat-output basis: ``auto`` is the paper's cubic, or the optimiser's default
+    (quintic B-splines, ``plan.size`` coefficients) when ``plan.optimize.objective`` is set."""
     duration = spec.get("plan.duration")
-    if spec.get("plan.basis") == "bspline":
-        return BSplineBasis(spec.get("plan.size"), duration, spec.get("plan.degree"))
-    return PolynomialBasis(spec.get("plan.degree"), duration)
+    kind = spec.get("plan.basis")
+    degree = spec.get("plan.degree")
+    if kind == "auto":
+        kind = "poly" if spec.get("plan.optimize.objective") is None else "bspline"
+    if kind == "bspline":
+        return BSplineBasis(spec.get("plan.size"), duration, degree or DEFAULT_BSPLINE_DEGREE)
+    return PolynomialBasis(degree or 3, duration)
 
 
-def plan_from(spec: Spec) -> FlatPlan:
-    """The reference plan of a spec."""
+def plan_and_optimization(spec: Spec) -> tuple[FlatPlan, OptimizeResult | None]:
+    """The reference plan of a spec, and the optimiser's report when it optimised one."""
     robot = robot_from(spec)
     start = np.asarray(spec.get("plan.start"))
     goal = np.asarray(spec.get("plan.goal"))
-    return plan_point_to_point(
-        robot,
-        start,
-        goal,
-        spec.get("plan.start_rate"),
-        spec.get("plan.goal_rate"),
-        spec.get("plan.duration"),
-        spec.get("robot.model"),
-        basis_from(spec),
+    objective = spec.get("plan.optimize.objective")
+    if objective is None:
+        plan = plan_point_to_point(
+            robot, start, goal, spec.get("plan.start_rate"), spec.get("plan.goal_rate"),
+            spec.get("plan.duration"), spec.get("robot.model"), basis_from(spec),
+        )
+        return plan, None
+    result = optimize_plan(
+        robot, start, goal, spec.get("plan.duration"),
+        model=spec.get("robot.model"),
+        basis=basis_from(spec),
+        objective=objective,
+        limits=PlanLimits(
+            angle_limit=spec.get("plan.optimize.angle_limit"),
+            rate_limit=spec.get("plan.optimize.rate_limit"),
+            min_margin=spec.get("plan.optimize.min_margin"),
+        ),
+        free_rates=spec.get("plan.optimize.free_rates"),
+        start_rate=spec.get("plan.start_rate"),
+        goal_rate=spec.get("plan.goal_rate"),
+        constraint_samples=spec.get("plan.optimize.constraint_samples"),
+        max_iter=spec.get("plan.optimize.max_iter"),
     )
+    return result.plan, result
+
+
+def plan_from(spec: Spec) -> FlatPlan:
+    """The reference plan of a spec (optimised when ``plan.optimize.objective`` is set)."""
+    return plan_and_optimization(spec)[0]
 
 
 def scenario_from(spec: Spec, plan: FlatPlan) -> Scenario:

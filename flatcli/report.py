@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
+from flatcli.core.optimize import OptimizeResult
 from flatcli.core.planning import FlatPlan, PlanSamples
 from flatcli.storage import atomic_path
 
@@ -126,6 +127,38 @@ def plan_text(name: str, plan: FlatPlan, samples: PlanSamples) -> str:
         ),
     ]
     return "\n".join(lines)
+
+
+def optimization_summary(result: OptimizeResult, objective: str) -> dict[str, Any]:
+    """The optimiser's report as plain values (for run.json and the terminal)."""
+    return {
+        "objective": objective,
+        "success": bool(result.success),
+        "value": float(result.objective),
+        "initial_value": float(result.initial_objective),
+        "iterations": int(result.iterations),
+        "evaluations": int(result.evaluations),
+        "start_rate": float(result.start_rate),
+        "goal_rate": float(result.goal_rate),
+        "active": list(result.active),
+        "max_violation": float(result.max_violation),
+        "message": result.message,
+    }
+
+
+def optimization_text(summary: Mapping[str, Any]) -> str:
+    """Terminal summary of an optimised plan."""
+    rows = [
+        ["objective", f"{summary['objective']}: {fmt(summary['value'], 5)} "
+                      f"(starting plan {fmt(summary['initial_value'], 5)})"],
+        ["success", "yes" if summary["success"] else f"no: {summary['message']}"],
+        ["th1'(0), th1'(T) chosen [rad/s]",
+         f"{fmt(summary['start_rate'], 5)}, {fmt(summary['goal_rate'], 5)}"],
+        ["iterations, evaluations", f"{summary['iterations']}, {summary['evaluations']}"],
+        ["max limit violation (check grid)", fmt(summary["max_violation"])],
+        ["active constraints", "; ".join(summary["active"]) or "none"],
+    ]
+    return table(["optimisation", ""], rows)
 
 
 def metrics_text(name: str, metrics: dict[str, float | int | str]) -> str:

@@ -35,7 +35,7 @@ PERTURB_TARGETS: dict[str, str] = {
     "momentum": "plant.momentum",
 }
 OBJECTIVES = ("energy", "peak_rate", "effort", "margin")
-BASES = ("poly", "bspline")
+BASES = ("auto", "poly", "bspline")
 
 
 class SpecError(FlatcliError):
@@ -93,9 +93,11 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "start_rate": Key("float", 0.1, "th1'(0), the free end rate", "rad/s"),
         "goal_rate": Key("float", 0.5, "th1'(T), the free end rate", "rad/s"),
         "samples": Key("int", 201, "points of the plan's time grid", low=2),
-        "basis": Key("choice", "poly", "flat-output basis", choices=BASES),
-        "degree": Key("int", 3, "polynomial degree, or B-spline degree", low=3),
-        "size": Key("int", 10, "number of B-spline coefficients per output", low=4),
+        "basis": Key("choice", "auto", "flat-output basis (auto: the paper's cubic, or quintic "
+                     "B-splines when optimising)", choices=BASES),
+        "degree": Key("int", None, "polynomial degree (default 3) or B-spline degree (default 5)",
+                      low=3, nullable=True),
+        "size": Key("int", 12, "number of B-spline coefficients per output", low=4),
     },
     "plan.optimize": {
         "objective": Key(

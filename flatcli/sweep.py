@@ -35,6 +35,7 @@ from scipy.special import ndtri
 
 from flatcli.core.metrics import METRIC_NAMES, STATUS_NAMES, describe_status
 from flatcli.core.model import FlatcliError
+from flatcli.core.planning import FlatPlan
 from flatcli.core.simulate import Scenario, Trials, simulate
 from flatcli.executors import make_executor
 from flatcli.experiment import (
@@ -85,14 +86,24 @@ def perturbation_columns(name: str) -> list[str]:
 
 @dataclass(frozen=True)
 class Cell:
-    """One grid cell: its index, its grid values, and the spec with them applied."""
+    """One grid cell: its index, its grid values, the spec with them applied, and its scenario.
+
+    The scenario (plan and reference tables) is computed once, here, and shipped with every
+    chunk of the cell, so every worker tracks the very same reference.
+    """
 
     index: int
     values: dict[str, Any]
     spec: Spec
+    scenario: Scenario
 
     def label(self) -> str:
-        return ", ".join(f"{k} = {_show(v)}" for k, v in self.values.items()) or "(no grid)"
+        return grid_label(self.values)
+
+
+def grid_label(values: Mapping[str, Any]) -> str:
+    """A cell's grid values as text."""
+    return ", ".join(f"{k} = {_show(v)}" for k, v in values.items()) or "(no grid)"
 
 
 def _show(value: Any) -> str:
@@ -156,37 +167,44 @@ class Layout:
 
 
 def layout(spec: Spec) -> Layout:
-    """Expand the grid and check that every cell plans and simulates (SpecError if not)."""
+    """Expand the grid and plan every cell (SpecError naming the cell if one cannot run)."""
     grid: dict[str, list[Any]] = spec.get("sweep.grid")
     keys = list(grid)
+    plans: dict[str, FlatPlan] = {}
     cells = []
     for index, combo in enumerate(itertools.product(*(grid[k] for k in keys))):
-        cell = layout_cell(spec, index, dict(zip(keys, combo, strict=True)))
+        values = dict(zip(keys, combo, strict=True))
+        applied = cell_spec(spec, values)
         try:
-            scenario_from(cell.spec, plan_from(cell.spec))
-            plant_from(cell.spec)
+            # cells that differ only outside [robot] and [plan] share one plan
+            key = json.dumps(to_jsonable([applied.tree["robot"], applied.tree["plan"]]),
+                             sort_keys=True)
+            if key not in plans:
+                plans[key] = plan_from(applied)
+            scenario = scenario_from(applied, plans[key]).prepared()
+            plant_from(applied)
         except FlatcliError as exc:
-            raise SpecError(f"sweep.grid cell {index} ({cell.label()}): {exc}") from None
-        cells.append(cell)
+            raise SpecError(f"sweep.grid cell {index} ({grid_label(values)}): {exc}") from None
+        cells.append(Cell(index, values, applied, scenario))
     trials = int(spec.get("sweep.trials"))
     chunk = spec.get("sweep.chunk") or min(DEFAULT_CHUNK, trials)
     return Layout(spec, tuple(cells), trials, int(chunk))
 
 
-def layout_cell(spec: Spec, index: int, values: dict[str, Any]) -> Cell:
-    """One cell of a sweep: the spec with the cell's grid values applied."""
+def cell_spec(spec: Spec, values: Mapping[str, Any]) -> Spec:
+    """The spec of one grid cell: the sweep's spec with the cell's grid values applied."""
     overrides: dict[str, Any] = {}
     for key, value in values.items():
         overrides.update(grid_overrides(key, value))
-    cell_spec = spec.with_overrides(
+    applied = spec.with_overrides(
         {k: v for k, v in overrides.items() if not k.startswith("sweep.perturb.")}
     )
     for key, value in overrides.items():
         if key.startswith("sweep.perturb."):
             _, _, name, param = key.split(".")
-            table = cell_spec.tree["sweep"]["perturb"]
+            table = applied.tree["sweep"]["perturb"]
             table[name] = {**table[name], param: value}
-    return Cell(index, values, cell_spec)
+    return applied
 
 
 def draw_perturbations(
@@ -257,33 +275,18 @@ def invalid_plants(links: Array) -> list[str]:
     return reasons
 
 
-#: Per-process cache of the scenario of each (spec digest, cell).
-_SCENARIOS: dict[tuple[str, int], Scenario] = {}
-
-
-def _cell_scenario(spec_digest: str, cell: Cell) -> Scenario:
-    key = (spec_digest, cell.index)
-    if key not in _SCENARIOS:
-        if len(_SCENARIOS) > 64:
-            _SCENARIOS.clear()
-        _SCENARIOS[key] = scenario_from(cell.spec, plan_from(cell.spec))
-    return _SCENARIOS[key]
-
-
-def run_chunk(spec: Spec, cell_values: dict[str, Any], chunk: Chunk) -> dict[str, Any]:
+def run_chunk(cell: Cell, chunk: Chunk) -> dict[str, Any]:
     """Simulate one chunk; return its columns (a worker's whole job; picklable in and out).
 
     A trial whose perturbed plant is not a valid robot is recorded as ``error`` with the
     reason; the others are simulated. Nothing here writes files.
     """
-    started = time.perf_counter()
-    cell = layout_cell(spec, chunk.cell, cell_values)
-    return _simulate_chunk(spec.digest(), cell, chunk, started)
+    return _simulate_chunk(cell, chunk, time.perf_counter())
 
 
-def _simulate_chunk(digest: str, cell: Cell, chunk: Chunk, started: float) -> dict[str, Any]:
+def _simulate_chunk(cell: Cell, chunk: Chunk, started: float) -> dict[str, Any]:
     spec = cell.spec
-    scenario = _cell_scenario(digest, cell)
+    scenario = cell.scenario
     ids = np.arange(chunk.start, chunk.stop)
     seed = int(spec.get("sweep.seed"))
     perturb = spec.get("sweep.perturb")
@@ -523,7 +526,7 @@ def run_sweep(
             progress.start(lay.total, resumed, executor.description)
         if todo and executor_kind == "local":
             _warm_up(lay)  # compile once here; forked workers inherit the kernel
-        tasks = ((c, (spec, lay.cells[c.cell].values, c)) for c in todo)
+        tasks = ((c, (lay.cells[c.cell], c)) for c in todo)
         compute = 0.0
         try:
             for chunk, columns in executor.run(run_chunk, tasks):
@@ -559,7 +562,7 @@ def run_sweep(
 
 def _warm_up(lay: Layout) -> None:
     cell = lay.cells[0]
-    _simulate_chunk(lay.spec.digest(), cell, Chunk(cell.index, 0, 1), time.perf_counter())
+    _simulate_chunk(cell, Chunk(cell.index, 0, 1), time.perf_counter())
 
 
 def peak_rss_mib() -> dict[str, float]:

@@ -369,6 +369,11 @@ class Scenario:
             raise FlatcliError("track.divergence_bound: must be > 0")
         object.__setattr__(self, "n_steps", steps)
 
+    def prepared(self) -> Scenario:
+        """This scenario with its reference tables computed (before shipping it to workers)."""
+        _ = self.reference, self.theta_reference, self.plan_on_own_grid
+        return self
+
     @property
     def times(self) -> Array:
         """(n + 1,) the grid t_j = j dt [s]."""
