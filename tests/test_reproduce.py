@@ -17,7 +17,8 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path) -> None:
                                        str(CONFIG), "--set", "sweep.trials=8", "-q"])
     assert result.exit_code == 0, result.output
     for name in ("fig2_flat_outputs.png", "fig3_angles.png", "fig4_feedback_printed.png",
-                 "fig4_feedback_swapped.png", "REPORT.md", "montecarlo/trials.parquet",
+                 "fig4_feedback_swapped.png", "fig_optimized_plan.png", "REPORT.md",
+                 "montecarlo/trials.parquet",
                  "montecarlo/sweep_singular.png"):
         assert (out / name).exists(), name
     report = (out / "REPORT.md").read_text()
@@ -26,3 +27,6 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path) -> None:
     assert "-0.3512 " in report and "-0.343458" in report
     assert "Only the **swapped** reading matches" in report
     assert "## Monte Carlo study" in report and "144 trials" in report
+    # issue 5: the optimised plan beside the cubic (energy at most a third of 101.2)
+    row = next(line for line in report.splitlines() if line.startswith("| least energy "))
+    assert float(row.split("|")[2]) < 101.19 / 3
