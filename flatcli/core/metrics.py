@@ -91,7 +91,8 @@ def trace_metrics(
     Parameters
     ----------
     out : (N_METRICS,) float, written in the order of METRIC_NAMES
-    trace : (>= last + 1, >= 4) th0, th1, th2 [rad], u1 [rad/s] per grid sample
+    trace : (>= last + 1, 9) th0, th1, th2 [rad], u1 [rad/s], u2 [rad/s], then cos th1,
+        sin th1, cos(th1 + th2), sin(th1 + th2) per grid sample (``simulate.TRACE_WIDTH``)
     last : index of the last valid sample
     diverged : whether the run stopped early (final errors are then nan)
     ref : (2 n + 1, 6) plan y1, y2, y1', y2', y1'', y2'' at half steps
@@ -118,7 +119,7 @@ def trace_metrics(
         d2 = trace[j, 2] - theta_ref[j, 2]
         et = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
         th1 = trace[j, 1]
-        c1, s1 = np.cos(th1), np.sin(th1)
+        c1, s1 = trace[j, 5], trace[j, 6]  # cos th1, sin th1 stored by the integrator
         inv_A, _, _ = chart(kc, c1, s1)  # y = flat_outputs(kc, ...), sharing c1 and s1
         e1 = th1 - ref[2 * j, 0]
         e2 = trace[j, 0] - kc.c0 * trace[j, 2] * inv_A - ref[2 * j, 1]
@@ -135,8 +136,7 @@ def trace_metrics(
         min_margin = min(min_margin, margin)
         if last >= 2:
             r0, r1, r2 = trace_rates(trace, j, last, inv_2dt)
-            th12 = th1 + trace[j, 2]
-            h = momentum_at(links, c1, s1, np.cos(th12), np.sin(th12), r0, r1, r2)
+            h = momentum_at(links, c1, s1, trace[j, 7], trace[j, 8], r0, r1, r2)
             drift = max(drift, abs(h - h0))  # type: ignore[call-overload]
     residual = 0.0
     for j in range(plan_theta.shape[0]):

@@ -207,12 +207,7 @@ def constraint_coefficients(links: Links, model: Model = "derived") -> Coefficie
 
 @jitable
 def base_rate(
-    k: Coefficients,
-    total_mass: float,
-    h0: Real,
-    th1: Real,
-    th2: Real,
-    th1_dot: Real,
+    k: Coefficients, total_mass: float, h0: Real, th1: Real, th2: Real, th1_dot: Real,
     th2_dot: Real,
 ) -> Real:
     """th0' that the reduced constraint imposes.
@@ -229,31 +224,23 @@ def base_rate(
     -------
     th0_dot : (...) [rad/s]
     """
-    return base_rate_at(k, total_mass, h0, np.cos(th1), th1, th2, th1_dot, th2_dot)
+    return base_rate_at(k, total_mass, h0, np.cos(th1), np.cos(th2), np.cos(th1 + th2),
+                        th1_dot, th2_dot)
 
 
 @jitable
 def base_rate_at(
-    k: Coefficients,
-    total_mass: float,
-    h0: Real,
-    c1: Real,
-    th1: Real,
-    th2: Real,
-    th1_dot: Real,
-    th2_dot: Real,
+    k: Coefficients, total_mass: float, h0: Real, c1: Real, c2: Real, c12: Real,
+    th1_dot: Real, th2_dot: Real,
 ) -> Real:
-    """``base_rate`` given c1 = cos th1 (kernels share it with the controller)."""
-    A = k.a0 + k.a1 * c1
-    B = k.b0 + k.b1 * c1
-    C: Real = k.c0
-    if k.a2 != 0.0 or k.a3 != 0.0 or k.c2 != 0.0 or k.c3 != 0.0 or k.b2 != 0.0 or k.b3 != 0.0:
-        # d2 != 0; skipped otherwise, where these terms are exactly zero
-        c2 = np.cos(th2)
-        c12 = np.cos(th1 + th2)
-        A = A + k.a2 * c2 + k.a3 * c12
-        B = B + k.b2 * c2 + k.b3 * c12
-        C = C + k.c2 * c2 + k.c3 * c12
+    """``base_rate`` given c1 = cos th1, c2 = cos th2 and c12 = cos(th1 + th2).
+
+    For a plant with d2 = 0 (a2 = a3 = b2 = b3 = c2 = c3 = 0) any c2 and c12, 0 included,
+    give the same result to the bit: kernels then skip those two cosines.
+    """
+    A = k.a0 + k.a1 * c1 + k.a2 * c2 + k.a3 * c12
+    B = k.b0 + k.b1 * c1 + k.b2 * c2 + k.b3 * c12
+    C = k.c0 + k.c2 * c2 + k.c3 * c12
     return (B * th1_dot + C * th2_dot + total_mass * h0) / A
 
 
