@@ -23,6 +23,7 @@ Two independent descriptions of H live here:
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field, replace
 from typing import Literal, NamedTuple
 
@@ -136,6 +137,15 @@ class RobotParams:
     def as_array(self) -> NDArray[np.float64]:
         """(12,) mass, inertia, length, com concatenated."""
         return np.asarray(self.links, dtype=float)
+
+    def coefficients(self, model: Model = "derived") -> Coefficients:
+        """``constraint_coefficients`` of this robot (computed once per robot and model)."""
+        return _robot_coefficients(self, model)
+
+
+@functools.lru_cache(maxsize=256)
+def _robot_coefficients(robot: RobotParams, model: Model) -> Coefficients:
+    return constraint_coefficients(robot.links, model)
 
 
 #: The robot of the paper's example (Section VI): m_i = 1, l_i = 0.2, I_i = 0.0533,

@@ -14,20 +14,22 @@ constraint), u1' and u2, the singularity margin, and H from the full link kinema
 
 from __future__ import annotations
 
+import functools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from flatcli.core.flatness import flat_outputs, flat_state, singularity_margin
+from flatcli.core._jit import kernel
+from flatcli.core.flatness import flat_inputs, flat_outputs, flat_state, singularity_margin
 from flatcli.core.model import (
     Coefficients,
     FlatcliError,
     Model,
     RobotParams,
-    constraint_coefficients,
     momentum,
     require_flat,
 )
@@ -79,13 +81,17 @@ class PolynomialBasis:
         return np.array([0.0, self.duration])
 
     def matrix(self, t: Array, order: int) -> Array:
-        s = np.asarray(t, dtype=float)[:, None] / self.duration
-        j = np.arange(self.size)
-        falling = np.ones(self.size)
+        s = np.asarray(t, dtype=float) / self.duration
+        powers = np.vander(s, self.size, increasing=True)  # s^0 .. s^degree
+        if order == 0:
+            return powers
+        j = np.arange(order, self.size)
+        falling = np.ones(self.size - order)  # j! / (j - order)!
         for r in range(order):
             falling = falling * (j - r)
-        power = np.maximum(j - order, 0)
-        return falling * s**power / self.duration**order
+        out = np.zeros_like(powers)
+        out[:, order:] = powers[:, : self.size - order] * (falling / self.duration**order)
+        return out
 
 
 @dataclass(frozen=True)
@@ -173,27 +179,55 @@ def boundary_conditions(
     ------
     FlatcliError if an end lies on the singular set (sin th1 = 0 or th1' = 0).
     """
-    start, goal = np.asarray(start, dtype=float), np.asarray(goal, dtype=float)
-    start_rate, goal_rate = np.asarray(start_rate, float), np.asarray(goal_rate, float)
-    for key, theta, rate, rate_key in (
-        ("plan.start", start, start_rate, "plan.start_rate"),
-        ("plan.goal", goal, goal_rate, "plan.goal_rate"),
+    if np.ndim(start_rate) == 0 and np.ndim(goal_rate) == 0 and np.shape(start) == (3,) == (
+        np.shape(goal)
     ):
-        if np.any(rate == 0):
-            raise FlatcliError(f"{rate_key}: must be != 0, the flat map is singular where th1' = 0")
-        near = np.abs(np.sin(theta[..., 1])) < 1e-9
-        if np.any(near):
-            th1 = float(np.asarray(theta[..., 1])[near].flat[0])
+        return _one_boundary(k, start, goal, float(start_rate), float(goal_rate))  # type: ignore[arg-type]
+    # both ends in one vectorised evaluation: axis -1 of ends is (start, goal)
+    ends = np.stack(np.broadcast_arrays(np.asarray(start, float), np.asarray(goal, float)),
+                    axis=-1)  # (..., 3, 2)
+    rates = np.stack(np.broadcast_arrays(np.asarray(start_rate, float),
+                                         np.asarray(goal_rate, float)), axis=-1)  # (..., 2)
+    if not np.all(rates != 0):
+        key = "plan.start_rate" if np.any(rates[..., 0] == 0) else "plan.goal_rate"
+        raise FlatcliError(f"{key}: must be != 0, the flat map is singular where th1' = 0")
+    near = np.abs(np.sin(ends[..., 1, :])) < 1e-9
+    if np.any(near):
+        side = 0 if np.any(near[..., 0]) else 1
+        th1 = float(ends[..., 1, side][near[..., side]].flat[0])
+        raise FlatcliError(
+            f"plan.{('start', 'goal')[side]}[1] = {th1:g} rad lies on the singular set "
+            "sin th1 = 0; choose th1 away from multiples of pi"
+        )
+    y1, y2, y1_dot, y2_dot = flat_outputs(k, ends[..., 0, :], ends[..., 1, :], ends[..., 2, :],
+                                          rates)
+    y = np.stack(np.broadcast_arrays(y1, y2), axis=-1)  # (..., end, output)
+    y_dot = np.stack(np.broadcast_arrays(y1_dot, y2_dot), axis=-1)
+    return Boundary(y[..., 0, :], y_dot[..., 0, :], y[..., 1, :], y_dot[..., 1, :])
+
+
+def _one_boundary(
+    k: Coefficients, start: Sequence[float], goal: Sequence[float], start_rate: float,
+    goal_rate: float,
+) -> Boundary:
+    """``boundary_conditions`` of one maneuver, in plain floats (numpy's per-call overhead
+    would dominate a single plan)."""
+    flags = []
+    for side, theta, rate in (("start", start, start_rate), ("goal", goal, goal_rate)):
+        th0, th1, th2 = (float(v) for v in theta)
+        if rate == 0:
             raise FlatcliError(
-                f"{key}[1] = {th1:g} rad lies on the singular set sin th1 = 0; "
+                f"plan.{side}_rate: must be != 0, the flat map is singular where th1' = 0"
+            )
+        if abs(math.sin(th1)) < 1e-9:
+            raise FlatcliError(
+                f"plan.{side}[1] = {th1:g} rad lies on the singular set sin th1 = 0; "
                 "choose th1 away from multiples of pi"
             )
-    ends = []
-    for theta, rate in ((start, start_rate), (goal, goal_rate)):
-        flag = flat_outputs(k, theta[..., 0], theta[..., 1], theta[..., 2], rate)
-        ends.append(np.stack(np.broadcast_arrays(*flag), axis=-1))
-    ys, yg = ends
-    return Boundary(ys[..., :2], ys[..., 2:], yg[..., :2], yg[..., 2:])
+        flags.append(flat_outputs(k, th0, th1, th2, rate))
+    (a1, a2, a1d, a2d), (b1, b2, b1d, b2d) = flags
+    return Boundary(np.array([a1, a2]), np.array([a1d, a2d]), np.array([b1, b2]),
+                    np.array([b1d, b2d]))
 
 
 def quadrature(basis: Basis, count: int) -> tuple[Array, Array]:
@@ -233,12 +267,14 @@ def acceleration_gram(basis: Basis) -> Array:
     return (d2 * weights[:, None]).T @ d2
 
 
-def min_acceleration_operator(basis: Basis) -> Array:
-    """(size, 4): coefficients = K @ (y(0), y'(0), y(T), y'(T)) of one output.
+@functools.lru_cache(maxsize=64)
+def min_acceleration_operator(basis: Basis) -> Array:  # bases are frozen dataclasses
+    """(size, 4): coefficients = K @ (y(0), y'(0), y(T), y'(T)) of one output (read-only).
 
     The least integral of |y''|^2 among the curves of the basis meeting the boundary
     conditions: c = (I - N (N^T Q N)^-1 N^T Q) E^+ r, with E the boundary matrix, N a basis
-    of its null space and Q the acceleration Gram matrix.
+    of its null space and Q the acceleration Gram matrix. It depends on the basis only, so
+    it is computed once per basis.
     """
     E = boundary_matrix(basis)
     if basis.size < E.shape[0]:
@@ -250,6 +286,7 @@ def min_acceleration_operator(basis: Basis) -> Array:
     if null.shape[1]:
         Q = acceleration_gram(basis)
         K = K - null @ np.linalg.solve(null.T @ Q @ null, null.T @ Q @ K)
+    K.setflags(write=False)
     return K
 
 
@@ -260,7 +297,8 @@ def min_acceleration_trajectory(basis: Basis, boundary: Boundary) -> FlatTraject
     when the basis contains it (the cubic Hermite curve minimises that integral). A batch of
     boundary conditions (fields (..., 2)) gives a batch of curves.
     """
-    coefficients = min_acceleration_operator(basis) @ boundary_rhs(boundary)  # (..., size, 2)
+    operator = min_acceleration_operator(basis)  # type: ignore[arg-type]
+    coefficients = operator @ boundary_rhs(boundary)  # (..., size, 2)
     return FlatTrajectory(basis, np.ascontiguousarray(np.swapaxes(coefficients, -1, -2)))
 
 
@@ -344,6 +382,36 @@ class FlatPlan:
             momentum=np.asarray(H),
         )
 
+    def evaluate(self, t: Array) -> tuple[Array, Array]:
+        """States and inputs only (what a controller needs; cheaper than ``sample``).
+
+        Parameters
+        ----------
+        t : (n,) times [s]
+
+        Returns
+        -------
+        state : (..., n, 4) th0, th1, th2 [rad], u1 [rad/s]
+        inputs : (..., n, 2) u1' [rad/s^2], u2 = th2' [rad/s]
+        """
+        t = np.asarray(t, dtype=float)
+        k = self.coefficients
+        basis = self.trajectory.basis
+        if isinstance(basis, PolynomialBasis) and self.trajectory.coefficients.ndim == 2:
+            # one plan in a polynomial basis: a compiled loop (Horner), no numpy call per term
+            state = np.empty((t.size, 4))
+            inputs = np.empty((t.size, 2))
+            _polynomial_state_inputs(self.trajectory.coefficients, basis.duration, t.ravel(),
+                                     Coefficients(*map(float, k)), state, inputs)
+            return state, inputs
+        y = self.trajectory.derivative(t, 0)
+        y_dot = self.trajectory.derivative(t, 1)
+        y_ddot = self.trajectory.derivative(t, 2)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            th0, th1, th2, u1 = flat_state(k, y[..., 0], y[..., 1], y_dot[..., 0], y_dot[..., 1])
+            u1_dot, u2 = flat_inputs(k, th1, th2, u1, y_ddot[..., 0], y_ddot[..., 1])
+        return np.stack([th0, th1, th2, u1], axis=-1), np.stack([u1_dot, u2], axis=-1)
+
     def grid(self, samples: int) -> Array:
         """(samples,) equally spaced times over [0, duration] [s]."""
         return np.linspace(0.0, self.duration, samples)
@@ -359,6 +427,33 @@ class FlatPlan:
         if rates.ndim > 2:
             raise ValueError("input_energy: one plan at a time")
         return float(weights @ (rates[:, 1] ** 2 + rates[:, 2] ** 2))
+
+
+@kernel
+def _polynomial_state_inputs(
+    coefficients: Array, duration: float, t: Array, k: Coefficients, state: Array,
+    inputs: Array,
+) -> None:
+    """State (n, 4) and inputs (n, 2) of one polynomial plan at times t (n,), by Horner."""
+    size = coefficients.shape[1]
+    for i in range(t.shape[0]):
+        s = t[i] / duration
+        flag = np.empty(6)  # y1, y2, y1', y2', y1'', y2''
+        for o in range(2):
+            p = coefficients[o, size - 1]
+            dp = 0.0
+            half_ddp = 0.0
+            for j in range(size - 2, -1, -1):
+                half_ddp = half_ddp * s + dp
+                dp = dp * s + p
+                p = p * s + coefficients[o, j]
+            flag[o] = p
+            flag[2 + o] = dp / duration
+            flag[4 + o] = 2.0 * half_ddp / (duration * duration)
+        th0, th1, th2, u1 = flat_state(k, flag[0], flag[1], flag[2], flag[3])
+        u1_dot, u2 = flat_inputs(k, th1, th2, u1, flag[4], flag[5])
+        state[i, 0], state[i, 1], state[i, 2], state[i, 3] = th0, th1, th2, u1
+        inputs[i, 0], inputs[i, 1] = u1_dot, u2
 
 
 def plan_point_to_point(
@@ -390,7 +485,7 @@ def plan_point_to_point(
     require_flat(robot)
     if not duration > 0:
         raise FlatcliError(f"plan.duration: must be > 0 s, got {duration}")
-    k = constraint_coefficients(robot.links, model)
+    k = robot.coefficients(model)
     if basis is None:
         basis = PolynomialBasis(3, duration)
     elif not math.isclose(basis.duration, duration):
