@@ -73,7 +73,11 @@ def write_json(path: Path, obj: Any) -> None:
 
 def write_parquet(path: Path, frame: pd.DataFrame, provenance: Mapping[str, Any]) -> None:
     """Write a DataFrame as Parquet, with ``provenance`` as JSON in the schema metadata."""
-    table = pa.Table.from_pandas(frame, preserve_index=False)
+    write_table(path, pa.Table.from_pandas(frame, preserve_index=False), provenance)
+
+
+def write_table(path: Path, table: pa.Table, provenance: Mapping[str, Any]) -> None:
+    """Write an Arrow table as Parquet, with ``provenance`` as JSON in the schema metadata."""
     meta = dict(table.schema.metadata or {})
     meta[PARQUET_META_KEY] = json.dumps(to_jsonable(provenance), sort_keys=True).encode()
     table = table.replace_schema_metadata(meta)

@@ -27,7 +27,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 from numpy.typing import NDArray
@@ -56,13 +55,23 @@ from flatcli.storage import (
     versions,
     write_json,
     write_parquet,
+    write_table,
     write_text,
 )
 
 Array = NDArray[np.float64]
 
-#: Trials per chunk when the spec does not say.
-DEFAULT_CHUNK = 250
+#: Default chunk sizes: about CHUNKS_TARGET chunks per sweep, each of CHUNK_MIN to CHUNK_MAX
+#: trials (from the spec alone, so that a resume with other --workers finds the same chunks).
+CHUNKS_TARGET = 16
+CHUNK_MIN = 50
+CHUNK_MAX = 1000
+
+
+def default_chunk(total: int, per_cell: int) -> int:
+    """Trials per chunk when the spec does not say: enough chunks to keep every core busy
+    and to lose little to an interruption, few enough to keep per-chunk overhead small."""
+    return min(per_cell, max(CHUNK_MIN, min(CHUNK_MAX, math.ceil(total / CHUNKS_TARGET))))
 
 #: Position of each perturbable component among a trial's uniform variates.
 PERTURB_SLOTS: dict[str, tuple[int, ...]] = {
@@ -187,7 +196,7 @@ def layout(spec: Spec) -> Layout:
             raise SpecError(f"sweep.grid cell {index} ({grid_label(values)}): {exc}") from None
         cells.append(Cell(index, values, applied, scenario))
     trials = int(spec.get("sweep.trials"))
-    chunk = spec.get("sweep.chunk") or min(DEFAULT_CHUNK, trials)
+    chunk = spec.get("sweep.chunk") or default_chunk(trials * len(cells), trials)
     return Layout(spec, tuple(cells), trials, int(chunk))
 
 
@@ -275,7 +284,7 @@ def invalid_plants(links: Array) -> list[str]:
     return reasons
 
 
-def run_chunk(cell: Cell, chunk: Chunk) -> dict[str, Any]:
+def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
     """Simulate one chunk; return its columns (a worker's whole job; picklable in and out).
 
     A trial whose perturbed plant is not a valid robot is recorded as ``error`` with the
@@ -284,7 +293,7 @@ def run_chunk(cell: Cell, chunk: Chunk) -> dict[str, Any]:
     return _simulate_chunk(cell, chunk, time.perf_counter())
 
 
-def _simulate_chunk(cell: Cell, chunk: Chunk, started: float) -> dict[str, Any]:
+def _simulate_chunk(cell: Cell, chunk: Chunk, started: float) -> ChunkResult:
     spec = cell.spec
     scenario = cell.scenario
     ids = np.arange(chunk.start, chunk.stop)
@@ -337,10 +346,26 @@ def _simulate_chunk(cell: Cell, chunk: Chunk, started: float) -> dict[str, Any]:
         columns[metric] = metrics[:, j]
     columns["singular_hits"] = np.nan_to_num(metrics[:, METRIC_NAMES.index("singular_hits")],
                                              nan=-1).astype(np.int64)
-    columns["status"] = status_names
-    columns["reason"] = reason_texts
-    columns["_seconds"] = time.perf_counter() - started
-    return columns
+    columns["status"] = pa.array(status_names, type=pa.string())
+    columns["reason"] = pa.array(reason_texts, type=pa.string())
+    return ChunkResult(pa.table(columns), time.perf_counter() - started)
+
+
+@dataclass(frozen=True)
+class ChunkResult:
+    """A finished chunk: one row per trial (the columns of trials.parquet), and its time."""
+
+    table: pa.Table
+    seconds: float
+
+    def first_failure(self) -> tuple[int, str] | None:
+        """The first trial whose status is error or diverged, for --fail-fast."""
+        status = self.table.column("status").to_pylist()
+        for i, value in enumerate(status):
+            if value in ("error", "diverged"):
+                trial = self.table.column("trial")[i].as_py()
+                return int(trial), f"{value}: {self.table.column('reason')[i].as_py()}"
+        return None
 
 
 def grid_cell_text(value: Any) -> Any:
@@ -354,15 +379,6 @@ def grid_cell_text(value: Any) -> Any:
     if isinstance(value, int) and not isinstance(value, bool):
         return float(value)
     return value
-
-
-def failing_trial(columns: Mapping[str, Any]) -> tuple[int, str] | None:
-    """The first trial of a chunk whose status is error or diverged, for --fail-fast."""
-    for trial, status, reason in zip(columns["trial"], columns["status"], columns["reason"],
-                                     strict=True):
-        if status in ("error", "diverged"):
-            return int(trial), f"{status}: {reason}"
-    return None
 
 
 def rerun_spec(layout_: Layout, row: Mapping[str, Any]) -> Spec:
@@ -525,39 +541,39 @@ def run_sweep(
         if progress is not None:
             progress.start(lay.total, resumed, executor.description)
         if todo and executor_kind == "local":
-            _warm_up(lay)  # compile once here; forked workers inherit the kernel
+            _warm_up(lay)  # load the kernel once here; forked workers inherit it
+        setup = time.perf_counter() - started
         tasks = ((c, (lay.cells[c.cell], c)) for c in todo)
         compute = 0.0
         try:
-            for chunk, columns in executor.run(run_chunk, tasks):
-                compute += float(columns.pop("_seconds"))
-                frame = pd.DataFrame(columns)
-                write_parquet(directory / TRIALS_DIR / chunk.name, frame,
-                              {**provenance, "chunk": [chunk.start, chunk.stop]})
+            for chunk, result in executor.run(run_chunk, tasks):
+                compute += result.seconds
+                write_table(directory / TRIALS_DIR / chunk.name, result.table,
+                            {**provenance, "chunk": [chunk.start, chunk.stop]})
                 if progress is not None:
                     progress.advance(chunk.size)
-                failure = failing_trial(columns) if fail_fast else None
+                failure = result.first_failure() if fail_fast else None
                 if failure is not None:
                     raise FailFastError(f"--fail-fast: trial {failure[0]} {failure[1]} "
-                                      f"(finished chunks kept in {directory}/{TRIALS_DIR})")
+                                        f"(finished chunks kept in {directory}/{TRIALS_DIR})")
         finally:
             if progress is not None:
                 progress.close()
         simulated = lay.total - resumed
+        running = time.perf_counter() - started - setup
     finally:
         executor.close()
-    wall = time.perf_counter() - started
-    summary_text = finish_sweep(directory, lay, provenance, {
-        "wall_seconds": wall,
+    summary_text = finish_sweep(directory, lay, provenance, started, {
+        "setup_seconds": setup,
+        "simulate_seconds": running,
         "simulated_trials": simulated,
         "resumed_trials": resumed,
-        "trials_per_second": simulated / wall if wall > 0 else None,
+        "steady_trials_per_second": simulated / running if running > 0 else None,
         "compute_seconds": compute,
         "workers": executor.workers,
         "executor": executor.description,
-        "peak_rss_mib": peak_rss_mib(),
     })
-    return SweepResult(directory, lay, simulated, wall, summary_text)
+    return SweepResult(directory, lay, simulated, time.perf_counter() - started, summary_text)
 
 
 def _warm_up(lay: Layout) -> None:
@@ -591,9 +607,14 @@ def assemble_trials(directory: Path, lay: Layout, provenance: Mapping[str, Any])
     return target
 
 
-def finish_sweep(directory: Path, lay: Layout, provenance: Mapping[str, Any],
+def finish_sweep(directory: Path, lay: Layout, provenance: Mapping[str, Any], started: float,
                  timing: Mapping[str, Any]) -> str:
-    """trials.parquet, summary.parquet, summary.md and run.json from the chunk files."""
+    """trials.parquet, summary.parquet, summary.md and run.json from the chunk files.
+
+    ``timing`` gains the end-to-end figures: ``wall_seconds`` from ``started`` (a
+    perf_counter time) to the summary, and ``trials_per_second`` over it.
+    """
+    finishing = time.perf_counter()
     trials_path = assemble_trials(directory, lay, provenance)
     columns = ["cell", "status", "singular_hits", *METRIC_NAMES]
     frame = pq.read_table(trials_path, columns=columns).to_pandas()
@@ -603,8 +624,13 @@ def finish_sweep(directory: Path, lay: Layout, provenance: Mapping[str, Any],
     text = summary_markdown(summary, lay.grid_keys)
     write_text(directory / "summary.md", text + "\n")
     counts = frame["status"].value_counts().to_dict()
+    now = time.perf_counter()
+    wall = now - started
+    timing = {**timing, "finish_seconds": now - finishing, "wall_seconds": wall,
+              "trials_per_second": timing["simulated_trials"] / wall,
+              "peak_rss_mib": peak_rss_mib()}
     write_json(directory / "run.json", run_record(
         "sweep", lay.spec.tree, digest=lay.spec.digest(), cells=len(lay.cells),
-        trials=lay.total, chunk=lay.chunk_size, status_counts=counts, timing=dict(timing),
+        trials=lay.total, chunk=lay.chunk_size, status_counts=counts, timing=timing,
     ))
     return text
