@@ -228,6 +228,12 @@ def test_rerun_reproduces_a_trial_exactly(tmp_path: Path) -> None:
     code, text = sweep(str(spec), "--out", str(out_dir), "--rerun", "97", "--print-spec")
     assert code == 0
     assert "trial = 97" in text and "sensor_noise = 0.001" in text
+    # a finer step for the same trial: allowed, and said to differ
+    code, out = sweep(str(spec), "--out", str(out_dir), "--rerun", "97", "--set",
+                      "track.dt=0.001")
+    assert code == 0, out
+    assert "differs from the sweep's" in out and "NO" in out
+    assert len(pd.read_parquet(out_dir / "rerun-97" / "track.parquet")) == 1001
 
 
 def test_progress_lines_when_not_a_terminal(tmp_path: Path) -> None:
