@@ -112,6 +112,14 @@ def sweep(spec: Path, out: Path, trials: int, workers: int, *extra: str) -> dict
     }
 
 
+def best_of(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """The run with the highest throughput (this shared machine's speed drifts by +-20 %
+    over minutes; the best of interleaved repeats compares like with like), all kept."""
+    best = dict(max(runs, key=lambda r: float(r["trials_per_second"])))
+    best["repeats"] = [r["trials_per_second"] for r in runs]
+    return best
+
+
 def planning(bench: Bench) -> None:
     section = "Planning: the paper's maneuver, evaluated at 200 points"
     t = np.linspace(0.0, PAPER_MANEUVER.duration, GRID_POINTS)
@@ -222,15 +230,20 @@ def sweeps(bench: Bench, million: bool) -> None:
     section = "flatcli sweep: benchmarks/paper_sweep.toml, all metrics written"
     work = bench.out / "sweeps"
     n = 2000 if bench.quick else 10_000
-    one = bench.measure(section, "1 worker", lambda: sweep(SPEC, work / "w1", n, 1))
-    two = bench.measure(section, "2 workers", lambda: sweep(SPEC, work / "w2", n, 2))
+    ones: list[dict[str, Any]] = []
+    twos: list[dict[str, Any]] = []
+    for _ in range(1 if bench.quick else 3):  # interleaved, so drifts hit both alike
+        ones.append(bench.measure(section, "1 worker", partial(sweep, SPEC, work / "w1", n, 1)))
+        twos.append(bench.measure(section, "2 workers", partial(sweep, SPEC, work / "w2", n, 2)))
+    one, two = best_of(ones), best_of(twos)
     same = pd.read_parquet(work / "w1" / "trials.parquet").equals(
         pd.read_parquet(work / "w2" / "trials.parquet"))
     cl = bench.raw["closed_loop"]
     rate, steady = two["trials_per_second"], two["steady_trials_per_second"]
     for result in (one, two):
         w = result["workers"]
-        bench.row(section, f"{n} trials, {w} worker{'s' if w > 1 else ''}",
+        bench.row(section, f"{n} trials, {w} worker{'s' if w > 1 else ''} (best of "
+                  f"{len(result['repeats'])})",
                   f"{result['trials_per_second']:.0f}",
                   f"{result['steady_trials_per_second']:.0f}", f"{result['sweep_seconds']:.1f} s",
                   f"start-up {result['setup_seconds']:.2f} s, final tables "
@@ -327,7 +340,8 @@ def accuracy(bench: Bench) -> None:
             rate = trials.count / cost.median
             results.append({"gains": name, "dt": dt, "max_angle_error": max(errors),
                             "trials_per_second": rate})
-            note = f"{len(specs)} of {len(rows)} sampled trials (the others diverge)"
+            note = (f"{len(specs)} sampled trials" if len(specs) == len(rows) else
+                    f"{len(specs)} of {len(rows)} sampled trials (the others diverge)")
             bench.row(section, f"{name} gains, dt = {dt:g} s", f"{max(errors):.1e}",
                       f"{rate:.0f} trials/s (1 core)",
                       ("default; " if (dt == 1e-3 and name == "printed") else "") + note)
@@ -379,8 +393,8 @@ HEADERS = {
     "Closed loop: the paper's Fig. 4 loop, T = 2 s, RK4 dt = 1e-3":
         ["method", "trials/s", "ratio", "note"],
     "flatcli sweep: benchmarks/paper_sweep.toml, all metrics written":
-        ["run", "trials/s", "steady trials/s", "wall", "note"],
-    "Scaling: 2 workers": ["sweep", "trials/s", "steady trials/s", "wall", "peak memory (RSS)"],
+        ["run", "trials/s", "warm trials/s", "wall", "note"],
+    "Scaling: 2 workers": ["sweep", "trials/s", "warm trials/s", "wall", "peak memory (RSS)"],
     "Accuracy vs cost: RK4 against solve_ivp DOP853 (rtol 1e-10)":
         ["setting", "max angle error [rad]", "cost", ""],
     "Optimised plans: least energy, abs(th2) <= 3, rates <= 20, margin >= 0.05":
@@ -399,10 +413,10 @@ def report(bench: Bench) -> str:
         "measurement in bench.json).",
         "",
         "Sweep throughputs: *trials/s* is every trial over the sweep's whole in-process time "
-        "(loading the compiled kernel, about 0.3-0.5 s once per process, then the chunks, then "
-        "trials.parquet and the summary); *steady trials/s* is over the chunk phase only, the "
-        "rate at which more trials cost more. Neither counts interpreter start-up and imports "
-        "(see the command-line row).",
+        "(planning the cells and loading the compiled kernel, about 0.3-0.5 s once per "
+        "process, then the chunks, then trials.parquet and the summary); *warm trials/s* "
+        "leaves out that one-time start-up, as the baselines' timings leave out their "
+        "compilation. Neither counts interpreter start-up and imports (the command-line row).",
     ]
     for section, rows in bench.tables.items():
         lines += ["", f"## {section}", "", table(HEADERS[section], rows)]
