@@ -183,6 +183,19 @@ def save_figure(fig: Figure, path: Path) -> None:
         fig.savefig(tmp, dpi=120, format="png")
 
 
+def finish_grid(fig: Figure, ax: Any, title: str, path: Path, legend_size: int = 8) -> None:
+    """Grid lines and legends on every panel of a 2 x 2 time plot, t on the bottom row;
+    title, layout, and the PNG."""
+    for a in ax.flat:
+        a.grid(alpha=0.3)
+        a.legend(fontsize=legend_size)
+    for a in ax[1]:
+        a.set_xlabel("t [s]")
+    fig.suptitle(title)
+    fig.tight_layout()
+    save_figure(fig, path)
+
+
 def plot_plan(samples: PlanSamples, path: Path, title: str) -> None:
     """Flat outputs (Fig. 2), angles (Fig. 3), rates and margin of a plan, as one PNG."""
     fig = new_figure(11, 7)
@@ -198,14 +211,7 @@ def plot_plan(samples: PlanSamples, path: Path, title: str) -> None:
     ax[1, 0].set_ylabel("rates [rad/s]")
     ax[1, 1].semilogy(t, samples.margin, label="margin |sin y1 y1'| [rad/s]")
     ax[1, 1].semilogy(t, np.abs(samples.momentum) + 1e-300, label="|H| [kg m^2/s]")
-    for a in ax.flat:
-        a.grid(alpha=0.3)
-        a.legend(fontsize=8)
-    for a in ax[1]:
-        a.set_xlabel("t [s]")
-    fig.suptitle(title)
-    fig.tight_layout()
-    save_figure(fig, path)
+    finish_grid(fig, ax, title, path)
 
 
 def plot_track(cols: dict[str, Array], path: Path, title: str) -> None:
@@ -229,14 +235,7 @@ def plot_track(cols: dict[str, Array], path: Path, title: str) -> None:
     ax[0, 0].set_ylabel("flat outputs [rad]")
     ax[0, 1].set_ylabel("angles [rad]")
     ax[1, 0].set_ylabel("tracking error [rad]")
-    for a in ax.flat:
-        a.grid(alpha=0.3)
-        a.legend(fontsize=8)
-    for a in ax[1]:
-        a.set_xlabel("t [s]")
-    fig.suptitle(title)
-    fig.tight_layout()
-    save_figure(fig, path)
+    finish_grid(fig, ax, title, path)
 
 
 # ---------------------------------------------------------------------------------------

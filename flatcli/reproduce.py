@@ -22,6 +22,7 @@ from flatcli.core.planning import FlatPlan, PlanSamples
 from flatcli.experiment import TrackRun, plan_and_optimization, plan_from, run_track
 from flatcli.report import (
     Progress,
+    finish_grid,
     fmt,
     new_figure,
     plan_summary,
@@ -280,14 +281,8 @@ def optimized_plans_section(base: Spec, out: Path) -> list[str]:
     ax[0, 1].set_yscale("symlog", linthresh=5)
     ax[1, 0].set_ylabel("th1' [rad/s]")
     ax[1, 1].set_ylabel("margin abs(sin th1 th1') [rad/s]")
-    for a in ax.flat:
-        a.grid(alpha=0.3)
-        a.legend(fontsize=7)
-    for a in ax[1]:
-        a.set_xlabel("t [s]")
-    fig.suptitle("The paper's cubic (dashed) and the least-energy flat plan (solid)")
-    fig.tight_layout()
-    save_figure(fig, out / "fig_optimized_plan.png")
+    finish_grid(fig, ax, "The paper's cubic (dashed) and the least-energy flat plan (solid)",
+                out / "fig_optimized_plan.png", legend_size=7)
     return [
         "",
         "## Optimised plans",

@@ -64,7 +64,7 @@ Array = NDArray[np.float64]
 #: Default chunk sizes: about CHUNKS_TARGET chunks per sweep, each of CHUNK_MIN to CHUNK_MAX
 #: trials (from the spec alone, so that a resume with other --workers finds the same chunks).
 CHUNKS_TARGET = 16
-CHUNK_MIN = 50
+CHUNK_MIN = 250
 CHUNK_MAX = 1000
 
 

@@ -17,35 +17,10 @@ import pandas as pd
 import pytest
 from click.testing import CliRunner
 from dask.distributed import Client, LocalCluster, get_task_stream
+from small_sweep import SPEC
 
 import flatcli.executors
 from flatcli.cli import main
-
-#: A small but real study (as in test_sweep): two cells, 6 chunks (25, 25, 10 trials per
-#: cell), perturbations of the initial state and the plant, sensor noise in one cell.
-SPEC = """
-name = "small"
-[plan]
-duration = 1.0
-start = [1.8, 1.0, 0.0]
-goal = [1.5, 1.5, 0.0]
-[track]
-initial = [1.8, 1.0, 0.0]
-dt = 0.002
-kp = [100, 110]
-kv = [20, 21]
-[sweep]
-trials = 60
-seed = 11
-chunk = 25
-[sweep.perturb]
-initial = { dist = "normal", std = 0.02 }
-initial_rate = { dist = "uniform", low = -0.01, high = 0.01 }
-mass = { dist = "uniform", low = -0.05, high = 0.05, relative = true }
-com = { dist = "uniform", low = [0, 0, 0], high = [0, 0, 0.002] }
-[sweep.grid]
-"track.sensor_noise" = [0.0, 0.001]
-"""
 
 #: Long enough that a worker can be killed with most chunks still to run (seconds of work
 #: after the first chunk is written, against milliseconds to kill): 2 x 500 trials in 50

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -38,6 +39,9 @@ def test_atomic_path_replaces_whole_file(tmp_path: Path) -> None:
         assert target.read_text() == "old"  # readers see the old file until the rename
     assert target.read_text() == "new"
     assert [p.name for p in tmp_path.iterdir()] == ["out.txt"]
+    umask = os.umask(0)
+    os.umask(umask)
+    assert target.stat().st_mode & 0o777 == 0o666 & ~umask  # not mkstemp's 0600
 
 
 def test_json_handles_numpy_and_non_finite(tmp_path: Path) -> None:

@@ -1,0 +1,26 @@
+"""The small sweep spec the sweep and Dask tests share."""
+
+#: A small but real study: two cells, perturbations of the initial state and the plant.
+SPEC = """
+name = "small"
+[plan]
+duration = 1.0
+start = [1.8, 1.0, 0.0]
+goal = [1.5, 1.5, 0.0]
+[track]
+initial = [1.8, 1.0, 0.0]
+dt = 0.002
+kp = [100, 110]
+kv = [20, 21]
+[sweep]
+trials = 60
+seed = 11
+chunk = 25
+[sweep.perturb]
+initial = { dist = "normal", std = 0.02 }
+initial_rate = { dist = "uniform", low = -0.01, high = 0.01 }
+mass = { dist = "uniform", low = -0.05, high = 0.05, relative = true }
+com = { dist = "uniform", low = [0, 0, 0], high = [0, 0, 0.002] }
+[sweep.grid]
+"track.sensor_noise" = [0.0, 0.001]
+"""
