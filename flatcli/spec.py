@@ -63,7 +63,7 @@ def _vec(n: int, default: list[float] | None, doc: str, unit: str, **kw: Any) ->
 
 SCHEMA: dict[str, dict[str, Key]] = {
     "": {
-        "name": Key("str", "paper", "run name; default output directory runs/<name>/"),
+        "name": Key("str", "paper_example", "run name; default output directory runs/<name>/"),
     },
     "robot": {
         "mass": _vec(3, [1.0, 1.0, 1.0], "link masses m0, m1, m2", "kg", low=0, low_open=True),
