@@ -391,10 +391,7 @@ def plot_sweep(directory: Path) -> list[Path]:
     fig = new_figure(max(8, 0.6 * len(cells) + 4), 8)
     axes = fig.subplots(3, 1, sharex=True)
     for ax, metric in zip(axes, ("err_theta_rms", "err_y_rms", "err_y_final"), strict=True):
-        data = [np.log10(np.maximum(done.loc[done["cell"] == c, metric].to_numpy(), 1e-16))
-                for c in cells]
-        ax.boxplot([d if len(d) else [np.nan] for d in data], positions=positions,
-                   widths=0.6, showfliers=True, flierprops={"markersize": 2})
+        _log_boxplot(ax, done, cells, metric, 1e-16)
         ax.set_ylabel(f"log10 {metric} [rad]")
         ax.grid(alpha=0.3)
     axes[-1].set_xticks(positions, [str(c) for c in cells])
@@ -435,10 +432,7 @@ def plot_sweep(directory: Path) -> list[Path]:
 
     fig = new_figure(max(8, 0.6 * len(cells) + 4), 4.5)
     ax = fig.subplots()
-    data = [np.log10(np.maximum(done.loc[done["cell"] == c, "momentum_drift"].to_numpy(),
-                                1e-18)) for c in cells]
-    ax.boxplot([d if len(d) else [np.nan] for d in data], positions=positions, widths=0.6,
-               flierprops={"markersize": 2})
+    _log_boxplot(ax, done, cells, "momentum_drift", 1e-18)
     ax.set_xticks(positions, [str(c) for c in cells])
     ax.set_xlabel("cell")
     ax.set_ylabel("log10 momentum drift [kg m^2/s]")
@@ -448,6 +442,15 @@ def plot_sweep(directory: Path) -> list[Path]:
     paths.append(directory / "sweep_momentum.png")
     save_figure(fig, paths[-1])
     return paths
+
+
+def _log_boxplot(ax: Any, done: pd.DataFrame, cells: list[int], metric: str,
+                 floor: float) -> None:
+    """One box per cell of log10(metric), values below ``floor`` drawn at it."""
+    data = [np.log10(np.maximum(done.loc[done["cell"] == c, metric].to_numpy(), floor))
+            for c in cells]
+    ax.boxplot([d if len(d) else [np.nan] for d in data], positions=np.arange(len(cells)),
+               widths=0.6, flierprops={"markersize": 2})
 
 
 def _grid_columns(summary: pd.DataFrame) -> list[str]:
