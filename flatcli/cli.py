@@ -174,7 +174,7 @@ def track(spec: Path | None, sets: tuple[str, ...], out: Path | None, quiet: boo
     with user_errors():
         s = load_spec(spec, with_objective(sets, objective))
         run = run_track(s)
-    cols = run.columns()
+    cols = run.columns
     metrics = run.metrics
     directory = out_dir(s, out)
     record = run_record("track", s.tree, metrics=metrics)
@@ -300,10 +300,10 @@ def _rerun(s: Spec, directory: Path, trial: int, print_spec: bool, quiet: bool) 
     metrics = run.metrics
     target = directory / f"rerun-{trial}"
     record = run_record("sweep --rerun", track_spec.tree, metrics=metrics, trial=trial)
-    write_parquet(target / "track.parquet", pd.DataFrame(run.columns()), record)
+    write_parquet(target / "track.parquet", pd.DataFrame(run.columns), record)
     write_json(target / "metrics.json", metrics)
     write_json(target / "run.json", record)
-    plot_track(run.columns(), target / "track.png", f"{s.name}: trial {trial}")
+    plot_track(run.columns, target / "track.png", f"{s.name}: trial {trial}")
     rows = [[k, row[k], v, "yes" if _same(row[k], v) else "NO"]
             for k, v in metrics.items() if k != "reason"]
     modified = _sweep_digest(directory) != s.digest()

@@ -6,6 +6,7 @@ This is wiring only: every number is computed by ``flatcli.core``.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import NDArray
@@ -165,6 +166,7 @@ class TrackRun:
         out["reason"] = reason
         return out
 
+    @cached_property
     def columns(self) -> dict[str, Array]:
         """Columns of track.parquet: the trace, u2, y, references, margin and H per sample.
 

@@ -94,7 +94,7 @@ def plan_figures(plans: dict[str, tuple[FlatPlan, PlanSamples]], out: Path) -> N
 
 
 def _errors_at(run: TrackRun, times: tuple[float, ...]) -> list[tuple[float, float, float]]:
-    cols = run.columns()
+    cols = run.columns
     out = []
     for t in times:
         j = round(t / run.scenario.dt)
@@ -128,7 +128,7 @@ def run_paper(base: Spec, out: Path, quiet: bool) -> Reproduction:
             spec = base.with_overrides({"robot.model": model, **gains})
             run = run_track(spec)
             tracks[(model, reading)] = run
-            cols = run.columns()
+            cols = run.columns
             write_parquet(out / f"track_{model}_{reading}.parquet", pd.DataFrame(cols),
                           run_record("reproduce", spec.tree, metrics=run.metrics))
             if model == "derived":

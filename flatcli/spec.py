@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from flatcli.core.model import MODELS, FlatcliError
+from flatcli.storage import to_jsonable
 
 DISTRIBUTIONS = ("normal", "uniform")
 #: Perturbable quantities and the spec key each one perturbs.
@@ -375,7 +376,7 @@ class Spec:
 
     def to_json(self) -> str:
         """Canonical JSON (sorted keys; inf written as a string)."""
-        return json.dumps(_jsonable(self.tree), sort_keys=True, separators=(",", ":"))
+        return json.dumps(to_jsonable(self.tree), sort_keys=True, separators=(",", ":"))
 
     def digest(self) -> str:
         """SHA-256 of the canonical JSON: what makes two sweeps the same experiment."""
@@ -387,16 +388,6 @@ class Spec:
         for dotted, value in overrides.items():
             set_dotted(tree, dotted, check_value(dotted, value))
         return _finish(tree, self.is_sweep)
-
-
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {k: _jsonable(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, float) and not math.isfinite(value):
-        return str(value)
-    return value
 
 
 def _finish(tree: dict[str, Any], is_sweep: bool) -> Spec:
