@@ -13,11 +13,12 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from flatcli.core.flatness import (
+    flag_state,
     flat_accelerations,
     flat_inputs,
     flat_outputs,
     flat_state,
-    margin_factors,
+    signed_margin,
     singularity_margin,
 )
 from flatcli.core.model import (
@@ -145,14 +146,37 @@ def test_maps_broadcast_over_a_batch_axis() -> None:
     np.testing.assert_allclose(np.array(flat_state(k, *batch)), [*th[:3], u1], rtol=1e-12)
 
 
-def test_margin_and_its_factors() -> None:
+def test_margin_and_its_sign() -> None:
     y1 = np.array([0.0, 1.0, np.pi / 2, -2.0])
     y1_dot = np.array([3.0, 0.0, -0.5, 0.25])
     margin = singularity_margin(y1, y1_dot)
     np.testing.assert_array_equal(margin, np.abs(np.sin(y1) * y1_dot))
-    sin_part, rate_part = margin_factors(y1, y1_dot)
-    np.testing.assert_array_equal(sin_part * rate_part, margin)
-    np.testing.assert_array_equal(rate_part, np.abs(y1_dot))
+    np.testing.assert_array_equal(signed_margin(y1, y1_dot), np.sin(y1) * y1_dot)
+    np.testing.assert_array_equal(np.abs(signed_margin(y1, y1_dot)), margin)
+
+
+@pytest.mark.parametrize("model", MODELS)
+@settings(deadline=None, max_examples=150)
+@given(y1=ANGLE, y2=st.floats(-10.0, 10.0), y1_dot=RATE, y2_dot=RATE, y1_ddot=ACCEL,
+       y2_ddot=ACCEL)
+def test_flag_state_is_the_inverse_map_and_its_time_derivative(
+    model: Model, y1: float, y2: float, y1_dot: float, y2_dot: float, y1_ddot: float,
+    y2_ddot: float,
+) -> None:
+    """flag_state = (flat_state, flat_inputs at it, th0'), and (th0, th2)' along the flag are
+    (th0', u2): checked by a complex step of flat_state along (y', y'') (independent of the
+    closed forms of u2 and th0')."""
+    assume(abs(np.sin(y1) * y1_dot) > MARGIN)
+    k = coefficients(model)
+    th0, th1, th2, u1, u1_dot, u2, th0_dot = flag_state(k, y1, y2, y1_dot, y2_dot, y1_ddot,
+                                                        y2_ddot)
+    assert close((th0, th1, th2, u1), flat_state(k, y1, y2, y1_dot, y2_dot), 1e-15)
+    assert close((u1_dot, u2), flat_inputs(k, th1, th2, u1, y1_ddot, y2_ddot), 1e-15)
+    z = np.array([y1, y2, y1_dot, y2_dot], dtype=complex)
+    z_dot = np.array([y1_dot, y2_dot, y1_ddot, y2_ddot])
+    rates = np.array(flat_state(k, *(z + 1j * STEP * z_dot))).imag / STEP
+    scale = 1.0 + max(abs(th2), abs(u2), abs(th0_dot))
+    assert np.all(np.abs(rates - [th0_dot, u1, u2, u1_dot]) <= FLOW_RTOL * scale)
 
 
 @pytest.mark.parametrize(("y1", "y1_dot"), [(0.0, 0.3), (np.pi, 0.3), (1.0, 0.0)])

@@ -25,6 +25,7 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
+from flatcli.core.basis import BSplineBasis, PolynomialBasis
 from flatcli.core.flatness import chart
 from flatcli.core.model import PAPER_ROBOT, FlatcliError, constraint_coefficients, momentum
 from flatcli.core.optimize import (
@@ -42,11 +43,9 @@ from flatcli.core.optimize import (
     required_fold,
 )
 from flatcli.core.planning import (
-    BSplineBasis,
     FlatPlan,
     FlatTrajectory,
     PlanSamples,
-    PolynomialBasis,
     state_and_rates,
 )
 

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
+from flatcli.core.basis import Basis, BSplineBasis, PolynomialBasis
 from flatcli.core.flatness import flat_inputs
 from flatcli.core.model import (
     MODELS,
@@ -19,11 +20,9 @@ from flatcli.core.model import (
     momentum,
 )
 from flatcli.core.planning import (
-    Basis,
-    BSplineBasis,
     FlatPlan,
     PlanSamples,
-    PolynomialBasis,
+    margin_zeros,
     plan_point_to_point,
 )
 
@@ -233,15 +232,67 @@ def test_plan_refuses_a_basis_of_another_duration(paper_maneuver: Maneuver) -> N
         plan_with(paper_maneuver, basis=PolynomialBasis(3, 3.0))
 
 
-@pytest.mark.parametrize(
-    "build",
-    [
-        lambda: PolynomialBasis(2, 1.0),
-        lambda: PolynomialBasis(3, 0.0),
-        lambda: BSplineBasis(5, 1.0, 5),
-        lambda: BSplineBasis(6, 1.0, 2),
-    ],
-)
-def test_bases_reject_unusable_shapes(build: Callable[[], Basis]) -> None:
-    with pytest.raises(FlatcliError):
-        build()
+# --------------------------------------------------------------------------------------
+# Plans that cross the singular set inside the maneuver
+# --------------------------------------------------------------------------------------
+
+
+def sampled_sign_changes(plan_times: Array, y1: Array, y1_dot: Array) -> Array:
+    """Times between samples where sin(y1) y1' changes sign (an independent, sampled look)."""
+    signed = np.sin(y1) * y1_dot
+    flips = np.flatnonzero(np.sign(signed[:-1]) != np.sign(signed[1:]))
+    return plan_times[flips]
+
+
+def test_a_plan_through_the_singular_set_is_refused(paper_maneuver: Maneuver) -> None:
+    """th1'(T) = -0.5 against th1'(0) = +0.1: y1' must pass through 0 inside (0, T). The
+    refusal names the time, which a dense sampling of the margin brackets."""
+    basis = PolynomialBasis(3, paper_maneuver.duration)
+    from flatcli.core.planning import boundary_conditions, min_acceleration_trajectory
+
+    k = PAPER_ROBOT.coefficients("derived")
+    bc = boundary_conditions(k, paper_maneuver.start, paper_maneuver.goal, 0.1, -0.5)
+    curve = min_acceleration_trajectory(basis, bc)
+    t = np.linspace(0.0, paper_maneuver.duration, 200_001)
+    flips = sampled_sign_changes(t, curve.derivative(t, 0)[:, 0], curve.derivative(t, 1)[:, 0])
+    assert flips.size == 1
+    zeros = margin_zeros(curve)
+    assert zeros.size == 1 and abs(zeros[0] - flips[0]) <= t[1]
+    with pytest.raises(FlatcliError, match=rf"t = {zeros[0]:.4g} s .*th1' = 0.*start_rate"):
+        plan_with(paper_maneuver, goal_rate=-0.5)
+
+
+def test_a_plan_that_touches_the_singular_set_is_refused(paper_maneuver: Maneuver) -> None:
+    """A cubic whose y1' has a double root inside (0, T): the margin touches zero without
+    changing sign, so a sampled sign test misses it; the exact roots do not."""
+    T = 2.0
+    # y1(t) = 1 + (t - 1)^3 / 3: y1'(t) = (t - 1)^2 >= 0 touches 0 at t = 1
+    basis = PolynomialBasis(3, T)
+    # in s = t / T: 1 + (2 s - 1)^3 / 3 = 2/3 + 2 s - 4 s^2 + 8/3 s^3 (y2 = t / T, any curve)
+    coefficients = np.array([[2.0 / 3.0, 2.0, -4.0, 8.0 / 3.0], [0.0, 1.0, 0.0, 0.0]])
+    from flatcli.core.planning import FlatTrajectory
+
+    curve = FlatTrajectory(basis, coefficients)
+    t = np.linspace(0.0, T, 10_001)
+    np.testing.assert_allclose(curve.derivative(t, 1)[:, 0], (t - 1.0) ** 2, atol=1e-12)
+    zeros = margin_zeros(curve)
+    assert zeros.size >= 1 and np.all(np.abs(zeros - 1.0) < 1e-6)
+
+
+def test_a_plan_through_sin_th1_zero_is_refused(paper_maneuver: Maneuver) -> None:
+    """th1 from 1 to 4 rad passes pi (sin th1 = 0) though th1' > 0 throughout."""
+    with pytest.raises(FlatcliError, match="sin th1 = 0"):
+        plan_with(paper_maneuver, goal=np.array([1.2, 4.0, 0.0]), goal_rate=0.5)
+
+
+def test_a_batch_is_refused_when_any_plan_crosses(paper_maneuver: Maneuver) -> None:
+    n = 50
+    rates = np.full(n, 0.5)
+    start = np.tile(paper_maneuver.start, (n, 1))
+    goal = np.tile(paper_maneuver.goal, (n, 1))
+    plan = plan_point_to_point(PAPER_ROBOT, start, goal, np.full(n, 0.1), rates, 2.0)
+    assert all(margin_zeros(type(plan.trajectory)(plan.trajectory.basis, c)).size == 0
+               for c in plan.trajectory.coefficients)
+    rates[17] = -0.5
+    with pytest.raises(FlatcliError, match="maneuver 17 of the batch"):
+        plan_point_to_point(PAPER_ROBOT, start, goal, np.full(n, 0.1), rates, 2.0)

@@ -2,13 +2,12 @@
 
 The controller knows the prolonged state (th0, th1, th2, u1) (the angles measured, perhaps
 with noise; u1 is its own integrator state), computes the flat outputs and rates with its
-*nominal* model, asks for
+*nominal* model (``flatness.outputs_at``), asks for
 
     v_i = y_id'' + kv_i (y_id' - y_i') + kp_i (y_id - y_i),    i = 1, 2
 
-and returns the inputs (u1', u2) that make y'' = v (``flatness.flat_inputs`` of v at the
-state, computed here in one pass). With an exact model the flat-output
-errors e = y_d - y then obey e'' + kv e' + kp e = 0.
+and returns the inputs (u1', u2) that make y'' = v (``flatness.inputs_at``). With an exact
+model the flat-output errors e = y_d - y then obey e'' + kv e' + kp e = 0.
 """
 
 from __future__ import annotations
@@ -20,7 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from flatcli.core._jit import Real, jitable
-from flatcli.core.flatness import chart, chart_slopes
+from flatcli.core.flatness import chart, chart_slopes, inputs_at, outputs_at
 from flatcli.core.model import Coefficients
 
 Array = NDArray[np.float64]
@@ -33,17 +32,6 @@ class Gains(NamedTuple):
     kp2: float
     kv1: float
     kv2: float
-
-
-class Reference(NamedTuple):
-    """The desired flat outputs at one instant (floats or arrays (...))."""
-
-    y1: float
-    y2: float
-    y1_dot: float
-    y2_dot: float
-    y1_ddot: float
-    y2_ddot: float
 
 
 @jitable
@@ -64,7 +52,7 @@ def feedback(
     gains : Gains
     th0, th1, th2 : measured angles [rad], (...)
     u1 : the controller's th1' [rad/s], (...)
-    ref : Reference, or any sequence y1, y2, y1', y2', y1'', y2'' [rad, rad/s, rad/s^2]
+    ref : y1, y2, y1', y2', y1'', y2'' of the plan at this instant [rad, rad/s, rad/s^2]
 
     Returns
     -------
@@ -86,12 +74,9 @@ def feedback_at(
     ref: Sequence[Real] | Array,
 ) -> tuple[Real, Real]:
     """``feedback`` given c1 = cos th1 and s1 = sin th1 (kernels share them with the plant)."""
-    # flat_outputs and flat_inputs at one state, with the trigonometry done once
     inv_A, g, h = chart(k, c1, s1)
     g_prime, h_prime = chart_slopes(k, c1, s1, inv_A, g)
-    alpha = g - h * th2
-    y2 = th0 - k.c0 * th2 * inv_A
-    y2_dot = alpha * u1
+    _, y2, _, y2_dot = outputs_at(k, inv_A, g, h, th0, th1, th2, u1)
     v1 = ref[4] + gains.kv1 * (ref[2] - u1) + gains.kp1 * (ref[0] - th1)
     v2 = ref[5] + gains.kv2 * (ref[3] - y2_dot) + gains.kp2 * (ref[1] - y2)
-    return v1, (alpha * v1 + (g_prime - h_prime * th2) * u1 * u1 - v2) / (h * u1)
+    return inputs_at(g, h, g_prime, h_prime, th2, u1, v1, v2)

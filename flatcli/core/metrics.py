@@ -1,7 +1,10 @@
-"""Per-trial metrics of a closed-loop run, computed from its trace on the simulation grid.
+"""Per-trial metrics of a closed-loop run, statuses, and how a trial ended.
 
-A trace holds the prolonged state (th0, th1, th2, u1) at the n + 1 grid times t_j = j dt.
-For each trial (definitions repeated in the README):
+The integrators (``integrate``) hand every output sample t_j = j dt, j = 0..n, to an
+accumulator as they produce it: the plant state x_j and its right-hand side f_j, i.e. the
+joint rates the plant actually applies there (with that sample's sensor noise). Nothing is
+kept per sample unless a trace is recorded, so memory does not grow with n. For each trial
+(definitions repeated in the README):
 
 * ``err_theta_*``: e_j = |th_j - th_ref,j| (Euclidean norm over the three angles) [rad];
   ``_rms`` = sqrt(mean_j e_j^2), ``_max`` = max_j e_j, ``_final`` = e_n.
@@ -9,140 +12,218 @@ For each trial (definitions repeated in the README):
   the controller's (nominal) flat map, against the plan's y [rad].
 * ``singular_hits``: samples whose margin |sin th1 * u1| is below the threshold;
   ``first_hit_time`` [s] (nan if none); ``min_margin`` [rad/s].
-* ``momentum_drift``: max_j |H_j - H0| [kg m^2/s], H_j from the full link kinematics of the
-  plant with rates from the trace itself (second-order differences: central inside,
-  one-sided at the ends, as numpy.gradient with edge_order=2). The integrated system conserves
-  H0 exactly, so this measures the integration error; it shrinks as dt^2.
+* ``momentum_drift``: max_j |H(x_j, f_j) - H0| [kg m^2/s], H from the plant's full link
+  kinematics at the integrated state with the joint rates the plant applies there (its own
+  right-hand side). The kinematic plant solves th0' from the momentum constraint, so this is
+  rounding (~1e-16) unless the constraint and the kinematics disagree; a plant with inertia
+  conserves H only through its dynamics, and then this measures the integration.
 * ``plan_momentum_residual``: max_j |H(th_ref,j, th_ref',j) - H0| over the plan's own
   sample grid (``plan.samples`` points, the rows of plan.parquet), with the plant's true
   parameters [kg m^2/s]: zero only when the controller's model is right.
+* ``err_estimate``: the adaptive integrator's estimate of the global error in th at the end
+  [rad]: the sum over accepted steps of the Euclidean norm of the embedded (order 4 vs 5)
+  local error estimate of th0, th1, th2 (nan for the other integrators).
+* ``peak_rate``: max_j of |th1'|, |th2'| applied by the plant [rad/s].
+* ``peak_torque``, ``torque_saturated``: joint torques of a plant with inertia (nan on the
+  kinematic plant).
+* ``steps``, ``rhs_evaluations``: accepted integration steps and right-hand-side
+  evaluations, the cost of the trial.
 
-A diverged trial (non-finite state, or a state beyond the divergence bound) keeps the
-metrics of its samples up to divergence, and nan final errors.
+A trial that stops early (``Event``) keeps the metrics of its samples up to that point and
+nan final errors; see ``Status`` for what each status means.
 """
 
 from __future__ import annotations
 
 import math
+from enum import IntEnum
 
 import numpy as np
 from numpy.typing import NDArray
 
 from flatcli.core._jit import jitable
 from flatcli.core.flatness import chart
-from flatcli.core.model import Coefficients, Links, momentum, momentum_at
+from flatcli.core.model import Coefficients, Links, momentum
 
 Array = NDArray[np.float64]
 
-METRIC_NAMES: tuple[str, ...] = (
-    "err_theta_rms",
-    "err_theta_max",
-    "err_theta_final",
-    "err_y_rms",
-    "err_y_max",
-    "err_y_final",
-    "singular_hits",
-    "first_hit_time",
-    "min_margin",
-    "momentum_drift",
-    "plan_momentum_residual",
-)
+
+class Metric(IntEnum):
+    """Column of a trial's metrics row (``Outcome.metrics``); names as in trials.parquet."""
+
+    ERR_THETA_RMS = 0
+    ERR_THETA_MAX = 1
+    ERR_THETA_FINAL = 2
+    ERR_Y_RMS = 3
+    ERR_Y_MAX = 4
+    ERR_Y_FINAL = 5
+    SINGULAR_HITS = 6
+    FIRST_HIT_TIME = 7
+    MIN_MARGIN = 8
+    MOMENTUM_DRIFT = 9
+    PLAN_MOMENTUM_RESIDUAL = 10
+    ERR_ESTIMATE = 11
+    PEAK_RATE = 12
+    PEAK_TORQUE = 13
+    TORQUE_SATURATED = 14
+    STEPS = 15
+    RHS_EVALUATIONS = 16
+
+
+# the metric columns as plain ints, for the kernels
+_M_ERR_THETA_RMS = int(Metric.ERR_THETA_RMS)
+_M_ERR_THETA_MAX = int(Metric.ERR_THETA_MAX)
+_M_ERR_THETA_FINAL = int(Metric.ERR_THETA_FINAL)
+_M_ERR_Y_RMS = int(Metric.ERR_Y_RMS)
+_M_ERR_Y_MAX = int(Metric.ERR_Y_MAX)
+_M_ERR_Y_FINAL = int(Metric.ERR_Y_FINAL)
+_M_SINGULAR_HITS = int(Metric.SINGULAR_HITS)
+_M_FIRST_HIT_TIME = int(Metric.FIRST_HIT_TIME)
+_M_MIN_MARGIN = int(Metric.MIN_MARGIN)
+_M_MOMENTUM_DRIFT = int(Metric.MOMENTUM_DRIFT)
+_M_PLAN_MOMENTUM_RESIDUAL = int(Metric.PLAN_MOMENTUM_RESIDUAL)
+_M_ERR_ESTIMATE = int(Metric.ERR_ESTIMATE)
+_M_PEAK_RATE = int(Metric.PEAK_RATE)
+_M_PEAK_TORQUE = int(Metric.PEAK_TORQUE)
+_M_TORQUE_SATURATED = int(Metric.TORQUE_SATURATED)
+_M_STEPS = int(Metric.STEPS)
+_M_RHS_EVALUATIONS = int(Metric.RHS_EVALUATIONS)
+
+METRIC_NAMES: tuple[str, ...] = tuple(m.name.lower() for m in Metric)
 N_METRICS = len(METRIC_NAMES)
+#: Metrics that count things (integers in the tables).
+COUNT_METRICS: tuple[str, ...] = ("singular_hits", "torque_saturated", "steps",
+                                  "rhs_evaluations")
 
-STATUS_OK = 0
-STATUS_SINGULAR = 1
-STATUS_DIVERGED = 2
-STATUS_NAMES: tuple[str, ...] = ("ok", "singular", "diverged", "error")
+
+class Status(IntEnum):
+    """How a trial ended.
+
+    * ``ok``: resolved to the end, never near the singular set.
+    * ``singular``: resolved to the end, but the margin fell below the singular threshold.
+    * ``diverged``: stopped early: a state beyond the divergence bound or non-finite, or the
+      controller met its singular set (the margin sin th1 * u1 changed sign, or the step
+      size collapsed onto it), where the feedback is unbounded and no integrator can pass.
+    * ``unresolved``: the adaptive integrator could not meet its tolerance (step size below
+      its floor away from the singular set, or ``max_steps`` spent).
+    * ``error``: the trial could not run at all (e.g. a perturbed mass <= 0; sweeps only).
+
+    Only ``ok`` and ``singular`` trials are resolved to the end; their errors are numbers a
+    study may average.
+    """
+
+    OK = 0
+    SINGULAR = 1
+    DIVERGED = 2
+    UNRESOLVED = 3
+    ERROR = 4
+
+
+STATUS_NAMES: tuple[str, ...] = tuple(s.name.lower() for s in Status)
+#: Statuses of trials resolved to the end.
+RESOLVED: tuple[str, ...] = ("ok", "singular")
+
+
+class Event(IntEnum):
+    """Why a trial stopped before the end (``NONE``: it did not)."""
+
+    NONE = 0
+    BOUND = 1  # a state beyond the divergence bound, or non-finite
+    CROSSED = 2  # the controller's margin sin th1 * u1 changed sign within a step
+    STALLED = 3  # the step size collapsed where the margin is ~0 (onto the singular set)
+    STEP_FLOOR = 4  # the step size fell below its floor elsewhere
+    MAX_STEPS = 5  # track.max_steps spent
+
+    @property
+    def status(self) -> Status:
+        if self is Event.NONE:
+            return Status.OK
+        if self in (Event.STEP_FLOOR, Event.MAX_STEPS):
+            return Status.UNRESOLVED
+        return Status.DIVERGED
+
+
+#: Accumulator layout (``new_accumulator``): running sums and extremes over the samples.
+_SUM_ET2, _MAX_ET2, _SUM_EY2, _MAX_EY2, _LAST_ET2, _LAST_EY2 = 0, 1, 2, 3, 4, 5
+_HITS, _FIRST, _MIN_MARGIN, _DRIFT, _PEAK_RATE, _COUNT = 6, 7, 8, 9, 10, 11
+_PEAK_TORQUE, _SATURATED = 12, 13
+ACCUMULATOR_SIZE = 14
 
 
 @jitable
-def trace_rates(trace: Array, j: int, last: int, inv_2dt: float) -> tuple[float, float, float]:
-    """th' at sample j of a trace (rows 0..last) by second-order differences [rad/s]."""
-    if j == 0:
-        a, b, c, wa, wb, wc = 0, 1, 2, -3.0, 4.0, -1.0
-    elif j == last:
-        a, b, c, wa, wb, wc = last - 2, last - 1, last, 1.0, -4.0, 3.0
-    else:
-        a, b, c, wa, wb, wc = j - 1, j, j + 1, -1.0, 0.0, 1.0
-    r0 = (wa * trace[a, 0] + wb * trace[b, 0] + wc * trace[c, 0]) * inv_2dt
-    r1 = (wa * trace[a, 1] + wb * trace[b, 1] + wc * trace[c, 1]) * inv_2dt
-    r2 = (wa * trace[a, 2] + wb * trace[b, 2] + wc * trace[c, 2]) * inv_2dt
-    return r0, r1, r2
+def reset_accumulator(acc: Array) -> None:
+    """Empty running metrics in ``acc`` (ACCUMULATOR_SIZE,)."""
+    acc[:] = 0.0
+    acc[_FIRST] = -1.0
+    acc[_MIN_MARGIN] = math.inf
+    acc[_PEAK_TORQUE] = math.nan
+    acc[_SATURATED] = math.nan
 
 
 @jitable
-def trace_metrics(
-    out: Array,
-    trace: Array,
-    last: int,
-    diverged: bool,
-    ref: Array,
+def observe_sample(
+    acc: Array,
+    j: int,
+    th0: float,
+    th1: float,
+    th2: float,
+    u1: float,
+    c1: float,
+    s1: float,
+    rate1: float,
+    rate2: float,
+    h: float,
     theta_ref: Array,
-    plan_theta: Array,
-    plan_theta_dot: Array,
+    ref: Array,
     kc: Coefficients,
-    links: Links,
     h0: float,
-    dt: float,
     threshold: float,
-) -> int:
-    """Fill ``out`` (N_METRICS,) from a trace; return the first hit sample (-1 if none).
+) -> None:
+    """Fold output sample j into the running metrics.
 
     Parameters
     ----------
-    out : (N_METRICS,) float, written in the order of METRIC_NAMES
-    trace : (>= last + 1, 9) th0, th1, th2 [rad], u1 [rad/s], u2 [rad/s], then cos th1,
-        sin th1, cos(th1 + th2), sin(th1 + th2) per grid sample (``simulate.TRACE_WIDTH``)
-    last : index of the last valid sample
-    diverged : whether the run stopped early (final errors are then nan)
-    ref : (2 n + 1, 6) plan y1, y2, y1', y2', y1'', y2'' at half steps
+    acc : (ACCUMULATOR_SIZE,) running metrics
+    j : sample index (t_j = j dt)
+    th0, th1, th2 : plant angles [rad]; u1 : the controller's th1' [rad/s]
+    c1, s1 : cos th1, sin th1 of the plant
+    rate1, rate2 : joint rates th1', th2' the plant applies [rad/s]
+    h : angular momentum of the plant at this sample from its full kinematics [kg m^2/s]
     theta_ref : (n + 1, 3) plan angles on the grid [rad]
-    plan_theta, plan_theta_dot : (m, 3) plan angles [rad] and exact rates [rad/s] on the
-        plan's own grid, for the plan's momentum residual
-    kc : Coefficients of the controller; links : Links of the plant; h0 [kg m^2/s]
-    dt : grid step [s]; threshold : singularity threshold on the margin [rad/s]
+    ref : (2 n + 1, 6) plan y1, y2, y1', y2', y1'', y2'' at half steps (row 2 j is t_j)
+    kc : the controller's coefficients; h0 : the plant's H0 [kg m^2/s]
+    threshold : singularity threshold on the margin [rad/s]
     """
-    # squared errors inside the loop; one square root per metric at the end
-    sum_et2 = 0.0
-    max_et2 = 0.0
-    sum_ey2 = 0.0
-    max_ey2 = 0.0
-    et2 = 0.0
-    ey2 = 0.0
-    hits = 0
-    first = -1
-    min_margin = math.inf
-    for j in range(last + 1):
-        d0 = trace[j, 0] - theta_ref[j, 0]
-        d1 = trace[j, 1] - theta_ref[j, 1]
-        d2 = trace[j, 2] - theta_ref[j, 2]
-        et2 = d0 * d0 + d1 * d1 + d2 * d2
-        c1, s1 = trace[j, 5], trace[j, 6]  # cos th1, sin th1 stored by the integrator
-        inv_A, _, _ = chart(kc, c1, s1)  # y = flat_outputs(kc, ...), sharing c1 and s1
-        e1 = trace[j, 1] - ref[2 * j, 0]
-        e2 = trace[j, 0] - kc.c0 * trace[j, 2] * inv_A - ref[2 * j, 1]
-        ey2 = e1 * e1 + e2 * e2
-        sum_et2 += et2
-        sum_ey2 += ey2
-        max_et2 = max(max_et2, et2)
-        max_ey2 = max(max_ey2, ey2)
-        margin = abs(s1 * trace[j, 3])  # singularity_margin
-        if margin < threshold:
-            hits += 1
-            if first < 0:
-                first = j
-        min_margin = min(min_margin, margin)
-    drift = math.nan
-    if last >= 2:
-        inv_2dt = 0.5 / dt
-        drift = max(_sample_drift(trace, 0, last, inv_2dt, links, h0),
-                    _sample_drift(trace, last, last, inv_2dt, links, h0))
-        for j in range(1, last):  # central differences: the stencil without a branch
-            r0 = (trace[j + 1, 0] - trace[j - 1, 0]) * inv_2dt
-            r1 = (trace[j + 1, 1] - trace[j - 1, 1]) * inv_2dt
-            r2 = (trace[j + 1, 2] - trace[j - 1, 2]) * inv_2dt
-            h = momentum_at(links, trace[j, 5], trace[j, 6], trace[j, 7], trace[j, 8], r0, r1, r2)
-            drift = max(drift, abs(h - h0))  # type: ignore[call-overload]
+    d0 = th0 - theta_ref[j, 0]
+    d1 = th1 - theta_ref[j, 1]
+    d2 = th2 - theta_ref[j, 2]
+    et2 = d0 * d0 + d1 * d1 + d2 * d2
+    inv_A, _, _ = chart(kc, c1, s1)  # the controller's y2 = th0 - c0 th2 / A (eq. 35)
+    e1 = th1 - ref[2 * j, 0]
+    e2 = th0 - kc.c0 * th2 * inv_A - ref[2 * j, 1]
+    ey2 = e1 * e1 + e2 * e2
+    acc[_SUM_ET2] += et2
+    acc[_SUM_EY2] += ey2
+    acc[_MAX_ET2] = max(acc[_MAX_ET2], et2)
+    acc[_MAX_EY2] = max(acc[_MAX_EY2], ey2)
+    acc[_LAST_ET2] = et2
+    acc[_LAST_EY2] = ey2
+    margin = abs(s1 * u1)  # singularity_margin
+    if margin < threshold:
+        acc[_HITS] += 1.0
+        if acc[_FIRST] < 0.0:
+            acc[_FIRST] = j
+    acc[_MIN_MARGIN] = min(acc[_MIN_MARGIN], margin)
+    acc[_DRIFT] = max(acc[_DRIFT], abs(h - h0))
+    acc[_PEAK_RATE] = max(acc[_PEAK_RATE], abs(rate1), abs(rate2))
+    acc[_COUNT] += 1.0
+
+
+@jitable
+def plan_momentum_residual(
+    plan_theta: Array, plan_theta_dot: Array, links: Links, h0: float
+) -> float:
+    """max_j |H - H0| of the plan's own samples with the plant's parameters [kg m^2/s]."""
     residual = 0.0
     for j in range(plan_theta.shape[0]):
         h = momentum(
@@ -155,49 +236,100 @@ def trace_metrics(
             plan_theta_dot[j, 2],
         )
         residual = max(residual, abs(h - h0))  # type: ignore[call-overload]
-    count = last + 1
-    out[0] = math.sqrt(sum_et2 / count)
-    out[1] = math.sqrt(max_et2)
-    out[2] = math.nan if diverged else math.sqrt(et2)
-    out[3] = math.sqrt(sum_ey2 / count)
-    out[4] = math.sqrt(max_ey2)
-    out[5] = math.nan if diverged else math.sqrt(ey2)
-    out[6] = hits
-    out[7] = first * dt if first >= 0 else math.nan
-    out[8] = min_margin
-    out[9] = drift
-    out[10] = residual
-    return first
+    return residual
 
 
 @jitable
-def _sample_drift(
-    trace: Array, j: int, last: int, inv_2dt: float, links: Links, h0: float
-) -> float:
-    """|H - H0| at sample j of a trace, rates by ``trace_rates``."""
-    r0, r1, r2 = trace_rates(trace, j, last, inv_2dt)
-    h = momentum_at(links, trace[j, 5], trace[j, 6], trace[j, 7], trace[j, 8], r0, r1, r2)
-    return float(np.abs(h - h0))
+def finish_metrics(
+    out: Array, acc: Array, complete: bool, dt: float, residual: float, err_estimate: float,
+    steps: int, evaluations: int,
+) -> int:
+    """Write the metrics row ``out`` (N_METRICS,) from the running metrics; return the first
+    hit's sample index (-1 if none). ``complete``: the trial reached the end."""
+    count = acc[_COUNT]
+    first = int(acc[_FIRST])
+    out[_M_ERR_THETA_RMS] = math.sqrt(acc[_SUM_ET2] / count) if count else math.nan
+    out[_M_ERR_THETA_MAX] = math.sqrt(acc[_MAX_ET2]) if count else math.nan
+    out[_M_ERR_THETA_FINAL] = math.sqrt(acc[_LAST_ET2]) if complete else math.nan
+    out[_M_ERR_Y_RMS] = math.sqrt(acc[_SUM_EY2] / count) if count else math.nan
+    out[_M_ERR_Y_MAX] = math.sqrt(acc[_MAX_EY2]) if count else math.nan
+    out[_M_ERR_Y_FINAL] = math.sqrt(acc[_LAST_EY2]) if complete else math.nan
+    out[_M_SINGULAR_HITS] = acc[_HITS]
+    out[_M_FIRST_HIT_TIME] = first * dt if first >= 0 else math.nan
+    out[_M_MIN_MARGIN] = acc[_MIN_MARGIN] if count else math.nan
+    out[_M_MOMENTUM_DRIFT] = acc[_DRIFT] if count else math.nan
+    out[_M_PLAN_MOMENTUM_RESIDUAL] = residual
+    out[_M_ERR_ESTIMATE] = err_estimate
+    out[_M_PEAK_RATE] = acc[_PEAK_RATE] if count else math.nan
+    out[_M_PEAK_TORQUE] = acc[_PEAK_TORQUE]
+    out[_M_TORQUE_SATURATED] = acc[_SATURATED]
+    out[_M_STEPS] = steps
+    out[_M_RHS_EVALUATIONS] = evaluations
+    return first
 
 
 def describe_status(
-    code: int, event_time: float, metrics: Array, threshold: float, bound: float
+    code: int, event: int, event_time: float, metrics: Array, threshold: float, bound: float
 ) -> tuple[str, str]:
     """Status name and a one-line reason for a trial.
 
     Parameters
     ----------
-    code : STATUS_OK, STATUS_SINGULAR or STATUS_DIVERGED
-    event_time : time of divergence [s] (ignored otherwise)
-    metrics : (N_METRICS,) as filled by ``trace_metrics``
+    code : a ``Status``
+    event : the ``Event`` that stopped the trial (``Event.NONE`` if it reached the end)
+    event_time : when it stopped [s] (ignored otherwise)
+    metrics : (N_METRICS,) as written by ``finish_metrics``
     threshold : singularity threshold [rad/s]; bound : divergence bound
     """
-    if code == STATUS_DIVERGED:
-        return "diverged", (f"state non-finite or beyond {bound:g} at t = {event_time:.6g} s")
-    if code == STATUS_SINGULAR:
-        hits = int(metrics[6])
+    status = Status(code)
+    at = f"t = {event_time:.6g} s"
+    if status is Status.DIVERGED:
+        why = Event(event)
+        if why is Event.CROSSED:
+            return "diverged", (
+                f"crossed the singular set at {at}: the margin sin th1 * u1 changed sign, "
+                "where the feedback is unbounded"
+            )
+        if why is Event.STALLED:
+            return "diverged", (
+                f"met the singular set at {at}: the step size collapsed where the margin "
+                "sin th1 * u1 vanishes and the feedback is unbounded"
+            )
+        return "diverged", f"state non-finite or beyond {bound:g} at {at}"
+    if status is Status.UNRESOLVED:
+        if Event(event) is Event.MAX_STEPS:
+            return "unresolved", (
+                f"track.max_steps spent at {at} ({int(metrics[Metric.STEPS])} steps): the "
+                "tolerance could not be met within the step budget"
+            )
+        return "unresolved", (
+            f"step size fell below its floor at {at}: the tolerance (track.rtol, track.atol) "
+            "could not be met there"
+        )
+    if status is Status.SINGULAR:
+        hits = int(metrics[Metric.SINGULAR_HITS])
         return "singular", (
             f"margin |sin th1 * u1| below {threshold:g} rad/s at {hits} samples, first at "
-            f"t = {metrics[7]:.6g} s, min {metrics[8]:.3g}"
+            f"t = {metrics[Metric.FIRST_HIT_TIME]:.6g} s, min {metrics[Metric.MIN_MARGIN]:.3g}"
         )
+    if status is Status.ERROR:
+        return "error", ""
     return "ok", ""
+
+
+__all__ = [
+    "ACCUMULATOR_SIZE",
+    "COUNT_METRICS",
+    "METRIC_NAMES",
+    "N_METRICS",
+    "RESOLVED",
+    "STATUS_NAMES",
+    "Event",
+    "Metric",
+    "Status",
+    "describe_status",
+    "finish_metrics",
+    "observe_sample",
+    "plan_momentum_residual",
+    "reset_accumulator",
+]

@@ -78,7 +78,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import minimize
 
-from flatcli.core.flatness import chart, chart_slopes, flat_outputs
+from flatcli.core.basis import Basis, BSplineBasis, composite_gauss_legendre
+from flatcli.core.flatness import chart, flag_state, flat_outputs
 from flatcli.core.model import (
     Coefficients,
     FlatcliError,
@@ -89,14 +90,13 @@ from flatcli.core.model import (
 )
 from flatcli.core.planning import (
     COMPLEX_STEP,
-    Basis,
-    BSplineBasis,
+    ENERGY_ORDER,
+    ENERGY_PIECES,
     FlatPlan,
     FlatTrajectory,
     boundary_conditions,
-    boundary_matrix,
+    boundary_system,
     min_acceleration_trajectory,
-    null_space,
 )
 
 Array = NDArray[np.float64]
@@ -149,10 +149,6 @@ EXCHANGE_ROUNDS = 6
 SOLVER_TOL = 1e-10
 #: Stand-in for non-finite values (a trial point on the singular set) seen by the solver.
 _BIG = 1e6
-
-#: Composite Gauss-Legendre rule of ``FlatPlan.input_energy``: pieces, nodes per piece.
-ENERGY_PIECES = 64
-ENERGY_ORDER = 8
 
 # Rows of the pointwise quantities returned by ``flag_quantities``.
 _TH0, _TH1, _TH2, _RATE1, _RATE2, _MARGIN = range(6)
@@ -256,9 +252,8 @@ def default_basis(duration: float) -> BSplineBasis:
 def flag_quantities(k: Coefficients, flag: NDArray[np.generic]) -> NDArray[np.generic]:
     """Pointwise quantities of a plan from its flat flag (real or complex: complex-step safe).
 
-    With g = B/A, h = c0 a1 sin y1 / A^2 (``flatness.chart``) and w = h y1':
-    th2 = (g y1' - y2') / w, th0 = y2 + c0 th2 / A, and, differentiating along the flag,
-    th2' = ((g' h - g h') y1'^3 - h y1' y2'' + y2' (h' y1'^2 + h y1'')) / w^2.
+    ``flatness.flag_state`` at each time: th0, th1 = y1, th2, th1' = y1', th2' = u2, and the
+    unsigned margin sin(y1) y1'.
 
     Parameters
     ----------
@@ -271,16 +266,8 @@ def flag_quantities(k: Coefficients, flag: NDArray[np.generic]) -> NDArray[np.ge
     margin); inf/nan on the singular set sin y1 y1' = 0
     """
     y1, y2, y1d, y2d, y1dd, y2dd = flag
-    c1, s1 = np.cos(y1), np.sin(y1)
-    inv_A, g, h = chart(k, c1, s1)
-    g_p, h_p = chart_slopes(k, c1, s1, inv_A, g)
-    w = h * y1d
-    th2 = (g * y1d - y2d) / w
-    th0 = y2 + k.c0 * th2 * inv_A
-    th2_dot = (
-        (g_p * h - g * h_p) * y1d**3 - h * y1d * y2dd + y2d * (h_p * y1d * y1d + h * y1dd)
-    ) / (w * w)
-    return np.stack([th0, y1, th2, y1d, th2_dot, s1 * y1d])
+    th0, th1, th2, u1, _, u2, _ = flag_state(k, y1, y2, y1d, y2d, y1dd, y2dd)
+    return np.stack([th0, th1, th2, u1, u2, np.sin(y1) * y1d])
 
 
 def flag_jacobian(k: Coefficients, flag: Array) -> tuple[Array, Array]:
@@ -399,14 +386,6 @@ def _limit_rows(limits: PlanLimits, objective: _Goal) -> _Rows:
     )
 
 
-def _energy_rule(duration: float) -> tuple[Array, Array]:
-    """Nodes and weights of ``FlatPlan.input_energy``'s composite Gauss-Legendre rule [s]."""
-    x, w = np.polynomial.legendre.leggauss(ENERGY_ORDER)
-    edges = np.linspace(0.0, duration, ENERGY_PIECES + 1)
-    half = 0.5 * np.diff(edges)[:, None]
-    return (half * (x + 1.0) + edges[:-1, None]).ravel(), (half * w).ravel()
-
-
 class _Problem:
     """The nonlinear programme in x: objective, constraints and their exact Jacobians.
 
@@ -434,7 +413,7 @@ class _Problem:
         self.duration = duration
         self.nv = affine.slope.shape[0]
         self.epigraph = objective in _EPIGRAPH
-        nodes, self.weights = _energy_rule(duration)
+        nodes, self.weights = composite_gauss_legendre(duration, ENERGY_PIECES, ENERGY_ORDER)
         self.flags: dict[str, tuple[Array, Array]] = {"quad": affine.flag(nodes)}
         self.needed: dict[str, list[int]] = {
             "quad": [_RATE1, _RATE2],
@@ -833,11 +812,9 @@ def _affine_map(
     epigraph: bool,
 ) -> tuple[_Affine, Array]:
     """The affine coefficient map and the starting guess x0 (the min-acceleration plan)."""
-    E = boundary_matrix(basis)
-    if basis.size < E.shape[0]:
-        raise FlatcliError(f"plan basis: needs >= 4 coefficients, got {basis.size}")
-    P = np.linalg.pinv(E)  # (size, 4)
-    N = null_space(E)  # (size, m)
+    system = boundary_system(basis)  # type: ignore[arg-type]
+    P = system.particular  # (size, 4)
+    N = system.null  # (size, m)
     m = N.shape[1]
     y1_0, y2_0, k0 = _end_flat(k, start)  # k0 = y2'(0) / th1'(0)
     y1_T, y2_T, kT = _end_flat(k, goal)

@@ -1,15 +1,20 @@
 """Point-to-point plans in flat outputs, and everything a plan implies along its time grid.
 
-A plan is a pair of curves y(t) = (y1, y2) written in a basis (polynomials of any degree or
-clamped B-splines), with the boundary values of y and y' imposed exactly. The start and goal
-configurations fix y(0), y(T) and, through the forward map, y2'(0) and y2'(T) once the free
-end rates th1'(0) = y1'(0) and th1'(T) = y1'(T) are chosen (the paper picks 0.1 and 0.5).
-Coefficients the boundary conditions leave free are chosen to minimise the acceleration
+A plan is a pair of curves y(t) = (y1, y2) written in a basis (``basis``: polynomials of any
+degree or clamped B-splines), with the boundary values of y and y' imposed exactly. The start
+and goal configurations fix y(0), y(T) and, through the forward map, y2'(0) and y2'(T) once
+the free end rates th1'(0) = y1'(0) and th1'(T) = y1'(T) are chosen (the paper picks 0.1 and
+0.5). Coefficients the boundary conditions leave free are chosen to minimise the acceleration
 energy of y (for a cubic there are none); ``flatcli.core.optimize`` chooses them otherwise.
 
-Everything else follows from y: th(t) from the inverse map, th'(t) by exact differentiation
-of that map (complex step along the flat flag: no finite difference, and never from the
-constraint), u1' and u2, the singularity margin, and H from the full link kinematics.
+Everything else follows from y through ``flatness.flag_state``: th(t), u1' and u2, and th'(t)
+(here by complex step through the inverse map along the flat flag: no finite difference, and
+never from the constraint), the singularity margin, and H from the full link kinematics.
+
+A plan whose signed margin sin(y1) y1' changes sign or touches zero inside (0, T) passes
+through the singular set, where the inverse map is infinite: it is not a plan, and
+``plan_point_to_point`` refuses it (``margin_zeros`` finds those times exactly, from the
+roots of the piecewise polynomials y1' and y1 - k pi).
 """
 
 from __future__ import annotations
@@ -17,14 +22,14 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
-from typing import Protocol
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from flatcli.core._jit import kernel
-from flatcli.core.flatness import flat_inputs, flat_outputs, flat_state, singularity_margin
+from flatcli.core.basis import Basis, PolynomialBasis, composite_gauss_legendre, quadrature
+from flatcli.core.flatness import flag_state, flat_outputs, flat_state, singularity_margin
 from flatcli.core.model import (
     Coefficients,
     FlatcliError,
@@ -39,98 +44,14 @@ Array = NDArray[np.float64]
 #: Complex-step size: derivatives exact to rounding, since no difference is taken.
 COMPLEX_STEP = 1e-30
 
+#: Composite Gauss-Legendre rule of ``FlatPlan.input_energy`` (and the optimiser's energy):
+#: pieces of [0, T], nodes per piece.
+ENERGY_PIECES = 64
+ENERGY_ORDER = 8
 
-class Basis(Protocol):
-    """A family of scalar functions phi_j(t), j < size, on [0, duration]."""
-
-    @property
-    def size(self) -> int: ...
-
-    @property
-    def duration(self) -> float: ...
-
-    @property
-    def breakpoints(self) -> Array:
-        """Times where the basis may lose smoothness, including 0 and T [s]."""
-        ...
-
-    def matrix(self, t: Array, order: int) -> Array:
-        """(n, size): d^order phi_j / dt^order at the times t (n,) [s]."""
-        ...
-
-
-@dataclass(frozen=True)
-class PolynomialBasis:
-    """Scaled monomials phi_j(t) = (t/T)^j, j = 0..degree (well conditioned up to ~12)."""
-
-    degree: int
-    duration: float
-
-    def __post_init__(self) -> None:
-        if self.degree < 3:
-            raise FlatcliError(f"plan.degree: must be >= 3 (a cubic), got {self.degree}")
-        if not self.duration > 0:
-            raise FlatcliError(f"plan.duration: must be > 0 s, got {self.duration}")
-
-    @property
-    def size(self) -> int:
-        return self.degree + 1
-
-    @property
-    def breakpoints(self) -> Array:
-        return np.array([0.0, self.duration])
-
-    def matrix(self, t: Array, order: int) -> Array:
-        s = np.asarray(t, dtype=float) / self.duration
-        powers = np.vander(s, self.size, increasing=True)  # s^0 .. s^degree
-        if order == 0:
-            return powers
-        j = np.arange(order, self.size)
-        falling = np.ones(self.size - order)  # j! / (j - order)!
-        for r in range(order):
-            falling = falling * (j - r)
-        out = np.zeros_like(powers)
-        out[:, order:] = powers[:, : self.size - order] * (falling / self.duration**order)
-        return out
-
-
-@dataclass(frozen=True)
-class BSplineBasis:
-    """Clamped B-splines of a given degree on uniform knots over [0, duration] (scipy)."""
-
-    size: int
-    duration: float
-    degree: int = 5
-    knots: Array = field(init=False, repr=False, compare=False)
-
-    def __post_init__(self) -> None:
-        if self.degree < 3:
-            raise FlatcliError(f"plan.degree: must be >= 3 for B-splines, got {self.degree}")
-        if self.size < max(4, self.degree + 1):
-            raise FlatcliError(
-                f"plan.size: a degree-{self.degree} B-spline needs >= {max(4, self.degree + 1)} "
-                f"coefficients, got {self.size}"
-            )
-        if not self.duration > 0:
-            raise FlatcliError(f"plan.duration: must be > 0 s, got {self.duration}")
-        inner = np.linspace(0.0, self.duration, self.size - self.degree + 1)
-        knots = np.concatenate(
-            [np.full(self.degree, 0.0), inner, np.full(self.degree, self.duration)]
-        )
-        object.__setattr__(self, "knots", knots)
-
-    @property
-    def breakpoints(self) -> Array:
-        return np.unique(self.knots)
-
-    def matrix(self, t: Array, order: int) -> Array:
-        from scipy.interpolate import BSpline  # imported when B-splines are used
-
-        spline = BSpline(self.knots, np.eye(self.size), self.degree, extrapolate=False)
-        if order:
-            spline = spline.derivative(order)
-        tt = np.clip(np.asarray(t, dtype=float), 0.0, self.duration)
-        return np.asarray(spline(tt), dtype=float)
+#: A root of y1' (or of y1 - k pi) with |imaginary part| below this (relative to 1 + |root|)
+#: counts as real: a double root, where the margin touches zero, comes out as a close pair.
+ROOT_IMAG_TOL = 1e-7
 
 
 @dataclass(frozen=True)
@@ -144,6 +65,12 @@ class FlatTrajectory:
         """(..., n, 2): d^order y / dt^order at times t (n,) [rad/s^order]."""
         phi = self.basis.matrix(np.atleast_1d(np.asarray(t, dtype=float)), order)
         return phi @ np.swapaxes(self.coefficients, -1, -2)
+
+    def piecewise(self) -> tuple[Array, Array]:
+        """One curve as piecewise polynomials: ``Basis.piecewise`` of its coefficients."""
+        if self.coefficients.ndim != 2:
+            raise ValueError("FlatTrajectory.piecewise: one plan at a time")
+        return self.basis.piecewise(self.coefficients)
 
 
 @dataclass(frozen=True)
@@ -230,20 +157,35 @@ def _one_boundary(
                     np.array([b1d, b2d]))
 
 
-def quadrature(basis: Basis, count: int) -> tuple[Array, Array]:
-    """Gauss-Legendre nodes and weights, ``count`` per smooth piece of the basis [s]."""
-    x, w = np.polynomial.legendre.leggauss(count)
-    edges = basis.breakpoints
-    lo, hi = edges[:-1, None], edges[1:, None]
-    nodes = 0.5 * (hi - lo) * (x + 1.0) + lo
-    weights = 0.5 * (hi - lo) * w
-    return nodes.ravel(), weights.ravel()
+@dataclass(frozen=True)
+class BoundarySystem:
+    """The boundary conditions of a basis as a linear system E c = r for one output.
+
+    Attributes
+    ----------
+    matrix : (4, size) E, rows phi(0), phi'(0), phi(T), phi'(T)
+    particular : (size, 4) E^+, so that E^+ r meets the conditions
+    null : (size, size - 4) an orthonormal basis of the null space of E (the coefficients
+        the conditions leave free)
+    """
+
+    matrix: Array
+    particular: Array
+    null: Array
 
 
-def boundary_matrix(basis: Basis) -> Array:
-    """(4, size): rows phi(0), phi'(0), phi(T), phi'(T)."""
+@functools.lru_cache(maxsize=64)
+def boundary_system(basis: Basis) -> BoundarySystem:  # bases are frozen dataclasses
+    """``BoundarySystem`` of a basis (computed once per basis; arrays read-only).
+
+    Raises
+    ------
+    FlatcliError if the basis is too small or cannot meet arbitrary boundary values.
+    """
+    from scipy.linalg import null_space
+
     ends = np.array([0.0, basis.duration])
-    return np.vstack(
+    E = np.vstack(
         [
             basis.matrix(ends[:1], 0),
             basis.matrix(ends[:1], 1),
@@ -251,10 +193,19 @@ def boundary_matrix(basis: Basis) -> Array:
             basis.matrix(ends[1:], 1),
         ]
     )
+    if basis.size < E.shape[0]:
+        raise FlatcliError(f"plan basis: needs >= 4 coefficients, got {basis.size}")
+    P: Array = np.linalg.pinv(E).astype(float)
+    if not np.allclose(E @ P, np.eye(E.shape[0]), atol=1e-9):
+        raise FlatcliError("plan basis: cannot meet the boundary conditions")
+    N = np.ascontiguousarray(null_space(E))
+    for a in (E, P, N):
+        a.setflags(write=False)
+    return BoundarySystem(E, P, N)
 
 
 def boundary_rhs(boundary: Boundary) -> Array:
-    """(..., 4, 2): y(0), y'(0), y(T), y'(T) of both outputs, matching ``boundary_matrix``."""
+    """(..., 4, 2): y(0), y'(0), y(T), y'(T) of both outputs, matching ``BoundarySystem``."""
     return np.stack(
         [boundary.y_start, boundary.y_dot_start, boundary.y_goal, boundary.y_dot_goal], axis=-2
     )
@@ -268,7 +219,7 @@ def acceleration_gram(basis: Basis) -> Array:
 
 
 @functools.lru_cache(maxsize=64)
-def min_acceleration_operator(basis: Basis) -> Array:  # bases are frozen dataclasses
+def min_acceleration_operator(basis: Basis) -> Array:
     """(size, 4): coefficients = K @ (y(0), y'(0), y(T), y'(T)) of one output (read-only).
 
     The least integral of |y''|^2 among the curves of the basis meeting the boundary
@@ -276,13 +227,9 @@ def min_acceleration_operator(basis: Basis) -> Array:  # bases are frozen datacl
     of its null space and Q the acceleration Gram matrix. It depends on the basis only, so
     it is computed once per basis.
     """
-    E = boundary_matrix(basis)
-    if basis.size < E.shape[0]:
-        raise FlatcliError(f"plan basis: needs >= 4 coefficients, got {basis.size}")
-    K: Array = np.linalg.pinv(E).astype(float)
-    if not np.allclose(E @ K, np.eye(E.shape[0]), atol=1e-9):
-        raise FlatcliError("plan basis: cannot meet the boundary conditions")
-    null = null_space(E)
+    system = boundary_system(basis)  # type: ignore[arg-type]
+    K = system.particular.copy()
+    null = system.null
     if null.shape[1]:
         Q = acceleration_gram(basis)
         K = K - null @ np.linalg.solve(null.T @ Q @ null, null.T @ Q @ K)
@@ -302,11 +249,46 @@ def min_acceleration_trajectory(basis: Basis, boundary: Boundary) -> FlatTraject
     return FlatTrajectory(basis, np.ascontiguousarray(np.swapaxes(coefficients, -1, -2)))
 
 
-def null_space(E: Array) -> Array:
-    """(size, size - rank): an orthonormal basis of the null space of E."""
-    _, s, vt = np.linalg.svd(E)
-    rank = int(np.sum(s > s[0] * 1e-12))
-    return np.ascontiguousarray(vt[rank:].T)
+def _unit_interval_roots(a: Array) -> list[float]:
+    """Real roots in [0, 1] of the polynomial sum_j a_j s^j (exact zero: every s is one)."""
+    scale = float(np.max(np.abs(a)))
+    if scale == 0.0:
+        return [0.0]
+    trimmed = np.trim_zeros(np.where(np.abs(a) > 1e-14 * scale, a, 0.0), "b")
+    if trimmed.size <= 1:
+        return []
+    roots = np.polynomial.polynomial.polyroots(trimmed)
+    real = roots.real[np.abs(roots.imag) <= ROOT_IMAG_TOL * (1.0 + np.abs(roots.real))]
+    return sorted(float(r) for r in real if 0.0 <= r <= 1.0)
+
+
+def margin_zeros(trajectory: FlatTrajectory) -> Array:
+    """Times in (0, T) where the signed margin sin(y1) y1' of one plan is zero [s].
+
+    y1' = 0 at the real roots of y1' on each polynomial piece (double roots included, where
+    the margin touches zero without changing sign); sin y1 = 0 where y1 = k pi between the
+    extremes of y1. Empty for a plan that stays off the singular set.
+    """
+    breaks, local = trajectory.piecewise()
+    y1 = local[:, :, 0]  # (m, degree + 1) in s on each piece
+    powers = np.arange(1, y1.shape[1])
+    times: list[float] = []
+    values = [float(y1[0, 0]), float(np.sum(y1[-1]))]  # y1(0), y1(T)
+    for i in range(y1.shape[0]):
+        lo, width = float(breaks[i]), float(breaks[i + 1] - breaks[i])
+        for s in _unit_interval_roots(y1[i, 1:] * powers):  # dy1/ds
+            times.append(lo + width * s)
+            values.append(float(np.polynomial.polynomial.polyval(s, y1[i])))
+    low, high = min(values), max(values)
+    for k in range(math.ceil(low / math.pi), math.floor(high / math.pi) + 1):
+        shifted = y1.copy()
+        shifted[:, 0] -= k * math.pi
+        for i in range(y1.shape[0]):
+            lo, width = float(breaks[i]), float(breaks[i + 1] - breaks[i])
+            times.extend(lo + width * s for s in _unit_interval_roots(shifted[i]))
+    duration = float(breaks[-1])
+    inside = [t for t in times if 0.0 < t < duration]
+    return np.unique(np.asarray(inside, dtype=float))
 
 
 @dataclass(frozen=True)
@@ -408,25 +390,26 @@ class FlatPlan:
         y_dot = self.trajectory.derivative(t, 1)
         y_ddot = self.trajectory.derivative(t, 2)
         with np.errstate(divide="ignore", invalid="ignore"):
-            th0, th1, th2, u1 = flat_state(k, y[..., 0], y[..., 1], y_dot[..., 0], y_dot[..., 1])
-            u1_dot, u2 = flat_inputs(k, th1, th2, u1, y_ddot[..., 0], y_ddot[..., 1])
+            th0, th1, th2, u1, u1_dot, u2, _ = flag_state(
+                k, y[..., 0], y[..., 1], y_dot[..., 0], y_dot[..., 1], y_ddot[..., 0],
+                y_ddot[..., 1])
         return np.stack([th0, th1, th2, u1], axis=-1), np.stack([u1_dot, u2], axis=-1)
 
     def grid(self, samples: int) -> Array:
         """(samples,) equally spaced times over [0, duration] [s]."""
         return np.linspace(0.0, self.duration, samples)
 
-    def input_energy(self, pieces: int = 64, order: int = 8) -> float:
+    def input_energy(self, pieces: int = ENERGY_PIECES, order: int = ENERGY_ORDER) -> float:
         """Integral over [0, T] of th1'^2 + th2'^2 [rad^2/s] (composite Gauss-Legendre)."""
-        x, w = np.polynomial.legendre.leggauss(order)
-        edges = np.linspace(0.0, self.duration, pieces + 1)
-        half = 0.5 * np.diff(edges)[:, None]
-        t = (half * (x + 1.0) + edges[:-1, None]).ravel()
-        weights = (half * w).ravel()
+        t, weights = composite_gauss_legendre(self.duration, pieces, order)
         rates = self.sample(t).theta_dot
         if rates.ndim > 2:
             raise ValueError("input_energy: one plan at a time")
         return float(weights @ (rates[:, 1] ** 2 + rates[:, 2] ** 2))
+
+    def margin_zeros(self) -> Array:
+        """Times in (0, T) where the plan meets the singular set [s] (``margin_zeros``)."""
+        return margin_zeros(self.trajectory)
 
 
 @kernel
@@ -450,10 +433,58 @@ def _polynomial_state_inputs(
             flag[o] = p
             flag[2 + o] = dp / duration
             flag[4 + o] = 2.0 * half_ddp / (duration * duration)
-        th0, th1, th2, u1 = flat_state(k, flag[0], flag[1], flag[2], flag[3])
-        u1_dot, u2 = flat_inputs(k, th1, th2, u1, flag[4], flag[5])
+        th0, th1, th2, u1, u1_dot, u2, _ = flag_state(k, flag[0], flag[1], flag[2], flag[3],
+                                                      flag[4], flag[5])
         state[i, 0], state[i, 1], state[i, 2], state[i, 3] = th0, th1, th2, u1
         inputs[i, 0], inputs[i, 1] = u1_dot, u2
+
+
+def _touches_singular_set(basis: PolynomialBasis, coefficients: Array) -> NDArray[np.bool_]:
+    """(B,) which polynomial plans (coefficients (B, 2, size)) meet the singular set inside
+    (0, T), all at once: a real root of y1' in (0, 1) (eigenvalues of the companion matrices),
+    or a monotone y1 whose ends lie on either side of a multiple of pi."""
+    a = coefficients[:, 0, :]  # y1 in s = t / T
+    d = a[:, 1:] * np.arange(1, a.shape[1])  # dy1/ds, (B, degree)
+    bad = np.zeros(a.shape[0], dtype=bool)
+    lead = np.abs(d[:, -1]) > 1e-14 * np.max(np.abs(d), axis=1)
+    if d.shape[1] >= 2:
+        n = d.shape[1] - 1  # degree of dy1/ds
+        companion = np.zeros((int(lead.sum()), n, n))
+        companion[:, 1:, :-1] = np.eye(n - 1)
+        companion[:, :, -1] = -d[lead, :-1] / d[lead, -1:]
+        roots = np.linalg.eigvals(companion)
+        real = np.abs(roots.imag) <= ROOT_IMAG_TOL * (1.0 + np.abs(roots.real))
+        bad[lead] = np.any(real & (roots.real > 0.0) & (roots.real < 1.0), axis=1)
+    for row in np.flatnonzero(~lead):  # degenerate leading coefficient: one at a time
+        bad[row] = any(0.0 < s < 1.0 for s in _unit_interval_roots(d[row]))
+    ends = np.stack([a[:, 0], a.sum(axis=1)], axis=1)
+    crosses_pi = np.floor(ends[:, 0] / math.pi) != np.floor(ends[:, 1] / math.pi)
+    return np.asarray(bad | crosses_pi, dtype=bool)
+
+
+def require_off_singular_set(trajectory: FlatTrajectory) -> None:
+    """Raise FlatcliError if a plan (or any plan of a batch) meets the singular set inside
+    (0, T): its signed margin sin(y1) y1' changes sign or touches zero (``margin_zeros``)."""
+    coefficients = trajectory.coefficients
+    batch = coefficients.reshape(-1, *coefficients.shape[-2:])
+    if isinstance(trajectory.basis, PolynomialBasis) and len(batch) > 1:
+        suspects = np.flatnonzero(_touches_singular_set(trajectory.basis, batch))
+    else:
+        suspects = np.arange(len(batch))
+    for row in suspects:
+        single = FlatTrajectory(trajectory.basis, batch[row])
+        zeros = margin_zeros(single)
+        if zeros.size:
+            t = float(zeros[0])
+            y1, y1_dot = (float(single.derivative(np.array([t]), order)[0, 0]) for order in (0, 1))
+            factor = "th1' = 0" if abs(y1_dot) <= abs(math.sin(y1)) else "sin th1 = 0"
+            which = f" (maneuver {row} of the batch)" if len(batch) > 1 else ""
+            raise FlatcliError(
+                f"plan: the signed margin sin(th1) th1' is zero at t = {t:.4g} s inside the "
+                f"maneuver{which} ({factor}): the plan crosses the singular set, where the flat "
+                "map is infinite; change plan.start_rate / plan.goal_rate or plan.duration, or "
+                "use --optimize, which keeps the margin above plan.optimize.min_margin"
+            )
 
 
 def plan_point_to_point(
@@ -481,10 +512,16 @@ def plan_point_to_point(
     Returns
     -------
     FlatPlan
+
+    Raises
+    ------
+    FlatcliError, one line naming the key: a design that is not flat, an end on the
+    singular set, or a plan that meets the singular set inside (0, T)
+    (``require_off_singular_set``).
     """
     require_flat(robot)
-    if not duration > 0:
-        raise FlatcliError(f"plan.duration: must be > 0 s, got {duration}")
+    if not (duration > 0 and math.isfinite(duration)):
+        raise FlatcliError(f"plan.duration: must be a finite number > 0 s, got {duration}")
     k = robot.coefficients(model)
     if basis is None:
         basis = PolynomialBasis(3, duration)
@@ -492,4 +529,5 @@ def plan_point_to_point(
         raise FlatcliError("plan basis: its duration differs from plan.duration")
     bc = boundary_conditions(k, start, goal, start_rate, goal_rate)
     trajectory = min_acceleration_trajectory(basis, bc)
+    require_off_singular_set(trajectory)
     return FlatPlan(robot, model, k, trajectory, float(duration))

@@ -1,214 +1,114 @@
-"""Closed-loop simulation of the prolonged system: the planned reference, the controller, the plant.
+"""Closed-loop trials: the planned reference, the controller, the plant, and an integrator.
 
-The controller (``control.feedback``) believes the nominal model; the plant always obeys the
-true physics (the derived constraint for its own parameters, d2 of any value, and its own
-angular momentum H0). Per trial the plant state x = (th0, th1, th2, u1) evolves as
+``Scenario`` holds what every trial of a batch shares (the plan, the gains, the output grid,
+limits and the integrator's tolerances); ``Trials`` what differs (the plant, H0, the initial
+state, the sensor noise); ``simulate`` runs them and returns an ``Outcome``: per trial the
+metrics (``metrics.Metric``), the status (``metrics.Status``), the event that stopped it
+(``metrics.Event``) and its time, and optionally the trace on the output grid.
 
-    th1' = sat(u1),  th2' = sat(u2),  th0' = (B th1' + C th2' + M H0) / A,  u1' = u1'
+Three integrators:
 
-where (u1', u2) come from the controller at the measured angles th + noise, and sat clips a
-joint rate to +-rate_limit (an actuator limit; infinite by default). Sensor noise is drawn
-per grid step and held over that step.
+* ``"adaptive"`` (default): Dormand-Prince 5(4) with step-size control and dense output,
+  compiled (``integrate``); ``track.rtol`` and ``track.atol`` bound the local error, output
+  samples come from the dense output, and each trial reports an error estimate.
+* ``"rk4"``: classical fixed-step Runge-Kutta on the output grid, compiled; checks the
+  controller's margin at each stage so that a step across the singular set stops the trial.
+* ``"dop853"``: scipy's ``solve_ivp`` (DOP853, rtol 1e-10, atol 1e-12), one trial at a time:
+  the reference the compiled integrators are checked against, with the same stopping rules
+  (events on the divergence bound and on the margin's sign).
 
-Two integrators:
-
-* ``"rk4"``: classical fixed-step Runge-Kutta over a batch of trials, compiled with numba.
-  Each trial is integrated on its own by the same scalar code, so its result does not
-  depend on which other trials share the batch (bit for bit).
-* ``"dop853"``: scipy's ``solve_ivp`` (DOP853, rtol 1e-10, atol 1e-12 by default), one trial
-  at a time, the reference the fixed step is checked against.
+Every trial is integrated alone by the same compiled code, so its result does not depend on
+which other trials share the batch, the order, the worker or the executor (bit for bit).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.integrate import solve_ivp
 
-from flatcli.core._jit import Real, jitable, kernel
-from flatcli.core.control import Gains, feedback_at
+from flatcli.core._jit import jitable, kernel
+from flatcli.core.control import Gains
+from flatcli.core.integrate import STALL_MARGIN, WORK_ROWS, make_trial_integrators, plan_flag
 from flatcli.core.metrics import (
+    ACCUMULATOR_SIZE,
     N_METRICS,
-    STATUS_DIVERGED,
-    STATUS_OK,
-    STATUS_SINGULAR,
-    trace_metrics,
+    Event,
+    Status,
+    finish_metrics,
+    observe_sample,
+    plan_momentum_residual,
+    reset_accumulator,
 )
 from flatcli.core.model import (
     Coefficients,
     FlatcliError,
     Links,
-    base_rate_at,
     constraint_coefficients,
 )
 from flatcli.core.planning import FlatPlan
+from flatcli.core.plant import (
+    KINEMATIC_AUX,
+    KINEMATIC_STATE,
+    Loop,
+    kinematic_momentum,
+    kinematic_rhs,
+)
 
 Array = NDArray[np.float64]
-Integrator = Literal["rk4", "dop853"]
-INTEGRATORS: tuple[Integrator, ...] = ("rk4", "dop853")
+Integrator = Literal["adaptive", "rk4", "dop853"]
+INTEGRATORS: tuple[Integrator, ...] = ("adaptive", "rk4", "dop853")
 
-#: Columns of a trace: the prolonged state and the applied th2'.
-TRACE_COLUMNS: tuple[str, ...] = ("theta0", "theta1", "theta2", "u1", "u2")
+#: Columns of a trace: the kinematic plant's state, then the joint rates it applies.
+TRACE_COLUMNS: tuple[str, ...] = (
+    "theta0", "theta1", "theta2", "u1", "theta0_dot", "theta1_dot", "theta2_dot",
+)  # fmt: skip
 
 #: Tolerances of the reference integrator.
 REFERENCE_RTOL = 1e-10
 REFERENCE_ATOL = 1e-12
+#: Default tolerances of the adaptive integrator: 1e-6 rad or better at every output sample
+#: of the paper's example, printed or swapped gains, against a DOP853 at rtol 1e-12
+#: (tests/test_simulate.py measures it).
+DEFAULT_RTOL = 5e-8
+DEFAULT_ATOL = 1e-10
+DEFAULT_MAX_STEPS = 100_000
+#: Most output intervals (duration / dt) a scenario may have: its reference tables take
+#: 112 bytes per interval, and every trial observes every sample.
+MAX_STEPS_PER_TRIAL = 10_000_000
+
+#: spawn_key slot of a trial's sensor-noise stream: SeedSequence(seed, (trial, NOISE_SLOT)).
+NOISE_SLOT = 1
+
+_NONE = int(Event.NONE)
+_FIRST_UNRESOLVED = int(Event.STEP_FLOOR)  # events from here on leave a trial unresolved
+_OK, _SINGULAR = int(Status.OK), int(Status.SINGULAR)
+_DIVERGED, _UNRESOLVED = int(Status.DIVERGED), int(Status.UNRESOLVED)
+_METHOD_RK4 = 0
+_METHOD_ADAPTIVE = 1
+
+
+def noise_generator(seed: int, trial: int) -> np.random.Generator:
+    """The sensor-noise stream of one trial: ``default_rng(SeedSequence(seed, (trial, 1)))``,
+    independent of every other trial and of chunking."""
+    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(trial, NOISE_SLOT)))
 
 
 @jitable
-def closed_loop(
-    kc: Coefficients, gains: Gains, kp: Coefficients, total_mass: float, h0: float,
-    rate_limit: float, x0: Real, x1: Real, x2: Real, x3: Real, ref: Sequence[Real] | Array,
-    n0: Real, n1: Real, n2: Real,
-) -> tuple[Real, Real, Real, Real, Real]:
-    """Rates of the prolonged state under the feedback; also the applied th2'.
-
-    Parameters
-    ----------
-    kc : Coefficients of the controller; gains : Gains
-    kp : Coefficients of the plant (derived model); total_mass : plant M [kg]
-    h0 : plant angular momentum [kg m^2/s]; rate_limit : joint-rate limit [rad/s] (inf: none)
-    x0, x1, x2 : angles [rad]; x3 : u1 [rad/s], floats or arrays (...)
-    ref : plan y1, y2, y1', y2', y1'', y2'' at this instant
-    n0, n1, n2 : sensor noise on the three angles [rad]
-
-    Returns
-    -------
-    th0', th1', th2' [rad/s], u1' [rad/s^2], applied u2 [rad/s]
-    """
-    m1 = x1 + n1
-    return _closed_loop(kc, gains, kp, total_mass, h0, rate_limit, x3, ref, x0 + n0, m1, x2 + n2,
-                        np.cos(m1), np.sin(m1), np.cos(x1), np.cos(x2), np.cos(x1 + x2))
+def _observe_kinematic(loop: Loop, obs: Any, acc: Array, j: int, x: Array, f: Array) -> None:
+    """Metrics of the kinematic plant at output sample j: H from the full link kinematics at
+    the state with the joint rates the plant applies there (f)."""
+    theta_ref, ref, threshold = obs
+    observe_sample(acc, j, x[0], x[1], x[2], x[3], f[5], f[6], f[1], f[2],
+                   kinematic_momentum(loop, x, f), theta_ref, ref, loop.kc, loop.h0, threshold)
 
 
-@jitable
-def _closed_loop(
-    kc: Coefficients, gains: Gains, kp: Coefficients, total_mass: float, h0: float,
-    rate_limit: float, x3: Real, ref: Sequence[Real] | Array, m0: Real, m1: Real, m2: Real,
-    cm1: Real, sm1: Real, c1: Real, c2: Real, c12: Real,
-) -> tuple[Real, Real, Real, Real, Real]:
-    """``closed_loop`` given the measured angles m, cos and sin of m1, and the plant's cosines
-    of th1, th2 and th1 + th2."""
-    u1_dot, u2 = feedback_at(kc, gains, m0, m1, m2, x3, cm1, sm1, ref)
-    w1 = np.minimum(np.maximum(x3, -rate_limit), rate_limit)
-    w2 = np.minimum(np.maximum(u2, -rate_limit), rate_limit)
-    w0 = base_rate_at(kp, total_mass, h0, c1, c2, c12, w1, w2)
-    return w0, w1, w2, u1_dot, w2
-
-
-# The kernel integrates each trial with one of three right-hand sides, chosen once per trial,
-# so that the inner loop has no branches (a branch there costs ~30 %, measured). At every
-# grid sample the integrator takes cos and sin of th1 and of th1 + th2 once: they serve the
-# first RK4 stage and, stored in the trace, the metrics (momentum, flat outputs).
-
-#: Trace columns: the prolonged state, the applied th2', and the sample's trigonometry.
-TRACE_WIDTH = 9
-COS1, SIN1, COS12, SIN12 = 5, 6, 7, 8
-
-
-@jitable
-def _rates_noisy(
-    kc: Coefficients, gains: Gains, kp: Coefficients, total_mass: float, h0: float,
-    rate_limit: float, x0: float, x1: float, x2: float, x3: float, ref: Array, n0: float,
-    n1: float, n2: float, c1: float, s1: float, c12: float, s12: float,
-) -> tuple[Real, Real, Real, Real, Real]:
-    """Sensor noise: the controller measures other angles than the plant's (c1.. unused)."""
-    return closed_loop(kc, gains, kp, total_mass, h0, rate_limit, x0, x1, x2, x3, ref,
-                       n0, n1, n2)
-
-
-@jitable
-def _rates_exact(
-    kc: Coefficients, gains: Gains, kp: Coefficients, total_mass: float, h0: float,
-    rate_limit: float, x0: float, x1: float, x2: float, x3: float, ref: Array, n0: float,
-    n1: float, n2: float, c1: float, s1: float, c12: float, s12: float,
-) -> tuple[Real, Real, Real, Real, Real]:
-    """No noise: controller and plant share c1 = cos th1, s1 = sin th1, c12 = cos(th1 + th2)."""
-    return _closed_loop(kc, gains, kp, total_mass, h0, rate_limit, x3, ref, x0, x1, x2,
-                        c1, s1, c1, np.cos(x2), c12)
-
-
-@jitable
-def _rates_exact_flat_plant(
-    kc: Coefficients, gains: Gains, kp: Coefficients, total_mass: float, h0: float,
-    rate_limit: float, x0: float, x1: float, x2: float, x3: float, ref: Array, n0: float,
-    n1: float, n2: float, c1: float, s1: float, c12: float, s12: float,
-) -> tuple[Real, Real, Real, Real, Real]:
-    """No noise, plant with d2 = 0: its terms in cos th2 and cos(th1 + th2) vanish."""
-    return _closed_loop(kc, gains, kp, total_mass, h0, rate_limit, x3, ref, x0, x1, x2,
-                        c1, s1, c1, 0.0, 0.0)
-
-
-def _trial_integrator(
-    rates: Callable[..., tuple[Real, Real, Real, Real, Real]],
-) -> Callable[..., tuple[int, bool]]:
-    """RK4 of one trial over the grid with the right-hand side ``rates``, compiled inline.
-
-    ``rates`` takes the state, the reference, the noise, and cos, sin of th1 and th1 + th2 of
-    the state (exact at the first stage; the other stages compute their own).
-    """
-
-    @jitable
-    def integrate(
-        tr: Array, kc: Coefficients, gains: Gains, kp: Coefficients, M: float, H0: float,
-        rate_limit: float, ref: Array, noise: Array, dt: float, bound: float,
-    ) -> tuple[int, bool]:
-        n = tr.shape[0] - 1
-        half = 0.5 * dt
-        sixth = dt / 6.0
-        x0, x1, x2, x3 = tr[0, 0], tr[0, 1], tr[0, 2], tr[0, 3]
-        n0 = n1 = n2 = 0.0
-        for s in range(n + 1):
-            c1, s1 = np.cos(x1), np.sin(x1)
-            c12, s12 = np.cos(x1 + x2), np.sin(x1 + x2)
-            tr[s, COS1], tr[s, SIN1], tr[s, COS12], tr[s, SIN12] = c1, s1, c12, s12
-            if noise.shape[0]:
-                j = min(s, n - 1)
-                n0, n1, n2 = noise[j, 0], noise[j, 1], noise[j, 2]
-            ra = ref[2 * s]
-            # fmt: off
-            a0, a1, a2, a3, u2 = rates(kc, gains, kp, M, H0, rate_limit,
-                                       x0, x1, x2, x3, ra, n0, n1, n2, c1, s1, c12, s12)
-            tr[s, 4] = u2
-            if s == n:
-                break
-            rb, rc = ref[2 * s + 1], ref[2 * s + 2]
-            y0, y1, y2, y3 = x0 + half * a0, x1 + half * a1, x2 + half * a2, x3 + half * a3
-            b0, b1, b2, b3, _ = rates(kc, gains, kp, M, H0, rate_limit, y0, y1, y2, y3, rb,
-                                      n0, n1, n2, np.cos(y1), np.sin(y1), np.cos(y1 + y2),
-                                      0.0)
-            y0, y1, y2, y3 = x0 + half * b0, x1 + half * b1, x2 + half * b2, x3 + half * b3
-            c0_, c1_, c2_, c3_, _ = rates(kc, gains, kp, M, H0, rate_limit, y0, y1, y2, y3,
-                                          rb, n0, n1, n2, np.cos(y1), np.sin(y1),
-                                          np.cos(y1 + y2), 0.0)
-            y0, y1, y2, y3 = x0 + dt * c0_, x1 + dt * c1_, x2 + dt * c2_, x3 + dt * c3_
-            d0, d1, d2, d3, _ = rates(kc, gains, kp, M, H0, rate_limit, y0, y1, y2, y3, rc,
-                                      n0, n1, n2, np.cos(y1), np.sin(y1), np.cos(y1 + y2),
-                                      0.0)
-            # fmt: on
-            x0 = x0 + sixth * (a0 + 2.0 * b0 + 2.0 * c0_ + d0)
-            x1 = x1 + sixth * (a1 + 2.0 * b1 + 2.0 * c1_ + d1)
-            x2 = x2 + sixth * (a2 + 2.0 * b2 + 2.0 * c2_ + d2)
-            x3 = x3 + sixth * (a3 + 2.0 * b3 + 2.0 * c3_ + d3)
-            if not (abs(x0) <= bound and abs(x1) <= bound and abs(x2) <= bound
-                    and abs(x3) <= bound):
-                tr[s + 1:, :] = np.nan
-                return s, True
-            tr[s + 1, 0], tr[s + 1, 1], tr[s + 1, 2], tr[s + 1, 3] = x0, x1, x2, x3
-        return n, False
-
-    return integrate
-
-
-_integrate_noisy = _trial_integrator(_rates_noisy)
-_integrate_exact = _trial_integrator(_rates_exact)
-_integrate_exact_flat_plant = _trial_integrator(_rates_exact_flat_plant)
+_rk4_kinematic, _adaptive_kinematic = make_trial_integrators(kinematic_rhs, _observe_kinematic)
 
 
 # fmt: off
@@ -225,146 +125,125 @@ def _coefficients_row(a: Array, i: int) -> Coefficients:
 # fmt: on
 
 
+@jitable
+def _status_of(event: int, first: int) -> int:
+    if event != _NONE:
+        return _UNRESOLVED if event >= _FIRST_UNRESOLVED else _DIVERGED
+    return _SINGULAR if first >= 0 else _OK
+
+
 @kernel
-def _rk4_kernel(
-    ref: Array,
-    theta_ref: Array,
-    plan_theta: Array,
-    plan_theta_dot: Array,
+def _kinematic_kernel(
+    method: int,
     kc: Coefficients,
     gains: Gains,
     links: Array,
     plant_k: Array,
     h0: Array,
-    initial: Array,
-    noise: Array,
-    dt: float,
     rate_limit: float,
-    threshold: float,
+    initial: Array,
+    ref: Array,
+    theta_ref: Array,
+    breaks: Array,
+    local: Array,
+    plan_theta: Array,
+    plan_theta_dot: Array,
+    dt: float,
     bound: float,
+    threshold: float,
+    rtol: float,
+    atol: float,
+    max_steps: int,
+    tables: Array,
+    gen: Any,
+    std: float,
     record: bool,
     metrics: Array,
     status: NDArray[np.int64],
     event: NDArray[np.int64],
+    event_time: Array,
     trace: Array,
 ) -> None:
-    """Integrate every trial with RK4 on the grid; write metrics, status and (maybe) traces.
+    """Integrate every trial of a batch, one at a time; write metrics, status, events and
+    (maybe) traces.
 
-    Shapes: ref (2n+1, 6); theta_ref (n+1, 3); plan_theta, plan_theta_dot (m, 3); links
-    (N, 12); plant_k (N, 11); h0 (N,); initial (N, 4); noise (N, n, 3) or (N, 0, 3);
-    metrics (N, N_METRICS); status, event (N,); trace (N, n+1, 5) if record.
+    Shapes: ref (2n+1, 6); theta_ref (n+1, 3); breaks (m+1,), local (m, d+1, 2);
+    plan_theta, plan_theta_dot (p, 3); links (N, 12); plant_k (N, 11); h0 (N,);
+    initial (N, 4); tables (N, n, 3) or (N, 0, 3); metrics (N, N_METRICS);
+    status, event, event_time (N,); trace (N, n+1, 7) if record.
     """
     n = theta_ref.shape[0] - 1
-    has_noise = noise.shape[1] > 0
-    scratch = np.empty((n + 1, TRACE_WIDTH))
+    nx = KINEMATIC_STATE
+    work = np.empty((WORK_ROWS, nx + KINEMATIC_AUX))
+    acc = np.empty(ACCUMULATOR_SIZE)
+    noise = np.zeros(3)
+    flag = np.empty(6)
+    scratch = np.empty((0, nx + 3))
+    obs = (theta_ref, ref, threshold)
     for i in range(links.shape[0]):
-        tr = trace[i] if record else scratch
         p = _links_row(links, i)
-        kp = _coefficients_row(plant_k, i)
-        M = p.m0 + p.m1 + p.m2
-        H0 = h0[i]
-        tr[0, 0], tr[0, 1], tr[0, 2], tr[0, 3] = (initial[i, 0], initial[i, 1], initial[i, 2],
-                                                  initial[i, 3])
-        flat_plant = (kp.a2 == 0.0 and kp.a3 == 0.0 and kp.b2 == 0.0 and kp.b3 == 0.0
-                      and kp.c2 == 0.0 and kp.c3 == 0.0)
-        if has_noise:
-            last, diverged = _integrate_noisy(tr, kc, gains, kp, M, H0, rate_limit, ref,
-                                              noise[i], dt, bound)
-        elif flat_plant:
-            last, diverged = _integrate_exact_flat_plant(tr, kc, gains, kp, M, H0, rate_limit,
-                                                         ref, noise[i], dt, bound)
+        loop = Loop(kc, gains, _coefficients_row(plant_k, i), p, p.m0 + p.m1 + p.m2, h0[i],
+                    rate_limit)
+        reset_accumulator(acc)
+        tr = trace[i] if record else scratch
+        x0 = initial[i]
+        if method == _METHOD_RK4:
+            last, ev, t_ev = _rk4_kinematic(loop, obs, x0, ref, dt, n, bound, tables[i], gen,
+                                            std, record, tr, acc, work, noise)
+            estimate, steps, evaluations = math.nan, last, 4 * last + 1
         else:
-            last, diverged = _integrate_exact(tr, kc, gains, kp, M, H0, rate_limit, ref,
-                                              noise[i], dt, bound)
-        if diverged:
-            event[i] = last + 1
-        first = trace_metrics(
-            metrics[i],
-            tr,
-            last,
-            diverged,
-            ref,
-            theta_ref,
-            plan_theta,
-            plan_theta_dot,
-            kc,
-            p,
-            H0,
-            dt,
-            threshold,
-        )
-        if diverged:
-            status[i] = STATUS_DIVERGED
+            last, ev, t_ev, estimate, steps, evaluations = _adaptive_kinematic(
+                loop, obs, x0, breaks, local, dt, n, bound, rtol, atol, max_steps, 3,
+                tables[i], gen, std, record, tr, acc, work, noise, flag, ref)
+        residual = plan_momentum_residual(plan_theta, plan_theta_dot, p, h0[i])
+        first = finish_metrics(metrics[i], acc, ev == _NONE, dt, residual, estimate, steps,
+                               evaluations)
+        status[i] = _status_of(ev, first)
+        event[i] = ev
+        if ev != _NONE:
+            event_time[i] = t_ev
         elif first >= 0:
-            status[i] = STATUS_SINGULAR
-            event[i] = first
+            event_time[i] = first * dt
         else:
-            status[i] = STATUS_OK
-            event[i] = -1
+            event_time[i] = math.nan
+        if record and last < n:
+            tr[last + 1:, :] = math.nan
 
 
 @kernel
-def _trace_metrics_kernel(
-    trace: Array,
-    last: int,
-    diverged: bool,
-    ref: Array,
-    theta_ref: Array,
-    plan_theta: Array,
-    plan_theta_dot: Array,
-    kc: Coefficients,
-    links_row: Array,
-    h0: float,
-    dt: float,
-    threshold: float,
+def _kinematic_rhs_kernel(loop: Loop, x: Array, ref: Array, noise: Array) -> Array:
+    out = np.empty(KINEMATIC_STATE + KINEMATIC_AUX)
+    kinematic_rhs(loop, x, ref, noise, out)
+    return out
+
+
+@kernel
+def _kinematic_rhs_at(
+    loop: Loop, breaks: Array, local: Array, t: float, x: Array, noise: Array
+) -> Array:
+    """The state's derivative (4,) at time t, the plan evaluated there (for solve_ivp)."""
+    ref = np.empty(6)
+    plan_flag(breaks, local, t, ref)
+    out = np.empty(KINEMATIC_STATE + KINEMATIC_AUX)
+    kinematic_rhs(loop, x, ref, noise, out)
+    return out[:KINEMATIC_STATE]
+
+
+@kernel
+def _observe_trace_kernel(
+    loop: Loop, theta_ref: Array, ref: Array, threshold: float, states: Array, rates: Array,
+    last: int, complete: bool, dt: float, plan_theta: Array, plan_theta_dot: Array,
     out: Array,
 ) -> int:
-    return trace_metrics(
-        out,
-        trace,
-        last,
-        diverged,
-        ref,
-        theta_ref,
-        plan_theta,
-        plan_theta_dot,
-        kc,
-        _links_row(links_row.reshape(1, 12), 0),
-        h0,
-        dt,
-        threshold,
-    )
-
-
-@kernel
-def _rates(
-    x: Array,
-    ref: Array,
-    noise_row: Array,
-    kc: Coefficients,
-    gains: Gains,
-    kp: Coefficients,
-    total_mass: float,
-    h0: float,
-    rate_limit: float,
-) -> Array:
-    w0, w1, w2, u1_dot, _ = closed_loop(
-        kc,
-        gains,
-        kp,
-        total_mass,
-        h0,
-        rate_limit,
-        x[0],
-        x[1],
-        x[2],
-        x[3],
-        ref,
-        noise_row[0],
-        noise_row[1],
-        noise_row[2],
-    )
-    return np.array([w0, w1, w2, u1_dot])
+    """Metrics of a trace computed elsewhere (the reference integrator): states (n+1, 4) and
+    right-hand sides (n+1, 4 + KINEMATIC_AUX), samples 0..last."""
+    acc = np.empty(ACCUMULATOR_SIZE)
+    reset_accumulator(acc)
+    obs = (theta_ref, ref, threshold)
+    for j in range(last + 1):
+        _observe_kinematic(loop, obs, acc, j, states[j], rates[j])
+    residual = plan_momentum_residual(plan_theta, plan_theta_dot, loop.links, loop.h0)
+    return finish_metrics(out, acc, complete, dt, residual, math.nan, 0, 0)
 
 
 @dataclass(frozen=True)
@@ -375,11 +254,14 @@ class Scenario:
     ----------
     plan : FlatPlan, also the controller's model (its coefficients)
     gains : Gains
-    dt : integration and sampling step [s]; must divide the plan's duration
+    dt : output sampling step [s] (the trace, the metrics, track.parquet; also RK4's step);
+        must divide the plan's duration
     rate_limit : joint-rate limit [rad/s]; inf for none
     singular_threshold : margin below which a sample counts as a singularity hit [rad/s]
     divergence_bound : a state component beyond it (or non-finite) stops the trial
     plan_samples : size of the plan's own grid, on which ``plan_momentum_residual`` is taken
+    rtol, atol : the adaptive integrator's relative and absolute tolerances
+    max_steps : the adaptive integrator's budget of attempted steps per trial
     """
 
     plan: FlatPlan
@@ -389,12 +271,21 @@ class Scenario:
     singular_threshold: float = 1e-2
     divergence_bound: float = 1e4
     plan_samples: int = 201
+    rtol: float = DEFAULT_RTOL
+    atol: float = DEFAULT_ATOL
+    max_steps: int = DEFAULT_MAX_STEPS
     n_steps: int = field(init=False)
 
     def __post_init__(self) -> None:
         if not (self.dt > 0 and math.isfinite(self.dt)):
             raise FlatcliError(f"track.dt: must be > 0 s, got {self.dt}")
-        steps = round(self.plan.duration / self.dt)
+        ratio = self.plan.duration / self.dt
+        if not ratio <= MAX_STEPS_PER_TRIAL:
+            raise FlatcliError(
+                f"track.dt: plan.duration / track.dt = {ratio:.3g} output steps, more than the "
+                f"{MAX_STEPS_PER_TRIAL:.0e} a trial may have; choose a larger track.dt"
+            )
+        steps = round(ratio)
         if steps < 2 or not math.isclose(steps * self.dt, self.plan.duration, rel_tol=1e-9):
             raise FlatcliError(
                 f"track.dt: must divide plan.duration = {self.plan.duration:g} s into at "
@@ -406,11 +297,17 @@ class Scenario:
             raise FlatcliError("track.singular_threshold: must be >= 0 rad/s")
         if not self.divergence_bound > 0:
             raise FlatcliError("track.divergence_bound: must be > 0")
+        if not 0 < self.rtol < 1:
+            raise FlatcliError(f"track.rtol: must be in (0, 1), got {self.rtol}")
+        if not (self.atol > 0 and math.isfinite(self.atol)):
+            raise FlatcliError(f"track.atol: must be a finite number > 0, got {self.atol}")
+        if not self.max_steps >= 1:
+            raise FlatcliError(f"track.max_steps: must be >= 1, got {self.max_steps}")
         object.__setattr__(self, "n_steps", steps)
 
     def prepared(self) -> Scenario:
         """This scenario with its reference tables computed (before shipping it to workers)."""
-        _ = self.reference, self.theta_reference, self.plan_on_own_grid
+        _ = self.reference, self.theta_reference, self.plan_on_own_grid, self.pieces
         return self
 
     @property
@@ -428,7 +325,7 @@ class Scenario:
 
     @cached_property
     def theta_reference(self) -> Array:
-        """(n + 1, 3) plan angles on the simulation grid [rad]."""
+        """(n + 1, 3) plan angles on the output grid [rad]."""
         return np.ascontiguousarray(self.plan.sample(self.times).theta)
 
     @cached_property
@@ -437,23 +334,41 @@ class Scenario:
         samples = self.plan.sample(self.plan.grid(self.plan_samples))
         return np.ascontiguousarray(samples.theta), np.ascontiguousarray(samples.theta_dot)
 
+    @cached_property
+    def pieces(self) -> tuple[Array, Array]:
+        """The plan's flat outputs as piecewise polynomials (``Basis.piecewise``), which the
+        adaptive integrator evaluates at its own times."""
+        breaks, local = self.plan.trajectory.piecewise()
+        return np.ascontiguousarray(breaks), np.ascontiguousarray(local)
+
+
+@dataclass(frozen=True)
+class NoiseStreams:
+    """Sensor noise drawn per trial as the integrator goes: std [rad] times the normal
+    variates of ``noise_generator(seed, trial)``, three per output interval, in order."""
+
+    std: float
+    seed: int
+    trial_ids: NDArray[np.int64]
+
 
 @dataclass(frozen=True)
 class Trials:
-    """What differs between trials: the plant and the initial state; N trials.
+    """What differs between trials: the plant, the initial state and the noise; N trials.
 
     Attributes
     ----------
     links : (N, 12) plant mass, inertia, length, com (see ``Links``)
     momentum : (N,) plant angular momentum H0 [kg m^2/s]
     initial : (N, 4) th0, th1, th2 [rad], u1 [rad/s] at t = 0
-    noise : (N, n, 3) sensor noise per step on the three angles [rad], or None
+    noise : sensor noise on the three angles: an (N, n, 3) table [rad] (row j held over
+        [t_j, t_j+1)), ``NoiseStreams``, or None for none
     """
 
     links: Array
     momentum: Array
     initial: Array
-    noise: Array | None = None
+    noise: Array | NoiseStreams | None = None
 
     def __post_init__(self) -> None:
         n = self.links.shape[0]
@@ -463,7 +378,12 @@ class Trials:
             or (self.initial.shape != (n, 4))
         ):
             raise ValueError("Trials: links (N, 12), momentum (N,), initial (N, 4) expected")
-        if self.noise is not None and (self.noise.ndim != 3 or self.noise.shape[0] != n):
+        if isinstance(self.noise, NoiseStreams):
+            if self.noise.trial_ids.shape != (n,):
+                raise ValueError("Trials: noise streams need one trial id per trial")
+            if not (self.noise.std >= 0 and math.isfinite(self.noise.std)):
+                raise FlatcliError(f"track.sensor_noise: must be >= 0 rad, got {self.noise.std}")
+        elif self.noise is not None and (self.noise.ndim != 3 or self.noise.shape[0] != n):
             raise ValueError("Trials: noise (N, n, 3) expected")
 
     @property
@@ -471,12 +391,23 @@ class Trials:
         return int(self.links.shape[0])
 
     def subset(self, index: slice | NDArray[np.intp]) -> Trials:
-        return Trials(
-            self.links[index],
-            self.momentum[index],
-            self.initial[index],
-            None if self.noise is None else self.noise[index],
-        )
+        noise = self.noise
+        if isinstance(noise, NoiseStreams):
+            noise = NoiseStreams(noise.std, noise.seed, noise.trial_ids[index])
+        elif noise is not None:
+            noise = noise[index]
+        return Trials(self.links[index], self.momentum[index], self.initial[index], noise)
+
+    def noise_table(self, index: int, n: int) -> Array:
+        """(n, 3) the noise trial ``index`` sees [rad] (zeros without noise)."""
+        if isinstance(self.noise, NoiseStreams):
+            if self.noise.std == 0:
+                return np.zeros((n, 3))
+            gen = noise_generator(self.noise.seed, int(self.noise.trial_ids[index]))
+            return self.noise.std * gen.standard_normal((n, 3))
+        if self.noise is None:
+            return np.zeros((n, 3))
+        return np.asarray(self.noise[index], dtype=float)
 
 
 @dataclass(frozen=True)
@@ -485,14 +416,18 @@ class Outcome:
 
     Attributes
     ----------
-    metrics : (N, N_METRICS) in the order of ``metrics.METRIC_NAMES``
-    status : (N,) STATUS_OK, STATUS_SINGULAR or STATUS_DIVERGED
-    event_time : (N,) first singular hit or divergence time [s] (nan if none)
-    trace : (N, n + 1, 5) th0, th1, th2, u1, applied u2 per grid sample, if recorded
+    metrics : (N, N_METRICS), columns ``metrics.Metric``
+    status : (N,) ``metrics.Status`` codes
+    event : (N,) ``metrics.Event`` that stopped each trial (``Event.NONE``: it finished)
+    event_time : (N,) when it stopped, or the first singular hit of a finished trial [s]
+        (nan if neither)
+    trace : (N, n + 1, 7) per output sample the state and applied rates (``TRACE_COLUMNS``),
+        nan after the last valid sample, if recorded
     """
 
     metrics: Array
     status: NDArray[np.int64]
+    event: NDArray[np.int64]
     event_time: Array
     trace: Array | None
 
@@ -503,10 +438,14 @@ def plant_coefficients(links: Array) -> Array:
     return np.ascontiguousarray(np.stack(np.broadcast_arrays(*k), axis=-1))
 
 
+def _plain(k: Coefficients) -> Coefficients:
+    return Coefficients(*(float(v) for v in k))
+
+
 def simulate(
     scenario: Scenario,
     trials: Trials,
-    integrator: Integrator = "rk4",
+    integrator: Integrator = "adaptive",
     record: bool = False,
 ) -> Outcome:
     """Run N closed-loop trials of a scenario.
@@ -515,163 +454,146 @@ def simulate(
     ----------
     scenario : Scenario
     trials : Trials (N)
-    integrator : "rk4" (compiled, fixed step dt) or "dop853" (solve_ivp reference)
+    integrator : "adaptive", "rk4" or "dop853" (see the module docstring)
     record : keep each trial's trace
 
     Returns
     -------
     Outcome
     """
-    n = scenario.n_steps
-    if trials.noise is not None and trials.noise.shape[1:] != (n, 3):
-        raise ValueError(f"Trials: noise must be (N, {n}, 3) for this scenario")
-    theta_ref = scenario.theta_reference
-    plan_theta, plan_theta_dot = scenario.plan_on_own_grid
-    N = trials.count
-    metrics = np.empty((N, N_METRICS))
-    status = np.zeros(N, dtype=np.int64)
-    event = np.full(N, -1, dtype=np.int64)
-    trace = np.empty((N, n + 1, TRACE_WIDTH)) if record else np.empty((0, 0, TRACE_WIDTH))
-    kc = scenario.plan.coefficients
-    kc = Coefficients(*(float(v) for v in kc))
-    gains = Gains(*(float(v) for v in scenario.gains))
-    plant_k = plant_coefficients(trials.links)
-    noise = trials.noise if trials.noise is not None else np.zeros((N, 0, 3))
-    if integrator == "rk4":
-        _rk4_kernel(
-            scenario.reference,
-            theta_ref,
-            plan_theta,
-            plan_theta_dot,
-            kc,
-            gains,
-            np.ascontiguousarray(trials.links, dtype=float),
-            plant_k,
-            np.ascontiguousarray(trials.momentum, dtype=float),
-            np.ascontiguousarray(trials.initial, dtype=float),
-            np.ascontiguousarray(noise, dtype=float),
-            scenario.dt,
-            scenario.rate_limit,
-            scenario.singular_threshold,
-            scenario.divergence_bound,
-            record,
-            metrics,
-            status,
-            event,
-            trace,
-        )
-    elif integrator == "dop853":
-        for i in range(N):
-            tr = _reference_trace(scenario, trials, plant_k, kc, gains, i)
-            last = int(np.flatnonzero(np.isfinite(tr[:, :4]).all(axis=1))[-1])
-            diverged = last < n
-            first = _trace_metrics_kernel(
-                tr,
-                last,
-                diverged,
-                scenario.reference,
-                theta_ref,
-                plan_theta,
-                plan_theta_dot,
-                kc,
-                np.ascontiguousarray(trials.links[i], dtype=float),
-                float(trials.momentum[i]),
-                scenario.dt,
-                scenario.singular_threshold,
-                metrics[i],
-            )
-            if diverged:
-                status[i], event[i] = STATUS_DIVERGED, last + 1
-            elif first >= 0:
-                status[i], event[i] = STATUS_SINGULAR, first
-            if record:
-                trace[i] = tr
-    else:
+    if integrator not in INTEGRATORS:
         raise FlatcliError(
             f"track.integrator: expected one of {list(INTEGRATORS)}, got {integrator!r}"
         )
-    event_time = np.where(event >= 0, event * scenario.dt, np.nan)
-    return Outcome(metrics, status, event_time, trace[:, :, :5] if record else None)
+    n = scenario.n_steps
+    if isinstance(trials.noise, np.ndarray) and trials.noise.shape[1:] != (n, 3):
+        raise ValueError(f"Trials: noise must be (N, {n}, 3) for this scenario")
+    N = trials.count
+    metrics = np.empty((N, N_METRICS))
+    status = np.zeros(N, dtype=np.int64)
+    event = np.zeros(N, dtype=np.int64)
+    event_time = np.full(N, math.nan)
+    width = KINEMATIC_STATE + 3
+    trace = np.empty((N, n + 1, width)) if record else np.empty((0, 0, width))
+    kc = _plain(scenario.plan.coefficients)
+    gains = Gains(*(float(v) for v in scenario.gains))
+    plant_k = plant_coefficients(trials.links)
+    links = np.ascontiguousarray(trials.links, dtype=float)
+    h0 = np.ascontiguousarray(trials.momentum, dtype=float)
+    initial = np.ascontiguousarray(trials.initial, dtype=float)
+    if integrator == "dop853":
+        for i in range(N):
+            _reference_trial(scenario, trials, plant_k, kc, gains, i, metrics[i], status,
+                             event, event_time, trace[i] if record else None)
+        return Outcome(metrics, status, event, event_time, trace if record else None)
+    method = _METHOD_RK4 if integrator == "rk4" else _METHOD_ADAPTIVE
+    plan_theta, plan_theta_dot = scenario.plan_on_own_grid
+    breaks, local = scenario.pieces
+
+    def run(rows: slice, tables: Array, gen: np.random.Generator, std: float) -> None:
+        _kinematic_kernel(
+            method, kc, gains, links[rows], plant_k[rows], h0[rows], float(scenario.rate_limit),
+            initial[rows], scenario.reference, scenario.theta_reference, breaks, local,
+            plan_theta, plan_theta_dot, float(scenario.dt), float(scenario.divergence_bound),
+            float(scenario.singular_threshold), float(scenario.rtol), float(scenario.atol),
+            int(scenario.max_steps), tables, gen, std, record, metrics[rows], status[rows],
+            event[rows], event_time[rows], trace[rows] if record else trace,
+        )
+
+    quiet = np.random.default_rng(0)  # drawn from only when std > 0 and no table is given
+    noise = trials.noise
+    if isinstance(noise, NoiseStreams) and noise.std > 0:
+        none = np.zeros((1, 0, 3))
+        for i in range(N):
+            run(slice(i, i + 1), none, noise_generator(noise.seed, int(noise.trial_ids[i])),
+                float(noise.std))
+    else:
+        tables = np.ascontiguousarray(noise, dtype=float) if isinstance(noise, np.ndarray) \
+            else np.zeros((N, 0, 3))
+        run(slice(0, N), tables, quiet, 0.0)
+    return Outcome(metrics, status, event, event_time, trace if record else None)
 
 
-def _reference_trace(
-    scenario: Scenario, trials: Trials, plant_k: Array, kc: Coefficients, gains: Gains, i: int
-) -> Array:
-    """(n + 1, TRACE_WIDTH) trace of trial i by solve_ivp (DOP853); rows after a failure are
-    nan."""
+def _reference_trial(
+    scenario: Scenario, trials: Trials, plant_k: Array, kc: Coefficients, gains: Gains, i: int,
+    out: Array, status: NDArray[np.int64], event: NDArray[np.int64], event_time: Array,
+    trace: Array | None,
+) -> None:
+    """Trial i by solve_ivp (DOP853), with terminal events on the divergence bound and on the
+    controller's margin changing sign; its metrics from the same observer as the kernels."""
     n = scenario.n_steps
     times = scenario.times
-    traj = scenario.plan.trajectory
-    kp = Coefficients(*(float(v) for v in plant_k[i]))
-    M = float(np.sum(trials.links[i, :3]))
-    h0 = float(trials.momentum[i])
-    noise = trials.noise[i] if trials.noise is not None else np.zeros((n, 3))
+    p = Links(*(float(v) for v in trials.links[i]))
+    loop = Loop(kc, gains, _plain(Coefficients(*plant_k[i])), p, p.m0 + p.m1 + p.m2,
+                float(trials.momentum[i]), float(scenario.rate_limit))
+    noise = trials.noise_table(i, n)
     bound = scenario.divergence_bound
+    breaks, local = scenario.pieces
 
     def rhs(t: float, x: Array, noise_row: Array) -> Array:
-        ref = np.concatenate(
-            [
-                traj.derivative(np.array([t]), 0)[0],
-                traj.derivative(np.array([t]), 1)[0],
-                traj.derivative(np.array([t]), 2)[0],
-            ]
-        )
-        return np.asarray(_rates(x, ref, noise_row, kc, gains, kp, M, h0, scenario.rate_limit))
+        return np.asarray(_kinematic_rhs_at(loop, breaks, local, t, x, noise_row))
 
     def blowup(t: float, x: Array, noise_row: Array) -> float:
         return float(bound - np.max(np.abs(x)))
 
+    def crossing(t: float, x: Array, noise_row: Array) -> float:
+        return float(np.sin(x[1] + noise_row[1]) * x[3])
+
     blowup.terminal = True  # type: ignore[attr-defined]
-    trace = np.full((n + 1, TRACE_WIDTH), np.nan)
-    trace[0, :4] = trials.initial[i]
-    # Without noise one integration over the whole grid; with noise (held per step) one
-    # integration per step, so the solver never steps across a jump of the measured angles.
-    segments = [(0, n)] if trials.noise is None else [(s, s + 1) for s in range(n)]
-    x = trials.initial[i].astype(float)
+    crossing.terminal = True  # type: ignore[attr-defined]
+    states = np.full((n + 1, KINEMATIC_STATE), math.nan)
+    states[0] = trials.initial[i]
+    stopped, when = int(Event.NONE), math.nan
+    # without noise one integration over the whole grid; with noise one per interval, so the
+    # solver never steps across a jump of the measured angles
+    segments = [(0, n)] if not np.any(noise) else [(s, s + 1) for s in range(n)]
+    x = np.asarray(trials.initial[i], dtype=float)
     for start, stop in segments:
         with np.errstate(all="ignore"):
-            sol = solve_ivp(
-                rhs,
-                (times[start], times[stop]),
-                x,
-                method="DOP853",
-                t_eval=times[start : stop + 1],
-                rtol=REFERENCE_RTOL,
-                atol=REFERENCE_ATOL,
-                args=(noise[start],),
-                events=blowup,
-            )
+            sol = solve_ivp(rhs, (times[start], times[stop]), x, method="DOP853",
+                            t_eval=times[start: stop + 1], rtol=REFERENCE_RTOL,
+                            atol=REFERENCE_ATOL, args=(noise[start],),
+                            events=[blowup, crossing])
         got = sol.y.T
-        ok = np.isfinite(got).all(axis=1) & (np.abs(got) <= bound).all(axis=1)
-        good = got[: int(np.argmin(ok)) if not ok.all() else len(got)]
-        trace[start : start + len(good), :4] = good
-        if len(good) < stop - start + 1 or sol.status == -1:
+        states[start: start + len(got)] = got
+        if sol.status == 1:  # a terminal event; crossing the singular set takes precedence
+            if len(sol.t_events[1]):
+                stopped, when = int(Event.CROSSED), float(sol.t_events[1][0])
+            else:
+                stopped, when = int(Event.BOUND), float(sol.t_events[0][0])
             break
-        x = good[-1]
-    # applied u2 at each valid sample, with the noise of the step that starts there
-    valid = np.isfinite(trace[:, :4]).all(axis=1)
-    rows = np.flatnonzero(valid)
-    ref = scenario.reference[2 * rows].T
-    held = noise[np.minimum(rows, n - 1)].T
-    x0, x1, x2, x3 = trace[rows, :4].T
-    with np.errstate(all="ignore"):
-        th12 = x1 + x2
-        trace[rows, COS1], trace[rows, SIN1] = np.cos(x1), np.sin(x1)
-        trace[rows, COS12], trace[rows, SIN12] = np.cos(th12), np.sin(th12)
-        trace[rows, 4] = closed_loop(
-            kc,
-            gains,
-            kp,
-            M,
-            h0,
-            scenario.rate_limit,
-            x0,
-            x1,
-            x2,
-            x3,
-            ref,
-            held[0],
-            held[1],
-            held[2],
-        )[4]
-    return trace
+        if sol.status == -1 or len(got) < stop - start + 1:  # the solver gave up
+            last_x = sol.y[:, -1] if sol.y.size else x
+            near = abs(crossing(float(sol.t[-1]) if sol.t.size else times[start], last_x,
+                                noise[start])) < STALL_MARGIN
+            stopped = int(Event.STALLED if near else Event.STEP_FLOOR)
+            when = float(sol.t[-1]) if sol.t.size else float(times[start])
+            break
+        x = got[-1]
+    finite = np.isfinite(states).all(axis=1) & (np.abs(states) <= bound).all(axis=1)
+    last = int(np.argmin(finite)) - 1 if not finite.all() else n
+    if stopped == int(Event.NONE) and last < n:
+        stopped, when = int(Event.BOUND), float(times[last + 1])
+    rates = np.full((n + 1, KINEMATIC_STATE + KINEMATIC_AUX), math.nan)
+    for j in range(last + 1):
+        ref = scenario.reference[2 * j]
+        rates[j] = _kinematic_rhs_kernel(loop, states[j], ref, noise[min(j, n - 1)])
+    theta_ref = scenario.theta_reference
+    plan_theta, plan_theta_dot = scenario.plan_on_own_grid
+    first = _observe_trace_kernel(loop, theta_ref, scenario.reference,
+                                  float(scenario.singular_threshold), states, rates, last,
+                                  stopped == int(Event.NONE), float(scenario.dt), plan_theta,
+                                  plan_theta_dot, out)
+    code = Status.SINGULAR if first >= 0 else Status.OK
+    if stopped != int(Event.NONE):
+        code = Event(stopped).status
+    status[i] = int(code)
+    event[i] = stopped
+    if stopped != int(Event.NONE):
+        event_time[i] = when
+    elif first >= 0:
+        event_time[i] = first * scenario.dt
+    if trace is not None:
+        trace[:, :KINEMATIC_STATE] = states
+        trace[:, KINEMATIC_STATE:] = rates[:, :3]
+        trace[last + 1:] = math.nan

@@ -1,0 +1,444 @@
+"""Compiled integrators of one closed-loop trial: fixed-step RK4 and adaptive Dormand-Prince.
+
+Both integrate a state x of any size with a right-hand side ``rhs(loop, x, ref, noise, out)``
+(``plant``), hand every output sample t_j = j dt (j = 0..n) to an observer
+``observe(loop, obs, acc, j, x, f)`` with f = rhs at that sample (the rates the plant applies
+there), and stop a trial early, with an ``metrics.Event``, where its numbers could not be
+trusted:
+
+* a state beyond the divergence bound, or non-finite (``BOUND``);
+* the controller's signed margin (written by ``rhs`` after the state's derivative) changing
+  sign within a step (``CROSSED``): the feedback divides by it, so the trial has crossed the
+  singular set, where no integrator can pass; a fixed step would jump over the pole and
+  carry on with finite garbage. Both integrators check the margin at every stage and at the
+  step's end (the adaptive one on the steps it accepts), before the divergence bound;
+* (adaptive only) the step size falling below ``STEP_FLOOR`` T: onto the singular set
+  (|margin| < ``STALL_MARGIN``: ``STALLED``) or elsewhere (``STEP_FLOOR``), or
+  ``max_steps`` attempted steps spent (``MAX_STEPS``).
+
+Sensor noise is held over each output interval [t_j, t_j+1): row j of a given table, or
+three normal variates per interval drawn in order from the trial's generator (numba's
+``Generator.standard_normal`` gives numpy's numbers bit for bit), so memory does not grow
+with n and no tolerance ever changes the noise a trial sees. With noise the adaptive
+integrator never steps across an output time (the right-hand side jumps there).
+
+The adaptive integrator is the Dormand-Prince 5(4) pair (Dormand & Prince, J. Comp. Appl.
+Math. 6, 1980; the tableau, error weights and order-4 dense output of scipy's ``RK45``) with
+local extrapolation and the standard step-size controller (safety 0.9, growth within
+[0.2, 10], no growth after a rejection); error norm: RMS over the components of
+err_i / (atol + rtol max(|x_i|, |x_new,i|)). Output samples inside a step come from the
+dense output. Its global-error estimate for the angles is the sum over accepted steps of the
+Euclidean norm of the embedded error estimate of the first ``n_angles`` components.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from flatcli.core._jit import jitable
+from flatcli.core.metrics import Event
+
+Array = NDArray[np.float64]
+
+#: The adaptive step size may not fall below STEP_FLOOR * T.
+STEP_FLOOR = 1e-12
+#: A step size collapsing where |margin| is below this [rad/s] is the singular set.
+STALL_MARGIN = 1e-6
+
+_NONE = int(Event.NONE)
+_BOUND = int(Event.BOUND)
+_CROSSED = int(Event.CROSSED)
+_STALLED = int(Event.STALLED)
+_STEP_FLOOR = int(Event.STEP_FLOOR)
+_MAX_STEPS = int(Event.MAX_STEPS)
+
+# Dormand-Prince 5(4): nodes, stages, 5th-order weights, error weights (5th - 4th), dense
+# output (scipy.integrate._ivp.rk.RK45: C, A, B, E, P).
+_C2, _C3, _C4, _C5 = 1 / 5, 3 / 10, 4 / 5, 8 / 9
+_A21 = 1 / 5
+_A31, _A32 = 3 / 40, 9 / 40
+_A41, _A42, _A43 = 44 / 45, -56 / 15, 32 / 9
+_A51, _A52, _A53, _A54 = 19372 / 6561, -25360 / 2187, 64448 / 6561, -212 / 729
+_A61, _A62, _A63, _A64, _A65 = 9017 / 3168, -355 / 33, 46732 / 5247, 49 / 176, -5103 / 18656
+_B1, _B3, _B4, _B5, _B6 = 35 / 384, 500 / 1113, 125 / 192, -2187 / 6784, 11 / 84
+_E1, _E3, _E4, _E5, _E6, _E7 = (-71 / 57600, 71 / 16695, -71 / 1920, 17253 / 339200,
+                                -22 / 525, 1 / 40)
+DENSE = np.array([
+    [1, -8048581381 / 2820520608, 8663915743 / 2820520608, -12715105075 / 11282082432],
+    [0, 0, 0, 0],
+    [0, 131558114200 / 32700410799, -68118460800 / 10900136933,
+     87487479700 / 32700410799],
+    [0, -1754552775 / 470086768, 14199869525 / 1410260304, -10690763975 / 1880347072],
+    [0, 127303824393 / 49829197408, -318862633887 / 49829197408,
+     701980252875 / 199316789632],
+    [0, -282668133 / 205662961, 2019193451 / 616988883, -1453857185 / 822651844],
+    [0, 40617522 / 29380423, -110615467 / 29380423, 69997945 / 29380423],
+])  # fmt: skip
+DENSE.setflags(write=False)
+
+#: Rows of an integrator's work buffer (WORK_ROWS, nx).
+_X, _XN, _K1, _K2, _K3, _K4, _K5, _K6, _K7, _Y, _XS, _FS = range(12)
+WORK_ROWS = 12
+
+
+@jitable
+def plan_flag(breaks: Array, local: Array, t: float, out: Array) -> None:
+    """The plan's y1, y2, y1', y2', y1'', y2'' at time t into ``out`` (6,), from its
+    piecewise polynomials (``basis.Basis.piecewise``: breaks (m + 1,), local (m, d + 1, 2))."""
+    m = breaks.shape[0] - 1
+    lo, hi = 0, m
+    while hi - lo > 1:  # the piece with breaks[i] <= t (clamped to the first and last)
+        mid = (lo + hi) // 2
+        if breaks[mid] <= t:
+            lo = mid
+        else:
+            hi = mid
+    i = lo
+    width = breaks[i + 1] - breaks[i]
+    s = (t - breaks[i]) / width
+    degree = local.shape[1] - 1
+    for o in range(2):
+        p = local[i, degree, o]
+        dp = 0.0
+        half_ddp = 0.0
+        for j in range(degree - 1, -1, -1):
+            half_ddp = half_ddp * s + dp
+            dp = dp * s + p
+            p = p * s + local[i, j, o]
+        out[o] = p
+        out[2 + o] = dp / width
+        out[4 + o] = 2.0 * half_ddp / (width * width)
+
+
+@jitable
+def load_noise(j: int, table: Array, gen: Any, std: float, noise: Array) -> None:
+    """Sensor noise of output interval j into ``noise`` (3,): row j of ``table`` if it has
+    rows, else three draws std * N(0, 1) from ``gen`` (call once per interval, in order)."""
+    if table.shape[0] > 0:
+        noise[0], noise[1], noise[2] = table[j, 0], table[j, 1], table[j, 2]
+    elif std > 0.0:
+        noise[0] = std * gen.standard_normal()
+        noise[1] = std * gen.standard_normal()
+        noise[2] = std * gen.standard_normal()
+
+
+@jitable
+def _out_of_bounds(x: Array, bound: float) -> bool:
+    for i in range(x.shape[0]):  # noqa: SIM110 (numba: a plain loop, no generator)
+        if not abs(x[i]) <= bound:  # nan included
+            return True
+    return False
+
+
+@jitable
+def _finite(x: Array) -> bool:
+    for i in range(x.shape[0]):  # noqa: SIM110 (numba: a plain loop, no generator)
+        if not math.isfinite(x[i]):
+            return False
+    return True
+
+
+@jitable
+def _flipped(a: float, b: float) -> bool:
+    """Whether the margin changed sign (or reached zero) from a to b."""
+    return (a > 0.0) != (b > 0.0) or b == 0.0
+
+
+@jitable
+def _first_flip(sigma: float, m2: float, m3: float, m4: float, m5: float, m6: float) -> float:
+    """The node (fraction of the step) of the first Dormand-Prince stage whose margin has the
+    other sign than ``sigma`` (-1 if none)."""
+    if _flipped(sigma, m2):
+        return _C2
+    if _flipped(sigma, m3):
+        return _C3
+    if _flipped(sigma, m4):
+        return _C4
+    if _flipped(sigma, m5):
+        return _C5
+    if _flipped(sigma, m6):
+        return 1.0
+    return -1.0
+
+
+def make_trial_integrators(
+    rhs: Callable[..., None],
+    observe: Callable[..., None],
+) -> tuple[Callable[..., Any], Callable[..., Any]]:
+    """(rk4_trial, adaptive_trial): the two integrators of one trial for a plant, compiled
+    inline with its right-hand side ``rhs`` (which writes the state's derivative into
+    out[:nx] and the controller's signed margin into out[nx]) and its ``observe``r.
+
+    Shared arguments (see the module docstring): ``loop`` (the plant's and controller's
+    parameters), ``obs`` (the observer's tables), ``x0`` (nx,), ``dt`` [s], ``n`` output
+    intervals, ``bound``, the noise source (``table`` (n, 3) or (0, 3), ``gen``, ``std``),
+    ``record`` and ``trace`` (n + 1, >= nx + 3: state and applied rates per sample), ``acc``
+    (the observer's accumulator) and ``work`` (WORK_ROWS, >= nx + 1: the right-hand side's
+    outputs).
+    """
+
+    @jitable
+    def record_sample(trace: Array, j: int, nx: int, x: Array, f: Array) -> None:
+        for i in range(nx):
+            trace[j, i] = x[i]
+        for i in range(3):
+            trace[j, nx + i] = f[i]
+
+    @jitable
+    def rk4_trial(
+        loop: Any, obs: Any, x0: Array, ref: Array, dt: float, n: int, bound: float,
+        table: Array, gen: Any, std: float, record: bool, trace: Array, acc: Array,
+        work: Array, noise: Array,
+    ) -> tuple[int, int, float]:
+        """Classical RK4 on the output grid; ``ref`` (2 n + 1, 6) the plan at half steps.
+
+        Returns (last sample observed, Event, event time [s]).
+        """
+        nx = x0.shape[0]
+        half = 0.5 * dt
+        sixth = dt / 6.0
+        x, k1, k2, k3, k4, y = work[_X], work[_K1], work[_K2], work[_K3], work[_K4], work[_Y]
+        x[:nx] = x0
+        noise[:] = 0.0
+        before = 0.0
+        crossed = False
+        for s in range(n + 1):
+            if s < n:
+                load_noise(s, table, gen, std, noise)
+            rhs(loop, x, ref[2 * s], noise, k1)
+            if s > 0:  # the step that led here: a margin of another sign at its end
+                after = k1[nx]
+                if _flipped(before, after):
+                    flip = (before > 0.0) != (after > 0.0)
+                    fraction = before / (before - after) if flip else 1.0
+                    return s - 1, _CROSSED, (s - 1 + min(max(fraction, 0.0), 1.0)) * dt
+            observe(loop, obs, acc, s, x, k1)
+            if record:
+                record_sample(trace, s, nx, x, k1)
+            if s == n:
+                break
+            before = k1[nx]
+            for i in range(nx):
+                y[i] = x[i] + half * k1[i]
+            rhs(loop, y, ref[2 * s + 1], noise, k2)
+            crossed = _flipped(before, k2[nx])
+            for i in range(nx):
+                y[i] = x[i] + half * k2[i]
+            rhs(loop, y, ref[2 * s + 1], noise, k3)
+            crossed = crossed or _flipped(before, k3[nx])
+            for i in range(nx):
+                y[i] = x[i] + dt * k3[i]
+            rhs(loop, y, ref[2 * s + 2], noise, k4)
+            crossed = crossed or _flipped(before, k4[nx])
+            for i in range(nx):
+                x[i] = x[i] + sixth * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+            if crossed:  # a stage beyond the singular set
+                return s, _CROSSED, (s + 0.5) * dt
+            if _out_of_bounds(x[:nx], bound):
+                return s, _BOUND, (s + 1) * dt
+        return n, _NONE, math.nan
+
+    @jitable
+    def initial_step(loop: Any, nx: int, x: Array, f: Array, ref: Array, noise: Array,
+                     rtol: float, atol: float, limit: float, y: Array, f1: Array, breaks: Array,
+                     local: Array) -> float:
+        """First step size (Hairer, Norsett & Wanner, Solving ODEs I, II.4; scipy's
+        ``select_initial_step`` for order 5) for the first nx components."""
+        d0 = 0.0
+        d1 = 0.0
+        for i in range(nx):
+            scale = atol + rtol * abs(x[i])
+            d0 += (x[i] / scale) ** 2
+            d1 += (f[i] / scale) ** 2
+        d0 = math.sqrt(d0 / nx)
+        d1 = math.sqrt(d1 / nx)
+        h0 = 1e-6 if d0 < 1e-5 or d1 < 1e-5 else 0.01 * d0 / d1
+        h0 = min(h0, limit)
+        for i in range(nx):
+            y[i] = x[i] + h0 * f[i]
+        plan_flag(breaks, local, h0, ref)
+        rhs(loop, y, ref, noise, f1)
+        d2 = 0.0
+        for i in range(nx):
+            scale = atol + rtol * abs(x[i])
+            d2 += ((f1[i] - f[i]) / scale) ** 2
+        d2 = math.sqrt(d2 / nx) / h0
+        if not math.isfinite(d2):
+            return min(h0, limit)
+        quiet = d1 <= 1e-15 and d2 <= 1e-15
+        h1 = max(1e-6, h0 * 1e-3) if quiet else (0.01 / max(d1, d2)) ** 0.2
+        return min(100.0 * h0, h1, limit)
+
+    @jitable
+    def adaptive_trial(
+        loop: Any, obs: Any, x0: Array, breaks: Array, local: Array, dt: float, n: int,
+        bound: float, rtol: float, atol: float, max_steps: int, n_angles: int, table: Array,
+        gen: Any, std: float, record: bool, trace: Array, acc: Array, work: Array,
+        noise: Array, ref: Array, samples_ref: Array,
+    ) -> tuple[int, int, float, float, int, int]:
+        """Dormand-Prince 5(4) with step control and dense output (see the module docstring);
+        ``breaks``, ``local`` the plan's pieces (``plan_flag``), ``samples_ref`` (2 n + 1, 6)
+        the plan at half steps (row 2 j at output sample j).
+
+        Returns (last sample observed, Event, event time [s], error estimate [rad],
+        accepted steps, right-hand-side evaluations).
+        """
+        nx = x0.shape[0]
+        x, xn, y, xs = work[_X], work[_XN], work[_Y], work[_XS]
+        k1, k2, k3, k4, k5, k6, k7 = (work[_K1], work[_K2], work[_K3], work[_K4], work[_K5],
+                                      work[_K6], work[_K7])
+        duration = n * dt
+        noisy = table.shape[0] > 0 or std > 0.0
+        floor = STEP_FLOOR * duration
+        x[:nx] = x0
+        noise[:] = 0.0
+        load_noise(0, table, gen, std, noise)
+        plan_flag(breaks, local, 0.0, ref)
+        rhs(loop, x, ref, noise, k1)
+        evaluations = 1
+        observe(loop, obs, acc, 0, x, k1)
+        if record:
+            record_sample(trace, 0, nx, x, k1)
+        if not _finite(k1[:nx]):
+            return 0, _BOUND, 0.0, math.nan, 0, evaluations
+        last = 0
+        interval = 0  # the noise interval [t_j, t_j+1) in force
+        t = 0.0
+        h = initial_step(loop, nx, x, k1, ref, noise, rtol, atol, dt if noisy else duration, y,
+                         k2, breaks, local)
+        evaluations += 1
+        sigma = k1[nx]
+        estimate = 0.0
+        steps = 0
+        attempts = 0
+        rejected = False
+        while last < n:
+            if attempts >= max_steps:
+                return last, _MAX_STEPS, t, estimate, steps, evaluations
+            attempts += 1
+            stop = (interval + 1) * dt if noisy else duration
+            if h >= stop - t or stop - t - h < 1e-10 * (stop - t):
+                h = stop - t
+                t_new = stop
+            else:
+                t_new = t + h
+            for i in range(nx):
+                y[i] = x[i] + h * (_A21 * k1[i])
+            plan_flag(breaks, local, t + _C2 * h, ref)
+            rhs(loop, y, ref, noise, k2)
+            for i in range(nx):
+                y[i] = x[i] + h * (_A31 * k1[i] + _A32 * k2[i])
+            plan_flag(breaks, local, t + _C3 * h, ref)
+            rhs(loop, y, ref, noise, k3)
+            for i in range(nx):
+                y[i] = x[i] + h * (_A41 * k1[i] + _A42 * k2[i] + _A43 * k3[i])
+            plan_flag(breaks, local, t + _C4 * h, ref)
+            rhs(loop, y, ref, noise, k4)
+            for i in range(nx):
+                y[i] = x[i] + h * (_A51 * k1[i] + _A52 * k2[i] + _A53 * k3[i] + _A54 * k4[i])
+            plan_flag(breaks, local, t + _C5 * h, ref)
+            rhs(loop, y, ref, noise, k5)
+            for i in range(nx):
+                y[i] = x[i] + h * (_A61 * k1[i] + _A62 * k2[i] + _A63 * k3[i] + _A64 * k4[i]
+                                   + _A65 * k5[i])
+            plan_flag(breaks, local, t_new, ref)
+            rhs(loop, y, ref, noise, k6)
+            for i in range(nx):
+                xn[i] = x[i] + h * (_B1 * k1[i] + _B3 * k3[i] + _B4 * k4[i] + _B5 * k5[i]
+                                    + _B6 * k6[i])
+            rhs(loop, xn, ref, noise, k7)
+            evaluations += 6
+            norm = 0.0
+            angles = 0.0
+            for i in range(nx):
+                err = h * (_E1 * k1[i] + _E3 * k3[i] + _E4 * k4[i] + _E5 * k5[i]
+                           + _E6 * k6[i] + _E7 * k7[i])
+                norm += (err / (atol + rtol * max(abs(x[i]), abs(xn[i])))) ** 2
+                if i < n_angles:
+                    angles += err * err
+            norm = math.sqrt(norm / nx)
+            if norm <= 1.0:  # accepted (a nan norm is not)
+                after = k7[nx]
+                stage = _first_flip(sigma, k2[nx], k3[nx], k4[nx], k5[nx], k6[nx])
+                if _flipped(sigma, after) or stage >= 0.0:
+                    # the step went across the singular set: stop where the margin vanishes
+                    if (sigma > 0.0) != (after > 0.0):
+                        fraction = sigma / (sigma - after)
+                    else:
+                        fraction = stage if stage >= 0.0 else 1.0
+                    return (last, _CROSSED, t + min(max(fraction, 0.0), 1.0) * h, estimate,
+                            steps, evaluations)
+                beyond = _out_of_bounds(xn[:nx], bound) or not _finite(k7[:nx])
+                # output samples inside (t, t_new), from the dense output, up to the first
+                # beyond the bound (when the step ends beyond it)
+                while last < n and (last + 1) * dt < t_new * (1.0 - 1e-14):
+                    j = last + 1
+                    theta = ((j * dt) - t) / h
+                    for i in range(nx):
+                        q0 = (k1[i] * DENSE[0, 0] + k3[i] * DENSE[2, 0] + k4[i] * DENSE[3, 0]
+                              + k5[i] * DENSE[4, 0] + k6[i] * DENSE[5, 0] + k7[i] * DENSE[6, 0])
+                        q1 = (k1[i] * DENSE[0, 1] + k3[i] * DENSE[2, 1] + k4[i] * DENSE[3, 1]
+                              + k5[i] * DENSE[4, 1] + k6[i] * DENSE[5, 1] + k7[i] * DENSE[6, 1])
+                        q2 = (k1[i] * DENSE[0, 2] + k3[i] * DENSE[2, 2] + k4[i] * DENSE[3, 2]
+                              + k5[i] * DENSE[4, 2] + k6[i] * DENSE[5, 2] + k7[i] * DENSE[6, 2])
+                        q3 = (k1[i] * DENSE[0, 3] + k3[i] * DENSE[2, 3] + k4[i] * DENSE[3, 3]
+                              + k5[i] * DENSE[4, 3] + k6[i] * DENSE[5, 3] + k7[i] * DENSE[6, 3])
+                        xs[i] = x[i] + h * theta * (q0 + theta * (q1 + theta * (q2 + theta * q3)))
+                    if beyond and _out_of_bounds(xs[:nx], bound):
+                        return last, _BOUND, j * dt, estimate, steps, evaluations
+                    fs = work[_FS]
+                    rhs(loop, xs, samples_ref[2 * j], noise, fs)
+                    evaluations += 1
+                    if beyond and not _finite(fs[:nx]):
+                        return last, _BOUND, j * dt, estimate, steps, evaluations
+                    observe(loop, obs, acc, j, xs, fs)
+                    if record:
+                        record_sample(trace, j, nx, xs, fs)
+                    last = j
+                if beyond:
+                    return last, _BOUND, t_new, estimate, steps, evaluations
+                estimate += math.sqrt(angles)
+                steps += 1
+                t = t_new
+                x[:] = xn
+                k1[:] = k7
+                sigma = after
+                if noisy and interval + 1 < n and t >= (interval + 1) * dt * (1.0 - 1e-14):
+                    # a new noise interval: the measured angles jump, the rates with them
+                    interval += 1
+                    load_noise(interval, table, gen, std, noise)
+                    plan_flag(breaks, local, t, ref)
+                    rhs(loop, x, ref, noise, k1)
+                    evaluations += 1
+                    if not _finite(k1[:nx]):
+                        return last, _BOUND, t, estimate, steps, evaluations
+                    sigma_new = k1[nx]
+                    if _flipped(sigma, sigma_new):
+                        return last, _CROSSED, t, estimate, steps, evaluations
+                    sigma = sigma_new
+                # the output sample at the step's end, if there is one (exactly)
+                if last < n and (last + 1) * dt <= t * (1.0 + 1e-14):
+                    last += 1
+                    observe(loop, obs, acc, last, x, k1)
+                    if record:
+                        record_sample(trace, last, nx, x, k1)
+                if last >= n:
+                    break
+                grow = 10.0 if norm == 0.0 else min(10.0, 0.9 * norm ** -0.2)
+                h = h * (min(1.0, grow) if rejected else grow)
+                rejected = False
+            else:
+                shrink = 0.2 if not math.isfinite(norm) else max(0.2, 0.9 * norm ** -0.2)
+                h = h * shrink
+                rejected = True
+            if h < floor:
+                event = _STALLED if abs(sigma) < STALL_MARGIN else _STEP_FLOOR
+                return last, event, t, estimate, steps, evaluations
+        return last, _NONE, math.nan, estimate, steps, evaluations
+
+    return rk4_trial, adaptive_trial
