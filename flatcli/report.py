@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
+from flatcli.core.metrics import STATUS_NAMES
 from flatcli.core.optimize import OptimizeResult
 from flatcli.core.planning import FlatPlan, PlanSamples
 from flatcli.storage import atomic_path
@@ -241,9 +242,9 @@ def plot_track(cols: dict[str, Array], path: Path, title: str) -> None:
 # ---------------------------------------------------------------------------------------
 # Sweeps: progress while running, summary statistics and tables after.
 
-#: Trials whose errors enter the tracking-error statistics: those that ran to the end.
+#: Trials whose errors enter the tracking-error statistics: those that ran to the end
+#: (statuses of ``flatcli.core.metrics.STATUS_NAMES``).
 COMPLETED = ("ok", "singular")
-STATUSES = ("ok", "singular", "diverged", "error")
 ERROR_METRICS = ("err_theta_rms", "err_theta_final", "err_y_rms", "err_y_final")
 
 
@@ -314,7 +315,7 @@ def summarize_trials(frame: pd.DataFrame, cells: Mapping[int, Mapping[str, Any]]
         done = group[group["status"].isin(COMPLETED)]
         simulated = group[group["status"] != "error"]
         row: dict[str, Any] = {"cell": cell, **values, "trials": len(group)}
-        for status in STATUSES:
+        for status in STATUS_NAMES:
             row[status] = int((group["status"] == status).sum())
         for metric in ERROR_METRICS:
             values_ = done[metric].to_numpy(dtype=float)
@@ -353,7 +354,7 @@ def summary_markdown(summary: pd.DataFrame, grid_keys: Sequence[str]) -> str:
                                        rows(list(grid_keys))), ""]
     parts += [
         "### Trials by status\n",
-        table(["cell", "trials", *STATUSES], rows(["trials", *STATUSES])),
+        table(["cell", "trials", *STATUS_NAMES], rows(["trials", *STATUS_NAMES])),
     ]
     for name in ("theta", "y"):
         cols = [f"err_{name}_{kind}_{stat}" for kind in ("rms", "final")
