@@ -7,25 +7,12 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-from click.testing import CliRunner
-from small_sweep import SPEC
+from small_sweep import sweep, write_spec
 
-from flatcli.cli import main
 from flatcli.core.model import FlatcliError
 from flatcli.spec import resolve
 from flatcli.sweep import layout, rerun_spec
 from flatcli.sweep.rerun import same, trial_row
-
-
-def write_spec(tmp_path: Path, text: str = SPEC, name: str = "spec.toml") -> Path:
-    path = tmp_path / name
-    path.write_text(text)
-    return path
-
-
-def sweep(*args: str) -> tuple[int, str]:
-    result = CliRunner().invoke(main, ["sweep", *args])
-    return result.exit_code, result.output
 
 
 def test_rerun_reproduces_a_trial_exactly(tmp_path: Path) -> None:

@@ -13,21 +13,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from click.testing import CliRunner
-from small_sweep import SPEC
-
-from flatcli.cli import main
-
-
-def write_spec(tmp_path: Path, text: str = SPEC, name: str = "spec.toml") -> Path:
-    path = tmp_path / name
-    path.write_text(text)
-    return path
-
-
-def sweep(*args: str) -> tuple[int, str]:
-    result = CliRunner().invoke(main, ["sweep", *args])
-    return result.exit_code, result.output
+from small_sweep import SPEC, sweep, write_spec
 
 
 def trials(directory: Path) -> pd.DataFrame:

@@ -32,7 +32,6 @@ from benchmarks.baselines.numpy_batch import numpy_batch_rk4, numpy_trials_per_s
 from benchmarks.baselines.pcflatsys import (
     PcOptimal,
     PcPlan,
-    flatcli_point_to_point,
     matching_end_inputs,
     pc_flags,
     pc_optimal,
@@ -70,7 +69,6 @@ __all__ = [
     "compiled_closed_loop",
     "compiled_trials_per_second",
     "flat_plan_quality",
-    "flatcli_point_to_point",
     "loop_inputs",
     "machine_info",
     "matching_end_inputs",

@@ -11,7 +11,7 @@ from numpy.typing import NDArray
 
 from benchmarks.baselines.loop import LoopInputs, loop_inputs
 from benchmarks.baselines.problem import PAPER_TRACKING, Tracking
-from benchmarks.baselines.timing import Throughput, timed
+from benchmarks.baselines.timing import Throughput, throughput
 from flatcli.core.planning import (
     FlatPlan,
 )
@@ -155,5 +155,5 @@ def compiled_trials_per_second(
 ) -> Throughput:
     """Throughput of ``compiled_closed_loop`` after a warm-up (compilation, thread pool)."""
     li = loop_inputs(plan, tracking, trials)
-    timing = timed(lambda: compiled_closed_loop(plan, trials, tracking, threads, li), repeat)
-    return Throughput(trials.count, timing, threads)
+    return throughput(lambda: compiled_closed_loop(plan, trials, tracking, threads, li),
+                      trials.count, threads, repeat)

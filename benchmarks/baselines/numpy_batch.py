@@ -9,7 +9,7 @@ from numpy.typing import NDArray
 
 from benchmarks.baselines.loop import LoopInputs, loop_inputs
 from benchmarks.baselines.problem import PAPER_TRACKING, Tracking
-from benchmarks.baselines.timing import Throughput, timed
+from benchmarks.baselines.timing import Throughput, throughput
 from flatcli.core.planning import (
     FlatPlan,
 )
@@ -111,5 +111,5 @@ def numpy_trials_per_second(
 ) -> Throughput:
     """Throughput of ``numpy_batch_rk4`` in this process (one core)."""
     li = loop_inputs(plan, tracking, trials)
-    timing = timed(lambda: numpy_batch_rk4(plan, trials, tracking, chunk, li), repeat, 0)
-    return Throughput(trials.count, timing, 1)
+    return throughput(lambda: numpy_batch_rk4(plan, trials, tracking, chunk, li),
+                      trials.count, 1, repeat, warmup=0)

@@ -194,17 +194,6 @@ def pc_point_to_point(
     )
 
 
-def flatcli_point_to_point(maneuver: Maneuver = PAPER_MANEUVER, samples: int = 200) -> Array:
-    """flatcli's side of the planning comparison: the cubic plan sampled on n points.
-
-    Returns
-    -------
-    theta : (n, 3) [rad]
-    """
-    plan = maneuver.cubic()
-    return plan.sample(plan.grid(samples)).theta
-
-
 @dataclass(frozen=True)
 class PcOptimal:
     """python-control's ``point_to_point`` with a cost and trajectory constraints.

@@ -117,14 +117,6 @@ class _Shooting:
             grad[:, c] = per_step.reshape(self.intervals, self.substeps).sum(axis=1)
         return grad.ravel()
 
-    def final_base_gradient_batched(self, rates: Array) -> Array:
-        """The same gradient by 2K complex steps of the whole integration (for testing)."""
-        step = 1e-30
-        n = rates.size
-        batch = np.broadcast_to(rates.astype(complex), (n, *rates.shape)).copy()
-        batch.reshape(n, n)[np.arange(n), np.arange(n)] += 1j * step
-        return np.asarray(self.final_base(batch).imag / step)
-
     def knots_theta(self, rates: Array) -> Array:
         """(K + 1, 3) angles at the interval ends."""
         f = self.base_rates(rates) @ self.simpson  # (Q,)

@@ -111,7 +111,8 @@ class Throughput:
         """Trials over the best time [1/s]."""
         return self.trials / self.timing.best
 
-    @property
-    def median_trials_per_second(self) -> float:
-        """Trials over the median time [1/s]."""
-        return self.trials / self.timing.median
+
+def throughput(fn: Callable[[], object], trials: int, workers: int, repeat: int,
+               warmup: int = 1) -> Throughput:
+    """Trials per second of ``fn`` (a run of ``trials`` trials on ``workers`` cores)."""
+    return Throughput(trials, timed(fn, repeat, warmup), workers)
