@@ -297,7 +297,7 @@ def sweeps(bench: Bench, million: bool) -> None:
 
 def accuracy(bench: Bench) -> None:
     section = "Accuracy vs cost: RK4 against solve_ivp DOP853 (rtol 1e-10)"
-    spec = load_spec(SPEC, ["sweep.trials=10"], sweep=True)
+    spec = load_spec(SPEC, ["sweep.trials=10"])
     lay = layout(spec)
     directory = bench.out / "sweeps" / "w2"
     frame = pd.read_parquet(directory / "trials.parquet")

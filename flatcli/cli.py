@@ -1,25 +1,26 @@
 """The ``flatcli`` command line: each command a few lines of wiring.
 
 Every user error (a bad spec, option or file, an infeasible request) ends as one line on
-stderr, ``error: ...``, with exit status 2, no traceback, and no output written.
+stderr, ``error: ...``, with exit status 2, no traceback, and no output written. Options that
+several commands take are declared once, below, as decorators (as pip-tools does).
 """
 
 from __future__ import annotations
 
 import contextlib
-import json
 import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, NoReturn, TypeVar
 
 import click
-import pandas as pd
 
 from flatcli import __version__
 from flatcli.core.model import FlatcliError, constraint_coefficients, flatness_check
 from flatcli.core.optimize import OBJECTIVES
-from flatcli.experiment import plan_and_optimization, plant_from, robot_from, run_track
+from flatcli.executors import EXECUTORS
+from flatcli.experiment import checked, plan_and_optimization, plant_from, robot_from, run_track
+from flatcli.outputs import plan_frame, write_track
 from flatcli.report import (
     Progress,
     metrics_text,
@@ -29,15 +30,15 @@ from flatcli.report import (
     plan_text,
     plot_plan,
     plot_sweep,
-    plot_track,
     table,
 )
-from flatcli.spec import Spec, load_spec
+from flatcli.spec import Spec, load_spec, spec_toml
 from flatcli.storage import run_record, write_json, write_parquet
 
 F = TypeVar("F", bound=Callable[..., Any])
 
 EXIT_USAGE = 2
+RESUME_HINT = "finished chunks are kept in {}/trials; run the same command again to resume"
 
 
 def fail(message: str) -> NoReturn:
@@ -76,24 +77,54 @@ class Cli(click.Group):
             sys.exit(exc.exit_code)
 
 
+# ---------------------------------------------------------------------------------------
+# Options shared by several commands, each declared once.
+
+def spec_argument(required: bool = False) -> Callable[[F], F]:
+    return click.argument("spec", required=required, type=click.Path(path_type=Path))
+
+
+def set_option(help: str = "Override a spec key (dotted; VALUE in TOML), repeatable."
+               ) -> Callable[[F], F]:
+    return click.option("--set", "sets", multiple=True, metavar="KEY=VALUE", help=help)
+
+
+def out_option(default: Path | None = None,
+               help: str = "Output directory [default: runs/<name>/].") -> Callable[[F], F]:
+    return click.option("--out", type=click.Path(path_type=Path, file_okay=False),
+                        default=default, show_default=default is not None, help=help)
+
+
+def quiet_option(help: str = "Print nothing but errors.") -> Callable[[F], F]:
+    return click.option("-q", "--quiet", is_flag=True, help=help)
+
+
+def workers_option(help: str = "Worker processes [default: one per core].") -> Callable[[F], F]:
+    return click.option("--workers", type=int, help=help)
+
+
+def plot_option(help: str) -> Callable[[F], F]:
+    return click.option("--plot", is_flag=True, help=help)
+
+
+def optimize_option(fn: F) -> F:
+    return click.option(
+        "--optimize", "objective", type=click.Choice(list(OBJECTIVES)),
+        help="Optimise the plan (shorthand for --set plan.optimize.objective=...).",
+    )(fn)
+
+
 def spec_options(fn: F) -> F:
-    """SPEC argument, --set, --out, -q: shared by the commands that read a spec."""
-    fn = click.option("-q", "--quiet", is_flag=True, help="Print nothing but errors.")(fn)
-    fn = click.option(
-        "--out",
-        type=click.Path(path_type=Path, file_okay=False),
-        help="Output directory [default: runs/<name>/].",
-    )(fn)
-    fn = click.option(
-        "--set",
-        "sets",
-        multiple=True,
-        metavar="KEY=VALUE",
-        help="Override a spec key (dotted; VALUE in TOML), repeatable.",
-    )(fn)
-    return click.argument("spec", required=False, type=click.Path(path_type=Path, dir_okay=True))(
-        fn
-    )
+    """SPEC argument, --set, --out, -q: shared by the commands that run one spec."""
+    for decorator in (quiet_option(), out_option(), set_option(), spec_argument()):
+        fn = decorator(fn)
+    return fn
+
+
+def load(spec: Path | None, sets: tuple[str, ...], objective: str | None = None) -> Spec:
+    """The spec of a command line (``--optimize`` is one more ``--set``)."""
+    extra = () if objective is None else (f"plan.optimize.objective={objective}",)
+    return load_spec(spec, (*sets, *extra))
 
 
 def out_dir(spec: Spec, out: Path | None) -> Path:
@@ -105,6 +136,9 @@ def say(quiet: bool, text: str) -> None:
         click.echo(text)
 
 
+# ---------------------------------------------------------------------------------------
+# Commands.
+
 @click.group(cls=Cli)
 @click.version_option(__version__, prog_name="flatcli")
 def main() -> None:
@@ -115,46 +149,23 @@ def main() -> None:
     """
 
 
-def optimize_option(fn: F) -> F:
-    return click.option(
-        "--optimize", "objective", type=click.Choice(list(OBJECTIVES)),
-        help="Optimise the plan (shorthand for --set plan.optimize.objective=...).",
-    )(fn)
-
-
-def with_objective(sets: tuple[str, ...], objective: str | None) -> tuple[str, ...]:
-    return sets if objective is None else (*sets, f"plan.optimize.objective={objective}")
-
-
 @main.command()
 @spec_options
 @optimize_option
-@click.option("--plot", is_flag=True, help="Also write plan.png.")
+@plot_option("Also write plan.png.")
 def plan(spec: Path | None, sets: tuple[str, ...], out: Path | None, quiet: bool,
          objective: str | None, plot: bool) -> None:
     """Plan a point-to-point maneuver through the flat outputs; write plan.parquet."""
     with user_errors():
-        s = load_spec(spec, with_objective(sets, objective))
+        s = load(spec, sets, objective)
         planned, optimization = plan_and_optimization(s)
-        samples = planned.sample(planned.grid(s.get("plan.samples")))
-    frame = pd.DataFrame({"t": samples.t})
-    for i in range(3):
-        frame[f"theta{i}"] = samples.theta[:, i]
-    for i in range(3):
-        frame[f"theta{i}_dot"] = samples.theta_dot[:, i]
-    frame["u1_dot"] = samples.u1_dot
-    frame["u2"] = samples.u2
-    for name, arr in (("", samples.y), ("_dot", samples.y_dot), ("_ddot", samples.y_ddot)):
-        frame[f"y1{name}"] = arr[:, 0]
-        frame[f"y2{name}"] = arr[:, 1]
-    frame["margin"] = samples.margin
-    frame["momentum"] = samples.momentum
+        samples = planned.sample(planned.grid(s.plan.samples))
     directory = out_dir(s, out)
     summary = plan_summary(planned, samples)
     opt = None if optimization is None else optimization_summary(
-        optimization, s.get("plan.optimize.objective"))
+        optimization, str(s.plan.optimize.objective))
     record = run_record("plan", s.tree, summary=summary, optimization=opt)
-    write_parquet(directory / "plan.parquet", frame, record)
+    write_parquet(directory / "plan.parquet", plan_frame(samples), record)
     write_json(directory / "run.json", record)
     if plot:
         plot_plan(samples, directory / "plan.png", f"plan {s.name!r} ({planned.model} model)")
@@ -167,53 +178,37 @@ def plan(spec: Path | None, sets: tuple[str, ...], out: Path | None, quiet: bool
 @main.command()
 @spec_options
 @optimize_option
-@click.option("--plot", is_flag=True, help="Also write track.png.")
+@plot_option("Also write track.png.")
 def track(spec: Path | None, sets: tuple[str, ...], out: Path | None, quiet: bool,
           objective: str | None, plot: bool) -> None:
     """Track the plan in closed loop from a perturbed initial state; write track.parquet."""
     with user_errors():
-        s = load_spec(spec, with_objective(sets, objective))
+        s = load(spec, sets, objective)
         run = run_track(s)
-    cols = run.columns
-    metrics = run.metrics
     directory = out_dir(s, out)
-    record = run_record("track", s.tree, metrics=metrics)
-    write_parquet(directory / "track.parquet", pd.DataFrame(cols), record)
-    write_json(directory / "metrics.json", metrics)
-    write_json(directory / "run.json", record)
-    if plot:
-        plot_track(
-            cols,
-            directory / "track.png",
-            f"track {s.name!r}: kp = {s.get('track.kp')}, kv = {s.get('track.kv')}",
-        )
-    say(quiet, metrics_text(s.name, metrics))
-    say(quiet, f"wrote {directory}/track.parquet, metrics.json" + (", track.png" if plot else ""))
+    title = f"track {s.name!r}: kp = {s.track.kp}, kv = {s.track.kv}"
+    names = write_track(directory, run, run_record("track", s.tree, metrics=run.metrics),
+                        title if plot else None)
+    say(quiet, metrics_text(s.name, run.metrics))
+    say(quiet, f"wrote {directory}/" + ", ".join(names))
 
 
 @main.command()
-@click.argument("spec", required=False, type=click.Path(path_type=Path))
-@click.option(
-    "--set",
-    "sets",
-    multiple=True,
-    metavar="KEY=VALUE",
-    help="Override a spec key (dotted; VALUE in TOML), repeatable.",
-)
+@spec_argument()
+@set_option()
 def design(spec: Path | None, sets: tuple[str, ...]) -> None:
     """Check whether a design is differentially flat; print its constraint coefficients.
 
     Exit status 0 when the robot is flat, 1 when it is not.
     """
     with user_errors():
-        s = load_spec(spec, sets)
+        s = load(spec, sets)
         robot = robot_from(s)
         plant = plant_from(s)
     check = flatness_check(robot)
-    model = s.get("robot.model")
-    k = constraint_coefficients(robot.links, model)
+    k = constraint_coefficients(robot.links, checked(s.robot.model))
     rows = [[name, float(v)] for name, v in zip(k._fields, k, strict=True)]
-    click.echo(f"robot {s.name!r}, {model} coefficients [kg^2 m^2]:")
+    click.echo(f"robot {s.name!r}, {s.robot.model} coefficients [kg^2 m^2]:")
     click.echo(table(["coefficient", "value"], rows, 6))
     if check.is_flat:
         click.echo("flat: yes (d2 = 0, c0 a1 != 0); singular where sin th1 = 0 or th1' = 0")
@@ -226,114 +221,65 @@ def design(spec: Path | None, sets: tuple[str, ...]) -> None:
 
 
 @main.command()
-@click.argument("spec", type=click.Path(path_type=Path))
-@click.option("--out", type=click.Path(path_type=Path, file_okay=False),
-              help="Output directory [default: runs/<name>/].")
-@click.option("--workers", type=int, help="Worker processes [default: one per core].")
-@click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
-              help="Override a spec key (dotted; VALUE in TOML), repeatable.")
-@click.option("-q", "--quiet", is_flag=True, help="No progress and no tables.")
+@spec_argument(required=True)
+@out_option()
+@workers_option()
+@set_option()
+@quiet_option("No progress and no tables.")
 @click.option("--fail-fast", is_flag=True,
               help="Stop at the first trial that raises or diverges (exit status 1).")
 @click.option("--force", is_flag=True, help="Start over in a directory holding another sweep.")
-@click.option("--executor", type=click.Choice(["local", "dask"]), default="local",
+@click.option("--executor", type=click.Choice(list(EXECUTORS)), default=EXECUTORS[0],
               show_default=True, help="Run chunks on this machine or on a Dask cluster.")
 @click.option("--scheduler", metavar="ADDRESS",
               help="Dask scheduler address (tcp://host:8786), or 'local' for a LocalCluster.")
 @click.option("--rerun", "rerun", type=int, metavar="TRIAL",
               help="Re-run one finished trial alone (as flatcli track) and compare.")
 @click.option("--print-spec", is_flag=True, help="With --rerun: print that trial's track spec.")
-@click.option("--plot", is_flag=True, help="Also write the summary figures.")
+@plot_option("Also write the summary figures.")
 def sweep(spec: Path, out: Path | None, workers: int | None, sets: tuple[str, ...],
           quiet: bool, fail_fast: bool, force: bool, executor: str, scheduler: str | None,
           rerun: int | None, print_spec: bool, plot: bool) -> None:
     """Run a Monte Carlo sweep from a TOML spec with a [sweep] table (resumable)."""
     from flatcli.executors import WorkerLostError
-    from flatcli.sweep import FailFastError, run_sweep
+    from flatcli.sweep import FailFastError, rerun_and_compare, run_sweep, trial_spec
 
     with user_errors():
-        s = load_spec(spec, sets, sweep=True)
+        s = load(spec, sets)
         directory = out_dir(s, out)
+        if rerun is not None and print_spec:
+            click.echo(spec_toml(trial_spec(s, directory, rerun)), nl=False)
+            return
         if rerun is not None:
-            _rerun(s, directory, rerun, print_spec, quiet)
+            result = rerun_and_compare(s, directory, rerun)
+            say(quiet, result.text(s.name))
+            if not result.modified and not result.reproduced:
+                fail(f"--rerun: trial {rerun} did not reproduce")
             return
         if print_spec:
             fail("--print-spec: only with --rerun TRIAL")
         try:
-            result = run_sweep(s, directory, executor, workers, scheduler, force, fail_fast,
-                               Progress(s.name, quiet))
+            done = run_sweep(s, directory, executor, workers, scheduler, force, fail_fast,
+                             Progress(s.name, quiet))
         except FailFastError as exc:
             click.echo(f"error: {exc}", err=True)
             sys.exit(1)
         except WorkerLostError as exc:
-            click.echo(f"error: {exc}; finished chunks are kept in {directory}/trials; "
-                       "run the same command again to resume", err=True)
+            click.echo(f"error: {exc}; {RESUME_HINT.format(directory)}", err=True)
             sys.exit(1)
         except KeyboardInterrupt:
-            click.echo(f"error: interrupted; finished chunks are kept in {directory}/trials; "
-                       "run the same command again to resume", err=True)
+            click.echo(f"error: interrupted; {RESUME_HINT.format(directory)}", err=True)
             sys.exit(130)
     if plot:
         plot_sweep(directory)
-    say(quiet, result.summary_text)
-    say(quiet, f"{result.layout.total} trials ({result.simulated} simulated now) in "
-               f"{result.wall_seconds:.1f} s; wrote {directory}/trials.parquet, summary.md")
-
-
-def _rerun(s: Spec, directory: Path, trial: int, print_spec: bool, quiet: bool) -> None:
-    from flatcli.sweep import layout, rerun_spec, spec_toml
-
-    trials_path = directory / "trials.parquet"
-    if not trials_path.exists():
-        fail(f"--rerun: {trials_path} not found; run the sweep first")
-    frame = pd.read_parquet(trials_path, filters=[("trial", "==", trial)])
-    if frame.empty:
-        fail(f"--rerun: no trial {trial} in {trials_path}")
-    row = {str(k): v for k, v in frame.iloc[0].items()}
-    if row["status"] == "error":
-        fail(f"--rerun: trial {trial} did not simulate ({row['reason']})")
-    track_spec = rerun_spec(layout(s), row)
-    if print_spec:
-        click.echo(spec_toml(track_spec), nl=False)
-        return
-    run = run_track(track_spec)
-    metrics = run.metrics
-    target = directory / f"rerun-{trial}"
-    record = run_record("sweep --rerun", track_spec.tree, metrics=metrics, trial=trial)
-    write_parquet(target / "track.parquet", pd.DataFrame(run.columns), record)
-    write_json(target / "metrics.json", metrics)
-    write_json(target / "run.json", record)
-    plot_track(run.columns, target / "track.png", f"{s.name}: trial {trial}")
-    rows = [[k, row[k], v, "yes" if _same(row[k], v) else "NO"]
-            for k, v in metrics.items() if k != "reason"]
-    modified = _sweep_digest(directory) != s.digest()
-    say(quiet, f"trial {trial} of {s.name!r} re-run alone" + (
-        " with a spec that differs from the sweep's (--set): differences are expected"
-        if modified else ":"))
-    say(quiet, table(["metric", "in trials.parquet", "re-run", "identical"], rows, 6))
-    say(quiet, f"wrote {target}/track.parquet, metrics.json, track.png")
-    if not modified and not all(r[3] == "yes" for r in rows):
-        fail(f"--rerun: trial {trial} did not reproduce")
-
-
-def _sweep_digest(directory: Path) -> str | None:
-    from flatcli.sweep import MANIFEST
-
-    try:
-        return str(json.loads((directory / MANIFEST).read_text())["digest"])
-    except (OSError, ValueError, KeyError):
-        return None
-
-
-def _same(a: Any, b: Any) -> bool:
-    if isinstance(a, float | int) and isinstance(b, float | int):
-        return (a == b) or (a != a and b != b)
-    return bool(a == b)
+    say(quiet, done.summary_text)
+    say(quiet, f"{done.layout.total} trials ({done.simulated} simulated now) in "
+               f"{done.wall_seconds:.1f} s; wrote {directory}/trials.parquet, summary.md")
 
 
 @main.command()
 @click.argument("directory", type=click.Path(path_type=Path, file_okay=False))
-@click.option("--plot", is_flag=True, help="Also write the summary figures.")
+@plot_option("Also write the summary figures.")
 def summarize(directory: Path, plot: bool) -> None:
     """Print a finished sweep's summary tables again (and --plot its figures)."""
     summary_md = directory / "summary.md"
@@ -346,16 +292,14 @@ def summarize(directory: Path, plot: bool) -> None:
 
 
 @main.command()
-@click.option("--out", type=click.Path(path_type=Path, file_okay=False),
-              default=Path("runs/paper"), show_default=True, help="Output directory.")
+@out_option(Path("runs/paper"), "Output directory.")
 @click.option("--montecarlo", "montecarlo", type=click.Path(path_type=Path),
               default=Path("configs/paper_montecarlo.toml"), show_default=True,
               help="Sweep spec of the Monte Carlo study.")
 @click.option("--no-montecarlo", is_flag=True, help="Skip the Monte Carlo study.")
-@click.option("--workers", type=int, help="Worker processes for the study.")
-@click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
-              help="Override a key of the study's spec, repeatable.")
-@click.option("-q", "--quiet", is_flag=True, help="Print nothing but errors.")
+@workers_option("Worker processes for the study.")
+@set_option("Override a key of the study's spec, repeatable.")
+@quiet_option()
 def reproduce(out: Path, montecarlo: Path, no_montecarlo: bool, workers: int | None,
               sets: tuple[str, ...], quiet: bool) -> None:
     """The paper's Figs. 2-4 and numbers, and the Monte Carlo study, with REPORT.md."""

@@ -149,10 +149,6 @@ class DaskExecutor:
             f"dask at {info.get('address', scheduler)}, {self.workers} worker thread{plural}"
         )
 
-    @property
-    def client(self) -> Any:
-        return self._client
-
     def run(
         self, fn: Callable[..., Any], tasks: Iterable[tuple[T, tuple[Any, ...]]]
     ) -> Iterator[tuple[T, Any]]:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -33,60 +34,72 @@ STREAM_PERTURB = 0
 STREAM_NOISE = 1
 
 
+def checked(value: object) -> Any:
+    """A spec value handed to the core as it is.
+
+    The spec has checked it against the core's own enumeration (``MODELS``, ``OBJECTIVES``,
+    ``INTEGRATORS``) or a vector length; the core's parameter types say so more narrowly
+    (``Literal`` names, fixed-length tuples) than the spec's records can.
+    """
+    return value
+
+
 def robot_from(spec: Spec) -> RobotParams:
     """The nominal robot (what the planner and controller believe)."""
-    return RobotParams(*(spec.get(f"robot.{k}") for k in ("mass", "inertia", "length", "com")))
+    robot = spec.robot
+    return RobotParams(*checked((robot.mass, robot.inertia, robot.length, robot.com)))
 
 
 def plant_from(spec: Spec) -> RobotParams:
     """The plant: ``[plant]`` overrides of ``[robot]``."""
-    values = []
-    for key in ("mass", "inertia", "length", "com"):
-        value = spec.get(f"plant.{key}")
-        values.append(spec.get(f"robot.{key}") if value is None else value)
-    return RobotParams(*values)
+    robot, plant = spec.robot, spec.plant
+    return RobotParams(*checked((
+        robot.mass if plant.mass is None else plant.mass,
+        robot.inertia if plant.inertia is None else plant.inertia,
+        robot.length if plant.length is None else plant.length,
+        robot.com if plant.com is None else plant.com,
+    )))
 
 
 def basis_from(spec: Spec) -> Basis:
     """The flat-output basis: ``auto`` is the paper's cubic, or the optimiser's default
     (quintic B-splines, ``plan.size`` coefficients) when ``plan.optimize.objective`` is set."""
-    duration = spec.get("plan.duration")
-    kind = spec.get("plan.basis")
-    degree = spec.get("plan.degree")
+    plan = spec.plan
+    kind = plan.basis
     if kind == "auto":
-        kind = "poly" if spec.get("plan.optimize.objective") is None else "bspline"
+        kind = "poly" if plan.optimize.objective is None else "bspline"
     if kind == "bspline":
-        return BSplineBasis(spec.get("plan.size"), duration, degree or DEFAULT_BSPLINE_DEGREE)
-    return PolynomialBasis(degree or 3, duration)
+        return BSplineBasis(plan.size, plan.duration, plan.degree or DEFAULT_BSPLINE_DEGREE)
+    return PolynomialBasis(plan.degree or 3, plan.duration)
 
 
 def plan_and_optimization(spec: Spec) -> tuple[FlatPlan, OptimizeResult | None]:
     """The reference plan of a spec, and the optimiser's report when it optimised one."""
     robot = robot_from(spec)
-    start = np.asarray(spec.get("plan.start"))
-    goal = np.asarray(spec.get("plan.goal"))
-    objective = spec.get("plan.optimize.objective")
-    if objective is None:
+    p, opt = spec.plan, spec.plan.optimize
+    start = np.asarray(p.start)
+    goal = np.asarray(p.goal)
+    model = checked(spec.robot.model)
+    if opt.objective is None:
         plan = plan_point_to_point(
-            robot, start, goal, spec.get("plan.start_rate"), spec.get("plan.goal_rate"),
-            spec.get("plan.duration"), spec.get("robot.model"), basis_from(spec),
+            robot, start, goal, p.start_rate, p.goal_rate, p.duration, model, basis_from(spec)
         )
         return plan, None
     result = optimize_plan(
-        robot, start, goal, spec.get("plan.duration"),
-        model=spec.get("robot.model"),
+        robot, start, goal, p.duration,
+        model=model,
         basis=basis_from(spec),
-        objective=objective,
+        objective=checked(opt.objective),
         limits=PlanLimits(
-            angle_limit=spec.get("plan.optimize.angle_limit"),
-            rate_limit=spec.get("plan.optimize.rate_limit"),
-            min_margin=spec.get("plan.optimize.min_margin"),
+            angle_limit=checked(opt.angle_limit),
+            rate_limit=opt.rate_limit,
+            min_margin=opt.min_margin,
         ),
-        free_rates=spec.get("plan.optimize.free_rates"),
-        start_rate=spec.get("plan.start_rate"),
-        goal_rate=spec.get("plan.goal_rate"),
-        constraint_samples=spec.get("plan.optimize.constraint_samples"),
-        max_iter=spec.get("plan.optimize.max_iter"),
+        free_rates=opt.free_rates,
+        start_rate=p.start_rate,
+        goal_rate=p.goal_rate,
+        constraint_samples=opt.constraint_samples,
+        max_iter=opt.max_iter,
     )
     return result.plan, result
 
@@ -97,15 +110,16 @@ def plan_from(spec: Spec) -> FlatPlan:
 
 
 def scenario_from(spec: Spec, plan: FlatPlan) -> Scenario:
-    kp, kv = spec.get("track.kp"), spec.get("track.kv")
+    track = spec.track
+    kp, kv = track.kp, track.kv
     return Scenario(
         plan=plan,
         gains=Gains(kp[0], kp[1], kv[0], kv[1]),
-        dt=spec.get("track.dt"),
-        rate_limit=spec.get("track.rate_limit"),
-        singular_threshold=spec.get("track.singular_threshold"),
-        divergence_bound=spec.get("track.divergence_bound"),
-        plan_samples=spec.get("plan.samples"),
+        dt=track.dt,
+        rate_limit=track.rate_limit,
+        singular_threshold=track.singular_threshold,
+        divergence_bound=track.divergence_bound,
+        plan_samples=spec.plan.samples,
     )
 
 
@@ -124,16 +138,12 @@ def sensor_noise(std: float, n_steps: int, seed: int, trial: int) -> Array | Non
 def nominal_trials(spec: Spec, scenario: Scenario) -> Trials:
     """The single trial a ``track`` spec describes."""
     plant = plant_from(spec)
-    initial = np.array([[*spec.get("track.initial"), spec.get("track.initial_rate")]])
-    noise = sensor_noise(
-        spec.get("track.sensor_noise"),
-        scenario.n_steps,
-        spec.get("track.seed"),
-        spec.get("track.trial"),
-    )
+    track = spec.track
+    initial = np.array([[*track.initial, track.initial_rate]])
+    noise = sensor_noise(track.sensor_noise, scenario.n_steps, track.seed, track.trial)
     return Trials(
         links=plant.as_array()[None, :],
-        momentum=np.array([spec.get("plant.momentum")]),
+        momentum=np.array([spec.plant.momentum]),
         initial=initial,
         noise=None if noise is None else noise[None],
     )
@@ -203,5 +213,5 @@ def run_track(spec: Spec) -> TrackRun:
     plan = plan_from(spec)
     scenario = scenario_from(spec, plan)
     trials = nominal_trials(spec, scenario)
-    outcome = simulate(scenario, trials, spec.get("track.integrator"), record=True)
+    outcome = simulate(scenario, trials, checked(spec.track.integrator), record=True)
     return TrackRun(spec, plan, scenario, outcome)

@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
+from flatcli.core.metrics import STATUS_NAMES
 from flatcli.core.optimize import OptimizeResult
 from flatcli.core.planning import FlatPlan, PlanSamples
 from flatcli.storage import atomic_path
@@ -241,9 +242,9 @@ def plot_track(cols: dict[str, Array], path: Path, title: str) -> None:
 # ---------------------------------------------------------------------------------------
 # Sweeps: progress while running, summary statistics and tables after.
 
-#: Trials whose errors enter the tracking-error statistics: those that ran to the end.
+#: Trials whose errors enter the tracking-error statistics: those that ran to the end
+#: (statuses of ``flatcli.core.metrics.STATUS_NAMES``).
 COMPLETED = ("ok", "singular")
-STATUSES = ("ok", "singular", "diverged", "error")
 ERROR_METRICS = ("err_theta_rms", "err_theta_final", "err_y_rms", "err_y_final")
 
 
@@ -314,7 +315,7 @@ def summarize_trials(frame: pd.DataFrame, cells: Mapping[int, Mapping[str, Any]]
         done = group[group["status"].isin(COMPLETED)]
         simulated = group[group["status"] != "error"]
         row: dict[str, Any] = {"cell": cell, **values, "trials": len(group)}
-        for status in STATUSES:
+        for status in STATUS_NAMES:
             row[status] = int((group["status"] == status).sum())
         for metric in ERROR_METRICS:
             values_ = done[metric].to_numpy(dtype=float)
@@ -353,7 +354,7 @@ def summary_markdown(summary: pd.DataFrame, grid_keys: Sequence[str]) -> str:
                                        rows(list(grid_keys))), ""]
     parts += [
         "### Trials by status\n",
-        table(["cell", "trials", *STATUSES], rows(["trials", *STATUSES])),
+        table(["cell", "trials", *STATUS_NAMES], rows(["trials", *STATUS_NAMES])),
     ]
     for name in ("theta", "y"):
         cols = [f"err_{name}_{kind}_{stat}" for kind in ("rms", "final")
@@ -394,12 +395,9 @@ def plot_sweep(directory: Path) -> list[Path]:
         _log_boxplot(ax, done, cells, metric, 1e-16)
         ax.set_ylabel(f"log10 {metric} [rad]")
         ax.grid(alpha=0.3)
-    axes[-1].set_xticks(positions, [str(c) for c in cells])
-    axes[-1].set_xlabel("cell (see summary.md for its grid values)")
-    fig.suptitle("Tracking error distribution per cell (trials that ran to the end)")
-    fig.tight_layout()
-    paths.append(directory / "sweep_errors.png")
-    save_figure(fig, paths[-1])
+    _cell_axis(axes[-1], cells, "cell (see summary.md for its grid values)")
+    paths.append(_finish(fig, "Tracking error distribution per cell (trials that ran to the end)",
+                         directory / "sweep_errors.png"))
 
     fig = new_figure(max(8, 0.6 * len(cells) + 4), 5)
     ax = fig.subplots()
@@ -420,28 +418,36 @@ def plot_sweep(directory: Path) -> list[Path]:
         ax.legend(fontsize=7)
     else:
         ax.bar(positions, summary["singular_fraction"].to_numpy(dtype=float))
-        ax.set_xticks(positions, [str(c) for c in cells])
-        ax.set_xlabel("cell (grid values: summary.md)")
+        _cell_axis(ax, cells, "cell (grid values: summary.md)")
     ax.set_ylabel("fraction of trials with a singular hit")
     ax.set_ylim(-0.02, 1.02)
     ax.grid(alpha=0.3)
-    fig.suptitle("Singularity-hit rate vs perturbation size")
-    fig.tight_layout()
-    paths.append(directory / "sweep_singular.png")
-    save_figure(fig, paths[-1])
+    paths.append(_finish(fig, "Singularity-hit rate vs perturbation size",
+                         directory / "sweep_singular.png"))
 
     fig = new_figure(max(8, 0.6 * len(cells) + 4), 4.5)
     ax = fig.subplots()
     _log_boxplot(ax, done, cells, "momentum_drift", 1e-18)
-    ax.set_xticks(positions, [str(c) for c in cells])
-    ax.set_xlabel("cell")
+    _cell_axis(ax, cells, "cell")
     ax.set_ylabel("log10 momentum drift [kg m^2/s]")
     ax.grid(alpha=0.3)
-    fig.suptitle("Momentum drift of the integrated motion (full kinematics) per cell")
-    fig.tight_layout()
-    paths.append(directory / "sweep_momentum.png")
-    save_figure(fig, paths[-1])
+    paths.append(_finish(fig, "Momentum drift of the integrated motion (full kinematics) per cell",
+                         directory / "sweep_momentum.png"))
     return paths
+
+
+def _cell_axis(ax: Any, cells: list[int], label: str) -> None:
+    """An x axis of one tick per grid cell."""
+    ax.set_xticks(np.arange(len(cells)), [str(c) for c in cells])
+    ax.set_xlabel(label)
+
+
+def _finish(fig: Figure, title: str, path: Path) -> Path:
+    """Title, layout and the PNG of a sweep figure; its path."""
+    fig.suptitle(title)
+    fig.tight_layout()
+    save_figure(fig, path)
+    return path
 
 
 def _log_boxplot(ax: Any, done: pd.DataFrame, cells: list[int], metric: str,

@@ -20,7 +20,9 @@ from flatcli.core.model import constraint_coefficients
 from flatcli.core.optimize import required_fold
 from flatcli.core.planning import FlatPlan, PlanSamples
 from flatcli.experiment import TrackRun, plan_and_optimization, plan_from, run_track
+from flatcli.outputs import plan_frame, track_frame
 from flatcli.report import (
+    COMPLETED,
     Progress,
     finish_grid,
     fmt,
@@ -43,7 +45,8 @@ GAIN_READINGS: dict[str, dict[str, list[float]]] = {
     "swapped": {"track.kp": [100.0, 110.0], "track.kv": [10.0, 13.0]},
 }
 REPORT_TIMES = (0.5, 1.0, 2.0)
-MODELS = ("paper", "derived")
+#: The constraint coefficients REPORT.md compares: as printed, and as derived (``robot.model``).
+COMPARED_MODELS = ("paper", "derived")
 
 
 @dataclass
@@ -52,8 +55,6 @@ class Reproduction:
 
     plans: dict[str, tuple[FlatPlan, PlanSamples]]
     tracks: dict[tuple[str, str], TrackRun]
-    sweep_summary: str | None
-    sweep_frame: pd.DataFrame | None
     sections: list[str]
 
 
@@ -109,34 +110,29 @@ def _errors_at(run: TrackRun, times: tuple[float, ...]) -> list[tuple[float, flo
 def run_paper(base: Spec, out: Path, quiet: bool) -> Reproduction:
     """Plans and closed-loop runs of the paper's example under both models and gains."""
     plans: dict[str, tuple[FlatPlan, PlanSamples]] = {}
-    for model in MODELS:
+    for model in COMPARED_MODELS:
         spec = base.with_overrides({"robot.model": model})
         plan = plan_from(spec)
-        samples = plan.sample(plan.grid(spec.get("plan.samples")))
+        samples = plan.sample(plan.grid(spec.plan.samples))
         plans[model] = (plan, samples)
-        frame = pd.DataFrame({"t": samples.t, **{f"theta{i}": samples.theta[:, i]
-                                                  for i in range(3)},
-                              **{f"theta{i}_dot": samples.theta_dot[:, i] for i in range(3)},
-                              "y1": samples.y[:, 0], "y2": samples.y[:, 1],
-                              "y1_dot": samples.y_dot[:, 0], "y2_dot": samples.y_dot[:, 1],
-                              "margin": samples.margin, "momentum": samples.momentum})
-        write_parquet(out / f"plan_{model}.parquet", frame, run_record("reproduce", spec.tree))
+        write_parquet(out / f"plan_{model}.parquet", plan_frame(samples),
+                      run_record("reproduce", spec.tree))
     plan_figures(plans, out)
     tracks: dict[tuple[str, str], TrackRun] = {}
-    for model in MODELS:
+    for model in COMPARED_MODELS:
         for reading, gains in GAIN_READINGS.items():
             spec = base.with_overrides({"robot.model": model, **gains})
             run = run_track(spec)
             tracks[(model, reading)] = run
             cols = run.columns
-            write_parquet(out / f"track_{model}_{reading}.parquet", pd.DataFrame(cols),
+            write_parquet(out / f"track_{model}_{reading}.parquet", track_frame(run),
                           run_record("reproduce", spec.tree, metrics=run.metrics))
             if model == "derived":
                 plot_track(cols, out / f"fig4_feedback_{reading}.png",
                            f"Fig. 4: feedback from th(0) = (1.96, 0.8, -0.1), gains {reading}: "
                            f"kp = {gains['track.kp']}, kv = {gains['track.kv']}")
     _say(quiet, f"plans, Figs. 2-4 and closed-loop runs written to {out}")
-    return Reproduction(plans, tracks, None, None, [])
+    return Reproduction(plans, tracks, [])
 
 
 def paper_table(rep: Reproduction) -> str:
@@ -152,7 +148,7 @@ def paper_table(rep: Reproduction) -> str:
                  float(np.max(np.abs(s_derived.momentum)))])
     for reading in GAIN_READINGS:
         paper_err = {model: _errors_at(rep.tracks[(model, reading)], REPORT_TIMES)
-                     for model in MODELS}
+                     for model in COMPARED_MODELS}
         for k, t in enumerate(REPORT_TIMES):
             def pair(e: tuple[float, float, float]) -> str:
                 return f"({fmt(e[0], 3)}, {fmt(e[1], 3)})"
@@ -245,7 +241,8 @@ OPTIMIZED_PLANS: tuple[tuple[str, dict[str, Any]], ...] = (
 
 
 def optimized_plans_section(base: Spec, out: Path) -> list[str]:
-    """The optimised plans beside the paper's cubic: a figure and a table (issue 5)."""
+    """The optimised plans beside the paper's cubic: a figure and a table (README,
+    ``[plan.optimize]``)."""
     rows: list[list[Any]] = []
     curves: list[tuple[str, PlanSamples]] = []
     fine = 4001
@@ -254,15 +251,14 @@ def optimized_plans_section(base: Spec, out: Path) -> list[str]:
     for label, overrides in OPTIMIZED_PLANS:
         plan, result = plan_and_optimization(base.with_overrides(overrides))
         assert result is not None
-        seconds = f"{result.iterations} it."
-        entries.append((label, plan, seconds))
+        entries.append((label, plan, f"{result.iterations} it."))
     for label, plan, note in entries:
         samples = plan.sample(plan.grid(fine))
         s = plan_summary(plan, samples)
         rows.append([label, s["input_energy"], max(s["peak_rate1"], s["peak_rate2"]),
                      s["max_abs_theta2"], s["min_margin"], s["max_abs_momentum"], note])
         curves.append((label, samples))
-    fold = required_fold(cubic.coefficients, base.get("plan.start"), base.get("plan.goal"))
+    fold = required_fold(cubic.coefficients, base.plan.start, base.plan.goal)
     fig = new_figure(11, 7)
     ax = fig.subplots(2, 2, sharex=True)
     for i, (label, samples) in enumerate(curves[:2]):
@@ -310,7 +306,7 @@ def run_montecarlo(spec_path: Path, out: Path, quiet: bool, workers: int | None,
     """The Monte Carlo study into out/montecarlo; its summary text, table and wall time."""
     from flatcli.sweep import run_sweep
 
-    spec = load_spec(spec_path, sets, sweep=True)
+    spec = load_spec(spec_path, sets)
     directory = out / "montecarlo"
     result = run_sweep(spec, directory, "local", workers, None, force=True,
                        progress=Progress(spec.name, quiet))
@@ -327,7 +323,7 @@ DRIFT_FLAG = 1e-3
 def drift_findings(trials_path: Path) -> list[str]:
     """How many finished trials the fixed step did not resolve, by gain reading."""
     frame = pd.read_parquet(trials_path, columns=["gains", "status", "momentum_drift"])
-    done = frame[frame["status"].isin(["ok", "singular"])]
+    done = frame[frame["status"].isin(COMPLETED)]
     lines = []
     for label, group in done.groupby("gains", sort=False):
         flagged = int((group["momentum_drift"] > DRIFT_FLAG).sum())

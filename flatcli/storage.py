@@ -88,11 +88,15 @@ def write_parquet(path: Path, frame: pd.DataFrame, provenance: Mapping[str, Any]
 
 def write_table(path: Path, table: pa.Table, provenance: Mapping[str, Any]) -> None:
     """Write an Arrow table as Parquet, with ``provenance`` as JSON in the schema metadata."""
-    meta = dict(table.schema.metadata or {})
-    meta[PARQUET_META_KEY] = json.dumps(to_jsonable(provenance), sort_keys=True).encode()
-    table = table.replace_schema_metadata(meta)
+    table = table.replace_schema_metadata({**(table.schema.metadata or {}),
+                                           **provenance_metadata(provenance)})
     with atomic_path(path) as tmp:
         pq.write_table(table, tmp)
+
+
+def provenance_metadata(provenance: Mapping[str, Any]) -> dict[bytes, bytes]:
+    """Parquet schema metadata holding ``provenance`` as JSON under ``PARQUET_META_KEY``."""
+    return {PARQUET_META_KEY: json.dumps(to_jsonable(provenance), sort_keys=True).encode()}
 
 
 def read_provenance(path: Path) -> dict[str, Any]:

@@ -7,8 +7,9 @@ Sources of the values below:
 * maneuver: paper, Sec. VI: th(0) = (1.8, 1, 0), th(2) = (1.2, 2, 0), th1'(0) = 0.1,
   th1'(2) = 0.5, T = 2 s, cubic flat outputs.
 * feedback: paper, eqs. 39-42 and Fig. 4: th(0) = (1.96, 0.8, -0.1); gains as printed
-  kv1 = 100, kp1 = 10, kv2 = 110, kp2 = 13, and with kv and kp swapped (physics note,
-  "Feedback"); u1(0) = y1d'(0) = 0.1, the physics note's natural choice.
+  kv1 = 100, kp1 = 10, kv2 = 110, kp2 = 13, and with kv and kp swapped (README, *The physics,
+  and the paper's errata*, "The gains"); u1(0) = y1d'(0) = 0.1, the plan's own rate (the
+  paper does not give it; README, ``track.initial_rate``).
 """
 
 from __future__ import annotations
@@ -43,7 +44,7 @@ class Maneuver:
 PAPER_MANEUVER = Maneuver(
     start=(1.8, 1.0, 0.0), goal=(1.2, 2.0, 0.0), start_rate=0.1, goal_rate=0.5, duration=2.0
 )
-# Paper, eqs. 39-42 (gains as printed) and Fig. 4 (initial angles); u1(0) from the physics note.
+# Paper, eqs. 39-42 (gains as printed) and Fig. 4 (initial angles); u1(0) = y1d'(0).
 PRINTED_GAINS = Gains(kp1=10.0, kp2=13.0, kv1=100.0, kv2=110.0)
 SWAPPED_GAINS = Gains(kp1=100.0, kp2=110.0, kv1=10.0, kv2=13.0)
 FIG4_INITIAL = (1.96, 0.8, -0.1, 0.1)

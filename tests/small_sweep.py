@@ -1,4 +1,10 @@
-"""The small sweep spec the sweep and Dask tests share."""
+"""The small sweep spec the sweep and Dask tests share, and how they run it."""
+
+from pathlib import Path
+
+from click.testing import CliRunner
+
+from flatcli.cli import main
 
 #: A small but real study: two cells, perturbations of the initial state and the plant.
 SPEC = """
@@ -24,3 +30,17 @@ com = { dist = "uniform", low = [0, 0, 0], high = [0, 0, 0.002] }
 [sweep.grid]
 "track.sensor_noise" = [0.0, 0.001]
 """
+
+
+def write_spec(tmp_path: Path, text: str = SPEC, name: str = "spec.toml") -> Path:
+    """A spec file in tmp_path (created if need be)."""
+    tmp_path.mkdir(parents=True, exist_ok=True)
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def sweep(*args: str) -> tuple[int, str]:
+    """``flatcli sweep ARGS`` through click's CliRunner: exit code and output."""
+    result = CliRunner().invoke(main, ["sweep", *args])
+    return result.exit_code, result.output

@@ -12,7 +12,8 @@ from click.testing import CliRunner
 
 from flatcli.cli import main
 
-#: Physics note, "The paper's example, recomputed": y2'(0) and y2'(2) with the correct b1.
+#: y2'(0) and y2'(2) of the paper's example with the correct b1: README, *The physics, and the
+#: paper's errata* (derived in tests/test_planning.py::test_boundary_values_of_y2_dot).
 Y2_DOT_START = -0.066880
 Y2_DOT_GOAL = -0.343458
 PLAN_COLUMNS = ["t", "theta0", "theta1", "theta2", "theta0_dot", "theta1_dot", "theta2_dot",
@@ -52,7 +53,8 @@ def test_plan_with_the_papers_coefficients(tmp_path: Path) -> None:
     code, out = run("plan", "--out", str(tmp_path / "p"), "--set", "robot.model=paper", "-q")
     assert code == 0 and out == ""
     frame = pd.read_parquet(tmp_path / "p" / "plan.parquet")
-    # the paper's printed boundary values (Sec. VI) and the note's 1.39e-3 momentum residual
+    # the paper's printed boundary values (Sec. VI) and its 1.39e-3 momentum residual (README,
+    # *The physics, and the paper's errata*; tests/test_planning.py checks it on the core)
     assert round(frame["y2_dot"].iloc[0], 3) == -0.065
     assert round(frame["y2_dot"].iloc[-1], 4) == -0.3512
     assert frame["momentum"].abs().max() == pytest.approx(1.39e-3, rel=0.01)
@@ -68,7 +70,8 @@ def test_track_writes_trace_metrics_and_figure(tmp_path: Path) -> None:
     metrics = json.loads((out_dir / "metrics.json").read_text())
     assert list(metrics) == sorted(METRICS)
     assert metrics["status"] == "ok"
-    # physics note: with the gains as printed, y - y_ref at t = 2 is (-0.164, 0.105)
+    # with the gains as printed, y - y_ref at t = 2 is (-0.164, 0.105): README, *The physics,
+    # and the paper's errata* (closed form: tests/test_control.py::test_closed_form_...)
     end = frame.iloc[-1]
     assert end["y1"] - end["y1_ref"] == pytest.approx(-0.164, abs=5e-4)
     assert end["y2"] - end["y2_ref"] == pytest.approx(0.105, abs=5e-4)
@@ -87,7 +90,7 @@ def test_track_spec_file_and_sets_apply_in_order(tmp_path: Path) -> None:
     assert record["spec"]["name"] == "mine"
     assert record["spec"]["track"]["kp"] == [100.0, 110.0]
     metrics = json.loads((tmp_path / "o" / "metrics.json").read_text())
-    assert metrics["err_y_final"] < 1e-4  # swapped gains: ~1e-5 (physics note)
+    assert metrics["err_y_final"] < 1e-4  # swapped gains: ~1e-5 (README, "The gains")
 
 
 def test_default_output_directory_is_runs_name(tmp_path: Path,

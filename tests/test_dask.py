@@ -15,12 +15,10 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-from click.testing import CliRunner
 from dask.distributed import Client, LocalCluster, get_task_stream
-from small_sweep import SPEC
+from small_sweep import SPEC, sweep, write_spec
 
 import flatcli.executors
-from flatcli.cli import main
 
 #: Long enough that a worker can be killed with most chunks still to run (seconds of work
 #: after the first chunk is written, against milliseconds to kill): 2 x 500 trials in 50
@@ -33,18 +31,6 @@ LONG_CHUNKS = 2 * LONG_TRIALS // LONG_CHUNK
 
 MISSING = ("error: --executor dask: dask.distributed is not installed; "
            "pip install 'flatcli[dask]'\n")
-
-
-def write_spec(directory: Path, text: str = SPEC) -> Path:
-    directory.mkdir(parents=True, exist_ok=True)
-    path = directory / "spec.toml"
-    path.write_text(text)
-    return path
-
-
-def sweep(*args: str) -> tuple[int, str]:
-    result = CliRunner().invoke(main, ["sweep", *args])
-    return result.exit_code, result.output
 
 
 def chunk_files(directory: Path) -> list[str]:

@@ -37,10 +37,12 @@ def test_plan_summary_and_figure(tmp_path: Path) -> None:
                                0.5, 2.0)
     samples = plan.sample(plan.grid(201))
     summary = plan_summary(plan, samples)
-    # physics note: th2 reaches 3.93 rad; initial rates (-13.25, 0.1, 48.8) rad/s
+    # th2 reaches 3.93 rad; initial rates (-13.25, 0.1, 48.8) rad/s: the cubic of Sec. VI
+    # with the correct b1 (tests/test_planning.py::test_derived_plan_matches_physics_note)
     assert round(summary["max_abs_theta2"], 2) == 3.93
     assert round(summary["peak_rate2"], 1) == 48.8
-    # issue 5: the paper's cubic costs an input energy of about 101
+    # the paper's cubic costs an input energy of about 101 (tests/test_optimize.py,
+    # CUBIC_ENERGY = 101.19)
     assert 100 < summary["input_energy"] < 102
     plot_plan(samples, tmp_path / "p.png", "t")
     assert (tmp_path / "p.png").read_bytes()[:4] == b"\x89PNG"

@@ -22,11 +22,13 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path) -> None:
                  "montecarlo/sweep_singular.png"):
         assert (out / name).exists(), name
     report = (out / "REPORT.md").read_text()
-    # the paper's printed values and the corrected ones (physics note)
+    # the paper's printed values and the corrected ones (README, *The physics, and the
+    # paper's errata*)
     assert "| y2'(0) [rad/s]" in report and "-0.065 " in report and "-0.0668801" in report
     assert "-0.3512 " in report and "-0.343458" in report
     assert "Only the **swapped** reading matches" in report
     assert "## Monte Carlo study" in report and "144 trials" in report
-    # issue 5: the optimised plan beside the cubic (energy at most a third of 101.2)
+    # the optimised plan beside the cubic (energy at most a third of the cubic's 101.19,
+    # tests/test_optimize.py CUBIC_ENERGY)
     row = next(line for line in report.splitlines() if line.startswith("| least energy "))
     assert float(row.split("|")[2]) < 101.19 / 3

@@ -1,58 +1,52 @@
-"""Specs: defaults are the paper's example, overrides, and one-line errors for bad input."""
+"""Building specs (flatcli/spec/build.py): defaults are the paper's example, files and
+overrides apply in order, the digest is stable, and bad input is one line naming the key."""
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
+import json
 import math
 from pathlib import Path
 
 import pytest
 
-from flatcli.spec import (
-    SCHEMA,
-    SpecError,
-    all_keys,
-    defaults,
-    get_dotted,
-    load_spec,
-    parse_set,
-    resolve,
-)
+from flatcli.spec import SpecError, load_spec, parse_set, resolve
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
 
 def test_defaults_are_the_papers_example() -> None:
     # Franch et al. (2003), Sec. VI: robot, maneuver and Fig. 4's initial state and gains.
     spec = resolve({})
-    assert spec.get("robot.mass") == (1.0, 1.0, 1.0)
-    assert spec.get("robot.inertia") == (0.0533, 0.0533, 0.0533)
-    assert spec.get("robot.length") == (0.2, 0.2, 0.2)
-    assert spec.get("robot.com") == (0.1, 0.1, 0.0)
-    assert spec.get("plan.start") == (1.8, 1.0, 0.0)
-    assert spec.get("plan.goal") == (1.2, 2.0, 0.0)
-    assert (spec.get("plan.start_rate"), spec.get("plan.goal_rate")) == (0.1, 0.5)
-    assert spec.get("track.initial") == (1.96, 0.8, -0.1)
-    assert spec.get("track.kv") == (100.0, 110.0)
-    assert spec.get("track.kp") == (10.0, 13.0)
+    assert spec.robot.mass == (1.0, 1.0, 1.0)
+    assert spec.robot.inertia == (0.0533, 0.0533, 0.0533)
+    assert spec.robot.length == (0.2, 0.2, 0.2)
+    assert spec.robot.com == (0.1, 0.1, 0.0)
+    assert spec.plan.start == (1.8, 1.0, 0.0)
+    assert spec.plan.goal == (1.2, 2.0, 0.0)
+    assert (spec.plan.start_rate, spec.plan.goal_rate) == (0.1, 0.5)
+    assert spec.track.initial == (1.96, 0.8, -0.1)
+    assert spec.track.kv == (100.0, 110.0)
+    assert spec.track.kp == (10.0, 13.0)
 
 
 def test_configs_paper_toml_equals_the_embedded_default() -> None:
-    path = Path(__file__).resolve().parents[1] / "configs" / "paper.toml"
-    assert load_spec(path).digest() == resolve({}).digest()
+    assert load_spec(CONFIGS / "paper.toml").digest() == resolve({}).digest()
 
 
 def test_set_overrides_with_toml_values_and_bare_words(tmp_path: Path) -> None:
     path = tmp_path / "s.toml"
     path.write_text('name = "x"\n[track]\nkp = [1, 2]\n')
     spec = load_spec(path, ["track.kp=[25,25]", "plan.duration=3", "robot.model=paper"])
-    assert spec.get("track.kp") == (25.0, 25.0)
-    assert spec.get("plan.duration") == 3.0
-    assert spec.get("robot.model") == "paper"
+    assert spec.track.kp == (25.0, 25.0)
+    assert spec.plan.duration == 3.0
+    assert spec.robot.model == "paper"
     assert spec.name == "x"
 
 
 def test_inf_is_allowed_only_where_it_means_no_limit() -> None:
-    assert resolve({}, {"track.rate_limit": math.inf}).get("track.rate_limit") == math.inf
+    assert resolve({}, {"track.rate_limit": math.inf}).track.rate_limit == math.inf
     with pytest.raises(SpecError, match=r"track\.dt"):
         resolve({}, {"track.dt": math.inf})
 
@@ -122,7 +116,7 @@ def test_bad_input_is_one_line_naming_the_key(
 )
 def test_bad_sweep_tables_are_one_line(sweep: dict[str, object], message: str) -> None:
     with pytest.raises(SpecError) as info:
-        resolve({"sweep": sweep}, sweep=True)
+        resolve({"sweep": sweep})
     assert message in str(info.value)
     assert "\n" not in str(info.value)
 
@@ -131,8 +125,8 @@ def test_grid_groups_vary_keys_together() -> None:
     spec = resolve({"sweep": {"grid": {"gains": [
         {"label": "printed", "track.kp": [10, 13], "track.kv": [100, 110]},
         {"label": "swapped", "track.kp": [100, 110], "track.kv": [10, 13]},
-    ]}}}, sweep=True)
-    assert len(spec.get("sweep.grid")["gains"]) == 2
+    ]}}})
+    assert len(spec.sweep.grid["gains"]) == 2
 
 
 def test_missing_and_unparsable_files(tmp_path: Path) -> None:
@@ -146,11 +140,54 @@ def test_missing_and_unparsable_files(tmp_path: Path) -> None:
         load_spec(tmp_path)
 
 
-def test_every_key_has_a_default_and_is_in_the_readme() -> None:
-    tree = defaults()
-    readme = README.read_text()
-    for key in all_keys():
-        get_dotted(tree, key)  # raises KeyError if the embedded default lacks the key
-        name = key.rpartition(".")[2]
-        assert f"`{name}`" in readme, f"README does not document spec key {key}"
-    assert set(SCHEMA) >= {"robot", "plan", "track", "plant", "sweep"}
+#: The paper's example as the canonical JSON of a spec, written out by hand: sorted keys, no
+#: spaces, floats as Python writes them, inf as the string "inf", unset keys as null.
+PAPER_CANONICAL = {
+    "name": "paper_example",
+    "plan": {"basis": "auto", "degree": None, "duration": 2.0, "goal": [1.2, 2.0, 0.0],
+             "goal_rate": 0.5,
+             "optimize": {"angle_limit": ["inf", "inf", "inf"], "constraint_samples": 201,
+                          "free_rates": True, "max_iter": 300, "min_margin": 0.02,
+                          "objective": None, "rate_limit": "inf"},
+             "samples": 201, "size": 12, "start": [1.8, 1.0, 0.0], "start_rate": 0.1},
+    "plant": {"com": None, "inertia": None, "length": None, "mass": None, "momentum": 0.0},
+    "robot": {"com": [0.1, 0.1, 0.0], "inertia": [0.0533, 0.0533, 0.0533],
+              "length": [0.2, 0.2, 0.2], "mass": [1.0, 1.0, 1.0], "model": "derived"},
+    "sweep": {"chunk": None, "grid": {}, "perturb": {}, "seed": 0, "trials": 1000},
+    "track": {"divergence_bound": 10000.0, "dt": 0.001, "initial": [1.96, 0.8, -0.1],
+              "initial_rate": 0.1, "integrator": "rk4", "kp": [10.0, 13.0],
+              "kv": [100.0, 110.0], "rate_limit": "inf", "seed": 0, "sensor_noise": 0.0,
+              "singular_threshold": 0.01, "trial": 0},
+}
+#: Digests written into sweep.json by flatcli before the typed spec (commit 13e655c, the
+#: dict-based spec.py): a sweep directory of that code must still resume.
+DIGESTS_BEFORE_TYPED_SPEC = {
+    "paper.toml": "c6cca8c08a708aa6f2d93e3e559dd95020096e0affde05fdfdc7ee4f4a60f998",
+    "paper_montecarlo.toml": "a03b964634fe7d1bdbb9330ea45e35f4c6e427ee82bdf27071094bd6e44bcc4c",
+}
+
+
+def test_digest_is_sha256_of_the_canonical_json_written_by_hand() -> None:
+    text = json.dumps(PAPER_CANONICAL, sort_keys=True, separators=(",", ":"))
+    assert resolve({}).to_json() == text
+    assert resolve({}).digest() == hashlib.sha256(text.encode()).hexdigest()
+
+
+@pytest.mark.parametrize("name", sorted(DIGESTS_BEFORE_TYPED_SPEC))
+def test_digest_of_the_shipped_configs_is_unchanged(name: str) -> None:
+    assert load_spec(CONFIGS / name).digest() == DIGESTS_BEFORE_TYPED_SPEC[name]
+
+
+def test_with_overrides_validates_and_leaves_the_original_alone() -> None:
+    base = resolve({})
+    changed = base.with_overrides({"track.kp": [1, 2], "plan.degree": 5})
+    assert changed.track.kp == (1.0, 2.0) and changed.plan.degree == 5
+    assert base.track.kp == (10.0, 13.0) and base.plan.degree is None
+    with pytest.raises(SpecError, match=r"plant\.mass\[1\]: must be > 0 kg, got -1"):
+        base.with_overrides({"plant.mass": [1, -1, 1]})
+
+
+def test_records_are_frozen() -> None:
+    spec = resolve({})
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        spec.track.dt = 0.5  # type: ignore[misc]

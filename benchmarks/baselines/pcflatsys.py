@@ -1,0 +1,317 @@
+"""Planning with python-control's ``flatsys``: a ``FlatSystem`` for this robot, the paper's
+cubic maneuver (``pc_point_to_point``) and input energy with constraints (``pc_optimal``)."""
+
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from dataclasses import dataclass
+from typing import Any
+
+import control.flatsys as fs
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import NonlinearConstraint
+
+from benchmarks.baselines.problem import PAPER_MANEUVER, Maneuver
+from benchmarks.baselines.quality import PlanQuality, flat_plan_quality, limits_violation
+from flatcli.core.flatness import flat_accelerations, flat_inputs, flat_outputs, flat_state
+from flatcli.core.model import (
+    Coefficients,
+    base_rate,
+)
+from flatcli.core.planning import (
+    FlatPlan,
+    state_and_rates,
+)
+
+Array = NDArray[np.float64]
+
+def robot_flat_system(k: Coefficients) -> fs.FlatSystem:
+    """The prolonged robot as a python-control ``FlatSystem``.
+
+    State x = (th0, th1, th2, u1) [rad, rad/s], inputs u = (u1', u2 = th2') [rad/s^2, rad/s],
+    flat outputs y1 = th1, y2 = th0 - c0 th2 / (a0 + a1 cos th1), each with the flag
+    (y, y', y''). ``forward`` and ``reverse`` call flatcli's flat maps; ``updfcn`` is the
+    reduced constraint, so the system can also be simulated.
+
+    Parameters
+    ----------
+    k : Coefficients of a d2 = 0 model
+    """
+
+    def forward(x: Array, u: Array, params: dict[str, Any] | None = None) -> list[Array]:
+        y1, y2, y1_dot, y2_dot = flat_outputs(k, x[0], x[1], x[2], x[3])
+        y1_ddot, y2_ddot = flat_accelerations(k, x[1], x[2], x[3], u[0], u[1])
+        return [np.array([y1, y1_dot, y1_ddot]), np.array([y2, y2_dot, y2_ddot])]
+
+    def reverse(zflag: list[Array], params: dict[str, Any] | None = None) -> tuple[Array, Array]:
+        th0, th1, th2, u1 = flat_state(k, zflag[0][0], zflag[1][0], zflag[0][1], zflag[1][1])
+        u1_dot, u2 = flat_inputs(k, th1, th2, u1, zflag[0][2], zflag[1][2])
+        return np.array([th0, th1, th2, u1]), np.array([u1_dot, u2])
+
+    def updfcn(t: float, x: Array, u: Array, params: dict[str, Any] | None = None) -> Array:
+        th0_dot = base_rate(k, 1.0, 0.0, x[1], x[2], x[3], u[1])  # H0 = 0: M drops out
+        return np.array([th0_dot, x[3], u[1], u[0]])
+
+    return fs.flatsys(
+        forward,
+        reverse,
+        updfcn,
+        inputs=["u1_dot", "u2"],
+        states=["th0", "th1", "th2", "u1"],
+        outputs=["y1", "y2"],
+        name="space_robot",
+    )
+
+
+def matching_end_inputs(plan: FlatPlan) -> tuple[Array, Array]:
+    """Inputs u(0), u(T) whose flat accelerations are those of ``plan`` at its two ends.
+
+    python-control imposes the whole flag (y, y', y'') at both ends, flatcli's cubic only
+    y and y'; passing these inputs makes the two problems the same.
+
+    Returns
+    -------
+    u0, uf : (2,) u1' [rad/s^2], u2 [rad/s] at t = 0 and t = T
+    """
+    ends = np.array([0.0, plan.duration])
+    y_ddot = plan.trajectory.derivative(ends, 2)
+    state, _ = state_and_rates(
+        plan.coefficients,
+        plan.trajectory.derivative(ends, 0),
+        plan.trajectory.derivative(ends, 1),
+        y_ddot,
+    )
+    out = []
+    for j in range(2):
+        _, th1, th2, u1 = state[j]
+        out.append(np.array(flat_inputs(plan.coefficients, th1, th2, u1, *y_ddot[j])))
+    return out[0], out[1]
+
+
+def pc_flags(traj: fs.SystemTrajectory, t: Array) -> tuple[Array, Array, Array]:
+    """Flat outputs and two derivatives of a python-control trajectory.
+
+    Parameters
+    ----------
+    traj : SystemTrajectory from ``point_to_point``
+    t : (n,) times [s]
+
+    Returns
+    -------
+    y, y_dot, y_ddot : (n, 2) each
+    """
+    t = np.asarray(t, dtype=float)
+    out = np.zeros((3, t.size, 2))
+    for i, coeffs in enumerate(traj.coeffs):
+        for j, c in enumerate(coeffs):
+            for order in range(3):
+                out[order, :, i] += c * traj.basis.eval_deriv(j, order, t, var=None)
+    return out[0], out[1], out[2]
+
+
+@dataclass(frozen=True)
+class PcPlan:
+    """python-control's solution of the paper's maneuver, on a time grid.
+
+    Attributes
+    ----------
+    t : (n,) [s]
+    state : (n, 4) th0, th1, th2 [rad], u1 [rad/s] from ``SystemTrajectory.eval``
+    inputs : (n, 2) u1' [rad/s^2], u2 [rad/s]
+    plan_seconds : wall time of ``point_to_point`` [s]
+    eval_seconds : wall time of ``eval`` on the grid [s]
+    max_theta_error : max over the grid and joints of |th - th of flatcli's plan| [rad]
+    max_rate_error : the same for (th1', th2') = (u1, u2) [rad/s]
+    """
+
+    t: Array
+    state: Array
+    inputs: Array
+    plan_seconds: float
+    eval_seconds: float
+    max_theta_error: float
+    max_rate_error: float
+
+    @property
+    def seconds(self) -> float:
+        """Plan + eval [s]."""
+        return self.plan_seconds + self.eval_seconds
+
+
+def pc_point_to_point(
+    maneuver: Maneuver = PAPER_MANEUVER,
+    samples: int = 200,
+    system: fs.FlatSystem | None = None,
+) -> PcPlan:
+    """The maneuver solved by ``control.flatsys.point_to_point`` and evaluated on a grid.
+
+    The flag of length 3 makes python-control impose y'' at both ends too; they are taken
+    from flatcli's cubic (``matching_end_inputs``) and the basis is ``PolyFamily(6, T)``,
+    quintics, which contain the cubic: the unique solution is then flatcli's cubic, and
+    the result reports how far apart the two are.
+
+    Parameters
+    ----------
+    maneuver : Maneuver (its robot must have d2 = 0)
+    samples : grid size n on [0, T]
+    system : a ``robot_flat_system`` to reuse (built here otherwise, not timed)
+
+    Returns
+    -------
+    PcPlan
+    """
+    plan = maneuver.cubic()
+    if system is None:
+        system = robot_flat_system(plan.coefficients)
+    u0, uf = matching_end_inputs(plan)
+    x0, xf = maneuver.start_state, maneuver.goal_state
+    T = maneuver.duration
+    t = np.linspace(0.0, T, samples)
+
+    start = time.perf_counter()
+    traj = fs.point_to_point(system, T, x0, u0, xf, uf, basis=fs.PolyFamily(6, T))
+    planned = time.perf_counter()
+    x, u = traj.eval(t)
+    done = time.perf_counter()
+
+    reference = plan.sample(t)
+    return PcPlan(
+        t=t,
+        state=x.T,
+        inputs=u.T,
+        plan_seconds=planned - start,
+        eval_seconds=done - planned,
+        max_theta_error=float(np.max(np.abs(x[:3].T - reference.theta))),
+        max_rate_error=float(
+            max(
+                np.max(np.abs(x[3] - reference.theta_dot[:, 1])),
+                np.max(np.abs(u[1] - reference.theta_dot[:, 2])),
+            )
+        ),
+    )
+
+
+@dataclass(frozen=True)
+class PcOptimal:
+    """python-control's ``point_to_point`` with a cost and trajectory constraints.
+
+    Attributes
+    ----------
+    success, message : from scipy.optimize.minimize, as python-control reports them
+    cost : python-control's own objective (its rectangle sum over ``timepts``) [rad^2/s]
+    quality : PlanQuality on a dense grid (exact energy, limits, |H|, margin)
+    grid_violation : limit excess on python-control's own ``timepts`` (where it imposes them)
+    objective_evaluations : calls of the trajectory cost by the optimiser
+    seconds : wall time of ``point_to_point`` [s]
+    """
+
+    success: bool
+    message: str
+    cost: float
+    quality: PlanQuality
+    grid_violation: float
+    objective_evaluations: int
+    seconds: float
+
+
+def pc_optimal(
+    maneuver: Maneuver = PAPER_MANEUVER,
+    basis_size: int = 12,
+    timepts: int = 41,
+    angle_limit: float | None = 3.0,
+    rate_limit: float | None = 20.0,
+    min_margin: float | None = 0.05,
+    end_inputs: tuple[Array, Array] | None = None,
+    system: fs.FlatSystem | None = None,
+) -> PcOptimal:
+    """Least input energy with limits, by ``control.flatsys.point_to_point``.
+
+    Cost: th1'^2 + th2'^2 = x[3]^2 + u[1]^2 (th1' is the state u1, th2' the input u2).
+    Constraints at every interior point of ``timepts`` (python-control's way): |th2| <=
+    angle_limit, |th1'|, |th2'| <= rate_limit, and the singularity margin sin th1 * th1' >=
+    min_margin (without it the optimiser parks the singular set of the flat map between
+    grid points, where cost and limits are never looked at). SLSQP, python-control's
+    default, from its default start (the least-norm coefficients meeting the ends).
+
+    python-control fixes the whole state and input at both ends: the end rates th1'(0),
+    th1'(T) are the maneuver's, and the end inputs default to zero (at rest in th2, no
+    angular acceleration of joint 1), unlike flatcli's optimiser, which may free them.
+
+    Parameters
+    ----------
+    maneuver : Maneuver
+    basis_size : N of ``PolyFamily(N, T)`` (polynomials of degree N - 1); > 6
+    timepts : points on [0, T] for cost and constraints
+    angle_limit : bound on |th2| [rad], None for none
+    rate_limit : bound on |th1'| and |th2'| [rad/s], None for none
+    min_margin : lower bound on sin th1 * th1' [rad/s], None for none
+    end_inputs : (u0, uf), each (2,) u1' [rad/s^2], u2 [rad/s]; default zeros
+    system : a ``robot_flat_system`` to reuse
+
+    Returns
+    -------
+    PcOptimal
+    """
+    k = maneuver.coefficients
+    if system is None:
+        system = robot_flat_system(k)
+    u0, uf = end_inputs if end_inputs is not None else (np.zeros(2), np.zeros(2))
+    T = maneuver.duration
+    grid = np.linspace(0.0, T, timepts)
+    calls = 0
+
+    def cost(x: Array, u: Array) -> float:
+        nonlocal calls
+        calls += 1
+        return float(x[3] ** 2 + u[1] ** 2)
+
+    inf = np.inf
+    a_lim = inf if angle_limit is None else angle_limit
+    r_lim = inf if rate_limit is None else rate_limit
+    m_lim = -inf if min_margin is None else min_margin
+
+    def limits(x: Array, u: Array) -> Array:
+        return np.array([x[2], x[3], u[1], math.sin(x[1]) * x[3]])
+
+    constraints = [
+        (NonlinearConstraint, limits, [-a_lim, -r_lim, -r_lim, m_lim], [a_lim, r_lim, r_lim, inf])
+    ]
+    start = time.perf_counter()
+    with warnings.catch_warnings(), np.errstate(all="ignore"):
+        warnings.simplefilter("ignore")  # "unable to solve": reported through success
+        traj = fs.point_to_point(
+            system,
+            grid,
+            maneuver.start_state,
+            u0,
+            maneuver.goal_state,
+            uf,
+            basis=fs.PolyFamily(basis_size, T),
+            integral_cost=cost,
+            trajectory_constraints=constraints,
+        )
+    seconds = time.perf_counter() - start
+
+    def flags(t: Array) -> tuple[Array, Array, Array]:
+        return pc_flags(traj, t)
+
+    with np.errstate(all="ignore"):
+        quality = flat_plan_quality(
+            k, maneuver.robot, flags, T, angle_limit, rate_limit, min_margin
+        )
+        state, rates = state_and_rates(k, *flags(grid[1:-1]))
+    margin = np.abs(np.sin(state[:, 1]) * rates[:, 1])
+    return PcOptimal(
+        success=bool(traj.success),
+        message=str(traj.message),
+        cost=float(traj.cost),
+        quality=quality,
+        grid_violation=limits_violation(
+            state[:, :3], rates, margin, angle_limit, rate_limit, min_margin
+        ),
+        objective_evaluations=calls // max(timepts - 2, 1),
+        seconds=seconds,
+    )

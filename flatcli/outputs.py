@@ -1,0 +1,54 @@
+"""The files of ``plan`` and ``track`` runs: their Parquet tables, each built in one place.
+
+``flatcli plan``, ``flatcli track``, ``flatcli sweep --rerun`` and ``flatcli reproduce`` all
+write their tables through these functions, so a plan or a track table has the same columns
+whichever command wrote it (the README's *Output files* lists them).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from flatcli.core.planning import PlanSamples
+from flatcli.experiment import TrackRun
+from flatcli.report import plot_track
+from flatcli.storage import write_json, write_parquet
+
+
+def plan_frame(samples: PlanSamples) -> pd.DataFrame:
+    """plan.parquet's rows: angles, rates, inputs, flat outputs, margin and H per sample."""
+    frame = pd.DataFrame({"t": samples.t})
+    for i in range(3):
+        frame[f"theta{i}"] = samples.theta[:, i]
+    for i in range(3):
+        frame[f"theta{i}_dot"] = samples.theta_dot[:, i]
+    frame["u1_dot"] = samples.u1_dot
+    frame["u2"] = samples.u2
+    for name, arr in (("", samples.y), ("_dot", samples.y_dot), ("_ddot", samples.y_ddot)):
+        frame[f"y1{name}"] = arr[:, 0]
+        frame[f"y2{name}"] = arr[:, 1]
+    frame["margin"] = samples.margin
+    frame["momentum"] = samples.momentum
+    return frame
+
+
+def track_frame(run: TrackRun) -> pd.DataFrame:
+    """track.parquet's rows (``TrackRun.columns``)."""
+    return pd.DataFrame(run.columns)
+
+
+def write_track(directory: Path, run: TrackRun, record: Mapping[str, Any],
+                plot_title: str | None = None) -> list[str]:
+    """track.parquet, metrics.json, run.json (and track.png with a title); their names."""
+    write_parquet(directory / "track.parquet", track_frame(run), record)
+    write_json(directory / "metrics.json", run.metrics)
+    write_json(directory / "run.json", record)
+    names = ["track.parquet", "metrics.json"]
+    if plot_title is not None:
+        plot_track(run.columns, directory / "track.png", plot_title)
+        names.append("track.png")
+    return names

@@ -1,0 +1,224 @@
+"""One spec key: its kind, default, unit, bounds and doc, and the one check of its values.
+
+Every value a spec key can take goes through ``Key.check``: a value read from TOML, a
+``--set`` override, a grid value of a sweep, and a perturbed plant's parameter drawn inside a
+sweep (``Key.check_item``), so the same bad value gets the same message whichever path finds
+it. A key is declared as a field of its section's record (``flatcli.spec.schema``) with one of
+the helpers below, e.g. ``dt: float = number(1e-3, "integration step", "s", gt=0)``.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+from flatcli.core.model import FlatcliError
+
+
+class SpecError(FlatcliError):
+    """A spec problem, reported to the user as one line."""
+
+
+def suggest(word: str, candidates: Iterable[str]) -> str:
+    """`` (did you mean 'x'?)`` for the closest candidate, or ''."""
+    close = difflib.get_close_matches(word, list(candidates), n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+@dataclass(frozen=True)
+class Key:
+    """One spec key.
+
+    Attributes
+    ----------
+    kind : "float", "int", "bool", "str", "choice", "vector" (``length`` floats) or "table"
+    default : the paper's value, already normalised (floats, tuples); None where ``nullable``
+    doc : one line for the README's spec tables
+    unit : SI unit, '' for none
+    low : lower bound of a number or of every item of a vector (None: unbounded)
+    low_open : True: the value must be > low; False: >= low
+    choices : the allowed words of a "choice"
+    nullable : None is allowed (it means "see doc")
+    allow_inf : inf is a meaningful value (no limit)
+    length : how many numbers a "vector" holds
+    default_doc : the README's default column when the default is not a plain value
+    """
+
+    kind: str
+    default: Any
+    doc: str
+    unit: str = ""
+    low: float | None = None
+    low_open: bool = False
+    choices: tuple[str, ...] = ()
+    nullable: bool = False
+    allow_inf: bool = False
+    length: int = 0
+    default_doc: str = ""
+
+    def check(self, where: str, value: Any) -> Any:
+        """``value`` normalised (floats, tuples), or SpecError naming ``where``."""
+        if value is None and self.nullable:
+            return None
+        checker = _CHECKS.get(self.kind)
+        if checker is None:  # pragma: no cover - a schema typo
+            raise AssertionError(self.kind)
+        return checker(self, where, value)
+
+    def check_item(self, where: str, index: int, value: float) -> float:
+        """One number of a vector, e.g. a perturbed ``plant.mass[1]``; SpecError if bad."""
+        return self._number(f"{where}[{index}]", value)
+
+    def bounds_text(self) -> str:
+        """What values are allowed, for the README ('> 0', '>= 1', 'true, false', ...)."""
+        if self.kind == "choice":
+            text = ", ".join(f'"{c}"' for c in self.choices)
+        elif self.kind == "bool":
+            text = "true, false"
+        elif self.low is None:
+            text = ""
+        else:
+            text = f"{'>' if self.low_open else '>='} {self.low:g}"
+        if self.allow_inf:
+            text += " (inf: no limit)"
+        return text
+
+    def _unit(self) -> str:
+        return f" [{self.unit}]" if self.unit else ""
+
+    def _number(self, where: str, value: Any) -> float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise SpecError(f"{where}: expected a number{self._unit()}, got {value!r}")
+        x = float(value)
+        if math.isnan(x) or (math.isinf(x) and not self.allow_inf):
+            raise SpecError(f"{where}: expected a finite number{self._unit()}, got {value!r}")
+        self._check_low(where, x)
+        return x
+
+    def _check_low(self, where: str, x: float) -> None:
+        if self.low is None:
+            return
+        unit = f" {self.unit}" if self.unit else ""
+        if self.low_open and not x > self.low:
+            raise SpecError(f"{where}: must be > {self.low:g}{unit}, got {x:g}")
+        if not self.low_open and not x >= self.low:
+            raise SpecError(f"{where}: must be >= {self.low:g}{unit}, got {x:g}")
+
+
+def _check_float(key: Key, where: str, value: Any) -> float:
+    return key._number(where, value)
+
+
+def _check_int(key: Key, where: str, value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise SpecError(f"{where}: expected an integer, got {value!r}")
+    key._check_low(where, value)
+    return int(value)
+
+
+def _check_bool(key: Key, where: str, value: Any) -> bool:
+    if not isinstance(value, bool):
+        raise SpecError(f"{where}: expected true or false, got {value!r}")
+    return value
+
+
+def _check_str(key: Key, where: str, value: Any) -> str:
+    if not isinstance(value, str) or not value.strip():
+        raise SpecError(f"{where}: expected a non-empty string, got {value!r}")
+    if any(c in value for c in "/\\") or value.startswith("."):
+        raise SpecError(f"{where}: must not contain '/' or '\\' or start with '.'")
+    return value
+
+
+def _check_choice(key: Key, where: str, value: Any) -> str:
+    if value not in key.choices:
+        raise SpecError(
+            f"{where}: expected one of {list(key.choices)}, got {value!r}"
+            f"{suggest(str(value), key.choices)}"
+        )
+    return str(value)
+
+
+def _check_vector(key: Key, where: str, value: Any) -> tuple[float, ...]:
+    if not isinstance(value, list | tuple) or len(value) != key.length:
+        raise SpecError(
+            f"{where}: expected a list of {key.length} numbers{key._unit()}, got {value!r}"
+        )
+    return tuple(key.check_item(where, i, v) for i, v in enumerate(value))
+
+
+def _check_table(key: Key, where: str, value: Any) -> dict[str, Any]:
+    if not isinstance(value, dict):
+        raise SpecError(f"{where}: expected a table, got {value!r}")
+    return value
+
+
+_CHECKS = {
+    "float": _check_float,
+    "int": _check_int,
+    "bool": _check_bool,
+    "str": _check_str,
+    "choice": _check_choice,
+    "vector": _check_vector,
+    "table": _check_table,
+}
+
+
+# ---------------------------------------------------------------------------------------
+# Declaring a key as a field of a section record: one line per key.
+
+def _declare(key: Key) -> Any:
+    if key.kind == "table":
+        return field(default_factory=dict, metadata={"key": key})
+    return field(default=key.default, metadata={"key": key})
+
+
+def _low(gt: float | None, ge: float | None) -> dict[str, Any]:
+    if gt is not None:
+        return {"low": gt, "low_open": True}
+    return {"low": ge, "low_open": False}
+
+
+def number(default: float | None, doc: str, unit: str = "", *, gt: float | None = None,
+           ge: float | None = None, inf: bool = False, nullable: bool = False) -> Any:
+    """A float key; ``gt``/``ge`` bound it below; ``inf``: inf means no limit."""
+    return _declare(Key("float", default, doc, unit, allow_inf=inf, nullable=nullable,
+                        **_low(gt, ge)))
+
+
+def integer(default: int | None, doc: str, *, ge: int | None = None, nullable: bool = False,
+            default_doc: str = "") -> Any:
+    """An int key, bounded below by ``ge``."""
+    return _declare(Key("int", default, doc, low=ge, nullable=nullable, default_doc=default_doc))
+
+
+def vector(length: int, default: tuple[float, ...] | None, doc: str, unit: str = "", *,
+           gt: float | None = None, ge: float | None = None, inf: bool = False,
+           nullable: bool = False, default_doc: str = "") -> Any:
+    """A list of ``length`` floats, each bounded like a number key."""
+    return _declare(Key("vector", default, doc, unit, allow_inf=inf, nullable=nullable,
+                        length=length, default_doc=default_doc, **_low(gt, ge)))
+
+
+def choice(choices: tuple[str, ...], default: str | None, doc: str, *,
+           nullable: bool = False) -> Any:
+    """One of ``choices`` (taken from the enumeration's one home, e.g. the core's)."""
+    return _declare(Key("choice", default, doc, choices=tuple(choices), nullable=nullable))
+
+
+def flag(default: bool, doc: str) -> Any:
+    """true or false."""
+    return _declare(Key("bool", default, doc))
+
+
+def text(default: str, doc: str) -> Any:
+    """A non-empty string usable as a directory name."""
+    return _declare(Key("str", default, doc))
+
+
+def table(doc: str, default_doc: str = "{}") -> Any:
+    """A TOML table kept as written (validated by its own rules, see ``flatcli.spec.sweeps``)."""
+    return _declare(Key("table", {}, doc, default_doc=default_doc))

@@ -1,0 +1,77 @@
+"""The README's spec tables, generated from the schema.
+
+Each table sits in README.md between ``<!-- spec-table: SECTION -->`` and
+``<!-- end spec-table -->``; ``sync_readme`` rewrites those blocks and the test of this module
+fails when README.md differs from what it would write. Regenerate with
+``python -m flatcli.spec --update-readme README.md``.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from typing import Any
+
+from flatcli.spec.keys import Key
+from flatcli.spec.schema import SCHEMA, SECTIONS
+
+BEGIN = "<!-- spec-table: {} -->"
+END = "<!-- end spec-table -->"
+_BLOCK = re.compile(r"<!-- spec-table: (?P<section>[\w.]*) -->\n.*?<!-- end spec-table -->",
+                    re.DOTALL)
+
+
+def show_default(key: Key) -> str:
+    """A key's default as the README shows it."""
+    if key.default_doc:
+        return key.default_doc
+    return _show(key.default)
+
+
+def _show(value: Any) -> str:
+    if value is None:
+        return "none"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return "inf" if math.isinf(value) else f"{value:g}"
+    if isinstance(value, tuple):
+        return "[" + ", ".join(_show(v) for v in value) + "]"
+    if isinstance(value, str):
+        return f'"{value}"'
+    return str(value)
+
+
+def heading(section: str) -> str:
+    """A section's heading: its name and the first line of its record's docstring."""
+    doc = (SECTIONS[section].__doc__ or "").strip().splitlines()[0]
+    return f"#### {doc}" if not section else f"#### `[{section}]`: {doc}"
+
+
+def section_table(section: str) -> str:
+    """The Markdown table of one section's keys."""
+    rows = ["| key | default | unit | allowed | meaning |", "|---|---|---|---|---|"]
+    for name, key in SCHEMA[section].items():
+        cells = [f"`{name}`", show_default(key), key.unit, key.bounds_text(), key.doc]
+        rows.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")
+    return "\n".join(rows)
+
+
+def block(section: str) -> str:
+    """A README block: markers around the heading and the table of one section."""
+    return "\n".join([BEGIN.format(section), heading(section), "", section_table(section), END])
+
+
+def markdown() -> str:
+    """Every section's block, in schema order."""
+    return "\n\n".join(block(section) for section in SCHEMA)
+
+
+def sync_readme(text: str) -> str:
+    """README text with every spec-table block regenerated from the schema."""
+    return _BLOCK.sub(lambda m: block(m.group("section")), text)
+
+
+def readme_sections(text: str) -> list[str]:
+    """The sections whose blocks a README holds, in order."""
+    return [m.group("section") for m in _BLOCK.finditer(text)]

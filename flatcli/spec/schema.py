@@ -1,0 +1,299 @@
+"""The spec's schema: one frozen record per TOML table, each field one key.
+
+A record's docstring starts with the one line the README's heading of its table shows.
+
+``[robot]``, ``[plan]``, ``[plan.optimize]``, ``[track]``, ``[plant]`` and ``[sweep]`` are the
+records below; ``Spec`` holds them and the top-level ``name``. A key is one line: its type,
+its helper (``number``, ``integer``, ``vector``, ``choice``, ``flag``, ``text``, ``table``
+from ``flatcli.spec.keys``) with default, doc, unit and bounds. ``SCHEMA`` is derived from
+these records, and so are the README's spec tables (``python -m flatcli.spec --markdown``).
+Choices come from their one home: the core's ``MODELS``, ``OBJECTIVES`` and ``INTEGRATORS``.
+A vector's length is a value of its key (``LINKS``, ``GAINS``), checked like its bounds.
+
+Records are built only by ``flatcli.spec.build`` (which validates every value first), so
+every record in the program holds valid values.
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import json
+import math
+from collections.abc import Iterator, Mapping
+from dataclasses import Field, dataclass, field, fields, is_dataclass
+from typing import Any
+
+from flatcli.core.model import MODELS
+from flatcli.core.optimize import OBJECTIVES
+from flatcli.core.simulate import INTEGRATORS
+from flatcli.spec.keys import (
+    Key,
+    SpecError,
+    choice,
+    flag,
+    integer,
+    number,
+    suggest,
+    table,
+    text,
+    vector,
+)
+from flatcli.storage import to_jsonable
+
+#: Numbers of a per-link vector: the planar robot's links 0 (base), 1, 2.
+LINKS = 3
+#: Numbers of a gain vector: one per flat output y1, y2.
+GAINS = 2
+#: Flat-output bases of ``plan.basis``; "auto" picks one (see ``flatcli.experiment``).
+BASES = ("auto", "poly", "bspline")
+INF = math.inf
+
+Vector = tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class RobotSpec:
+    """the nominal robot (what the planner and controller believe)"""
+
+    mass: Vector = vector(LINKS, (1.0, 1.0, 1.0), "link masses m0, m1, m2", "kg", gt=0)
+    inertia: Vector = vector(LINKS, (0.0533, 0.0533, 0.0533),
+                             "inertias about each link's centre of mass", "kg m^2", gt=0)
+    length: Vector = vector(LINKS, (0.2, 0.2, 0.2),
+                            "link lengths, joint to joint (l2 does not enter the dynamics)", "m",
+                            gt=0)
+    com: Vector = vector(LINKS, (0.1, 0.1, 0.0),
+                         "d_i, distance of each link's centre of mass from its proximal joint",
+                         "m")
+    model: str = choice(MODELS, "derived", "constraint coefficients: \"derived\" (correct) or "
+                        "\"paper\" (the appendix as printed)")
+
+
+@dataclass(frozen=True)
+class OptimizeSpec:
+    """optimised plans (off unless `objective` is set; `--optimize OBJECTIVE`)"""
+
+    objective: str | None = choice(
+        OBJECTIVES, None, "what to optimise (none: the plain plan): \"energy\" (integral of "
+        "th1'^2 + th2'^2), \"peak_rate\" (max of abs th1', abs th2'), \"effort\" (T x energy), "
+        "\"margin\" (maximise the minimum singularity margin)", nullable=True)
+    angle_limit: Vector = vector(LINKS, (INF, INF, INF), "bound on abs th_i along the plan",
+                                 "rad", gt=0, inf=True)
+    rate_limit: float = number(INF, "bound on abs th1', abs th2' along the plan", "rad/s", gt=0,
+                               inf=True)
+    min_margin: float = number(0.02, "lower bound on the signed margin sin th1 * th1' along the "
+                               "plan (it never crosses the singular set)", "rad/s", ge=0)
+    free_rates: bool = flag(True, "optimise th1'(0) and th1'(T) as well (the plan's start_rate "
+                            "and goal_rate are the starting guess)")
+    constraint_samples: int = integer(201, "grid points where the limits are imposed", ge=10)
+    max_iter: int = integer(300, "optimiser iteration limit", ge=1)
+
+
+@dataclass(frozen=True)
+class PlanSpec:
+    """the point-to-point maneuver"""
+
+    duration: float = number(2.0, "maneuver time T", "s", gt=0)
+    start: Vector = vector(LINKS, (1.8, 1.0, 0.0), "th0, th1, th2 at t = 0", "rad")
+    goal: Vector = vector(LINKS, (1.2, 2.0, 0.0), "th0, th1, th2 at t = T", "rad")
+    start_rate: float = number(0.1, "th1'(0), a free end rate (non-zero)", "rad/s")
+    goal_rate: float = number(0.5, "th1'(T), a free end rate (non-zero)", "rad/s")
+    samples: int = integer(201, "points of the output time grid", ge=2)
+    basis: str = choice(BASES, "auto", "flat-output basis: polynomials, clamped B-splines "
+                        "(scipy), or auto: the paper's cubic, or quintic B-splines when "
+                        "optimising")
+    degree: int | None = integer(None, "polynomial or B-spline degree", ge=3, nullable=True,
+                                 default_doc="3 (poly), 5 (bspline)")
+    size: int = integer(12, "B-spline coefficients per output", ge=4)
+    optimize: OptimizeSpec = field(default_factory=OptimizeSpec)
+
+
+@dataclass(frozen=True)
+class TrackSpec:
+    """the closed loop"""
+
+    initial: Vector = vector(LINKS, (1.96, 0.8, -0.1), "th(0) of the plant (Fig. 4)", "rad")
+    initial_rate: float = number(0.1, "u1(0) = th1'(0) (the paper does not give it; y1d'(0))",
+                                 "rad/s")
+    kp: Vector = vector(GAINS, (10.0, 13.0), "kp1, kp2: feedback gains, as printed in the paper",
+                        "1/s^2")
+    kv: Vector = vector(GAINS, (100.0, 110.0), "kv1, kv2: feedback gains, as printed in the "
+                        "paper", "1/s")
+    dt: float = number(1e-3, "integration and sampling step (must divide the duration)", "s",
+                       gt=0)
+    integrator: str = choice(INTEGRATORS, "rk4", "\"rk4\" (compiled fixed step, the workhorse) "
+                             "or \"dop853\" (solve_ivp, rtol 1e-10: the reference)")
+    singular_threshold: float = number(1e-2, "a sample whose margin abs(sin th1 * u1) is below "
+                                       "it is a singular hit", "rad/s", ge=0)
+    sensor_noise: float = number(0.0, "std of the noise on the measured angles, drawn per step "
+                                 "and held over it", "rad", ge=0)
+    rate_limit: float = number(INF, "actuator limit: the applied th1', th2' are clipped to it",
+                               "rad/s", gt=0, inf=True)
+    divergence_bound: float = number(1e4, "a state component beyond it (or non-finite) stops "
+                                     "the trial as diverged", "rad, rad/s", gt=0)
+    seed: int = integer(0, "seed of the sensor-noise stream SeedSequence(seed, (trial, 1))", ge=0)
+    trial: int = integer(0, "noise stream within the seed (a sweep trial's id, to re-run it)",
+                         ge=0)
+
+
+@dataclass(frozen=True)
+class PlantSpec:
+    """the robot the simulation integrates (default: the `[robot]`)"""
+
+    mass: Vector | None = vector(LINKS, None, "the plant's masses", "kg", gt=0, nullable=True,
+                                 default_doc="robot.mass")
+    inertia: Vector | None = vector(LINKS, None, "the plant's inertias", "kg m^2", gt=0,
+                                    nullable=True, default_doc="robot.inertia")
+    length: Vector | None = vector(LINKS, None, "the plant's lengths", "m", gt=0, nullable=True,
+                                   default_doc="robot.length")
+    com: Vector | None = vector(LINKS, None, "the plant's d_i, any d2 (an imperfect "
+                                "counterweight is not flat: that is the point)", "m",
+                                nullable=True, default_doc="robot.com")
+    momentum: float = number(0.0, "the plant's angular momentum H0 (the controller assumes 0)",
+                             "kg m^2/s")
+
+
+@dataclass(frozen=True)
+class SweepSpec:
+    """a Monte Carlo study (used by `flatcli sweep`)"""
+
+    trials: int = integer(1000, "trials per grid cell", ge=1)
+    seed: int = integer(0, "seed of every random draw", ge=0)
+    chunk: int | None = integer(
+        None, "trials per task; from the spec alone, so a resume finds the same chunks "
+        "whatever --workers", ge=1, nullable=True,
+        default_doc="about 1/16 of all trials, within 250..1000 (and <= trials)")
+    perturb: Mapping[str, Any] = table("random perturbations (below)")
+    grid: Mapping[str, Any] = table("spec keys and their lists of values (below)")
+
+
+@dataclass(frozen=True)
+class Spec:
+    """top level
+
+    A resolved, validated spec: every key has a value (defaults filled in).
+
+    Build one with ``flatcli.spec.resolve`` or ``load_spec``; read it by attribute
+    (``spec.track.dt``, ``spec.robot.mass``).
+    """
+
+    name: str = text("paper_example", "run name; default output directory `runs/<name>/`")
+    robot: RobotSpec = field(default_factory=RobotSpec)
+    plan: PlanSpec = field(default_factory=PlanSpec)
+    track: TrackSpec = field(default_factory=TrackSpec)
+    plant: PlantSpec = field(default_factory=PlantSpec)
+    sweep: SweepSpec = field(default_factory=SweepSpec)
+
+    @property
+    def tree(self) -> dict[str, Any]:
+        """The spec as a nested dict (a fresh copy): what run.json and sweep.json hold."""
+        return _tree(self)
+
+    def values(self) -> dict[str, Any]:
+        """{dotted key: value} of every key."""
+        return dict(_values(self, ""))
+
+    def to_json(self) -> str:
+        """Canonical JSON (sorted keys, no spaces; inf written as the string "inf")."""
+        return json.dumps(to_jsonable(self.tree), sort_keys=True, separators=(",", ":"))
+
+    def digest(self) -> str:
+        """SHA-256 of the canonical JSON: what makes two sweeps the same experiment."""
+        return hashlib.sha256(self.to_json().encode()).hexdigest()
+
+    def with_overrides(self, overrides: Mapping[str, Any]) -> Spec:
+        """A new spec with some dotted keys replaced, validated again."""
+        from flatcli.spec.build import build  # build validates with the sweep's rules
+
+        return build({**self.values(), **overrides})
+
+
+def _is_section(f: Field[Any]) -> bool:
+    return "key" not in f.metadata
+
+
+def _tree(record: Any) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for f in fields(record):
+        value = getattr(record, f.name)
+        if _is_section(f):
+            out[f.name] = _tree(value)
+        elif isinstance(value, Mapping):
+            out[f.name] = copy.deepcopy(dict(value))
+        else:
+            out[f.name] = value
+    return out
+
+
+def _values(record: Any, prefix: str) -> Iterator[tuple[str, Any]]:
+    for f in fields(record):
+        dotted = f"{prefix}{f.name}"
+        if _is_section(f):
+            yield from _values(getattr(record, f.name), f"{dotted}.")
+        else:
+            yield dotted, getattr(record, f.name)
+
+
+def _section_type(f: Field[Any]) -> type:
+    """The record type of a subsection field (its default factory is the record class)."""
+    factory = f.default_factory
+    assert isinstance(factory, type) and is_dataclass(factory)
+    return factory
+
+
+def _sections(record_type: type, prefix: str) -> Iterator[tuple[str, type]]:
+    yield prefix, record_type
+    for f in fields(record_type):
+        if _is_section(f):
+            yield from _sections(_section_type(f), f"{prefix}.{f.name}" if prefix else f.name)
+
+
+#: Section name ('' for the top level) -> its record type, in the order of the README.
+SECTIONS: dict[str, type] = dict(_sections(Spec, ""))
+
+#: Section name -> {key name: Key}: the single list of keys, types, units and defaults.
+SCHEMA: dict[str, dict[str, Key]] = {
+    section: {f.name: f.metadata["key"] for f in fields(record) if not _is_section(f)}
+    for section, record in SECTIONS.items()
+}
+
+
+def all_keys() -> list[str]:
+    """Every dotted key of the schema."""
+    return [f"{sec}.{k}" if sec else k for sec, keys in SCHEMA.items() for k in keys]
+
+
+def lookup(dotted: str) -> Key:
+    """The Key of a dotted name; SpecError with a close match if there is none."""
+    section, _, name = dotted.rpartition(".")
+    keys = SCHEMA.get(section)
+    if keys is None or name not in keys:
+        known = all_keys() + [s for s in SCHEMA if s]
+        raise SpecError(f"unknown key {dotted!r}{suggest(dotted, known)}")
+    return keys[name]
+
+
+def check_value(dotted: str, value: Any) -> Any:
+    """Validate one value for a dotted key; return it normalised (floats, tuples)."""
+    return lookup(dotted).check(dotted, value)
+
+
+def from_values(values: Mapping[str, Any]) -> Spec:
+    """A Spec from {dotted key: checked value}; keys not given keep their defaults.
+
+    Only ``flatcli.spec.build`` calls this, after checking every value.
+    """
+    spec = _record(Spec, "", values)
+    assert isinstance(spec, Spec)
+    return spec
+
+
+def _record(record_type: type, prefix: str, values: Mapping[str, Any]) -> object:
+    kwargs: dict[str, Any] = {}
+    for f in fields(record_type):
+        dotted = f"{prefix}{f.name}"
+        if _is_section(f):
+            kwargs[f.name] = _record(_section_type(f), f"{dotted}.", values)
+        elif dotted in values:
+            kwargs[f.name] = values[dotted]
+    return record_type(**kwargs)

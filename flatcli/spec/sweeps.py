@@ -1,0 +1,187 @@
+"""The rules of a sweep's tables: ``[sweep.perturb]`` entries and ``[sweep.grid]`` entries.
+
+Both tables are kept as written (their values enter the spec's digest as they are), and
+checked here: a perturbation against the distributions it may use, a grid value against
+the schema key it sets (``flatcli.spec.schema.check_value``), so a grid value gets the same
+message as the same value in a ``[table]`` or a ``--set``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from flatcli.spec.keys import SpecError, suggest
+from flatcli.spec.schema import SweepSpec, all_keys, check_value, lookup
+
+#: The distributions a perturbation draws from.
+DISTRIBUTIONS = ("normal", "uniform")
+#: Perturbable quantities and the spec key each one perturbs (its length is that key's).
+PERTURB_TARGETS: dict[str, str] = {
+    "initial": "track.initial",
+    "initial_rate": "track.initial_rate",
+    "mass": "plant.mass",
+    "inertia": "plant.inertia",
+    "length": "plant.length",
+    "com": "plant.com",
+    "momentum": "plant.momentum",
+}
+#: Quantities a perturbation may scale (``relative = true``) rather than shift.
+RELATIVE_TARGETS = ("mass", "inertia", "length", "com")
+PERTURB_PREFIX = "sweep.perturb."
+
+
+@dataclass(frozen=True)
+class Perturbation:
+    """One validated ``[sweep.perturb]`` entry (scalars broadcast over the quantity's items).
+
+    A uniform draw is ``low + (high - low) u``, a normal one ``mean + std Phi^-1(u)``;
+    ``relative``: the nominal value is multiplied by (1 + draw) instead of shifted by it.
+    """
+
+    dist: str
+    low: float | tuple[float, ...] = 0.0
+    high: float | tuple[float, ...] = 0.0
+    std: float | tuple[float, ...] = 0.0
+    mean: float | tuple[float, ...] = 0.0
+    relative: bool = False
+
+
+def size(name: str) -> int:
+    """How many numbers the quantity ``name`` holds (a vector key's length, or 1)."""
+    key = lookup(PERTURB_TARGETS[name])
+    return key.length if key.kind == "vector" else 1
+
+
+def perturbation(name: str, table: Any) -> Perturbation:
+    """Check one ``[sweep.perturb]`` entry; its record, or SpecError naming what is wrong."""
+    where = f"{PERTURB_PREFIX}{name}"
+    if name not in PERTURB_TARGETS:
+        raise SpecError(
+            f"{where}: unknown perturbation; allowed: {sorted(PERTURB_TARGETS)}"
+            f"{suggest(name, PERTURB_TARGETS)}"
+        )
+    if not isinstance(table, dict):
+        raise SpecError(
+            f'{where}: expected an inline table such as {{ dist = "normal", std = 0.01 }}'
+        )
+    dist = table.get("dist")
+    if dist not in DISTRIBUTIONS:
+        raise SpecError(f"{where}.dist: expected one of {list(DISTRIBUTIONS)}, got {dist!r}")
+    params = ("std", "mean") if dist == "normal" else ("low", "high")
+    allowed = {"dist", "relative", *params}
+    for key in table:
+        if key not in allowed:
+            raise SpecError(
+                f"{where}.{key}: not a parameter of a {dist} perturbation; "
+                f"allowed: {sorted(allowed)}{suggest(key, allowed)}"
+            )
+    required = ("std",) if dist == "normal" else ("low", "high")
+    for key in required:
+        if key not in table:
+            raise SpecError(f"{where}.{key}: required for a {dist} perturbation")
+    n = size(name)
+    numbers = {key: _numbers(f"{where}.{key}", table[key], n) for key in params if key in table}
+    if dist == "normal":
+        if any(s < 0 for s in _items(numbers["std"], n)):
+            raise SpecError(f"{where}.std: must be >= 0, got {table['std']!r}")
+    elif any(lo > hi for lo, hi in zip(_items(numbers["low"], n), _items(numbers["high"], n),
+                                       strict=True)):
+        raise SpecError(
+            f"{where}: low must be <= high, got low={table['low']!r}, high={table['high']!r}"
+        )
+    relative = table.get("relative", False)
+    if not isinstance(relative, bool):
+        raise SpecError(f"{where}.relative: expected true or false")
+    if relative and name not in RELATIVE_TARGETS:
+        raise SpecError(f"{where}.relative: only mass, inertia, length and com can be relative")
+    return Perturbation(str(dist), relative=relative, **numbers)
+
+
+def perturbations(sweep: SweepSpec) -> dict[str, Perturbation]:
+    """The records of a sweep's perturbations, in ``PERTURB_TARGETS`` order."""
+    return {name: perturbation(name, sweep.perturb[name])
+            for name in PERTURB_TARGETS if name in sweep.perturb}
+
+
+def _items(value: float | tuple[float, ...], n: int) -> tuple[float, ...]:
+    return value if isinstance(value, tuple) else (value,) * n
+
+
+def _numbers(where: str, value: Any, n: int) -> float | tuple[float, ...]:
+    if isinstance(value, list) and (n == 1 or len(value) != n):
+        expected = f"a number or {n} numbers" if n > 1 else "a number"
+        raise SpecError(f"{where}: expected {expected}, got {value!r}")
+    items = value if isinstance(value, list) else [value]
+    for v in items:
+        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+            raise SpecError(f"{where}: expected finite numbers, got {value!r}")
+    return tuple(float(v) for v in value) if isinstance(value, list) else float(value)
+
+
+def is_perturbation_param(dotted: str) -> bool:
+    """Whether a dotted name is ``sweep.perturb.NAME.PARAM`` (a grid key, not a spec key)."""
+    return dotted.startswith(PERTURB_PREFIX) and dotted.count(".") == 3
+
+
+def grid_overrides(key: str, value: Any) -> dict[str, Any]:
+    """The dotted keys one grid value sets: itself, or a group's table (minus its label)."""
+    if isinstance(value, dict):
+        return {k: v for k, v in value.items() if k != "label"}
+    return {key: value}
+
+
+def validate_sweep(sweep: SweepSpec) -> None:
+    """Check every perturbation and every grid entry of a ``[sweep]``."""
+    for name, table in sweep.perturb.items():
+        perturbation(name, table)
+    for dotted, values in sweep.grid.items():
+        validate_grid_entry(sweep.perturb, dotted, values)
+
+
+def validate_grid_entry(perturb: Mapping[str, Any], dotted: str, values: Any) -> None:
+    """Check one ``[sweep.grid]`` entry and its non-empty list of values.
+
+    An entry is a spec key with a list of values, or a *group*: any other name with a list
+    of inline tables of spec keys, varied together (e.g. paired gains), each table
+    optionally carrying a ``label`` shown in tables and the trials' column.
+    """
+    where = f"sweep.grid.{dotted!r}"
+    if not isinstance(values, list) or not values:
+        raise SpecError(f"{where}: expected a non-empty list of values, got {values!r}")
+    if all(isinstance(v, dict) for v in values):
+        for table in values:
+            if "label" in table and not isinstance(table["label"], str):
+                raise SpecError(f"{where}: a group's label must be a string")
+            keys = [k for k in table if k != "label"]
+            if not keys:
+                raise SpecError(f"{where}: a group table needs at least one spec key")
+            for key in keys:
+                _validate_grid_value(perturb, f"{where} group key {key!r}", key, table[key])
+        return
+    if any(isinstance(v, dict) for v in values):
+        raise SpecError(f"{where}: mixes tables and plain values")
+    for value in values:
+        _validate_grid_value(perturb, where, dotted, value)
+
+
+def _validate_grid_value(perturb: Mapping[str, Any], where: str, dotted: str,
+                         value: Any) -> None:
+    if dotted.startswith(PERTURB_PREFIX):
+        parts = dotted.split(".")
+        if not is_perturbation_param(dotted) or parts[2] not in perturb:
+            raise SpecError(
+                f"{where}: a perturbation grid key is sweep.perturb.NAME.PARAM with NAME one of "
+                f"the [sweep.perturb] entries {sorted(perturb)}"
+            )
+        perturbation(parts[2], {**perturb[parts[2]], parts[3]: value})
+        return
+    if dotted.startswith("sweep.") or dotted == "name":
+        raise SpecError(f"{where}: cannot grid over {dotted!r}")
+    try:
+        lookup(dotted)
+    except SpecError:
+        raise SpecError(f"{where}: not a spec key{suggest(dotted, all_keys())}") from None
+    check_value(dotted, value)

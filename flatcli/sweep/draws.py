@@ -1,0 +1,134 @@
+"""The random part of a trial: perturbed initial states and plants, drawn per trial.
+
+Every random number of trial ``i`` comes from its own stream
+``SeedSequence(sweep.seed, spawn_key=(i, slot))`` (``flatcli.experiment.trial_stream``), so a
+trial's values do not depend on the chunk size, the number of workers, the executor, the
+order in which chunks finish, or a resume in between.
+
+Each trial draws ``N_VARIATES`` uniform variates from its perturbation stream, one fixed
+position per perturbable component (``PERTURB_SLOTS``: the quantities of
+``flatcli.spec.PERTURB_TARGETS`` in order, each as many as its spec key holds), and transforms
+those it needs (uniform: low + (high - low) u; normal: mean + std Phi^-1(u)). So adding or
+removing one perturbation never changes the values another one draws.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.special import ndtri
+
+from flatcli.experiment import STREAM_PERTURB, plant_from, trial_stream
+from flatcli.spec import LINKS, PERTURB_TARGETS, Perturbation, Spec, SpecError, lookup
+from flatcli.spec.sweeps import size
+
+Array = NDArray[np.float64]
+
+
+def _slots() -> dict[str, tuple[int, ...]]:
+    out: dict[str, tuple[int, ...]] = {}
+    first = 0
+    for name in PERTURB_TARGETS:
+        out[name] = tuple(range(first, first + size(name)))
+        first += size(name)
+    return out
+
+
+#: Position of each perturbable component among a trial's uniform variates.
+PERTURB_SLOTS: dict[str, tuple[int, ...]] = _slots()
+N_VARIATES = sum(len(s) for s in PERTURB_SLOTS.values())
+#: The spec keys of a plant's parameters, in the order of a row of ``Trials.links``.
+PLANT_KEYS = ("plant.mass", "plant.inertia", "plant.length", "plant.com")
+
+
+def perturbation_columns(name: str) -> list[str]:
+    """Column names of the realised values of a perturbed quantity."""
+    n = len(PERTURB_SLOTS[name])
+    return [name] if n == 1 else [f"{name}_{i}" for i in range(n)]
+
+
+def draw_perturbations(
+    perturb: Mapping[str, Perturbation], nominal: Mapping[str, Array], seed: int,
+    trials: Sequence[int],
+) -> dict[str, Array]:
+    """Realised values of every perturbed quantity for the given trial ids.
+
+    Parameters
+    ----------
+    perturb : the sweep's perturbations (``flatcli.spec.perturbations``)
+    nominal : nominal value of each perturbable quantity, (n,) with n its slot count
+    seed : sweep.seed
+    trials : trial ids (N)
+
+    Returns
+    -------
+    {name: (N, n)} realised values
+    """
+    u = np.empty((len(trials), N_VARIATES))
+    for row, trial in enumerate(trials):
+        u[row] = trial_stream(seed, trial, STREAM_PERTURB).random(N_VARIATES)
+    out: dict[str, Array] = {}
+    for name, slots in PERTURB_SLOTS.items():
+        if name not in perturb:
+            continue
+        p = perturb[name]
+        draws = u[:, list(slots)]
+        if p.dist == "uniform":
+            low = np.asarray(p.low, dtype=float)
+            high = np.asarray(p.high, dtype=float)
+            sample = low + (high - low) * draws
+        else:
+            std = np.asarray(p.std, dtype=float)
+            mean = np.asarray(p.mean, dtype=float)
+            sample = mean + std * ndtri(draws)
+        base = nominal[name]
+        out[name] = base * (1.0 + sample) if p.relative else base + sample
+    return out
+
+
+def nominal_values(spec: Spec) -> dict[str, Array]:
+    """Nominal value of every perturbable quantity of a (cell's) spec."""
+    plant = plant_from(spec)
+    return {
+        "initial": np.asarray(spec.track.initial, dtype=float),
+        "initial_rate": np.array([spec.track.initial_rate]),
+        "mass": np.asarray(plant.mass),
+        "inertia": np.asarray(plant.inertia),
+        "length": np.asarray(plant.length),
+        "com": np.asarray(plant.com),
+        "momentum": np.array([spec.plant.momentum]),
+    }
+
+
+def invalid_plants(links: Array) -> list[str]:
+    """For (N, 4 LINKS) plants (``PLANT_KEYS`` side by side): why each is not a valid plant,
+    or '' if it is.
+
+    A perturbed value is checked by its spec key (``flatcli.spec.keys.Key``), so the reason
+    is the very line ``--set plant.mass=[...]`` with that value would print, e.g.
+    ``plant.mass[2]: must be > 0 kg, got -0.106467``.
+    """
+    valid = np.ones(len(links), dtype=bool)
+    for j, dotted in enumerate(PLANT_KEYS):
+        key = lookup(dotted)
+        block = links[:, j * LINKS:(j + 1) * LINKS]
+        valid &= np.isfinite(block).all(axis=1)
+        if key.low is not None:
+            valid &= (block > key.low if key.low_open else block >= key.low).all(axis=1)
+    reasons = [""] * len(links)
+    for row in np.flatnonzero(~valid):
+        reasons[row] = _reason(links[row])
+    return reasons
+
+
+def _reason(values: Array) -> str:
+    for j, dotted in enumerate(PLANT_KEYS):
+        key = lookup(dotted)
+        for i in range(LINKS):
+            try:
+                key.check_item(dotted, i, float(values[j * LINKS + i]))
+            except SpecError as exc:
+                return str(exc)
+    raise AssertionError("a plant flagged invalid passes every check")  # pragma: no cover

@@ -1,0 +1,105 @@
+"""``flatcli sweep --rerun TRIAL``: one finished trial of a sweep, re-run alone as a track run.
+
+The trial's row in trials.parquet gives its cell and its realised perturbations; with the
+sweep's seed and the trial id as ``track.seed`` and ``track.trial`` (its sensor-noise stream),
+the plain track spec built here reproduces the trial exactly.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from flatcli.core.model import FlatcliError
+from flatcli.experiment import run_track
+from flatcli.outputs import write_track
+from flatcli.report import table
+from flatcli.spec import PERTURB_TARGETS, Spec, build
+from flatcli.storage import run_record
+from flatcli.sweep.directory import recorded_digest
+from flatcli.sweep.draws import perturbation_columns
+from flatcli.sweep.layout import Layout, layout
+
+
+def trial_row(directory: Path, trial: int) -> dict[str, Any]:
+    """A finished trial's row of trials.parquet; FlatcliError if there is none to re-run."""
+    trials_path = directory / "trials.parquet"
+    if not trials_path.exists():
+        raise FlatcliError(f"--rerun: {trials_path} not found; run the sweep first")
+    frame = pd.read_parquet(trials_path, filters=[("trial", "==", trial)])
+    if frame.empty:
+        raise FlatcliError(f"--rerun: no trial {trial} in {trials_path}")
+    row = {str(k): v for k, v in frame.iloc[0].items()}
+    if row["status"] == "error":
+        raise FlatcliError(f"--rerun: trial {trial} did not simulate ({row['reason']})")
+    return row
+
+
+def rerun_spec(lay: Layout, row: Mapping[str, Any]) -> Spec:
+    """A plain track spec that re-runs one trial of a sweep exactly."""
+    cell = lay.cells[int(row["cell"])]
+    values = {k: v for k, v in cell.spec.values().items() if not k.startswith("sweep.")}
+    for name in lay.perturbed:
+        drawn = [float(row[c]) for c in perturbation_columns(name)]
+        values[PERTURB_TARGETS[name]] = drawn[0] if len(drawn) == 1 else drawn
+    trial = int(row["trial"])
+    values["track.seed"] = lay.spec.sweep.seed
+    values["track.trial"] = trial
+    values["name"] = f"{lay.spec.name}-trial-{trial}"
+    return build(values)
+
+
+def same(a: Any, b: Any) -> bool:
+    """Equal, with nan equal to nan (a metric that is nan in both runs reproduced)."""
+    if isinstance(a, float | int) and isinstance(b, float | int):
+        return (a == b) or (math.isnan(a) and math.isnan(b))
+    return bool(a == b)
+
+
+@dataclass(frozen=True)
+class Rerun:
+    """A re-run trial: its metrics beside the sweep's, and whether the spec was modified."""
+
+    trial: int
+    target: Path
+    rows: list[list[Any]]  # metric, in trials.parquet, re-run, "yes"/"NO"
+    modified: bool  # the spec given differs from the sweep's (--set): differences expected
+
+    @property
+    def reproduced(self) -> bool:
+        return all(r[3] == "yes" for r in self.rows)
+
+    def text(self, name: str) -> str:
+        """What the terminal shows: the comparison table and the files written."""
+        head = f"trial {self.trial} of {name!r} re-run alone" + (
+            " with a spec that differs from the sweep's (--set): differences are expected"
+            if self.modified else ":")
+        return "\n".join([
+            head,
+            table(["metric", "in trials.parquet", "re-run", "identical"], self.rows, 6),
+            f"wrote {self.target}/track.parquet, metrics.json, track.png",
+        ])
+
+
+def trial_spec(spec: Spec, directory: Path, trial: int) -> Spec:
+    """The track spec that re-runs trial ``trial`` of the sweep ``spec`` in ``directory``."""
+    return rerun_spec(layout(spec), trial_row(directory, trial))
+
+
+def rerun_and_compare(spec: Spec, directory: Path, trial: int) -> Rerun:
+    """Re-run one trial into ``directory/rerun-TRIAL`` and compare it with its row."""
+    row = trial_row(directory, trial)
+    track_spec = rerun_spec(layout(spec), row)
+    run = run_track(track_spec)
+    metrics = run.metrics
+    target = directory / f"rerun-{trial}"
+    record = run_record("sweep --rerun", track_spec.tree, metrics=metrics, trial=trial)
+    write_track(target, run, record, f"{spec.name}: trial {trial}")
+    rows = [[k, row[k], v, "yes" if same(row[k], v) else "NO"]
+            for k, v in metrics.items() if k != "reason"]
+    return Rerun(trial, target, rows, recorded_digest(directory) != spec.digest())

@@ -1,0 +1,57 @@
+"""Re-running one trial of a sweep alone (flatcli/sweep/rerun.py)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from small_sweep import sweep, write_spec
+
+from flatcli.core.model import FlatcliError
+from flatcli.spec import resolve
+from flatcli.sweep import layout, rerun_spec
+from flatcli.sweep.rerun import same, trial_row
+
+
+def test_rerun_reproduces_a_trial_exactly(tmp_path: Path) -> None:
+    spec = write_spec(tmp_path)
+    out_dir = tmp_path / "d"
+    assert sweep(str(spec), "--out", str(out_dir), "-q")[0] == 0
+    code, out = sweep(str(spec), "--out", str(out_dir), "--rerun", "97")
+    assert code == 0, out
+    assert "NO" not in out and "identical" in out
+    rerun = pd.read_parquet(out_dir / "rerun-97" / "track.parquet")
+    assert len(rerun) == 501
+    code, text = sweep(str(spec), "--out", str(out_dir), "--rerun", "97", "--print-spec")
+    assert code == 0
+    assert "trial = 97" in text and "sensor_noise = 0.001" in text
+    # a finer step for the same trial: allowed, and said to differ
+    code, out = sweep(str(spec), "--out", str(out_dir), "--rerun", "97", "--set",
+                      "track.dt=0.001")
+    assert code == 0, out
+    assert "differs from the sweep's" in out and "NO" in out
+    assert len(pd.read_parquet(out_dir / "rerun-97" / "track.parquet")) == 1001
+
+
+def test_a_trial_row_is_refused_before_the_sweep_ran(tmp_path: Path) -> None:
+    with pytest.raises(FlatcliError, match=r"trials\.parquet not found; run the sweep first"):
+        trial_row(tmp_path, 3)
+
+
+def test_the_rerun_spec_sets_the_drawn_values_and_the_noise_stream() -> None:
+    spec = resolve({"name": "s", "sweep": {"trials": 2, "seed": 9, "perturb": {
+        "initial_rate": {"dist": "normal", "std": 0.1},
+        "com": {"dist": "uniform", "low": 0, "high": [0, 0, 0.01]}}}})
+    row = {"cell": 0, "trial": 1, "initial_rate": 0.125, "com_0": 0.1, "com_1": 0.1,
+           "com_2": 0.003}
+    track = rerun_spec(layout(spec), row)
+    assert track.track.initial_rate == 0.125 and track.plant.com == (0.1, 0.1, 0.003)
+    assert (track.track.seed, track.track.trial, track.name) == (9, 1, "s-trial-1")
+    assert track.sweep.perturb == {}
+
+
+def test_same_treats_nan_as_reproduced() -> None:
+    assert same(math.nan, math.nan) and same(1.0, 1) and same("ok", "ok")
+    assert not same(1.0, 1.0 + 1e-15) and not same(math.nan, 0.0)
