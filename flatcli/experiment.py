@@ -12,26 +12,28 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from flatcli.core.basis import Basis, BSplineBasis, PolynomialBasis
 from flatcli.core.control import Gains
 from flatcli.core.flatness import flat_outputs, singularity_margin
-from flatcli.core.metrics import METRIC_NAMES, describe_status
+from flatcli.core.metrics import COUNT_METRICS, METRIC_NAMES, describe_status
 from flatcli.core.model import RobotParams, momentum
 from flatcli.core.optimize import DEFAULT_BSPLINE_DEGREE, OptimizeResult, PlanLimits, optimize_plan
-from flatcli.core.planning import (
-    Basis,
-    BSplineBasis,
-    FlatPlan,
-    PolynomialBasis,
-    plan_point_to_point,
+from flatcli.core.planning import FlatPlan, plan_point_to_point
+from flatcli.core.plant import KINEMATIC_STATE
+from flatcli.core.simulate import (
+    NoiseStreams,
+    Outcome,
+    Scenario,
+    Trials,
+    simulate,
 )
-from flatcli.core.simulate import Outcome, Scenario, Trials, simulate
 from flatcli.spec import Spec
 
 Array = NDArray[np.float64]
 
-#: spawn_key slots of the per-trial random streams (SeedSequence(seed, (trial, slot))).
+#: spawn_key slot of a trial's perturbation stream (SeedSequence(seed, (trial, 0))); its
+#: sensor noise comes from slot 1 (``flatcli.core.simulate.noise_generator``).
 STREAM_PERTURB = 0
-STREAM_NOISE = 1
 
 
 def checked(value: object) -> Any:
@@ -120,6 +122,9 @@ def scenario_from(spec: Spec, plan: FlatPlan) -> Scenario:
         singular_threshold=track.singular_threshold,
         divergence_bound=track.divergence_bound,
         plan_samples=spec.plan.samples,
+        rtol=track.rtol,
+        atol=track.atol,
+        max_steps=track.max_steps,
     )
 
 
@@ -128,24 +133,23 @@ def trial_stream(seed: int, trial: int, slot: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(trial, slot)))
 
 
-def sensor_noise(std: float, n_steps: int, seed: int, trial: int) -> Array | None:
-    """(n_steps, 3) noise on the measured angles [rad], or None when std = 0."""
-    if std == 0:
-        return None
-    return std * trial_stream(seed, trial, STREAM_NOISE).standard_normal((n_steps, 3))
+def initial_rate(spec: Spec, plan: FlatPlan) -> float:
+    """u1(0): ``track.initial_rate``, or the plan's own th1'(0) when the spec leaves it out
+    (the optimised plan's chosen rate with ``--optimize``)."""
+    if spec.track.initial_rate is not None:
+        return float(spec.track.initial_rate)
+    return float(plan.trajectory.derivative(np.array([0.0]), 1)[0, 0])
 
 
-def nominal_trials(spec: Spec, scenario: Scenario) -> Trials:
+def nominal_trials(spec: Spec, plan: FlatPlan) -> Trials:
     """The single trial a ``track`` spec describes."""
     plant = plant_from(spec)
     track = spec.track
-    initial = np.array([[*track.initial, track.initial_rate]])
-    noise = sensor_noise(track.sensor_noise, scenario.n_steps, track.seed, track.trial)
     return Trials(
         links=plant.as_array()[None, :],
         momentum=np.array([spec.plant.momentum]),
-        initial=initial,
-        noise=None if noise is None else noise[None],
+        initial=np.array([[*track.initial, initial_rate(spec, plan)]]),
+        noise=NoiseStreams(track.sensor_noise, track.seed, np.array([track.trial])),
     )
 
 
@@ -159,14 +163,18 @@ class TrackRun:
     outcome: Outcome
 
     @property
-    def metrics(self) -> dict[str, float | int | str]:
+    def metrics(self) -> dict[str, float | int | str | None]:
+        """Every metric by name, the status, its reason and the event time (None: not
+        applicable)."""
         values = self.outcome.metrics[0]
-        out: dict[str, float | int | str] = {
-            name: float(v) for name, v in zip(METRIC_NAMES, values, strict=True)
-        }
-        out["singular_hits"] = int(values[METRIC_NAMES.index("singular_hits")])
+        out: dict[str, float | int | str | None] = {}
+        for name, v in zip(METRIC_NAMES, values, strict=True):
+            value = float(v)
+            out[name] = None if np.isnan(value) else (int(value) if name in COUNT_METRICS
+                                                      else value)
         status, reason = describe_status(
             int(self.outcome.status[0]),
+            int(self.outcome.event[0]),
             float(self.outcome.event_time[0]),
             values,
             self.scenario.singular_threshold,
@@ -174,15 +182,18 @@ class TrackRun:
         )
         out["status"] = status
         out["reason"] = reason
+        event_time = float(self.outcome.event_time[0])
+        out["event_time"] = None if np.isnan(event_time) else event_time
         return out
 
     @cached_property
     def columns(self) -> dict[str, Array]:
-        """Columns of track.parquet: the trace, u2, y, references, margin and H per sample.
+        """Columns of track.parquet: per output sample the state, the applied rates, y, the
+        references, the margin and H.
 
-        ``momentum`` is H from the plant's full link kinematics with rates taken from the
-        trace itself (numpy.gradient, second order), the same estimate ``momentum_drift``
-        takes its maximum deviation from.
+        ``momentum`` is H from the plant's full link kinematics at the integrated state with
+        the joint rates the plant applies there (``momentum_drift`` is its largest deviation
+        from H0). Rows after the last valid sample of a trial that stopped early are nan.
         """
         times = self.scenario.times
         trace = self.outcome.trace
@@ -190,17 +201,19 @@ class TrackRun:
         x = trace[0]
         ref = self.plan.sample(times)
         plant = plant_from(self.spec)
+        rates = x[:, KINEMATIC_STATE:KINEMATIC_STATE + 3]
         with np.errstate(all="ignore"):
             y1, y2, _, _ = flat_outputs(self.plan.coefficients, *x[:, :4].T)
-            rates = np.gradient(x[:, :3], self.scenario.dt, axis=0, edge_order=2)
             H = momentum(plant.links, *x[:, :3].T, *rates.T)
         cols: dict[str, Array] = {"t": times}
         for i in range(3):
             cols[f"theta{i}"] = x[:, i]
         for i in range(3):
+            cols[f"theta{i}_dot"] = rates[:, i]
+        for i in range(3):
             cols[f"theta{i}_ref"] = ref.theta[:, i]
         cols["u1"] = x[:, 3]
-        cols["u2"] = x[:, 4]
+        cols["u2"] = rates[:, 2]
         cols["y1"], cols["y2"] = np.asarray(y1), np.asarray(y2)
         cols["y1_ref"], cols["y2_ref"] = ref.y[:, 0], ref.y[:, 1]
         cols["margin"] = np.asarray(singularity_margin(x[:, 1], x[:, 3]))
@@ -212,6 +225,6 @@ def run_track(spec: Spec) -> TrackRun:
     """Plan, then simulate the closed loop of a spec, recording the trace."""
     plan = plan_from(spec)
     scenario = scenario_from(spec, plan)
-    trials = nominal_trials(spec, scenario)
+    trials = nominal_trials(spec, plan)
     outcome = simulate(scenario, trials, checked(spec.track.integrator), record=True)
     return TrackRun(spec, plan, scenario, outcome)

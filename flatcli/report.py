@@ -31,6 +31,8 @@ Array = NDArray[np.float64]
 
 def fmt(value: object, digits: int = 4) -> str:
     """A number for a table: compact, aligned, readable; other values as str."""
+    if value is None:
+        return "-"
     if isinstance(value, bool | np.bool_):
         return str(bool(value)).lower()
     if isinstance(value, int | np.integer):
@@ -162,9 +164,9 @@ def optimization_text(summary: Mapping[str, Any]) -> str:
     return table(["optimisation", ""], rows)
 
 
-def metrics_text(name: str, metrics: dict[str, float | int | str]) -> str:
+def metrics_text(name: str, metrics: Mapping[str, object]) -> str:
     """Terminal summary of one closed-loop run."""
-    rows = [[k, v] for k, v in metrics.items() if k not in ("status", "reason")]
+    rows = [[k, v] for k, v in metrics.items() if k not in ("status", "reason", "event_time")]
     head = f"track {name!r}: status {metrics['status']}"
     if metrics.get("reason"):
         head += f" ({metrics['reason']})"

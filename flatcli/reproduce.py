@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from flatcli.core.metrics import Metric
 from flatcli.core.model import constraint_coefficients
 from flatcli.core.optimize import required_fold
 from flatcli.core.planning import FlatPlan, PlanSamples
@@ -161,7 +162,8 @@ def paper_table(rep: Reproduction) -> str:
 
 def gains_verdict(rep: Reproduction) -> str:
     """Which gain reading matches the paper's Fig. 4 claim, from the runs."""
-    final = {r: float(rep.tracks[("derived", r)].metrics["err_y_final"]) for r in GAIN_READINGS}
+    final = {r: float(rep.tracks[("derived", r)].outcome.metrics[0, Metric.ERR_Y_FINAL])
+             for r in GAIN_READINGS}
     k_printed = GAIN_READINGS["printed"]
     kp1, kv1 = k_printed["track.kp"][0], k_printed["track.kv"][0]
     slow = (-kv1 + np.sqrt(kv1 * kv1 - 4 * kp1)) / 2

@@ -85,7 +85,7 @@ def test_compiled_kernel_matches_flatcli_simulate(
     tracking = b.Tracking(gains=gains, rate_limit=rate_limit)
     trials = b.paper_trials(6, seed=1, tracking=tracking, spread=spread)
     scenario = Scenario(cubic, gains, tracking.dt, rate_limit=rate_limit)
-    outcome = simulate(scenario, trials, record=True)
+    outcome = simulate(scenario, trials, "rk4", record=True)
     assert outcome.trace is not None
     expected = outcome.trace[:, -1, :4]
     assert np.all(np.isfinite(expected))

@@ -19,11 +19,13 @@ Y2_DOT_GOAL = -0.343458
 PLAN_COLUMNS = ["t", "theta0", "theta1", "theta2", "theta0_dot", "theta1_dot", "theta2_dot",
                 "u1_dot", "y1", "y2", "y1_dot", "y2_dot", "y1_ddot", "y2_ddot", "margin",
                 "momentum"]
-TRACK_COLUMNS = ["t", "theta0", "theta1", "theta2", "theta0_ref", "theta1_ref", "theta2_ref",
-                 "u1", "u2", "y1", "y2", "y1_ref", "y2_ref", "margin", "momentum"]
+TRACK_COLUMNS = ["t", "theta0", "theta1", "theta2", "theta0_dot", "theta1_dot", "theta2_dot",
+                 "theta0_ref", "theta1_ref", "theta2_ref", "u1", "u2", "y1", "y2", "y1_ref",
+                 "y2_ref", "margin", "momentum"]
 METRICS = ["err_theta_rms", "err_theta_max", "err_theta_final", "err_y_rms", "err_y_max",
            "err_y_final", "singular_hits", "first_hit_time", "min_margin", "momentum_drift",
-           "plan_momentum_residual", "status", "reason"]
+           "plan_momentum_residual", "err_estimate", "peak_rate", "peak_torque",
+           "torque_saturated", "steps", "rhs_evaluations", "status", "reason", "event_time"]
 
 
 def run(*args: str) -> tuple[int, str]:

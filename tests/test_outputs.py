@@ -14,8 +14,9 @@ from flatcli.spec import resolve
 PLAN_COLUMNS = ["t", "theta0", "theta1", "theta2", "theta0_dot", "theta1_dot", "theta2_dot",
                 "u1_dot", "u2", "y1", "y2", "y1_dot", "y2_dot", "y1_ddot", "y2_ddot", "margin",
                 "momentum"]
-TRACK_COLUMNS = ["t", "theta0", "theta1", "theta2", "theta0_ref", "theta1_ref", "theta2_ref",
-                 "u1", "u2", "y1", "y2", "y1_ref", "y2_ref", "margin", "momentum"]
+TRACK_COLUMNS = ["t", "theta0", "theta1", "theta2", "theta0_dot", "theta1_dot", "theta2_dot",
+                 "theta0_ref", "theta1_ref", "theta2_ref", "u1", "u2", "y1", "y2", "y1_ref",
+                 "y2_ref", "margin", "momentum"]
 
 
 def test_plan_frame_columns_and_values() -> None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from flatcli.experiment import plan_from
 from flatcli.spec import perturbations, resolve
 from flatcli.sweep import N_VARIATES, PERTURB_SLOTS, draw_perturbations, nominal_values
 from flatcli.sweep.draws import invalid_plants
@@ -13,7 +14,7 @@ def test_perturbation_draws_are_independent_of_each_other_and_well_distributed()
     base = {"initial": {"dist": "normal", "std": 0.1},
             "mass": {"dist": "uniform", "low": -0.2, "high": 0.1, "relative": True}}
     spec = resolve({"sweep": {"perturb": base}})
-    nominal = nominal_values(spec)
+    nominal = nominal_values(spec, plan_from(spec))
     ids = list(range(4000))
     drawn = perturbations(spec.sweep)
     both = draw_perturbations(drawn, nominal, 5, ids)

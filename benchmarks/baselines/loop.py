@@ -10,10 +10,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from benchmarks.baselines.problem import Tracking
-from flatcli.core.planning import (
-    FlatPlan,
-    PolynomialBasis,
-)
+from flatcli.core.basis import PolynomialBasis
+from flatcli.core.planning import FlatPlan
 from flatcli.core.simulate import Trials
 
 Array = NDArray[np.float64]

@@ -8,15 +8,13 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from flatcli.core.basis import composite_gauss_legendre
 from flatcli.core.model import (
     Coefficients,
     RobotParams,
     momentum,
 )
-from flatcli.core.planning import (
-    FlatPlan,
-    state_and_rates,
-)
+from flatcli.core.planning import ENERGY_ORDER, ENERGY_PIECES, FlatPlan, state_and_rates
 
 Array = NDArray[np.float64]
 
@@ -61,18 +59,6 @@ def limits_violation(
     return max(excess)
 
 
-def _gauss_grid(duration: float, pieces: int = 64, order: int = 8) -> tuple[Array, Array]:
-    """Composite Gauss-Legendre nodes and weights on [0, duration].
-
-    The same rule as the core's energy quadrature (64 pieces of order 8); when the core gives
-    its composite rule one public home, this function becomes a call to it.
-    """
-    x, w = np.polynomial.legendre.leggauss(order)
-    edges = np.linspace(0.0, duration, pieces + 1)
-    half = 0.5 * np.diff(edges)[:, None]
-    return (half * (x + 1.0) + edges[:-1, None]).ravel(), (half * w).ravel()
-
-
 def flat_plan_quality(
     k: Coefficients,
     robot: RobotParams,
@@ -94,7 +80,7 @@ def flat_plan_quality(
     theta, rates = state[:, :3], state_dot[:, :3]
     margin = np.abs(np.sin(theta[:, 1]) * rates[:, 1])
     H = momentum(robot.links, *theta.T, *rates.T)
-    tq, wq = _gauss_grid(duration)
+    tq, wq = composite_gauss_legendre(duration, ENERGY_PIECES, ENERGY_ORDER)
     _, rq = state_and_rates(k, *flags(tq))
     return PlanQuality(
         energy=float(wq @ (rq[:, 1] ** 2 + rq[:, 2] ** 2)),

@@ -183,10 +183,11 @@ def _low(gt: float | None, ge: float | None) -> dict[str, Any]:
 
 
 def number(default: float | None, doc: str, unit: str = "", *, gt: float | None = None,
-           ge: float | None = None, inf: bool = False, nullable: bool = False) -> Any:
+           ge: float | None = None, inf: bool = False, nullable: bool = False,
+           default_doc: str = "") -> Any:
     """A float key; ``gt``/``ge`` bound it below; ``inf``: inf means no limit."""
     return _declare(Key("float", default, doc, unit, allow_inf=inf, nullable=nullable,
-                        **_low(gt, ge)))
+                        default_doc=default_doc, **_low(gt, ge)))
 
 
 def integer(default: int | None, doc: str, *, ge: int | None = None, nullable: bool = False,

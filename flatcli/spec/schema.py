@@ -26,7 +26,12 @@ from typing import Any
 
 from flatcli.core.model import MODELS
 from flatcli.core.optimize import OBJECTIVES
-from flatcli.core.simulate import INTEGRATORS
+from flatcli.core.simulate import (
+    DEFAULT_ATOL,
+    DEFAULT_MAX_STEPS,
+    DEFAULT_RTOL,
+    INTEGRATORS,
+)
 from flatcli.spec.keys import (
     Key,
     SpecError,
@@ -113,20 +118,27 @@ class TrackSpec:
     """the closed loop"""
 
     initial: Vector = vector(LINKS, (1.96, 0.8, -0.1), "th(0) of the plant (Fig. 4)", "rad")
-    initial_rate: float = number(0.1, "u1(0) = th1'(0) (the paper does not give it; y1d'(0))",
-                                 "rad/s")
+    initial_rate: float | None = number(
+        None, "u1(0) = th1'(0) of the plant and the controller", "rad/s", nullable=True,
+        default_doc="the plan's th1'(0) (plan.start_rate, or the optimised plan's own)")
     kp: Vector = vector(GAINS, (10.0, 13.0), "kp1, kp2: feedback gains, as printed in the paper",
                         "1/s^2")
     kv: Vector = vector(GAINS, (100.0, 110.0), "kv1, kv2: feedback gains, as printed in the "
                         "paper", "1/s")
-    dt: float = number(1e-3, "integration and sampling step (must divide the duration)", "s",
-                       gt=0)
-    integrator: str = choice(INTEGRATORS, "rk4", "\"rk4\" (compiled fixed step, the workhorse) "
-                             "or \"dop853\" (solve_ivp, rtol 1e-10: the reference)")
+    dt: float = number(1e-3, "output sampling step: trace, metrics, track.parquet (and RK4's "
+                       "step); must divide the duration", "s", gt=0)
+    integrator: str = choice(INTEGRATORS, "adaptive", "\"adaptive\" (compiled Dormand-Prince "
+                             "5(4) with step control, to rtol/atol), \"rk4\" (compiled fixed "
+                             "step dt) or \"dop853\" (solve_ivp, rtol 1e-10: the reference)")
+    rtol: float = number(DEFAULT_RTOL, "relative tolerance of the adaptive integrator", gt=0)
+    atol: float = number(DEFAULT_ATOL, "absolute tolerance of the adaptive integrator",
+                         "rad, rad/s", gt=0)
+    max_steps: int = integer(DEFAULT_MAX_STEPS, "attempted steps the adaptive integrator may "
+                             "take per trial before the trial is unresolved", ge=1)
     singular_threshold: float = number(1e-2, "a sample whose margin abs(sin th1 * u1) is below "
                                        "it is a singular hit", "rad/s", ge=0)
-    sensor_noise: float = number(0.0, "std of the noise on the measured angles, drawn per step "
-                                 "and held over it", "rad", ge=0)
+    sensor_noise: float = number(0.0, "std of the noise on the measured angles, drawn per "
+                                 "output interval dt and held over it", "rad", ge=0)
     rate_limit: float = number(INF, "actuator limit: the applied th1', th2' are clipped to it",
                                "rad/s", gt=0, inf=True)
     divergence_bound: float = number(1e4, "a state component beyond it (or non-finite) stops "

@@ -13,9 +13,9 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from flatcli.core.metrics import METRIC_NAMES, STATUS_NAMES, describe_status
-from flatcli.core.simulate import Trials, simulate
-from flatcli.experiment import STREAM_NOISE, checked, trial_stream
+from flatcli.core.metrics import COUNT_METRICS, METRIC_NAMES, Status, describe_status
+from flatcli.core.simulate import NoiseStreams, Trials, simulate
+from flatcli.experiment import checked
 from flatcli.spec import perturbations
 from flatcli.sweep.draws import (
     PERTURB_SLOTS,
@@ -26,10 +26,8 @@ from flatcli.sweep.draws import (
 )
 from flatcli.sweep.layout import Cell, Chunk
 
-STATUS_ERROR = STATUS_NAMES.index("error")
-#: Statuses ``--fail-fast`` stops at.
-FAILURES = ("error", "diverged")
-SINGULAR_HITS = METRIC_NAMES.index("singular_hits")
+#: Statuses ``--fail-fast`` stops at: trials that did not run, or not to the end.
+FAILURES = ("error", "diverged", "unresolved")
 
 
 @dataclass(frozen=True)
@@ -60,7 +58,7 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
     scenario = cell.scenario
     ids = np.arange(chunk.start, chunk.stop)
     seed = spec.sweep.seed
-    nominal = nominal_values(spec)
+    nominal = nominal_values(spec, scenario.plan)
     drawn = draw_perturbations(perturbations(spec.sweep), nominal, seed, ids.tolist())
     value = {name: np.broadcast_to(drawn.get(name, nominal[name]), (len(ids), nominal[name].size))
              for name in PERTURB_SLOTS}
@@ -69,21 +67,19 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
     momentum = value["momentum"][:, 0]
     reasons = invalid_plants(links)
     valid = np.array([not r for r in reasons], dtype=bool)
-    std = spec.track.sensor_noise
-    noise = None
-    if std > 0:
-        noise = np.stack([std * trial_stream(seed, int(t), STREAM_NOISE).standard_normal(
-            (scenario.n_steps, 3)) for t in ids[valid]]) if valid.any() else None
     metrics = np.full((len(ids), len(METRIC_NAMES)), np.nan)
-    status = np.full(len(ids), STATUS_ERROR, dtype=np.int64)
-    event = np.full(len(ids), np.nan)
+    status = np.full(len(ids), int(Status.ERROR), dtype=np.int64)
+    event = np.zeros(len(ids), dtype=np.int64)
+    event_time = np.full(len(ids), np.nan)
     if valid.any():
+        noise = NoiseStreams(spec.track.sensor_noise, seed, ids[valid].astype(np.int64))
         trials = Trials(np.ascontiguousarray(links[valid]), np.ascontiguousarray(momentum[valid]),
                         np.ascontiguousarray(initial[valid]), noise)
         outcome = simulate(scenario, trials, checked(spec.track.integrator))
         metrics[valid] = outcome.metrics
         status[valid] = outcome.status
-        event[valid] = outcome.event_time
+        event[valid] = outcome.event
+        event_time[valid] = outcome.event_time
     status_names = []
     reason_texts = []
     for i in range(len(ids)):
@@ -91,8 +87,9 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
             status_names.append("error")
             reason_texts.append(reasons[i])
             continue
-        name, reason = describe_status(int(status[i]), float(event[i]), metrics[i],
-                                       scenario.singular_threshold, scenario.divergence_bound)
+        name, reason = describe_status(int(status[i]), int(event[i]), float(event_time[i]),
+                                       metrics[i], scenario.singular_threshold,
+                                       scenario.divergence_bound)
         status_names.append(name)
         reason_texts.append(reason)
     columns: dict[str, Any] = {"trial": ids.astype(np.int64),
@@ -105,9 +102,13 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
                 columns[col] = np.ascontiguousarray(drawn[name][:, j])
     for j, metric in enumerate(METRIC_NAMES):
         columns[metric] = metrics[:, j]
-    columns["singular_hits"] = np.nan_to_num(metrics[:, SINGULAR_HITS], nan=-1).astype(np.int64)
+    for metric in COUNT_METRICS:  # counts as integers, null where not applicable
+        values = columns[metric]
+        columns[metric] = pa.array(np.nan_to_num(values, nan=0).astype(np.int64),
+                                   mask=np.isnan(values), type=pa.int64())
     columns["status"] = pa.array(status_names, type=pa.string())
     columns["reason"] = pa.array(reason_texts, type=pa.string())
+    columns["event_time"] = event_time
     return ChunkResult(pa.table(columns), time.perf_counter() - started)
 
 

@@ -20,7 +20,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.special import ndtri
 
-from flatcli.experiment import STREAM_PERTURB, plant_from, trial_stream
+from flatcli.core.planning import FlatPlan
+from flatcli.experiment import STREAM_PERTURB, initial_rate, plant_from, trial_stream
 from flatcli.spec import LINKS, PERTURB_TARGETS, Perturbation, Spec, SpecError, lookup
 from flatcli.spec.sweeps import size
 
@@ -88,12 +89,12 @@ def draw_perturbations(
     return out
 
 
-def nominal_values(spec: Spec) -> dict[str, Array]:
-    """Nominal value of every perturbable quantity of a (cell's) spec."""
+def nominal_values(spec: Spec, plan: FlatPlan) -> dict[str, Array]:
+    """Nominal value of every perturbable quantity of a (cell's) spec and its plan."""
     plant = plant_from(spec)
     return {
         "initial": np.asarray(spec.track.initial, dtype=float),
-        "initial_rate": np.array([spec.track.initial_rate]),
+        "initial_rate": np.array([initial_rate(spec, plan)]),
         "mass": np.asarray(plant.mass),
         "inertia": np.asarray(plant.inertia),
         "length": np.asarray(plant.length),

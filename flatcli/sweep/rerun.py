@@ -55,9 +55,15 @@ def rerun_spec(lay: Layout, row: Mapping[str, Any]) -> Spec:
 
 
 def same(a: Any, b: Any) -> bool:
-    """Equal, with nan equal to nan (a metric that is nan in both runs reproduced)."""
+    """Equal, with nan and None (not applicable) equal to each other (a metric that is not
+    applicable in both runs reproduced)."""
+    def missing(v: Any) -> bool:
+        return v is None or (isinstance(v, float) and math.isnan(v))
+
+    if missing(a) or missing(b):
+        return missing(a) and missing(b)
     if isinstance(a, float | int) and isinstance(b, float | int):
-        return (a == b) or (math.isnan(a) and math.isnan(b))
+        return a == b
     return bool(a == b)
 
 
