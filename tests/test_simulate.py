@@ -70,7 +70,7 @@ def reference_final(scenario: Scenario, trials: Trials, i: int, t_eval: Array | 
     kq = Coefficients(*plant_coefficients(trials.links[i : i + 1])[0])
     p = Links(*map(float, trials.links[i]))
     loop = Loop(kc, scenario.gains, kq, p, p.m0 + p.m1 + p.m2, float(trials.momentum[i]),
-                float(scenario.rate_limit))
+                float(scenario.rate_limit), False)
     breaks, local = scenario.pieces
     zero = np.zeros(3)
 
@@ -200,7 +200,7 @@ def reference_event(scenario: Scenario, trials: Trials) -> float:
     kq = Coefficients(*plant_coefficients(trials.links[:1])[0])
     p = Links(*map(float, trials.links[0]))
     loop = Loop(kc, scenario.gains, kq, p, p.m0 + p.m1 + p.m2, float(trials.momentum[0]),
-                float(scenario.rate_limit))
+                float(scenario.rate_limit), False)
     breaks, local = scenario.pieces
     zero = np.zeros(3)
 

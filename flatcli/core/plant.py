@@ -44,6 +44,8 @@ class Loop(NamedTuple):
     kq : the plant's constraint coefficients (derived model, its own d2)
     links : the plant's link parameters; total_mass : the plant's M [kg]
     h0 : the plant's angular momentum [kg m^2/s]; rate_limit : joint-rate limit [rad/s]
+    flat_plant : the plant has d2 = 0, so its terms in cos th2 and cos(th1 + th2) vanish and
+        are skipped (the same numbers to the bit: those terms are multiplied by zero)
     """
 
     kc: Coefficients
@@ -53,6 +55,7 @@ class Loop(NamedTuple):
     total_mass: float
     h0: float
     rate_limit: float
+    flat_plant: bool
 
 
 @jitable
@@ -68,7 +71,7 @@ def kinematic_rhs(loop: Loop, x: Array, ref: Array, noise: Array, out: Array) ->
     out : (>= 4 + KINEMATIC_AUX,) written: th0', th1', th2' [rad/s] (the applied joint rates),
         u1' [rad/s^2]; then the controller's signed margin sin(measured th1) * u1 [rad/s]
         (the feedback divides by it: where it changes sign the trial crosses the singular
-        set), and the plant's cos th1, sin th1, cos(th1 + th2)
+        set), and the plant's cos th1, sin th1, cos(th1 + th2) (0 for a flat plant)
     """
     x0, x1, x2, x3 = x[0], x[1], x[2], x[3]
     c1 = np.cos(x1)
@@ -82,8 +85,11 @@ def kinematic_rhs(loop: Loop, x: Array, ref: Array, noise: Array, out: Array) ->
     limit = loop.rate_limit
     w1 = min(max(x3, -limit), limit)
     w2 = min(max(u2, -limit), limit)
-    c12 = np.cos(x1 + x2)
-    w0 = base_rate_at(loop.kq, loop.total_mass, loop.h0, c1, np.cos(x2), c12, w1, w2)
+    if loop.flat_plant:
+        c2 = c12 = 0.0
+    else:
+        c2, c12 = np.cos(x2), np.cos(x1 + x2)
+    w0 = base_rate_at(loop.kq, loop.total_mass, loop.h0, c1, c2, c12, w1, w2)
     if (x3 >= limit and u1_dot > 0.0) or (x3 <= -limit and u1_dot < 0.0):
         u1_dot = 0.0  # conditional integration: no wind-up while th1' is clipped
     out[0], out[1], out[2], out[3] = w0, w1, w2, u1_dot
@@ -94,5 +100,5 @@ def kinematic_rhs(loop: Loop, x: Array, ref: Array, noise: Array, out: Array) ->
 def kinematic_momentum(loop: Loop, x: Array, f: Array) -> float:
     """H of the plant from its full link kinematics at state x with the rates f it applies
     (``model.momentum``; f as written by ``kinematic_rhs``) [kg m^2/s]."""
-    return float(momentum_at(loop.links, f[5], f[6], f[7], np.sin(x[1] + x[2]), f[0], f[1],
-                             f[2]))
+    s12 = 0.0 if loop.flat_plant else np.sin(x[1] + x[2])  # d2 = 0: s12 is multiplied by 0
+    return float(momentum_at(loop.links, f[5], f[6], f[7], s12, f[0], f[1], f[2]))

@@ -126,6 +126,13 @@ def _coefficients_row(a: Array, i: int) -> Coefficients:
 
 
 @jitable
+def _is_flat(k: Coefficients) -> bool:
+    """Whether a plant's constraint has no d2-terms (d2 = 0)."""
+    return (k.a2 == 0.0 and k.a3 == 0.0 and k.b2 == 0.0 and k.b3 == 0.0 and k.c2 == 0.0
+            and k.c3 == 0.0)
+
+
+@jitable
 def _status_of(event: int, first: int) -> int:
     if event != _NONE:
         return _UNRESOLVED if event >= _FIRST_UNRESOLVED else _DIVERGED
@@ -182,8 +189,8 @@ def _kinematic_kernel(
     obs = (theta_ref, ref, threshold)
     for i in range(links.shape[0]):
         p = _links_row(links, i)
-        loop = Loop(kc, gains, _coefficients_row(plant_k, i), p, p.m0 + p.m1 + p.m2, h0[i],
-                    rate_limit)
+        kq = _coefficients_row(plant_k, i)
+        loop = Loop(kc, gains, kq, p, p.m0 + p.m1 + p.m2, h0[i], rate_limit, _is_flat(kq))
         reset_accumulator(acc)
         tr = trace[i] if record else scratch
         x0 = initial[i]
@@ -524,8 +531,9 @@ def _reference_trial(
     n = scenario.n_steps
     times = scenario.times
     p = Links(*(float(v) for v in trials.links[i]))
-    loop = Loop(kc, gains, _plain(Coefficients(*plant_k[i])), p, p.m0 + p.m1 + p.m2,
-                float(trials.momentum[i]), float(scenario.rate_limit))
+    kq = _plain(Coefficients(*plant_k[i]))
+    loop = Loop(kc, gains, kq, p, p.m0 + p.m1 + p.m2, float(trials.momentum[i]),
+                float(scenario.rate_limit), bool(_is_flat(kq)))
     noise = trials.noise_table(i, n)
     bound = scenario.divergence_bound
     breaks, local = scenario.pieces
