@@ -16,7 +16,12 @@ from typing import Any, NoReturn, TypeVar
 import click
 
 from flatcli import __version__
-from flatcli.core.model import FlatcliError, constraint_coefficients, flatness_check
+from flatcli.core.model import (
+    FlatcliError,
+    FlatnessCheck,
+    constraint_coefficients,
+    flatness_check,
+)
 from flatcli.core.optimize import OBJECTIVES
 from flatcli.executors import EXECUTORS
 from flatcli.experiment import checked, plan_and_optimization, plant_from, robot_from, run_track
@@ -197,9 +202,9 @@ def track(spec: Path | None, sets: tuple[str, ...], out: Path | None, quiet: boo
 @spec_argument()
 @set_option()
 def design(spec: Path | None, sets: tuple[str, ...]) -> None:
-    """Check whether a design is differentially flat; print its constraint coefficients.
+    """Check whether the paper's flat outputs apply to a design; print its coefficients.
 
-    Exit status 0 when the robot is flat, 1 when it is not.
+    Exit status 0 when they apply (flatcli can plan for it), 1 when they do not.
     """
     with user_errors():
         s = load(spec, sets)
@@ -210,14 +215,20 @@ def design(spec: Path | None, sets: tuple[str, ...]) -> None:
     rows = [[name, float(v)] for name, v in zip(k._fields, k, strict=True)]
     click.echo(f"robot {s.name!r}, {s.robot.model} coefficients [kg^2 m^2]:")
     click.echo(table(["coefficient", "value"], rows, 6))
-    if check.is_flat:
-        click.echo("flat: yes (d2 = 0, c0 a1 != 0); singular where sin th1 = 0 or th1' = 0")
-    else:
-        click.echo(f"flat: no: {check.message()}")
+    click.echo(design_verdict("robot", check))
     if plant != robot:
-        pc = flatness_check(plant)
-        click.echo(f"plant: {'flat' if pc.is_flat else 'not flat: ' + pc.message()}")
+        click.echo(design_verdict("plant", flatness_check(plant)))
     sys.exit(0 if check.is_flat else 1)
+
+
+def design_verdict(what: str, check: FlatnessCheck) -> str:
+    """One line: do the paper's flat outputs apply, and if not, is the design still flat."""
+    if check.is_flat:
+        return (f"{what}: flat with the paper's outputs (d2 = 0, c0 a1 != 0); singular where "
+                "sin th1 = 0 or th1' = 0")
+    if check.controllable:
+        return f"{what}: flat, but the paper's outputs do not apply: {check.message()}"
+    return f"{what}: not flat: {check.message()}"
 
 
 @main.command()

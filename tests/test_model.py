@@ -361,20 +361,26 @@ def test_paper_robot_is_flat() -> None:
 
 
 @pytest.mark.parametrize(
-    ("changes", "named"),
+    ("changes", "named", "controllable"),
     [
-        ({"com": (0.1, 0.1, 0.005)}, "d2"),  # link 2's CoM 5 mm off joint 2
-        ({"com": (0.2, 0.1, 0.0)}, "l0 - d0"),  # l0 = d0 = 0.2
-        ({"com": (0.1, -0.2, 0.0)}, "m1 d1 + m2 l1"),  # 1 * (-0.2) + 1 * 0.2 = 0
+        ({"com": (0.1, 0.1, 0.005)}, "d2", True),  # link 2's CoM 5 mm off joint 2
+        ({"com": (0.2, 0.1, 0.0)}, "l0 - d0", False),  # l0 = d0 = 0.2
+        ({"com": (0.1, -0.2, 0.0)}, "m1 d1 + m2 l1", False),  # 1 * (-0.2) + 1 * 0.2 = 0
     ],
 )
-def test_flatness_check_flags_each_condition(changes: dict, named: str) -> None:
+def test_flatness_check_flags_each_condition(changes: dict, named: str,
+                                             controllable: bool) -> None:
+    """d2 != 0 keeps the robot controllable (flat, outputs unknown in closed form): the
+    paper's outputs do not apply; a1 = 0 loses controllability: not flat."""
     robot = PAPER_ROBOT.with_(**changes)
     check = flatness_check(robot)
     assert not check.is_flat
+    assert check.controllable == controllable
     assert len(check.failures) == 1
     assert named in check.message()
-    with pytest.raises(FlatcliError, match="not differentially flat") as info:
+    expected = "the paper's flat outputs do not apply" if controllable else (
+        "not differentially flat")
+    with pytest.raises(FlatcliError, match=expected) as info:
         require_flat(robot)
     assert named in str(info.value)
 

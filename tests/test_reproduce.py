@@ -26,7 +26,10 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path) -> None:
     # paper's errata*)
     assert "| y2'(0) [rad/s]" in report and "-0.065 " in report and "-0.0668801" in report
     assert "-0.3512 " in report and "-0.343458" in report
-    assert "Only the **swapped** reading matches" in report
+    assert "The swapped reading is the one that fits Fig. 4" in report
+    assert "**but only in the flat outputs**" in report  # and the joint angles swing
+    assert "### The optimised plans in closed loop" in report
+    assert "whose th1 moves monotonically" in report
     assert "## Monte Carlo study" in report and "144 trials" in report
     # the optimised plan beside the cubic (energy at most a third of the cubic's 101.19,
     # tests/test_optimize.py CUBIC_ENERGY)

@@ -322,12 +322,20 @@ def momentum_at(
 
 @dataclass(frozen=True)
 class FlatnessCheck:
-    """Outcome of the design check: which flatness conditions fail, and why they matter."""
+    """Outcome of the design check: which conditions for the paper's flat outputs fail.
+
+    ``failures`` lists every failing condition as one line; ``controllable`` is False when
+    one of them makes the robot lose controllability (then it is not flat at all). A robot
+    that fails only d2 = 0 is still controllable and driftless of codimension one, hence flat,
+    but with outputs not known in closed form: the paper's outputs do not apply to it.
+    """
 
     failures: tuple[str, ...]
+    controllable: bool = True
 
     @property
     def is_flat(self) -> bool:
+        """The paper's flat outputs y1 = th1, y2 = th0 - c0 th2 / A apply."""
         return not self.failures
 
     def message(self) -> str:
@@ -348,26 +356,34 @@ def flatness_check(params: RobotParams) -> FlatnessCheck:
     d0, d1, d2 = params.com
     scale = max(params.length)
     failures = []
+    controllable = True
     if abs(d2) > DESIGN_ZERO_TOL * scale:
         failures.append(
             f"com[2] = d2 = {d2:g} m, not 0: link 2's centre of mass is off joint 2, so the "
-            "constraint depends on th2 and the flat outputs y1 = th1, "
-            "y2 = th0 - c0 th2/(a0 + a1 cos th1) do not exist"
+            "constraint depends on th2 and the paper's flat outputs y1 = th1, "
+            "y2 = th0 - c0 th2/(a0 + a1 cos th1) do not apply (the robot stays controllable "
+            "and, driftless of codimension one, flat, but with outputs not known in closed "
+            "form; flatcli plans with the paper's outputs only)"
         )
     if abs(l0 - d0) <= DESIGN_ZERO_TOL * scale:
+        controllable = False
         failures.append(
             f"length[0] = com[0] = {l0:g} m: l0 - d0 = 0 makes a1 = 0, so "
             "det[g1, g2, [g1, g2]] = c0 a1 sin th1 / A^2 vanishes (not controllable)"
         )
     if abs(m1 * d1 + m2 * l1) <= DESIGN_ZERO_TOL * max(params.mass) * scale:
+        controllable = False
         failures.append(
             "m1 d1 + m2 l1 = 0 makes a1 = 0, so det[g1, g2, [g1, g2]] vanishes (not controllable)"
         )
-    return FlatnessCheck(tuple(failures))
+    return FlatnessCheck(tuple(failures), controllable)
 
 
 def require_flat(params: RobotParams) -> None:
-    """Raise FlatcliError naming the failing condition if the design is not flat."""
+    """Raise FlatcliError naming the failing condition if the paper's flat outputs do not
+    apply to the design (flatcli plans with them only)."""
     check = flatness_check(params)
     if not check.is_flat:
-        raise FlatcliError(f"robot is not differentially flat: {check.message()}")
+        what = ("the paper's flat outputs do not apply" if check.controllable
+                else "robot is not differentially flat")
+        raise FlatcliError(f"{what}: {check.message()}")

@@ -159,7 +159,7 @@ class PlantSpec:
     length: Vector | None = vector(LINKS, None, "the plant's lengths", "m", gt=0, nullable=True,
                                    default_doc="robot.length")
     com: Vector | None = vector(LINKS, None, "the plant's d_i, any d2 (an imperfect "
-                                "counterweight is not flat: that is the point)", "m",
+                                "counterweight: the paper's flat outputs no longer apply)", "m",
                                 nullable=True, default_doc="robot.com")
     momentum: float = number(0.0, "the plant's angular momentum H0 (the controller assumes 0)",
                              "kg m^2/s")
