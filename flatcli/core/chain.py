@@ -1,0 +1,199 @@
+"""A planar free-floating chain of N + 1 bodies: the base (link 0) and joints 1..N.
+
+Link i has mass m_i, inertia I_i about its centre of mass, length l_i (joint O_i to O_i+1)
+and its centre of mass at d_i from O_i along the link; angles are relative (th0 the base
+attitude, th_j the joint angles), the absolute angles psi_a = th0 + th1 + ... + th_a. With no
+external force the system centre of mass is fixed and the angular momentum H about it is
+conserved. For N = 2 this is the paper's robot (``model``).
+
+Two independent descriptions of H live here, as in ``model``:
+
+* ``chain_momentum``: from the full link kinematics (positions and velocities of each centre
+  of mass, relative to the system's, and each link's spin): the referee.
+* the barycentric form used to plan, control and simulate: with L_ia = l_a (a < i),
+  d_i (a = i), 0 (a > i), the constant symmetric matrix
+
+      K_ab = sum_i m_i L_ia L_ib - (sum_i m_i L_ia)(sum_i m_i L_ib) / M
+
+  gives the kinetic energy T = 1/2 sum_ab (K_ab cos(psi_a - psi_b) + I_a delta_ab) psi_a'
+  psi_b' about the system centre of mass, hence H = dT/dth0' = sum_j h_j(th) th_j' with
+  h_j = sum_{b >= j} sum_a (K_ab cos(psi_a - psi_b) + I_a delta_ab) (``momentum_weights``).
+  Only differences psi_a - psi_b = th_b+1 + ... + th_a enter: H does not depend on th0.
+
+If the last link's centre of mass sits on joint N (d_N = 0), K_aN = 0 for every a: no link
+position depends on th_N, h_N = I_N is constant, and h_0, ..., h_N-1 depend on th_1 ..
+th_N-1 only. That is what makes the chain flat (``chainflat``).
+
+Functions take 1-D arrays per link and plain floats, so numba compiles them into the
+closed-loop kernels as they are.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from flatcli.core._jit import jitable
+
+Array = NDArray[np.float64]
+
+
+@jitable
+def lever_arms(length: Array, com: Array) -> Array:
+    """(N + 1, N + 1) L_ia: how far link a's axis carries body i's centre of mass [m]."""
+    n = length.shape[0]
+    out = np.zeros((n, n))
+    for i in range(n):
+        for a in range(i):
+            out[i, a] = length[a]
+        out[i, i] = com[i]
+    return out
+
+
+@jitable
+def barycentric_matrix(mass: Array, length: Array, com: Array) -> Array:
+    """(N + 1, N + 1) K_ab [kg m^2]: the chain's inertia about the fixed system centre of
+    mass, coupling absolute angles a and b through cos(psi_a - psi_b) (module docstring)."""
+    n = mass.shape[0]
+    lever = lever_arms(length, com)
+    total = 0.0
+    for i in range(n):
+        total += mass[i]
+    first = np.zeros(n)  # sum_i m_i L_ia
+    for a in range(n):
+        for i in range(n):
+            first[a] += mass[i] * lever[i, a]
+    out = np.empty((n, n))
+    for a in range(n):
+        for b in range(n):
+            s = 0.0
+            for i in range(n):
+                s += mass[i] * lever[i, a] * lever[i, b]
+            out[a, b] = s - first[a] * first[b] / total
+    return out
+
+
+@jitable
+def absolute_angles(theta: Array, out: Array) -> None:
+    """psi (N + 1,) from relative angles theta (N + 1,) [rad]: psi_a = th0 + ... + th_a."""
+    acc = 0.0
+    for a in range(theta.shape[0]):
+        acc += theta[a]
+        out[a] = acc
+
+
+@jitable
+def momentum_weights(K: Array, inertia: Array, theta: Array, out: Array) -> None:
+    """h_j (N + 1,) with H = sum_j h_j th_j' at the angles theta (N + 1,) [kg m^2].
+
+    h_j = sum_{b >= j} c_b, c_b = I_b + sum_a K_ab cos(psi_a - psi_b): the columns of the
+    inertia matrix in absolute angles, summed over the bodies joint j moves.
+    """
+    n = theta.shape[0]
+    psi = np.empty(n)
+    absolute_angles(theta, psi)
+    tail = 0.0
+    for b in range(n - 1, -1, -1):
+        c = inertia[b]
+        for a in range(n):
+            c += K[a, b] * np.cos(psi[a] - psi[b])
+        tail += c
+        out[b] = tail
+
+
+@jitable
+def base_inertia_slopes(K: Array, inertia: Array, theta: Array, grad: Array, hess: Array
+                        ) -> float:
+    """h_0 [kg m^2] at the angles theta (N + 1,), and its partial derivatives in the joint
+    angles th_1 .. th_N: ``grad`` (N,) [kg m^2], ``hess`` (N, N) [kg m^2] written.
+
+    h_0 = sum I + sum_a K_aa + 2 sum_{a > b} K_ab cos(psi_a - psi_b); psi_a - psi_b contains
+    th_k exactly when b < k <= a.
+    """
+    n = theta.shape[0]
+    psi = np.empty(n)
+    absolute_angles(theta, psi)
+    h0 = 0.0
+    for a in range(n):
+        h0 += inertia[a] + K[a, a]
+    grad[:] = 0.0
+    hess[:, :] = 0.0
+    for a in range(n):
+        for b in range(a):
+            k = K[a, b]
+            if k == 0.0:
+                continue
+            c = np.cos(psi[a] - psi[b])
+            s = np.sin(psi[a] - psi[b])
+            h0 += 2.0 * k * c
+            for j in range(b + 1, a + 1):  # joints j = b+1..a, stored at j - 1
+                grad[j - 1] -= 2.0 * k * s
+                for m in range(b + 1, a + 1):
+                    hess[j - 1, m - 1] -= 2.0 * k * c
+    return h0
+
+
+@jitable
+def weight_slopes(K: Array, theta: Array, out: Array) -> None:
+    """d h_j / d th_k into ``out`` (N + 1, N): row j (body/joint 0..N), column k - 1 for the
+    joint angles th_k, k = 1..N [kg m^2]."""
+    n = theta.shape[0]
+    psi = np.empty(n)
+    absolute_angles(theta, psi)
+    col = np.zeros((n, n - 1))  # d c_b / d th_k
+    for b in range(n):
+        for a in range(n):
+            if a == b or K[a, b] == 0.0:
+                continue
+            s = np.sin(psi[a] - psi[b])
+            lo, hi = (b, a) if a > b else (a, b)
+            sign = 1.0 if a > b else -1.0  # d(psi_a - psi_b)/d th_k for lo < k <= hi
+            for k in range(lo + 1, hi + 1):
+                col[b, k - 1] -= K[a, b] * s * sign
+    for k in range(n - 1):
+        tail = 0.0
+        for b in range(n - 1, -1, -1):
+            tail += col[b, k]
+            out[b, k] = tail
+
+
+def chain_momentum(
+    mass: Array, inertia: Array, length: Array, com: Array, theta: Array, theta_dot: Array
+) -> Array:
+    """Angular momentum about the fixed system centre of mass, from the link kinematics.
+
+    Each centre of mass is placed along the chain from O0 (r_i = sum_{a<i} l_a e(psi_a) +
+    d_i e(psi_i)) and moved with it; H = sum_i I_i psi_i' + sum_i m_i r_i x v_i -
+    M r_c x v_c. Nothing here uses K or the h_j.
+
+    Parameters
+    ----------
+    mass, inertia, length, com : (N + 1,) [kg, kg m^2, m, m]
+    theta : (..., N + 1) relative angles [rad]; theta_dot : (..., N + 1) their rates [rad/s]
+
+    Returns
+    -------
+    H : (...) [kg m^2/s]
+    """
+    theta = np.asarray(theta, dtype=float)
+    theta_dot = np.asarray(theta_dot, dtype=float)
+    psi = np.cumsum(theta, axis=-1)
+    psi_dot = np.cumsum(theta_dot, axis=-1)
+    ex, ey = np.cos(psi), np.sin(psi)
+    n = mass.shape[0]
+    x = np.zeros(theta.shape)
+    y = np.zeros(theta.shape)
+    vx = np.zeros(theta.shape)
+    vy = np.zeros(theta.shape)
+    for i in range(n):
+        for a in range(i + 1):
+            arm = length[a] if a < i else com[i]
+            x[..., i] += arm * ex[..., a]
+            y[..., i] += arm * ey[..., a]
+            vx[..., i] -= arm * psi_dot[..., a] * ey[..., a]
+            vy[..., i] += arm * psi_dot[..., a] * ex[..., a]
+    total = float(np.sum(mass))
+    cx, cy = (x @ mass) / total, (y @ mass) / total
+    cvx, cvy = (vx @ mass) / total, (vy @ mass) / total
+    orbital = (x * vy - y * vx) @ mass - total * (cx * cvy - cy * cvx)
+    return np.asarray(psi_dot @ inertia + orbital)

@@ -1,0 +1,140 @@
+"""Flat outputs of an N-link planar free-floating chain whose last link is counterweighted.
+
+The paper's closing claim (Franch et al. 2003, Sec. VII): the result "extends to a general
+n-link planar robot where the center of mass of the last link is on the preceding joint
+axis". The derivation, with the notation of ``chain``: if d_N = 0, no link position depends
+on th_N, so the momentum constraint (the controller assumes H = 0)
+
+    h_0(q) th0' + sum_{j<N} h_j(q) th_j' + I_N th_N' = 0,      q = (th_1 .. th_N-1),
+
+has h_0, h_j functions of q only and the constant I_N. Prolonging u_j = th_j' (j < N) gives
+the state (th0 .. th_N, u_1 .. u_N-1) and inputs (u_j', th_N'), and
+
+    y_j = th_j (j < N),      y_N = th0 + I_N th_N / h_0(q)
+
+are flat outputs: eliminating th0' with the constraint,
+
+    y_N' = -S / h_0 - I_N th_N D / h_0^2,   S = sum_{j<N} h_j u_j,   D = sum_{j<N} dh_0/dth_j u_j,
+
+is affine in th_N with slope -I_N D / h_0^2, so th_N follows from (y, y') wherever the base's
+locked inertia is changing, D = d h_0 / dt != 0 (the singular set is D = 0), and th0 from y_N.
+Differentiating once more, y_N'' = alpha + beta th_N' with beta = -I_N D / h_0^2 and alpha
+from the partial derivatives of S, D and h_0 (``inputs``): the inputs that realise wanted
+flat accelerations v.
+
+For N = 2, h_0 = A / M, h_1 = -B / M, I_2 = -c0 / M and D = -a1 sin(th1) th1' / M with the
+paper's coefficients (``model``): these are the paper's maps (``flatness``), whose closed
+forms flatcli keeps for N = 2; the tests check both against each other.
+
+The *signed margin* is sigma = -D / (2 K_10) [rad/s]: for N = 2 exactly the paper's
+sin(th1) th1'. The design needs K_10 != 0, i.e. m0 != 0, l0 != d0 and
+m1 d1 + (m2 + ... + mN) l1 != 0 (the paper's conditions, generalised), and I_N != 0.
+
+Functions take the controller's K (``chain.barycentric_matrix``) and inertias, angles
+(N + 1,) and rates (N - 1,) as 1-D arrays, write into output arrays, and are compiled into
+the closed-loop kernels as they are.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from flatcli.core._jit import jitable
+from flatcli.core.chain import base_inertia_slopes, momentum_weights, weight_slopes
+
+Array = NDArray[np.float64]
+
+
+@jitable
+def _terms(K: Array, inertia: Array, theta: Array) -> tuple[float, Array, Array, Array]:
+    """h_0, the weights h (N + 1,), grad h_0 (N,) and its Hessian (N, N) at theta."""
+    n = theta.shape[0]
+    h = np.empty(n)
+    momentum_weights(K, inertia, theta, h)
+    grad = np.empty(n - 1)
+    hess = np.empty((n - 1, n - 1))
+    h0 = base_inertia_slopes(K, inertia, theta, grad, hess)
+    return h0, h, grad, hess
+
+
+@jitable
+def outputs(K: Array, inertia: Array, theta: Array, u: Array, y: Array, y_dot: Array) -> float:
+    """Forward map: state (theta (N + 1,), u (N - 1,)) -> y (N,) [rad], y' (N,) [rad/s],
+    written; returns the signed margin sigma = -D / (2 K_10) [rad/s]."""
+    n = theta.shape[0] - 1
+    h0, h, grad, _ = _terms(K, inertia, theta)
+    s = 0.0
+    d = 0.0
+    for j in range(1, n):
+        y[j - 1] = theta[j]
+        y_dot[j - 1] = u[j - 1]
+        s += h[j] * u[j - 1]
+        d += grad[j - 1] * u[j - 1]
+    i_n = inertia[n]
+    y[n - 1] = theta[0] + i_n * theta[n] / h0
+    y_dot[n - 1] = -s / h0 - i_n * theta[n] * d / (h0 * h0)
+    return float(-d / (2.0 * K[1, 0]))
+
+
+@jitable
+def state(K: Array, inertia: Array, y: Array, y_dot: Array, theta: Array, u: Array) -> float:
+    """Inverse map: y (N,), y' (N,) -> theta (N + 1,) [rad], u (N - 1,) [rad/s], written;
+    returns sigma. inf/nan where D = 0 (the singular set)."""
+    n = theta.shape[0] - 1
+    theta[0] = 0.0
+    for j in range(1, n):
+        theta[j] = y[j - 1]
+        u[j - 1] = y_dot[j - 1]
+    theta[n] = 0.0  # h_0, h_j, grad do not depend on th0 or th_N (d_N = 0)
+    h0, h, grad, _ = _terms(K, inertia, theta)
+    s = 0.0
+    d = 0.0
+    for j in range(1, n):
+        s += h[j] * u[j - 1]
+        d += grad[j - 1] * u[j - 1]
+    i_n = inertia[n]
+    theta[n] = -h0 * (s + y_dot[n - 1] * h0) / (i_n * d)
+    theta[0] = y[n - 1] - i_n * theta[n] / h0
+    return float(-d / (2.0 * K[1, 0]))
+
+
+@jitable
+def inputs(K: Array, inertia: Array, theta: Array, u: Array, v: Array, u_dot: Array) -> float:
+    """Inputs that make y'' = v (N,) at a state: u' (N - 1,) [rad/s^2] written, and th_N'
+    [rad/s] returned; inf/nan where D = 0.
+
+    y_N' = F(q, u, th_N) = -S / h_0 - I_N th_N D / h_0^2, so y_N'' = alpha + beta th_N' with
+    beta = dF/dth_N = -I_N D / h_0^2 and alpha = sum_k (dF/dq_k u_k + dF/du_k v_k):
+    dF/du_k = -h_k / h_0 - I_N th_N (dh_0/dq_k) / h_0^2,
+    dF/dq_k = -(dS/dq_k) / h_0 + S (dh_0/dq_k) / h_0^2
+              - I_N th_N ((dD/dq_k) / h_0^2 - 2 D (dh_0/dq_k) / h_0^3),
+    dS/dq_k = sum_j (dh_j/dq_k) u_j, dD/dq_k = sum_j (d^2 h_0 / dq_j dq_k) u_j.
+    """
+    n = theta.shape[0] - 1
+    h0, h, grad, hess = _terms(K, inertia, theta)
+    slopes = np.empty((n + 1, n))
+    weight_slopes(K, theta, slopes)
+    s = 0.0
+    d = 0.0
+    for j in range(1, n):
+        s += h[j] * u[j - 1]
+        d += grad[j - 1] * u[j - 1]
+    i_n = inertia[n]
+    th_n = theta[n]
+    inv = 1.0 / h0
+    alpha = 0.0
+    for k in range(1, n):
+        ds = 0.0
+        dd = 0.0
+        for j in range(1, n):
+            ds += slopes[j, k - 1] * u[j - 1]
+            dd += hess[j - 1, k - 1] * u[j - 1]
+        g = grad[k - 1]
+        df_dq = -ds * inv + s * g * inv * inv - i_n * th_n * (dd * inv * inv
+                                                              - 2.0 * d * g * inv * inv * inv)
+        df_du = -h[k] * inv - i_n * th_n * g * inv * inv
+        alpha += df_dq * u[k - 1] + df_du * v[k - 1]
+        u_dot[k - 1] = v[k - 1]
+    beta = -i_n * d * inv * inv
+    return float((v[n - 1] - alpha) / beta)
