@@ -404,12 +404,12 @@ def test_flatness_check_reports_every_failing_condition() -> None:
         ("mass", (float("nan"), 1.0, 1.0), "finite"),
         ("inertia", (0.05, float("inf"), 0.05), "finite"),
         ("com", (0.1, float("-inf"), 0.0), "finite"),
-        ("com", (0.1, 0.1), "3 numbers"),
-        ("length", (0.2, 0.2, 0.2, 0.2), "3 numbers"),
-        ("mass", [[1.0, 1.0, 1.0]], "3 numbers"),
-        ("inertia", 0.05, "3 numbers"),
-        ("mass", [1.0, [2.0, 3.0], 4.0], "3 numbers"),  # ragged
-        ("com", ("a", 0.1, 0.0), "3 numbers"),
+        ("com", (0.1, 0.1), "one number per link"),
+        ("length", (0.2, 0.2, 0.2, 0.2), "the same number of links"),  # 4 against 3
+        ("mass", [[1.0, 1.0, 1.0]], "one number per link"),
+        ("inertia", 0.05, "one number per link"),
+        ("mass", [1.0, [2.0, 3.0], 4.0], "one number per link"),  # ragged
+        ("com", ("a", 0.1, 0.0), "one number per link"),
     ],
 )
 def test_robot_params_rejects_bad_values(field: str, value: object, match: str) -> None:

@@ -24,7 +24,7 @@ Two independent descriptions of H live here:
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Literal, NamedTuple
 
 import numpy as np
@@ -84,50 +84,78 @@ class Coefficients(NamedTuple):
 
 
 Triple = tuple[float, float, float]
+#: Per-link values of a chain of N + 1 bodies (base + N links), N >= 2.
+PerLink = tuple[float, ...]
 
 
-def _triple(name: str, value: ArrayLike) -> Triple:
+def _per_link(name: str, value: ArrayLike) -> PerLink:
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
-        raise FlatcliError(f"{name}: expected 3 numbers (links 0, 1, 2), got {value!r}") from None
-    if arr.shape != (3,):
-        raise FlatcliError(f"{name}: expected 3 numbers (links 0, 1, 2), got shape {arr.shape}")
+        raise FlatcliError(
+            f"{name}: expected one number per link (base + N links, N >= 2), got {value!r}"
+        ) from None
+    if arr.ndim != 1 or arr.shape[0] < 3:
+        raise FlatcliError(
+            f"{name}: expected one number per link (base + N links, N >= 2), got shape "
+            f"{arr.shape}"
+        )
     if not np.all(np.isfinite(arr)):
         raise FlatcliError(f"{name}: every value must be finite, got {arr.tolist()}")
-    return (float(arr[0]), float(arr[1]), float(arr[2]))
+    return tuple(float(v) for v in arr)
 
 
 @dataclass(frozen=True)
 class RobotParams:
-    """Validated, immutable parameters of the three links.
+    """Validated, immutable parameters of the links: the base (link 0) and N >= 2 links.
 
     Attributes
     ----------
-    mass : (3,) [kg], each > 0
-    inertia : (3,) [kg m^2] about each link's centre of mass, each > 0
-    length : (3,) [m] joint-to-joint, each > 0 (l2 does not enter the dynamics)
-    com : (3,) [m] d_i, distance of each link's centre of mass from its proximal joint O_i
+    mass : (N + 1,) [kg], each > 0
+    inertia : (N + 1,) [kg m^2] about each link's centre of mass, each > 0
+    length : (N + 1,) [m] joint-to-joint, each > 0 (the last length does not enter the
+        dynamics)
+    com : (N + 1,) [m] d_i, distance of each link's centre of mass from its proximal joint O_i
+
+    The paper's robot has N = 2 (three links); ``links`` and ``coefficients`` (its reduced
+    constraint) exist for N = 2 only, the chain functions (``chain``) for any N.
     """
 
-    mass: Triple = (1.0, 1.0, 1.0)
-    inertia: Triple = (0.0533, 0.0533, 0.0533)
-    length: Triple = (0.2, 0.2, 0.2)
-    com: Triple = (0.1, 0.1, 0.0)
-    links: Links = field(init=False, repr=False, compare=False)
+    mass: PerLink = (1.0, 1.0, 1.0)
+    inertia: PerLink = (0.0533, 0.0533, 0.0533)
+    length: PerLink = (0.2, 0.2, 0.2)
+    com: PerLink = (0.1, 0.1, 0.0)
 
     def __post_init__(self) -> None:
         for name in ("mass", "inertia", "length", "com"):
-            object.__setattr__(self, name, _triple(name, getattr(self, name)))
+            object.__setattr__(self, name, _per_link(name, getattr(self, name)))
+        for name in ("inertia", "length", "com"):
+            size = len(getattr(self, name))
+            if size != len(self.mass):
+                raise FlatcliError(
+                    f"{name}: expected {len(self.mass)} numbers, one per link as in mass "
+                    f"(the same number of links in each), got {size}"
+                )
         for name in ("mass", "inertia", "length"):
             values = getattr(self, name)
             if min(values) <= 0:
                 raise FlatcliError(f"{name}: every value must be > 0, got {list(values)}")
-        object.__setattr__(self, "links", Links(*self.mass, *self.inertia, *self.length, *self.com))
+
+    @property
+    def n_joints(self) -> int:
+        """N, the number of joints (links after the base)."""
+        return len(self.mass) - 1
+
+    @property
+    def links(self) -> Links:
+        """The twelve parameters of the paper's three-link robot (N = 2 only)."""
+        if self.n_joints != 2:
+            raise FlatcliError(f"this needs the three-link robot (N = 2), got N = {self.n_joints}")
+        return Links(*self.mass, *self.inertia, *self.length, *self.com)
 
     @property
     def total_mass(self) -> float:
-        """M = m0 + m1 + m2 [kg]."""
+        """M = m0 + m1 + ... + mN [kg]."""
         return float(sum(self.mass))
 
     def with_(self, **changes: ArrayLike) -> RobotParams:
@@ -135,8 +163,8 @@ class RobotParams:
         return replace(self, **changes)  # type: ignore[arg-type]
 
     def as_array(self) -> NDArray[np.float64]:
-        """(12,) mass, inertia, length, com concatenated."""
-        return np.asarray(self.links, dtype=float)
+        """(4 (N + 1),) mass, inertia, length, com concatenated ((12,) for N = 2)."""
+        return np.asarray([*self.mass, *self.inertia, *self.length, *self.com], dtype=float)
 
     def coefficients(self, model: Model = "derived") -> Coefficients:
         """``constraint_coefficients`` of this robot (computed once per robot and model)."""
@@ -344,38 +372,48 @@ class FlatnessCheck:
 
 
 def flatness_check(params: RobotParams) -> FlatnessCheck:
-    """Is this design differentially flat with the paper's outputs?
+    """Do the paper's flat outputs (and their n-link generalisation, ``chainflat``) apply?
 
     The conditions (Franch et al. 2003, Sec. V, with the errata of the physics note):
     d2 = 0 (link 2's centre of mass on joint 2), and c0 a1 != 0, i.e. I2 != 0, m0 != 0,
     l0 != d0 and m1 d1 + m2 l1 != 0, since det[g1, g2, [g1, g2]] = c0 a1 sin th1 / A^2.
-    I2 > 0 and m0 > 0 hold for every valid RobotParams, so only the others can fail here.
+    For N links: d_N = 0, I_N != 0, and K_10 = m0 (l0 - d0)(m1 d1 + (m2 + ... + mN) l1) / M
+    != 0 (for N = 2, a1 = 2 M K_10), which makes the base's locked inertia h_0 vary with th1
+    (``chainflat``). I_N > 0 and m0 > 0 hold for every valid RobotParams, so only the others
+    can fail here.
     """
-    _, m1, m2 = params.mass
-    l0, l1, _ = params.length
-    d0, d1, d2 = params.com
-    scale = max(params.length)
+    n = params.n_joints
+    mass, length, com = params.mass, params.length, params.com
+    l0, l1 = length[0], length[1]
+    d0, d1, d_last = com[0], com[1], com[n]
+    arm = mass[1] * d1 + sum(mass[2:]) * l1
+    scale = max(length)
     failures = []
     controllable = True
-    if abs(d2) > DESIGN_ZERO_TOL * scale:
+    if abs(d_last) > DESIGN_ZERO_TOL * scale:
+        outputs = ("y1 = th1, y2 = th0 - c0 th2/(a0 + a1 cos th1)" if n == 2 else
+                   f"y_j = th_j (j < {n}), y{n} = th0 + I{n} th{n} / h_0")
         failures.append(
-            f"com[2] = d2 = {d2:g} m, not 0: link 2's centre of mass is off joint 2, so the "
-            "constraint depends on th2 and the paper's flat outputs y1 = th1, "
-            "y2 = th0 - c0 th2/(a0 + a1 cos th1) do not apply (the robot stays controllable "
-            "and, driftless of codimension one, flat, but with outputs not known in closed "
-            "form; flatcli plans with the paper's outputs only)"
+            f"com[{n}] = d{n} = {d_last:g} m, not 0: link {n}'s centre of mass is off joint {n}, "
+            f"so the constraint depends on th{n} and the paper's flat outputs {outputs} do not "
+            "apply (the robot stays controllable and, driftless of codimension one, flat, but "
+            "with outputs not known in closed form; flatcli plans with the paper's outputs "
+            "only)"
         )
     if abs(l0 - d0) <= DESIGN_ZERO_TOL * scale:
         controllable = False
-        failures.append(
-            f"length[0] = com[0] = {l0:g} m: l0 - d0 = 0 makes a1 = 0, so "
-            "det[g1, g2, [g1, g2]] = c0 a1 sin th1 / A^2 vanishes (not controllable)"
-        )
-    if abs(m1 * d1 + m2 * l1) <= DESIGN_ZERO_TOL * max(params.mass) * scale:
+        what = "a1 = 0, so det[g1, g2, [g1, g2]] = c0 a1 sin th1 / A^2 vanishes" if n == 2 else (
+            "K_10 = 0, so the base's locked inertia h_0 does not vary with th1")
+        failures.append(f"length[0] = com[0] = {l0:g} m: l0 - d0 = 0 makes {what} "
+                        "(not controllable)")
+    if abs(arm) <= DESIGN_ZERO_TOL * max(mass) * scale:
         controllable = False
-        failures.append(
-            "m1 d1 + m2 l1 = 0 makes a1 = 0, so det[g1, g2, [g1, g2]] vanishes (not controllable)"
-        )
+        if n == 2:
+            failures.append("m1 d1 + m2 l1 = 0 makes a1 = 0, so det[g1, g2, [g1, g2]] vanishes "
+                            "(not controllable)")
+        else:
+            failures.append(f"m1 d1 + (m2 + ... + m{n}) l1 = 0 makes K_10 = 0, so the base's "
+                            "locked inertia h_0 does not vary with th1 (not controllable)")
     return FlatnessCheck(tuple(failures), controllable)
 
 
