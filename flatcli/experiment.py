@@ -13,6 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from flatcli.core.basis import Basis, BSplineBasis, PolynomialBasis
+from flatcli.core.chainplan import ChainPlan
 from flatcli.core.control import Gains
 from flatcli.core.flatness import flat_outputs, singularity_margin
 from flatcli.core.metrics import COUNT_METRICS, METRIC_NAMES, describe_status
@@ -133,7 +134,7 @@ def trial_stream(seed: int, trial: int, slot: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(trial, slot)))
 
 
-def initial_rate(spec: Spec, plan: FlatPlan) -> float:
+def initial_rate(spec: Spec, plan: FlatPlan | ChainPlan) -> float:
     """u1(0): ``track.initial_rate``, or the plan's own th1'(0) when the spec leaves it out
     (the optimised plan's chosen rate with ``--optimize``)."""
     if spec.track.initial_rate is not None:

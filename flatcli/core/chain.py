@@ -197,3 +197,33 @@ def chain_momentum(
     cvx, cvy = (vx @ mass) / total, (vy @ mass) / total
     orbital = (x * vy - y * vx) @ mass - total * (cx * cvy - cy * cvx)
     return np.asarray(psi_dot @ inertia + orbital)
+
+
+@jitable
+def chain_momentum_at(params: Array, theta: Array, theta_dot: Array) -> float:
+    """``chain_momentum`` of one state, for the kernels: ``params`` (4 (N + 1),) mass,
+    inertia, length, com side by side; theta, theta_dot (N + 1,) [rad, rad/s]."""
+    n = theta.shape[0]
+    psi = 0.0
+    w = 0.0
+    total = 0.0
+    h = 0.0
+    mx = my = mvx = mvy = 0.0
+    # running position (px, py) and velocity (qx, qy) of the current joint O_a
+    px = py = qx = qy = 0.0
+    for i in range(n):
+        psi += theta[i]
+        w += theta_dot[i]
+        m, inertia, length, com = params[i], params[n + i], params[2 * n + i], params[3 * n + i]
+        c, s = np.cos(psi), np.sin(psi)
+        x, y = px + com * c, py + com * s
+        vx, vy = qx - com * w * s, qy + com * w * c
+        h += inertia * w + m * (x * vy - y * vx)
+        total += m
+        mx += m * x
+        my += m * y
+        mvx += m * vx
+        mvy += m * vy
+        px, py = px + length * c, py + length * s
+        qx, qy = qx - length * w * s, qy + length * w * c
+    return h - (mx * mvy - my * mvx) / total

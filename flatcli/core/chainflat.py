@@ -138,3 +138,29 @@ def inputs(K: Array, inertia: Array, theta: Array, u: Array, v: Array, u_dot: Ar
         u_dot[k - 1] = v[k - 1]
     beta = -i_n * d * inv * inv
     return float((v[n - 1] - alpha) / beta)
+
+
+@jitable
+def flag_state(K: Array, inertia: Array, y: Array, y_dot: Array, y_ddot: Array, theta: Array,
+               theta_dot: Array, u_dot: Array) -> float:
+    """The flat flag (y, y', y'') (N,) each -> the state's angles theta (N + 1,) and their
+    exact time derivatives theta_dot (N + 1,) [rad/s], and u' (N - 1,) [rad/s^2], written;
+    returns sigma. The one map from the flag to states and inputs, for any N.
+
+    th_j' = y_j' (j < N), th_N' from ``inputs`` with v = y'', and th0' the time derivative of
+    th0 = y_N - I_N th_N / h_0: th0' = y_N' - I_N (th_N' h_0 - th_N D) / h_0^2 (not the
+    momentum constraint).
+    """
+    n = theta.shape[0] - 1
+    u = np.empty(n - 1)
+    sigma = state(K, inertia, y, y_dot, theta, u)
+    th_n_dot = inputs(K, inertia, theta, u, y_ddot, u_dot)
+    h0, _, grad, _ = _terms(K, inertia, theta)
+    d = 0.0
+    for j in range(1, n):
+        theta_dot[j] = u[j - 1]
+        d += grad[j - 1] * u[j - 1]
+    theta_dot[n] = th_n_dot
+    i_n = inertia[n]
+    theta_dot[0] = y_dot[n - 1] - i_n * (th_n_dot * h0 - theta[n] * d) / (h0 * h0)
+    return sigma

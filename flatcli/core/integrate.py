@@ -88,8 +88,9 @@ WORK_ROWS = 12
 
 @jitable
 def plan_flag(breaks: Array, local: Array, t: float, out: Array) -> None:
-    """The plan's y1, y2, y1', y2', y1'', y2'' at time t into ``out`` (6,), from its
-    piecewise polynomials (``basis.Basis.piecewise``: breaks (m + 1,), local (m, d + 1, 2))."""
+    """The plan's flat flag y, y', y'' (N outputs each) at time t into ``out`` (3 N,), from
+    its piecewise polynomials (``basis.Basis.piecewise``: breaks (m + 1,), local
+    (m, d + 1, N)); for the paper's robot y1, y2, y1', y2', y1'', y2''."""
     m = breaks.shape[0] - 1
     lo, hi = 0, m
     while hi - lo > 1:  # the piece with breaks[i] <= t (clamped to the first and last)
@@ -102,7 +103,8 @@ def plan_flag(breaks: Array, local: Array, t: float, out: Array) -> None:
     width = breaks[i + 1] - breaks[i]
     s = (t - breaks[i]) / width
     degree = local.shape[1] - 1
-    for o in range(2):
+    outputs = local.shape[2]
+    for o in range(outputs):
         p = local[i, degree, o]
         dp = 0.0
         half_ddp = 0.0
@@ -111,20 +113,21 @@ def plan_flag(breaks: Array, local: Array, t: float, out: Array) -> None:
             dp = dp * s + p
             p = p * s + local[i, j, o]
         out[o] = p
-        out[2 + o] = dp / width
-        out[4 + o] = 2.0 * half_ddp / (width * width)
+        out[outputs + o] = dp / width
+        out[2 * outputs + o] = 2.0 * half_ddp / (width * width)
 
 
 @jitable
 def load_noise(j: int, table: Array, gen: Any, std: float, noise: Array) -> None:
-    """Sensor noise of output interval j into ``noise`` (3,): row j of ``table`` if it has
-    rows, else three draws std * N(0, 1) from ``gen`` (call once per interval, in order)."""
+    """Sensor noise of output interval j into ``noise`` (one per measured angle): row j of
+    ``table`` if it has rows, else std * N(0, 1) draws from ``gen``, in order (call once per
+    interval, in order)."""
     if table.shape[0] > 0:
-        noise[0], noise[1], noise[2] = table[j, 0], table[j, 1], table[j, 2]
+        for i in range(noise.shape[0]):
+            noise[i] = table[j, i]
     elif std > 0.0:
-        noise[0] = std * gen.standard_normal()
-        noise[1] = std * gen.standard_normal()
-        noise[2] = std * gen.standard_normal()
+        for i in range(noise.shape[0]):
+            noise[i] = std * gen.standard_normal()
 
 
 @jitable
@@ -176,17 +179,20 @@ def make_trial_integrators(
 
     Shared arguments (see the module docstring): ``loop`` (the plant's and controller's
     parameters), ``obs`` (the observer's tables), ``x0`` (nx,), ``dt`` [s], ``n`` output
-    intervals, ``bound``, the noise source (``table`` (n, 3) or (0, 3), ``gen``, ``std``),
-    ``record`` and ``trace`` (n + 1, >= nx + 3: state and applied rates per sample), ``acc``
+    intervals, ``bound``, the noise source (``table`` (n, angles) or (0, angles), ``gen``,
+    ``std``), ``record`` and ``trace`` (n + 1, nx + angles: state and applied rates per
+    sample), ``acc``
     (the observer's accumulator) and ``work`` (WORK_ROWS, >= nx + 1: the right-hand side's
     outputs).
     """
 
     @jitable
     def record_sample(trace: Array, j: int, nx: int, x: Array, f: Array) -> None:
+        """Row j of a trace: the state, then the first ``width - nx`` rates (the applied
+        joint rates th0', th1', ...)."""
         for i in range(nx):
             trace[j, i] = x[i]
-        for i in range(3):
+        for i in range(trace.shape[1] - nx):
             trace[j, nx + i] = f[i]
 
     @jitable

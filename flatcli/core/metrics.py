@@ -202,21 +202,8 @@ def observe_sample(
     e1 = th1 - ref[2 * j, 0]
     e2 = th0 - kc.c0 * th2 * inv_A - ref[2 * j, 1]
     ey2 = e1 * e1 + e2 * e2
-    acc[_SUM_ET2] += et2
-    acc[_SUM_EY2] += ey2
-    acc[_MAX_ET2] = max(acc[_MAX_ET2], et2)
-    acc[_MAX_EY2] = max(acc[_MAX_EY2], ey2)
-    acc[_LAST_ET2] = et2
-    acc[_LAST_EY2] = ey2
-    margin = abs(s1 * u1)  # singularity_margin
-    if margin < threshold:
-        acc[_HITS] += 1.0
-        if acc[_FIRST] < 0.0:
-            acc[_FIRST] = j
-    acc[_MIN_MARGIN] = min(acc[_MIN_MARGIN], margin)
-    acc[_DRIFT] = max(acc[_DRIFT], abs(h - h0))
-    acc[_PEAK_RATE] = max(acc[_PEAK_RATE], abs(rate1), abs(rate2))
-    acc[_COUNT] += 1.0
+    observe_errors(acc, j, et2, ey2, abs(s1 * u1), h, h0, max(abs(rate1), abs(rate2)),
+                   threshold)
 
 
 @jitable
@@ -333,3 +320,25 @@ __all__ = [
     "plan_momentum_residual",
     "reset_accumulator",
 ]
+
+
+@jitable
+def observe_errors(acc: Array, j: int, et2: float, ey2: float, margin: float, h: float,
+                   h0: float, peak_rate: float, threshold: float) -> None:
+    """Fold output sample j into the running metrics, given its squared angle error et2
+    [rad^2], squared flat-output error ey2 [rad^2], margin [rad/s], H from the full
+    kinematics [kg m^2/s] and the largest applied joint rate [rad/s] (any number of links)."""
+    acc[_SUM_ET2] += et2
+    acc[_SUM_EY2] += ey2
+    acc[_MAX_ET2] = max(acc[_MAX_ET2], et2)
+    acc[_MAX_EY2] = max(acc[_MAX_EY2], ey2)
+    acc[_LAST_ET2] = et2
+    acc[_LAST_EY2] = ey2
+    if margin < threshold:
+        acc[_HITS] += 1.0
+        if acc[_FIRST] < 0.0:
+            acc[_FIRST] = j
+    acc[_MIN_MARGIN] = min(acc[_MIN_MARGIN], margin)
+    acc[_DRIFT] = max(acc[_DRIFT], abs(h - h0))
+    acc[_PEAK_RATE] = max(acc[_PEAK_RATE], peak_rate)
+    acc[_COUNT] += 1.0

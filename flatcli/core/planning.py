@@ -293,21 +293,27 @@ def margin_zeros(trajectory: FlatTrajectory) -> Array:
 
 @dataclass(frozen=True)
 class PlanSamples:
-    """A plan evaluated on a time grid of n points; a batch of plans adds leading axes (...)."""
+    """A plan of N joints evaluated on a time grid of n points; a batch of plans adds
+    leading axes (...). For the paper's robot N = 2."""
 
     t: Array  # (n,) [s]
-    theta: Array  # (..., n, 3) [rad]
-    theta_dot: Array  # (..., n, 3) [rad/s], exact derivative of the inverse map
-    u1_dot: Array  # (..., n) [rad/s^2]
-    y: Array  # (..., n, 2) [rad]
-    y_dot: Array  # (..., n, 2) [rad/s]
-    y_ddot: Array  # (..., n, 2) [rad/s^2]
-    margin: Array  # (..., n) |sin y1 y1'| [rad/s]
+    theta: Array  # (..., n, N + 1) [rad]
+    theta_dot: Array  # (..., n, N + 1) [rad/s], exact derivative of the inverse map
+    u_dot: Array  # (..., n, N - 1) [rad/s^2], the prolonged inputs u_j' = th_j''
+    y: Array  # (..., n, N) [rad]
+    y_dot: Array  # (..., n, N) [rad/s]
+    y_ddot: Array  # (..., n, N) [rad/s^2]
+    margin: Array  # (..., n) |sigma|: |sin y1 y1'| for N = 2 [rad/s]
     momentum: Array  # (..., n) H from the full kinematics of the planning robot [kg m^2/s]
 
     @property
+    def u1_dot(self) -> Array:
+        """(..., n) u1' = th1'' [rad/s^2]."""
+        return self.u_dot[..., 0]
+
+    @property
     def u2(self) -> Array:
-        """(..., n) th2' [rad/s]."""
+        """(..., n) th2' [rad/s] (the paper's second input, N = 2)."""
         return self.theta_dot[..., 2]
 
 
@@ -356,7 +362,7 @@ class FlatPlan:
             t=t,
             theta=theta,
             theta_dot=theta_dot,
-            u1_dot=state_dot[..., 3],
+            u_dot=state_dot[..., 3:4],
             y=y,
             y_dot=y_dot,
             y_ddot=y_ddot,

@@ -24,6 +24,7 @@ which other trials share the batch, the order, the worker or the executor (bit f
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any, Literal
@@ -33,6 +34,8 @@ from numpy.typing import NDArray
 from scipy.integrate import solve_ivp
 
 from flatcli.core._jit import jitable, kernel
+from flatcli.core.chainloop import ChainGains, run_chain_kernel
+from flatcli.core.chainplan import ChainPlan
 from flatcli.core.control import Gains
 from flatcli.core.integrate import STALL_MARGIN, WORK_ROWS, make_trial_integrators, plan_flag
 from flatcli.core.metrics import (
@@ -259,8 +262,8 @@ class Scenario:
 
     Attributes
     ----------
-    plan : FlatPlan, also the controller's model (its coefficients)
-    gains : Gains
+    plan : FlatPlan (the paper's robot) or ChainPlan (N links), also the controller's model
+    gains : Gains, or ChainGains for a ChainPlan
     dt : output sampling step [s] (the trace, the metrics, track.parquet; also RK4's step);
         must divide the plan's duration
     rate_limit : joint-rate limit [rad/s]; inf for none
@@ -271,8 +274,8 @@ class Scenario:
     max_steps : the adaptive integrator's budget of attempted steps per trial
     """
 
-    plan: FlatPlan
-    gains: Gains
+    plan: FlatPlan | ChainPlan
+    gains: Gains | ChainGains
     dt: float
     rate_limit: float = math.inf
     singular_threshold: float = 1e-2
@@ -310,7 +313,21 @@ class Scenario:
             raise FlatcliError(f"track.atol: must be a finite number > 0, got {self.atol}")
         if not self.max_steps >= 1:
             raise FlatcliError(f"track.max_steps: must be >= 1, got {self.max_steps}")
+        if isinstance(self.plan, ChainPlan):
+            n = self.plan.n_joints
+            if not (isinstance(self.gains, ChainGains) and len(self.gains.kp) == n
+                    and len(self.gains.kv) == n):
+                raise FlatcliError(f"track.kp, track.kv: expected {n} gains each (one per flat "
+                                   f"output) for a robot of {n} joints")
+        elif not isinstance(self.gains, Gains):
+            raise FlatcliError("track.kp, track.kv: expected 2 gains each for the three-link "
+                               "robot")
         object.__setattr__(self, "n_steps", steps)
+
+    @property
+    def n_joints(self) -> int:
+        """N: 2 for the paper's robot."""
+        return self.plan.n_joints if isinstance(self.plan, ChainPlan) else 2
 
     def prepared(self) -> Scenario:
         """This scenario with its reference tables computed (before shipping it to workers)."""
@@ -379,12 +396,15 @@ class Trials:
 
     def __post_init__(self) -> None:
         n = self.links.shape[0]
+        width = self.links.shape[1] if self.links.ndim == 2 else 0
+        joints = width // 4 - 1  # links: (4 (J + 1)) parameters per trial, J >= 2 joints
         if (
-            self.links.shape != (n, 12)
+            width % 4 or joints < 2
             or self.momentum.shape != (n,)
-            or (self.initial.shape != (n, 4))
+            or self.initial.shape != (n, 2 * joints)
         ):
-            raise ValueError("Trials: links (N, 12), momentum (N,), initial (N, 4) expected")
+            raise ValueError("Trials: links (N, 4 (J + 1)), momentum (N,), initial (N, 2 J) "
+                             "expected for J >= 2 joints")
         if isinstance(self.noise, NoiseStreams):
             if self.noise.trial_ids.shape != (n,):
                 raise ValueError("Trials: noise streams need one trial id per trial")
@@ -473,16 +493,32 @@ def simulate(
             f"track.integrator: expected one of {list(INTEGRATORS)}, got {integrator!r}"
         )
     n = scenario.n_steps
-    if isinstance(trials.noise, np.ndarray) and trials.noise.shape[1:] != (n, 3):
-        raise ValueError(f"Trials: noise must be (N, {n}, 3) for this scenario")
+    angles = scenario.n_joints + 1
+    if isinstance(trials.noise, np.ndarray) and trials.noise.shape[1:] != (n, angles):
+        raise ValueError(f"Trials: noise must be (N, {n}, {angles}) for this scenario")
+    if trials.links.shape[1] != 4 * angles:
+        raise ValueError(f"Trials: links (N, {4 * angles}) expected for this scenario")
     N = trials.count
     metrics = np.empty((N, N_METRICS))
     status = np.zeros(N, dtype=np.int64)
     event = np.zeros(N, dtype=np.int64)
     event_time = np.full(N, math.nan)
-    width = KINEMATIC_STATE + 3
+    width = 3 * angles - 2  # the state (2 N), then the applied rates (N + 1)
     trace = np.empty((N, n + 1, width)) if record else np.empty((0, 0, width))
+    if isinstance(scenario.plan, ChainPlan):
+        if integrator == "dop853":
+            raise FlatcliError("track.integrator: \"dop853\" is the reference of the three-link "
+                               "robot; use \"adaptive\" or \"rk4\" for N > 2 links")
+        method = _METHOD_RK4 if integrator == "rk4" else _METHOD_ADAPTIVE
+
+        def run_chain(rows: slice, tables: Array, gen: np.random.Generator, std: float) -> None:
+            run_chain_kernel(scenario, trials, method, record, metrics, status, event,
+                             event_time, trace, rows, tables, gen, std)
+
+        _run_with_noise(run_chain, trials, angles)
+        return Outcome(metrics, status, event, event_time, trace if record else None)
     kc = _plain(scenario.plan.coefficients)
+    assert isinstance(scenario.gains, Gains)  # Scenario checks it against the plan
     gains = Gains(*(float(v) for v in scenario.gains))
     plant_k = plant_coefficients(trials.links)
     links = np.ascontiguousarray(trials.links, dtype=float)
@@ -507,18 +543,25 @@ def simulate(
             event[rows], event_time[rows], trace[rows] if record else trace,
         )
 
+    _run_with_noise(run, trials, angles)
+    return Outcome(metrics, status, event, event_time, trace if record else None)
+
+
+def _run_with_noise(run: Callable[[slice, Array, np.random.Generator, float], None],
+                    trials: Trials, angles: int) -> None:
+    """Call a kernel over the trials with their noise: streamed noise one trial at a time
+    (each has its own generator), a table or none all at once."""
     quiet = np.random.default_rng(0)  # drawn from only when std > 0 and no table is given
     noise = trials.noise
     if isinstance(noise, NoiseStreams) and noise.std > 0:
-        none = np.zeros((1, 0, 3))
-        for i in range(N):
+        none = np.zeros((1, 0, angles))
+        for i in range(trials.count):
             run(slice(i, i + 1), none, noise_generator(noise.seed, int(noise.trial_ids[i])),
                 float(noise.std))
     else:
         tables = np.ascontiguousarray(noise, dtype=float) if isinstance(noise, np.ndarray) \
-            else np.zeros((N, 0, 3))
-        run(slice(0, N), tables, quiet, 0.0)
-    return Outcome(metrics, status, event, event_time, trace if record else None)
+            else np.zeros((trials.count, 0, angles))
+        run(slice(0, trials.count), tables, quiet, 0.0)
 
 
 def _reference_trial(

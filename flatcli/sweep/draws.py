@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.special import ndtri
 
+from flatcli.core.chainplan import ChainPlan
 from flatcli.core.planning import FlatPlan
 from flatcli.experiment import STREAM_PERTURB, initial_rate, plant_from, trial_stream
 from flatcli.spec import LINKS, PERTURB_TARGETS, Perturbation, Spec, SpecError, lookup
@@ -89,7 +90,7 @@ def draw_perturbations(
     return out
 
 
-def nominal_values(spec: Spec, plan: FlatPlan) -> dict[str, Array]:
+def nominal_values(spec: Spec, plan: FlatPlan | ChainPlan) -> dict[str, Array]:
     """Nominal value of every perturbable quantity of a (cell's) spec and its plan."""
     plant = plant_from(spec)
     return {
