@@ -106,10 +106,10 @@ def test_designs_and_ends_are_checked() -> None:
     with pytest.raises(FlatcliError, match="com\\[3\\] = d3"):
         plan_chain(example_chain(3).with_(com=[0.12, 0.1, 0.1, 0.01]), [0, 1, 0.3, 0],
                    [0.4, 2, 0.6, 0], [0.3, 0.3], [0.5, 0.5], 2.0)
-    with pytest.raises(FlatcliError, match="plan.start: expected 4 angles"):
+    with pytest.raises(FlatcliError, match=r"plan\.start: expected 4 angles"):
         plan_chain(example_chain(3), [0, 1, 0.3], [0.4, 2, 0.6, 0], [0.3, 0.3], [0.5, 0.5], 2.0)
-    with pytest.raises(FlatcliError, match="plan.goal_rate: expected 2 rates"):
+    with pytest.raises(FlatcliError, match=r"plan\.goal_rate: expected 2 rates"):
         plan_chain(example_chain(3), [0, 1, 0.3, 0], [0.4, 2, 0.6, 0], [0.3, 0.3], [0.5], 2.0)
-    with pytest.raises(FlatcliError, match="plan.start_rate: the margin"):
+    with pytest.raises(FlatcliError, match=r"plan\.start_rate: the margin"):
         plan_chain(example_chain(3), [0, 1, 0.3, 0], [0.4, 2, 0.6, 0], [0.0, 0.0], [0.5, 0.5],
                    2.0)
