@@ -1,7 +1,7 @@
 """Tests of flatcli.core.model: coefficients, momentum, base rate, design check, parameters.
 
 The referee is an independent symbolic derivation of the angular momentum from the link
-kinematics in the inertial frame (``derivation`` below), not the physics note's formulas.
+kinematics in the inertial frame (``derivation`` below), not the paper's formulas.
 """
 
 from __future__ import annotations
@@ -64,8 +64,8 @@ def derivation() -> Derivation:
     Inertial frame with the base attitude th0 included. The relative angles enter through
     c_i = cos th_i, s_i = sin th_i; the absolute link directions th0, th0 + th1,
     th0 + th1 + th2 follow from the addition formulas; time derivatives by the chain rule
-    d c_i/dt = -s_i q_i, d s_i/dt = c_i q_i (q_i = th_i'). Link CoMs (physics note,
-    "Conventions", derived here again): C0 = O0 + d0 e0, C1 = O0 + l0 e0 + d1 e01,
+    d c_i/dt = -s_i q_i, d s_i/dt = c_i q_i (q_i = th_i'). Link CoMs (the paper's
+    conventions, Sec. II): C0 = O0 + d0 e0, C1 = O0 + l0 e0 + d1 e01,
     C2 = O0 + l0 e0 + l1 e01 + d2 e012. The system CoM is fixed (put at the origin), which
     fixes O0 = -sum_i m_i (C_i - O0) / M. Then H = sum_i m_i r_i x v_i + I_i w_i with
     w0 = q0, w1 = q0 + q1, w2 = q0 + q1 + q2. Everything is a polynomial once multiplied by
@@ -156,7 +156,7 @@ def test_derived_coefficients_equal_kinematic_derivation(derivation: Derivation)
 
 
 def test_symbolic_momentum_does_not_depend_on_base_attitude(derivation: Derivation) -> None:
-    """Physics note: H does not depend on th0 (so no coefficient does, and a4 = 0)."""
+    """H does not depend on th0 (so no coefficient does, and the paper's a4 term is 0)."""
     reduced = derivation.M2H.rem(derivation.ideal)
     g = derivation.gens
     for name in ("c0", "s0"):
@@ -164,7 +164,8 @@ def test_symbolic_momentum_does_not_depend_on_base_attitude(derivation: Derivati
 
 
 def test_paper_coefficients_differ_only_in_b1_when_d2_is_zero(derivation: Derivation) -> None:
-    """Physics note, "Where the paper is wrong": at d2 = 0 only b1 is off, by m0 m2 d0 l1."""
+    """At d2 = 0 the paper's printed coefficients differ from the derivation in b1 only, by
+    m0 m2 d0 l1 (its eq. 32 carries a spurious term)."""
     derived = reduced_abc(derivation, "derived", d2_zero=True)
     paper = reduced_abc(derivation, "paper", d2_zero=True)
     g = derivation.gens
@@ -176,7 +177,8 @@ def test_paper_coefficients_differ_only_in_b1_when_d2_is_zero(derivation: Deriva
 
 @pytest.mark.parametrize("which", ["A", "B", "C"])
 def test_printed_coefficients_against_the_kinematics(derivation: Derivation, which: str) -> None:
-    """Physics note: printed A is wrong for d2 != 0, B through b1; C is right (general d2)."""
+    """Against the derivation: the printed A is wrong for d2 != 0, B through b1; C is right
+    (general d2)."""
     A, B, C = reduced_abc(derivation, "paper")
     M = total_mass(derivation)
     h0, h1, h2 = derivation.h
@@ -271,13 +273,15 @@ def test_momentum_broadcasts_over_batch_shapes() -> None:
 @pytest.mark.parametrize(
     ("model", "name", "value"),
     [
-        # physics note, "The paper's example, recomputed" (same for both models at d2 = 0)
+        # the appendix's formulas at the paper's robot (Sec. VI: m_i = 1, l_i = 0.2,
+        # I_i = 0.0533, d0 = d1 = 0.1, d2 = 0) by hand, e.g. a0 = 3 (3 x 0.0533) + 2 x 0.01
+        # + 0.01 + (0.04 + 0.01) = 0.5597; the same for both models at d2 = 0
         *[(m, "a0", 0.5597) for m in MODELS],
         *[(m, "a1", 0.06) for m in MODELS],
         *[(m, "b0", -0.3798) for m in MODELS],
         *[(m, "c0", -0.1599) for m in MODELS],
         ("paper", "b1", -0.01),  # paper, eq. 32 as printed
-        ("derived", "b1", -0.03),  # physics note (correct b1)
+        ("derived", "b1", -0.03),  # -m0 (l0 - d0)(m2 l1 + m1 d1) = -0.1 x 0.3 (derivation)
         *[(m, n, 0.0) for m in MODELS for n in ("a2", "a3", "b2", "b3", "c2", "c3")],
     ],
 )
@@ -336,7 +340,7 @@ def test_base_rate_makes_full_kinematics_conserve_h0(
 
 
 def test_base_rate_with_printed_b1_violates_momentum() -> None:
-    """Physics note: the printed b1 does not conserve H on the paper's robot (d2 = 0).
+    """The printed b1 does not conserve H on the paper's robot (d2 = 0).
 
     Expected H = (b1_paper - b1_derived) cos th1 th1' / M (from H M = A th0' - B th1' - C th2').
     """

@@ -66,7 +66,7 @@ class Links(NamedTuple):
 class Coefficients(NamedTuple):
     """Coefficients of the reduced momentum constraint (see the module docstring).
 
-    ``c2`` is the coefficient of cos th2 in C (the physics note calls it c2'). All in
+    ``c2`` is the coefficient of cos th2 in C (c2' elsewhere, to tell it from cos th2). All in
     [kg^2 m^2]. With d2 = 0 only a0, a1, b0, b1, c0 are non-zero.
     """
 
@@ -374,7 +374,7 @@ class FlatnessCheck:
 def flatness_check(params: RobotParams) -> FlatnessCheck:
     """Do the paper's flat outputs (and their n-link generalisation, ``chainflat``) apply?
 
-    The conditions (Franch et al. 2003, Sec. V, with the errata of the physics note):
+    The conditions (Franch et al. 2003, Sec. V, with "!=" where the extracted text has "="):
     d2 = 0 (link 2's centre of mass on joint 2), and c0 a1 != 0, i.e. I2 != 0, m0 != 0,
     l0 != d0 and m1 d1 + m2 l1 != 0, since det[g1, g2, [g1, g2]] = c0 a1 sin th1 / A^2.
     For N links: d_N = 0, I_N != 0, and K_10 = m0 (l0 - d0)(m1 d1 + (m2 + ... + mN) l1) / M
