@@ -10,7 +10,7 @@ import pandas as pd
 
 from flatcli.core.model import PAPER_ROBOT
 from flatcli.core.planning import plan_point_to_point
-from flatcli.report import Progress, fmt, plan_summary, plot_plan, summarize_trials, table
+from flatcli.report import fmt, plan_summary, plot_plan, summarize_trials, table
 
 
 def test_fmt_is_compact_and_marks_missing_values() -> None:
@@ -65,25 +65,3 @@ def test_summary_counts_and_statistics_on_a_handmade_frame() -> None:
     assert row["singular_fraction"] == 2 / 3  # of the three simulated trials
     assert row["min_margin_median"] == 3.0  # median(1, 3, 100)
     assert summary.iloc[1]["g"] == "b"
-
-
-def test_progress_prints_lines_off_a_terminal(tmp_path: Path) -> None:
-    path = tmp_path / "log"
-    with path.open("w") as stream:
-        progress = Progress("x", stream=stream, interval=0.0)
-        progress.start(10, 4, "local")
-        progress.advance(6)
-        progress.close()
-    text = path.read_text()
-    assert "10 trials on local, resuming with 4 done" in text
-    assert "10/10 trials (100%)" in text
-
-
-def test_quiet_progress_prints_nothing(tmp_path: Path) -> None:
-    path = tmp_path / "log"
-    with path.open("w") as stream:
-        progress = Progress("x", quiet=True, stream=stream, interval=0.0)
-        progress.start(10, 0, "local")
-        progress.advance(10)
-        progress.close()
-    assert path.read_text() == ""
