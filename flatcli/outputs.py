@@ -55,8 +55,12 @@ def write_track(directory: Path, run: TrackRun, record: Mapping[str, Any],
     write_json(directory / "run.json", record)
     names = ["track.parquet", "metrics.json"]
     if plot_title is not None:
-        plot_track(run.columns, directory / "track.png", plot_title,
-                   Limits(singular_threshold=run.scenario.singular_threshold,
-                          rate_limit=run.scenario.rate_limit))
+        plot_track(run.columns, directory / "track.png", plot_title, track_limits(run))
         names.append("track.png")
     return names
+
+
+def track_limits(run: TrackRun) -> Limits:
+    """The thresholds a track figure draws: the singular threshold and the rate limit."""
+    return Limits(singular_threshold=run.scenario.singular_threshold,
+                  rate_limit=run.scenario.rate_limit)

@@ -21,10 +21,11 @@ from flatcli.core.model import constraint_coefficients
 from flatcli.core.optimize import required_fold
 from flatcli.core.planning import FlatPlan, PlanSamples
 from flatcli.experiment import TrackRun, plan_and_optimization, plan_from, run_track
-from flatcli.outputs import plan_frame, track_frame
+from flatcli.outputs import plan_frame, track_frame, track_limits
 from flatcli.report import (
     COMPLETED,
     Progress,
+    cell_text,
     finish_grid,
     fmt,
     new_figure,
@@ -131,7 +132,8 @@ def run_paper(base: Spec, out: Path, quiet: bool) -> Reproduction:
             if model == "derived":
                 plot_track(cols, out / f"fig4_feedback_{reading}.png",
                            f"Fig. 4: feedback from th(0) = (1.96, 0.8, -0.1), gains {reading}: "
-                           f"kp = {gains['track.kp']}, kv = {gains['track.kv']}")
+                           f"kp = {gains['track.kp']}, kv = {gains['track.kv']}",
+                           track_limits(run))
     _say(quiet, f"plans, Figs. 2-4 and closed-loop runs written to {out}")
     return Reproduction(plans, tracks, [])
 
@@ -349,7 +351,7 @@ def montecarlo_findings(summary: pd.DataFrame) -> list[str]:
         if sel.empty:
             continue
         row = sel.sort_values("singular_fraction").iloc[-1]
-        worst = ", ".join(f"{k} = {row[k]}" for k in keys)
+        worst = ", ".join(f"{k} = {cell_text(row[k])}" for k in keys)
         where = f" (worst at {worst})" if row["singular_fraction"] > 0 else ""
         lines.append(
             f"- gains {label}: singular-hit rate {fmt(sel['singular_fraction'].min(), 3)} to "

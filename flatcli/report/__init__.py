@@ -10,7 +10,14 @@ A sweep's progress bar lives in ``flatcli.progress`` (re-exported here as ``Prog
 """
 
 from flatcli.progress import Progress
-from flatcli.report.figures import finish_grid, new_figure, plot_plan, plot_track, save_figure
+from flatcli.report.figures import (
+    Limits,
+    finish_grid,
+    new_figure,
+    plot_plan,
+    plot_track,
+    save_figure,
+)
 from flatcli.report.runs import (
     metrics_text,
     optimization_summary,
@@ -21,6 +28,7 @@ from flatcli.report.runs import (
 from flatcli.report.summary import (
     COMPLETED,
     ERROR_METRICS,
+    cell_text,
     short_key,
     summarize_trials,
     summary_markdown,
@@ -31,7 +39,9 @@ from flatcli.report.tables import fmt, table
 __all__ = [
     "COMPLETED",
     "ERROR_METRICS",
+    "Limits",
     "Progress",
+    "cell_text",
     "finish_grid",
     "fmt",
     "metrics_text",

@@ -154,7 +154,7 @@ def summary_markdown(summary: pd.DataFrame, grid_keys: Sequence[str]) -> str:
 
     ``grid_keys``: the grid columns of ``summary`` to list in the *Cells* table."""
     def rows(cols: Sequence[str]) -> list[list[object]]:
-        return [[int(r["cell"]), *(_cell_value(r[c]) for c in cols)]
+        return [[int(r["cell"]), *(cell_text(r[c]) for c in cols)]
                 for _, r in summary.iterrows()]
 
     def shares(names: Sequence[str]) -> list[list[object]]:
@@ -198,8 +198,9 @@ def summary_markdown(summary: pd.DataFrame, grid_keys: Sequence[str]) -> str:
     return "\n".join(parts)
 
 
-def _cell_value(value: Any) -> object:
-    """A summary value for a table: a list (or array) of numbers as '[a, b]'."""
+def cell_text(value: Any) -> object:
+    """A summary value for a table or a sentence: a list (or array) of numbers as '[a, b]',
+    anything else as it is."""
     if isinstance(value, list | tuple | np.ndarray):
         return "[" + ", ".join(fmt(float(v)) for v in value) + "]"
     return value
