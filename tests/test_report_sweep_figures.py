@@ -10,7 +10,13 @@ import pandas as pd
 from flatcli.core.metrics import METRIC_NAMES
 from flatcli.report.figures import new_figure
 from flatcli.report.summary import summarize_trials
-from flatcli.report.sweep_figures import grid_axis, log_boxes, plot_sweep
+from flatcli.report.sweep_figures import (
+    SweepData,
+    grid_axis,
+    log_boxes,
+    plot_errors,
+    plot_sweep,
+)
 from flatcli.storage import write_parquet
 
 #: A sweep's spec as its provenance holds it (JSON: keys sorted, inf as "inf").
@@ -81,7 +87,7 @@ def test_a_cell_with_nothing_resolved_is_drawn_and_said(tmp_path: Path) -> None:
     tree = {"sweep": {"grid": {"track.sensor_noise": [0.0, 0.1]}}}
     write_parquet(tmp_path / "trials.parquet", trials, {"spec": tree})
     write_parquet(tmp_path / "summary.parquet", summarize_trials(trials, cells), {"spec": tree})
-    assert len(plot_sweep(tmp_path)) == 4
+    assert plot_errors(SweepData.load(tmp_path), tmp_path / "e.png").exists()
     ax = new_figure(4, 3).subplots()
     log_boxes(ax, [np.array([1e-3, 1e-2, 0.0]), np.array([])])
     texts = [t.get_text() for t in ax.texts]

@@ -241,13 +241,16 @@ def shares(ax: Any, summary: pd.DataFrame, x: Array, names: Sequence[str] | None
     """Shares of trials with their 95 % Wilson intervals, one marker series per kind."""
     chosen = [s for s in SHARES if names is None or s[0] in names]
     offsets = np.linspace(-spread, spread, len(chosen)) if len(chosen) > 1 else [0.0]
+    top = 0.0
     for (name, label, colour), dx in zip(chosen, offsets, strict=True):
         p = summary[f"{name}_fraction"].to_numpy(dtype=np.float64)
         low = summary[f"{name}_fraction_low"].to_numpy(dtype=np.float64)
         high = summary[f"{name}_fraction_high"].to_numpy(dtype=np.float64)
         ax.errorbar(x + dx, p, yerr=[p - low, high - p], fmt="o", ms=3.5, capsize=2,
                     lw=1, color=colour, label=label)
-    ax.set_ylim(bottom=-0.02)
+        if np.isfinite(high).any():
+            top = max(top, float(np.nanmax(high)))
+    ax.set_ylim(-0.02, max(0.05, 1.35 * top))  # headroom for the legend above the points
 
 
 def _finish(fig: Figure, title: str, path: Path) -> Path:
@@ -290,8 +293,11 @@ def plot_shares_vs_size(sweep: SweepData, path: Path) -> Path:
     ``sweep.perturb.*`` grid key), one line per combination of the other grid values;
     per cell when there is no such key."""
     summary = sweep.summary
+    grid = sweep.tree.get("sweep", {}).get("grid", {})
     size_key = next((k for k in summary.columns if k.startswith("sweep.perturb.")
-                     and pd.api.types.is_float_dtype(summary[k])), None)
+                     and k in grid and not _is_group(grid[k])
+                     and pd.api.types.is_float_dtype(summary[k]) and summary[k].nunique() > 1),
+                    None)
     kinds = ["singular", "diverged", *(n for n in FAILURES
                                        if n != "diverged" and summary[n].sum() > 0)]
     titles = {"singular": "simulated trials with a singular hit",
@@ -310,20 +316,26 @@ def plot_shares_vs_size(sweep: SweepData, path: Path) -> Path:
     others = [name for name, _ in sweep.axis if not name.startswith(short_key(size_key))]
     labels = [", ".join(f"{name} = {texts[i]}" for name, texts in sweep.axis
                         if name in others) for i in range(len(sweep.cells))]
-    fig = new_figure(4.2 * len(kinds) + 1.5, 4.6)
+    width = 4.2 * len(kinds) + 1.5
+    fig = new_figure(width, 4.6)
     axes = fig.subplots(1, len(kinds), sharex=True, squeeze=False)[0]
     x = summary[size_key].to_numpy(dtype=np.float64)
+    log = bool(np.all(x > 0))
+    series = list(dict.fromkeys(labels))
+    step = 0.03 * (np.ptp(np.log(x)) if log else np.ptp(x)) / max(len(series) - 1, 1)
     for ax, kind in zip(axes, kinds, strict=True):
-        for j, label in enumerate(dict.fromkeys(labels)):
+        for j, label in enumerate(series):
             rows = np.array([lab == label for lab in labels])
             order = np.argsort(x[rows])
             part = summary[rows].iloc[order]
             p = part[f"{kind}_fraction"].to_numpy(dtype=np.float64)
             low = part[f"{kind}_fraction_low"].to_numpy(dtype=np.float64)
             high = part[f"{kind}_fraction_high"].to_numpy(dtype=np.float64)
-            ax.errorbar(x[rows][order] * (1 + 0.03 * (j - 1)), p, yerr=[p - low, high - p],
-                        fmt="o-", ms=3.5, capsize=2, lw=1, label=label or "all cells")
-        if np.all(x > 0):
+            shift = step * (j - (len(series) - 1) / 2)
+            xs = x[rows][order] * np.exp(shift) if log else x[rows][order] + shift
+            ax.errorbar(xs, p, yerr=[p - low, high - p], fmt="o-", ms=3.5, capsize=2, lw=1,
+                        label=label or "all cells")
+        if log:
             ax.set_xscale("log")
         ax.set_xlabel(f"{short_key(size_key)} [{key_unit(sweep.tree, size_key) or '1'}]")
         ax.set_title(titles[kind], fontsize=10)
@@ -331,8 +343,10 @@ def plot_shares_vs_size(sweep: SweepData, path: Path) -> Path:
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("share of trials (95 % interval)")
     handles, names = axes[0].get_legend_handles_labels()
-    fig.legend(handles, names, fontsize=7, loc="lower center", ncol=min(3, len(names)))
-    rows_of_legend = math.ceil(len(names) / 3)
+    longest = max(len(n) for n in names)
+    ncol = max(1, min(3, len(names), int(width * 14 / (longest + 6))))  # ~14 chars per inch
+    fig.legend(handles, names, fontsize=7, loc="lower center", ncol=ncol)
+    rows_of_legend = math.ceil(len(names) / ncol)
     fig.suptitle(f"Singular hits and failures against {short_key(size_key)} (points slightly "
                  "spread in x to keep the intervals apart)", fontsize=11)
     fig.tight_layout(rect=(0, 0.05 + 0.045 * rows_of_legend, 1, 0.97))
