@@ -293,7 +293,8 @@ def summarize(directory: Path, plot: bool) -> None:
         fail(f"{summary_md} not found: not a finished sweep directory")
     click.echo(summary_md.read_text(), nl=False)
     if plot:
-        paths = plot_sweep(directory)
+        with user_errors():
+            paths = plot_sweep(directory)
         click.echo("wrote " + ", ".join(str(p) for p in paths))
 
 

@@ -6,8 +6,10 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pytest
 
 from flatcli.core.metrics import METRIC_NAMES
+from flatcli.core.model import FlatcliError
 from flatcli.report.figures import new_figure
 from flatcli.report.summary import summarize_trials
 from flatcli.report.sweep_figures import (
@@ -93,3 +95,11 @@ def test_a_cell_with_nothing_resolved_is_drawn_and_said(tmp_path: Path) -> None:
     texts = [t.get_text() for t in ax.texts]
     assert "none\nresolved" in texts  # the empty cell
     assert "1 values below 1e-16 drawn at it" in texts  # the 0 on a log axis
+
+
+def test_a_summary_without_the_failure_shares_is_refused_in_one_line(tmp_path: Path) -> None:
+    directory = _sweep_dir(tmp_path)
+    summary = pd.read_parquet(directory / "summary.parquet")
+    write_parquet(directory / "summary.parquet", summary.drop(columns=["resolved"]), {})
+    with pytest.raises(FlatcliError, match="written by an older flatcli"):
+        SweepData.load(directory)

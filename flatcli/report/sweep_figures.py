@@ -21,6 +21,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from flatcli.core.metrics import RESOLVED
+from flatcli.core.model import FlatcliError
 from flatcli.report.figures import new_figure, save_figure
 from flatcli.report.summary import FAILURES, short_key
 from flatcli.report.tables import fmt
@@ -67,7 +68,12 @@ class SweepData:
 
     @classmethod
     def load(cls, directory: Path) -> SweepData:
+        """A finished sweep's tables (FlatcliError if they predate the columns drawn)."""
         summary = pd.read_parquet(directory / "summary.parquet")
+        if "resolved" not in summary.columns:
+            raise FlatcliError(
+                f"{directory}/summary.parquet was written by an older flatcli, without the "
+                "failure shares the figures draw; run the sweep again with --force")
         trials = pd.read_parquet(directory / "trials.parquet", columns=TRIAL_COLUMNS)
         tree = read_provenance(directory / "summary.parquet").get("spec", {})
         return cls(summary, trials, tree)
