@@ -27,6 +27,7 @@ from flatcli.executors import EXECUTORS
 from flatcli.experiment import checked, plan_and_optimization, plant_from, robot_from, run_track
 from flatcli.outputs import plan_frame, write_track
 from flatcli.report import (
+    Limits,
     Progress,
     metrics_text,
     optimization_summary,
@@ -173,7 +174,12 @@ def plan(spec: Path | None, sets: tuple[str, ...], out: Path | None, quiet: bool
     write_parquet(directory / "plan.parquet", plan_frame(samples), record)
     write_json(directory / "run.json", record)
     if plot:
-        plot_plan(samples, directory / "plan.png", f"plan {s.name!r} ({planned.model} model)")
+        opt_spec = s.plan.optimize
+        limits = Limits(singular_threshold=s.track.singular_threshold) if opt is None else Limits(
+            s.track.singular_threshold, opt_spec.min_margin, opt_spec.rate_limit,
+            opt_spec.angle_limit)
+        plot_plan(samples, directory / "plan.png", f"plan {s.name!r} ({planned.model} model)",
+                  limits)
     say(quiet, plan_text(s.name, planned, samples))
     if opt is not None:
         say(quiet, "\n" + optimization_text(opt))
@@ -298,7 +304,8 @@ def summarize(directory: Path, plot: bool) -> None:
         fail(f"{summary_md} not found: not a finished sweep directory")
     click.echo(summary_md.read_text(), nl=False)
     if plot:
-        paths = plot_sweep(directory)
+        with user_errors():
+            paths = plot_sweep(directory)
         click.echo("wrote " + ", ".join(str(p) for p in paths))
 
 

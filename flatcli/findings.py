@@ -19,7 +19,7 @@ import pandas as pd
 from flatcli.core.metrics import RESOLVED, Metric, Status
 from flatcli.core.planning import FlatPlan
 from flatcli.experiment import TrackRun, plan_and_optimization, run_track
-from flatcli.report import fmt, table
+from flatcli.report import cell_text, fmt, table
 from flatcli.spec import Spec
 
 #: The two readings of the printed gains "kv1 = 100, kp1 = 10, kv2 = 110, kp2 = 13".
@@ -145,7 +145,7 @@ def study_findings(summary: pd.DataFrame, trials_path: Path) -> list[str]:
         diverged = int((trials["status"] == "diverged").sum())
         failing = sel[(sel["diverged"] + sel["unresolved"]) > 0]
         where = "; ".join(
-            f"cell {int(r['cell'])} ({', '.join(f'{k} = {r[k]}' for k in grid)}): "
+            f"cell {int(r['cell'])} ({', '.join(f'{k} = {cell_text(r[k])}' for k in grid)}): "
             f"{int(r['diverged'])} diverged, {int(r['unresolved'])} unresolved"
             for _, r in failing.iterrows())
         lines.append(

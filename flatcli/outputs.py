@@ -2,7 +2,9 @@
 
 ``flatcli plan``, ``flatcli track``, ``flatcli sweep --rerun`` and ``flatcli reproduce`` all
 write their tables through these functions, so a plan or a track table has the same columns
-whichever command wrote it (the README's *Output files* lists them).
+whichever command wrote it (the README's *Output files* lists them). Each frame carries its
+columns' units in ``frame.attrs["units"]`` (``flatcli.units``), which ``write_parquet`` writes as
+Arrow field metadata; a value that does not apply (a sample after a trial stopped) is null.
 """
 
 from __future__ import annotations
@@ -15,8 +17,9 @@ import pandas as pd
 
 from flatcli.core.planning import PlanSamples
 from flatcli.experiment import TrackRun
-from flatcli.report import plot_track
+from flatcli.report import Limits, plot_track
 from flatcli.storage import write_json, write_parquet
+from flatcli.units import units_of
 
 
 def plan_frame(samples: PlanSamples) -> pd.DataFrame:
@@ -33,12 +36,15 @@ def plan_frame(samples: PlanSamples) -> pd.DataFrame:
         frame[f"y2{name}"] = arr[:, 1]
     frame["margin"] = samples.margin
     frame["momentum"] = samples.momentum
+    frame.attrs["units"] = units_of(frame.columns)
     return frame
 
 
 def track_frame(run: TrackRun) -> pd.DataFrame:
     """track.parquet's rows (``TrackRun.columns``)."""
-    return pd.DataFrame(run.columns)
+    frame = pd.DataFrame(run.columns)
+    frame.attrs["units"] = units_of(frame.columns)
+    return frame
 
 
 def write_track(directory: Path, run: TrackRun, record: Mapping[str, Any],
@@ -49,6 +55,12 @@ def write_track(directory: Path, run: TrackRun, record: Mapping[str, Any],
     write_json(directory / "run.json", record)
     names = ["track.parquet", "metrics.json"]
     if plot_title is not None:
-        plot_track(run.columns, directory / "track.png", plot_title)
+        plot_track(run.columns, directory / "track.png", plot_title, track_limits(run))
         names.append("track.png")
     return names
+
+
+def track_limits(run: TrackRun) -> Limits:
+    """The thresholds a track figure draws: the singular threshold and the rate limit."""
+    return Limits(singular_threshold=run.scenario.singular_threshold,
+                  rate_limit=run.scenario.rate_limit)

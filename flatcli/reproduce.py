@@ -28,7 +28,7 @@ from flatcli.findings import (
     track_plans,
     tracked_plans_table,
 )
-from flatcli.outputs import plan_frame, track_frame
+from flatcli.outputs import plan_frame, track_frame, track_limits
 from flatcli.report import (
     Progress,
     finish_grid,
@@ -132,7 +132,8 @@ def run_paper(base: Spec, out: Path, quiet: bool) -> Reproduction:
             if model == "derived":
                 plot_track(cols, out / f"fig4_feedback_{reading}.png",
                            f"Fig. 4: feedback from th(0) = (1.96, 0.8, -0.1), gains {reading}: "
-                           f"kp = {gains['track.kp']}, kv = {gains['track.kv']}")
+                           f"kp = {gains['track.kp']}, kv = {gains['track.kv']}",
+                           track_limits(run))
     _say(quiet, f"plans, Figs. 2-4 and closed-loop runs written to {out}")
     return Reproduction(plans, tracks, [])
 

@@ -64,26 +64,38 @@ def write_text(path: Path, text: str) -> None:
 
 
 def to_jsonable(value: Any) -> Any:
-    """JSON-ready copy: numpy scalars and arrays as Python values, non-finite floats as strings."""
+    """JSON-ready copy: numpy scalars and arrays as Python values; nan (not applicable) as
+    null; inf and -inf as the strings "inf" and "-inf".
+
+    JSON has no inf. The only infinite values flatcli writes are spec values whose inf means
+    "no limit" (``track.rate_limit``, ``plan.optimize.angle_limit``, ...): null there would
+    read as "not set" (which a nullable key means something else by), and "inf" is how TOML
+    spells it and what the spec's canonical JSON (its digest) has always held. Measured values
+    are never inf (a trial stops before its state leaves the divergence bound); a metric that
+    does not apply is nan, hence null.
+    """
     if isinstance(value, Mapping):
         return {str(k): to_jsonable(v) for k, v in value.items()}
     if isinstance(value, list | tuple | np.ndarray):
         return [to_jsonable(v) for v in value]
     if isinstance(value, np.generic):
         value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
+    if isinstance(value, float) and math.isnan(value):
+        return None
+    if isinstance(value, float) and math.isinf(value):
         return str(value)
     return value
 
 
 def write_json(path: Path, obj: Any) -> None:
-    """Pretty JSON with sorted keys (non-finite floats as "inf", "nan")."""
+    """Pretty JSON with sorted keys (nan as null, inf as "inf": ``to_jsonable``)."""
     write_text(path, json.dumps(to_jsonable(obj), indent=2, sort_keys=True) + "\n")
 
 
 def write_parquet(path: Path, frame: pd.DataFrame, provenance: Mapping[str, Any]) -> None:
-    """Write a DataFrame as Parquet, with ``provenance`` as JSON in the schema metadata."""
-    write_table(path, pa.Table.from_pandas(frame, preserve_index=False), provenance)
+    """Write a DataFrame as Parquet, with ``provenance`` as JSON in the schema metadata (nan as
+    null, units from ``frame.attrs["units"]``: ``arrow_table``)."""
+    write_table(path, arrow_table(frame), provenance)
 
 
 def write_table(path: Path, table: pa.Table, provenance: Mapping[str, Any]) -> None:
@@ -151,3 +163,39 @@ def run_record(command: str, spec_tree: Mapping[str, Any], **extra: Any) -> dict
         "platform": platform.platform(),
         **extra,
     }
+
+
+# ---------------------------------------------------------------------------------------
+# Nulls and units of the Parquet tables.
+
+#: Key of an Arrow field's metadata holding its column's unit (``flatcli.units``).
+UNIT_KEY = b"unit"
+
+
+def arrow_table(frame: pd.DataFrame) -> pa.Table:
+    """An Arrow table of a DataFrame: nan as null (not applicable), and the units of
+    ``frame.attrs["units"]`` ({column: unit}, if any) as field metadata (``with_units``)."""
+    table = pa.Table.from_pandas(frame, preserve_index=False)  # nan -> null
+    return with_units(table, frame.attrs.get("units", {}))
+
+
+def null_where_nan(values: Any) -> pa.Array:
+    """A float column as Arrow, nan (not applicable) as null."""
+    return pa.array(np.asarray(values, dtype=np.float64), from_pandas=True)
+
+
+def with_units(table: pa.Table, units: Mapping[str, str]) -> pa.Table:
+    """``table`` with ``units[name]`` under ``UNIT_KEY`` in the metadata of each named field
+    (other fields as they were)."""
+    fields = []
+    for f in table.schema:
+        if f.name in units:
+            f = f.with_metadata({**(f.metadata or {}), UNIT_KEY: units[f.name].encode()})
+        fields.append(f)
+    return table.cast(pa.schema(fields, metadata=table.schema.metadata))
+
+
+def column_units(path: Path) -> dict[str, str]:
+    """{column: unit} of a Parquet file's columns that carry one."""
+    return {f.name: f.metadata[UNIT_KEY].decode() for f in pq.read_schema(path)
+            if f.metadata and UNIT_KEY in f.metadata}

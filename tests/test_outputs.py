@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pandas as pd
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
 
 from flatcli.experiment import plan_from, run_track
 from flatcli.outputs import plan_frame, track_frame, write_track
 from flatcli.spec import resolve
+from flatcli.storage import column_units, write_parquet
 
 #: The columns the README's *Output files* lists for plan.parquet and track.parquet.
 PLAN_COLUMNS = ["t", "theta0", "theta1", "theta2", "theta0_dot", "theta1_dot", "theta2_dot",
@@ -35,3 +40,41 @@ def test_track_files(tmp_path: Path) -> None:
     assert names == ["track.parquet", "metrics.json"]
     assert not (tmp_path / "track.png").exists()
     assert len(pd.read_parquet(tmp_path / "track.parquet")) == 201
+
+
+def _float_columns(path: Path) -> list[str]:
+    return [f.name for f in pq.read_schema(path) if pa.types.is_floating(f.type)]
+
+
+def test_plan_and_track_tables_carry_a_unit_on_every_column(tmp_path: Path) -> None:
+    plan = plan_from(resolve({}))
+    write_parquet(tmp_path / "plan.parquet", plan_frame(plan.sample(plan.grid(11))), {})
+    run = run_track(resolve({"track": {"dt": 0.01}}))
+    write_track(tmp_path, run, {"command": "test"})
+    for name, columns in (("plan.parquet", PLAN_COLUMNS), ("track.parquet", TRACK_COLUMNS)):
+        units = column_units(tmp_path / name)
+        assert _float_columns(tmp_path / name) == columns  # every column is a number
+        assert set(units) == set(columns), name
+    units = column_units(tmp_path / "track.parquet")
+    assert units["t"] == "s" and units["theta1"] == "rad" and units["u1"] == "rad/s"
+    assert column_units(tmp_path / "plan.parquet")["u1_dot"] == "rad/s^2"
+    assert units["momentum"] == "kg m^2/s"
+
+
+def test_a_trial_that_stopped_early_writes_null_not_nan(tmp_path: Path) -> None:
+    # u1(0) of the wrong sign: the loop must cross u1 = 0, the singular set, and stops there
+    run = run_track(resolve({"track": {"dt": 0.01, "initial_rate": -0.05}}))
+    assert run.metrics["status"] == "diverged"
+    write_track(tmp_path, run, {"command": "test"})
+    text = (tmp_path / "metrics.json").read_text()
+    metrics = json.loads(text)
+    assert metrics["err_theta_final"] is None and metrics["err_y_final"] is None
+    assert metrics["peak_torque"] is None  # the kinematic plant has no torques
+    assert 0 < metrics["event_time"] < 2.0
+    assert '"nan"' not in text and '"inf"' not in text
+    table = pq.read_table(tmp_path / "track.parquet")
+    after = pc.greater(table.column("t"), metrics["event_time"] + 0.01)
+    assert pc.any(after).as_py()  # rows after the stop exist, with no state
+    for name in _float_columns(tmp_path / "track.parquet"):
+        assert not pc.any(pc.is_nan(table.column(name))).as_py(), name
+    assert pc.filter(table.column("theta1"), after).null_count == pc.sum(after).as_py()

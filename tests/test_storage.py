@@ -9,13 +9,20 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
 import pytest
 
 from flatcli.storage import (
+    UNIT_KEY,
     atomic_path,
+    column_units,
+    null_where_nan,
     read_provenance,
     run_record,
     to_jsonable,
+    with_units,
     write_json,
     write_parquet,
     write_text,
@@ -46,9 +53,32 @@ def test_atomic_path_replaces_whole_file(tmp_path: Path) -> None:
 
 def test_json_handles_numpy_and_non_finite(tmp_path: Path) -> None:
     path = tmp_path / "a.json"
-    write_json(path, {"b": np.float64(1.5), "a": [np.int64(2), math.inf], "c": np.array([1.0])})
-    assert json.loads(path.read_text()) == {"a": [2, "inf"], "b": 1.5, "c": [1.0]}
-    assert to_jsonable({"x": (1, math.nan)}) == {"x": [1, "nan"]}
+    write_json(path, {"b": np.float64(1.5), "a": [np.int64(2), math.inf], "c": np.array([1.0]),
+                      "d": np.float64(math.nan)})
+    # nan (not applicable) is null; inf (a spec's "no limit") the string TOML spells it with
+    assert json.loads(path.read_text()) == {"a": [2, "inf"], "b": 1.5, "c": [1.0], "d": None}
+    assert "nan" not in path.read_text().lower()
+    assert to_jsonable({"x": (1, math.nan, -math.inf)}) == {"x": [1, None, "-inf"]}
+
+
+def test_parquet_nulls_for_nan_and_units_as_field_metadata(tmp_path: Path) -> None:
+    frame = pd.DataFrame({"t": [0.0, 1.0], "err": [0.5, math.nan], "status": ["ok", "diverged"],
+                          "com": [[0.1, 0.0], [0.1, 0.005]]})
+    frame.attrs["units"] = {"t": "s", "err": "rad", "com": "m"}
+    path = tmp_path / "x.parquet"
+    write_parquet(path, frame, {"digest": "abc"})
+    table = pq.read_table(path)
+    assert table.column("err").null_count == 1
+    assert not pc.any(pc.is_nan(table.column("err"))).as_py()
+    assert pa.types.is_list(table.schema.field("com").type)
+    assert column_units(path) == {"t": "s", "err": "rad", "com": "m"}
+    assert read_provenance(path) == {"digest": "abc"}
+    # a table built from arrays: nan -> null, units attached to the named fields only
+    arrays = pa.table({"a": null_where_nan([1.0, math.nan]), "b": ["x", "y"]})
+    table = with_units(arrays, {"a": "kg"})
+    assert table.column("a").null_count == 1
+    assert table.schema.field("a").metadata == {UNIT_KEY: b"kg"}
+    assert table.schema.field("b").metadata is None
 
 
 def test_parquet_round_trip_with_provenance(tmp_path: Path) -> None:

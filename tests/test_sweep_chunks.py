@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.compute as pc
 
 from flatcli.core.metrics import METRIC_NAMES
 from flatcli.spec import resolve
+from flatcli.storage import UNIT_KEY
 from flatcli.sweep import Chunk, ChunkResult, grid_cell_text, layout, run_chunk
+from flatcli.sweep.chunks import grid_columns
 
 
 def test_a_chunk_has_one_row_per_trial_with_draws_and_metrics_by_name() -> None:
@@ -40,3 +43,85 @@ def test_grid_values_as_stored_in_a_column() -> None:
     assert grid_cell_text({"label": "swapped", "track.kp": [1, 2]}) == "swapped"
     assert grid_cell_text({"track.kp": [1, 2]}) == '{"track.kp": [1, 2]}'
     assert grid_cell_text("rk4") == "rk4"
+
+
+#: Trials that fail in the ways a sweep records: u1(0) drawn around 0 (those started with the
+#: wrong sign cross the singular set: diverged), masses scaled by 1 + U(-1.3, 0.3), some to
+#: <= 0 kg (error).
+FAILING = {
+    "plan": {"duration": 1.0, "start": [1.8, 1.0, 0.0], "goal": [1.5, 1.5, 0.0]},
+    "track": {"dt": 0.01, "initial": [1.8, 1.0, 0.0], "initial_rate": 0.1},
+    "sweep": {"trials": 24, "seed": 5,
+              "perturb": {"initial_rate": {"dist": "uniform", "low": -0.2, "high": 0.05},
+                          "mass": {"dist": "uniform", "low": -1.3, "high": 0.3,
+                                   "relative": True}},
+              "grid": {"gains": [{"label": "swapped", "track.kp": [100, 110],
+                                  "track.kv": [10, 13]}],
+                       "plant.com": [[0.1, 0.1, 0.0]],
+                       "track.integrator": ["adaptive", "rk4"]}},
+}
+
+
+def _rows(table: pa.Table, mask: list[bool], column: str) -> pa.Array:
+    return pc.filter(table.column(column), pa.array(mask))
+
+
+def test_not_applicable_is_null_never_nan_and_every_number_has_a_unit() -> None:
+    lay = layout(resolve(FAILING))
+    for cell in lay.cells:
+        table = run_chunk(cell, Chunk(cell.index, cell.index * 24, cell.index * 24 + 24)).table
+        status = table.column("status").to_pylist()
+        assert {"ok", "diverged", "error"} <= set(status), status
+        for field in table.schema:
+            if pa.types.is_floating(field.type):
+                assert not pc.any(pc.is_nan(table.column(field.name))).as_py(), field.name
+            numeric = pa.types.is_floating(field.type) or pa.types.is_list(field.type) or (
+                pa.types.is_integer(field.type) and field.name not in ("trial", "cell"))
+            if numeric:  # a unit, or "1" for a pure number
+                assert field.metadata and field.metadata.get(UNIT_KEY), field.name
+        error = [s == "error" for s in status]
+        for metric in (*METRIC_NAMES, "event_time"):  # an error trial never ran
+            assert _rows(table, error, metric).null_count == sum(error), metric
+        diverged = [s == "diverged" for s in status]
+        for metric in ("err_theta_final", "err_y_final"):  # it never reached the end
+            assert _rows(table, diverged, metric).null_count == sum(diverged)
+        times = _rows(table, diverged, "event_time")  # when it stopped
+        assert times.null_count == 0 and 0 < pc.min(times).as_py() <= 1.0
+        ok = [s == "ok" for s in status]
+        assert _rows(table, ok, "event_time").null_count == sum(ok)
+        assert _rows(table, ok, "err_theta_final").null_count == 0
+        simulated = [s != "error" for s in status]
+        no_hit = [s and h == 0 for s, h in zip(simulated, table.column("singular_hits")
+                                                .to_pylist(), strict=True)]
+        assert _rows(table, no_hit, "first_hit_time").null_count == sum(no_hit)
+        assert table.column("peak_torque").null_count == len(status)  # a kinematic plant
+        estimates = _rows(table, simulated, "err_estimate")  # the adaptive integrator's only
+        expected_nulls = 0 if cell.spec.track.integrator == "adaptive" else sum(simulated)
+        assert estimates.null_count == expected_nulls
+        # the group's keys as columns of their own, lists as lists
+        assert set(table.column("gains").to_pylist()) == {"swapped"}
+        assert table.column("track.kp")[0].as_py() == [100.0, 110.0]
+        assert table.column("track.kv")[0].as_py() == [10.0, 13.0]
+        assert table.column("plant.com")[0].as_py() == [0.1, 0.1, 0.0]
+        assert table.schema.field("plant.com").metadata[UNIT_KEY] == b"m"
+        assert table.schema.field("track.kp").metadata[UNIT_KEY] == b"1/s^2"
+
+
+def test_grid_columns_hold_what_each_cell_ran_with() -> None:
+    spec = resolve({"sweep": {"perturb": {"initial": {"dist": "normal", "std": 0.1}},
+                              "grid": {"sweep.perturb.initial.std": [0.01, 0.2],
+                                       "g": [{"label": "a", "track.kp": [1, 2]},
+                                             {"track.kv": [3, 4]}],
+                                       "track.rate_limit": [5, float("inf")]}}})
+    cells = layout(spec).cells
+    columns = [grid_columns(c.values, c.spec) for c in cells]
+    assert len(columns) == 8 and all(list(c) == list(columns[0]) for c in columns)
+    first, last = columns[0], columns[-1]
+    assert first["sweep.perturb.initial.std"] == (pa.float64(), 0.01)
+    assert first["g"] == (pa.string(), "a")
+    assert first["track.kp"] == (pa.list_(pa.float64()), [1.0, 2.0])
+    assert first["track.kv"] == (pa.list_(pa.float64()), [100.0, 110.0])  # the spec's own
+    assert last["g"] == (pa.string(), '{"track.kv": [3, 4]}')  # no label: its table
+    assert last["track.kp"][1] == [10.0, 13.0] and last["track.kv"][1] == [3.0, 4.0]
+    assert first["track.rate_limit"] == (pa.float64(), 5.0)
+    assert last["track.rate_limit"] == (pa.float64(), float("inf"))  # inf: no limit

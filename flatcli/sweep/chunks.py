@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -16,7 +17,8 @@ import pyarrow as pa
 from flatcli.core.metrics import COUNT_METRICS, METRIC_NAMES, Status, describe_status
 from flatcli.core.simulate import NoiseStreams, Trials, simulate
 from flatcli.experiment import checked
-from flatcli.spec import perturbations
+from flatcli.spec import Spec, lookup, perturbations
+from flatcli.storage import null_where_nan, with_units
 from flatcli.sweep.draws import (
     PERTURB_SLOTS,
     draw_perturbations,
@@ -25,6 +27,7 @@ from flatcli.sweep.draws import (
     perturbation_columns,
 )
 from flatcli.sweep.layout import Cell, Chunk
+from flatcli.units import units_of
 
 #: Statuses ``--fail-fast`` stops at: trials that did not run, or not to the end.
 FAILURES = ("error", "diverged", "unresolved")
@@ -94,27 +97,28 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
         reason_texts.append(reason)
     columns: dict[str, Any] = {"trial": ids.astype(np.int64),
                                "cell": np.full(len(ids), chunk.cell, dtype=np.int64)}
-    for key, v in cell.values.items():
-        columns[key] = [grid_cell_text(v)] * len(ids)
+    for key, (kind, v) in grid_columns(cell.values, spec).items():
+        columns[key] = pa.array([v] * len(ids), type=kind)
     for name in PERTURB_SLOTS:
         if name in drawn:
             for j, col in enumerate(perturbation_columns(name)):
                 columns[col] = np.ascontiguousarray(drawn[name][:, j])
-    for j, metric in enumerate(METRIC_NAMES):
-        columns[metric] = metrics[:, j]
+    for j, metric in enumerate(METRIC_NAMES):  # null where not applicable (nan in the core)
+        columns[metric] = null_where_nan(metrics[:, j])
     for metric in COUNT_METRICS:  # counts as integers, null where not applicable
-        values = columns[metric]
+        values = metrics[:, METRIC_NAMES.index(metric)]
         columns[metric] = pa.array(np.nan_to_num(values, nan=0).astype(np.int64),
                                    mask=np.isnan(values), type=pa.int64())
     columns["status"] = pa.array(status_names, type=pa.string())
     columns["reason"] = pa.array(reason_texts, type=pa.string())
-    columns["event_time"] = event_time
-    return ChunkResult(pa.table(columns), time.perf_counter() - started)
+    columns["event_time"] = null_where_nan(event_time)
+    table = with_units(pa.table(columns), units_of(columns, spec))
+    return ChunkResult(table, time.perf_counter() - started)
 
 
 def grid_cell_text(value: Any) -> Any:
-    """How a grid value is stored in a column: numbers as floats, strings as is, lists as
-    JSON, a group by its label (or its table as JSON)."""
+    """A grid value as one scalar: numbers as floats, strings as is, lists as JSON, a group by
+    its label (or its table as JSON)."""
     if isinstance(value, dict):
         return str(value["label"]) if "label" in value else json.dumps(value, sort_keys=True)
     if isinstance(value, list | tuple):
@@ -123,3 +127,61 @@ def grid_cell_text(value: Any) -> Any:
     if isinstance(value, int) and not isinstance(value, bool):
         return float(value)
     return value
+
+
+def grid_columns(values: Mapping[str, Any], spec: Spec) -> dict[str, tuple[pa.DataType, Any]]:
+    """A cell's grid values as columns of its rows: {column: (Arrow type, value)}.
+
+    A spec key (``values``: {grid entry: this cell's value}) is a column of its own type:
+    float64, int64, bool, string, or list<float64> for a vector (``plant.com``,
+    ``track.kp``). A perturbation parameter (``sweep.perturb.initial.std``) is float64, or
+    list<float64> if its grid values are lists (text if they mix the two). A group is a text
+    column under its name (its label, or its table as JSON) and one column per spec key it
+    sets (``gains`` -> ``track.kp``, ``track.kv``). A spec key's column holds the value the
+    cell ran with, ``spec`` being the cell's spec (null: a nullable key not set).
+    """
+    out: dict[str, tuple[pa.DataType, Any]] = {}
+    grid = spec.sweep.grid
+    applied = spec.values()
+    for entry, value in values.items():
+        if not isinstance(value, dict):
+            out[entry] = _grid_column(entry, list(grid[entry]), spec, applied)
+            continue
+        out[entry] = (pa.string(), grid_cell_text(value))
+        keys = dict.fromkeys(k for table in grid[entry] for k in table if k != "label")
+        for key in keys:  # every key the group sets in any cell, so all chunks match
+            seen = [table[key] for table in grid[entry] if key in table]
+            out[key] = _grid_column(key, seen, spec, applied)
+    return out
+
+
+def _grid_column(key: str, seen: list[Any], spec: Spec, applied: Mapping[str, Any]
+                 ) -> tuple[pa.DataType, Any]:
+    """One grid key's column type (``seen``: all its grid values) and the cell's value
+    (``spec``, and its ``applied`` {dotted key: value})."""
+    if key.startswith("sweep.perturb."):
+        _, _, name, param = key.split(".")
+        value = spec.sweep.perturb.get(name, {}).get(param)
+        if all(_is_number(v) for v in seen):
+            return pa.float64(), None if value is None else float(value)
+        if all(isinstance(v, list | tuple) for v in seen):
+            return pa.list_(pa.float64()), None if value is None else [float(v) for v in value]
+        return pa.string(), None if value is None else grid_cell_text(value)
+    kind = lookup(key).kind
+    value = applied[key]
+    if value is None:
+        return _ARROW_TYPES[kind], None
+    if kind == "vector":
+        return _ARROW_TYPES[kind], [float(v) for v in value]
+    return _ARROW_TYPES[kind], value
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+#: Arrow type of a grid column by its spec key's kind (``flatcli.spec.keys.Key.kind``).
+_ARROW_TYPES: dict[str, pa.DataType] = {
+    "float": pa.float64(), "int": pa.int64(), "bool": pa.bool_(), "str": pa.string(),
+    "choice": pa.string(), "vector": pa.list_(pa.float64()),
+}

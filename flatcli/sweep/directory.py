@@ -29,8 +29,9 @@ from flatcli.storage import (
     write_parquet,
     write_text,
 )
-from flatcli.sweep.chunks import grid_cell_text
+from flatcli.sweep.chunks import grid_columns
 from flatcli.sweep.layout import Layout
+from flatcli.units import units_of
 
 MANIFEST = "sweep.json"
 TRIALS_DIR = "trials"
@@ -133,10 +134,12 @@ def finish_sweep(directory: Path, lay: Layout, provenance: Mapping[str, Any], st
     trials_path = assemble_trials(directory, lay, provenance)
     columns = ["cell", "status", "singular_hits", *METRIC_NAMES]
     frame = pq.read_table(trials_path, columns=columns).to_pandas()
-    cells = {c.index: {k: grid_cell_text(v) for k, v in c.values.items()} for c in lay.cells}
+    cells = {c.index: {k: v for k, (_, v) in grid_columns(c.values, c.spec).items()}
+             for c in lay.cells}
     summary = summarize_trials(frame, cells)
+    summary.attrs["units"] = units_of(summary.columns, lay.spec)
     write_parquet(directory / "summary.parquet", summary, provenance)
-    text = summary_markdown(summary, lay.grid_keys)
+    text = summary_markdown(summary, list(cells[lay.cells[0].index]))
     write_text(directory / "summary.md", text + "\n")
     counts = frame["status"].value_counts().to_dict()
     now = time.perf_counter()

@@ -1,0 +1,206 @@
+"""A sweep's per-cell statistics (summary.parquet) and their Markdown tables (summary.md).
+
+Statistics of a trial's numbers (errors, margin, drift, peak rate, error estimate) are taken
+over the trials resolved to the end (``RESOLVED``: ok, singular) only: a diverged or unresolved
+trial's numbers stop at an arbitrary time and an error trial has none. What is left out is
+counted instead: per status, and as fractions of the cell's trials with a 95 % Wilson score
+interval (``wilson_interval``), so a reader sees how much each statistic leaves out.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from numpy.typing import NDArray
+from scipy.special import ndtri
+
+from flatcli.core.metrics import RESOLVED, STATUS_NAMES
+from flatcli.report.tables import fmt, table
+
+Array = NDArray[np.float64]
+
+#: Trials whose numbers enter the statistics: those resolved to the end (``RESOLVED``).
+COMPLETED = RESOLVED
+ERROR_METRICS = ("err_theta_rms", "err_theta_final", "err_y_rms", "err_y_final")
+#: Statuses of trials that did not run to the end, reported as fractions of a cell's trials.
+FAILURES = ("diverged", "unresolved", "error")
+#: The standard normal quantile of a two-sided 95 % interval, Phi^-1(0.975) = 1.95996...
+Z95 = float(ndtri(0.975))
+
+
+def wilson_interval(successes: Any, trials: Any, z: float = Z95) -> tuple[Array, Array]:
+    """Wilson score interval of a binomial proportion (95 % by default).
+
+    With p = k / n: (p + z^2 / 2n -+ z sqrt(p (1 - p) / n + z^2 / 4n^2)) / (1 + z^2 / n)
+    (Wilson 1927; Brown, Cai, DasGupta, Statist. Sci. 16, 2001). Unlike p -+ z sqrt(p (1 - p) /
+    n) it stays inside [0, 1] and is not empty at k = 0 or k = n, which is where a sweep's
+    failure counts usually are.
+
+    Parameters
+    ----------
+    successes : k, counts (array-like of ints)
+    trials : n, same shape (n = 0 gives nan bounds)
+
+    Returns
+    -------
+    low, high : arrays of k's shape
+    """
+    k = np.asarray(successes, dtype=np.float64)
+    n = np.asarray(trials, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        p = k / n
+        z2n = z * z / n
+        centre = (p + z2n / 2) / (1 + z2n)
+        half = z * np.sqrt(p * (1 - p) / n + z2n / (4 * n)) / (1 + z2n)
+    # exact ends: the interval of k = 0 starts at 0, that of k = n ends at 1 (the formula's
+    # centre - half and centre + half, there, differ from them by rounding only)
+    low = np.where(k == 0, 0.0, np.clip(centre - half, 0.0, 1.0))
+    high = np.where(k == n, 1.0, np.clip(centre + half, 0.0, 1.0))
+    return np.where(n > 0, low, np.nan), np.where(n > 0, high, np.nan)
+
+
+def summarize_trials(frame: pd.DataFrame, cells: Mapping[int, Mapping[str, Any]]
+                     ) -> pd.DataFrame:
+    """Per-cell statistics of a sweep's trials (definitions in the README, *Sweep output*).
+
+    Parameters
+    ----------
+    frame : one row per trial with columns cell, status, singular_hits and the metrics (a
+        metric that does not apply is nan or null: it never enters a statistic)
+    cells : cell index -> {grid column: the cell's value}
+
+    Returns
+    -------
+    One row per cell: cell, the grid columns, trials, the count of each status, resolved
+    (ok + singular) and simulated (all but error) counts; median, p95 and max of each of
+    ``ERROR_METRICS`` and median/max of min_margin, momentum_drift, peak_rate and
+    err_estimate over resolved trials; the max plan_momentum_residual over simulated trials;
+    ``singular_fraction`` (simulated trials with a singular hit) and each of ``FAILURES`` as
+    a fraction of the cell's trials, each with its 95 % Wilson interval (``_low``, ``_high``).
+    Statistics over no trials are nan (null in summary.parquet).
+    """
+    rows = []
+    for cell, values in cells.items():
+        group = frame[frame["cell"] == cell]
+        status = group["status"]
+        done = group[status.isin(RESOLVED)]
+        simulated = group[status != "error"]
+        row: dict[str, Any] = {"cell": cell, **values, "trials": len(group)}
+        for name in STATUS_NAMES:
+            row[name] = int((status == name).sum())
+        for metric in ERROR_METRICS:
+            values_ = _present(done[metric])
+            row[f"{metric}_median"] = _stat(np.median, values_)
+            row[f"{metric}_p95"] = _stat(lambda v: np.percentile(v, 95), values_)
+            row[f"{metric}_max"] = _stat(np.max, values_)
+        hits = _present(simulated["singular_hits"])
+        row["singular_fraction"] = float(np.mean(hits > 0)) if len(hits) else math.nan
+        row["min_margin_median"] = _stat(np.median, _present(done["min_margin"]))
+        drift = _present(done["momentum_drift"])
+        row["momentum_drift_median"] = _stat(np.median, drift)
+        row["momentum_drift_max"] = _stat(np.max, drift)
+        row["plan_momentum_residual_max"] = _stat(
+            np.max, _present(simulated["plan_momentum_residual"]))
+        # added after the columns above, which keep their names and places
+        row["resolved"] = len(done)
+        row["simulated"] = len(simulated)
+        _fraction(row, "singular", int(np.sum(hits > 0)), len(hits))
+        for name in FAILURES:
+            _fraction(row, name, row[name], len(group))
+        for metric in ("peak_rate", "err_estimate"):
+            values_ = _present(done[metric])
+            row[f"{metric}_median"] = _stat(np.median, values_)
+            row[f"{metric}_max"] = _stat(np.max, values_)
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def _present(column: pd.Series) -> Array:
+    """A column's values that apply (nan and null dropped), as floats."""
+    values: Array = column.to_numpy(dtype=np.float64, na_value=np.nan)
+    return values[~np.isnan(values)]
+
+
+def _stat(fn: Callable[[Array], Any], values: Array) -> float:
+    return float(fn(values)) if len(values) else math.nan
+
+
+def _fraction(row: dict[str, Any], name: str, k: int, n: int) -> None:
+    """``{name}_fraction`` = k / n and its 95 % Wilson interval, into ``row``."""
+    low, high = wilson_interval(k, n)
+    row[f"{name}_fraction"] = k / n if n else math.nan
+    row[f"{name}_fraction_low"] = float(low)
+    row[f"{name}_fraction_high"] = float(high)
+
+
+def short_key(key: str) -> str:
+    """A grid key as a column heading: perturbation keys without their 'sweep.perturb.'."""
+    return key.removeprefix("sweep.perturb.")
+
+
+def with_interval(value: float, low: float, high: float) -> str:
+    """A fraction and its interval as percentages: '26.5 (24.6-28.5)'; '-' if undefined."""
+    if any(math.isnan(float(x)) for x in (value, low, high)):
+        return "-"
+    return f"{fmt(100 * value, 3)} ({fmt(100 * low, 2)}-{fmt(100 * high, 2)})"
+
+
+def summary_markdown(summary: pd.DataFrame, grid_keys: Sequence[str]) -> str:
+    """The sweep's summary as Markdown tables, each readable on an 80-column terminal.
+
+    ``grid_keys``: the grid columns of ``summary`` to list in the *Cells* table."""
+    def rows(cols: Sequence[str]) -> list[list[object]]:
+        return [[int(r["cell"]), *(cell_text(r[c]) for c in cols)]
+                for _, r in summary.iterrows()]
+
+    def shares(names: Sequence[str]) -> list[list[object]]:
+        return [[int(r["cell"]), *(with_interval(r[f"{n}_fraction"], r[f"{n}_fraction_low"],
+                                                 r[f"{n}_fraction_high"]) for n in names)]
+                for _, r in summary.iterrows()]
+
+    parts = []
+    if grid_keys:
+        parts += ["### Cells\n", table(["cell", *(short_key(k) for k in grid_keys)],
+                                       rows(list(grid_keys))), ""]
+    parts += [
+        "### Trials by status\n",
+        table(["cell", "trials", *STATUS_NAMES, "resolved"],
+              rows(["trials", *STATUS_NAMES, "resolved"])),
+        "\n### Failures and singular hits [% of trials, 95 % interval]\n",
+        table(["cell", "diverged", "unresolved", "error", "singular hit"],
+              shares([*FAILURES, "singular"])),
+        "\ndiverged, unresolved, error: share of the cell's trials. singular hit: share of\n"
+        "its simulated trials (all but error) with a sample of margin below\n"
+        "track.singular_threshold. Intervals: Wilson score, 95 %.",
+    ]
+    for name in ("theta", "y"):
+        cols = [f"err_{name}_{kind}_{stat}" for kind in ("rms", "final")
+                for stat in ("median", "p95", "max")]
+        parts += [
+            f"\n### Tracking error of {name} [rad] (resolved trials: ok, singular)\n",
+            table(["cell", "rms med", "rms p95", "rms max", "final med", "final p95",
+                   "final max"], rows(cols), 3),
+        ]
+    parts += [
+        "\n### Singularity, momentum and integration (resolved trials)\n",
+        table(["cell", "margin med", "peak rate max", "drift max", "plan res max",
+               "err est max"],
+              rows(["min_margin_median", "peak_rate_max", "momentum_drift_max",
+                    "plan_momentum_residual_max", "err_estimate_max"]), 3),
+        "\nmargin med: median of min_margin [rad/s]; peak rate [rad/s]; drift and plan\n"
+        "res(idual) of H [kg m^2/s]; err est: the adaptive integrator's estimate of its\n"
+        "global error in theta at the end [rad] (- for rk4 and dop853).",
+    ]
+    return "\n".join(parts)
+
+
+def cell_text(value: Any) -> object:
+    """A summary value for a table or a sentence: a list (or array) of numbers as '[a, b]',
+    anything else as it is."""
+    if isinstance(value, list | tuple | np.ndarray):
+        return "[" + ", ".join(fmt(float(v)) for v in value) + "]"
+    return value

@@ -1,0 +1,124 @@
+"""The unit of every column flatcli writes: the one table of units.
+
+plan.parquet, track.parquet, trials.parquet and summary.parquet carry these as Arrow field
+metadata (key ``unit``, ``flatcli.storage.UNIT_KEY``) on every numeric column, so a reader
+(pyarrow, polars, DuckDB) finds them beside the numbers; the README's column tables say the
+same (a test compares them). Units are SI, written as in the README; ``DIMENSIONLESS`` ("1")
+marks a pure number: a count, a fraction, a relative tolerance. Columns without a unit are
+identifiers (``trial``, ``cell``) and text (``status``, ``reason``, a group's label).
+
+Columns named after spec keys (a sweep's grid keys) take the spec key's unit; a perturbation
+parameter (``sweep.perturb.NAME.PARAM``) takes the unit of the quantity it perturbs, or "1"
+when the perturbation is relative.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+from flatcli.core.metrics import STATUS_NAMES
+from flatcli.spec import PERTURB_TARGETS, Spec, SpecError, lookup
+
+#: A pure number: a count, a fraction, a ratio.
+DIMENSIONLESS = "1"
+
+_ANGLE, _RATE, _ACCEL, _MOMENTUM = "rad", "rad/s", "rad/s^2", "kg m^2/s"
+
+#: The unit of every fixed column name of flatcli's Parquet tables (a name means the same
+#: thing, in the same unit, in every table that has it).
+UNITS: dict[str, str] = {
+    # plan.parquet and track.parquet: one row per sample
+    "t": "s",
+    **{f"theta{i}": _ANGLE for i in range(3)},
+    **{f"theta{i}_dot": _RATE for i in range(3)},
+    **{f"theta{i}_ref": _ANGLE for i in range(3)},
+    "u1_dot": _ACCEL,
+    "u1": _RATE,
+    "u2": _RATE,
+    "y1": _ANGLE, "y2": _ANGLE,
+    "y1_ref": _ANGLE, "y2_ref": _ANGLE,
+    "y1_dot": _RATE, "y2_dot": _RATE,
+    "y1_ddot": _ACCEL, "y2_ddot": _ACCEL,
+    "margin": _RATE,
+    "momentum": _MOMENTUM,  # H along a plan or a run; in trials.parquet the plant's H0
+    # trials.parquet: the metrics of flatcli.core.metrics (definitions in the README)
+    "err_theta_rms": _ANGLE, "err_theta_max": _ANGLE, "err_theta_final": _ANGLE,
+    "err_y_rms": _ANGLE, "err_y_max": _ANGLE, "err_y_final": _ANGLE,
+    "singular_hits": DIMENSIONLESS,
+    "first_hit_time": "s",
+    "min_margin": _RATE,
+    "momentum_drift": _MOMENTUM,
+    "plan_momentum_residual": _MOMENTUM,
+    "err_estimate": _ANGLE,
+    "peak_rate": _RATE,
+    "peak_torque": "N m",
+    "torque_saturated": DIMENSIONLESS,
+    "steps": DIMENSIONLESS,
+    "rhs_evaluations": DIMENSIONLESS,
+    "event_time": "s",
+    # trials.parquet: the realised perturbed quantities
+    **{f"initial_{i}": _ANGLE for i in range(3)},
+    "initial_rate": _RATE,
+    **{f"mass_{i}": "kg" for i in range(3)},
+    **{f"inertia_{i}": "kg m^2" for i in range(3)},
+    **{f"length_{i}": "m" for i in range(3)},
+    **{f"com_{i}": "m" for i in range(3)},
+    # summary.parquet: counts per cell (the statistics take their metric's unit)
+    "trials": DIMENSIONLESS,
+    "resolved": DIMENSIONLESS,
+    "simulated": DIMENSIONLESS,
+    **{status: DIMENSIONLESS for status in STATUS_NAMES},
+}
+
+#: Suffixes of summary.parquet's statistics of a metric (in the metric's unit).
+STATISTICS = ("_median", "_p95", "_max")
+#: Suffixes of summary.parquet's fractions and their confidence bounds (dimensionless).
+FRACTIONS = ("_fraction", "_fraction_low", "_fraction_high")
+
+
+def unit_of(column: str, spec: Spec | None = None) -> str | None:
+    """The unit of a column (None: an identifier or text, or a name flatcli does not know).
+
+    ``spec`` resolves the columns named after a sweep's grid keys (relative perturbations).
+    """
+    if column in UNITS:
+        return UNITS[column]
+    for suffix in FRACTIONS:
+        if column.endswith(suffix):
+            return DIMENSIONLESS
+    for suffix in STATISTICS:
+        base = column.removesuffix(suffix)
+        if column.endswith(suffix) and base in UNITS:
+            return UNITS[base]
+    return spec_key_unit(column, spec)
+
+
+def spec_key_unit(dotted: str, spec: Spec | None = None) -> str | None:
+    """The unit of a numeric spec key or perturbation parameter ("1" for a pure number);
+    None for a key whose values are not numbers, or a name that is not a key."""
+    parts = dotted.split(".")
+    if len(parts) == 4 and dotted.startswith("sweep.perturb.") and parts[2] in PERTURB_TARGETS:
+        if parts[3] not in ("std", "mean", "low", "high"):
+            return None
+        table = spec.sweep.perturb.get(parts[2], {}) if spec is not None else {}
+        if table.get("relative", False):
+            return DIMENSIONLESS
+        return spec_key_unit(PERTURB_TARGETS[parts[2]])
+    try:
+        key = lookup(dotted)
+    except SpecError:
+        return None
+    if key.kind not in ("float", "int", "vector"):
+        return None
+    return key.unit or DIMENSIONLESS
+
+
+def units_of(columns: Iterable[str], spec: Spec | None = None) -> dict[str, str]:
+    """{column: unit} of the columns that have one."""
+    out = {}
+    for column in columns:
+        unit = unit_of(column, spec)
+        if unit is not None:
+            out[column] = unit
+    return out
+

@@ -1,0 +1,93 @@
+"""A sweep's per-cell statistics (flatcli/report/summary.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy.stats import binomtest
+
+from flatcli.report.summary import summarize_trials, summary_markdown, wilson_interval
+
+
+def test_summary_counts_and_statistics_on_a_handmade_frame() -> None:
+    frame = pd.DataFrame({
+        "cell": [0, 0, 0, 0, 1],
+        "status": ["ok", "singular", "diverged", "error", "ok"],
+        "singular_hits": [0, 3, 1, -1, 0],
+        **{m: [1.0, 3.0, 100.0, np.nan, 2.0] for m in (
+            "err_theta_rms", "err_theta_final", "err_y_rms", "err_y_final", "min_margin",
+            "momentum_drift", "plan_momentum_residual", "peak_rate", "err_estimate")},
+    })
+    summary = summarize_trials(frame, {0: {"g": "a"}, 1: {"g": "b"}})
+    row = summary.iloc[0]
+    assert (row["ok"], row["singular"], row["diverged"], row["error"]) == (1, 1, 1, 1)
+    assert row["err_y_rms_median"] == 2.0  # ok and singular only: median(1, 3)
+    assert row["err_y_rms_max"] == 3.0
+    assert row["singular_fraction"] == 2 / 3  # of the three simulated trials
+    assert row["min_margin_median"] == 2.0  # median(1, 3) of the resolved trials
+    assert summary.iloc[1]["g"] == "b"
+
+
+def test_wilson_interval_matches_scipy_binomtest() -> None:
+    # reference: scipy.stats.binomtest(k, n).proportion_ci(0.95, method="wilson")
+    counts = [(0, 1), (0, 10), (3, 10), (10, 10), (1, 2000), (530, 2000), (1999, 2000)]
+    low, high = wilson_interval([k for k, _ in counts], [n for _, n in counts])
+    for (k, n), lo, hi in zip(counts, low, high, strict=True):
+        ci = binomtest(k, n).proportion_ci(0.95, method="wilson")
+        assert lo == pytest.approx(ci.low, rel=1e-12, abs=1e-15)
+        assert hi == pytest.approx(ci.high, rel=1e-12, abs=1e-15)
+
+
+def test_wilson_interval_of_no_successes_in_closed_form() -> None:
+    # k = 0: the score equation (p - 0)^2 = z^2 p (1 - p) / n gives p = z^2 / (n + z^2)
+    z = 1.959963984540054  # Phi^-1(0.975), e.g. scipy.stats.norm.ppf(0.975)
+    n = np.array([1, 20, 2000])
+    low, high = wilson_interval(np.zeros(3), n)
+    assert low.tolist() == [0.0, 0.0, 0.0]
+    np.testing.assert_allclose(high, z * z / (n + z * z), rtol=1e-14)
+    low, high = wilson_interval(n, n)  # k = n mirrors it
+    np.testing.assert_allclose(low, n / (n + z * z), rtol=1e-14)
+    assert high.tolist() == [1.0, 1.0, 1.0]
+    assert np.isnan(wilson_interval(0, 0)).all()  # no trials: no interval
+
+
+def test_statistics_leave_out_unresolved_trials_and_nulls() -> None:
+    frame = pd.DataFrame({
+        "cell": [0] * 6,
+        "status": ["ok", "ok", "unresolved", "diverged", "error", "singular"],
+        "singular_hits": pd.array([0, 0, 2, 1, None, 4], dtype="Int64"),
+        "err_theta_rms": [1.0, 2.0, 50.0, 60.0, np.nan, 4.0],
+        "err_estimate": [1e-7, np.nan, 1.0, 1.0, np.nan, 3e-7],  # nan: not applicable
+        **{m: [1.0] * 6 for m in ("err_theta_final", "err_y_rms", "err_y_final", "min_margin",
+                                  "momentum_drift", "plan_momentum_residual", "peak_rate")},
+    })
+    row = summarize_trials(frame, {0: {}}).iloc[0]
+    assert (row["trials"], row["resolved"], row["simulated"]) == (6, 3, 5)
+    assert row["err_theta_rms_median"] == 2.0  # median(1, 2, 4): not 50, 60
+    assert row["err_theta_rms_max"] == 4.0
+    assert row["err_estimate_max"] == 3e-7  # the nan is left out, not propagated
+    assert row["singular_fraction"] == 3 / 5  # hits in the five simulated trials
+    for status in ("diverged", "unresolved", "error"):
+        assert row[f"{status}_fraction"] == 1 / 6
+        ci = binomtest(1, 6).proportion_ci(0.95, method="wilson")
+        assert row[f"{status}_fraction_low"] == pytest.approx(ci.low, rel=1e-12)
+        assert row[f"{status}_fraction_high"] == pytest.approx(ci.high, rel=1e-12)
+
+
+def test_summary_markdown_shows_shares_with_intervals() -> None:
+    frame = pd.DataFrame({
+        "cell": [0] * 4 + [1] * 4,
+        "status": ["ok", "ok", "ok", "diverged", "ok", "ok", "ok", "ok"],
+        "singular_hits": [0] * 8,
+        **{m: [1.0] * 8 for m in (
+            "err_theta_rms", "err_theta_final", "err_y_rms", "err_y_final", "min_margin",
+            "momentum_drift", "plan_momentum_residual", "peak_rate", "err_estimate")},
+    })
+    summary = summarize_trials(frame, {0: {"plant.com": [0.1, 0.1, 0.0]},
+                                       1: {"plant.com": [0.1, 0.1, 0.005]}})
+    text = summary_markdown(summary, ["plant.com"])
+    assert "| [0.1, 0.1, 0.005] |" in text
+    ci = binomtest(1, 4).proportion_ci(0.95, method="wilson")  # 1 of 4 diverged
+    assert f"| 25 ({100 * ci.low:.2g}-{100 * ci.high:.2g}) " in text
+    assert max(len(line) for line in text.splitlines()) <= 80
