@@ -132,3 +132,17 @@ def test_values_cached_per_decision_vector() -> None:
     assert problem.values(x.copy(), "grid") is first and problem.evaluations == 1
     problem.values(x + 1e-3, "grid")
     assert problem.evaluations == 2
+
+
+def test_adopt_takes_over_the_shared_rows() -> None:
+    """A looser problem's grid and tightened offsets carry over to the rows both have."""
+    r = request()
+    loose = r.problem("energy", PlanLimits(min_margin=0.05))
+    loose.b[-1] -= 1e-3  # as an exchange round tightens the margin row
+    loose.set_times(np.append(loose.times, 0.123))
+    tight = r.problem("energy", PlanLimits(rate_limit=5.0, min_margin=0.05))
+    before = tight.b.copy()
+    tight.adopt(loose)
+    assert 0.123 in tight.times and tight.times.size == r.times.size + 1
+    assert tight.b[-1] == loose.b[-1]  # the margin row
+    np.testing.assert_array_equal(tight.b[:-1], before[:-1])  # the rate rows, its own

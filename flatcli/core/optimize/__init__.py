@@ -19,6 +19,7 @@ One concept per module, each importing only those above it:
 ``problem``        the nonlinear programme (objective, rows, exact Jacobians); ``Request``
 ``assessment``     a candidate measured on the fine check grid: feasible? what binds?
 ``solver``         SLSQP inside an exchange method for the semi-infinite constraints
+``search``         which problems one call solves from where (multi-start, phase 1)
 ``api``            ``optimize_plan`` composed of named steps; ``OptimizeResult``
 =================  ==========================================================================
 

@@ -1,16 +1,15 @@
 """``optimize_plan``: an optimal flat plan under limits, composed of named steps.
 
-The steps (each a function below):
+The steps (each a function or method below):
 
 1. ``_request``: validate the arguments, run the up-front feasibility checks
    (``feasibility``) and fix the grids: a ``Request``.
-2. ``_Search.optimise``: solve the objective's problem from the starting guess (for
-   "peak_rate" from the least-energy plan first: SLSQP on the minimax problem straight from
-   the cubic, th2' ~ 49 rad/s next to the singular set, can step far astray).
-3. ``_Search.least_violation``: if neither the start nor the solution meets the limits,
-   phase 1: the plan that exceeds them least; solve again from it if it meets them after
-   all, otherwise its worst violation is the error message.
-4. ``_Search.settle_margin``: for "margin", the least-energy plan whose margin stays within
+2. ``Search.best``: the objective under the limits, from several deterministic starts,
+   keeping the best plan that meets them (``search``: why, and which starts).
+3. ``Search.least_violation``: if neither the starting guess nor any solve meets the
+   limits, phase 1: the plan that exceeds them least; solve again from it if it meets them
+   after all, otherwise its worst violation is the error message.
+4. ``Search.settle_margin``: for "margin", the least-energy plan whose margin stays within
    ``Tuning.margin_tie`` of the best (the maximiser is not unique).
 5. ``_keep_start``: never return a plan worse than a feasible starting guess.
 6. ``_result``: the plan and its ``OptimizeResult``.
@@ -32,12 +31,12 @@ from flatcli.core.model import (
     constraint_coefficients,
     require_flat,
 )
-from flatcli.core.optimize.assessment import Assessment, active_limits, assess
+from flatcli.core.optimize.assessment import active_limits
 from flatcli.core.optimize.feasibility import check_ends
 from flatcli.core.optimize.limits import PlanLimits
 from flatcli.core.optimize.objectives import OBJECTIVES, Objective, better
-from flatcli.core.optimize.problem import Problem, Request
-from flatcli.core.optimize.solver import Solution, solve
+from flatcli.core.optimize.problem import Request
+from flatcli.core.optimize.search import Candidate, Search
 from flatcli.core.optimize.tuning import TUNING, Tuning
 from flatcli.core.planning import ENERGY_ORDER, ENERGY_PIECES, FlatPlan, FlatTrajectory
 
@@ -158,20 +157,19 @@ def optimize_plan(
         robot, model, start, goal, duration, basis, objective, limits, free_rates,
         start_rate, goal_rate, constraint_samples, max_iter, tuning,
     )  # fmt: skip
-    search = _Search(request, limits, max_iter)
-    problem = request.problem(objective, limits)
-    x0 = problem.lift(request.start_curve())
-    initial = assess(problem, x0, limits)
-    problem.normalise(initial.objective)
-    x, final, last = search.optimise(problem, x0)
-    if not final.feasible and not initial.feasible:
-        x, final, last = search.least_violation(problem, last)
-    if objective == "margin" and final.feasible:
-        x, final, last = search.settle_margin(problem, x, final, last)
-    x, final, message = _keep_start(objective, x, final, x0, initial, last)
-    if not final.feasible:
-        raise FlatcliError(final.worst or f"plan.optimize: the solver failed ({message})")
-    return _result(robot, model, request, problem, search, x, final, x0, initial, last, message)
+    search = Search(request, max_iter)
+    initial = search.start(objective, limits)
+    found = search.best(objective, limits)
+    if not found.feasible and not initial.feasible:
+        found = search.least_violation(objective, limits, found)
+    if objective == "margin" and found.feasible:
+        found = search.settle_margin(limits, found)
+    found = _keep_start(found, initial)
+    if not found.feasible:
+        raise FlatcliError(
+            found.assessment.worst or f"plan.optimize: the solver failed ({found.message})"
+        )
+    return _result(robot, model, request, search, found, initial)
 
 
 def _request(
@@ -230,133 +228,54 @@ def _request(
     )
 
 
-class _Search:
-    """The solves of one call, with their iteration and evaluation counts summed."""
-
-    def __init__(self, request: Request, limits: PlanLimits, max_iter: int) -> None:
-        self.request = request
-        self.limits = limits
-        self.max_iter = max_iter
-        self.iterations = 0
-        self.evaluations = 0
-
-    def run(self, problem: Problem, x: Array, limits: PlanLimits | None = None) -> Solution:
-        """``solver.solve`` from x (against ``limits``, default the user's), counted."""
-        found = solve(problem, x, self.limits if limits is None else limits, self.max_iter)
-        self.iterations += found.iterations
-        self.evaluations += found.evaluations
-        return found
-
-    def least_energy(self, limits: PlanLimits, curve: Array) -> Array:
-        """The least-energy curve under ``limits``, solved from ``curve``."""
-        first = self.request.problem("energy", limits)
-        first.normalise(first.energy(curve))
-        return self.run(first, curve, limits).x
-
-    def optimise(self, problem: Problem, x0: Array) -> tuple[Array, Assessment, Solution]:
-        """Step 2: the objective's problem solved from the starting guess x0."""
-        x = x0
-        if problem.objective == "peak_rate":
-            curve = self.least_energy(self.limits, self.request.start_curve())
-            warm = problem.lift(curve)
-            if assess(problem, warm, self.limits).feasible:
-                x = warm
-        found = self.run(problem, x)
-        return found.x, assess(problem, found.x, self.limits), found
-
-    def least_violation(
-        self, problem: Problem, last: Solution
-    ) -> tuple[Array, Assessment, Solution]:
-        """Step 3: phase 1, from the better of the starting guess and the least-energy plan
-        under the margin alone; then the objective again if the limits are met after all."""
-        curve0 = self.request.start_curve()
-        relaxed = self.least_energy(self.limits.margin_only(), curve0)
-        phase = self.request.problem("violation", self.limits)
-        cubic = phase.lift(curve0)
-        start = min((phase.lift(relaxed), cubic), key=lambda x: float(x[-1]))
-        # scaled by the starting guess's violation (at least 1), as the objectives are by
-        # their value: a larger normalised gradient makes SLSQP's first steps too long
-        phase.scale = max(float(cubic[-1]), 1.0)
-        curve = self.run(phase, start).x
-        x = problem.lift(curve[:-1])
-        final = assess(problem, x, self.limits)
-        if final.feasible:
-            last = self.run(problem, x)
-            x = last.x
-            final = assess(problem, x, self.limits)
-        return x, final, last
-
-    def settle_margin(
-        self, problem: Problem, x: Array, final: Assessment, last: Solution
-    ) -> tuple[Array, Assessment, Solution]:
-        """Step 4: the least-energy plan whose margin stays within ``Tuning.margin_tie`` of
-        the best found (``final.objective``)."""
-        tie_margin = (1 - self.request.tuning.margin_tie) * final.objective
-        tie = replace(self.limits, min_margin=max(self.limits.min_margin, tie_margin))
-        second = self.request.problem("energy", tie)
-        second.normalise(second.energy(x[:-1]))
-        last = self.run(second, x[:-1], tie)
-        settled = problem.lift(last.x)
-        if assess(problem, settled, self.limits).feasible:
-            x = settled
-        return x, assess(problem, x, self.limits), last
-
-
-def _keep_start(
-    objective: Objective,
-    x: Array,
-    final: Assessment,
-    x0: Array,
-    initial: Assessment,
-    last: Solution,
-) -> tuple[Array, Assessment, str]:
-    """Step 5: the starting guess instead of x if it is feasible and x is not better."""
-    improved = final.feasible and better(objective, final.objective, initial.objective)
-    if initial.feasible and not improved:
+def _keep_start(found: Candidate, initial: Candidate) -> Candidate:
+    """Step 5: the starting guess instead of ``found`` if it is feasible and ``found`` is not
+    better."""
+    goal = initial.problem.objective
+    a, b = found.assessment.objective, initial.assessment.objective
+    if initial.feasible and not (found.feasible and better(goal, a, b)):
         note = "; the starting guess was kept (the solver did not improve on it)"
-        return x0, initial, last.message + note
-    return x, final, last.message
+        return replace(initial, converged=found.converged, message=found.message + note)
+    return found
 
 
 def _result(
     robot: RobotParams,
     model: Model,
     request: Request,
-    problem: Problem,
-    search: _Search,
-    x: Array,
-    final: Assessment,
-    x0: Array,
-    initial: Assessment,
-    last: Solution,
-    message: str,
+    search: Search,
+    found: Candidate,
+    initial: Candidate,
 ) -> OptimizeResult:
-    """Step 6: the plan at x and its record (energy and effort exactly as
+    """Step 6: the plan and its record (energy and effort exactly as
     ``FlatPlan.input_energy`` measures them)."""
 
-    def plan_at(x: Array) -> FlatPlan:
-        trajectory = FlatTrajectory(request.basis, problem.affine.coefficients(x))
+    def plan_at(candidate: Candidate) -> FlatPlan:
+        coefficients = candidate.problem.affine.coefficients(candidate.x)
+        trajectory = FlatTrajectory(request.basis, coefficients)
         return FlatPlan(robot, model, request.k, trajectory, request.duration)
 
-    plan = plan_at(x)
-    reported, reported_initial = final.objective, initial.objective
+    plan = plan_at(found)
+    problem = found.problem
+    reported, reported_initial = found.assessment.objective, initial.assessment.objective
     if problem.objective in ("energy", "effort"):
         factor = problem.factor
         reported = factor * plan.input_energy(ENERGY_PIECES, ENERGY_ORDER)
-        reported_initial = factor * plan_at(x0).input_energy(ENERGY_PIECES, ENERGY_ORDER)
-    ends = request.ends
+        reported_initial = factor * plan_at(initial).input_energy(ENERGY_PIECES, ENERGY_ORDER)
+    ends, x = request.ends, found.x
+    fixed = () if request.free_rates else ("fixed end rates",)
     return OptimizeResult(
         plan=plan,
-        success=last.converged,
+        success=found.converged,
         objective=reported,
         initial_objective=reported_initial,
         iterations=search.iterations,
         evaluations=search.evaluations,
-        active=active_limits(problem, x) + (() if request.free_rates else ("fixed end rates",)),
-        max_violation=final.max_violation,
+        active=active_limits(problem, x) + fixed,
+        max_violation=found.assessment.max_violation,
         start_rate=float(x[0]) if request.free_rates else ends.start_rate,
         goal_rate=float(x[1]) if request.free_rates else ends.goal_rate,
-        message=message,
+        message=found.message,
     )
 
 

@@ -112,6 +112,23 @@ class Problem:
         self.mask = np.ones((len(self.rows.label), self.times.size), dtype=bool)
         self.weight = np.ones(self.mask.sum())
 
+    def adopt(self, other: Problem) -> None:
+        """Take over the constraint grid and the tightened offsets of the rows both share.
+
+        For a plan found by ``other`` (the same goal under looser limits): its limits are
+        then judged as they were imposed there, e.g. which are active.
+        """
+        self.set_times(np.concatenate([self.times, other.times]))
+
+        def keys(rows: Rows) -> list[tuple[int, float, str]]:
+            return list(zip(rows.quantity.tolist(), rows.a.tolist(), rows.label, strict=True))
+
+        index = {key: j for j, key in enumerate(keys(other.rows))}
+        for i, key in enumerate(keys(self.rows)):
+            j = index.get(key)
+            if j is not None:
+                self.b[i] = other.b[j]
+
     def prepare(self, x: Array) -> None:
         """Choose and scale the constraints the solver sees, fixed until the next call.
 
