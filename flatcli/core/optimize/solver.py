@@ -1,0 +1,176 @@
+"""SLSQP on a ``Problem``, inside an exchange method for its semi-infinite constraints.
+
+The limits hold at every time of [0, T], but a problem imposes them on a finite constraint
+grid. After each SLSQP solve the limits are re-checked on the check grid
+(``Tuning.check_refinement`` times denser); the times where a limit is missed (local maxima
+of its excess) join the constraint grid, each violated limit is tightened by twice its excess
+(at most ``Tuning.tighten_cap`` of it), and the problem is solved again, for at most
+``Tuning.exchange_rounds`` rounds, so that the returned plan meets every limit at every
+sample of the check grid.
+
+What keeps SLSQP on track: the rows are screened and normalised per round
+(``Problem.prepare``); a round that steps far outside the limits (``Tuning.reject_floor``,
+``Tuning.round_reject``) is discarded in favour of its best iterate that met them
+(``Tuning.restart_tol``), or ends the search at the best point so far. The point returned is
+the best feasible one seen (the start included), or the least violating one if none was.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import minimize
+
+from flatcli.core.optimize.assessment import assess
+from flatcli.core.optimize.limits import PlanLimits
+from flatcli.core.optimize.objectives import maximised
+from flatcli.core.optimize.problem import Problem
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class Solution:
+    """The outcome of ``solve``.
+
+    Attributes
+    ----------
+    x : (nv,) the best feasible point seen (the least violating one if none was)
+    iterations : SLSQP iterations, summed over the rounds
+    evaluations : distinct decision vectors evaluated on the constraint grid
+    message : SLSQP's last message, and a note if an earlier point was kept
+    converged : the last round converged and its point is ``x``
+    """
+
+    x: Array
+    iterations: int
+    evaluations: int
+    message: str
+    converged: bool
+
+
+class _Tracker:
+    """Solver callback: the best iterate that (nearly) meets every row on the grid.
+
+    Where to go on from if the solver later steps astray.
+    """
+
+    def __init__(self, problem: Problem, row_scale: Array) -> None:
+        self.problem = problem
+        self.row_scale = row_scale
+        self.best: tuple[float, Array] | None = None
+
+    def __call__(self, xk: Array) -> None:
+        g = self.problem.row_values(xk) / self.row_scale[:, None]
+        if np.min(g) >= -self.problem.tuning.restart_tol:
+            f = self.problem.fun(xk)
+            if self.best is None or f < self.best[0]:
+                self.best = (f, np.array(xk, dtype=float))
+
+
+def solve(problem: Problem, x: Array, limits: PlanLimits, max_iter: int) -> Solution:
+    """SLSQP from x, then exchange rounds until the check grid meets every limit.
+
+    Parameters
+    ----------
+    problem : the programme (its constraint grid and row offsets grow and tighten here)
+    x : (nv,) starting point
+    limits : the user's limits, against which each round's plan is assessed
+    max_iter : SLSQP iteration limit per round
+
+    Returns
+    -------
+    Solution
+    """
+    tuning = problem.tuning
+    rows = problem.rows
+    limited = rows.limited
+    row_scale = np.maximum(1.0, np.where(limited, rows.bound, 1.0))
+    sign = -1.0 if maximised(problem.objective) else 1.0
+    evaluations = problem.evaluations
+    start = assess(problem, x, limits)
+    best = (sign * start.objective, x) if start.feasible else None
+    least = (start.relative_violation, x)  # the least violating point, if none is feasible
+    iterations = 0
+    message = ""
+    converged = False
+    for _ in range(tuning.exchange_rounds):
+        problem.prepare(x)
+        track = _Tracker(problem, row_scale)
+        result = minimize(
+            problem.fun,
+            x,
+            jac=problem.jac,
+            method="SLSQP",
+            bounds=problem.bounds,
+            constraints=[{"type": "ineq", "fun": problem.cons, "jac": problem.cons_jac}],
+            options={"maxiter": max_iter, "ftol": tuning.solver_tol},
+            callback=track,
+        )
+        iterations += int(result.nit)
+        converged = bool(result.success)
+        message = str(result.message)
+        x = np.asarray(result.x, dtype=float)
+        found = assess(problem, x, limits)
+        if found.feasible and (best is None or sign * found.objective < best[0]):
+            best = (sign * found.objective, x)
+        if found.relative_violation < least[0]:
+            least = (found.relative_violation, x)
+        if found.relative_violation > max(least[0] * tuning.round_reject, tuning.reject_floor):
+            # the solver went astray (typically near the singular set): solve again from its
+            # best sane iterate, or stop at the best point so far
+            if track.best is not None:
+                x = track.best[1]
+                continue
+            x = least[1] if best is None else best[1]
+            break
+        # epigraph rows are refined only where the check grid exceeds them noticeably (the
+        # objective is measured on the check grid anyway), limit rows wherever violated
+        epigraph_tol = tuning.epigraph_tol * max(1.0, abs(float(x[-1])))
+        excess = np.where(limited[:, None], found.row_excess, found.row_excess - epigraph_tol)
+        if problem.objective == "violation":  # limits relaxed by s max(1, limit)
+            excess -= rows.c[:, None] * float(x[-1])
+        missed = exchange_times(excess, problem.check)
+        if not missed.size:
+            break
+        # impose the limits at the missed times too, and tighten each violated limit by
+        # twice its excess (capped: a large excess comes from a row that was screened out,
+        # not from between samples), so the next round lands inside it
+        worst = np.max(excess, axis=1)
+        tighten = limited & (worst > 0)
+        cap = tuning.tighten_cap * np.maximum(1.0, rows.bound[tighten])
+        problem.b[tighten] -= np.minimum(2.0 * worst[tighten], cap)
+        problem.set_times(np.concatenate([problem.times, missed]))
+    chosen = least[1] if best is None else best[1]
+    if chosen is not x:
+        converged = False
+        message += "; an earlier point was kept, better than the last round's plan"
+    return Solution(chosen, iterations, problem.evaluations - evaluations, message, converged)
+
+
+def exchange_times(excess: Array, check: Array) -> Array:
+    """Check-grid times [s] where a row's excess is positive at a local maximum.
+
+    Parameters
+    ----------
+    excess : (rows, n_check) excess over each row (> 0 where missed)
+    check : (n_check,) the check grid [s]
+
+    Returns
+    -------
+    (m,) sorted distinct times [s]
+    """
+    times: list[float] = []
+    for row in excess:
+        if not np.any(row > 0):
+            continue
+        padded = np.concatenate([[-math.inf], row, [-math.inf]])
+        peak = (padded[1:-1] >= padded[:-2]) & (padded[1:-1] >= padded[2:]) & (row > 0)
+        times.extend(check[peak].tolist())
+    return np.unique(np.asarray(times, dtype=float))
+
+
+__all__ = ["Solution", "exchange_times", "solve"]
