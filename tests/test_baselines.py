@@ -177,7 +177,7 @@ def test_flat_system_dynamics_match_plan(cubic: FlatPlan) -> None:
 def test_plan_quality_of_the_cubic(cubic: FlatPlan) -> None:
     # the paper's cubic, derived model: th2 reaches 3.93 rad, th2'(0) = 48.8 rad/s
     # (tests/test_planning.py::test_derived_plan_matches_physics_note) and the input energy
-    # is about 101 (tests/test_optimize.py, CUBIC_ENERGY = 101.19)
+    # is about 101 (tests/test_optimize_api.py, CUBIC_ENERGY = 101.19)
     quality = b.plan_quality(cubic, angle_limit=3.0)
     assert quality.energy == pytest.approx(cubic.input_energy(), rel=1e-9)
     assert quality.energy == pytest.approx(101.2, abs=0.1)

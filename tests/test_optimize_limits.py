@@ -25,6 +25,7 @@ BACKOFF = 1e-7
         ({"rate_limit": -1.0}, "plan.optimize.rate_limit"),
         ({"min_margin": -0.1}, "plan.optimize.min_margin"),
         ({"min_margin": math.inf}, "plan.optimize.min_margin"),
+        ({"min_margin": 0.0}, "plan.optimize.min_margin"),  # th2' could spike unseen
     ],
 )
 def test_plan_limits_validated(kwargs: dict[str, Any], key: str) -> None:
@@ -34,11 +35,11 @@ def test_plan_limits_validated(kwargs: dict[str, Any], key: str) -> None:
 
 def test_plan_limits_defaults_and_coercion() -> None:
     angles: Any = np.array([1, 2, 3])
-    limits = PlanLimits(angle_limit=angles, rate_limit=4, min_margin=0)
+    limits = PlanLimits(angle_limit=angles, rate_limit=4, min_margin=1)
     assert limits.angle_limit == (1.0, 2.0, 3.0)
     assert isinstance(limits.rate_limit, float) and isinstance(limits.min_margin, float)
     assert PlanLimits() == PlanLimits((math.inf,) * 3, math.inf, 0.02)
-    assert limits.margin_only() == PlanLimits(min_margin=0.0)
+    assert limits.margin_only() == PlanLimits(min_margin=1.0)
 
 
 def row_values(rows: Any, values: dict[int, float], s: float = 0.0) -> np.ndarray:

@@ -18,6 +18,6 @@ def test_plan_summary_of_the_papers_cubic() -> None:
     # with the correct b1 (tests/test_planning.py::test_derived_plan_matches_physics_note)
     assert round(summary["max_abs_theta2"], 2) == 3.93
     assert round(summary["peak_rate2"], 1) == 48.8
-    # the paper's cubic costs an input energy of about 101 (tests/test_optimize.py,
+    # the paper's cubic costs an input energy of about 101 (tests/test_optimize_api.py,
     # CUBIC_ENERGY = 101.19)
     assert 100 < summary["input_energy"] < 102

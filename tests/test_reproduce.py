@@ -32,6 +32,6 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path) -> None:
     assert "whose th1 moves monotonically" in report
     assert "## Monte Carlo study" in report and "144 trials" in report
     # the optimised plan beside the cubic (energy at most a third of the cubic's 101.19,
-    # tests/test_optimize.py CUBIC_ENERGY)
+    # tests/test_optimize_api.py CUBIC_ENERGY)
     row = next(line for line in report.splitlines() if line.startswith("| least energy "))
     assert float(row.split("|")[2]) < 101.19 / 3

@@ -87,7 +87,8 @@ class OptimizeSpec:
     rate_limit: float = number(INF, "bound on abs th1', abs th2' along the plan", "rad/s", gt=0,
                                inf=True)
     min_margin: float = number(0.02, "lower bound on the signed margin sin th1 * th1' along the "
-                               "plan (it never crosses the singular set)", "rad/s", ge=0)
+                               "plan (it never crosses the singular set; 0 would let th2' spike "
+                               "without bound between the check samples)", "rad/s", gt=0)
     free_rates: bool = flag(True, "optimise th1'(0) and th1'(T) as well (the plan's start_rate "
                             "and goal_rate are the starting guess)")
     constraint_samples: int = integer(201, "grid points where the limits are imposed", ge=10)

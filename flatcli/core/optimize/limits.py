@@ -72,9 +72,10 @@ class PlanLimits:
             )
         object.__setattr__(self, "rate_limit", rate)
         margin = float(self.min_margin)
-        if not math.isfinite(margin) or margin < 0:
+        if not (math.isfinite(margin) and margin > 0):
             raise FlatcliError(
-                f"plan.optimize.min_margin: must be finite and >= 0 rad/s, got {margin}"
+                f"plan.optimize.min_margin: must be finite and > 0 rad/s (at 0 th2' can spike "
+                f"without bound between the check samples), got {margin}"
             )
         object.__setattr__(self, "min_margin", margin)
 
