@@ -178,8 +178,9 @@ def test_plan_obeys_its_own_constraint(plan_factory: Callable[..., FlatPlan], mo
 def test_the_corrected_plan_folds_link_2_past_link_1(paper_plan: FlatPlan) -> None:
     """The cubic's start: th1' = 0.1 (its boundary condition), th2'(0) large (eq. 39 divides
     by h th1' = 0.1 h there); and momentum conservation makes th2 pass pi (link 2 folds past
-    link 1), as ``required_fold`` (tests/test_optimize_feasibility.py) says any monotone plan must reach
-    2.67 rad; th0' from the constraint (eq. 31) at t = 0 equals the plan's exact rate."""
+    link 1), as ``required_fold`` (tests/test_optimize_feasibility.py) says any monotone plan
+    must reach 2.67 rad; th0' from the constraint (eq. 31) at t = 0 equals the plan's exact
+    rate."""
     s = paper_plan.sample(np.linspace(0.0, 2.0, 20001))
     assert s.theta_dot[0, 1] == pytest.approx(0.1, abs=EXACT_TOL)
     assert s.theta_dot[0, 2] > 10.0
