@@ -82,8 +82,8 @@ DENSE = np.array([
 DENSE.setflags(write=False)
 
 #: Rows of an integrator's work buffer (WORK_ROWS, nx).
-_X, _XN, _K1, _K2, _K3, _K4, _K5, _K6, _K7, _Y, _XS, _FS = range(12)
-WORK_ROWS = 12
+_X, _XN, _K1, _K2, _K3, _K4, _K5, _K6, _K7, _Y, _XS, _FS, _Q0, _Q1, _Q2, _Q3 = range(16)
+WORK_ROWS = 16
 
 
 @jitable
@@ -382,19 +382,29 @@ def make_trial_integrators(
                 beyond = _out_of_bounds(xn[:nx], bound) or not _finite(k7[:nx])
                 # output samples inside (t, t_new), from the dense output, up to the first
                 # beyond the bound (when the step ends beyond it)
+                dense = False  # the step's dense-output polynomial, made at its first sample
+                q0, q1, q2, q3 = work[_Q0], work[_Q1], work[_Q2], work[_Q3]
                 while last < n and (last + 1) * dt < t_new * (1.0 - 1e-14):
                     j = last + 1
                     theta = ((j * dt) - t) / h
+                    if not dense:
+                        for i in range(nx):
+                            q0[i] = (k1[i] * DENSE[0, 0] + k3[i] * DENSE[2, 0]
+                                     + k4[i] * DENSE[3, 0] + k5[i] * DENSE[4, 0]
+                                     + k6[i] * DENSE[5, 0] + k7[i] * DENSE[6, 0])
+                            q1[i] = (k1[i] * DENSE[0, 1] + k3[i] * DENSE[2, 1]
+                                     + k4[i] * DENSE[3, 1] + k5[i] * DENSE[4, 1]
+                                     + k6[i] * DENSE[5, 1] + k7[i] * DENSE[6, 1])
+                            q2[i] = (k1[i] * DENSE[0, 2] + k3[i] * DENSE[2, 2]
+                                     + k4[i] * DENSE[3, 2] + k5[i] * DENSE[4, 2]
+                                     + k6[i] * DENSE[5, 2] + k7[i] * DENSE[6, 2])
+                            q3[i] = (k1[i] * DENSE[0, 3] + k3[i] * DENSE[2, 3]
+                                     + k4[i] * DENSE[3, 3] + k5[i] * DENSE[4, 3]
+                                     + k6[i] * DENSE[5, 3] + k7[i] * DENSE[6, 3])
+                        dense = True
                     for i in range(nx):
-                        q0 = (k1[i] * DENSE[0, 0] + k3[i] * DENSE[2, 0] + k4[i] * DENSE[3, 0]
-                              + k5[i] * DENSE[4, 0] + k6[i] * DENSE[5, 0] + k7[i] * DENSE[6, 0])
-                        q1 = (k1[i] * DENSE[0, 1] + k3[i] * DENSE[2, 1] + k4[i] * DENSE[3, 1]
-                              + k5[i] * DENSE[4, 1] + k6[i] * DENSE[5, 1] + k7[i] * DENSE[6, 1])
-                        q2 = (k1[i] * DENSE[0, 2] + k3[i] * DENSE[2, 2] + k4[i] * DENSE[3, 2]
-                              + k5[i] * DENSE[4, 2] + k6[i] * DENSE[5, 2] + k7[i] * DENSE[6, 2])
-                        q3 = (k1[i] * DENSE[0, 3] + k3[i] * DENSE[2, 3] + k4[i] * DENSE[3, 3]
-                              + k5[i] * DENSE[4, 3] + k6[i] * DENSE[5, 3] + k7[i] * DENSE[6, 3])
-                        xs[i] = x[i] + h * theta * (q0 + theta * (q1 + theta * (q2 + theta * q3)))
+                        xs[i] = x[i] + h * theta * (q0[i] + theta * (q1[i] + theta * (
+                            q2[i] + theta * q3[i])))
                     if beyond and _out_of_bounds(xs[:nx], bound):
                         return last, _BOUND, j * dt, estimate, steps, evaluations
                     fs = work[_FS]
