@@ -14,7 +14,7 @@ import numpy as np
 import pyarrow as pa
 
 from flatcli.core.metrics import COUNT_METRICS, METRIC_NAMES, Status, describe_status
-from flatcli.core.simulate import NoiseStreams, Trials, simulate
+from flatcli.core.simulate import NoiseStreams, Trials
 from flatcli.experiment import checked
 from flatcli.spec import perturbations
 from flatcli.sweep.draws import (
@@ -25,6 +25,7 @@ from flatcli.sweep.draws import (
     perturbation_columns,
 )
 from flatcli.sweep.layout import Cell, Chunk
+from flatcli.sweep.tally import simulate_counted
 
 #: Statuses ``--fail-fast`` stops at: trials that did not run, or not to the end.
 FAILURES = ("error", "diverged", "unresolved")
@@ -75,7 +76,7 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
         noise = NoiseStreams(spec.track.sensor_noise, seed, ids[valid].astype(np.int64))
         trials = Trials(np.ascontiguousarray(links[valid]), np.ascontiguousarray(momentum[valid]),
                         np.ascontiguousarray(initial[valid]), noise)
-        outcome = simulate(scenario, trials, checked(spec.track.integrator))
+        outcome = simulate_counted(scenario, trials, checked(spec.track.integrator))
         metrics[valid] = outcome.metrics
         status[valid] = outcome.status
         event[valid] = outcome.event
