@@ -4,11 +4,13 @@ The resolved spec, the cells with their grid values, the trials and chunks, an e
 the wall time and peak memory from a short calibration, and warnings about a study that
 would waste its time. Nothing is written (numba's own cache aside: a cold kernel compiles).
 
-The calibration runs, in this process after one warm-up trial, the first ``k`` trials of
-every cell (the same trial ids, so the same random draws; ``k`` about
-``CALIBRATION_TRIALS`` / cells), and the first trial of every cell alone: the difference is
-the time of trials 1..k-1, the rest a chunk's own cost (draws, rows, table). The sweep's
-chunks then cost that much each, spread over the workers.
+After one warm-up trial here (which loads the kernel), the calibration runs in one worker
+process forked from this one, as a sweep's are: the first ``k`` trials of every cell (the
+same trial ids, so the same random draws; ``k`` about ``CALIBRATION_TRIALS`` / cells), and
+the first trial of every cell alone. Their CPU times give the cost of a trial (the
+difference: trials 1..k-1) and a chunk's own cost (draws, rows, table); the sweep's chunks
+cost that much each, spread over the workers on idle cores (a busy machine is warned of),
+and the worker's peak memory is measured.
 
 Running the same draws in every cell also tells which grid keys change nothing: if every
 pair of cells that differ only in one key's value gives identical results, that key does
@@ -22,11 +24,13 @@ import io
 import itertools
 import json
 import math
+import multiprocessing
 import os
 import resource
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, replace
 from typing import Any
 
 import pandas as pd
@@ -55,14 +59,16 @@ class Calibration:
 
     per_cell: int
     trials: int
-    per_trial: float  # simulating one trial (warm) [s]
-    per_chunk: float  # a chunk's own cost beside its trials (draws, rows, table) [s]
+    per_trial: float  # simulating one trial (warm), CPU time [s]
+    per_chunk: float  # a chunk's own cost beside its trials (draws, rows, table), CPU [s]
     warm_up_seconds: float  # the first trial: loads (or compiles) the kernel
     compiled: bool  # the kernel was compiled by this check (numba's cache was cold)
     statuses: dict[str, int]
     row_bytes: float  # of a trials.parquet row in memory (Arrow)
     finish_seconds_per_trial: float  # final tables, per trial
     finish_bytes_per_trial: float  # the main process's tables at the end, per trial
+    finish_rows: int  # rows of the final tables this check built to time them
+    worker_mib: float | None  # peak resident memory of the worker that ran the calibration
     unchanged_keys: tuple[str, ...]  # grid keys whose values gave identical results
 
 
@@ -78,6 +84,8 @@ class CheckReport:
     calibration: Calibration | None
     base_rss_mib: float
     warnings: tuple[str, ...]
+    cores: int = 1  # this machine's cores (a local sweep's workers share them)
+    load: float = 0.0  # its load average over the last minute
 
     @property
     def chunks(self) -> list[Chunk]:
@@ -108,24 +116,42 @@ class CheckReport:
         return 0.0 if cal is None or cal.compiled else cal.warm_up_seconds
 
     @property
+    def cpu_seconds(self) -> float | None:
+        """Estimated CPU time of the sweep's trials, all workers together [s]."""
+        cal = self.calibration
+        if cal is None:
+            return None
+        return sum(cal.per_chunk + c.size * cal.per_trial for c in self.chunks)
+
+    @property
     def _trial_seconds(self) -> float:
         cal = self.calibration
         assert cal is not None
         chunks = self.chunks
-        busy = min(self.workers, len(chunks))
+        busy = min(self.workers, len(chunks), self.cores if self.executor == "local"
+                   else self.workers)
         work = sum(cal.per_chunk + c.size * cal.per_trial for c in chunks)
         largest = max(cal.per_chunk + c.size * cal.per_trial for c in chunks)
         return max(work / busy, largest)
 
     @property
     def memory_mib(self) -> tuple[float, float] | None:
-        """Estimated peak resident memory [MiB] of the main process and of each worker."""
+        """Estimated peak resident memory [MiB] of the main process and of each worker.
+
+        Main: this process's peak, which has done the main process's work on a smaller
+        scale (imports, planning, the final tables of ``finish_rows`` trials), plus the
+        final tables' bytes of the trials beyond those. Worker: the peak of the worker that
+        ran the calibration, plus the rows of a full chunk beyond its ``per_cell`` (twice:
+        the arrays and the table built from them).
+        """
         cal = self.calibration
         if cal is None:
             return None
-        main = self.base_rss_mib + self.layout.total * cal.finish_bytes_per_trial / MIB
-        worker = self.base_rss_mib + 2 * self.layout.chunk_size * cal.row_bytes / MIB
-        return main, worker
+        extra_rows = max(self.layout.total - cal.finish_rows, 0)
+        main = self.base_rss_mib + extra_rows * cal.finish_bytes_per_trial / MIB
+        chunk_rows = 2 * max(self.layout.chunk_size - cal.per_cell, 0) * cal.row_bytes / MIB
+        worker = (cal.worker_mib if cal.worker_mib is not None else self.base_rss_mib)
+        return main, worker + chunk_rows
 
     def text(self) -> str:
         """The report as the terminal shows it."""
@@ -154,16 +180,20 @@ class CheckReport:
             compiled = (f"; the kernel was compiled first ({cal.warm_up_seconds:.0f} s, now "
                         "cached)" if cal.compiled else "")
             lines.append(f"calibration: {cal.trials} trials ({cal.per_cell} per cell, one "
-                         f"process): {1e3 * cal.per_trial:.3g} ms per trial and "
+                         f"worker process): {1e3 * cal.per_trial:.3g} ms per trial and "
                          f"{1e3 * cal.per_chunk:.3g} ms per chunk; {counts}{compiled}")
             total = self.estimate_seconds
             assert total is not None
             where = f"{self.workers} {self.executor} worker{'s' if self.workers > 1 else ''}"
+            if self.executor == "local":
+                where += f", {min(self.workers, self.cores)} idle core" + (
+                    "s" if min(self.workers, self.cores) > 1 else "")
             lines.append(
                 f"estimate on {where}: {_duration(total)} (planning "
                 f"{self.planning_seconds:.1f} s, loading the kernel {self._load_seconds:.1f} s, "
                 f"trials {self._trial_seconds:.1f} s, final tables "
-                f"{cal.finish_seconds_per_trial * lay.total:.1f} s)")
+                f"{cal.finish_seconds_per_trial * lay.total:.1f} s); the trials take "
+                f"{_duration(self.cpu_seconds or 0.0)} of CPU")
             memory = self.memory_mib
             assert memory is not None
             main, worker = memory
@@ -245,14 +275,47 @@ def check_spec(spec: Spec, workers: int | None = None, executor: str = "local",
     if calibrate:
         compiled = announce_compile(quiet)
         calibration = _calibrate(lay, compiled)
-    report = CheckReport(spec, lay, n_workers, executor, planning, calibration, _rss_mib(), ())
-    return CheckReport(spec, lay, n_workers, executor, planning, calibration,
-                       report.base_rss_mib, tuple(_warnings(report)))
+    report = CheckReport(spec, lay, n_workers, executor, planning, calibration, _rss_mib(), (),
+                         default_workers(), os.getloadavg()[0])
+    return replace(report, warnings=tuple(_warnings(report)))
 
 
 def _rss_mib() -> float:
     """Peak resident memory of this process so far [MiB]."""
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def _calibration_runs(lay: Layout, k: int) -> tuple[list[pa.Table], float, float]:
+    """The calibration chunks (a worker's job): per cell its first trial alone, then its
+    first k trials; the tables of the latter, and the two total CPU times [s] (what the
+    trials cost on a core of their own, however busy the machine is now)."""
+    tables: list[pa.Table] = []
+    first_seconds = all_seconds = 0.0
+    for cell in lay.cells:
+        if k > 1:  # its first trial alone: the chunk's own cost, and that trial's
+            began = time.process_time()
+            run_chunk(cell, Chunk(cell.index, 0, 1))
+            first_seconds += time.process_time() - began
+        began = time.process_time()
+        result = run_chunk(cell, Chunk(cell.index, 0, k))  # the same draws in every cell
+        all_seconds += time.process_time() - began
+        tables.append(result.table)
+    return tables, first_seconds, all_seconds
+
+
+def _in_a_worker(lay: Layout, k: int) -> tuple[list[pa.Table], float, float, float | None]:
+    """The calibration runs in one worker process forked from this one, as a sweep's
+    workers are (they inherit the loaded kernel), and that process's peak resident memory
+    [MiB]; in this process (and no peak) where there is no fork."""
+    try:
+        context = multiprocessing.get_context("fork")
+    except ValueError:  # pragma: no cover - not POSIX
+        return (*_calibration_runs(lay, k), None)
+    before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    with ProcessPoolExecutor(1, mp_context=context) as pool:
+        tables, first_seconds, all_seconds = pool.submit(_calibration_runs, lay, k).result()
+    after = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    return tables, first_seconds, all_seconds, (after / 1024 if after > before else None)
 
 
 def _calibrate(lay: Layout, compiled: bool) -> Calibration:
@@ -262,14 +325,7 @@ def _calibrate(lay: Layout, compiled: bool) -> Calibration:
     warm_up = time.perf_counter() - began
     n = len(lay.cells)
     k = min(lay.trials_per_cell, 1 + math.ceil(CALIBRATION_TRIALS / n))
-    tables: list[pa.Table] = []
-    first_seconds = all_seconds = 0.0
-    for cell in lay.cells:
-        if k > 1:  # its first trial alone: the chunk's own cost, and that trial's
-            first_seconds += run_chunk(cell, Chunk(cell.index, 0, 1)).seconds
-        result = run_chunk(cell, Chunk(cell.index, 0, k))  # the same draws in every cell
-        all_seconds += result.seconds
-        tables.append(result.table)
+    tables, first_seconds, all_seconds, worker_mib = _in_a_worker(lay, k)
     if k > 1:  # trials 1..k-1 cost the difference; the rest is the chunk's own
         per_trial = max(all_seconds - first_seconds, 0.0) / (n * (k - 1))
         per_chunk = max(first_seconds / n - per_trial, 0.0)
@@ -281,12 +337,13 @@ def _calibrate(lay: Layout, compiled: bool) -> Calibration:
             statuses[s] = statuses.get(s, 0) + 1
     rows = sum(t.num_rows for t in tables)
     row_bytes = sum(t.nbytes for t in tables) / rows
-    finish_seconds, finish_bytes = _finish_cost(lay, tables)
+    finish_seconds, finish_bytes, finish_rows = _finish_cost(lay, tables)
     return Calibration(k, rows, per_trial, per_chunk, warm_up, compiled, statuses, row_bytes,
-                       finish_seconds, finish_bytes, tuple(_unchanged_keys(lay, tables)))
+                       finish_seconds, finish_bytes, finish_rows, worker_mib,
+                       tuple(_unchanged_keys(lay, tables)))
 
 
-def _finish_cost(lay: Layout, tables: Sequence[pa.Table]) -> tuple[float, float]:
+def _finish_cost(lay: Layout, tables: Sequence[pa.Table]) -> tuple[float, float, int]:
     """Time and memory per trial of the final tables, measured on the calibration rows
     repeated to a trials table of up to FINISH_SAMPLE_ROWS rows: written as Parquet,
     read back (the columns the summary needs) and summarised per cell."""
@@ -295,7 +352,7 @@ def _finish_cost(lay: Layout, tables: Sequence[pa.Table]) -> tuple[float, float]
     repeats = math.ceil(n / combined.num_rows)
     big = pa.concat_tables([combined] * repeats).slice(0, n).combine_chunks()
     cells = {c.index: {k: grid_cell_text(v) for k, v in c.values.items()} for c in lay.cells}
-    began = time.perf_counter()
+    began = time.process_time()
     buffer = io.BytesIO()
     pq.write_table(big, buffer)
     buffer.seek(0)
@@ -303,9 +360,9 @@ def _finish_cost(lay: Layout, tables: Sequence[pa.Table]) -> tuple[float, float]
     read = pq.read_table(buffer, columns=columns)
     frame = read.to_pandas()
     summarize_trials(frame, cells)
-    seconds = time.perf_counter() - began
+    seconds = time.process_time() - began
     in_memory = read.nbytes + int(frame.memory_usage(deep=True).sum())
-    return seconds / n, in_memory / n
+    return seconds / n, in_memory / n, n
 
 
 def _unchanged_keys(lay: Layout, tables: Sequence[pa.Table]) -> list[str]:
@@ -358,6 +415,13 @@ def _warnings(report: CheckReport) -> list[str]:
             out.append(f"grid key {key!r} changes nothing: its values gave identical results "
                        f"on all {cal.trials} calibration trials (same draws in every cell); "
                        "it does not reach the simulation (or not on these trials)")
+    if report.executor == "local" and report.load >= report.cores:
+        out.append(f"this machine is busy (load average {report.load:.1f} on {report.cores} "
+                   f"core{'s' if report.cores > 1 else ''}): the sweep will take longer than "
+                   "the estimate, which assumes idle cores")
+    if report.executor == "local" and report.workers > report.cores:
+        out.append(f"{report.workers} workers on {report.cores} cores: no faster than "
+                   f"{report.cores}")
     chunks = len(report.chunks)
     if report.executor == "local" and chunks < report.workers:
         out.append(f"{chunks} chunk{'s' if chunks > 1 else ''} for {report.workers} workers: "

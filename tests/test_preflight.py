@@ -4,6 +4,7 @@ estimate, warnings that are true, and nothing written."""
 from __future__ import annotations
 
 import tomllib
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +14,7 @@ from small_sweep import SPEC, write_spec
 
 from flatcli import api
 from flatcli.cli import main
-from flatcli.preflight import CheckReport, resolved_toml
+from flatcli.preflight import CheckReport, _warnings, resolved_toml
 from flatcli.spec import resolve
 from flatcli.sweep import Chunk, layout, run_chunk
 
@@ -62,7 +63,19 @@ def test_calibration_and_estimate(report: CheckReport) -> None:
     memory = report.memory_mib
     assert memory is not None and memory[0] > 50 and memory[1] > 50
     assert "estimate on 2 local workers" in report.text()
-    assert report.warnings == ()
+    quiet_machine = replace(report, cores=8, load=0.0)
+    assert _warnings(quiet_machine) == []
+
+
+def test_a_busy_machine_and_too_many_workers_are_warnings(report: CheckReport) -> None:
+    busy = replace(report, cores=2, load=5.0, workers=3)
+    assert _warnings(busy) == [
+        "this machine is busy (load average 5.0 on 2 cores): the sweep will take longer "
+        "than the estimate, which assumes idle cores",
+        "3 workers on 2 cores: no faster than 2",
+    ]
+    # 3 workers on 2 cores spread the 6 chunks as 2 would
+    assert busy.estimate_seconds == replace(report, cores=2, workers=2).estimate_seconds
 
 
 def test_resolved_spec_reads_back_as_the_same_spec(report: CheckReport) -> None:
@@ -103,7 +116,7 @@ def test_more_workers_than_chunks_is_a_warning() -> None:
                                                                        "std": 0.01}}}},
                        workers=3, calibrate=False, quiet=True)
     assert result.calibration is None and result.estimate_seconds is None
-    assert result.warnings == ("1 chunk for 3 workers: 2 would idle (set sweep.chunk smaller)",)
+    assert "1 chunk for 3 workers: 2 would idle (set sweep.chunk smaller)" in result.warnings
 
 
 def test_dry_run_prints_the_check_and_writes_nothing(tmp_path: Path,
