@@ -90,12 +90,9 @@ def __getattr__(name: str) -> Any:
     import importlib
 
     value = getattr(importlib.import_module(module), name)
-    if name == "sweep":
-        # importing flatcli.api imports the subpackage flatcli.sweep, which binds the
-        # attribute 'sweep' of this package to that module; the function wins
-        globals()["sweep"] = value
-    else:
-        globals()[name] = value
+    # cached here; importing the subpackage flatcli.sweep later rebinds 'sweep' to it, and
+    # calling that package runs the function too (flatcli/sweep/__init__.py)
+    globals()[name] = value
     return value
 
 

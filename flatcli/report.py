@@ -323,10 +323,10 @@ class Progress:
         fresh = self.fresh
         done = self._resumed + fresh
         if self._bar is not None:
+            self._bar.set_postfix_str(_counts_text(self.counts), refresh=False)
             if fresh > self._shown:
-                self._bar.update(fresh - self._shown)
+                self._bar.update(fresh - self._shown)  # redraws (at most 10 times a second)
                 self._shown = fresh
-            self._bar.set_postfix_str(_counts_text(self.counts), refresh=True)
             return
         now = time.perf_counter()
         if now - self._last >= self.interval or final:
