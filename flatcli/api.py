@@ -27,7 +27,7 @@ import sys
 from collections.abc import Iterable, Mapping
 from functools import cached_property
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 import pandas as pd
 
@@ -58,6 +58,9 @@ from flatcli.runs import (
 )
 from flatcli.spec import Spec, parse_set, read_toml, resolve
 from flatcli.storage import run_record, write_json, write_parquet
+
+if TYPE_CHECKING:
+    from flatcli.preflight import CheckReport
 
 SpecLike = str | os.PathLike[str] | Mapping[str, Any] | Spec | None
 Overrides = Mapping[str, Any] | Iterable[str] | None
@@ -406,7 +409,8 @@ def sweep(spec: SpecLike, out: str | os.PathLike[str] | None = None, *,
 
 
 def check(spec: SpecLike, overrides: Overrides = None, *, workers: int | None = None,
-          executor: str = "local", calibrate: bool = True, quiet: bool = False) -> Any:
+          executor: str = "local", calibrate: bool = True,
+          quiet: bool = False) -> CheckReport:
     """What a sweep of this spec would do, without doing it: cells, trials, chunks, a time
     and memory estimate from a short calibration, and warnings (``flatcli.preflight``).
     Writes nothing. Returns a CheckReport (``.text()``, ``.cells``, ``.warnings``)."""
