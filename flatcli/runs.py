@@ -16,6 +16,7 @@ metadata only, so listing a thousand runs is quick.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -110,6 +111,19 @@ def link_latest(directory: Path) -> None:
         tmp.unlink(missing_ok=True)
 
 
+def recorded_digest(record: Mapping[str, Any]) -> str | None:
+    """The spec digest a run.json records; of one written before run.json held it, the
+    digest of its spec (``Spec.digest``: SHA-256 of the canonical JSON, which run.json's
+    spec is, read back)."""
+    if "digest" in record:
+        return str(record["digest"])
+    spec = record.get("spec")
+    if not isinstance(spec, Mapping):
+        return None
+    text = json.dumps(spec, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
 def claim(out: Path | None, command: str, name: str, digest: str, force: bool = False,
           root: Path = ROOT) -> Target:
     """Where a ``command`` run of spec ``digest`` goes; RunDirectoryError if ``out`` holds a
@@ -126,10 +140,10 @@ def claim(out: Path | None, command: str, name: str, digest: str, force: bool = 
                 return Target(path, fresh=True)
     if out.exists() and not out.is_dir():
         raise RunDirectoryError(f"--out {out}: is a file")
+    if (out / SWEEP_MANIFEST).exists():  # even with --force: never mix with a sweep's files
+        raise RunDirectoryError(f"--out {out}: holds a sweep; use another --out")
     if force:
         return Target(out, fresh=False, force=True)
-    if (out / SWEEP_MANIFEST).exists():
-        raise RunDirectoryError(f"--out {out}: holds a sweep; use another --out")
     record = read_json(out / RECORD)
     if (out / RECORD).exists() and record is None:
         raise RunDirectoryError(f"--out {out}: its run.json is unreadable; use --force to "
@@ -140,7 +154,7 @@ def claim(out: Path | None, command: str, name: str, digest: str, force: bool = 
             raise RunDirectoryError(
                 f"--out {out}: holds a {previous} run; use --force to replace it, or another "
                 "--out (without --out every run gets a directory of its own)")
-        if record.get("digest") != digest:
+        if recorded_digest(record) != digest:
             raise RunDirectoryError(
                 f"--out {out}: holds a {previous} run of a different spec; use --force to "
                 "replace it, or another --out (without --out every run gets a directory of "
@@ -194,6 +208,7 @@ def sweep_state(directory: Path) -> SweepState | None:
     A chunk file counts if its provenance carries the manifest's spec digest (as a resume
     counts it). Nothing is modified: a sweep may be running there right now.
     """
+    import pyarrow as pa
     import pyarrow.parquet as pq
 
     from flatcli.storage import read_provenance
@@ -210,7 +225,7 @@ def sweep_state(directory: Path) -> SweepState | None:
             if read_provenance(path).get("digest") != digest:
                 continue
             done += pq.read_metadata(path).num_rows
-        except (OSError, ValueError, Exception):  # a file being written or damaged
+        except (OSError, ValueError, pa.ArrowException):  # being written, or damaged
             continue
         files.append(path)
     record = read_json(directory / RECORD)

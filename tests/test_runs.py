@@ -68,8 +68,9 @@ def test_claim_of_out_refuses_another_run(tmp_path: Path) -> None:
     target.open()  # --force removes the run's own files, nothing else
     assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]
     (out / "sweep.json").write_text("{}")
-    with pytest.raises(RunDirectoryError, match="holds a sweep"):
-        claim(out, "plan", "x", "d1")
+    for force in (False, True):
+        with pytest.raises(RunDirectoryError, match="holds a sweep"):
+            claim(out, "plan", "x", "d1", force=force)
     (tmp_path / "f").write_text("")
     with pytest.raises(RunDirectoryError, match="is a file"):
         claim(tmp_path / "f", "plan", "x", "d1")
@@ -171,3 +172,18 @@ def test_summarize_a_partial_sweep_says_what_is_missing(tree: Path) -> None:
     assert not list((tree / "cut").glob("*.png"))
     code, out = cli("summarize", str(tree / "small"))
     assert code == 0 and out == (tree / "small" / "summary.md").read_text()
+
+
+def test_a_run_json_without_a_digest_is_compared_by_its_spec(tmp_path: Path) -> None:
+    from flatcli.spec import resolve
+    from flatcli.storage import to_jsonable
+
+    spec = resolve({"plan": {"optimize": {"rate_limit": 5.0}}})  # with inf among its values
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "run.json").write_text(json.dumps({"command": "plan",
+                                              "spec": to_jsonable(spec.tree)}, indent=2))
+    claim(out, "plan", spec.name, spec.digest())  # the same spec: its files may be rewritten
+    other = spec.with_overrides({"plan.duration": 3.0})
+    with pytest.raises(RunDirectoryError, match="of a different spec"):
+        claim(out, "plan", other.name, other.digest())
