@@ -1,8 +1,24 @@
 """flatcli: flatness-based planning, feedback control and Monte Carlo studies of planar
-free-floating space robots (Franch, Agrawal, Oh, Fattah, IROS 2003)."""
+free-floating space robots (Franch, Agrawal, Oh, Fattah, IROS 2003).
+
+The Python API (``flatcli.api``; each command of the CLI is a thin wrapper over it)::
+
+    import flatcli
+    p = flatcli.plan(overrides={"plan.duration": 3.0})    # p.frame, p.metrics, p.save()
+    t = flatcli.track("my.toml")                          # t.frame, t.metrics
+    s = flatcli.sweep("study.toml", "runs/study", workers=2)  # s.trials, s.summary
+    r = flatcli.load("runs/paper_example/latest")
+    flatcli.check("study.toml").text()                    # what a sweep would do
+
+``import flatcli`` stays light (no numpy, numba, scipy or pandas): the API loads on first
+use (PEP 562 module ``__getattr__``).
+"""
+
+from __future__ import annotations
 
 import os
 from importlib.metadata import PackageNotFoundError, version
+from typing import TYPE_CHECKING, Any
 
 # flatcli's matrices are small: threaded BLAS only adds overhead (SLSQP runs 3-5x slower on
 # two cores) and oversubscribes the cores a sweep's worker processes already fill. Set
@@ -14,3 +30,71 @@ try:
     __version__ = version("flatcli")
 except PackageNotFoundError:  # pragma: no cover - running from a source tree
     __version__ = "0+unknown"
+
+if TYPE_CHECKING:
+    from flatcli.api import (
+        PlanResult,
+        Run,
+        SweepResult,
+        TrackResult,
+        check,
+        load,
+        load_spec,
+        plan,
+        sweep,
+        track,
+    )
+    from flatcli.core.model import FlatcliError
+    from flatcli.spec import Spec, SpecError
+
+#: Public names and the module each one lives in (loaded on first use).
+_LAZY = {
+    "plan": "flatcli.api",
+    "track": "flatcli.api",
+    "sweep": "flatcli.api",
+    "check": "flatcli.api",
+    "load": "flatcli.api",
+    "load_spec": "flatcli.api",
+    "Run": "flatcli.api",
+    "PlanResult": "flatcli.api",
+    "TrackResult": "flatcli.api",
+    "SweepResult": "flatcli.api",
+    "FlatcliError": "flatcli.core.model",
+    "Spec": "flatcli.spec",
+    "SpecError": "flatcli.spec",
+}
+
+__all__ = [
+    "FlatcliError",
+    "PlanResult",
+    "Run",
+    "Spec",
+    "SpecError",
+    "SweepResult",
+    "TrackResult",
+    "__version__",
+    "check",
+    "load",
+    "load_spec",
+    "plan",
+    "sweep",
+    "track",
+]
+
+
+def __getattr__(name: str) -> Any:
+    """Load a public name's module on first use (PEP 562)."""
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'flatcli' has no attribute {name!r}")
+    import importlib
+
+    value = getattr(importlib.import_module(module), name)
+    # cached here; importing the subpackage flatcli.sweep later rebinds 'sweep' to it, and
+    # calling that package runs the function too (flatcli/sweep/__init__.py)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_LAZY})

@@ -1,50 +1,38 @@
-"""The ``flatcli`` command line: each command a few lines of wiring.
+"""The ``flatcli`` command line: each command a thin wrapper over the Python API
+(``flatcli.api``).
 
 Every user error (a bad spec, option or file, an infeasible request) ends as one line on
 stderr, ``error: ...``, with exit status 2, no traceback, and no output written. Options that
 several commands take are declared once, below, as decorators (as pip-tools does).
+
+Only click is imported up front: numpy, numba, scipy and pandas load inside the command that
+needs them, so ``flatcli --help``, ``--version`` and shell completion answer at once.
 """
 
 from __future__ import annotations
 
 import contextlib
+import shlex
 import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any, NoReturn, TypeVar
+from typing import TYPE_CHECKING, Any, NoReturn, TypeVar
 
 import click
 
 from flatcli import __version__
-from flatcli.core.model import (
-    FlatcliError,
-    FlatnessCheck,
-    constraint_coefficients,
-    flatness_check,
-)
-from flatcli.core.optimize import OBJECTIVES
-from flatcli.executors import EXECUTORS
-from flatcli.experiment import checked, plan_and_optimization, plant_from, robot_from, run_track
-from flatcli.outputs import plan_frame, write_track
-from flatcli.report import (
-    Limits,
-    Progress,
-    metrics_text,
-    optimization_summary,
-    optimization_text,
-    plan_summary,
-    plan_text,
-    plot_plan,
-    plot_sweep,
-    table,
-)
-from flatcli.spec import Spec, load_spec, spec_toml
-from flatcli.storage import run_record, write_json, write_parquet
+
+if TYPE_CHECKING:  # the core loads numba: imported where a command needs it
+    from flatcli.core.model import FlatnessCheck
 
 F = TypeVar("F", bound=Callable[..., Any])
 
 EXIT_USAGE = 2
 RESUME_HINT = "finished chunks are kept in {}/trials; run the same command again to resume"
+#: ``flatcli.core.optimize.OBJECTIVES`` and ``flatcli.executors.EXECUTORS``, spelled out here
+#: so that ``--help`` need not import the numerical core (tests/test_cli.py checks they agree).
+OBJECTIVES = ("energy", "peak_rate", "effort", "margin")
+EXECUTORS = ("local", "dask")
 
 
 def fail(message: str) -> NoReturn:
@@ -55,6 +43,8 @@ def fail(message: str) -> NoReturn:
 @contextlib.contextmanager
 def user_errors() -> Iterator[None]:
     """Turn domain errors into one line and exit status 2."""
+    from flatcli.core.model import FlatcliError  # the core loads with the command's work
+
     try:
         yield
     except FlatcliError as exc:
@@ -96,7 +86,8 @@ def set_option(help: str = "Override a spec key (dotted; VALUE in TOML), repeata
 
 
 def out_option(default: Path | None = None,
-               help: str = "Output directory [default: runs/<name>/].") -> Callable[[F], F]:
+               help: str = "Output directory [default: a new runs/<name>/<time>-<id>/, "
+                           "linked as runs/<name>/latest].") -> Callable[[F], F]:
     return click.option("--out", type=click.Path(path_type=Path, file_okay=False),
                         default=default, show_default=default is not None, help=help)
 
@@ -113,6 +104,16 @@ def plot_option(help: str) -> Callable[[F], F]:
     return click.option("--plot", is_flag=True, help=help)
 
 
+def force_option(help: str) -> Callable[[F], F]:
+    return click.option("--force", is_flag=True, help=help)
+
+
+def executor_option(fn: F) -> F:
+    return click.option(
+        "--executor", type=click.Choice(list(EXECUTORS)), default=EXECUTORS[0],
+        show_default=True, help="Run chunks on this machine or on a Dask cluster.")(fn)
+
+
 def optimize_option(fn: F) -> F:
     return click.option(
         "--optimize", "objective", type=click.Choice(list(OBJECTIVES)),
@@ -121,20 +122,18 @@ def optimize_option(fn: F) -> F:
 
 
 def spec_options(fn: F) -> F:
-    """SPEC argument, --set, --out, -q: shared by the commands that run one spec."""
-    for decorator in (quiet_option(), out_option(), set_option(), spec_argument()):
+    """SPEC argument, --set, --out, --force, -q: shared by the commands that run one spec."""
+    for decorator in (quiet_option(), force_option(
+            "Write into an --out directory that holds another run (its files are replaced)."),
+            out_option(), set_option(), spec_argument()):
         fn = decorator(fn)
     return fn
 
 
-def load(spec: Path | None, sets: tuple[str, ...], objective: str | None = None) -> Spec:
-    """The spec of a command line (``--optimize`` is one more ``--set``)."""
-    extra = () if objective is None else (f"plan.optimize.objective={objective}",)
-    return load_spec(spec, (*sets, *extra))
-
-
-def out_dir(spec: Spec, out: Path | None) -> Path:
-    return out if out is not None else Path("runs") / spec.name
+def overrides(sets: tuple[str, ...], objective: str | None = None) -> list[str]:
+    """The ``--set`` items of a command line (``--optimize`` is one more)."""
+    extra = [] if objective is None else [f"plan.optimize.objective={objective}"]
+    return [*sets, *extra]
 
 
 def say(quiet: bool, text: str) -> None:
@@ -159,30 +158,17 @@ def main() -> None:
 @spec_options
 @optimize_option
 @plot_option("Also write plan.png.")
-def plan(spec: Path | None, sets: tuple[str, ...], out: Path | None, quiet: bool,
+def plan(spec: Path | None, sets: tuple[str, ...], out: Path | None, force: bool, quiet: bool,
          objective: str | None, plot: bool) -> None:
     """Plan a point-to-point maneuver through the flat outputs; write plan.parquet."""
+    from flatcli import api
+
     with user_errors():
-        s = load(spec, sets, objective)
-        planned, optimization = plan_and_optimization(s)
-        samples = planned.sample(planned.grid(s.plan.samples))
-    directory = out_dir(s, out)
-    summary = plan_summary(planned, samples)
-    opt = None if optimization is None else optimization_summary(
-        optimization, str(s.plan.optimize.objective))
-    record = run_record("plan", s.tree, summary=summary, optimization=opt)
-    write_parquet(directory / "plan.parquet", plan_frame(samples), record)
-    write_json(directory / "run.json", record)
-    if plot:
-        opt_spec = s.plan.optimize
-        limits = Limits(singular_threshold=s.track.singular_threshold) if opt is None else Limits(
-            s.track.singular_threshold, opt_spec.min_margin, opt_spec.rate_limit,
-            opt_spec.angle_limit)
-        plot_plan(samples, directory / "plan.png", f"plan {s.name!r} ({planned.model} model)",
-                  limits)
-    say(quiet, plan_text(s.name, planned, samples))
-    if opt is not None:
-        say(quiet, "\n" + optimization_text(opt))
+        s = api.load_spec(spec, overrides(sets, objective))
+        target = api.output_target("plan", s, out, force)  # refused before any work
+        result = api.plan(s)
+        directory = result.save(target, plot=plot)
+    say(quiet, result.text())
     say(quiet, f"wrote {directory}/plan.parquet" + (" and plan.png" if plot else ""))
 
 
@@ -190,18 +176,18 @@ def plan(spec: Path | None, sets: tuple[str, ...], out: Path | None, quiet: bool
 @spec_options
 @optimize_option
 @plot_option("Also write track.png.")
-def track(spec: Path | None, sets: tuple[str, ...], out: Path | None, quiet: bool,
-          objective: str | None, plot: bool) -> None:
+def track(spec: Path | None, sets: tuple[str, ...], out: Path | None, force: bool,
+          quiet: bool, objective: str | None, plot: bool) -> None:
     """Track the plan in closed loop from a perturbed initial state; write track.parquet."""
+    from flatcli import api
+
     with user_errors():
-        s = load(spec, sets, objective)
-        run = run_track(s)
-    directory = out_dir(s, out)
-    title = f"track {s.name!r}: kp = {s.track.kp}, kv = {s.track.kv}"
-    names = write_track(directory, run, run_record("track", s.tree, metrics=run.metrics),
-                        title if plot else None)
-    say(quiet, metrics_text(s.name, run.metrics))
-    say(quiet, f"wrote {directory}/" + ", ".join(names))
+        s = api.load_spec(spec, overrides(sets, objective))
+        target = api.output_target("track", s, out, force)  # refused before any work
+        result = api.track(s, quiet=quiet)
+        directory = result.save(target, plot=plot)
+    say(quiet, result.text())
+    say(quiet, f"wrote {directory}/" + ", ".join(result.files))
 
 
 @main.command()
@@ -212,8 +198,13 @@ def design(spec: Path | None, sets: tuple[str, ...]) -> None:
 
     Exit status 0 when they apply (flatcli can plan for it), 1 when they do not.
     """
+    from flatcli import api
+    from flatcli.core.model import constraint_coefficients, flatness_check
+    from flatcli.experiment import checked, plant_from, robot_from
+    from flatcli.report import table
+
     with user_errors():
-        s = load(spec, sets)
+        s = api.load_spec(spec, sets)
         robot = robot_from(s)
         plant = plant_from(s)
     check = flatness_check(robot)
@@ -238,32 +229,59 @@ def design_verdict(what: str, check: FlatnessCheck) -> str:
 
 
 @main.command()
+@spec_argument()
+@set_option()
+@workers_option("Worker processes the estimate assumes [default: one per core].")
+@executor_option
+@quiet_option("No compile notice.")
+def check(spec: Path | None, sets: tuple[str, ...], workers: int | None, executor: str,
+          quiet: bool) -> None:
+    """What a sweep of SPEC would do, without doing it: the resolved spec, the cells and
+    their grid values, trials, chunks, a time and memory estimate from a short calibration,
+    and warnings. Writes nothing."""
+    from flatcli import api
+
+    with user_errors():
+        report = api.check(spec, sets, workers=workers, executor=executor, quiet=quiet)
+    click.echo(report.text())
+
+
+@main.command()
 @spec_argument(required=True)
-@out_option()
+@click.option("--out", type=click.Path(path_type=Path, file_okay=False),
+              help="Output directory [default: runs/<name>/].")
 @workers_option()
 @set_option()
 @quiet_option("No progress and no tables.")
 @click.option("--fail-fast", is_flag=True,
               help="Stop at the first trial that raises or diverges (exit status 1).")
-@click.option("--force", is_flag=True, help="Start over in a directory holding another sweep.")
-@click.option("--executor", type=click.Choice(list(EXECUTORS)), default=EXECUTORS[0],
-              show_default=True, help="Run chunks on this machine or on a Dask cluster.")
+@force_option("Start over in a directory holding another sweep.")
+@executor_option
 @click.option("--scheduler", metavar="ADDRESS",
               help="Dask scheduler address (tcp://host:8786), or 'local' for a LocalCluster.")
 @click.option("--rerun", "rerun", type=int, metavar="TRIAL",
               help="Re-run one finished trial alone (as flatcli track) and compare.")
 @click.option("--print-spec", is_flag=True, help="With --rerun: print that trial's track spec.")
+@click.option("--dry-run", is_flag=True,
+              help="Show what the sweep would do (as flatcli check) and write nothing.")
 @plot_option("Also write the summary figures.")
 def sweep(spec: Path, out: Path | None, workers: int | None, sets: tuple[str, ...],
           quiet: bool, fail_fast: bool, force: bool, executor: str, scheduler: str | None,
-          rerun: int | None, print_spec: bool, plot: bool) -> None:
+          rerun: int | None, print_spec: bool, dry_run: bool, plot: bool) -> None:
     """Run a Monte Carlo sweep from a TOML spec with a [sweep] table (resumable)."""
+    from flatcli import api
     from flatcli.executors import WorkerLostError
-    from flatcli.sweep import FailFastError, rerun_and_compare, run_sweep, trial_spec
+    from flatcli.spec import spec_toml
+    from flatcli.sweep import FailFastError, rerun_and_compare, trial_spec
 
     with user_errors():
-        s = load(spec, sets)
-        directory = out_dir(s, out)
+        s = api.load_spec(spec, sets)
+        directory = out if out is not None else Path("runs") / s.name
+        if dry_run:
+            if rerun is not None or print_spec:
+                fail("--dry-run: not with --rerun or --print-spec")
+            click.echo(api.check(s, workers=workers, executor=executor, quiet=quiet).text())
+            return
         if rerun is not None and print_spec:
             click.echo(spec_toml(trial_spec(s, directory, rerun)), nl=False)
             return
@@ -276,8 +294,8 @@ def sweep(spec: Path, out: Path | None, workers: int | None, sets: tuple[str, ..
         if print_spec:
             fail("--print-spec: only with --rerun TRIAL")
         try:
-            done = run_sweep(s, directory, executor, workers, scheduler, force, fail_fast,
-                             Progress(s.name, quiet))
+            done = api.sweep(s, directory, workers=workers, executor=executor,
+                             scheduler=scheduler, force=force, fail_fast=fail_fast, quiet=quiet)
         except FailFastError as exc:
             click.echo(f"error: {exc}", err=True)
             sys.exit(1)
@@ -288,43 +306,100 @@ def sweep(spec: Path, out: Path | None, workers: int | None, sets: tuple[str, ..
             click.echo(f"error: interrupted; {RESUME_HINT.format(directory)}", err=True)
             sys.exit(130)
     if plot:
-        plot_sweep(directory)
+        done.plot()
     say(quiet, done.summary_text)
-    say(quiet, f"{done.layout.total} trials ({done.simulated} simulated now) in "
+    say(quiet, f"{done.state.total} trials ({done.simulated} simulated now) in "
                f"{done.wall_seconds:.1f} s; wrote {directory}/trials.parquet, summary.md")
 
 
 @main.command()
 @click.argument("directory", type=click.Path(path_type=Path, file_okay=False))
-@plot_option("Also write the summary figures.")
+@plot_option("Also write the summary figures (a finished sweep only).")
 def summarize(directory: Path, plot: bool) -> None:
-    """Print a finished sweep's summary tables again (and --plot its figures)."""
-    summary_md = directory / "summary.md"
-    if not summary_md.exists():
-        fail(f"{summary_md} not found: not a finished sweep directory")
-    click.echo(summary_md.read_text(), nl=False)
-    if plot:
-        with user_errors():
-            paths = plot_sweep(directory)
-        click.echo("wrote " + ", ".join(str(p) for p in paths))
+    """Print a sweep's summary tables again (and --plot its figures).
+
+    Of an interrupted sweep: the tables of its finished trials, and how much is missing.
+    """
+    from flatcli import api
+
+    with user_errors():
+        if not (directory / "sweep.json").exists():
+            summary_md = directory / "summary.md"
+            if not summary_md.exists():
+                fail(f"{summary_md} not found: not a sweep directory")
+            click.echo(summary_md.read_text(), nl=False)
+            return
+        result = api.load(directory)
+        assert isinstance(result, api.SweepResult)
+        if plot and not result.complete:
+            fail(f"--plot: {result.state.missing_text()}; the figures need every trial "
+                 "(run the sweep again to finish it)")
+        click.echo(result.summary_text)
+        if plot:
+            paths = result.plot()
+            click.echo("wrote " + ", ".join(str(p) for p in paths))
+
+
+@main.command()
+@click.argument("directory", required=False, default=Path("runs"),
+                type=click.Path(path_type=Path, file_okay=False))
+@click.option("--compare", nargs=2, type=click.Path(path_type=Path, file_okay=False),
+              metavar="A B", help="Show the spec keys (and key metrics) two runs differ in.")
+def runs(directory: Path, compare: tuple[Path, Path] | None) -> None:
+    """List the runs below DIRECTORY [default: runs]: command, name, time, status and key
+    metrics (plan, track, sweep, reproduce)."""
+    from flatcli.runs import RunDirectoryError, compare_runs, runs_table
+
+    if compare:
+        try:
+            click.echo(compare_runs(*compare))
+        except RunDirectoryError as exc:
+            fail(str(exc))
+        return
+    if not directory.is_dir():
+        fail(f"{directory}: no such directory")
+    click.echo(runs_table(directory))
+
+
+@main.command()
+@click.argument("directory", type=click.Path(path_type=Path, file_okay=False))
+@click.option("--csv", "as_csv", is_flag=True, help="Write CSV files (the one format so far).")
+@out_option(help="Write the files here [default: beside the tables].")
+def export(directory: Path, as_csv: bool, out: Path | None) -> None:
+    """Write a run's or sweep's Parquet tables in another format (--csv)."""
+    if not as_csv:
+        fail("export: choose a format: --csv")
+    from flatcli.export import export_csv
+
+    with user_errors():
+        paths = export_csv(directory, out)
+    click.echo("wrote " + ", ".join(str(p) for p in paths))
 
 
 @main.command()
 @out_option(Path("runs/paper"), "Output directory.")
-@click.option("--montecarlo", "montecarlo", type=click.Path(path_type=Path),
-              default=Path("configs/paper_montecarlo.toml"), show_default=True,
-              help="Sweep spec of the Monte Carlo study.")
+@click.option("--montecarlo", "montecarlo", type=click.Path(path_type=Path, dir_okay=False),
+              help="Sweep spec of the Monte Carlo study [default: paper_montecarlo.toml, "
+                   "shipped with flatcli].")
 @click.option("--no-montecarlo", is_flag=True, help="Skip the Monte Carlo study.")
 @workers_option("Worker processes for the study.")
 @set_option("Override a key of the study's spec, repeatable.")
 @quiet_option()
-def reproduce(out: Path, montecarlo: Path, no_montecarlo: bool, workers: int | None,
+def reproduce(out: Path, montecarlo: Path | None, no_montecarlo: bool, workers: int | None,
               sets: tuple[str, ...], quiet: bool) -> None:
-    """The paper's Figs. 2-4 and numbers, and the Monte Carlo study, with REPORT.md."""
+    """The paper's figures 2-4 and numbers, and the Monte Carlo study, with REPORT.md."""
+    from flatcli.reproduce import STUDY_SPEC
     from flatcli.reproduce import reproduce as run
 
+    words = ["flatcli", "reproduce", "--out", str(out)]
+    words += [] if montecarlo is None else ["--montecarlo", str(montecarlo)]
+    words += ["--no-montecarlo"] if no_montecarlo else []
+    words += [] if workers is None else ["--workers", str(workers)]
+    words += [w for item in sets for w in ("--set", item)]
+    words += ["-q"] if quiet else []
     with user_errors():
-        path = run(out, None if no_montecarlo else montecarlo, quiet, workers, sets)
+        study = None if no_montecarlo else (montecarlo or STUDY_SPEC)
+        path = run(out, study, quiet, workers, sets, command=shlex.join(words))
     if not quiet:
         click.echo(path.read_text())
 

@@ -10,12 +10,14 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
+from flatcli import __version__
 from flatcli.core.model import constraint_coefficients
 from flatcli.core.optimize import required_fold
 from flatcli.core.planning import FlatPlan, PlanSamples
@@ -42,6 +44,9 @@ from flatcli.report import (
 )
 from flatcli.spec import Spec, load_spec, resolve
 from flatcli.storage import run_record, write_json, write_parquet, write_text
+
+#: The Monte Carlo study's spec, shipped with flatcli (package data; configs/ links to it).
+STUDY_SPEC = Path(str(resources.files("flatcli") / "data" / "paper_montecarlo.toml"))
 
 #: The paper's printed values (Franch et al. 2003, Sec. VI).
 PAPER_Y2_DOT_START = -0.065
@@ -321,10 +326,34 @@ def run_montecarlo(spec_path: Path, out: Path, quiet: bool, workers: int | None,
     return result.summary_text, summary, result.wall_seconds
 
 
+def check_inputs(out: Path, montecarlo: Path | None, workers: int | None,
+                 sets: tuple[str, ...]) -> None:
+    """Every input of ``reproduce``, checked before anything is written: the output
+    directory, the study's spec with its --set items (every grid cell planned), --workers."""
+    from flatcli.core.model import FlatcliError
+    from flatcli.sweep import layout
+
+    if out.exists() and not out.is_dir():
+        raise FlatcliError(f"--out {out}: is a file")
+    if workers is not None and workers < 1:
+        raise FlatcliError(f"--workers: must be >= 1, got {workers}")
+    if montecarlo is None:
+        if sets:
+            raise FlatcliError("--set: changes the Monte Carlo study, which --no-montecarlo "
+                               "skips")
+        return
+    layout(load_spec(montecarlo, sets))
+
+
 def reproduce(out: Path, montecarlo: Path | None, quiet: bool = False,
-              workers: int | None = None, sets: tuple[str, ...] = ()) -> Path:
-    """Run everything ``make reproduce`` promises into ``out``; return REPORT.md's path."""
+              workers: int | None = None, sets: tuple[str, ...] = (),
+              command: str | None = None) -> Path:
+    """Run everything ``make reproduce`` promises into ``out``; return REPORT.md's path.
+
+    ``command``: the command line, recorded at the end of REPORT.md.
+    """
     started = time.perf_counter()
+    check_inputs(out, montecarlo, workers, sets)
     base = resolve({})
     rep = run_paper(base, out, quiet)
     rep.sections += optimized_plans_section(base, out)
@@ -350,6 +379,8 @@ def reproduce(out: Path, montecarlo: Path | None, quiet: bool = False,
             "",
             text,
         ]
+    if command is not None:
+        rep.sections += ["", f"Made with `{command}` (flatcli {__version__})."]
     write_json(out / "run.json", run_record("reproduce", base.tree,
                                             seconds=time.perf_counter() - started))
     path = write_report(rep, out, base)

@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import json
+import os
+import re
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -95,12 +99,47 @@ def test_track_spec_file_and_sets_apply_in_order(tmp_path: Path) -> None:
     assert metrics["err_y_final"] < 1e-4  # swapped gains: ~1e-5 (README, "The gains")
 
 
-def test_default_output_directory_is_runs_name(tmp_path: Path,
-                                               monkeypatch: pytest.MonkeyPatch) -> None:
+def test_every_run_without_out_gets_its_own_directory_and_latest_follows(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.chdir(tmp_path)
-    code, _ = run("plan", "-q", "--set", "name=demo")
-    assert code == 0
-    assert (tmp_path / "runs" / "demo" / "plan.parquet").exists()
+    code, out = run("plan", "--set", "name=demo")
+    assert code == 0, out
+    code, out = run("track", "--set", "name=demo")
+    assert code == 0, out
+    code, out = run("track", "--set", "name=demo", "--set", "track.kp=[100,110]")
+    assert code == 0, out
+    root = tmp_path / "runs" / "demo"
+    dirs = sorted(p for p in root.iterdir() if not p.is_symlink())
+    assert len(dirs) == 3
+    assert [p.name for p in root.iterdir() if p.is_symlink()] == ["latest"]
+    for d in dirs:
+        assert re.fullmatch(r"\d{8}-\d{6}-[0-9a-f]{6}", d.name), d.name
+    commands = {d.name: json.loads((d / "run.json").read_text())["command"] for d in dirs}
+    assert sorted(commands.values()) == ["plan", "track", "track"]
+    plan_dir = next(d for d in dirs if commands[d.name] == "plan")
+    assert (plan_dir / "plan.parquet").exists() and not (plan_dir / "track.parquet").exists()
+    latest = (root / "latest").resolve()
+    assert json.loads((latest / "run.json").read_text())["spec"]["track"]["kp"] == [100, 110]
+    assert f"wrote runs/demo/{latest.name}/track.parquet" in out  # printed on finish
+
+
+def test_out_holding_a_different_run_is_refused_unless_force(tmp_path: Path) -> None:
+    target = tmp_path / "o"
+    assert run("plan", "--out", str(target), "-q")[0] == 0
+    assert run("plan", "--out", str(target), "-q")[0] == 0  # the same run again: allowed
+    before = (target / "plan.parquet").read_bytes()
+    for args, what in ((["track"], "holds a plan run;"),
+                       (["plan", "--set", "plan.duration=3"], "holds a plan run of a "
+                                                               "different spec")):
+        code, out = run(*args, "--out", str(target), "-q")
+        assert code == 2 and out.startswith("error: --out") and out.count("\n") == 1, out
+        assert what in out and "--force" in out
+        assert (target / "plan.parquet").read_bytes() == before
+        assert not (target / "track.parquet").exists()
+    code, out = run("track", "--out", str(target), "-q", "--force")
+    assert code == 0, out
+    assert sorted(p.name for p in target.iterdir()) == ["metrics.json", "run.json",
+                                                        "track.parquet"]
 
 
 def test_design_reports_flatness(tmp_path: Path) -> None:
@@ -159,3 +198,58 @@ def test_unparsable_spec_file(tmp_path: Path) -> None:
 def test_version() -> None:
     code, out = run("--version")
     assert code == 0 and out.startswith("flatcli, version")
+
+
+def test_choices_spelled_out_for_a_fast_help_match_their_homes() -> None:
+    from flatcli import cli
+    from flatcli.core.optimize import OBJECTIVES
+    from flatcli.executors import EXECUTORS
+
+    assert tuple(OBJECTIVES) == cli.OBJECTIVES
+    assert tuple(EXECUTORS) == cli.EXECUTORS
+
+
+HEAVY = ("numpy", "numba", "scipy", "pandas", "pyarrow", "matplotlib")
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["--version"], ["sweep", "--help"]])
+def test_help_version_and_completion_load_no_numerics(argv: list[str]) -> None:
+    code = (
+        "import sys\n"
+        "from flatcli.cli import main\n"
+        "try:\n"
+        f"    main({argv!r})\n"
+        "except SystemExit:\n"
+        "    pass\n"
+        f"print(sorted(m for m in {HEAVY!r} if m in sys.modules), file=sys.stderr)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          check=True)
+    assert done.stderr.strip().splitlines()[-1] == "[]"
+    env = {**os.environ, "_FLATCLI_COMPLETE": "bash_complete", "COMP_WORDS": "flatcli sw",
+           "COMP_CWORD": "1"}
+    completion = subprocess.run(
+        [sys.executable, "-c", code.replace(f"main({argv!r})", "main()")],
+        capture_output=True, text=True, check=True, env=env)
+    assert "plain,sweep" in completion.stdout
+    assert completion.stderr.strip().splitlines()[-1] == "[]"
+
+
+def test_compile_notice_only_on_a_cold_cache(tmp_path: Path,
+                                             monkeypatch: pytest.MonkeyPatch) -> None:
+    import io
+
+    import numba
+
+    from flatcli.api import COMPILING, announce_compile
+
+    monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))
+    stream = io.StringIO()
+    assert announce_compile(False, stream) is True
+    assert stream.getvalue() == COMPILING + "\n"
+    assert announce_compile(True, stream) is True and stream.getvalue().count("\n") == 1
+    index = tmp_path / "core_0123" / "simulate._kinematic_kernel-135.py311.nbi"
+    index.parent.mkdir()
+    index.write_bytes(b"")
+    stream = io.StringIO()
+    assert announce_compile(False, stream) is False and stream.getvalue() == ""

@@ -1,21 +1,29 @@
-"""make reproduce, end to end on a small study."""
+"""make reproduce, end to end on a small study; its inputs checked before anything is
+written; its study spec shipped with the package."""
 
 from __future__ import annotations
 
+import tomllib
+from fnmatch import fnmatch
 from pathlib import Path
 
+import pytest
 from click.testing import CliRunner
 
 from flatcli.cli import main
+from flatcli.reproduce import STUDY_SPEC
 
-CONFIG = Path(__file__).resolve().parents[1] / "configs" / "paper_montecarlo.toml"
+ROOT = Path(__file__).resolve().parents[1]
+CONFIG = ROOT / "configs" / "paper_montecarlo.toml"
 
 
-def test_reproduce_writes_figures_tables_and_report(tmp_path: Path) -> None:
-    out = tmp_path / "paper"
-    result = CliRunner().invoke(main, ["reproduce", "--out", str(out), "--montecarlo",
-                                       str(CONFIG), "--set", "sweep.trials=8", "-q"])
+def test_reproduce_writes_figures_tables_and_report(tmp_path: Path,
+                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(tmp_path)  # any directory: the study's spec comes with the package
+    result = CliRunner().invoke(main, ["reproduce", "--out", "paper", "--set",
+                                       "sweep.trials=8", "-q"])
     assert result.exit_code == 0, result.output
+    out = tmp_path / "paper"
     for name in ("fig2_flat_outputs.png", "fig3_angles.png", "fig4_feedback_printed.png",
                  "fig4_feedback_swapped.png", "fig_optimized_plan.png", "REPORT.md",
                  "montecarlo/trials.parquet",
@@ -35,3 +43,34 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path) -> None:
     # tests/test_optimize_api.py CUBIC_ENERGY)
     row = next(line for line in report.splitlines() if line.startswith("| least energy "))
     assert float(row.split("|")[2]) < 101.19 / 3
+    assert "Made with `flatcli reproduce --out paper --set sweep.trials=8 -q`" in report
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--set", "sweep.trials=0"], "sweep.trials: must be >= 1, got 0"),
+        # found only when the study's cells are planned (the paper's own runs come first)
+        (["--set", "robot.com=[0.1,0.1,0.003]"], "robot is not differentially flat"),
+        (["--workers", "0"], "--workers: must be >= 1, got 0"),
+        (["--no-montecarlo", "--set", "sweep.trials=3"], "--set: changes the Monte Carlo"),
+        (["--montecarlo", "missing.toml"], "spec file not found: missing.toml"),
+    ],
+)
+def test_bad_input_is_refused_before_anything_is_written(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, args: list[str], message: str) -> None:
+    monkeypatch.chdir(tmp_path)
+    result = CliRunner().invoke(main, ["reproduce", "--out", "paper", *args])
+    assert result.exit_code == 2, result.output
+    assert result.output.startswith("error: ") and result.output.count("\n") == 1
+    assert message in result.output
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_the_study_spec_ships_as_package_data() -> None:
+    assert STUDY_SPEC.is_file() and STUDY_SPEC.parent.name == "data"
+    assert STUDY_SPEC.parent.parent == ROOT / "flatcli"
+    assert CONFIG.resolve() == STUDY_SPEC.resolve()  # configs/ links to it
+    pyproject = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    patterns = pyproject["tool"]["setuptools"]["package-data"]["flatcli"]
+    assert any(fnmatch("data/paper_montecarlo.toml", p) for p in patterns)

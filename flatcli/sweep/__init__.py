@@ -11,6 +11,10 @@ A trial's result depends on its spec, its cell and its id only: not on the chunk
 number of workers, the executor, the order in which chunks finish, or a resume in between.
 """
 
+import sys
+import types
+from typing import Any
+
 from flatcli.sweep.chunks import ChunkResult, grid_cell_text, run_chunk
 from flatcli.sweep.directory import MANIFEST, TRIALS_DIR, finish_sweep, recorded_digest
 from flatcli.sweep.draws import (
@@ -53,3 +57,17 @@ __all__ = [
     "run_sweep",
     "trial_spec",
 ]
+
+
+class _CallablePackage(types.ModuleType):
+    """``flatcli.sweep`` names both this package and the API function ``flatcli.api.sweep``
+    (``flatcli.sweep(spec, out, workers=...)``); once the package is imported its name is
+    bound to it, so calling the package runs a sweep."""
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        from flatcli.api import sweep
+
+        return sweep(*args, **kwargs)
+
+
+sys.modules[__name__].__class__ = _CallablePackage

@@ -15,7 +15,7 @@ import numpy as np
 import pyarrow as pa
 
 from flatcli.core.metrics import COUNT_METRICS, METRIC_NAMES, Status, describe_status
-from flatcli.core.simulate import NoiseStreams, Trials, simulate
+from flatcli.core.simulate import NoiseStreams, Trials
 from flatcli.experiment import checked
 from flatcli.spec import Spec, lookup, perturbations
 from flatcli.storage import null_where_nan, with_units
@@ -27,6 +27,7 @@ from flatcli.sweep.draws import (
     perturbation_columns,
 )
 from flatcli.sweep.layout import Cell, Chunk
+from flatcli.sweep.tally import simulate_counted
 from flatcli.units import units_of
 
 #: Statuses ``--fail-fast`` stops at: trials that did not run, or not to the end.
@@ -78,7 +79,7 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
         noise = NoiseStreams(spec.track.sensor_noise, seed, ids[valid].astype(np.int64))
         trials = Trials(np.ascontiguousarray(links[valid]), np.ascontiguousarray(momentum[valid]),
                         np.ascontiguousarray(initial[valid]), noise)
-        outcome = simulate(scenario, trials, checked(spec.track.integrator))
+        outcome = simulate_counted(scenario, trials, checked(spec.track.integrator))
         metrics[valid] = outcome.metrics
         status[valid] = outcome.status
         event[valid] = outcome.event

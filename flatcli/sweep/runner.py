@@ -20,6 +20,7 @@ from flatcli.sweep.directory import (
     write_manifest,
 )
 from flatcli.sweep.layout import Chunk, Layout, layout
+from flatcli.sweep.tally import status_counts, watch
 
 
 class FailFastError(RuntimeError):
@@ -72,18 +73,21 @@ def run_sweep(
         setup = time.perf_counter() - started
         tasks = ((c, (lay.cells[c.cell], c)) for c in todo)
         compute = 0.0
+        watcher = watch(progress) if executor_kind == "local" else None  # per-trial counts
         try:
             for chunk, result in executor.run(run_chunk, tasks):
                 compute += result.seconds
                 write_table(directory / TRIALS_DIR / chunk.name, result.table,
                             {**provenance, "chunk": [chunk.start, chunk.stop]})
                 if progress is not None:
-                    progress.advance(chunk.size)
+                    progress.advance(chunk.size, status_counts(result.table))
                 failure = result.first_failure() if fail_fast else None
                 if failure is not None:
                     raise FailFastError(f"--fail-fast: trial {failure[0]} {failure[1]} "
                                         f"(finished chunks kept in {directory}/{TRIALS_DIR})")
         finally:
+            if watcher is not None:
+                watcher.stop()
             if progress is not None:
                 progress.close()
         simulated = lay.total - resumed

@@ -1,0 +1,457 @@
+"""flatcli's Python API: what the command line does, as functions returning objects.
+
+    >>> import flatcli
+    >>> p = flatcli.plan(overrides={"plan.duration": 3.0})
+    >>> p.frame            # plan.parquet's rows, a pandas DataFrame
+    >>> p.metrics          # its headline numbers, a dict
+    >>> t = flatcli.track(overrides={"track.kp": [100, 110], "track.kv": [10, 13]})
+    >>> t.metrics["err_y_final"], t.frame["margin"].min()
+    >>> s = flatcli.sweep("configs/paper_montecarlo.toml", "runs/study", workers=2)
+    >>> s.summary, s.trials, s.metrics
+    >>> flatcli.load("runs/paper_example/latest").frame
+
+``plan`` and ``track`` compute in memory and write nothing until ``.save()``; ``sweep``
+writes its directory as ``flatcli sweep`` does (resumable). Every command of the CLI is a
+thin wrapper over these functions, so a result is the same whichever way it was made.
+
+A spec is a TOML file's path, a dict (nested as in TOML, or dotted keys), a ``Spec``, or
+None (the paper's example); ``overrides`` are dotted keys and values
+(``{"track.kp": [100, 110]}``) or ``--set`` strings (``["track.kp=[100,110]"]``). Bad input
+raises ``flatcli.FlatcliError`` (``SpecError``) with the same one line the CLI prints.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Iterable, Mapping
+from functools import cached_property
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, TextIO
+
+import pandas as pd
+
+from flatcli.core.model import FlatcliError
+from flatcli.core.optimize import OptimizeResult
+from flatcli.core.planning import FlatPlan, PlanSamples
+from flatcli.experiment import TrackRun, plan_and_optimization, run_track
+from flatcli.outputs import plan_frame, write_track
+from flatcli.report import (
+    Limits,
+    metrics_text,
+    optimization_summary,
+    optimization_text,
+    plan_summary,
+    plan_text,
+    plot_plan,
+)
+from flatcli.runs import (
+    RECORD,
+    ROOT,
+    SWEEP_MANIFEST,
+    RunDirectoryError,
+    SweepState,
+    Target,
+    claim,
+    partial_summary,
+    read_json,
+    sweep_state,
+)
+from flatcli.spec import Spec, parse_set, read_toml, resolve
+from flatcli.storage import run_record, write_json, write_parquet
+
+if TYPE_CHECKING:
+    from flatcli.preflight import CheckReport
+
+SpecLike = str | os.PathLike[str] | Mapping[str, Any] | Spec | None
+Overrides = Mapping[str, Any] | Iterable[str] | None
+
+#: What the first simulation prints when numba's cache holds no compiled kernel yet.
+COMPILING = "compiling the simulation kernel (once, ~30 s)"
+
+
+def load_spec(spec: SpecLike = None, overrides: Overrides = None) -> Spec:
+    """A validated spec from a file, a dict or a Spec, with overrides applied in order."""
+    if overrides is None:
+        extra: dict[str, Any] = {}
+    elif isinstance(overrides, Mapping):
+        extra = dict(overrides)
+    elif isinstance(overrides, str):
+        extra = parse_set([overrides])
+    else:
+        extra = parse_set(overrides)
+    if spec is None:
+        return resolve({}, extra)
+    if isinstance(spec, Spec):
+        return spec.with_overrides(extra) if extra else spec
+    if isinstance(spec, Mapping):
+        return resolve(spec, extra)
+    if isinstance(spec, str | os.PathLike):
+        return resolve(read_toml(Path(spec)), extra)
+    raise TypeError(f"spec: expected a path, a dict, a Spec or None, got {type(spec).__name__}")
+
+
+def kernel_cached() -> bool:
+    """Whether numba's on-disk cache (the directory ``flatcli.core._jit`` chose) holds an
+    index of the closed-loop kernel, so a simulation starts without compiling."""
+    import numba
+
+    import flatcli.core._jit  # noqa: F401  (sets numba's cache directory)
+
+    root = Path(getattr(numba.config, "CACHE_DIR", "") or "")
+    return root.is_dir() and any(root.glob("**/simulate.*.nbi"))
+
+
+def announce_compile(quiet: bool, stream: TextIO | None = None) -> bool:
+    """Print the one-line compile notice when the kernel's cache is cold; whether it was."""
+    cold = not kernel_cached()
+    if cold and not quiet:
+        print(COMPILING, file=stream or sys.stderr, flush=True)
+    return cold
+
+
+def _output(out: str | os.PathLike[str] | Target | None, command: str, spec: Spec,
+            force: bool, root: str | os.PathLike[str]) -> Target:
+    if isinstance(out, Target):
+        return out
+    try:
+        return claim(None if out is None else Path(out), command, spec.name, spec.digest(),
+                     force, Path(root))
+    except RunDirectoryError as exc:
+        raise FlatcliError(str(exc)) from None
+
+
+def output_target(command: str, spec: Spec, out: str | os.PathLike[str] | None = None,
+                  force: bool = False, root: str | os.PathLike[str] = ROOT) -> Target:
+    """Where a ``command`` run of ``spec`` will be saved: ``out``, or a new directory
+    ``root/<name>/<stamp>/``; FlatcliError if ``out`` holds a different run (``force``
+    replaces it). The CLI asks before computing, so a refusal costs nothing."""
+    return _output(out, command, spec, force, root)
+
+
+# ---------------------------------------------------------------------------------------
+# Results.
+
+class Run:
+    """A run: its directory (None until saved) and its record (run.json)."""
+
+    command = ""
+
+    def __init__(self, directory: Path | None = None,
+                 record: Mapping[str, Any] | None = None) -> None:
+        self.directory = directory
+        self.record: dict[str, Any] = dict(record or {})
+        self.files: list[str] = []  # the files save() wrote
+
+    def table(self, name: str) -> pd.DataFrame:
+        """``<name>.parquet`` of the run's directory as a DataFrame."""
+        if self.directory is None:
+            raise FlatcliError(f"this {self.command or 'run'} is not saved; call .save() first")
+        return pd.read_parquet(self.directory / f"{name}.parquet")
+
+    def __repr__(self) -> str:
+        where = f" in {self.directory}" if self.directory is not None else " (not saved)"
+        name = self.record.get("spec", {}).get("name", "")
+        return f"<flatcli {self.command or 'run'} {name!r}{where}>"
+
+
+class PlanResult(Run):
+    """A planned maneuver: ``.frame`` (plan.parquet's rows), ``.metrics`` (its headline
+    numbers), ``.optimization`` (the optimiser's report, or None), ``.spec``; ``.plan``
+    and ``.samples`` (the core's objects) when computed here, not loaded."""
+
+    command = "plan"
+
+    def __init__(self, spec: Spec | None, frame: pd.DataFrame, metrics: Mapping[str, Any],
+                 optimization: Mapping[str, Any] | None = None, plan: FlatPlan | None = None,
+                 samples: PlanSamples | None = None, directory: Path | None = None,
+                 record: Mapping[str, Any] | None = None) -> None:
+        super().__init__(directory, record)
+        self._spec = spec
+        self.frame = frame
+        self.metrics = dict(metrics)
+        self.optimization = None if optimization is None else dict(optimization)
+        self.plan = plan
+        self.samples = samples
+
+    @cached_property
+    def spec(self) -> Spec:
+        return self._spec if self._spec is not None else spec_of(self.record)
+
+    def text(self) -> str:
+        """What ``flatcli plan`` prints."""
+        if self.plan is None or self.samples is None:
+            return metrics_text(self.spec.name, {"status": "ok", **self.metrics})
+        text = plan_text(self.spec.name, self.plan, self.samples)
+        if self.optimization is not None:
+            text += "\n\n" + optimization_text(self.optimization)
+        return text
+
+    def save(self, out: str | os.PathLike[str] | Target | None = None, *, force: bool = False,
+             plot: bool = False, root: str | os.PathLike[str] = ROOT) -> Path:
+        """Write plan.parquet and run.json (and plan.png with ``plot``) into ``out``, or a
+        new directory ``root/<name>/<stamp>/``; return the directory."""
+        spec = self.spec
+        target = _output(out, "plan", spec, force, root)
+        record = run_record("plan", spec.tree, digest=spec.digest(), summary=self.metrics,
+                            optimization=self.optimization)
+        if plot and self.samples is None:
+            raise FlatcliError("plot: only a plan computed here can be drawn")
+        directory = target.open()
+        write_parquet(directory / "plan.parquet", self.frame, record)
+        write_json(directory / RECORD, record)
+        self.files = ["plan.parquet", RECORD]
+        if plot and self.samples is not None:
+            model = self.plan.model if self.plan is not None else spec.robot.model
+            opt = spec.plan.optimize
+            limits = Limits(singular_threshold=spec.track.singular_threshold) if (
+                self.optimization is None) else Limits(
+                spec.track.singular_threshold, opt.min_margin, opt.rate_limit, opt.angle_limit)
+            plot_plan(self.samples, directory / "plan.png", f"plan {spec.name!r} ({model} model)",
+                      limits)
+            self.files.append("plan.png")
+        target.finish(directory)
+        self.directory, self.record = directory, record
+        return directory
+
+
+class TrackResult(Run):
+    """A closed-loop run: ``.frame`` (track.parquet's rows), ``.metrics`` (metrics.json),
+    ``.spec``; ``.run`` (plan, scenario and outcome) when computed here, not loaded."""
+
+    command = "track"
+
+    def __init__(self, spec: Spec | None, frame: pd.DataFrame, metrics: Mapping[str, Any],
+                 run: TrackRun | None = None, directory: Path | None = None,
+                 record: Mapping[str, Any] | None = None) -> None:
+        super().__init__(directory, record)
+        self._spec = spec
+        self.frame = frame
+        self.metrics = dict(metrics)
+        self.run = run
+
+    @cached_property
+    def spec(self) -> Spec:
+        return self._spec if self._spec is not None else spec_of(self.record)
+
+    def text(self) -> str:
+        """What ``flatcli track`` prints."""
+        return metrics_text(self.spec.name, self.metrics)
+
+    def save(self, out: str | os.PathLike[str] | Target | None = None, *, force: bool = False,
+             plot: bool = False, root: str | os.PathLike[str] = ROOT) -> Path:
+        """Write track.parquet, metrics.json and run.json (and track.png with ``plot``)
+        into ``out``, or a new directory ``root/<name>/<stamp>/``; return the directory."""
+        if self.run is None:
+            raise FlatcliError("save: only a run computed here can be saved")
+        spec = self.spec
+        target = _output(out, "track", spec, force, root)
+        record = run_record("track", spec.tree, digest=spec.digest(), metrics=self.metrics)
+        title = f"track {spec.name!r}: kp = {spec.track.kp}, kv = {spec.track.kv}"
+        directory = target.open()
+        self.files = write_track(directory, self.run, record, title if plot else None)
+        target.finish(directory)
+        self.directory, self.record = directory, record
+        return directory
+
+
+class SweepResult(Run):
+    """A sweep's directory, finished or interrupted: ``.trials`` (one row per finished
+    trial), ``.summary`` (per-cell statistics), ``.metrics`` (trials by status),
+    ``.complete``; ``.simulated`` and ``.wall_seconds`` when run here."""
+
+    command = "sweep"
+
+    def __init__(self, state: SweepState, simulated: int | None = None,
+                 wall_seconds: float | None = None, summary_text: str | None = None) -> None:
+        super().__init__(state.directory, read_json(state.directory / RECORD)
+                         if state.complete else {"command": "sweep",
+                                                 "spec": state.manifest.get("spec", {})})
+        self.state = state
+        self.simulated = simulated
+        self.wall_seconds = wall_seconds
+        self._summary_text = summary_text
+
+    @property
+    def complete(self) -> bool:
+        return self.state.complete
+
+    @cached_property
+    def spec(self) -> Spec:
+        return spec_of(self.state.manifest)
+
+    @cached_property
+    def trials(self) -> pd.DataFrame:
+        """trials.parquet (of a partial sweep: its finished chunks), sorted by trial."""
+        if self.complete:
+            return self.table("trials")
+        frames = [pd.read_parquet(p) for p in self.state.chunk_files]
+        if not frames:
+            return pd.DataFrame()
+        return pd.concat(frames, ignore_index=True).sort_values("trial", ignore_index=True)
+
+    @cached_property
+    def _partial(self) -> tuple[pd.DataFrame, str]:
+        frame, text = partial_summary(self.state)
+        return frame, text
+
+    @cached_property
+    def summary(self) -> pd.DataFrame:
+        """summary.parquet (of a partial sweep: computed from its finished trials)."""
+        return self.table("summary") if self.complete else self._partial[0]
+
+    @property
+    def summary_text(self) -> str:
+        """summary.md (of a partial sweep: headed by how much is missing)."""
+        if self._summary_text is not None:
+            return self._summary_text
+        assert self.directory is not None
+        if self.complete and (self.directory / "summary.md").exists():
+            return (self.directory / "summary.md").read_text().rstrip("\n")
+        return self._partial[1]
+
+    @property
+    def metrics(self) -> dict[str, int]:
+        """Trials in all, finished, and finished by status."""
+        from flatcli.core.metrics import STATUS_NAMES
+
+        if self.complete:
+            counts = self.record.get("status_counts", {})
+        else:
+            counts = {str(k): int(v) for k, v in self.trials["status"].value_counts().items()} \
+                if len(self.trials) else {}
+        return {"trials": self.state.total, "finished": self.state.done,
+                **{s: int(counts.get(s, 0)) for s in STATUS_NAMES}}
+
+    def plot(self) -> list[Path]:
+        """The summary figures (sweep_*.png) of a finished sweep; their paths."""
+        from flatcli.report import plot_sweep
+
+        if not self.complete:
+            raise FlatcliError(f"--plot: {self.state.missing_text()}; the figures need "
+                               "every trial (run the sweep again to finish it)")
+        assert self.directory is not None
+        return plot_sweep(self.directory)
+
+
+def spec_of(record: Mapping[str, Any]) -> Spec:
+    """The Spec a run.json or sweep.json holds (non-finite numbers come back from JSON's
+    strings)."""
+    tree = record.get("spec")
+    if not isinstance(tree, Mapping):
+        raise FlatcliError("the run's record holds no spec")
+    return resolve(_floats(tree))
+
+
+def _floats(value: Any) -> Any:
+    if isinstance(value, Mapping):
+        return {k: (v if k == "name" else _floats(v)) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_floats(v) for v in value]
+    if value in ("inf", "-inf", "nan"):
+        return float(value)
+    return value
+
+
+# ---------------------------------------------------------------------------------------
+# The functions.
+
+def plan(spec: SpecLike = None, overrides: Overrides = None) -> PlanResult:
+    """Plan the spec's maneuver (optimised when ``plan.optimize.objective`` is set).
+
+    Returns a PlanResult (``.frame``, ``.metrics``, ``.optimization``); nothing is written
+    until ``.save()``.
+    """
+    s = load_spec(spec, overrides)
+    planned, optimization = plan_and_optimization(s)
+    samples = planned.sample(planned.grid(s.plan.samples))
+    opt = None if optimization is None else _optimization(optimization, s)
+    return PlanResult(s, plan_frame(samples), plan_summary(planned, samples), opt, planned,
+                      samples)
+
+
+def _optimization(result: OptimizeResult, spec: Spec) -> dict[str, Any]:
+    return optimization_summary(result, str(spec.plan.optimize.objective))
+
+
+def track(spec: SpecLike = None, overrides: Overrides = None, *,
+          quiet: bool = False) -> TrackResult:
+    """Plan, then simulate the closed loop of the spec's ``[track]`` on its ``[plant]``.
+
+    Returns a TrackResult (``.frame``, ``.metrics``); nothing is written until ``.save()``.
+    On a cold numba cache prints one line (the kernel compiles once, ~30 s) unless quiet.
+    """
+    from flatcli.outputs import track_frame
+
+    s = load_spec(spec, overrides)
+    announce_compile(quiet)
+    run = run_track(s)
+    return TrackResult(s, track_frame(run), run.metrics, run)
+
+
+def sweep(spec: SpecLike, out: str | os.PathLike[str] | None = None, *,
+          overrides: Overrides = None, workers: int | None = None, executor: str = "local",
+          scheduler: str | None = None, force: bool = False, fail_fast: bool = False,
+          quiet: bool = False) -> SweepResult:
+    """Run (or resume) a Monte Carlo sweep into ``out`` (default ``runs/<name>/``).
+
+    ``workers``: processes (default one per core); ``executor``: "local" or "dask"
+    (``scheduler``: an address or "local"); ``force``: start over in a directory holding
+    another sweep; ``fail_fast``: stop at the first trial that errors or diverges. Shows a
+    progress bar on stderr unless quiet. Returns the SweepResult of the directory.
+    """
+    from flatcli.report import Progress
+    from flatcli.sweep import run_sweep
+
+    s = load_spec(spec, overrides)
+    directory = Path(out) if out is not None else ROOT / s.name
+    if executor == "local":
+        announce_compile(quiet)
+    done = run_sweep(s, directory, executor, workers, scheduler, force, fail_fast,
+                     Progress(s.name, quiet))
+    state = sweep_state(directory)
+    assert state is not None
+    return SweepResult(state, done.simulated, done.wall_seconds, done.summary_text)
+
+
+def check(spec: SpecLike, overrides: Overrides = None, *, workers: int | None = None,
+          executor: str = "local", calibrate: bool = True,
+          quiet: bool = False) -> CheckReport:
+    """What a sweep of this spec would do, without doing it: cells, trials, chunks, a time
+    and memory estimate from a short calibration, and warnings (``flatcli.preflight``).
+    Writes nothing. Returns a CheckReport (``.text()``, ``.cells``, ``.warnings``)."""
+    from flatcli.preflight import check_spec
+
+    s = load_spec(spec, overrides)
+    return check_spec(s, workers=workers, executor=executor, calibrate=calibrate, quiet=quiet)
+
+
+def load(directory: str | os.PathLike[str]) -> Run:
+    """The run a directory holds: a PlanResult, TrackResult (also ``sweep --rerun``) or
+    SweepResult (finished or not); other runs (``reproduce``) as a plain Run.
+
+    A directory of runs of one name (``runs/<name>``) loads its ``latest``.
+    """
+    path = Path(directory)
+    if (path / SWEEP_MANIFEST).exists():
+        state = sweep_state(path)
+        if state is None:
+            raise FlatcliError(f"{path}/{SWEEP_MANIFEST} is unreadable")
+        return SweepResult(state)
+    record = read_json(path / RECORD)
+    if record is None:
+        if (path / "latest").is_dir():
+            return load(path / "latest")
+        raise FlatcliError(f"{path} holds no flatcli run (no run.json or sweep.json)")
+    command = str(record.get("command"))
+    if (path / "plan.parquet").exists() and command == "plan":
+        return PlanResult(None, pd.read_parquet(path / "plan.parquet"),
+                          record.get("summary", {}), record.get("optimization"),
+                          directory=path, record=record)
+    if (path / "track.parquet").exists():
+        metrics = read_json(path / "metrics.json") or record.get("metrics", {})
+        return TrackResult(None, pd.read_parquet(path / "track.parquet"), metrics,
+                           directory=path, record=record)
+    run = Run(path, record)
+    run.command = command
+    return run

@@ -1,0 +1,451 @@
+"""Run directories: where a plan or track run goes, and what a directory of runs holds.
+
+* Without ``--out`` every ``plan`` or ``track`` run gets a directory of its own,
+  ``runs/<name>/<YYYYmmdd-HHMMSS>-<6 hex>/``, and ``runs/<name>/latest`` links to the newest
+  one (the link is replaced atomically). No run ever writes into another's directory.
+* With ``--out DIR``, a DIR that holds a different run (another command, or the same command
+  with another spec) is refused unless ``--force``, as a sweep directory already is.
+* ``flatcli runs [DIR]`` lists every run below DIR (plan, track, sweep, ``sweep --rerun``,
+  reproduce): command, name, time, status and its key metrics; ``--compare A B`` shows the
+  spec keys two runs differ in.
+
+Reading a sweep directory, finished or not (``SweepState``), is here too: ``summarize`` and
+``flatcli.load`` of an interrupted sweep use it. Everything here reads JSON and Parquet
+metadata only, so listing a thousand runs is quick.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import secrets
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+from flatcli.report import fmt, table
+
+#: The file every finished run directory holds (plan, track, sweep, reproduce).
+RECORD = "run.json"
+#: The file a sweep directory holds from its start (``flatcli.sweep.MANIFEST``).
+SWEEP_MANIFEST = "sweep.json"
+#: The chunk files of a sweep (``flatcli.sweep.TRIALS_DIR``).
+SWEEP_TRIALS = "trials"
+#: Name of the link to the newest run of a name.
+LATEST = "latest"
+#: The files a plan or track run writes; ``--force`` removes these (and only these) first.
+RUN_FILES = ("run.json", "plan.parquet", "plan.png", "track.parquet", "track.png",
+             "metrics.json")
+#: Default root of run directories.
+ROOT = Path("runs")
+
+
+class RunDirectoryError(Exception):
+    """A directory that must not be written into (the CLI's exit status 2)."""
+
+
+# ---------------------------------------------------------------------------------------
+# Where a run goes.
+
+def read_json(path: Path) -> dict[str, Any] | None:
+    """A JSON object from a file, or None if it is missing or unreadable."""
+    try:
+        value = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    return value if isinstance(value, dict) else None
+
+
+@dataclass(frozen=True)
+class Target:
+    """Where a run will be written: a directory given with ``--out`` (``fresh`` False), or
+    a new directory ``root/<name>/<stamp>`` (``fresh`` True) created when the run is saved."""
+
+    path: Path
+    fresh: bool
+    force: bool = False
+
+    def open(self) -> Path:
+        """Create the directory and return it: a fresh one is new (if another run took its
+        name meanwhile, another stamp); ``--force`` removes the previous run's files from a
+        given one."""
+        if not self.fresh:
+            self.path.mkdir(parents=True, exist_ok=True)
+            if self.force:
+                for name in RUN_FILES:
+                    (self.path / name).unlink(missing_ok=True)
+            return self.path
+        path = self.path
+        while True:
+            try:
+                path.mkdir(parents=True, exist_ok=False)
+                return path
+            except FileExistsError:
+                path = path.parent / stamp()
+
+    def finish(self, directory: Path) -> None:
+        """Point ``latest`` at a fresh run's directory (atomically: a new link renamed over
+        the old one); nothing for a directory given with ``--out``."""
+        if self.fresh:
+            link_latest(directory)
+
+
+def stamp(now: datetime | None = None) -> str:
+    """A run directory's name: local time to the second, and 6 random hex digits."""
+    now = now or datetime.now()
+    return f"{now:%Y%m%d-%H%M%S}-{secrets.token_hex(3)}"
+
+
+def link_latest(directory: Path) -> None:
+    """Make ``directory.parent / latest`` a relative link to ``directory``, atomically."""
+    link = directory.parent / LATEST
+    tmp = directory.parent / f".{LATEST}.{secrets.token_hex(4)}.tmp"
+    try:
+        tmp.symlink_to(directory.name, target_is_directory=True)
+        os.replace(tmp, link)
+    except OSError:  # e.g. a real directory named "latest", or no symlinks on this system
+        tmp.unlink(missing_ok=True)
+
+
+def recorded_digest(record: Mapping[str, Any]) -> str | None:
+    """The spec digest a run.json records; of one written before run.json held it, the
+    digest of its spec (``Spec.digest``: SHA-256 of the canonical JSON, which run.json's
+    spec is, read back)."""
+    if "digest" in record:
+        return str(record["digest"])
+    spec = record.get("spec")
+    if not isinstance(spec, Mapping):
+        return None
+    text = json.dumps(spec, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def claim(out: Path | None, command: str, name: str, digest: str, force: bool = False,
+          root: Path = ROOT) -> Target:
+    """Where a ``command`` run of spec ``digest`` goes; RunDirectoryError if ``out`` holds a
+    different run and ``force`` is not set.
+
+    The same command with the same spec may write into its own directory again (its files
+    come out the same); anything else there is refused: the run would replace another's
+    files, or mix with a sweep's.
+    """
+    if out is None:
+        while True:
+            path = root / name / stamp()
+            if not path.exists():
+                return Target(path, fresh=True)
+    if out.exists() and not out.is_dir():
+        raise RunDirectoryError(f"--out {out}: is a file")
+    if (out / SWEEP_MANIFEST).exists():  # even with --force: never mix with a sweep's files
+        raise RunDirectoryError(f"--out {out}: holds a sweep; use another --out")
+    if force:
+        return Target(out, fresh=False, force=True)
+    record = read_json(out / RECORD)
+    if (out / RECORD).exists() and record is None:
+        raise RunDirectoryError(f"--out {out}: its run.json is unreadable; use --force to "
+                                "replace that run, or another --out")
+    if record is not None:
+        previous = str(record.get("command"))
+        if previous != command:
+            raise RunDirectoryError(
+                f"--out {out}: holds a {previous} run; use --force to replace it, or another "
+                "--out (without --out every run gets a directory of its own)")
+        if recorded_digest(record) != digest:
+            raise RunDirectoryError(
+                f"--out {out}: holds a {previous} run of a different spec; use --force to "
+                "replace it, or another --out (without --out every run gets a directory of "
+                "its own)")
+    return Target(out, fresh=False)
+
+
+# ---------------------------------------------------------------------------------------
+# A sweep directory, finished or interrupted.
+
+@dataclass(frozen=True)
+class SweepState:
+    """What a sweep directory holds: its manifest, the finished chunk files of its spec,
+    and whether the final tables are there."""
+
+    directory: Path
+    manifest: dict[str, Any]
+    chunk_files: tuple[Path, ...]
+    done: int  # trials in the finished chunk files
+    complete: bool  # trials.parquet, summary and run.json of this spec are written
+
+    @property
+    def digest(self) -> str:
+        return str(self.manifest.get("digest"))
+
+    @property
+    def total(self) -> int:
+        return int(self.manifest["cells"]) * int(self.manifest["trials_per_cell"])
+
+    @property
+    def chunks_total(self) -> int:
+        per_cell = math.ceil(int(self.manifest["trials_per_cell"]) / int(self.manifest["chunk"]))
+        return int(self.manifest["cells"]) * per_cell
+
+    @property
+    def grid_keys(self) -> list[str]:
+        return list(self.manifest.get("spec", {}).get("sweep", {}).get("grid", {}))
+
+    def missing_text(self) -> str:
+        """One line: how much of the sweep is missing."""
+        missing = self.total - self.done
+        share = 100 * self.done / self.total if self.total else 100.0
+        return (f"partial sweep: {self.done} of {self.total} trials finished ({share:.0f}%), "
+                f"{len(self.chunk_files)} of {self.chunks_total} chunks; {missing} trials "
+                "missing")
+
+
+def sweep_state(directory: Path) -> SweepState | None:
+    """The state of the sweep in ``directory``, or None if it holds none.
+
+    A chunk file counts if its provenance carries the manifest's spec digest (as a resume
+    counts it). Nothing is modified: a sweep may be running there right now.
+    """
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from flatcli.storage import read_provenance
+
+    manifest = read_json(directory / SWEEP_MANIFEST)
+    if manifest is None or not {"digest", "cells", "trials_per_cell", "chunk"} <= set(manifest):
+        return None
+    digest = manifest["digest"]
+    files = []
+    done = 0
+    trials = directory / SWEEP_TRIALS
+    for path in sorted(trials.glob("chunk-*.parquet")) if trials.is_dir() else []:
+        try:
+            if read_provenance(path).get("digest") != digest:
+                continue
+            done += pq.read_metadata(path).num_rows
+        except (OSError, ValueError, pa.ArrowException):  # being written, or damaged
+            continue
+        files.append(path)
+    record = read_json(directory / RECORD)
+    complete = (record is not None and record.get("digest") == digest
+                and (directory / "trials.parquet").exists()
+                and (directory / "summary.parquet").exists())
+    return SweepState(directory, manifest, tuple(files), done, complete)
+
+
+def partial_summary(state: SweepState) -> tuple[Any, str]:
+    """Per-cell statistics of the finished trials of an unfinished sweep: the summary
+    frame, and its Markdown headed by how much is missing."""
+    import pandas as pd
+
+    from flatcli.core.metrics import METRIC_NAMES
+    from flatcli.report import summarize_trials, summary_markdown
+
+    keys = state.grid_keys
+    columns = list(dict.fromkeys(["cell", "status", "singular_hits", *METRIC_NAMES, *keys]))
+    frames = [pd.read_parquet(p, columns=columns) for p in state.chunk_files]
+    frame = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=columns)
+    cells: dict[int, dict[str, Any]] = {}
+    for values in frame.drop_duplicates("cell").sort_values("cell").to_dict("records"):
+        cells[int(values["cell"])] = {k: values[k] for k in keys}
+    summary = summarize_trials(frame, cells)
+    n_cells = int(state.manifest["cells"])
+    per_cell = int(state.manifest["trials_per_cell"])
+    counts = frame.groupby("cell").size().to_dict() if len(frame) else {}
+    unfinished = [c for c in range(n_cells) if counts.get(c, 0) < per_cell]
+    lines = [state.missing_text() + ".",
+             f"cells not finished: {_ranges(unfinished)} (of 0-{n_cells - 1}); the tables "
+             "below cover the finished trials only.",
+             "Run the same `flatcli sweep` command again to finish it.", ""]
+    if cells:
+        lines.append(summary_markdown(summary, keys))
+    else:
+        lines.append("(no finished trials yet)")
+    return summary, "\n".join(lines)
+
+
+def _ranges(values: list[int]) -> str:
+    """[0, 1, 2, 5, 7, 8] -> '0-2, 5, 7-8'."""
+    parts: list[str] = []
+    i = 0
+    while i < len(values):
+        j = i
+        while j + 1 < len(values) and values[j + 1] == values[j] + 1:
+            j += 1
+        parts.append(str(values[i]) if i == j else f"{values[i]}-{values[j]}")
+        i = j + 1
+    return ", ".join(parts) or "none"
+
+
+# ---------------------------------------------------------------------------------------
+# flatcli runs: the runs below a directory.
+
+@dataclass(frozen=True)
+class RunInfo:
+    """One run directory as ``flatcli runs`` shows it."""
+
+    path: Path
+    command: str
+    name: str
+    time: datetime | None
+    status: str
+    metrics: dict[str, Any]
+    spec: dict[str, Any]
+
+    def metrics_text(self) -> str:
+        return ", ".join(f"{k} {fmt(v, 3)}" for k, v in self.metrics.items())
+
+
+def _number(value: Any) -> Any:
+    """A metric read back from JSON (non-finite floats may be stored as strings)."""
+    if isinstance(value, str) and value in ("nan", "inf", "-inf"):
+        return float(value)
+    return value
+
+
+#: The metrics ``flatcli runs`` shows per command (all of them are in the run's files).
+PLAN_KEYS = ("input_energy", "min_margin", "max_abs_momentum")
+TRACK_KEYS = ("err_y_final", "err_theta_rms", "min_margin", "momentum_drift")
+
+
+def run_info(directory: Path) -> RunInfo | None:
+    """What ``flatcli runs`` shows of a directory, or None if it holds no run."""
+    record = read_json(directory / RECORD)
+    state = sweep_state(directory) if (directory / SWEEP_MANIFEST).exists() else None
+    if record is None and state is None:
+        return None
+    command = str(record.get("command")) if record is not None else "sweep"
+    spec = (record or {}).get("spec") or (state.manifest.get("spec") if state else None) or {}
+    when = _parse_time(record.get("time")) if record is not None else None
+    metrics: dict[str, Any] = {}
+    status = "done"
+    if state is not None:
+        command = "sweep"
+        if not state.complete:
+            status = f"partial {100 * state.done / max(state.total, 1):.0f}%"
+            when = datetime.fromtimestamp((directory / SWEEP_MANIFEST).stat().st_mtime)
+            record = None
+        metrics["trials"] = state.total
+        counts = (record or {}).get("status_counts", {})
+        metrics.update({k: v for k, v in counts.items() if v})
+    elif command == "plan":
+        summary = record.get("summary", {}) if record else {}
+        metrics = {k: _number(summary[k]) for k in PLAN_KEYS if k in summary}
+        optimization = record.get("optimization") if record else None
+        if optimization:
+            status = "optimised" if optimization.get("success") else "optimiser failed"
+        else:
+            status = "ok"
+    elif record is not None and isinstance(record.get("metrics"), Mapping):
+        values = record["metrics"]
+        status = str(values.get("status", "done"))
+        metrics = {k: _number(values[k]) for k in TRACK_KEYS if k in values}
+    elif record is not None and "seconds" in record:
+        metrics = {"seconds": _number(record["seconds"])}
+    return RunInfo(directory, command, str(spec.get("name", "")), when, status, metrics,
+                   spec)
+
+
+def _parse_time(value: Any) -> datetime | None:
+    try:
+        return datetime.fromisoformat(str(value)).astimezone()
+    except ValueError:
+        return None
+
+
+def find_runs(root: Path) -> Iterator[Path]:
+    """Every directory below ``root`` (and root itself) holding a run or a sweep; a sweep's
+    chunk files and ``latest`` links are not entered."""
+    for here, dirs, files in os.walk(root):
+        if RECORD in files or SWEEP_MANIFEST in files:
+            yield Path(here)
+        dirs[:] = sorted(d for d in dirs
+                         if d != SWEEP_TRIALS and not (Path(here) / d).is_symlink())
+
+
+def list_runs(root: Path) -> list[RunInfo]:
+    """The runs below ``root``, oldest first."""
+    infos = [info for path in find_runs(root) if (info := run_info(path)) is not None]
+    return sorted(infos, key=lambda i: (i.time.timestamp() if i.time else 0.0, str(i.path)))
+
+
+def runs_table(root: Path) -> str:
+    """``flatcli runs`` as a table (runs that ``latest`` points to are marked)."""
+    infos = list_runs(root)
+    if not infos:
+        return f"no runs in {root}"
+    latest = {p.resolve() for p in root.rglob(LATEST) if p.is_symlink()}
+    rows = []
+    for info in infos:
+        where = str(info.path.relative_to(root)) if info.path != root else "."
+        if info.path.resolve() in latest:
+            where += " (latest)"
+        when = f"{info.time:%Y-%m-%d %H:%M:%S}" if info.time else "-"
+        rows.append([where, info.command, info.name, when, info.status, info.metrics_text()])
+    return table(["run", "command", "name", "time", "status", "key metrics"], rows)
+
+
+# ---------------------------------------------------------------------------------------
+# flatcli runs --compare A B.
+
+def flat_spec(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """A spec tree as {dotted key: value}, into its tables too (``sweep.perturb.initial.std``,
+    ``sweep.grid."plant.com"``)."""
+    out: dict[str, Any] = {}
+    for key, value in tree.items():
+        part = f'"{key}"' if "." in key else key
+        dotted = f"{prefix}.{part}" if prefix else part
+        if isinstance(value, Mapping) and value:
+            out.update(flat_spec(value, dotted))
+        else:
+            out[dotted] = value
+    return out
+
+
+def _same(a: Any, b: Any) -> bool:
+    return json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)
+
+
+def _show(value: Any) -> str:
+    if value is _ABSENT:
+        return "(not set)"
+    if isinstance(value, str):
+        return value
+    return json.dumps(value, separators=(", ", " = ")).replace('"', "")
+
+
+_ABSENT = object()
+
+
+def compare_runs(a: Path, b: Path) -> str:
+    """The spec keys two runs differ in (and their key metrics side by side)."""
+    infos = []
+    for path in (a, b):
+        info = run_info(path)
+        if info is None:
+            raise RunDirectoryError(f"--compare: {path} holds no run (no run.json or "
+                                    "sweep.json)")
+        infos.append(info)
+    first, second = infos
+    fa, fb = flat_spec(first.spec), flat_spec(second.spec)
+    keys = [k for k in fa if k in fb] + [k for k in fa if k not in fb] + \
+           [k for k in fb if k not in fa]
+    rows = [[k, _show(fa.get(k, _ABSENT)), _show(fb.get(k, _ABSENT))]
+            for k in keys if not _same(fa.get(k, None), fb.get(k, None))
+            or (k in fa) != (k in fb)]
+    lines = [f"A = {a} ({first.command} {first.name!r}), B = {b} ({second.command} "
+             f"{second.name!r})", ""]
+    if rows:
+        lines += [f"{len(rows)} spec key{'s differ' if len(rows) > 1 else ' differs'}:", "",
+                  table(["key", "A", "B"], rows)]
+    else:
+        lines.append("the specs are identical")
+    metric_keys = [k for k in first.metrics if k in second.metrics]
+    if metric_keys:
+        lines += ["", table(["metric", "A", "B"],
+                            [[k, first.metrics[k], second.metrics[k]] for k in metric_keys])]
+    if first.status != second.status:
+        lines += ["", f"status: A {first.status}, B {second.status}"]
+    return "\n".join(lines)

@@ -1,0 +1,126 @@
+"""Live trial counts of a running sweep, by status, for the progress bar.
+
+A chunk is a sweep's unit of work and of resume (up to 1,000 trials, seconds of work); a
+progress bar that moved only when a chunk ends would sit still for seconds. So while a
+local sweep runs, ``run_chunk`` simulates a chunk in small batches and adds each batch's
+statuses to counters in shared memory, which the forked worker processes inherit; a thread
+of the parent reads them a few times a second into the bar (``watch``).
+
+Batches change nothing but the timing: every trial is integrated alone, whatever else is in
+its batch (``flatcli.core.simulate``). Where the counters do not reach (a Dask worker, a
+spawned process) nothing is counted, and the bar moves as chunks finish.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import threading
+import time
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+
+from flatcli.core.metrics import STATUS_NAMES, Status
+from flatcli.core.simulate import Integrator, Outcome, Scenario, Trials, simulate
+
+#: How often the parent reads the counters into the progress bar [s].
+POLL_SECONDS = 0.2
+#: Batch sizes: the first batch, the largest, and the time a batch should take [s].
+FIRST_BATCH = 4
+MAX_BATCH = 512
+BATCH_SECONDS = 0.2
+
+_counts: Any = None  # a multiprocessing.Array, one slot per Status, while a sweep is watched
+
+
+def status_counts(table: pa.Table) -> dict[str, int]:
+    """Trials per status in a chunk's table."""
+    counts = pc.value_counts(table.column("status")).to_pylist()
+    return {str(c["values"]): int(c["counts"]) for c in counts}
+
+
+def counting() -> bool:
+    """Whether a running sweep is watching the counters (in this process or its parent)."""
+    return _counts is not None
+
+
+def add(status: np.ndarray) -> None:
+    """Add a batch's ``Status`` codes to the counters (nothing if none are watched)."""
+    counts = _counts
+    if counts is None or len(status) == 0:
+        return
+    tally = np.bincount(np.asarray(status, dtype=np.int64), minlength=len(STATUS_NAMES))
+    with counts.get_lock():
+        for i, n in enumerate(tally.tolist()):
+            counts[i] += n
+
+
+def simulate_counted(scenario: Scenario, trials: Trials, integrator: Integrator) -> Outcome:
+    """``simulate`` in batches whose statuses are counted as they finish (one call when
+    nothing watches); the outcome is the same either way."""
+    if not counting():
+        return simulate(scenario, trials, integrator)
+    parts: list[Outcome] = []
+    start, size = 0, FIRST_BATCH
+    while start < trials.count:
+        stop = min(start + size, trials.count)
+        began = time.perf_counter()
+        part = simulate(scenario, trials.subset(slice(start, stop)), integrator)
+        add(part.status)
+        parts.append(part)
+        took = time.perf_counter() - began
+        if took < BATCH_SECONDS / 2:
+            size = min(2 * size, MAX_BATCH)
+        elif took > 2 * BATCH_SECONDS and size > 1:
+            size //= 2
+        start = stop
+    return Outcome(
+        np.concatenate([p.metrics for p in parts]),
+        np.concatenate([p.status for p in parts]),
+        np.concatenate([p.event for p in parts]),
+        np.concatenate([p.event_time for p in parts]),
+        None,
+    )
+
+
+class Watcher:
+    """Reads the counters into a progress bar until stopped."""
+
+    def __init__(self, progress: Any) -> None:
+        self.progress = progress
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="flatcli-progress", daemon=True)
+        self._thread.start()
+
+    def _read(self) -> None:
+        counts = _counts
+        if counts is None:
+            return
+        with counts.get_lock():
+            values = list(counts)
+        named = {Status(i).name.lower(): int(n) for i, n in enumerate(values)}
+        self.progress.live(sum(named.values()), named)
+
+    def _run(self) -> None:
+        while not self._stop.wait(POLL_SECONDS):
+            self._read()
+
+    def stop(self) -> None:
+        """Stop reading (after a last read) and stop counting."""
+        global _counts
+        self._stop.set()
+        self._thread.join()
+        self._read()
+        _counts = None
+
+
+def watch(progress: Any) -> Watcher | None:
+    """Start counting trials (in this process and in workers forked from now on) and
+    reading the counts into ``progress``; None if there is no bar to move."""
+    global _counts
+    if progress is None or getattr(progress, "quiet", True):
+        return None
+    _counts = multiprocessing.Array("q", len(STATUS_NAMES))
+    return Watcher(progress)

@@ -1,0 +1,155 @@
+"""The Python API (flatcli/api.py): the same numbers and files as the command line."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from click.testing import CliRunner
+from small_sweep import SPEC, write_spec
+
+import flatcli
+from flatcli import api
+from flatcli.cli import main
+
+HEAVY = ("numpy", "numba", "scipy", "pandas", "pyarrow", "matplotlib")
+
+
+def cli(*args: str) -> str:
+    result = CliRunner().invoke(main, list(args))
+    assert result.exit_code == 0, result.output
+    return result.output
+
+
+def test_plan_equals_the_cli_plan(tmp_path: Path) -> None:
+    cli("plan", "--out", str(tmp_path / "cli"), "-q", "--set", "plan.duration=3")
+    result = flatcli.plan(overrides={"plan.duration": 3.0})
+    written = pd.read_parquet(tmp_path / "cli" / "plan.parquet")
+    pd.testing.assert_frame_equal(result.frame, written, check_exact=True)
+    record = json.loads((tmp_path / "cli" / "run.json").read_text())
+    assert result.metrics == record["summary"]
+    assert result.optimization is None and result.directory is None
+    # saved through the API, the files are the CLI's files
+    directory = result.save(tmp_path / "api")
+    pd.testing.assert_frame_equal(pd.read_parquet(directory / "plan.parquet"), written,
+                                  check_exact=True)
+    saved = json.loads((directory / "run.json").read_text())
+    assert saved["spec"] == record["spec"] and saved["digest"] == record["digest"]
+
+
+def test_track_equals_the_cli_track(tmp_path: Path) -> None:
+    sets = ["track.kp=[100,110]", "track.kv=[10,13]"]
+    cli("track", "--out", str(tmp_path / "cli"), "-q", *(w for s in sets for w in ("--set", s)))
+    result = flatcli.track(overrides=sets, quiet=True)
+    assert result.metrics == json.loads((tmp_path / "cli" / "metrics.json").read_text())
+    pd.testing.assert_frame_equal(result.frame, pd.read_parquet(tmp_path / "cli" / "track.parquet"),
+                                  check_exact=True)
+    assert result.metrics["err_y_final"] < 1e-4  # swapped gains: ~1e-5 (README, "The gains")
+    loaded = flatcli.load(tmp_path / "cli")
+    assert isinstance(loaded, api.TrackResult)
+    assert loaded.metrics == result.metrics
+    pd.testing.assert_frame_equal(loaded.frame, result.frame, check_exact=True)
+    assert loaded.spec.digest() == result.spec.digest()
+
+
+def test_sweep_equals_the_cli_sweep_and_load_reads_it_back(tmp_path: Path) -> None:
+    spec = write_spec(tmp_path)
+    cli("sweep", str(spec), "--out", str(tmp_path / "cli"), "-q", "--workers", "2")
+    result = flatcli.sweep(spec, tmp_path / "api", workers=1, quiet=True)
+    assert isinstance(result, api.SweepResult) and result.complete
+    cli_trials = pd.read_parquet(tmp_path / "cli" / "trials.parquet")
+    pd.testing.assert_frame_equal(result.trials, cli_trials, check_exact=True)
+    pd.testing.assert_frame_equal(result.summary,
+                                  pd.read_parquet(tmp_path / "cli" / "summary.parquet"),
+                                  check_exact=True)
+    counts = json.loads((tmp_path / "cli" / "run.json").read_text())["status_counts"]
+    assert result.metrics["trials"] == result.metrics["finished"] == 120
+    for status, n in counts.items():
+        assert result.metrics[status] == n
+    assert result.simulated == 120 and result.wall_seconds is not None
+    loaded = flatcli.load(tmp_path / "cli")
+    assert isinstance(loaded, api.SweepResult)
+    pd.testing.assert_frame_equal(loaded.trials, cli_trials, check_exact=True)
+    assert loaded.summary_text == result.summary_text
+
+
+def test_saved_plan_loads_through_latest(tmp_path: Path) -> None:
+    result = flatcli.plan({"name": "nb", "plan": {"duration": 2.5}})
+    first = result.save(root=tmp_path)
+    second = flatcli.plan({"name": "nb"}).save(root=tmp_path)
+    assert first.parent == second.parent == tmp_path / "nb" and first != second
+    loaded = flatcli.load(tmp_path / "nb")  # a name's directory loads its latest run
+    assert isinstance(loaded, api.PlanResult) and loaded.directory == tmp_path / "nb" / "latest"
+    assert loaded.spec.plan.duration == 2.0
+    pd.testing.assert_frame_equal(flatcli.load(first).frame, result.frame, check_exact=True)
+
+
+def test_a_spec_can_be_given_five_ways(tmp_path: Path) -> None:
+    path = tmp_path / "s.toml"
+    path.write_text('name = "x"\n[track]\nkp = [1, 2]\n')
+    digests = {
+        api.load_spec(path).digest(),
+        api.load_spec(str(path)).digest(),
+        api.load_spec({"name": "x", "track": {"kp": [1, 2]}}).digest(),
+        api.load_spec({"name": "x", "track.kp": [1, 2]}).digest(),
+        api.load_spec(None, ["name=x", "track.kp=[1,2]"]).digest(),
+        api.load_spec(api.load_spec(), {"name": "x", "track.kp": [1, 2]}).digest(),
+    }
+    assert len(digests) == 1
+
+
+def test_bad_input_raises_the_cli_message() -> None:
+    with pytest.raises(flatcli.FlatcliError, match=r"unknown key 'plan\.duraton' \(did you "
+                                                   r"mean 'plan\.duration'\?\)"):
+        flatcli.plan(overrides={"plan.duraton": 3})
+    with pytest.raises(TypeError, match="spec: expected a path"):
+        flatcli.plan(3)  # type: ignore[arg-type]
+    with pytest.raises(flatcli.FlatcliError, match="holds no flatcli run"):
+        flatcli.load(Path(__file__).parent)
+
+
+def test_load_of_an_interrupted_sweep(tmp_path: Path) -> None:
+    spec = write_spec(tmp_path, SPEC.replace("trials = 60", "trials = 50"))
+    full = flatcli.sweep(spec, tmp_path / "d", workers=1, quiet=True)
+    trials, summary = full.trials, full.summary  # read before the files go
+    chunks = sorted((tmp_path / "d" / "trials").glob("chunk-*.parquet"))
+    assert len(chunks) == 4  # 2 cells of 50 trials in chunks of 25
+    for name in ("trials.parquet", "summary.parquet", "summary.md", "run.json"):
+        (tmp_path / "d" / name).unlink()
+    chunks[-1].unlink()  # cell 1's second chunk never finished
+    partial = flatcli.load(tmp_path / "d")
+    assert isinstance(partial, api.SweepResult) and not partial.complete
+    assert partial.metrics["trials"] == 100 and partial.metrics["finished"] == 75
+    pd.testing.assert_frame_equal(partial.trials, trials.iloc[:75], check_exact=True)
+    assert partial.summary["trials"].tolist() == [50, 25]
+    pd.testing.assert_series_equal(partial.summary.iloc[0], summary.iloc[0],
+                                   check_exact=True)
+    assert "75 of 100 trials finished (75%), 3 of 4 chunks; 25 trials missing" in \
+        partial.summary_text
+
+
+def test_import_flatcli_is_light_and_sweep_is_callable_however_it_was_imported() -> None:
+    code = (
+        "import sys, flatcli\n"
+        f"print(sorted(m for m in {HEAVY!r} if m in sys.modules))\n"
+        "import flatcli.sweep.layout\n"
+        "print(callable(flatcli.sweep), callable(flatcli.plan))\n"
+        "flatcli.check({'sweep': {'trials': 2}}, calibrate=False)\n"
+        "print(callable(flatcli.check), callable(flatcli.sweep))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout.split("\n")
+    assert out[0] == "[]"
+    assert out[1] == out[2] == "True True"
+
+
+def test_calling_the_sweep_package_runs_the_api_function(tmp_path: Path) -> None:
+    import flatcli.sweep as package
+
+    spec = write_spec(tmp_path, SPEC.replace("trials = 60", "trials = 3"))
+    result = package(spec, tmp_path / "d", workers=1, quiet=True)
+    assert isinstance(result, api.SweepResult) and result.metrics["finished"] == 6
