@@ -87,6 +87,11 @@ def test_final_tables_have_nulls_units_lists_and_failure_shares(tmp_path: Path) 
             ci = binomtest(k, n).proportion_ci(0.95, method="wilson")
             assert row[f"{status}_fraction_low"] == pytest.approx(ci.low, abs=1e-15)
             assert row[f"{status}_fraction_high"] == pytest.approx(ci.high, abs=1e-15)
+        simulated = group[group["status"] != "error"]
+        if len(simulated):  # the singular share over the simulated trials, counted once each
+            k = int((simulated["singular_hits"] > 0).sum())
+            ci = binomtest(k, len(simulated)).proportion_ci(0.95, method="wilson")
+            assert row["singular_fraction_high"] == pytest.approx(ci.high, abs=1e-15)
         resolved = group[group["status"].isin(["ok", "singular"])]
         assert row["resolved"] == len(resolved)
         assert row["simulated"] == int((group["status"] != "error").sum())

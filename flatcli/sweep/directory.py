@@ -132,7 +132,7 @@ def finish_sweep(directory: Path, lay: Layout, provenance: Mapping[str, Any], st
     """
     finishing = time.perf_counter()
     trials_path = assemble_trials(directory, lay, provenance)
-    columns = ["cell", "status", "singular_hits", *METRIC_NAMES]
+    columns = list(dict.fromkeys(["cell", "status", *METRIC_NAMES]))  # each column once
     frame = pq.read_table(trials_path, columns=columns).to_pandas()
     cells = {c.index: {k: v for k, (_, v) in grid_columns(c.values, c.spec).items()}
              for c in lay.cells}
