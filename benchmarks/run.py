@@ -33,7 +33,6 @@ import flatcli  # noqa: F401  (first: pins BLAS to one thread before numpy loads
 from benchmarks.baselines import (
     PAPER_MANEUVER,
     PAPER_TRACKING,
-    Tracking,
     compiled_trials_per_second,
     machine_info,
     numpy_trials_per_second,
@@ -46,16 +45,14 @@ from benchmarks.baselines import (
     solve_ivp_trials_per_second,
     timed,
 )
-from flatcli.core.control import Gains
+from benchmarks.integrators import HEADERS as INTEGRATOR_HEADERS
+from benchmarks.integrators import run_all as run_integrators
 from flatcli.core.model import PAPER_ROBOT
 from flatcli.core.optimize import PlanLimits, optimize_plan
 from flatcli.core.planning import plan_point_to_point
 from flatcli.core.simulate import Scenario, simulate
-from flatcli.experiment import run_track
 from flatcli.report import fmt, table
-from flatcli.spec import load_spec
 from flatcli.storage import to_jsonable, write_json, write_text
-from flatcli.sweep import layout, rerun_spec
 
 HERE = Path(__file__).resolve().parent
 SPEC = HERE / "paper_sweep.toml"
@@ -188,11 +185,14 @@ def closed_loop(bench: Bench) -> None:
     plan = PAPER_MANEUVER.cubic()
     scenario = Scenario(plan, PAPER_TRACKING.gains, PAPER_TRACKING.dt).prepared()
     one = trials.subset(slice(0, 1))
+    simulate(scenario, one, "rk4")
     simulate(scenario, one)
     single = bench.measure(section, "flatcli one trial",
-                           lambda: timed(lambda: simulate(scenario, one), repeat=20))
+                           lambda: timed(lambda: simulate(scenario, one, "rk4"), repeat=20))
     batch = bench.measure(section, "flatcli batch",
-                          lambda: timed(lambda: simulate(scenario, trials), repeat=2))
+                          lambda: timed(lambda: simulate(scenario, trials, "rk4"), repeat=2))
+    adaptive = bench.measure(section, "flatcli batch, adaptive",
+                             lambda: timed(lambda: simulate(scenario, trials), repeat=2))
     compiled2 = bench.measure(section, "compiled kernel, 2 threads",
                               lambda: compiled_trials_per_second(plan, trials, threads=2))
     compiled1 = bench.measure(section, "compiled kernel, 1 thread",
@@ -208,6 +208,9 @@ def closed_loop(bench: Bench) -> None:
     bench.row(section, f"flatcli simulate, batch of {n} (1 core)", f"{flat_rate:.0f}",
               f"{flat_rate / compiled1.trials_per_second:.2f}x compiled (1 thread)",
               "all metrics")
+    bench.row(section, f"flatcli simulate, adaptive (default), batch of {n} (1 core)",
+              f"{n / adaptive.median:.0f}", f"{n / adaptive.median / flat_rate:.2f}x flatcli RK4",
+              "all metrics, 1e-6 rad or better")
     bench.row(section, "compiled RK4 kernel (numba prange), 2 threads",
               f"{compiled2.trials_per_second:.0f}", "", "final states only")
     bench.row(section, "compiled RK4 kernel, 1 thread", f"{compiled1.trials_per_second:.0f}",
@@ -219,6 +222,7 @@ def closed_loop(bench: Bench) -> None:
     bench.raw["closed_loop"] = {
         "trials": n, "flatcli_one_trial_per_second": 1 / single.median,
         "flatcli_batch_per_second": flat_rate,
+        "flatcli_adaptive_batch_per_second": n / adaptive.median,
         "compiled_2_threads": compiled2.trials_per_second,
         "compiled_1_thread": compiled1.trials_per_second,
         "numpy_batch": numpy_batch.trials_per_second,
@@ -295,59 +299,6 @@ def sweeps(bench: Bench, million: bool) -> None:
     bench.raw["scaling"] = scaling
 
 
-def accuracy(bench: Bench) -> None:
-    section = "Accuracy vs cost: RK4 against solve_ivp DOP853 (rtol 1e-10)"
-    spec = load_spec(SPEC, ["sweep.trials=10"])
-    lay = layout(spec)
-    directory = bench.out / "sweeps" / "w2"
-    frame = pd.read_parquet(directory / "trials.parquet")
-    rows = frame[frame["status"] == "ok"].sample(4 if bench.quick else 8, random_state=1)
-    readings: dict[str, dict[str, Any]] = {
-        "printed": {}, "swapped": {"track.kp": [100.0, 110.0], "track.kv": [10.0, 13.0]}}
-    steps = [4e-3, 2e-3, 1e-3, 5e-4, 2.5e-4]
-    results = []
-
-    def angles(spec: Any) -> np.ndarray:
-        trace = run_track(spec).outcome.trace
-        assert trace is not None
-        return np.asarray(trace[0][:, :3])
-
-    for name, gains in readings.items():
-        specs = []
-        references = []
-        for _, row in rows.iterrows():
-            s = rerun_spec(lay, {str(k): v for k, v in row.items()}).with_overrides(gains)
-            exact = s.with_overrides({"track.integrator": "dop853"})
-            run = bench.measure(section, f"DOP853 {name} trial {row['trial']}",
-                                partial(run_track, exact))
-            if run.metrics["status"] == "ok":  # a diverging trial has no accuracy to compare
-                references.append(angles(exact))
-                specs.append(s)
-        gains_tuple = (Gains(100.0, 110.0, 10.0, 13.0) if name == "swapped"
-                       else PAPER_TRACKING.gains)
-        for dt in steps:
-            errors = []
-            for s, reference in zip(specs, references, strict=True):
-                got = angles(s.with_overrides({"track.dt": dt}))
-                # compare on the 1 ms grid of the reference, or on the coarser grid of got
-                ref = reference[:: round(dt / 1e-3)] if dt >= 1e-3 else reference
-                got = got if dt >= 1e-3 else got[:: round(1e-3 / dt)]
-                errors.append(float(np.max(np.abs(got - ref))))
-            tracking = Tracking(gains=gains_tuple, dt=dt)
-            scenario = Scenario(PAPER_MANEUVER.cubic(), gains_tuple, dt).prepared()
-            trials = paper_trials(500 if bench.quick else 2000, seed=2, tracking=tracking)
-            cost = timed(partial(simulate, scenario, trials), repeat=1)
-            rate = trials.count / cost.median
-            results.append({"gains": name, "dt": dt, "max_angle_error": max(errors),
-                            "trials_per_second": rate})
-            note = (f"{len(specs)} sampled trials" if len(specs) == len(rows) else
-                    f"{len(specs)} of {len(rows)} sampled trials (the others diverge)")
-            bench.row(section, f"{name} gains, dt = {dt:g} s", f"{max(errors):.1e}",
-                      f"{rate:.0f} trials/s (1 core)",
-                      ("default; " if (dt == 1e-3 and name == "printed") else "") + note)
-    bench.raw["accuracy"] = results
-
-
 def optimised(bench: Bench) -> None:
     section = "Optimised plans: least energy, abs(th2) <= 3, rates <= 20, margin >= 0.05"
     limits = PlanLimits(angle_limit=(math.inf, math.inf, 3.0), rate_limit=20.0, min_margin=0.05)
@@ -422,8 +373,7 @@ HEADERS = {
     "flatcli sweep: benchmarks/paper_sweep.toml, all metrics written":
         ["run", "trials/s", "warm trials/s", "wall", "note"],
     "Scaling: 2 workers": ["sweep", "trials/s", "warm trials/s", "wall", "peak memory (RSS)"],
-    "Accuracy vs cost: RK4 against solve_ivp DOP853 (rtol 1e-10)":
-        ["setting", "max angle error [rad]", "cost", ""],
+    **INTEGRATOR_HEADERS,
     "Optimised plans: least energy, abs(th2) <= 3, rates <= 20, margin >= 0.05":
         ["plan", "energy [rad^2/s]", "limit violation", "max abs(H)", "time", "note"],
     LADDER: ["limit", "value", "energy [rad^2/s]", "time", "note"],
@@ -463,7 +413,7 @@ def main(argv: list[str] | None = None) -> None:
     planning(bench)
     closed_loop(bench)
     sweeps(bench, args.million)
-    accuracy(bench)
+    run_integrators(bench, sweep)
     optimised(bench)
     optimised_ladder(bench)
     text = report(bench)

@@ -1,0 +1,220 @@
+"""``make bench``: the adaptive integrator against fixed-step RK4, in cost and in accuracy.
+
+* sweeps of ``benchmarks/paper_sweep.toml`` and of the paper study
+  (``configs/paper_montecarlo.toml``) with each integrator, 2 workers, interleaved;
+* steps and right-hand-side evaluations per trial (median, 95th percentile) by cell;
+* accuracy against cost: adaptive rtol 1e-4 .. 1e-10 and RK4 dt 4 .. 0.25 ms, against
+  scipy's DOP853 at rtol 1e-12 on the same right-hand side (every output sample);
+* the error estimate ``err_estimate`` against the true final error on a few hundred trials.
+"""
+
+from __future__ import annotations
+
+import time
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from numpy.typing import NDArray
+from scipy.integrate import solve_ivp
+
+from benchmarks.baselines import PAPER_MANEUVER, paper_trials, timed
+from flatcli.core.control import Gains
+from flatcli.core.metrics import Metric, Status
+from flatcli.core.model import Coefficients, Links
+from flatcli.core.planning import FlatPlan
+from flatcli.core.plant import Loop
+from flatcli.core.simulate import (
+    Scenario,
+    Trials,
+    _is_flat,
+    _kinematic_rhs_at,
+    plant_coefficients,
+    simulate,
+)
+
+Array = NDArray[np.float64]
+
+HERE = Path(__file__).resolve().parent
+SPEC = HERE / "paper_sweep.toml"
+STUDY = HERE.parent / "configs" / "paper_montecarlo.toml"
+PRINTED = Gains(10.0, 13.0, 100.0, 110.0)
+SWAPPED = Gains(100.0, 110.0, 10.0, 13.0)
+SWEEPS = "Integrators: adaptive (default) against RK4, 2 workers"
+CELLS = "Integrators: steps and right-hand sides per trial, paper study, by cell"
+ACCURACY = "Accuracy against cost (every output sample against DOP853 at rtol 1e-12)"
+ESTIMATE = "err_estimate against the true final error (DOP853 at rtol 1e-12)"
+HEADERS = {
+    SWEEPS: ["sweep", "adaptive", "rk4", "ratio", "note"],
+    CELLS: ["cell", "grid values", "steps median", "steps p95", "rhs median", "rhs p95",
+            "statuses (adaptive)", "statuses (rk4)"],
+    ACCURACY: ["integrator", "setting", "max error printed [rad]", "max error swapped [rad]",
+               "max error perturbed [rad]", "rhs per trial", "trials/s (1 core)"],
+    ESTIMATE: ["gains", "trials", "bounded", "median estimate / true", "smallest ratio"],
+}
+
+
+def reference(scenario: Scenario, trials: Trials, i: int, times: Array) -> Array | None:
+    """Trial i by scipy's DOP853 at rtol 1e-12 on the kernel's right-hand side: the angles
+    at ``times`` (None if it cannot finish: a diverging trial has no accuracy to compare)."""
+    plan = scenario.plan
+    assert isinstance(plan, FlatPlan)  # the paper's robot
+    kc = Coefficients(*map(float, plan.coefficients))
+    kq = Coefficients(*plant_coefficients(trials.links[i: i + 1])[0])
+    p = Links(*map(float, trials.links[i]))
+    assert isinstance(scenario.gains, Gains)
+    loop = Loop(kc, scenario.gains, kq, p, p.m0 + p.m1 + p.m2, float(trials.momentum[i]),
+                float(scenario.rate_limit), bool(_is_flat(kq)))
+    breaks, local = scenario.pieces
+    zero = np.zeros(3)
+    with np.errstate(all="ignore"):
+        sol = solve_ivp(lambda t, x: _kinematic_rhs_at(loop, breaks, local, t, x, zero),
+                        (0.0, float(times[-1])), trials.initial[i], method="DOP853",
+                        t_eval=times, rtol=1e-12, atol=1e-14)
+    return np.asarray(sol.y[:3].T) if sol.status == 0 else None
+
+
+def accuracy_curve(bench: Any) -> None:
+    """Max angle error over every output sample, cost and throughput per setting."""
+    plan = PAPER_MANEUVER.cubic()
+    fig4 = np.array([[1.96, 0.8, -0.1, 0.1]])
+    one = Trials(PAPER_MANEUVER.robot.as_array()[None], np.zeros(1), fig4)
+    perturbed = paper_trials(6 if bench.quick else 12, seed=3)
+    throughput = paper_trials(300 if bench.quick else 1000, seed=4)
+    settings: list[tuple[str, str, dict[str, Any], float]] = [
+        *(("adaptive", f"rtol {r:g}", {"rtol": r, "atol": r * 2e-3}, 1e-3)
+          for r in (1e-4, 1e-5, 1e-6, 1e-7, 5e-8, 1e-8, 1e-9, 1e-10)),
+        *(("rk4", f"dt {dt * 1e3:g} ms", {}, dt) for dt in (4e-3, 2e-3, 1e-3, 5e-4, 2.5e-4)),
+    ]
+    references: dict[tuple[str, float], list[Array | None]] = {}
+    raw = []
+    for integrator, label, options, dt in settings:
+        errors = {}
+        for name, gains, trials in (("printed", PRINTED, one), ("swapped", SWAPPED, one),
+                                    ("perturbed", PRINTED, perturbed)):
+            scenario = Scenario(plan, gains, dt, **options)
+            key = (name, dt)
+            if key not in references:
+                references[key] = [reference(scenario, trials, i, scenario.times)
+                                   for i in range(trials.count)]
+            out = simulate(scenario, trials, integrator, record=True)  # type: ignore[arg-type]
+            assert out.trace is not None
+            worst = 0.0
+            for i, ref in enumerate(references[key]):
+                if ref is not None and out.status[i] == Status.OK:
+                    worst = max(worst, float(np.max(np.abs(out.trace[i, :, :3] - ref))))
+            errors[name] = worst
+        scenario = Scenario(plan, PRINTED, dt, **options).prepared()
+        simulate(scenario, throughput.subset(slice(0, 2)), integrator)  # type: ignore[arg-type]
+        cost = bench.measure(ACCURACY, f"{integrator} {label}", partial(
+            timed, partial(simulate, scenario, throughput, integrator),  # type: ignore[arg-type]
+            repeat=3))
+        out = simulate(scenario, throughput, integrator)  # type: ignore[arg-type]
+        evaluations = float(np.median(out.metrics[:, Metric.RHS_EVALUATIONS]))
+        rate = throughput.count / cost.best
+        bench.row(ACCURACY, integrator, label, f"{errors['printed']:.1e}",
+                  f"{errors['swapped']:.1e}", f"{errors['perturbed']:.1e}", f"{evaluations:.0f}",
+                  f"{rate:.0f}")
+        raw.append({"integrator": integrator, "setting": label, **errors,
+                    "rhs_evaluations": evaluations, "trials_per_second": rate})
+    bench.raw["accuracy_curve"] = raw
+
+
+def error_estimate(bench: Any) -> None:
+    """Fraction of resolved perturbed trials whose true final error err_estimate bounds."""
+    plan = PAPER_MANEUVER.cubic()
+    raw = []
+    for name, gains, seed in (("printed", PRINTED, 11), ("swapped", SWAPPED, 12)):
+        trials = paper_trials(40 if bench.quick else 150, seed=seed)
+        scenario = Scenario(plan, gains, 1e-3)
+        out = simulate(scenario, trials, record=True)
+        assert out.trace is not None
+        ratios = []
+        end = np.array([0.0, plan.duration])
+        for i in np.flatnonzero(out.status == Status.OK):
+            ref = bench.measure(ESTIMATE, f"{name} trial {i}",
+                                partial(reference, scenario, trials, int(i), end))
+            if ref is None:
+                continue
+            true = float(np.linalg.norm(out.trace[i, -1, :3] - ref[-1]))
+            ratios.append(out.metrics[i, Metric.ERR_ESTIMATE] / max(true, 1e-300))
+        r = np.asarray(ratios)
+        bench.row(ESTIMATE, name, len(r), f"{np.mean(r >= 1):.1%}", f"{np.median(r):.3g}",
+                  f"{np.min(r):.3g}")
+        raw.append({"gains": name, "trials": len(r), "bounded": float(np.mean(r >= 1)),
+                    "median_ratio": float(np.median(r)), "smallest_ratio": float(np.min(r))})
+    bench.raw["error_estimate"] = raw
+
+
+def integrator_sweeps(bench: Any, sweep: Any) -> None:
+    """paper_sweep.toml and the paper study with each integrator (2 workers, interleaved,
+    best of the repeats), and the integrators' work per trial by cell of the study."""
+    work = bench.out / "integrators"
+    n = 2000 if bench.quick else 10_000
+    repeats = 1 if bench.quick else 3
+    runs: dict[str, list[dict[str, Any]]] = {"adaptive": [], "rk4": []}
+    for k in range(repeats):
+        for integrator in ("adaptive", "rk4"):
+            runs[integrator].append(bench.measure(SWEEPS, f"paper_sweep {integrator} {k}", partial(
+                sweep, SPEC, work / f"sweep-{integrator}", n, 2,
+                "--set", f"track.integrator={integrator}")))
+    best = {k: max(v, key=lambda r: float(r["trials_per_second"])) for k, v in runs.items()}
+    ratio = best["adaptive"]["trials_per_second"] / best["rk4"]["trials_per_second"]
+    frames = {k: pd.read_parquet(work / f"sweep-{k}" / "trials.parquet") for k in runs}
+    steps = frames["adaptive"]["steps"]
+    bench.row(SWEEPS, f"paper_sweep.toml, {n:,} trials: trials/s (best of {repeats})",
+              f"{best['adaptive']['trials_per_second']:.0f}",
+              f"{best['rk4']['trials_per_second']:.0f}", f"{ratio:.2f}x",
+              f"adaptive steps per trial median {steps.median():.0f}, p95 "
+              f"{steps.quantile(0.95):.0f}")
+    study: dict[str, dict[str, Any]] = {}
+    trials = 400 if bench.quick else 2000
+    for integrator in ("adaptive", "rk4"):
+        study[integrator] = bench.measure(SWEEPS, f"paper study {integrator}", partial(
+            sweep, STUDY, work / f"study-{integrator}", trials, 2,
+            "--set", f"track.integrator={integrator}"))
+    seconds = {k: float(v["sweep_seconds"]) for k, v in study.items()}
+    bench.row(SWEEPS, f"paper study, 18 x {trials:,} trials: wall time",
+              f"{seconds['adaptive']:.1f} s", f"{seconds['rk4']:.1f} s",
+              f"{seconds['adaptive'] / seconds['rk4']:.2f}x the time",
+              "every trial resolved to its tolerance or marked (adaptive)")
+    frames = {k: pd.read_parquet(work / f"study-{k}" / "trials.parquet") for k in study}
+    grid = [c for c in frames["adaptive"].columns
+            if c in ("sweep.perturb.initial.std", "gains", "plant.com")]
+    raw = []
+    for cell, group in frames["adaptive"].groupby("cell"):
+        rk4 = frames["rk4"][frames["rk4"]["cell"] == cell]
+        first = group.iloc[0]
+        values = ", ".join(_value(first[c]) for c in grid)
+
+        def counts(frame: pd.DataFrame) -> str:
+            c = frame["status"].value_counts()
+            return " ".join(f"{s[:2]} {int(c.get(s, 0))}" for s in
+                            ("ok", "singular", "diverged", "unresolved") if c.get(s, 0))
+
+        row = [cell, values, f"{group['steps'].median():.0f}",
+               f"{group['steps'].quantile(0.95):.0f}",
+               f"{group['rhs_evaluations'].median():.0f}",
+               f"{group['rhs_evaluations'].quantile(0.95):.0f}", counts(group), counts(rk4)]
+        bench.row(CELLS, *row)
+        raw.append(dict(zip(HEADERS[CELLS], row, strict=True)))
+    bench.raw["integrator_sweeps"] = {"paper_sweep": best, "study": study, "cells": raw,
+                                      "ratio": ratio}
+
+
+def _value(v: Any) -> str:
+    if isinstance(v, list | tuple | np.ndarray):
+        return "[" + ", ".join(f"{float(x):g}" for x in v) + "]"
+    if isinstance(v, float):
+        return f"{v:g}"
+    return str(v)
+
+
+def run_all(bench: Any, sweep: Any) -> None:
+    started = time.perf_counter()
+    integrator_sweeps(bench, sweep)
+    accuracy_curve(bench)
+    error_estimate(bench)
+    bench.raw["integrators_seconds"] = time.perf_counter() - started
