@@ -26,6 +26,7 @@ from typing import Any
 
 from flatcli.core.model import MODELS
 from flatcli.core.optimize import OBJECTIVES
+from flatcli.core.plant import DEFAULT_SERVO_BANDWIDTH, PLANT_MODELS, SERVO_MODELS
 from flatcli.core.simulate import (
     DEFAULT_ATOL,
     DEFAULT_MAX_STEPS,
@@ -163,6 +164,18 @@ class PlantSpec:
                                 nullable=True, default_doc="robot.com")
     momentum: float = number(0.0, "the plant's angular momentum H0 (the controller assumes 0)",
                              "kg m^2/s")
+    model: str = choice(PLANT_MODELS, "kinematic", "\"kinematic\" (the joints turn at the "
+                        "commanded rates) or \"dynamic\" (a robot with inertia: joint torques "
+                        "from rate servos; README, *The dynamic plant*)")
+    servo_bandwidth: float = number(DEFAULT_SERVO_BANDWIDTH, "dynamic plant: each joint rate "
+                                    "follows its command as a first-order lag of this bandwidth",
+                                    "rad/s", gt=0)
+    torque_limit: float = number(INF, "dynamic plant: the servo's joint torques are clipped to "
+                                 "it (0: no torque, the robot drifts freely)", "N m", ge=0,
+                                 inf=True)
+    servo_model: str = choice(SERVO_MODELS, "robot", "dynamic plant: the model the servo's "
+                              "computed torque uses: \"robot\" (the nominal `[robot]`) or "
+                              "\"plant\" (the plant itself)")
 
 
 @dataclass(frozen=True)
