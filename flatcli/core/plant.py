@@ -45,8 +45,17 @@ from numpy.typing import NDArray
 
 from flatcli.core._jit import jitable
 from flatcli.core.control import Gains, feedback, feedback_at
-from flatcli.core.dynamics import ThreeBody, three_body, three_body_joint_space, three_body_terms
+from flatcli.core.dynamics import (
+    Chain,
+    ThreeBody,
+    inverse_dynamics,
+    three_body,
+    three_body_joint_space,
+    three_body_terms,
+)
+from flatcli.core.flatness import flag_state
 from flatcli.core.model import Coefficients, Links, base_rate_at, momentum_at
+from flatcli.core.planning import COMPLEX_STEP, FlatPlan
 
 Array = NDArray[np.float64]
 
@@ -283,3 +292,43 @@ def dynamic_initial(loop: DynamicLoop, initial: Array, ref: Array, x0: Array) ->
     x0[0], x0[1], x0[2] = initial[0], initial[1], initial[2]
     x0[3] = (loop.h0 - m01 * r1 - m02 * r2) / m00
     x0[4], x0[5], x0[6] = r1, r2, u1
+
+
+def plan_motion(plan: FlatPlan, t: Array) -> tuple[Array, Array, Array]:
+    """The angles, rates and accelerations a plan asks of the robot, exactly.
+
+    th and th' from the flat flag (``flatness.flag_state``: th0' the exact derivative of
+    eq. 35, th1' = y1', th2' = u2), and th'' by complex step of the same map along the flag's
+    own derivative (y', y'', y''') (no finite difference).
+
+    Parameters
+    ----------
+    plan : FlatPlan
+    t : (n,) times [s] within [0, duration]
+
+    Returns
+    -------
+    q (n, 3) [rad], q' (n, 3) [rad/s], q'' (n, 3) [rad/s^2]
+    """
+    t = np.asarray(t, dtype=float)
+    y = [plan.trajectory.derivative(t, order) for order in range(4)]
+    z = [y[0][:, 0], y[0][:, 1], y[1][:, 0], y[1][:, 1], y[2][:, 0], y[2][:, 1]]
+    dz = [y[1][:, 0], y[1][:, 1], y[2][:, 0], y[2][:, 1], y[3][:, 0], y[3][:, 1]]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        th0, th1, th2, u1, _, u2, th0_dot = flag_state(plan.coefficients, *z)
+        moved = [zi + 1j * COMPLEX_STEP * dzi for zi, dzi in zip(z, dz, strict=True)]
+        rates = flag_state(plan.coefficients, *moved)
+    th0_ddot, u1_dot, u2_dot = (np.asarray(rates[i]).imag / COMPLEX_STEP for i in (6, 3, 5))
+    q = np.stack([th0, th1, th2], axis=-1)
+    q_dot = np.stack([th0_dot, u1, u2], axis=-1)
+    q_ddot = np.stack([th0_ddot, u1_dot, u2_dot], axis=-1)
+    return (np.asarray(q, dtype=float), np.asarray(q_dot, dtype=float),
+            np.asarray(q_ddot, dtype=float))
+
+
+def plan_torques(plan: FlatPlan, chain: Chain, t: Array) -> Array:
+    """The generalised forces M q'' + C q' a plan asks of a robot (``plan_motion``,
+    ``dynamics.inverse_dynamics``): (n, 3) [N m], the base's first (dH/dt: ~0 for a plan of
+    this robot), then the joint torques tau1, tau2 an ideal actuator would apply."""
+    q, q_dot, q_ddot = plan_motion(plan, t)
+    return inverse_dynamics(chain, q, q_dot, q_ddot)
