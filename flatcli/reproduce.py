@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from flatcli.actuators import actuators_section
 from flatcli.core.metrics import Metric
 from flatcli.core.model import constraint_coefficients
 from flatcli.core.optimize import required_fold
@@ -387,6 +388,7 @@ def reproduce(out: Path, montecarlo: Path | None, quiet: bool = False,
             "",
             text,
         ]
+    rep.sections += actuators_section(base, out, quiet, workers, montecarlo is not None, sets)
     write_json(out / "run.json", run_record("reproduce", base.tree,
                                             seconds=time.perf_counter() - started))
     path = write_report(rep, out, base)

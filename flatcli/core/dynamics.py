@@ -218,8 +218,9 @@ def three_body_joint_space(
 ) -> tuple[float, float, float, float, float]:
     """``joint_space`` for n = 3: Mhat11, Mhat12, Mhat22 [kg m^2] and chat1, chat2 [N m]
     from M and C q' (``three_body_terms``)."""
-    f1 = m01 / m00
-    f2 = m02 / m00
+    inv = 1.0 / m00
+    f1 = m01 * inv
+    f2 = m02 * inv
     return m11 - f1 * m01, m12 - f1 * m02, m22 - f2 * m02, h1 - f1 * h0, h2 - f2 * h0
 
 

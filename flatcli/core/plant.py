@@ -81,10 +81,10 @@ DEFAULT_SERVO_BANDWIDTH = 100.0
 DYNAMIC_STATE = 7
 #: Values ``dynamic_rhs`` writes after the state's derivative: the margin, tau1, tau2 [N m],
 #: the rate command r2 [rad/s], whether a torque was clipped (1.0) or not (0.0), and the
-#: plant's cos th1, sin th1.
-DYNAMIC_AUX = 7
+#: plant's cos th1, sin th1, cos(th1 + th2), sin(th1 + th2).
+DYNAMIC_AUX = 9
 #: Where ``dynamic_rhs`` writes them in its output (after the 7 rates and the margin).
-AUX_TAU1, AUX_TAU2, AUX_R2, AUX_SATURATED, AUX_C1, AUX_S1 = 8, 9, 10, 11, 12, 13
+AUX_TAU1, AUX_TAU2, AUX_R2, AUX_SATURATED, AUX_C1, AUX_S1, AUX_C12, AUX_S12 = range(8, 16)
 
 
 class Loop(NamedTuple):
@@ -218,7 +218,7 @@ def dynamic_rhs(loop: DynamicLoop, x: Array, ref: Array, noise: Array, out: Arra
     out : (>= 7 + DYNAMIC_AUX,) written: th0', th1', th2' [rad/s], th0'', th1'', th2''
         [rad/s^2], u1' [rad/s^2]; then the controller's signed margin sin(measured th1) * u1
         [rad/s], tau1, tau2 [N m], the rate command r2 [rad/s], 1.0 if a torque was clipped
-        (else 0.0), and the plant's cos th1, sin th1
+        (else 0.0), and the plant's cos th1, sin th1, cos(th1 + th2), sin(th1 + th2)
     """
     x1 = x[1]
     c1 = np.cos(x1)
@@ -248,9 +248,9 @@ def dynamic_rhs(loop: DynamicLoop, x: Array, ref: Array, noise: Array, out: Arra
     # the plant: Mhat qj'' = tau - chat, then the base from its own row
     rhs1 = tau1 - b1
     rhs2 = tau2 - b2
-    det = a11 * a22 - a12 * a12
-    q1_ddot = (a22 * rhs1 - a12 * rhs2) / det
-    q2_ddot = (a11 * rhs2 - a12 * rhs1) / det
+    inv_det = 1.0 / (a11 * a22 - a12 * a12)
+    q1_ddot = (a22 * rhs1 - a12 * rhs2) * inv_det
+    q2_ddot = (a11 * rhs2 - a12 * rhs1) * inv_det
     q0_ddot = -(m01 * q1_ddot + m02 * q2_ddot + h0) / m00
     if (u1 >= limit and u1_dot > 0.0) or (u1 <= -limit and u1_dot < 0.0):
         u1_dot = 0.0  # conditional integration: no wind-up while the command is clipped
@@ -261,15 +261,15 @@ def dynamic_rhs(loop: DynamicLoop, x: Array, ref: Array, noise: Array, out: Arra
     out[AUX_TAU1], out[AUX_TAU2] = tau1, tau2
     out[AUX_R2], out[AUX_SATURATED] = r2, saturated
     out[AUX_C1], out[AUX_S1] = c1, s1
+    out[AUX_C12], out[AUX_S12] = c1 * c2 - s1 * s2, s1 * c2 + c1 * s2
 
 
 @jitable
 def dynamic_momentum(loop: DynamicLoop, x: Array, f: Array) -> float:
     """H of the plant from its full link kinematics (``model.momentum``) at state x with its
     own rates; f as written by ``dynamic_rhs`` [kg m^2/s]."""
-    s12 = x[1] + x[2]
-    return float(momentum_at(loop.links, f[AUX_C1], f[AUX_S1], np.cos(s12), np.sin(s12),
-                             x[3], x[4], x[5]))
+    return float(momentum_at(loop.links, f[AUX_C1], f[AUX_S1], f[AUX_C12], f[AUX_S12], x[3],
+                             x[4], x[5]))
 
 
 @jitable
