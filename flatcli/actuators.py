@@ -11,6 +11,7 @@ lines; every number in them is computed here from those runs.
 from __future__ import annotations
 
 import math
+import textwrap
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -182,7 +183,7 @@ def plot_study(cells: pd.DataFrame, kinematic: Mapping[str, tuple[float, float]]
         ax[0, j].axhline(level, color="k", ls=":", label="kinematic plant")
         ax[0, j].axhline(TRACKABLE_ERROR, color="0.5", ls="--", label="trackable")
         ax[1, j].axhline(lost, color="k", ls=":", label="kinematic plant")
-        ax[0, j].set_title(maneuver)
+        ax[0, j].set_title(textwrap.fill(maneuver, 40), fontsize=10)
         ax[1, j].set_xlabel("servo bandwidth [rad/s]")
         ax[1, j].set_ylim(-0.03, 1.03)
         for a in ax[:, j]:
@@ -242,9 +243,9 @@ def finding(cells: pd.DataFrame, demands: Mapping[str, list[Any]]) -> str:
         "th'' / bandwidth and the error grows as 1 / bandwidth; a torque limit under what the "
         "closed loop's first milliseconds ask (it corrects the start error at once, with "
         "torques far above the plan's own) lets the joints fall behind commands that the "
-        "linearising feedback, which believes its rates are applied, keeps raising, and the "
-        "trial crosses the singular set: on this robot saturation is not a gentle "
-        "degradation but a loss of the maneuver."
+        "linearising feedback, which believes its rates are applied, keeps raising, until the "
+        "margin sin th1 * u1 reaches zero (every trial lost in the study ends so): on this "
+        "robot saturation is not a gentle degradation but a loss of the maneuver."
     )
 
 
