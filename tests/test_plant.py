@@ -115,7 +115,9 @@ def _golden_module() -> ModuleType:
 def test_kinematic_plant_outcomes_are_unchanged_bit_for_bit(paper_plan: FlatPlan) -> None:
     """The cases of tests/data/make_kinematic_golden.py (adaptive with and without noise,
     RK4 with a rate limit, DOP853; trials that finish and trials that diverge) give the very
-    numbers they gave before the dynamic plant was added."""
+    numbers they gave before the dynamic plant was added. (Bit for bit with the pinned
+    versions of constraints.txt on this project's machines; another libm may round cos and
+    sin differently in the last bit: regenerate the file there, at the commit it names.)"""
     golden = _golden_module()
     stored = np.load(DATA / "kinematic_golden.npz")
     for name, gains, limit, std, integrator in golden.CASES:
