@@ -26,6 +26,7 @@ from flatcli.core.plant import DEFAULT_SERVO_BANDWIDTH, plan_motion, plan_torque
 from flatcli.experiment import plan_from, robot_from, run_track
 from flatcli.report import COMPLETED, Progress, fmt, new_figure, save_figure, table
 from flatcli.spec import Spec, load_spec
+from flatcli.storage import run_record, write_parquet
 
 #: The study's spec (relative to the working directory, as ``make reproduce`` runs it; else
 #: the repository's copy next to the package).
@@ -285,7 +286,8 @@ def actuators_section(base: Spec, out: Path, quiet: bool, workers: int | None = 
     cells = cell_table(trials)
     kinematic = kinematic_levels(kinematic_trials)
     plot_study(cells, kinematic, out / "fig_actuators.png")
-    cells.to_parquet(out / "actuators" / "cells.parquet")
+    write_parquet(out / "actuators" / "cells.parquet", cells,
+                  run_record("reproduce", spec.tree, study=STUDY.name))
     _say(quiet, "actuator study written")
     by_label = {row[0]: row for row in demands}
     matrix = []
