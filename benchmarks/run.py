@@ -236,10 +236,13 @@ def sweeps(bench: Bench, million: bool) -> None:
     n = 2000 if bench.quick else 10_000
     ones: list[dict[str, Any]] = []
     twos: list[dict[str, Any]] = []
-    for _ in range(1 if bench.quick else 3):  # interleaved, so drifts hit both alike
+    dynamics: list[dict[str, Any]] = []
+    for _ in range(1 if bench.quick else 3):  # interleaved, so drifts hit all alike
         ones.append(bench.measure(section, "1 worker", partial(sweep, SPEC, work / "w1", n, 1)))
         twos.append(bench.measure(section, "2 workers", partial(sweep, SPEC, work / "w2", n, 2)))
-    one, two = best_of(ones), best_of(twos)
+        dynamics.append(bench.measure(section, "dynamic plant, 2 workers", partial(
+            sweep, SPEC, work / "dynamic", n, 2, "--set", "plant.model=dynamic")))
+    one, two, dyn = best_of(ones), best_of(twos), best_of(dynamics)
     same = pd.read_parquet(work / "w1" / "trials.parquet").equals(
         pd.read_parquet(work / "w2" / "trials.parquet"))
     cl = bench.raw["closed_loop"]
@@ -260,6 +263,18 @@ def sweeps(bench: Bench, million: bool) -> None:
     bench.row(section, "  vs compiled kernel, 2 threads",
               f"{rate / cl['compiled_2_threads']:.2f}x",
               f"{steady / cl['compiled_2_threads']:.2f}x", "", "target >= 0.8x")
+    cost = {name: pd.read_parquet(work / name / "trials.parquet",
+                                  columns=["steps", "rhs_evaluations"]).median()
+            for name in ("w2", "dynamic")}
+    bench.row(section, f"{n} trials, dynamic plant (plant.model = \"dynamic\"), 2 workers "
+              f"(best of {len(dyn['repeats'])})", f"{dyn['trials_per_second']:.0f}",
+              f"{dyn['steady_trials_per_second']:.0f}", f"{dyn['sweep_seconds']:.1f} s",
+              "servo 100 rad/s, no torque limit; median steps / right-hand sides per trial "
+              f"{cost['dynamic']['steps']:.0f} / {cost['dynamic']['rhs_evaluations']:.0f} "
+              f"(kinematic {cost['w2']['steps']:.0f} / {cost['w2']['rhs_evaluations']:.0f})")
+    bench.row(section, "  dynamic vs kinematic plant, 2 workers",
+              f"{dyn['trials_per_second'] / rate:.2f}x",
+              f"{dyn['steady_trials_per_second'] / steady:.2f}x", "", "target >= 0.4x")
     bench.row(section, "  command line, start to finish (2 workers)",
               f"{n / two['process_seconds']:.0f}", "", f"{two['process_seconds']:.1f} s",
               "with interpreter start-up and imports")
@@ -272,6 +287,7 @@ def sweeps(bench: Bench, million: bool) -> None:
               f"{dask['sweep_seconds']:.1f} s",
               f"start-up (cluster) {dask['setup_seconds']:.1f} s; identical results: {same_dask}")
     bench.raw["sweep"] = {"one_worker": one, "two_workers": two, "dask": dask,
+                          "dynamic_two_workers": dyn,
                           "identical_1_vs_2_workers": same, "identical_dask": same_dask}
 
     section = "Scaling: 2 workers"

@@ -383,7 +383,7 @@ def export(directory: Path, as_csv: bool, out: Path | None) -> None:
                    "shipped with flatcli].")
 @click.option("--no-montecarlo", is_flag=True, help="Skip the Monte Carlo study.")
 @workers_option("Worker processes for the study.")
-@set_option("Override a key of the study's spec, repeatable.")
+@set_option("Override a key of the studies' specs (Monte Carlo, actuators), repeatable.")
 @quiet_option()
 def reproduce(out: Path, montecarlo: Path | None, no_montecarlo: bool, workers: int | None,
               sets: tuple[str, ...], quiet: bool) -> None:

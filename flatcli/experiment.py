@@ -20,7 +20,6 @@ from flatcli.core.metrics import COUNT_METRICS, METRIC_NAMES, describe_status
 from flatcli.core.model import RobotParams, momentum
 from flatcli.core.optimize import DEFAULT_BSPLINE_DEGREE, OptimizeResult, PlanLimits, optimize_plan
 from flatcli.core.planning import FlatPlan, plan_point_to_point
-from flatcli.core.plant import KINEMATIC_STATE
 from flatcli.core.simulate import (
     NoiseStreams,
     Outcome,
@@ -126,6 +125,8 @@ def scenario_from(spec: Spec, plan: FlatPlan) -> Scenario:
         rtol=track.rtol,
         atol=track.atol,
         max_steps=track.max_steps,
+        plant=checked(spec.plant.model),
+        servo_model=checked(spec.plant.servo_model),
     )
 
 
@@ -151,6 +152,7 @@ def nominal_trials(spec: Spec, plan: FlatPlan) -> Trials:
         momentum=np.array([spec.plant.momentum]),
         initial=np.array([[*track.initial, initial_rate(spec, plan)]]),
         noise=NoiseStreams(track.sensor_noise, track.seed, np.array([track.trial])),
+        servo=np.array([[spec.plant.servo_bandwidth, spec.plant.torque_limit]]),
     )
 
 
@@ -189,36 +191,46 @@ class TrackRun:
 
     @cached_property
     def columns(self) -> dict[str, Array]:
-        """Columns of track.parquet: per output sample the state, the applied rates, y, the
-        references, the margin and H.
+        """Columns of track.parquet: per output sample the state, the plant's rates, y, the
+        references, the margin, H and the joint torques.
 
-        ``momentum`` is H from the plant's full link kinematics at the integrated state with
-        the joint rates the plant applies there (``momentum_drift`` is its largest deviation
-        from H0). Rows after the last valid sample of a trial that stopped early are nan.
+        ``u2`` is the rate command of joint 2 after the rate limit (on the kinematic plant
+        the rate it turns at); ``momentum`` is H from the plant's full link kinematics at the
+        integrated state with the plant's rates there (``momentum_drift`` is its largest
+        deviation from H0); ``tau1``, ``tau2`` the dynamic plant's joint torques (nan on the
+        kinematic plant). Rows after the last valid sample of a trial that stopped early are
+        nan.
         """
         times = self.scenario.times
         trace = self.outcome.trace
         assert trace is not None
-        x = trace[0]
+        named = {name: trace[0][:, k] for k, name in enumerate(self.outcome.columns)}
         ref = self.plan.sample(times)
         plant = plant_from(self.spec)
-        rates = x[:, KINEMATIC_STATE:KINEMATIC_STATE + 3]
+        theta = [named[f"theta{i}"] for i in range(3)]
+        rates = [named[f"theta{i}_dot"] for i in range(3)]
+        u1 = named["u1"]
+        u2 = named.get("u2", rates[2])
+        nan = np.full(len(times), np.nan)
         with np.errstate(all="ignore"):
-            y1, y2, _, _ = flat_outputs(self.plan.coefficients, *x[:, :4].T)
-            H = momentum(plant.links, *x[:, :3].T, *rates.T)
+            y1, y2, _, _ = flat_outputs(self.plan.coefficients, theta[0], theta[1], theta[2],
+                                        u1)
+            H = momentum(plant.links, *theta, *rates)
         cols: dict[str, Array] = {"t": times}
         for i in range(3):
-            cols[f"theta{i}"] = x[:, i]
+            cols[f"theta{i}"] = theta[i]
         for i in range(3):
-            cols[f"theta{i}_dot"] = rates[:, i]
+            cols[f"theta{i}_dot"] = rates[i]
         for i in range(3):
             cols[f"theta{i}_ref"] = ref.theta[:, i]
-        cols["u1"] = x[:, 3]
-        cols["u2"] = rates[:, 2]
+        cols["u1"] = u1
+        cols["u2"] = u2
         cols["y1"], cols["y2"] = np.asarray(y1), np.asarray(y2)
         cols["y1_ref"], cols["y2_ref"] = ref.y[:, 0], ref.y[:, 1]
-        cols["margin"] = np.asarray(singularity_margin(x[:, 1], x[:, 3]))
+        cols["margin"] = np.asarray(singularity_margin(theta[1], u1))
         cols["momentum"] = np.asarray(H)
+        cols["tau1"] = named.get("tau1", nan)
+        cols["tau2"] = named.get("tau2", nan)
         return cols
 
 

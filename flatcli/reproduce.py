@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from flatcli import __version__
+from flatcli.actuators import actuators_section
 from flatcli.core.model import constraint_coefficients
 from flatcli.core.optimize import required_fold
 from flatcli.core.planning import FlatPlan, PlanSamples
@@ -379,6 +380,7 @@ def reproduce(out: Path, montecarlo: Path | None, quiet: bool = False,
             "",
             text,
         ]
+    rep.sections += actuators_section(base, out, quiet, workers, montecarlo is not None, sets)
     if command is not None:
         rep.sections += ["", f"Made with `{command}` (flatcli {__version__})."]
     write_json(out / "run.json", run_record("reproduce", base.tree,

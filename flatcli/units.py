@@ -23,6 +23,7 @@ from flatcli.spec import PERTURB_TARGETS, Spec, SpecError, lookup
 DIMENSIONLESS = "1"
 
 _ANGLE, _RATE, _ACCEL, _MOMENTUM = "rad", "rad/s", "rad/s^2", "kg m^2/s"
+_TORQUE = "N m"
 
 #: The unit of every fixed column name of flatcli's Parquet tables (a name means the same
 #: thing, in the same unit, in every table that has it).
@@ -41,6 +42,7 @@ UNITS: dict[str, str] = {
     "y1_ddot": _ACCEL, "y2_ddot": _ACCEL,
     "margin": _RATE,
     "momentum": _MOMENTUM,  # H along a plan or a run; in trials.parquet the plant's H0
+    "tau1": _TORQUE, "tau2": _TORQUE,  # the dynamic plant's joint torques
     # trials.parquet: the metrics of flatcli.core.metrics (definitions in the README)
     "err_theta_rms": _ANGLE, "err_theta_max": _ANGLE, "err_theta_final": _ANGLE,
     "err_y_rms": _ANGLE, "err_y_max": _ANGLE, "err_y_final": _ANGLE,
@@ -51,7 +53,7 @@ UNITS: dict[str, str] = {
     "plan_momentum_residual": _MOMENTUM,
     "err_estimate": _ANGLE,
     "peak_rate": _RATE,
-    "peak_torque": "N m",
+    "peak_torque": _TORQUE,
     "torque_saturated": DIMENSIONLESS,
     "steps": DIMENSIONLESS,
     "rhs_evaluations": DIMENSIONLESS,
@@ -63,6 +65,8 @@ UNITS: dict[str, str] = {
     **{f"inertia_{i}": "kg m^2" for i in range(3)},
     **{f"length_{i}": "m" for i in range(3)},
     **{f"com_{i}": "m" for i in range(3)},
+    "servo_bandwidth": _RATE,
+    "torque_limit": _TORQUE,
     # summary.parquet: counts per cell (the statistics take their metric's unit)
     "trials": DIMENSIONLESS,
     "resolved": DIMENSIONLESS,

@@ -26,6 +26,9 @@ from flatcli.core.metrics import (
     Metric,
     Status,
     describe_status,
+    finish_metrics,
+    observe_torque,
+    reset_accumulator,
 )
 from flatcli.core.model import PAPER_ROBOT, RobotParams
 from flatcli.core.planning import FlatPlan
@@ -228,6 +231,24 @@ def test_metric_names_are_the_public_columns() -> None:
             "rhs_evaluations"} <= set(METRIC_NAMES)
     assert set(COUNT_METRICS) <= set(METRIC_NAMES)
     assert STATUS_NAMES == ("ok", "singular", "diverged", "unresolved", "error")
+
+
+def test_torque_metrics_accumulate_only_where_a_plant_has_torques() -> None:
+    """peak_torque = max abs(tau_i) and torque_saturated = the count of samples flagged;
+    nan when no sample had torques (the kinematic plant)."""
+    from flatcli.core.metrics import ACCUMULATOR_SIZE
+
+    acc = np.empty(ACCUMULATOR_SIZE)
+    out = np.empty(N_METRICS)
+    reset_accumulator(acc)
+    finish_metrics(out, acc, True, 1e-3, 0.0, np.nan, 0, 0)
+    assert np.isnan(out[Metric.PEAK_TORQUE]) and np.isnan(out[Metric.TORQUE_SATURATED])
+    taus = [(0.5, -2.0, 0.0), (-3.5, 1.0, 1.0), (0.0, 0.0, 0.0), (3.0, -3.5, 1.0)]
+    for tau1, tau2, saturated in taus:
+        observe_torque(acc, tau1, tau2, saturated)
+    finish_metrics(out, acc, True, 1e-3, 0.0, np.nan, 0, 0)
+    assert out[Metric.PEAK_TORQUE] == 3.5
+    assert out[Metric.TORQUE_SATURATED] == 2
 
 
 def test_describe_status() -> None:

@@ -21,7 +21,7 @@ PLAN_COLUMNS = ["t", "theta0", "theta1", "theta2", "theta0_dot", "theta1_dot", "
                 "momentum"]
 TRACK_COLUMNS = ["t", "theta0", "theta1", "theta2", "theta0_dot", "theta1_dot", "theta2_dot",
                  "theta0_ref", "theta1_ref", "theta2_ref", "u1", "u2", "y1", "y2", "y1_ref",
-                 "y2_ref", "margin", "momentum"]
+                 "y2_ref", "margin", "momentum", "tau1", "tau2"]
 
 
 def test_plan_frame_columns_and_values() -> None:
@@ -40,6 +40,7 @@ def test_track_files(tmp_path: Path) -> None:
     assert names == ["track.parquet", "metrics.json"]
     assert not (tmp_path / "track.png").exists()
     assert len(pd.read_parquet(tmp_path / "track.parquet")) == 201
+    assert frame_is_kinematic(pd.read_parquet(tmp_path / "track.parquet"))
 
 
 def _float_columns(path: Path) -> list[str]:
@@ -78,3 +79,24 @@ def test_a_trial_that_stopped_early_writes_null_not_nan(tmp_path: Path) -> None:
     for name in _float_columns(tmp_path / "track.parquet"):
         assert not pc.any(pc.is_nan(table.column(name))).as_py(), name
     assert pc.filter(table.column("theta1"), after).null_count == pc.sum(after).as_py()
+
+
+def frame_is_kinematic(frame: pd.DataFrame) -> bool:
+    """The kinematic plant: no torques, and joint 2 turns at its command."""
+    return bool(frame["tau1"].isna().all() and frame["tau2"].isna().all()
+                and (frame["u2"] == frame["theta2_dot"]).all())
+
+
+def test_dynamic_track_table(tmp_path: Path) -> None:
+    """The dynamic plant's rates, torques and command, named as for the kinematic plant."""
+    run = run_track(resolve({"track": {"dt": 0.01}, "plant": {"model": "dynamic"}}))
+    frame = track_frame(run)
+    assert list(frame.columns) == TRACK_COLUMNS
+    trace = run.outcome.trace
+    assert trace is not None
+    named = dict(zip(run.outcome.columns, trace[0].T, strict=True))
+    for name in ("theta1_dot", "theta2_dot", "u1", "u2", "tau1", "tau2"):
+        assert frame[name].tolist() == named[name].tolist()
+    assert not frame_is_kinematic(frame)
+    assert run.metrics["peak_torque"] == max(frame["tau1"].abs().max(),
+                                             frame["tau2"].abs().max())

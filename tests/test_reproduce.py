@@ -43,6 +43,10 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path,
     # tests/test_optimize_api.py CUBIC_ENERGY)
     row = next(line for line in report.splitlines() if line.startswith("| least energy "))
     assert float(row.split("|")[2]) < 101.19 / 3
+    # the actuators: the study (sweep.trials applies to it too) and its figure
+    assert "## What the maneuver asks of the actuators" in report and "**Finding.**" in report
+    assert "120 cells of 8 trials" in report
+    assert (out / "fig_actuators.png").exists() and (out / "actuators/cells.parquet").exists()
     assert "Made with `flatcli reproduce --out paper --set sweep.trials=8 -q`" in report
 
 

@@ -31,6 +31,30 @@ def test_a_chunk_has_one_row_per_trial_with_draws_and_metrics_by_name() -> None:
     assert alone.iloc[0].equals(frame.iloc[1])
 
 
+def test_a_dynamic_chunk_perturbs_the_servo_and_refuses_an_invalid_one() -> None:
+    """Servo bandwidth and torque limit drawn per trial (columns of their own), torques in
+    the metrics, and a drawn bandwidth <= 0 an ``error`` with the spec key's message."""
+    spec = resolve({"plan": {"duration": 1.0}, "track": {"dt": 0.01, "kp": [100, 110],
+                                                         "kv": [20, 21],
+                                                         "initial": [1.8, 1.0, 0.0]},
+                    "plant": {"model": "dynamic", "servo_bandwidth": 50.0,
+                              "torque_limit": 20.0},
+                    "sweep": {"trials": 6, "seed": 4, "perturb": {
+                        "servo_bandwidth": {"dist": "uniform", "low": -1.2, "high": 0.5,
+                                            "relative": True},
+                        "torque_limit": {"dist": "uniform", "low": -10.0, "high": 30.0}}}})
+    frame = run_chunk(layout(spec).cells[0], Chunk(0, 0, 6)).table.to_pandas()
+    bad = frame["servo_bandwidth"] <= 0
+    assert bad.any() and (~bad).any()
+    assert (frame.loc[bad, "status"] == "error").all()
+    assert frame.loc[bad, "reason"].str.startswith("plant.servo_bandwidth: must be > 0").all()
+    good = frame[~bad]
+    assert (good["status"] != "error").all()  # simulated (some diverge at these limits)
+    assert good["torque_limit"].between(10.0, 50.0).all()
+    assert (good["peak_torque"] <= good["torque_limit"]).all()
+    assert good["peak_torque"].notna().all() and good["torque_saturated"].notna().all()
+
+
 def test_first_failure_is_the_first_error_or_divergence() -> None:
     table = pa.table({"trial": [4, 5, 6], "status": ["ok", "diverged", "error"],
                       "reason": ["", "state beyond 1e4", "plant.mass[0]: must be > 0 kg"]})

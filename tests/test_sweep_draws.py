@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import numpy as np
+from scipy.special import ndtri
 
 from flatcli.experiment import plan_from
 from flatcli.spec import perturbations, resolve
 from flatcli.sweep import N_VARIATES, PERTURB_SLOTS, draw_perturbations, nominal_values
-from flatcli.sweep.draws import invalid_plants
+from flatcli.sweep.draws import invalid_plants, invalid_servos
 
 
 def test_perturbation_draws_are_independent_of_each_other_and_well_distributed() -> None:
@@ -30,15 +31,45 @@ def test_perturbation_draws_are_independent_of_each_other_and_well_distributed()
     # the draw of a trial depends on its id only
     again = draw_perturbations(drawn, nominal, 5, [17, 3])
     np.testing.assert_array_equal(again["initial"], both["initial"][[17, 3]])
-    assert len(PERTURB_SLOTS) == 7
+    assert len(PERTURB_SLOTS) == 9
 
 
 def test_slots_are_fixed_positions_per_component() -> None:
     # the layout every sweep written so far drew with: changing it changes every trial
     assert PERTURB_SLOTS == {"initial": (0, 1, 2), "initial_rate": (3,), "mass": (4, 5, 6),
                              "inertia": (7, 8, 9), "length": (10, 11, 12),
-                             "com": (13, 14, 15), "momentum": (16,)}
-    assert N_VARIATES == 17
+                             "com": (13, 14, 15), "momentum": (16,),
+                             "servo_bandwidth": (17,), "torque_limit": (18,)}
+    assert N_VARIATES == 19
+
+
+def test_the_servo_slots_leave_every_earlier_draw_unchanged() -> None:
+    """Before the servo targets existed a trial drew 17 variates; now 19. The first 17 are
+    numpy's same numbers (a Generator fills random(n) in order), so every perturbation a sweep
+    drew before draws the same value now: checked against numpy directly."""
+    spec = resolve({"sweep": {"perturb": {
+        "mass": {"dist": "uniform", "low": -0.1, "high": 0.1, "relative": True},
+        "momentum": {"dist": "normal", "std": 1e-3},
+        "servo_bandwidth": {"dist": "uniform", "low": 10.0, "high": 20.0}}}})
+    nominal = nominal_values(spec, plan_from(spec))
+    drawn = draw_perturbations(perturbations(spec.sweep), nominal, 2003, [0, 5, 999])
+    for row, trial in enumerate([0, 5, 999]):
+        seq = np.random.SeedSequence(2003, spawn_key=(trial, 0))
+        old = np.random.default_rng(seq).random(17)  # what the 17-variate layout drew
+        np.testing.assert_array_equal(drawn["mass"][row], 1.0 * (1 + (-0.1 + 0.2 * old[4:7])))
+        np.testing.assert_array_equal(drawn["momentum"][row], 1e-3 * ndtri(old[16]))
+        u = np.random.default_rng(seq).random(19)[17]
+        np.testing.assert_array_equal(drawn["servo_bandwidth"][row], 100.0 + (10.0 + 10.0 * u))
+
+
+def test_an_invalid_servo_gets_the_message_of_its_spec_key() -> None:
+    servo = np.array([[100.0, np.inf], [-5.0, 1.0], [10.0, -0.5], [np.nan, 1.0]])
+    assert invalid_servos(servo) == [
+        "",
+        "plant.servo_bandwidth: must be > 0 rad/s, got -5",
+        "plant.torque_limit: must be >= 0 N m, got -0.5",
+        "plant.servo_bandwidth: expected a finite number [rad/s], got nan",
+    ]
 
 
 def test_an_invalid_plant_gets_the_message_of_its_spec_key() -> None:

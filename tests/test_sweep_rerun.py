@@ -35,6 +35,47 @@ def test_rerun_reproduces_a_trial_exactly(tmp_path: Path) -> None:
     assert len(pd.read_parquet(out_dir / "rerun-97" / "track.parquet")) == 1001
 
 
+DYNAMIC = """
+name = "small_dynamic"
+[plan]
+duration = 1.0
+start = [1.8, 1.0, 0.0]
+goal = [1.5, 1.5, 0.0]
+[track]
+initial = [1.8, 1.0, 0.0]
+dt = 0.005
+kp = [100, 110]
+kv = [20, 21]
+sensor_noise = 0.0005
+[plant]
+model = "dynamic"
+torque_limit = 12.0
+[sweep]
+trials = 6
+seed = 5
+[sweep.perturb]
+initial = { dist = "normal", std = 0.02 }
+servo_bandwidth = { dist = "uniform", low = -0.5, high = 0.5, relative = true }
+torque_limit = { dist = "uniform", low = -6.0, high = 6.0 }
+"""
+
+
+def test_rerun_reproduces_a_dynamic_trial_with_a_drawn_servo(tmp_path: Path) -> None:
+    spec = write_spec(tmp_path, DYNAMIC)
+    out_dir = tmp_path / "d"
+    assert sweep(str(spec), "--out", str(out_dir), "-q")[0] == 0
+    row = pd.read_parquet(out_dir / "trials.parquet").iloc[4]
+    assert row["peak_torque"] <= row["torque_limit"]
+    code, out = sweep(str(spec), "--out", str(out_dir), "--rerun", "4")
+    assert code == 0, out
+    assert "NO" not in out and "identical" in out
+    code, text = sweep(str(spec), "--out", str(out_dir), "--rerun", "4", "--print-spec")
+    assert f"servo_bandwidth = {float(row['servo_bandwidth'])!r}" in text
+    assert f"torque_limit = {float(row['torque_limit'])!r}" in text
+    rerun = pd.read_parquet(out_dir / "rerun-4" / "track.parquet")
+    assert rerun["tau1"].abs().max() <= row["torque_limit"]
+
+
 def test_a_trial_row_is_refused_before_the_sweep_ran(tmp_path: Path) -> None:
     with pytest.raises(FlatcliError, match=r"trials\.parquet not found; run the sweep first"):
         trial_row(tmp_path, 3)

@@ -169,31 +169,34 @@ def _first_flip(sigma: float, m2: float, m3: float, m4: float, m5: float, m6: fl
     return -1.0
 
 
+@jitable
+def record_rates(trace: Array, j: int, nx: int, x: Array, f: Array) -> None:
+    """Trace row j: the state x (nx,), then the first ``width - nx`` rates f the plant applies
+    (th0', th1', ...; the default ``record`` of ``make_trial_integrators``)."""
+    for i in range(nx):
+        trace[j, i] = x[i]
+    for i in range(trace.shape[1] - nx):
+        trace[j, nx + i] = f[i]
+
+
 def make_trial_integrators(
     rhs: Callable[..., None],
     observe: Callable[..., None],
+    record_sample: Callable[..., None] = record_rates,
 ) -> tuple[Callable[..., Any], Callable[..., Any]]:
     """(rk4_trial, adaptive_trial): the two integrators of one trial for a plant, compiled
     inline with its right-hand side ``rhs`` (which writes the state's derivative into
-    out[:nx] and the controller's signed margin into out[nx]) and its ``observe``r.
+    out[:nx] and the controller's signed margin into out[nx]), its ``observe``r, and
+    ``record_sample(trace, j, nx, x, f)``, which writes trace row j (``record_rates``).
 
     Shared arguments (see the module docstring): ``loop`` (the plant's and controller's
     parameters), ``obs`` (the observer's tables), ``x0`` (nx,), ``dt`` [s], ``n`` output
     intervals, ``bound``, the noise source (``table`` (n, angles) or (0, angles), ``gen``,
-    ``std``), ``record`` and ``trace`` (n + 1, nx + angles: state and applied rates per
+    ``std``), ``record`` and ``trace`` (n + 1, width: what ``record_sample`` writes per
     sample), ``acc``
     (the observer's accumulator) and ``work`` (WORK_ROWS, >= nx + 1: the right-hand side's
     outputs).
     """
-
-    @jitable
-    def record_sample(trace: Array, j: int, nx: int, x: Array, f: Array) -> None:
-        """Row j of a trace: the state, then the first ``width - nx`` rates (the applied
-        joint rates th0', th1', ...)."""
-        for i in range(nx):
-            trace[j, i] = x[i]
-        for i in range(trace.shape[1] - nx):
-            trace[j, nx + i] = f[i]
 
     @jitable
     def rk4_trial(

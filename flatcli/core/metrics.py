@@ -24,8 +24,9 @@ kept per sample unless a trace is recorded, so memory does not grow with n. For 
   [rad]: the sum over accepted steps of the Euclidean norm of the embedded (order 4 vs 5)
   local error estimate of th0, th1, th2 (nan for the other integrators).
 * ``peak_rate``: max_j of |th1'|, |th2'| applied by the plant [rad/s].
-* ``peak_torque``, ``torque_saturated``: joint torques of a plant with inertia (nan on the
-  kinematic plant).
+* ``peak_torque``: max_j of |tau1|, |tau2| applied by a plant with inertia [N m];
+  ``torque_saturated``: samples where the servo asked for more torque than the limit (so the
+  applied torque was clipped). Both nan on the kinematic plant.
 * ``steps``, ``rhs_evaluations``: accepted integration steps and right-hand-side
   evaluations, the cost of the trial.
 
@@ -207,6 +208,25 @@ def observe_sample(
 
 
 @jitable
+def observe_torque(acc: Array, tau1: float, tau2: float, saturated: float) -> None:
+    """Fold the joint torques of a plant with inertia at one output sample into the running
+    metrics (after ``observe_sample``); the kinematic plant never calls it, so its
+    ``peak_torque`` and ``torque_saturated`` stay nan.
+
+    Parameters
+    ----------
+    acc : (ACCUMULATOR_SIZE,) running metrics
+    tau1, tau2 : joint torques applied [N m]
+    saturated : 1.0 if the servo asked for more than the torque limit at this sample, else 0.0
+    """
+    if math.isnan(acc[_PEAK_TORQUE]):
+        acc[_PEAK_TORQUE] = 0.0
+        acc[_SATURATED] = 0.0
+    acc[_PEAK_TORQUE] = max(acc[_PEAK_TORQUE], abs(tau1), abs(tau2))
+    acc[_SATURATED] += saturated
+
+
+@jitable
 def plan_momentum_residual(
     plan_theta: Array, plan_theta_dot: Array, links: Links, h0: float
 ) -> float:
@@ -317,6 +337,7 @@ __all__ = [
     "describe_status",
     "finish_metrics",
     "observe_sample",
+    "observe_torque",
     "plan_momentum_residual",
     "reset_accumulator",
 ]

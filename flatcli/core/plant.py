@@ -12,6 +12,25 @@ the controller's integrator does not wind up: u1' is set to 0 whenever u1 is at 
 the limit and v1 would push it further out (conditional integration), so u1 never runs away
 from the rate the joint actually turns at.
 
+The dynamic plant (``plant.model = "dynamic"``) is the robot with inertia: free-floating
+multibody dynamics (``dynamics``, the plant's own parameters, any d2) driven by joint torques
+from a rate servo on each joint. Its state is x = (th0, th1, th2, th0', th1', th2', u1):
+
+    M(q) q'' + C(q, q') q' = (0, tau1, tau2),   u1' = v1,
+    r1 = sat(u1), r2 = sat(u2)                        (the joint-rate commands)
+    a_k = bandwidth (r_k - th_k')                     (k = 1, 2: what the servo asks)
+    tau = clip(Mhat_s a + chat_s, +-torque_limit)     (computed torque, each joint clipped)
+
+with (u1', u2) from the controller at the measured angles as above, sat the rate limit, and
+Mhat_s, chat_s the free-floating joint-space inertia and bias (``dynamics.joint_space``) of the
+*servo's model* (the nominal ``[robot]``, or the plant itself with ``plant.servo_model =
+"plant"``) at the true joint angles and rates (the joints' own encoders: the sensor noise
+corrupts the controller's measurement only). Where the servo's model is the plant's and no
+torque is clipped, each joint rate follows its command exactly as a first-order lag,
+th_k'' = bandwidth (r_k - th_k'); the base turns as momentum conservation makes it. A
+torque limit of 0 applies no torque at all: the robot drifts freely. u1 does not wind up
+against the rate limit (as above); the servo's torque limit is not fed back to it.
+
 Every right-hand side here has the same signature and writes the state's derivative into
 ``out[:nx]`` and the controller's signed margin into ``out[nx]``, so that one integrator
 (``integrate``) serves every plant.
@@ -19,14 +38,24 @@ Every right-hand side here has the same signature and writes the state's derivat
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Literal, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
 from flatcli.core._jit import jitable
-from flatcli.core.control import Gains, feedback_at
+from flatcli.core.control import Gains, feedback, feedback_at
+from flatcli.core.dynamics import (
+    Chain,
+    ThreeBody,
+    inverse_dynamics,
+    three_body,
+    three_body_joint_space,
+    three_body_terms,
+)
+from flatcli.core.flatness import flag_state
 from flatcli.core.model import Coefficients, Links, base_rate_at, momentum_at
+from flatcli.core.planning import COMPLEX_STEP, FlatPlan
 
 Array = NDArray[np.float64]
 
@@ -35,6 +64,27 @@ KINEMATIC_STATE = 4
 #: Values ``kinematic_rhs`` writes after the state's derivative: the margin, then the plant's
 #: cos th1, sin th1 and cos(th1 + th2) (shared with the metrics).
 KINEMATIC_AUX = 4
+
+
+#: The plant models (``plant.model``): joints that follow their commanded rates exactly, or a
+#: robot with inertia driven by joint torques through rate servos.
+PlantModel = Literal["kinematic", "dynamic"]
+PLANT_MODELS: tuple[PlantModel, ...] = ("kinematic", "dynamic")
+#: What the dynamic plant's servo believes (``plant.servo_model``): the nominal robot, or the
+#: plant itself.
+ServoModel = Literal["robot", "plant"]
+SERVO_MODELS: tuple[ServoModel, ...] = ("robot", "plant")
+#: Default servo bandwidth [rad/s] (``plant.servo_bandwidth``).
+DEFAULT_SERVO_BANDWIDTH = 100.0
+
+#: State size of the dynamic plant: th0, th1, th2 [rad], th0', th1', th2' [rad/s], u1 [rad/s].
+DYNAMIC_STATE = 7
+#: Values ``dynamic_rhs`` writes after the state's derivative: the margin, tau1, tau2 [N m],
+#: the rate command r2 [rad/s], whether a torque was clipped (1.0) or not (0.0), and the
+#: plant's cos th1, sin th1, cos(th1 + th2), sin(th1 + th2).
+DYNAMIC_AUX = 9
+#: Where ``dynamic_rhs`` writes them in its output (after the 7 rates and the margin).
+AUX_TAU1, AUX_TAU2, AUX_R2, AUX_SATURATED, AUX_C1, AUX_S1, AUX_C12, AUX_S12 = range(8, 16)
 
 
 class Loop(NamedTuple):
@@ -102,3 +152,189 @@ def kinematic_momentum(loop: Loop, x: Array, f: Array) -> float:
     (``model.momentum``; f as written by ``kinematic_rhs``) [kg m^2/s]."""
     s12 = 0.0 if loop.flat_plant else np.sin(x[1] + x[2])  # d2 = 0: s12 is multiplied by 0
     return float(momentum_at(loop.links, f[5], f[6], f[7], s12, f[0], f[1], f[2]))
+
+
+class DynamicLoop(NamedTuple):
+    """What one trial's closed loop with the dynamic plant needs (floats, for the kernels).
+
+    kc : the controller's coefficients; gains : Gains
+    links : the plant's link parameters (for H from the full kinematics)
+    plant : the plant's chain (``dynamics.three_body``); servo : the servo's model of it
+    same_model : servo and plant are the same chain (its terms are computed once)
+    h0 : the plant's angular momentum [kg m^2/s]; rate_limit : joint-rate limit [rad/s]
+    bandwidth : servo bandwidth [rad/s]; torque_limit : joint-torque limit [N m] (inf: none)
+    """
+
+    kc: Coefficients
+    gains: Gains
+    links: Links
+    plant: ThreeBody
+    servo: ThreeBody
+    same_model: bool
+    h0: float
+    rate_limit: float
+    bandwidth: float
+    torque_limit: float
+
+
+@jitable
+def dynamic_loop(kc: Coefficients, gains: Gains, links: Links, servo_links: Links,
+                 servo_is_plant: bool, h0: float, rate_limit: float, bandwidth: float,
+                 torque_limit: float) -> DynamicLoop:
+    """A ``DynamicLoop`` for a plant and a servo model (``servo_is_plant``: the servo knows
+    the plant; else ``servo_links``, the nominal robot)."""
+    plant = three_body(links)
+    servo = plant if servo_is_plant else three_body(servo_links)
+    same = servo_is_plant or plant == servo
+    return DynamicLoop(kc, gains, links, plant, servo, same, h0, rate_limit, bandwidth,
+                       torque_limit)
+
+
+@jitable
+def servo_torques(
+    loop: DynamicLoop, hat11: float, hat12: float, hat22: float, chat1: float, chat2: float,
+    r1: float, r2: float, th1_dot: float, th2_dot: float,
+) -> tuple[float, float, float]:
+    """The servo's joint torques tau1, tau2 [N m], clipped to the torque limit, and 1.0 if
+    one was clipped (the servo asked for more), else 0.0.
+
+    hat11, hat12, hat22 [kg m^2], chat1, chat2 [N m]: the servo model's free-floating
+    joint-space inertia and bias at the state (``dynamics.three_body_joint_space``); r1, r2
+    the rate commands and th1_dot, th2_dot the joint rates [rad/s].
+    """
+    a1 = loop.bandwidth * (r1 - th1_dot)
+    a2 = loop.bandwidth * (r2 - th2_dot)
+    demand1 = hat11 * a1 + hat12 * a2 + chat1
+    demand2 = hat12 * a1 + hat22 * a2 + chat2
+    limit = loop.torque_limit
+    saturated = 1.0 if (abs(demand1) > limit or abs(demand2) > limit) else 0.0
+    return (min(max(demand1, -limit), limit), min(max(demand2, -limit), limit), saturated)
+
+
+@jitable
+def dynamic_rhs(loop: DynamicLoop, x: Array, ref: Array, noise: Array, out: Array) -> None:
+    """Rates of the dynamic plant's state under the feedback and the servos.
+
+    Parameters
+    ----------
+    loop : DynamicLoop
+    x : (7,) th0, th1, th2 [rad], th0', th1', th2' [rad/s], u1 [rad/s]
+    ref : (6,) plan y1, y2, y1', y2', y1'', y2'' at this instant
+    noise : (3,) sensor noise on the three measured angles [rad]
+    out : (>= 7 + DYNAMIC_AUX,) written: th0', th1', th2' [rad/s], th0'', th1'', th2''
+        [rad/s^2], u1' [rad/s^2]; then the controller's signed margin sin(measured th1) * u1
+        [rad/s], tau1, tau2 [N m], the rate command r2 [rad/s], 1.0 if a torque was clipped
+        (else 0.0), and the plant's cos th1, sin th1, cos(th1 + th2), sin(th1 + th2)
+    """
+    x1 = x[1]
+    c1 = np.cos(x1)
+    s1 = np.sin(x1)
+    if noise[1] == 0.0:  # the controller measures th1 exactly: share its trigonometry
+        cm1, sm1 = c1, s1
+    else:
+        cm1, sm1 = np.cos(x1 + noise[1]), np.sin(x1 + noise[1])
+    u1 = x[6]
+    u1_dot, u2 = feedback_at(loop.kc, loop.gains, x[0] + noise[0], x1 + noise[1],
+                             x[2] + noise[2], u1, cm1, sm1, ref)
+    limit = loop.rate_limit
+    r1 = min(max(u1, -limit), limit)
+    r2 = min(max(float(u2), -limit), limit)
+    c2 = np.cos(x[2])
+    s2 = np.sin(x[2])
+    m00, m01, m02, m11, m12, m22, h0, h1, h2 = three_body_terms(loop.plant, c1, s1, c2, s2,
+                                                                x[3], x[4], x[5])
+    a11, a12, a22, b1, b2 = three_body_joint_space(m00, m01, m02, m11, m12, m22, h0, h1, h2)
+    if loop.same_model:
+        tau1, tau2, saturated = servo_torques(loop, a11, a12, a22, b1, b2, r1, r2, x[4], x[5])
+    else:
+        s00, s01, s02, s11, s12, s22, g0, g1, g2 = three_body_terms(loop.servo, c1, s1, c2, s2,
+                                                                    x[3], x[4], x[5])
+        e11, e12, e22, f1, f2 = three_body_joint_space(s00, s01, s02, s11, s12, s22, g0, g1, g2)
+        tau1, tau2, saturated = servo_torques(loop, e11, e12, e22, f1, f2, r1, r2, x[4], x[5])
+    # the plant: Mhat qj'' = tau - chat, then the base from its own row
+    rhs1 = tau1 - b1
+    rhs2 = tau2 - b2
+    inv_det = 1.0 / (a11 * a22 - a12 * a12)
+    q1_ddot = (a22 * rhs1 - a12 * rhs2) * inv_det
+    q2_ddot = (a11 * rhs2 - a12 * rhs1) * inv_det
+    q0_ddot = -(m01 * q1_ddot + m02 * q2_ddot + h0) / m00
+    if (u1 >= limit and u1_dot > 0.0) or (u1 <= -limit and u1_dot < 0.0):
+        u1_dot = 0.0  # conditional integration: no wind-up while the command is clipped
+    out[0], out[1], out[2] = x[3], x[4], x[5]
+    out[3], out[4], out[5] = q0_ddot, q1_ddot, q2_ddot
+    out[6] = u1_dot
+    out[7] = sm1 * u1
+    out[AUX_TAU1], out[AUX_TAU2] = tau1, tau2
+    out[AUX_R2], out[AUX_SATURATED] = r2, saturated
+    out[AUX_C1], out[AUX_S1] = c1, s1
+    out[AUX_C12], out[AUX_S12] = c1 * c2 - s1 * s2, s1 * c2 + c1 * s2
+
+
+@jitable
+def dynamic_momentum(loop: DynamicLoop, x: Array, f: Array) -> float:
+    """H of the plant from its full link kinematics (``model.momentum``) at state x with its
+    own rates; f as written by ``dynamic_rhs`` [kg m^2/s]."""
+    return float(momentum_at(loop.links, f[AUX_C1], f[AUX_S1], f[AUX_C12], f[AUX_S12], x[3],
+                             x[4], x[5]))
+
+
+@jitable
+def dynamic_initial(loop: DynamicLoop, initial: Array, ref: Array, x0: Array) -> None:
+    """The dynamic plant's state at t = 0 into ``x0`` (7,).
+
+    th(0) and u1(0) from ``initial`` (4,); th1'(0) = r1 = sat(u1(0)) and th2'(0) = r2 =
+    sat(u2(0)), the rate commands of the controller at t = 0 at the true angles (the servo
+    starts in equilibrium); th0'(0) such that H = (M q')_0 = H0 of the plant.
+    ``ref`` (6,) is the plan's flag at t = 0.
+    """
+    limit = loop.rate_limit
+    u1 = initial[3]
+    _, u2 = feedback(loop.kc, loop.gains, initial[0], initial[1], initial[2], u1, ref)
+    r1 = min(max(u1, -limit), limit)
+    r2 = min(max(u2, -limit), limit)
+    m00, m01, m02, _, _, _, _, _, _ = three_body_terms(
+        loop.plant, np.cos(initial[1]), np.sin(initial[1]), np.cos(initial[2]),
+        np.sin(initial[2]), 0.0, 0.0, 0.0)
+    x0[0], x0[1], x0[2] = initial[0], initial[1], initial[2]
+    x0[3] = (loop.h0 - m01 * r1 - m02 * r2) / m00
+    x0[4], x0[5], x0[6] = r1, r2, u1
+
+
+def plan_motion(plan: FlatPlan, t: Array) -> tuple[Array, Array, Array]:
+    """The angles, rates and accelerations a plan asks of the robot, exactly.
+
+    th and th' from the flat flag (``flatness.flag_state``: th0' the exact derivative of
+    eq. 35, th1' = y1', th2' = u2), and th'' by complex step of the same map along the flag's
+    own derivative (y', y'', y''') (no finite difference).
+
+    Parameters
+    ----------
+    plan : FlatPlan
+    t : (n,) times [s] within [0, duration]
+
+    Returns
+    -------
+    q (n, 3) [rad], q' (n, 3) [rad/s], q'' (n, 3) [rad/s^2]
+    """
+    t = np.asarray(t, dtype=float)
+    y = [plan.trajectory.derivative(t, order) for order in range(4)]
+    z = [y[0][:, 0], y[0][:, 1], y[1][:, 0], y[1][:, 1], y[2][:, 0], y[2][:, 1]]
+    dz = [y[1][:, 0], y[1][:, 1], y[2][:, 0], y[2][:, 1], y[3][:, 0], y[3][:, 1]]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        th0, th1, th2, u1, _, u2, th0_dot = flag_state(plan.coefficients, *z)
+        moved = [zi + 1j * COMPLEX_STEP * dzi for zi, dzi in zip(z, dz, strict=True)]
+        rates = flag_state(plan.coefficients, *moved)
+    th0_ddot, u1_dot, u2_dot = (np.asarray(rates[i]).imag / COMPLEX_STEP for i in (6, 3, 5))
+    q = np.stack([th0, th1, th2], axis=-1)
+    q_dot = np.stack([th0_dot, u1, u2], axis=-1)
+    q_ddot = np.stack([th0_ddot, u1_dot, u2_dot], axis=-1)
+    return (np.asarray(q, dtype=float), np.asarray(q_dot, dtype=float),
+            np.asarray(q_ddot, dtype=float))
+
+
+def plan_torques(plan: FlatPlan, chain: Chain, t: Array) -> Array:
+    """The generalised forces M q'' + C q' a plan asks of a robot (``plan_motion``,
+    ``dynamics.inverse_dynamics``): (n, 3) [N m], the base's first (dH/dt: ~0 for a plan of
+    this robot), then the joint torques tau1, tau2 an ideal actuator would apply."""
+    q, q_dot, q_ddot = plan_motion(plan, t)
+    return inverse_dynamics(chain, q, q_dot, q_ddot)

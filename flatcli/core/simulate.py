@@ -17,6 +17,11 @@ Three integrators:
   the reference the compiled integrators are checked against, with the same stopping rules
   (events on the divergence bound and on the margin's sign).
 
+Two plants (``Scenario.plant``, ``plant.PLANT_MODELS``): the kinematic plant (joints follow
+their commanded rates) and the dynamic plant (a robot with inertia, joint torques from rate
+servos; ``plant``), through the same integrators. The dynamic plant's servo bandwidth and
+torque limit may differ per trial (``Trials.servo``).
+
 Every trial is integrated alone by the same compiled code, so its result does not depend on
 which other trials share the batch, the order, the worker or the executor (bit for bit).
 """
@@ -45,6 +50,7 @@ from flatcli.core.metrics import (
     Status,
     finish_metrics,
     observe_sample,
+    observe_torque,
     plan_momentum_residual,
     reset_accumulator,
 )
@@ -56,9 +62,27 @@ from flatcli.core.model import (
 )
 from flatcli.core.planning import FlatPlan
 from flatcli.core.plant import (
+    AUX_C1,
+    AUX_R2,
+    AUX_S1,
+    AUX_SATURATED,
+    AUX_TAU1,
+    AUX_TAU2,
+    DEFAULT_SERVO_BANDWIDTH,
+    DYNAMIC_AUX,
+    DYNAMIC_STATE,
     KINEMATIC_AUX,
     KINEMATIC_STATE,
+    PLANT_MODELS,
+    SERVO_MODELS,
+    DynamicLoop,
     Loop,
+    PlantModel,
+    ServoModel,
+    dynamic_initial,
+    dynamic_loop,
+    dynamic_momentum,
+    dynamic_rhs,
     kinematic_momentum,
     kinematic_rhs,
 )
@@ -70,6 +94,18 @@ INTEGRATORS: tuple[Integrator, ...] = ("adaptive", "rk4", "dop853")
 #: Columns of a trace: the kinematic plant's state, then the joint rates it applies.
 TRACE_COLUMNS: tuple[str, ...] = (
     "theta0", "theta1", "theta2", "u1", "theta0_dot", "theta1_dot", "theta2_dot",
+)  # fmt: skip
+def chain_trace_columns(n: int) -> tuple[str, ...]:
+    """Columns of a trace of an N-link chain: th0..thN, u1..u(N-1), then th0'..thN'."""
+    return (*(f"theta{i}" for i in range(n + 1)), *(f"u{j}" for j in range(1, n)),
+            *(f"theta{i}_dot" for i in range(n + 1)))
+
+
+#: Columns of a trace of the dynamic plant: its state, the joint torques it applies [N m]
+#: and the rate command r2 of joint 2 [rad/s].
+DYNAMIC_TRACE_COLUMNS: tuple[str, ...] = (
+    "theta0", "theta1", "theta2", "theta0_dot", "theta1_dot", "theta2_dot", "u1",
+    "tau1", "tau2", "u2",
 )  # fmt: skip
 
 #: Tolerances of the reference integrator.
@@ -87,6 +123,8 @@ MAX_STEPS_PER_TRIAL = 10_000_000
 
 #: spawn_key slot of a trial's sensor-noise stream: SeedSequence(seed, (trial, NOISE_SLOT)).
 NOISE_SLOT = 1
+#: A trial's servo when ``Trials.servo`` is None: bandwidth [rad/s], torque limit [N m].
+DEFAULT_SERVO = (DEFAULT_SERVO_BANDWIDTH, math.inf)
 
 _NONE = int(Event.NONE)
 _FIRST_UNRESOLVED = int(Event.STEP_FLOOR)  # events from here on leave a trial unresolved
@@ -112,6 +150,31 @@ def _observe_kinematic(loop: Loop, obs: Any, acc: Array, j: int, x: Array, f: Ar
 
 
 _rk4_kinematic, _adaptive_kinematic = make_trial_integrators(kinematic_rhs, _observe_kinematic)
+
+
+@jitable
+def _observe_dynamic(loop: DynamicLoop, obs: Any, acc: Array, j: int, x: Array, f: Array
+                     ) -> None:
+    """Metrics of the dynamic plant at output sample j: H from the full link kinematics at
+    the state (its own rates), the joint rates and torques it applies."""
+    theta_ref, ref, threshold = obs
+    observe_sample(acc, j, x[0], x[1], x[2], x[6], f[AUX_C1], f[AUX_S1], x[4], x[5],
+                   dynamic_momentum(loop, x, f), theta_ref, ref, loop.kc, loop.h0, threshold)
+    observe_torque(acc, f[AUX_TAU1], f[AUX_TAU2], f[AUX_SATURATED])
+
+
+@jitable
+def _record_dynamic(trace: Array, j: int, nx: int, x: Array, f: Array) -> None:
+    """Trace row j of the dynamic plant (``DYNAMIC_TRACE_COLUMNS``)."""
+    for i in range(nx):
+        trace[j, i] = x[i]
+    trace[j, nx] = f[AUX_TAU1]
+    trace[j, nx + 1] = f[AUX_TAU2]
+    trace[j, nx + 2] = f[AUX_R2]
+
+
+_rk4_dynamic, _adaptive_dynamic = make_trial_integrators(dynamic_rhs, _observe_dynamic,
+                                                         _record_dynamic)
 
 
 # fmt: off
@@ -205,19 +268,150 @@ def _kinematic_kernel(
             last, ev, t_ev, estimate, steps, evaluations = _adaptive_kinematic(
                 loop, obs, x0, breaks, local, dt, n, bound, rtol, atol, max_steps, 3,
                 tables[i], gen, std, record, tr, acc, work, noise, flag, ref)
-        residual = plan_momentum_residual(plan_theta, plan_theta_dot, p, h0[i])
-        first = finish_metrics(metrics[i], acc, ev == _NONE, dt, residual, estimate, steps,
-                               evaluations)
-        status[i] = _status_of(ev, first)
-        event[i] = ev
-        if ev != _NONE:
-            event_time[i] = t_ev
-        elif first >= 0:
-            event_time[i] = first * dt
+        _conclude(i, p, h0[i], plan_theta, plan_theta_dot, acc, last, n, ev, t_ev, estimate,
+                  steps, evaluations, dt, record, tr, metrics, status, event, event_time)
+
+
+@jitable
+def _conclude(
+    i: int, p: Links, h0: float, plan_theta: Array, plan_theta_dot: Array, acc: Array,
+    last: int, n: int, ev: int, t_ev: float, estimate: float, steps: int, evaluations: int,
+    dt: float, record: bool, tr: Array, metrics: Array, status: NDArray[np.int64],
+    event: NDArray[np.int64], event_time: Array,
+) -> None:
+    """Trial i's metrics, status, event and event time from its run; its trace blanked
+    after the last valid sample."""
+    residual = plan_momentum_residual(plan_theta, plan_theta_dot, p, h0)
+    first = finish_metrics(metrics[i], acc, ev == _NONE, dt, residual, estimate, steps,
+                           evaluations)
+    status[i] = _status_of(ev, first)
+    event[i] = ev
+    if ev != _NONE:
+        event_time[i] = t_ev
+    elif first >= 0:
+        event_time[i] = first * dt
+    else:
+        event_time[i] = math.nan
+    if record and last < n:
+        tr[last + 1:, :] = math.nan
+
+
+@kernel
+def _dynamic_kernel(
+    method: int,
+    kc: Coefficients,
+    gains: Gains,
+    robot: Links,
+    servo_is_plant: bool,
+    links: Array,
+    h0: Array,
+    servo: Array,
+    rate_limit: float,
+    initial: Array,
+    ref: Array,
+    theta_ref: Array,
+    breaks: Array,
+    local: Array,
+    plan_theta: Array,
+    plan_theta_dot: Array,
+    dt: float,
+    bound: float,
+    threshold: float,
+    rtol: float,
+    atol: float,
+    max_steps: int,
+    tables: Array,
+    gen: Any,
+    std: float,
+    record: bool,
+    metrics: Array,
+    status: NDArray[np.int64],
+    event: NDArray[np.int64],
+    event_time: Array,
+    trace: Array,
+) -> None:
+    """``_kinematic_kernel`` for the dynamic plant: ``robot`` is the nominal robot (the
+    servo's model unless ``servo_is_plant``), servo (N, 2) each trial's bandwidth [rad/s] and
+    torque limit [N m], initial (N, 4) th(0) and u1(0) (``plant.dynamic_initial`` completes
+    the state); trace (N, n+1, 10) if record (``DYNAMIC_TRACE_COLUMNS``)."""
+    n = theta_ref.shape[0] - 1
+    nx = DYNAMIC_STATE
+    work = np.empty((WORK_ROWS, nx + DYNAMIC_AUX))
+    acc = np.empty(ACCUMULATOR_SIZE)
+    noise = np.zeros(3)
+    flag = np.empty(6)
+    scratch = np.empty((0, nx + 3))
+    x0 = np.empty(nx)
+    obs = (theta_ref, ref, threshold)
+    for i in range(links.shape[0]):
+        p = _links_row(links, i)
+        loop = dynamic_loop(kc, gains, p, robot, servo_is_plant, h0[i], rate_limit,
+                            servo[i, 0], servo[i, 1])
+        dynamic_initial(loop, initial[i], ref[0], x0)
+        reset_accumulator(acc)
+        tr = trace[i] if record else scratch
+        if method == _METHOD_RK4:
+            last, ev, t_ev = _rk4_dynamic(loop, obs, x0, ref, dt, n, bound, tables[i], gen,
+                                          std, record, tr, acc, work, noise)
+            estimate, steps, evaluations = math.nan, last, 4 * last + 1
         else:
-            event_time[i] = math.nan
-        if record and last < n:
-            tr[last + 1:, :] = math.nan
+            last, ev, t_ev, estimate, steps, evaluations = _adaptive_dynamic(
+                loop, obs, x0, breaks, local, dt, n, bound, rtol, atol, max_steps, 3,
+                tables[i], gen, std, record, tr, acc, work, noise, flag, ref)
+        _conclude(i, p, h0[i], plan_theta, plan_theta_dot, acc, last, n, ev, t_ev, estimate,
+                  steps, evaluations, dt, record, tr, metrics, status, event, event_time)
+
+
+@kernel
+def _dynamic_rhs_kernel(loop: DynamicLoop, x: Array, ref: Array, noise: Array) -> Array:
+    out = np.empty(DYNAMIC_STATE + DYNAMIC_AUX)
+    dynamic_rhs(loop, x, ref, noise, out)
+    return out
+
+
+@kernel
+def _dynamic_rhs_at(
+    loop: DynamicLoop, breaks: Array, local: Array, t: float, x: Array, noise: Array
+) -> Array:
+    """The dynamic plant's state derivative (7,) at time t (for solve_ivp)."""
+    ref = np.empty(6)
+    plan_flag(breaks, local, t, ref)
+    out = np.empty(DYNAMIC_STATE + DYNAMIC_AUX)
+    dynamic_rhs(loop, x, ref, noise, out)
+    return out[:DYNAMIC_STATE]
+
+
+@kernel
+def _dynamic_start(loop: DynamicLoop, initial: Array, ref: Array) -> Array:
+    """The dynamic plant's state at t = 0 (``plant.dynamic_initial``)."""
+    x0 = np.empty(DYNAMIC_STATE)
+    dynamic_initial(loop, initial, ref, x0)
+    return x0
+
+
+@kernel
+def _make_dynamic_loop(kc: Coefficients, gains: Gains, links: Links, robot: Links,
+                       servo_is_plant: bool, h0: float, rate_limit: float, bandwidth: float,
+                       torque_limit: float) -> DynamicLoop:
+    return dynamic_loop(kc, gains, links, robot, servo_is_plant, h0, rate_limit, bandwidth,
+                        torque_limit)
+
+
+@kernel
+def _observe_dynamic_trace_kernel(
+    loop: DynamicLoop, theta_ref: Array, ref: Array, threshold: float, states: Array,
+    rates: Array, last: int, complete: bool, dt: float, plan_theta: Array,
+    plan_theta_dot: Array, out: Array,
+) -> int:
+    """``_observe_trace_kernel`` for the dynamic plant: states (n+1, 7), right-hand sides
+    (n+1, 7 + DYNAMIC_AUX)."""
+    acc = np.empty(ACCUMULATOR_SIZE)
+    reset_accumulator(acc)
+    obs = (theta_ref, ref, threshold)
+    for j in range(last + 1):
+        _observe_dynamic(loop, obs, acc, j, states[j], rates[j])
+    residual = plan_momentum_residual(plan_theta, plan_theta_dot, loop.links, loop.h0)
+    return finish_metrics(out, acc, complete, dt, residual, math.nan, 0, 0)
 
 
 @kernel
@@ -272,6 +466,9 @@ class Scenario:
     plan_samples : size of the plan's own grid, on which ``plan_momentum_residual`` is taken
     rtol, atol : the adaptive integrator's relative and absolute tolerances
     max_steps : the adaptive integrator's budget of attempted steps per trial
+    plant : "kinematic" or "dynamic" (``plant.PLANT_MODELS``)
+    servo_model : what the dynamic plant's servo believes: "robot" (the plan's robot, the
+        nominal model) or "plant" (each trial's plant)
     """
 
     plan: FlatPlan | ChainPlan
@@ -284,6 +481,8 @@ class Scenario:
     rtol: float = DEFAULT_RTOL
     atol: float = DEFAULT_ATOL
     max_steps: int = DEFAULT_MAX_STEPS
+    plant: PlantModel = "kinematic"
+    servo_model: ServoModel = "robot"
     n_steps: int = field(init=False)
 
     def __post_init__(self) -> None:
@@ -313,8 +512,18 @@ class Scenario:
             raise FlatcliError(f"track.atol: must be a finite number > 0, got {self.atol}")
         if not self.max_steps >= 1:
             raise FlatcliError(f"track.max_steps: must be >= 1, got {self.max_steps}")
+        if self.plant not in PLANT_MODELS:
+            raise FlatcliError(
+                f"plant.model: expected one of {list(PLANT_MODELS)}, got {self.plant!r}")
+        if self.servo_model not in SERVO_MODELS:
+            raise FlatcliError(f"plant.servo_model: expected one of {list(SERVO_MODELS)}, "
+                               f"got {self.servo_model!r}")
         if isinstance(self.plan, ChainPlan):
             n = self.plan.n_joints
+            if self.plant != "kinematic":
+                raise FlatcliError(f"plant.model: {self.plant!r} is available for the paper's "
+                                   f"robot (2 joints) only; a robot of {n} joints runs "
+                                   "\"kinematic\"")
             if not (isinstance(self.gains, ChainGains) and len(self.gains.kp) == n
                     and len(self.gains.kv) == n):
                 raise FlatcliError(f"track.kp, track.kv: expected {n} gains each (one per flat "
@@ -387,12 +596,16 @@ class Trials:
     initial : (N, 4) th0, th1, th2 [rad], u1 [rad/s] at t = 0
     noise : sensor noise on the three angles: an (N, n, 3) table [rad] (row j held over
         [t_j, t_j+1)), ``NoiseStreams``, or None for none
+    servo : (N, 2) the dynamic plant's servo bandwidth [rad/s] (> 0) and torque limit [N m]
+        (>= 0, inf for none) per trial, or None for the defaults (``DEFAULT_SERVO``); the
+        kinematic plant ignores it
     """
 
     links: Array
     momentum: Array
     initial: Array
     noise: Array | NoiseStreams | None = None
+    servo: Array | None = None
 
     def __post_init__(self) -> None:
         n = self.links.shape[0]
@@ -412,6 +625,17 @@ class Trials:
                 raise FlatcliError(f"track.sensor_noise: must be >= 0 rad, got {self.noise.std}")
         elif self.noise is not None and (self.noise.ndim != 3 or self.noise.shape[0] != n):
             raise ValueError("Trials: noise (N, n, 3) expected")
+        if self.servo is not None:
+            if self.servo.shape != (n, 2):
+                raise ValueError("Trials: servo (N, 2) expected")
+            bandwidth, torque = self.servo[:, 0], self.servo[:, 1]
+            good = (bandwidth > 0) & np.isfinite(bandwidth)
+            if not np.all(good):
+                raise FlatcliError("plant.servo_bandwidth: must be a finite number > 0 rad/s, "
+                                   f"got {bandwidth[~good][0]}")
+            if not np.all(torque >= 0):
+                raise FlatcliError("plant.torque_limit: must be >= 0 N m, got "
+                                   f"{torque[~(torque >= 0)][0]}")
 
     @property
     def count(self) -> int:
@@ -423,7 +647,14 @@ class Trials:
             noise = NoiseStreams(noise.std, noise.seed, noise.trial_ids[index])
         elif noise is not None:
             noise = noise[index]
-        return Trials(self.links[index], self.momentum[index], self.initial[index], noise)
+        servo = None if self.servo is None else self.servo[index]
+        return Trials(self.links[index], self.momentum[index], self.initial[index], noise, servo)
+
+    def servo_table(self) -> Array:
+        """(N, 2) servo bandwidth [rad/s] and torque limit [N m] of every trial."""
+        if self.servo is None:
+            return np.tile(np.array(DEFAULT_SERVO, dtype=float), (self.count, 1))
+        return np.ascontiguousarray(self.servo, dtype=float)
 
     def noise_table(self, index: int, n: int) -> Array:
         """(n, 3) the noise trial ``index`` sees [rad] (zeros without noise)."""
@@ -448,8 +679,11 @@ class Outcome:
     event : (N,) ``metrics.Event`` that stopped each trial (``Event.NONE``: it finished)
     event_time : (N,) when it stopped, or the first singular hit of a finished trial [s]
         (nan if neither)
-    trace : (N, n + 1, 7) per output sample the state and applied rates (``TRACE_COLUMNS``),
-        nan after the last valid sample, if recorded
+    trace : (N, n + 1, width) per output sample what ``columns`` names (the kinematic
+        plant's state and applied rates, ``TRACE_COLUMNS``; the dynamic plant's state,
+        torques and command, ``DYNAMIC_TRACE_COLUMNS``), nan after the last valid sample,
+        if recorded
+    columns : names of the trace's columns
     """
 
     metrics: Array
@@ -457,6 +691,7 @@ class Outcome:
     event: NDArray[np.int64]
     event_time: Array
     trace: Array | None
+    columns: tuple[str, ...] = TRACE_COLUMNS
 
 
 def plant_coefficients(links: Array) -> Array:
@@ -503,7 +738,12 @@ def simulate(
     status = np.zeros(N, dtype=np.int64)
     event = np.zeros(N, dtype=np.int64)
     event_time = np.full(N, math.nan)
-    width = 3 * angles - 2  # the state (2 N), then the applied rates (N + 1)
+    dynamic = scenario.plant == "dynamic"
+    if isinstance(scenario.plan, ChainPlan):
+        columns = chain_trace_columns(scenario.plan.n_joints)
+    else:
+        columns = DYNAMIC_TRACE_COLUMNS if dynamic else TRACE_COLUMNS
+    width = len(columns)
     trace = np.empty((N, n + 1, width)) if record else np.empty((0, 0, width))
     if isinstance(scenario.plan, ChainPlan):
         if integrator == "dop853":
@@ -516,7 +756,7 @@ def simulate(
                              event_time, trace, rows, tables, gen, std)
 
         _run_with_noise(run_chain, trials, angles)
-        return Outcome(metrics, status, event, event_time, trace if record else None)
+        return Outcome(metrics, status, event, event_time, trace if record else None, columns)
     kc = _plain(scenario.plan.coefficients)
     assert isinstance(scenario.gains, Gains)  # Scenario checks it against the plan
     gains = Gains(*(float(v) for v in scenario.gains))
@@ -524,16 +764,31 @@ def simulate(
     links = np.ascontiguousarray(trials.links, dtype=float)
     h0 = np.ascontiguousarray(trials.momentum, dtype=float)
     initial = np.ascontiguousarray(trials.initial, dtype=float)
+    servo = trials.servo_table()
+    robot = Links(*(float(v) for v in scenario.plan.robot.links))
+    servo_is_plant = scenario.servo_model == "plant"
     if integrator == "dop853":
         for i in range(N):
             _reference_trial(scenario, trials, plant_k, kc, gains, i, metrics[i], status,
                              event, event_time, trace[i] if record else None)
-        return Outcome(metrics, status, event, event_time, trace if record else None)
+        return Outcome(metrics, status, event, event_time, trace if record else None, columns)
     method = _METHOD_RK4 if integrator == "rk4" else _METHOD_ADAPTIVE
     plan_theta, plan_theta_dot = scenario.plan_on_own_grid
     breaks, local = scenario.pieces
 
     def run(rows: slice, tables: Array, gen: np.random.Generator, std: float) -> None:
+        if dynamic:
+            _dynamic_kernel(
+                method, kc, gains, robot, servo_is_plant, links[rows], h0[rows], servo[rows],
+                float(scenario.rate_limit), initial[rows], scenario.reference,
+                scenario.theta_reference, breaks, local, plan_theta, plan_theta_dot,
+                float(scenario.dt), float(scenario.divergence_bound),
+                float(scenario.singular_threshold), float(scenario.rtol),
+                float(scenario.atol), int(scenario.max_steps), tables, gen, std, record,
+                metrics[rows], status[rows], event[rows], event_time[rows],
+                trace[rows] if record else trace,
+            )
+            return
         _kinematic_kernel(
             method, kc, gains, links[rows], plant_k[rows], h0[rows], float(scenario.rate_limit),
             initial[rows], scenario.reference, scenario.theta_reference, breaks, local,
@@ -544,7 +799,7 @@ def simulate(
         )
 
     _run_with_noise(run, trials, angles)
-    return Outcome(metrics, status, event, event_time, trace if record else None)
+    return Outcome(metrics, status, event, event_time, trace if record else None, columns)
 
 
 def _run_with_noise(run: Callable[[slice, Array, np.random.Generator, float], None],
@@ -574,67 +829,85 @@ def _reference_trial(
     n = scenario.n_steps
     times = scenario.times
     p = Links(*(float(v) for v in trials.links[i]))
-    kq = _plain(Coefficients(*plant_k[i]))
-    loop = Loop(kc, gains, kq, p, p.m0 + p.m1 + p.m2, float(trials.momentum[i]),
-                float(scenario.rate_limit), bool(_is_flat(kq)))
+    dynamic = scenario.plant == "dynamic"
     noise = trials.noise_table(i, n)
     bound = scenario.divergence_bound
     breaks, local = scenario.pieces
+    loop: Any  # Loop or DynamicLoop, with the kernels below that take it
+    rhs_at: Any
+    rhs_full: Any
+    if dynamic:
+        bandwidth, torque_limit = trials.servo_table()[i]
+        robot = Links(*(float(v) for v in scenario.plan.robot.links))
+        loop = _make_dynamic_loop(kc, gains, p, robot, scenario.servo_model == "plant",
+                                  float(trials.momentum[i]), float(scenario.rate_limit),
+                                  float(bandwidth), float(torque_limit))
+        nx, aux, u1_index = DYNAMIC_STATE, DYNAMIC_AUX, 6
+        rhs_at, rhs_full = _dynamic_rhs_at, _dynamic_rhs_kernel
+        start = np.asarray(_dynamic_start(loop, np.asarray(trials.initial[i], dtype=float),
+                                          scenario.reference[0]))
+    else:
+        kq = _plain(Coefficients(*plant_k[i]))
+        loop = Loop(kc, gains, kq, p, p.m0 + p.m1 + p.m2, float(trials.momentum[i]),
+                    float(scenario.rate_limit), bool(_is_flat(kq)))
+        nx, aux, u1_index = KINEMATIC_STATE, KINEMATIC_AUX, 3
+        rhs_at, rhs_full = _kinematic_rhs_at, _kinematic_rhs_kernel
+        start = np.asarray(trials.initial[i], dtype=float)
 
     def rhs(t: float, x: Array, noise_row: Array) -> Array:
-        return np.asarray(_kinematic_rhs_at(loop, breaks, local, t, x, noise_row))
+        return np.asarray(rhs_at(loop, breaks, local, t, x, noise_row))
 
     def blowup(t: float, x: Array, noise_row: Array) -> float:
         return float(bound - np.max(np.abs(x)))
 
     def crossing(t: float, x: Array, noise_row: Array) -> float:
-        return float(np.sin(x[1] + noise_row[1]) * x[3])
+        return float(np.sin(x[1] + noise_row[1]) * x[u1_index])
 
     blowup.terminal = True  # type: ignore[attr-defined]
     crossing.terminal = True  # type: ignore[attr-defined]
-    states = np.full((n + 1, KINEMATIC_STATE), math.nan)
-    states[0] = trials.initial[i]
+    states = np.full((n + 1, nx), math.nan)
+    states[0] = start
     stopped, when = int(Event.NONE), math.nan
     # without noise one integration over the whole grid; with noise one per interval, so the
     # solver never steps across a jump of the measured angles
     segments = [(0, n)] if not np.any(noise) else [(s, s + 1) for s in range(n)]
-    x = np.asarray(trials.initial[i], dtype=float)
-    for start, stop in segments:
+    x = start
+    for begin, stop in segments:
         with np.errstate(all="ignore"):
-            sol = solve_ivp(rhs, (times[start], times[stop]), x, method="DOP853",
-                            t_eval=times[start: stop + 1], rtol=REFERENCE_RTOL,
-                            atol=REFERENCE_ATOL, args=(noise[start],),
+            sol = solve_ivp(rhs, (times[begin], times[stop]), x, method="DOP853",
+                            t_eval=times[begin: stop + 1], rtol=REFERENCE_RTOL,
+                            atol=REFERENCE_ATOL, args=(noise[begin],),
                             events=[blowup, crossing])
         got = sol.y.T
-        states[start: start + len(got)] = got
+        states[begin: begin + len(got)] = got
         if sol.status == 1:  # a terminal event; crossing the singular set takes precedence
             if len(sol.t_events[1]):
                 stopped, when = int(Event.CROSSED), float(sol.t_events[1][0])
             else:
                 stopped, when = int(Event.BOUND), float(sol.t_events[0][0])
             break
-        if sol.status == -1 or len(got) < stop - start + 1:  # the solver gave up
+        if sol.status == -1 or len(got) < stop - begin + 1:  # the solver gave up
             last_x = sol.y[:, -1] if sol.y.size else x
-            near = abs(crossing(float(sol.t[-1]) if sol.t.size else times[start], last_x,
-                                noise[start])) < STALL_MARGIN
+            near = abs(crossing(float(sol.t[-1]) if sol.t.size else times[begin], last_x,
+                                noise[begin])) < STALL_MARGIN
             stopped = int(Event.STALLED if near else Event.STEP_FLOOR)
-            when = float(sol.t[-1]) if sol.t.size else float(times[start])
+            when = float(sol.t[-1]) if sol.t.size else float(times[begin])
             break
         x = got[-1]
     finite = np.isfinite(states).all(axis=1) & (np.abs(states) <= bound).all(axis=1)
     last = int(np.argmin(finite)) - 1 if not finite.all() else n
     if stopped == int(Event.NONE) and last < n:
         stopped, when = int(Event.BOUND), float(times[last + 1])
-    rates = np.full((n + 1, KINEMATIC_STATE + KINEMATIC_AUX), math.nan)
+    rates = np.full((n + 1, nx + aux), math.nan)
     for j in range(last + 1):
         ref = scenario.reference[2 * j]
-        rates[j] = _kinematic_rhs_kernel(loop, states[j], ref, noise[min(j, n - 1)])
+        rates[j] = rhs_full(loop, states[j], ref, noise[min(j, n - 1)])
     theta_ref = scenario.theta_reference
     plan_theta, plan_theta_dot = scenario.plan_on_own_grid
-    first = _observe_trace_kernel(loop, theta_ref, scenario.reference,
-                                  float(scenario.singular_threshold), states, rates, last,
-                                  stopped == int(Event.NONE), float(scenario.dt), plan_theta,
-                                  plan_theta_dot, out)
+    observe = _observe_dynamic_trace_kernel if dynamic else _observe_trace_kernel
+    first = observe(loop, theta_ref, scenario.reference, float(scenario.singular_threshold),
+                    states, rates, last, stopped == int(Event.NONE), float(scenario.dt),
+                    plan_theta, plan_theta_dot, out)
     code = Status.SINGULAR if first >= 0 else Status.OK
     if stopped != int(Event.NONE):
         code = Event(stopped).status
@@ -645,6 +918,6 @@ def _reference_trial(
     elif first >= 0:
         event_time[i] = first * scenario.dt
     if trace is not None:
-        trace[:, :KINEMATIC_STATE] = states
-        trace[:, KINEMATIC_STATE:] = rates[:, :3]
+        trace[:, :nx] = states
+        trace[:, nx:] = rates[:, [AUX_TAU1, AUX_TAU2, AUX_R2]] if dynamic else rates[:, :3]
         trace[last + 1:] = math.nan

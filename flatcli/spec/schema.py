@@ -26,6 +26,7 @@ from typing import Any
 
 from flatcli.core.model import MODELS
 from flatcli.core.optimize import OBJECTIVES
+from flatcli.core.plant import DEFAULT_SERVO_BANDWIDTH, PLANT_MODELS, SERVO_MODELS
 from flatcli.core.simulate import (
     DEFAULT_ATOL,
     DEFAULT_MAX_STEPS,
@@ -140,8 +141,9 @@ class TrackSpec:
                                        "it is a singular hit", "rad/s", ge=0)
     sensor_noise: float = number(0.0, "std of the noise on the measured angles, drawn per "
                                  "output interval dt and held over it", "rad", ge=0)
-    rate_limit: float = number(INF, "actuator limit: the applied th1', th2' are clipped to it",
-                               "rad/s", gt=0, inf=True)
+    rate_limit: float = number(INF, "actuator limit: the joint-rate commands are clipped to "
+                               "it (the kinematic plant turns at them)", "rad/s", gt=0,
+                               inf=True)
     divergence_bound: float = number(1e4, "a state component beyond it (or non-finite) stops "
                                      "the trial as diverged", "rad, rad/s", gt=0)
     seed: int = integer(0, "seed of the sensor-noise stream SeedSequence(seed, (trial, 1))", ge=0)
@@ -164,6 +166,19 @@ class PlantSpec:
                                 nullable=True, default_doc="robot.com")
     momentum: float = number(0.0, "the plant's angular momentum H0 (the controller assumes 0)",
                              "kg m^2/s")
+    model: str = choice(PLANT_MODELS, "kinematic", "\"kinematic\" (the joints turn at the "
+                        "commanded rates) or \"dynamic\" (a robot with inertia: joint torques "
+                        "from rate servos; README, *The dynamic plant*)")
+    servo_bandwidth: float = number(DEFAULT_SERVO_BANDWIDTH, "dynamic plant: each joint rate "
+                                    "follows its command as a first-order lag of this bandwidth "
+                                    "(exactly, while the servo's model is right and no torque "
+                                    "is clipped)", "rad/s", gt=0)
+    torque_limit: float = number(INF, "dynamic plant: the servo's joint torques are clipped to "
+                                 "it (0: no torque, the robot drifts freely)", "N m", ge=0,
+                                 inf=True)
+    servo_model: str = choice(SERVO_MODELS, "robot", "dynamic plant: the model the servo's "
+                              "computed torque uses: \"robot\" (the nominal `[robot]`) or "
+                              "\"plant\" (the plant itself)")
 
 
 @dataclass(frozen=True)

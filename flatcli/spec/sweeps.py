@@ -27,9 +27,13 @@ PERTURB_TARGETS: dict[str, str] = {
     "length": "plant.length",
     "com": "plant.com",
     "momentum": "plant.momentum",
+    # added after the first seven: their variates come after those of the others, so no
+    # existing perturbation draws different numbers (``flatcli.sweep.draws``)
+    "servo_bandwidth": "plant.servo_bandwidth",
+    "torque_limit": "plant.torque_limit",
 }
 #: Quantities a perturbation may scale (``relative = true``) rather than shift.
-RELATIVE_TARGETS = ("mass", "inertia", "length", "com")
+RELATIVE_TARGETS = ("mass", "inertia", "length", "com", "servo_bandwidth", "torque_limit")
 PERTURB_PREFIX = "sweep.perturb."
 
 
@@ -96,7 +100,7 @@ def perturbation(name: str, table: Any) -> Perturbation:
     if not isinstance(relative, bool):
         raise SpecError(f"{where}.relative: expected true or false")
     if relative and name not in RELATIVE_TARGETS:
-        raise SpecError(f"{where}.relative: only mass, inertia, length and com can be relative")
+        raise SpecError(f"{where}.relative: only {', '.join(RELATIVE_TARGETS)} can be relative")
     return Perturbation(str(dist), relative=relative, **numbers)
 
 

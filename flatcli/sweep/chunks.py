@@ -23,6 +23,7 @@ from flatcli.sweep.draws import (
     PERTURB_SLOTS,
     draw_perturbations,
     invalid_plants,
+    invalid_servos,
     nominal_values,
     perturbation_columns,
 )
@@ -54,8 +55,8 @@ class ChunkResult:
 def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
     """Simulate one chunk; return its columns.
 
-    A trial whose perturbed plant is not a valid robot is recorded as ``error`` with the
-    reason; the others are simulated.
+    A trial whose perturbed plant is not a valid robot, or whose perturbed servo is not a
+    valid servo, is recorded as ``error`` with the reason; the others are simulated.
     """
     started = time.perf_counter()
     spec = cell.spec
@@ -69,7 +70,9 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
     links = np.hstack([value["mass"], value["inertia"], value["length"], value["com"]])
     initial = np.hstack([value["initial"], value["initial_rate"]])
     momentum = value["momentum"][:, 0]
-    reasons = invalid_plants(links)
+    servo = np.hstack([value["servo_bandwidth"], value["torque_limit"]])
+    reasons = [plant or servo_reason for plant, servo_reason
+               in zip(invalid_plants(links), invalid_servos(servo), strict=True)]
     valid = np.array([not r for r in reasons], dtype=bool)
     metrics = np.full((len(ids), len(METRIC_NAMES)), np.nan)
     status = np.full(len(ids), int(Status.ERROR), dtype=np.int64)
@@ -78,7 +81,8 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
     if valid.any():
         noise = NoiseStreams(spec.track.sensor_noise, seed, ids[valid].astype(np.int64))
         trials = Trials(np.ascontiguousarray(links[valid]), np.ascontiguousarray(momentum[valid]),
-                        np.ascontiguousarray(initial[valid]), noise)
+                        np.ascontiguousarray(initial[valid]), noise,
+                        np.ascontiguousarray(servo[valid]))
         outcome = simulate_counted(scenario, trials, checked(spec.track.integrator))
         metrics[valid] = outcome.metrics
         status[valid] = outcome.status

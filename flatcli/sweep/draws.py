@@ -43,6 +43,8 @@ PERTURB_SLOTS: dict[str, tuple[int, ...]] = _slots()
 N_VARIATES = sum(len(s) for s in PERTURB_SLOTS.values())
 #: The spec keys of a plant's parameters, in the order of a row of ``Trials.links``.
 PLANT_KEYS = ("plant.mass", "plant.inertia", "plant.length", "plant.com")
+#: The spec keys of a trial's servo, in the order of a row of ``Trials.servo``.
+SERVO_KEYS = ("plant.servo_bandwidth", "plant.torque_limit")
 
 
 def perturbation_columns(name: str) -> list[str]:
@@ -101,6 +103,8 @@ def nominal_values(spec: Spec, plan: FlatPlan | ChainPlan) -> dict[str, Array]:
         "length": np.asarray(plant.length),
         "com": np.asarray(plant.com),
         "momentum": np.array([spec.plant.momentum]),
+        "servo_bandwidth": np.array([spec.plant.servo_bandwidth]),
+        "torque_limit": np.array([spec.plant.torque_limit]),
     }
 
 
@@ -122,6 +126,22 @@ def invalid_plants(links: Array) -> list[str]:
     reasons = [""] * len(links)
     for row in np.flatnonzero(~valid):
         reasons[row] = _reason(links[row])
+    return reasons
+
+
+def invalid_servos(servo: Array) -> list[str]:
+    """For (N, 2) servos (``SERVO_KEYS`` side by side): why each is not a valid servo, or ''
+    if it is; the reason is the line the same value in the spec would give."""
+    bandwidth, torque = servo[:, 0], servo[:, 1]
+    valid = (bandwidth > 0) & np.isfinite(bandwidth) & (torque >= 0)
+    reasons = [""] * len(servo)
+    for row in np.flatnonzero(~valid):
+        for j, dotted in enumerate(SERVO_KEYS):
+            try:
+                lookup(dotted).check(dotted, float(servo[row, j]))
+            except SpecError as exc:
+                reasons[row] = str(exc)
+                break
     return reasons
 
 

@@ -1,0 +1,341 @@
+"""``make reproduce``'s section "What the maneuver asks of the actuators".
+
+The paper's maneuver on the robot with inertia (``plant.model = "dynamic"``): what the paper's
+cubic and the optimised plans of REPORT.md ask of the joints (torque, rate), ideally and
+through rate servos in closed loop, and a Monte Carlo study over servo bandwidth and torque
+limit (``configs/actuators_montecarlo.toml``) whose cells say which actuators make each plan
+trackable. ``actuators_section`` runs it all into ``OUT/actuators`` and returns REPORT.md's
+lines; every number in them is computed here from those runs.
+"""
+
+from __future__ import annotations
+
+import math
+import textwrap
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from scipy.stats import binomtest
+
+from flatcli.core.dynamics import make_chain
+from flatcli.core.metrics import STATUS_NAMES
+from flatcli.core.plant import DEFAULT_SERVO_BANDWIDTH, plan_motion, plan_torques
+from flatcli.experiment import plan_from, robot_from, run_track
+from flatcli.report import COMPLETED, Progress, fmt, new_figure, save_figure, table
+from flatcli.spec import Spec, load_spec
+from flatcli.storage import run_record, write_parquet
+
+#: The study's spec (relative to the working directory, as ``make reproduce`` runs it; else
+#: the repository's copy next to the package).
+STUDY = Path("configs/actuators_montecarlo.toml")
+#: The feedback of this section: the gains swapped (README, "The gains").
+SWAPPED = {"track.kp": [100.0, 110.0], "track.kv": [10.0, 13.0]}
+#: A cell is trackable when no trial is lost (every one resolved to the end) and the 95th
+#: percentile of the final angle error is at most this [rad].
+TRACKABLE_ERROR = 1e-2
+#: Samples of a plan on which its ideal torques and rates are taken.
+PLAN_SAMPLES = 4001
+#: Statuses that lose a trial.
+LOST = tuple(s for s in STATUS_NAMES if s not in COMPLETED)
+BANDWIDTH, LIMIT, MANEUVER = "plant.servo_bandwidth", "plant.torque_limit", "maneuver"
+
+
+def study_path() -> Path:
+    """The study's spec file (``STUDY``)."""
+    if STUDY.exists():
+        return STUDY
+    return Path(__file__).resolve().parent.parent / STUDY
+
+
+def _say(quiet: bool, text: str) -> None:
+    if not quiet:
+        print(text, flush=True)
+
+
+def plan_demands(base: Spec, plans: Sequence[tuple[str, Mapping[str, Any]]]) -> list[list[Any]]:
+    """Per plan: the ideal peak torques and rates (inverse dynamics of the plan,
+    ``plant.plan_torques``) and the closed loop on the dynamic plant (default servo, no
+    torque limit, gains swapped) from the plan's start and from Fig. 4's."""
+    rows = []
+    chain_of: dict[Any, Any] = {}
+    for label, overrides in plans:
+        spec = base.with_overrides({**overrides, **SWAPPED, "plant.model": "dynamic"})
+        plan = plan_from(spec)
+        robot = robot_from(spec)
+        if robot not in chain_of:
+            chain_of[robot] = make_chain(robot.mass, robot.inertia, robot.length, robot.com)
+        t = plan.grid(PLAN_SAMPLES)
+        torques = plan_torques(plan, chain_of[robot], t)
+        _, rates, _ = plan_motion(plan, t)
+        on_plan = run_track(spec.with_overrides({"track.initial": list(spec.plan.start)}))
+        fig4 = run_track(spec)
+        m, f = on_plan.metrics, fig4.metrics
+        rows.append([
+            label,
+            float(np.abs(torques[:, 1]).max()), float(np.abs(torques[:, 2]).max()),
+            float(np.abs(rates[:, 1:]).max()),
+            m["peak_torque"], m["peak_rate"], m["err_theta_final"],
+            f["peak_torque"] if f["status"] in COMPLETED else f"{f['status']}",
+            f["err_theta_final"],
+        ])
+    return rows
+
+
+def run_study(out: Path, quiet: bool, workers: int | None, sets: Sequence[str] = ()
+              ) -> tuple[Spec, pd.DataFrame, pd.DataFrame, float]:
+    """The study (``study_path()`` with the ``--set`` items ``sets``) into out/actuators, and
+    the same trials on the kinematic plant into out/actuators/kinematic (the limit of
+    infinite bandwidth): its spec, both trial tables and the study's wall time [s]."""
+    from flatcli.sweep import run_sweep
+
+    spec = load_spec(study_path(), sets)
+    directory = out / "actuators"
+    result = run_sweep(spec, directory, "local", workers, None, force=True,
+                       progress=Progress(spec.name, quiet))
+    kinematic = spec.with_overrides({
+        "plant.model": "kinematic",
+        "sweep.grid": {MANEUVER: spec.sweep.grid[MANEUVER]},
+    })
+    run_sweep(kinematic, directory / "kinematic", "local", workers, None, force=True,
+              progress=Progress(f"{spec.name} (kinematic)", quiet))
+    return (spec, pd.read_parquet(directory / "trials.parquet"),
+            pd.read_parquet(directory / "kinematic" / "trials.parquet"), result.wall_seconds)
+
+
+def cell_table(trials: pd.DataFrame) -> pd.DataFrame:
+    """Per cell (maneuver, bandwidth, torque limit): trials, the fraction lost (diverged,
+    unresolved, error), the median and 95th percentile of the final angle error and the
+    median peak torque over trials resolved to the end, the fraction of simulated trials
+    whose torque saturated, the median and max momentum drift (resolved trials)."""
+    rows = []
+    keys = [MANEUVER, BANDWIDTH, LIMIT]
+    for values, group in trials.groupby(keys, sort=False):
+        done = group[group["status"].isin(COMPLETED)]
+        simulated = group[group["status"] != "error"]
+        row: dict[str, Any] = dict(zip(keys, values, strict=True))
+        row["trials"] = len(group)
+        for status in LOST:
+            row[status] = float((group["status"] == status).mean())
+        row["lost"] = float(group["status"].isin(LOST).mean())
+        final = done["err_theta_final"].to_numpy(dtype=float)
+        row["err_final_median"] = float(np.median(final)) if len(final) else math.nan
+        row["err_final_p95"] = float(np.quantile(final, 0.95)) if len(final) else math.nan
+        row["peak_torque_median"] = (float(done["peak_torque"].median()) if len(done)
+                                     else math.nan)
+        row["saturated"] = (float((simulated["torque_saturated"] > 0).mean()) if len(simulated)
+                            else math.nan)
+        drift = done["momentum_drift"].to_numpy(dtype=float)
+        row["drift_median"] = float(np.median(drift)) if len(drift) else math.nan
+        row["drift_max"] = float(drift.max()) if len(drift) else math.nan
+        row["trackable"] = bool(row["lost"] == 0 and row["err_final_p95"] <= TRACKABLE_ERROR)
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def kinematic_levels(trials: pd.DataFrame) -> dict[str, tuple[float, float]]:
+    """Per maneuver, the kinematic plant's median and 95th-percentile final angle error
+    (resolved trials) and the fraction lost."""
+    out = {}
+    for label, group in trials.groupby(MANEUVER, sort=False):
+        done = group[group["status"].isin(COMPLETED)]["err_theta_final"].to_numpy(dtype=float)
+        out[str(label)] = (float(np.quantile(done, 0.95)) if len(done) else math.nan,
+                           float(group["status"].isin(LOST).mean()))
+    return out
+
+
+def limit_text(limit: float) -> str:
+    """A torque limit for a table or a legend [N m]."""
+    return "none" if math.isinf(limit) else f"{limit:g}"
+
+
+def lost_interval(lost: float, trials: int) -> tuple[float, float]:
+    """95 % Wilson interval of a fraction of trials lost."""
+    ci = binomtest(round(lost * trials), trials).proportion_ci(0.95, method="wilson")
+    return float(ci.low), float(ci.high)
+
+
+def plot_study(cells: pd.DataFrame, kinematic: Mapping[str, tuple[float, float]],
+               path: Path) -> None:
+    """Final angle error (95th percentile, resolved trials) and the fraction of trials lost
+    (with its 95 % Wilson interval) against servo bandwidth, one panel per maneuver, one line
+    per torque limit."""
+    maneuvers = list(dict.fromkeys(cells[MANEUVER]))
+    limits = list(dict.fromkeys(cells[LIMIT]))
+    fig = new_figure(4.2 * len(maneuvers), 7.5)
+    ax = fig.subplots(2, len(maneuvers), sharex=True, squeeze=False)
+    for j, maneuver in enumerate(maneuvers):
+        sel = cells[cells[MANEUVER] == maneuver]
+        for k, limit in enumerate(limits):
+            line = sel[sel[LIMIT] == limit].sort_values(BANDWIDTH)
+            label = ("no torque limit" if math.isinf(limit)
+                     else f"torque limit {limit_text(limit)} N m")
+            ax[0, j].loglog(line[BANDWIDTH], line["err_final_p95"], "o-", color=f"C{k}",
+                            label=label, ms=7 - k, lw=2.5 - 0.4 * k)
+            bounds = np.array([lost_interval(r["lost"], r["trials"])
+                               for _, r in line.iterrows()])
+            spread = np.abs(bounds.T - line["lost"].to_numpy())
+            ax[1, j].errorbar(line[BANDWIDTH] * 1.04 ** (k - 2), line["lost"], yerr=spread,
+                              fmt="o-", color=f"C{k}", label=label, ms=4, capsize=2)
+            ax[1, j].set_xscale("log")
+        level, lost = kinematic[maneuver]
+        ax[0, j].axhline(level, color="k", ls=":", label="kinematic plant")
+        ax[0, j].axhline(TRACKABLE_ERROR, color="0.5", ls="--", label="trackable")
+        ax[1, j].axhline(lost, color="k", ls=":", label="kinematic plant")
+        ax[0, j].set_title(textwrap.fill(maneuver, 40), fontsize=10)
+        ax[1, j].set_xlabel("servo bandwidth [rad/s]")
+        ax[1, j].set_ylim(-0.03, 1.03)
+        for a in ax[:, j]:
+            a.grid(alpha=0.3, which="both")
+    ax[0, 0].set_ylabel("final angle error, 95th percentile [rad]")
+    ax[1, 0].set_ylabel("fraction of trials lost (95 % Wilson interval)")
+    ax[0, -1].legend(fontsize=7)
+    fig.suptitle("The maneuver on the robot with inertia: tracking against servo bandwidth "
+                 "and torque limit (gains swapped, th(0) errors of std 2 mrad)")
+    fig.tight_layout()
+    save_figure(fig, path)
+
+
+def _bandwidths(values: pd.Series) -> str:
+    return ", ".join(fmt(v) for v in values)
+
+
+def finding(cells: pd.DataFrame, demands: Mapping[str, list[Any]]) -> str:
+    """One paragraph: per maneuver, the least bandwidth that tracks with unlimited torque,
+    the torque its joints then use, and the least torque limit that still tracks."""
+    parts = []
+    for maneuver in dict.fromkeys(cells[MANEUVER]):
+        sel = cells[(cells[MANEUVER] == maneuver) & cells["trackable"]]
+        free = sel[np.isinf(sel[LIMIT].astype(float))].sort_values(BANDWIDTH)
+        name = f"the {maneuver}" if maneuver == "paper's cubic" else f"the {maneuver} plan"
+        ideal = demands.get(str(maneuver))
+        need = (f" (the plan itself needs {fmt(max(ideal[1], ideal[2]), 3)} N m and "
+                f"{fmt(ideal[3], 3)} rad/s)") if ideal else ""
+        if free.empty:
+            best = cells[(cells[MANEUVER] == maneuver) & (cells["lost"] == 0)]
+            best = best.sort_values("err_final_p95")
+            text = (f"{name}{need} is trackable at no bandwidth of the study, even with "
+                    "unlimited torque")
+            if not best.empty:
+                text += (f" (at best {fmt(best.iloc[0]['err_final_p95'], 2)} rad at "
+                         f"{fmt(best.iloc[0][BANDWIDTH])} rad/s)")
+            parts.append(text)
+            continue
+        first = free.iloc[0]
+        limited = sel[np.isfinite(sel[LIMIT].astype(float))]
+        text = (f"{name}{need} is trackable from a bandwidth of {fmt(first[BANDWIDTH])} rad/s "
+                f"with unlimited torque, its joints then peaking at "
+                f"{fmt(first['peak_torque_median'], 3)} N m (median over the trials)")
+        if limited.empty:
+            text += ", and under none of the torque limits of the study"
+        else:
+            least = limited[LIMIT].astype(float).min()
+            where = limited[limited[LIMIT].astype(float) == least][BANDWIDTH]
+            text += (f"; the least torque limit that still tracks is {fmt(least)} N m "
+                     f"(at {_bandwidths(where)} rad/s)")
+        parts.append(text)
+    sentences = "; ".join(parts)
+    return (
+        f"**Finding.** A cell counts as trackable when no trial is lost and 95 % of the final "
+        f"angle errors are below {TRACKABLE_ERROR:g} rad. With the gains swapped and start "
+        f"errors of 2 mrad, {sentences}. Below that, the joints lag their commands by about "
+        "th'' / bandwidth and the error grows as 1 / bandwidth; a torque limit under what the "
+        "closed loop's first milliseconds ask (it corrects the start error at once, with "
+        "torques far above the plan's own) lets the joints fall behind commands that the "
+        "linearising feedback, which believes its rates are applied, keeps raising, until the "
+        "margin sin th1 * u1 reaches zero (every trial lost in the study ends so): on this "
+        "robot saturation is not a gentle degradation but a loss of the maneuver."
+    )
+
+
+def actuators_section(base: Spec, out: Path, quiet: bool, workers: int | None = None,
+                      study: bool = True, sets: Sequence[str] = ()) -> list[str]:
+    """REPORT.md's "What the maneuver asks of the actuators" (and its runs into
+    ``out/actuators``, its figure ``out/fig_actuators.png``); without ``study`` the plans'
+    demands only. ``sets``: ``--set`` items for the study's spec (``make reproduce`` passes
+    those of its Monte Carlo study, e.g. ``sweep.trials``)."""
+    from flatcli.reproduce import OPTIMIZED_PLANS
+
+    plans = [("paper's cubic", {}), *OPTIMIZED_PLANS]
+    demands = plan_demands(base, plans)
+    _say(quiet, "actuator demands of the plans computed")
+    lines = [
+        "",
+        "## What the maneuver asks of the actuators",
+        "",
+        "On the robot with inertia (`plant.model = \"dynamic\"`: free-floating multibody "
+        "dynamics driven by joint torques from rate servos; README, *The dynamic plant*). "
+        "*Plan*: the joint torques M q'' + C q' that follow the plan exactly (inverse "
+        f"dynamics on {PLAN_SAMPLES} samples, accelerations by complex step) and its peak "
+        f"joint rate. *Closed loop*: the feedback with the gains swapped, servo bandwidth "
+        f"{DEFAULT_SERVO_BANDWIDTH:g} rad/s, no torque limit, started on the plan or at "
+        "Fig. 4's th(0) = (1.96, 0.8, -0.1); peak torque and rate, and the final angle "
+        "error.",
+        "",
+        table(["plan", "plan: peak tau1 [N m]", "plan: peak tau2 [N m]",
+               "plan: peak joint rate [rad/s]", "on plan: peak torque [N m]",
+               "on plan: peak rate [rad/s]", "on plan: final error [rad]",
+               "Fig. 4 start: peak torque [N m]", "Fig. 4 start: final error [rad]"],
+              demands, 3),
+    ]
+    if not study:
+        return lines
+    spec, trials, kinematic_trials, wall = run_study(out, quiet, workers, sets)
+    cells = cell_table(trials)
+    kinematic = kinematic_levels(kinematic_trials)
+    plot_study(cells, kinematic, out / "fig_actuators.png")
+    write_parquet(out / "actuators" / "cells.parquet", cells,
+                  run_record("reproduce", spec.tree, study=STUDY.name))
+    _say(quiet, "actuator study written")
+    by_label = {row[0]: row for row in demands}
+    matrix = []
+    for maneuver in dict.fromkeys(cells[MANEUVER]):
+        for limit in dict.fromkeys(cells[LIMIT]):
+            sel = cells[(cells[MANEUVER] == maneuver) & (cells[LIMIT] == limit)]
+            sel = sel.sort_values(BANDWIDTH)
+            matrix.append([maneuver, limit_text(limit), *(
+                f"{fmt(r['err_final_p95'], 2)}{'' if r['lost'] == 0 else f' ({r.lost:.0%})'}"
+                for _, r in sel.iterrows())])
+    bandwidths = sorted(cells[BANDWIDTH].unique())
+    order = {name: i for i, name in enumerate(dict.fromkeys(cells[MANEUVER]))}
+    ordered = cells.assign(_m=cells[MANEUVER].map(order), _l=-cells[LIMIT].astype(float))
+    ordered = ordered.sort_values(["_m", "_l", BANDWIDTH])
+    full = [[r[MANEUVER], r[BANDWIDTH], limit_text(r[LIMIT]), r["trials"], r["lost"],
+             r["diverged"], r["unresolved"], r["err_final_median"], r["err_final_p95"],
+             r["peak_torque_median"], r["saturated"], r["drift_median"], r["drift_max"]]
+            for _, r in ordered.iterrows()]
+    levels = ", ".join(f"{name} {fmt(p95, 2)} rad ({lost:.0%} lost)"
+                       for name, (p95, lost) in kinematic.items())
+    return [
+        *lines,
+        "",
+        "### Monte Carlo study: servo bandwidth and torque limit",
+        "",
+        f"`{STUDY.name}`: {len(cells)} cells of {spec.sweep.trials} trials "
+        f"({len(trials)} in {wall:.0f} s), the gains swapped, th(0) = the plan's start plus "
+        "errors of std 2 mrad, the nominal plant (the servo's computed torque is exact, so "
+        "the actuators are the only difference from the kinematic plant). The same trials on "
+        f"the kinematic plant: 95th percentile of the final angle error {levels}. Files: "
+        "`actuators/` (trials.parquet, summary.md, cells.parquet; `kinematic/`), figure "
+        "`fig_actuators.png`.",
+        "",
+        finding(cells, by_label),
+        "",
+        "95th percentile of the final angle error [rad] over trials resolved to the end, and "
+        "in brackets the share of trials lost (diverged, unresolved or error), by servo "
+        "bandwidth [rad/s]:",
+        "",
+        table(["maneuver", "torque limit [N m]", *(fmt(b) for b in bandwidths)], matrix, 2),
+        "",
+        "Every cell: fractions of trials lost (all, diverged, unresolved), median and 95th "
+        "percentile of the final angle error [rad] and median peak torque [N m] (resolved "
+        "trials), share of simulated trials whose servo hit the torque limit, median and max "
+        "momentum drift max abs(H - H0) [kg m^2/s] (resolved trials; H from the full link "
+        "kinematics, conserved by the dynamics alone: the integration's error).",
+        "",
+        table(["maneuver", "bandwidth", "torque limit", "trials", "lost", "diverged",
+               "unresolved", "final error median", "final error p95", "peak torque median",
+               "saturated", "drift median", "drift max"], full, 3),
+    ]

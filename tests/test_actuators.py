@@ -1,0 +1,109 @@
+"""The actuators section of make reproduce (flatcli/actuators.py): its statistics, its
+finding, and the plans' demands.
+
+References: statistics recomputed here with numpy from hand-made trial rows; the Wilson
+interval from its closed form (Wilson, J. Am. Stat. Assoc. 22, 1927); the plan's exact rates
+from ``FlatPlan.sample`` (complex step through the inverse map, another route than
+``plant.plan_motion``). End to end, the section is run by tests/test_reproduce.py.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from flatcli.actuators import (
+    BANDWIDTH,
+    LIMIT,
+    MANEUVER,
+    TRACKABLE_ERROR,
+    cell_table,
+    finding,
+    limit_text,
+    lost_interval,
+    plan_demands,
+)
+from flatcli.experiment import plan_from
+from flatcli.spec import resolve
+
+
+def trials_frame() -> pd.DataFrame:
+    """Two maneuvers x two bandwidths x two limits, 4 trials each, with known outcomes."""
+    rows = []
+    rng = np.random.default_rng(1)
+    for maneuver in ("a", "b"):
+        for bandwidth in (10.0, 100.0):
+            for limit in (math.inf, 5.0):
+                for i in range(4):
+                    lost = maneuver == "b" and limit == 5.0 and i == 0
+                    error = 0.1 / bandwidth * (1 + rng.uniform())
+                    rows.append({
+                        MANEUVER: maneuver, BANDWIDTH: bandwidth, LIMIT: limit,
+                        "status": "diverged" if lost else ("singular" if i == 1 else "ok"),
+                        "err_theta_final": math.nan if lost else error,
+                        "peak_torque": 3.0 + i if math.isinf(limit) else min(3.0 + i, limit),
+                        "torque_saturated": 0 if math.isinf(limit) or i < 2 else 7,
+                        "momentum_drift": 1e-10 * (i + 1),
+                    })
+    return pd.DataFrame(rows)
+
+
+def test_cell_statistics_are_over_the_right_trials() -> None:
+    frame = trials_frame()
+    cells = cell_table(frame)
+    assert len(cells) == 8
+    for _, cell in cells.iterrows():
+        group = frame[(frame[MANEUVER] == cell[MANEUVER]) & (frame[BANDWIDTH] == cell[BANDWIDTH])
+                      & (frame[LIMIT] == cell[LIMIT])]
+        done = group[group["status"].isin(["ok", "singular"])]
+        assert cell["trials"] == 4
+        assert cell["lost"] == cell["diverged"] == (group["status"] == "diverged").mean()
+        assert cell["unresolved"] == 0
+        final = done["err_theta_final"].to_numpy()
+        assert cell["err_final_median"] == np.median(final)
+        assert cell["err_final_p95"] == np.quantile(final, 0.95)
+        assert cell["peak_torque_median"] == np.median(done["peak_torque"])
+        assert cell["saturated"] == (group["torque_saturated"] > 0).mean()
+        assert cell["drift_max"] == done["momentum_drift"].max()
+        assert cell["trackable"] == (cell["lost"] == 0
+                                     and cell["err_final_p95"] <= TRACKABLE_ERROR)
+
+
+def test_finding_names_the_least_bandwidth_and_torque_that_track() -> None:
+    cells = cell_table(trials_frame())
+    text = finding(cells, {"a": ["a", 1.5, 2.5, 4.0]})
+    # maneuver a: errors ~0.01-0.02 at 10 rad/s (not trackable), ~1e-3 at 100 rad/s
+    assert "the a plan (the plan itself needs 2.5 N m and 4 rad/s) is trackable from a " \
+           "bandwidth of 100 rad/s" in text
+    assert "the least torque limit that still tracks is 5 N m (at 100 rad/s)" in text
+    # maneuver b loses a trial under the 5 N m limit
+    assert "the b plan is trackable from a bandwidth of 100 rad/s" in text
+    assert "and under none of the torque limits of the study" in text
+
+
+def test_limit_text_and_wilson_interval() -> None:
+    assert limit_text(math.inf) == "none" and limit_text(30.0) == "30"
+    # Wilson's closed form: (p + z^2/2n +- z sqrt(p(1-p)/n + z^2/4n^2)) / (1 + z^2/n)
+    n, k, z = 25, 3, 1.959963984540054
+    p = k / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    low, high = lost_interval(k / n, n)
+    assert low == pytest.approx(centre - half, rel=1e-9)
+    assert high == pytest.approx(centre + half, rel=1e-9)
+
+
+def test_plan_demands_of_the_cubic() -> None:
+    """The cubic's peak joint rate is its exact th2'(0) (plan samples); the closed loop
+    started on the plan finishes, its torque within reach of the plan's own."""
+    base = resolve({})
+    [row] = plan_demands(base, [("paper's cubic", {})])
+    plan = plan_from(base)
+    samples = plan.sample(plan.grid(4001))
+    assert row[3] == pytest.approx(np.abs(samples.theta_dot[:, 1:]).max(), rel=1e-12)
+    ideal = max(row[1], row[2])
+    assert 0.5 * ideal < row[4] < 1.5 * ideal  # the servo lags: less than the plan's peak
+    assert row[6] < 0.05  # final angle error on plan at 100 rad/s [rad]
