@@ -23,7 +23,7 @@ from scipy.stats import binomtest
 from flatcli.core.dynamics import make_chain
 from flatcli.core.metrics import STATUS_NAMES
 from flatcli.core.plant import DEFAULT_SERVO_BANDWIDTH, plan_motion, plan_torques
-from flatcli.experiment import plan_from, robot_from, run_track
+from flatcli.experiment import flat_plan_from, robot_from, run_track
 from flatcli.report import COMPLETED, Progress, fmt, new_figure, save_figure, table
 from flatcli.spec import Spec, load_spec
 from flatcli.storage import run_record, write_parquet
@@ -63,7 +63,7 @@ def plan_demands(base: Spec, plans: Sequence[tuple[str, Mapping[str, Any]]]) -> 
     chain_of: dict[Any, Any] = {}
     for label, overrides in plans:
         spec = base.with_overrides({**overrides, **SWAPPED, "plant.model": "dynamic"})
-        plan = plan_from(spec)
+        plan = flat_plan_from(spec)
         robot = robot_from(spec)
         if robot not in chain_of:
             chain_of[robot] = make_chain(robot.mass, robot.inertia, robot.length, robot.com)

@@ -31,9 +31,10 @@ from typing import TYPE_CHECKING, Any, TextIO
 
 import pandas as pd
 
+from flatcli.core.chainplan import Plan
 from flatcli.core.model import FlatcliError
 from flatcli.core.optimize import OptimizeResult
-from flatcli.core.planning import FlatPlan, PlanSamples
+from flatcli.core.planning import PlanSamples
 from flatcli.experiment import TrackRun, plan_and_optimization, run_track
 from flatcli.outputs import plan_frame, write_track
 from flatcli.report import (
@@ -163,7 +164,7 @@ class PlanResult(Run):
     command = "plan"
 
     def __init__(self, spec: Spec | None, frame: pd.DataFrame, metrics: Mapping[str, Any],
-                 optimization: Mapping[str, Any] | None = None, plan: FlatPlan | None = None,
+                 optimization: Mapping[str, Any] | None = None, plan: Plan | None = None,
                  samples: PlanSamples | None = None, directory: Path | None = None,
                  record: Mapping[str, Any] | None = None) -> None:
         super().__init__(directory, record)
@@ -202,7 +203,7 @@ class PlanResult(Run):
         write_json(directory / RECORD, record)
         self.files = ["plan.parquet", RECORD]
         if plot and self.samples is not None:
-            model = self.plan.model if self.plan is not None else spec.robot.model
+            model = spec.robot.model
             opt = spec.plan.optimize
             limits = Limits(singular_threshold=spec.track.singular_threshold) if (
                 self.optimization is None) else Limits(

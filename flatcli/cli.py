@@ -23,7 +23,7 @@ import click
 from flatcli import __version__
 
 if TYPE_CHECKING:  # the core loads numba: imported where a command needs it
-    from flatcli.core.model import FlatnessCheck
+    from flatcli.core.model import FlatnessCheck, RobotParams
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -208,21 +208,45 @@ def design(spec: Path | None, sets: tuple[str, ...]) -> None:
         robot = robot_from(s)
         plant = plant_from(s)
     check = flatness_check(robot)
-    k = constraint_coefficients(robot.links, checked(s.robot.model))
-    rows = [[name, float(v)] for name, v in zip(k._fields, k, strict=True)]
-    click.echo(f"robot {s.name!r}, {s.robot.model} coefficients [kg^2 m^2]:")
-    click.echo(table(["coefficient", "value"], rows, 6))
-    click.echo(design_verdict("robot", check))
+    if robot.n_joints == 2:
+        k = constraint_coefficients(robot.links, checked(s.robot.model))
+        rows = [[name, float(v)] for name, v in zip(k._fields, k, strict=True)]
+        click.echo(f"robot {s.name!r}, {s.robot.model} coefficients [kg^2 m^2]:")
+        click.echo(table(["coefficient", "value"], rows, 6))
+    else:
+        click.echo(chain_constants(s.name, robot))
+    click.echo(design_verdict("robot", check, robot.n_joints))
     if plant != robot:
-        click.echo(design_verdict("plant", flatness_check(plant)))
+        click.echo(design_verdict("plant", flatness_check(plant), plant.n_joints))
     sys.exit(0 if check.is_flat else 1)
 
 
-def design_verdict(what: str, check: FlatnessCheck) -> str:
-    """One line: do the paper's flat outputs apply, and if not, is the design still flat."""
-    if check.is_flat:
+def chain_constants(name: str, robot: RobotParams) -> str:
+    """The constants of an N-link robot's momentum: the barycentric matrix K [kg m^2] (H =
+    sum_ab (K_ab cos(psi_a - psi_b) + I_a delta_ab) psi_a' psi_b') and I_N."""
+    from flatcli.core.chainplan import ChainModel
+    from flatcli.report import table
+
+    model = ChainModel.of(robot)
+    n = model.n_joints
+    rows = [[f"K_{a}b", *model.K[a]] for a in range(n + 1)]
+    head = f"robot {name!r}, {n} joints: barycentric matrix K [kg m^2] (row a, column b)"
+    return "\n".join([head, table(["", *(f"b = {b}" for b in range(n + 1))], rows, 6),
+                      f"K_10 = {model.K[1, 0]:.6g} kg m^2, I{n} = {model.inertia[n]:.6g} kg m^2"])
+
+
+def design_verdict(what: str, check: FlatnessCheck, joints: int = 2) -> str:
+    """One line: do the paper's flat outputs (or their N-link generalisation) apply, and if
+    not, is the design still flat."""
+    if check.is_flat and joints == 2:
         return (f"{what}: flat with the paper's outputs (d2 = 0, c0 a1 != 0); singular where "
                 "sin th1 = 0 or th1' = 0")
+    if check.is_flat:
+        return (f"{what}: flat with the outputs y_j = th_j (j < {joints}), y{joints} = th0 + "
+                f"I{joints} th{joints} / h_0(q) (d{joints} = 0, K_10 != 0); singular where "
+                "dh_0/dt = 0")
+    if check.unsupported:
+        return f"{what}: flatcli cannot plan for it: {check.message()}"
     if check.controllable:
         return f"{what}: flat, but the paper's outputs do not apply: {check.message()}"
     return f"{what}: not flat: {check.message()}"

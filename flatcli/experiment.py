@@ -13,7 +13,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from flatcli.core.basis import Basis, BSplineBasis, PolynomialBasis
-from flatcli.core.chainplan import ChainPlan
+from flatcli.core.chain import chain_momentum
+from flatcli.core.chainflat import outputs as chain_outputs
+from flatcli.core.chainloop import ChainGains
+from flatcli.core.chainplan import Plan, plan_chain
 from flatcli.core.control import Gains
 from flatcli.core.flatness import flat_outputs, singularity_margin
 from flatcli.core.metrics import COUNT_METRICS, METRIC_NAMES, describe_status
@@ -27,7 +30,7 @@ from flatcli.core.simulate import (
     Trials,
     simulate,
 )
-from flatcli.spec import Spec
+from flatcli.spec import Spec, SpecError
 
 Array = NDArray[np.float64]
 
@@ -75,16 +78,36 @@ def basis_from(spec: Spec) -> Basis:
     return PolynomialBasis(plan.degree or 3, plan.duration)
 
 
-def plan_and_optimization(spec: Spec) -> tuple[FlatPlan, OptimizeResult | None]:
-    """The reference plan of a spec, and the optimiser's report when it optimised one."""
+def joint_rates(value: float | tuple[float, ...], joints: int) -> Array:
+    """(N - 1,) rates of th_1..th_N-1 [rad/s] from a spec's rate key (one number: all)."""
+    return np.broadcast_to(np.asarray(value, dtype=float), (joints - 1,)).copy()
+
+
+def plan_and_optimization(spec: Spec) -> tuple[Plan, OptimizeResult | None]:
+    """The reference plan of a spec, and the optimiser's report when it optimised one.
+
+    The paper's robot (N = 2) is planned by ``planning`` (``FlatPlan``), a robot of more
+    joints by ``chainplan`` (``ChainPlan``).
+    """
     robot = robot_from(spec)
     p, opt = spec.plan, spec.plan.optimize
     start = np.asarray(p.start)
     goal = np.asarray(p.goal)
     model = checked(spec.robot.model)
+    joints = spec.joints
+    if joints > 2 and model != "derived":
+        raise SpecError(f"robot.model: {model!r} (the appendix as printed) applies to the "
+                        f"paper's robot (2 joints) only; a robot of {joints} joints plans with "
+                        "\"derived\"")
+    start_rate = joint_rates(p.start_rate, joints)
+    goal_rate = joint_rates(p.goal_rate, joints)
     if opt.objective is None:
+        if joints > 2:
+            return plan_chain(robot, start, goal, start_rate, goal_rate, p.duration,
+                              basis_from(spec)), None
         plan = plan_point_to_point(
-            robot, start, goal, p.start_rate, p.goal_rate, p.duration, model, basis_from(spec)
+            robot, start, goal, float(start_rate[0]), float(goal_rate[0]), p.duration, model,
+            basis_from(spec),
         )
         return plan, None
     result = optimize_plan(
@@ -94,29 +117,39 @@ def plan_and_optimization(spec: Spec) -> tuple[FlatPlan, OptimizeResult | None]:
         objective=checked(opt.objective),
         limits=PlanLimits(
             angle_limit=checked(opt.angle_limit),
-            rate_limit=opt.rate_limit,
+            rate_limit=checked(opt.rate_limit),
             min_margin=opt.min_margin,
         ),
         free_rates=opt.free_rates,
-        start_rate=p.start_rate,
-        goal_rate=p.goal_rate,
+        start_rate=checked(float(start_rate[0]) if joints == 2 else start_rate),
+        goal_rate=checked(float(goal_rate[0]) if joints == 2 else goal_rate),
         constraint_samples=opt.constraint_samples,
         max_iter=opt.max_iter,
     )
     return result.plan, result
 
 
-def plan_from(spec: Spec) -> FlatPlan:
+def plan_from(spec: Spec) -> Plan:
     """The reference plan of a spec (optimised when ``plan.optimize.objective`` is set)."""
     return plan_and_optimization(spec)[0]
 
 
-def scenario_from(spec: Spec, plan: FlatPlan) -> Scenario:
+def flat_plan_from(spec: Spec) -> FlatPlan:
+    """``plan_from`` where the paper's robot (N = 2) is required: its analyses (the fold,
+    the actuators, the findings) are about that robot."""
+    plan = plan_from(spec)
+    if not isinstance(plan, FlatPlan):
+        raise SpecError(f"robot.mass: this needs the paper's robot (3 links, 2 joints), got "
+                        f"{spec.joints + 1} links")
+    return plan
+
+
+def scenario_from(spec: Spec, plan: Plan) -> Scenario:
     track = spec.track
     kp, kv = track.kp, track.kv
     return Scenario(
         plan=plan,
-        gains=Gains(kp[0], kp[1], kv[0], kv[1]),
+        gains=Gains(kp[0], kp[1], kv[0], kv[1]) if spec.joints == 2 else ChainGains(kp, kv),
         dt=track.dt,
         rate_limit=track.rate_limit,
         singular_threshold=track.singular_threshold,
@@ -135,22 +168,24 @@ def trial_stream(seed: int, trial: int, slot: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(trial, slot)))
 
 
-def initial_rate(spec: Spec, plan: FlatPlan | ChainPlan) -> float:
-    """u1(0): ``track.initial_rate``, or the plan's own th1'(0) when the spec leaves it out
-    (the optimised plan's chosen rate with ``--optimize``)."""
+def initial_rates(spec: Spec, plan: Plan) -> Array:
+    """(N - 1,) u_j(0) = th_j'(0), j < N [rad/s]: ``track.initial_rate``, or the plan's own
+    rates at t = 0 when the spec leaves it out (the optimised plan's chosen rates with
+    ``--optimize``)."""
+    joints = spec.joints
     if spec.track.initial_rate is not None:
-        return float(spec.track.initial_rate)
-    return float(plan.trajectory.derivative(np.array([0.0]), 1)[0, 0])
+        return joint_rates(spec.track.initial_rate, joints)
+    return np.asarray(plan.trajectory.derivative(np.array([0.0]), 1)[0, :joints - 1], dtype=float)
 
 
-def nominal_trials(spec: Spec, plan: FlatPlan) -> Trials:
+def nominal_trials(spec: Spec, plan: Plan) -> Trials:
     """The single trial a ``track`` spec describes."""
     plant = plant_from(spec)
     track = spec.track
     return Trials(
         links=plant.as_array()[None, :],
         momentum=np.array([spec.plant.momentum]),
-        initial=np.array([[*track.initial, initial_rate(spec, plan)]]),
+        initial=np.array([[*track.initial, *initial_rates(spec, plan)]]),
         noise=NoiseStreams(track.sensor_noise, track.seed, np.array([track.trial])),
         servo=np.array([[spec.plant.servo_bandwidth, spec.plant.torque_limit]]),
     )
@@ -161,7 +196,7 @@ class TrackRun:
     """One closed-loop run: the plan, the scenario, and the recorded outcome."""
 
     spec: Spec
-    plan: FlatPlan
+    plan: Plan
     scenario: Scenario
     outcome: Outcome
 
@@ -192,46 +227,71 @@ class TrackRun:
     @cached_property
     def columns(self) -> dict[str, Array]:
         """Columns of track.parquet: per output sample the state, the plant's rates, y, the
-        references, the margin, H and the joint torques.
+        references, the margin, H and the joint torques (N + 1 angles, N outputs on a robot
+        of N joints).
 
-        ``u2`` is the rate command of joint 2 after the rate limit (on the kinematic plant
-        the rate it turns at); ``momentum`` is H from the plant's full link kinematics at the
-        integrated state with the plant's rates there (``momentum_drift`` is its largest
-        deviation from H0); ``tau1``, ``tau2`` the dynamic plant's joint torques (nan on the
-        kinematic plant). Rows after the last valid sample of a trial that stopped early are
-        nan.
+        ``u1..u(N-1)`` are the controller's states th_j' (j < N); ``uN`` is the rate command
+        of joint N after the rate limit (on the kinematic plant the rate it turns at);
+        ``momentum`` is H from the plant's full link kinematics at the integrated state with
+        the plant's rates there (``momentum_drift`` is its largest deviation from H0);
+        ``tau1..tauN`` the dynamic plant's joint torques (nan on the kinematic plant). Rows
+        after the last valid sample of a trial that stopped early are nan.
         """
         times = self.scenario.times
         trace = self.outcome.trace
         assert trace is not None
         named = {name: trace[0][:, k] for k, name in enumerate(self.outcome.columns)}
+        n = self.spec.joints
         ref = self.plan.sample(times)
-        plant = plant_from(self.spec)
-        theta = [named[f"theta{i}"] for i in range(3)]
-        rates = [named[f"theta{i}_dot"] for i in range(3)]
-        u1 = named["u1"]
-        u2 = named.get("u2", rates[2])
+        theta = np.column_stack([named[f"theta{i}"] for i in range(n + 1)])
+        rates = np.column_stack([named[f"theta{i}_dot"] for i in range(n + 1)])
+        u = np.column_stack([named[f"u{j}"] for j in range(1, n)])
+        command = named.get(f"u{n}", rates[:, n])
         nan = np.full(len(times), np.nan)
-        with np.errstate(all="ignore"):
-            y1, y2, _, _ = flat_outputs(self.plan.coefficients, theta[0], theta[1], theta[2],
-                                        u1)
-            H = momentum(plant.links, *theta, *rates)
+        y, margin, H = self._outputs(theta, rates, u)
         cols: dict[str, Array] = {"t": times}
-        for i in range(3):
-            cols[f"theta{i}"] = theta[i]
-        for i in range(3):
-            cols[f"theta{i}_dot"] = rates[i]
-        for i in range(3):
+        for i in range(n + 1):
+            cols[f"theta{i}"] = theta[:, i]
+        for i in range(n + 1):
+            cols[f"theta{i}_dot"] = rates[:, i]
+        for i in range(n + 1):
             cols[f"theta{i}_ref"] = ref.theta[:, i]
-        cols["u1"] = u1
-        cols["u2"] = u2
-        cols["y1"], cols["y2"] = np.asarray(y1), np.asarray(y2)
-        cols["y1_ref"], cols["y2_ref"] = ref.y[:, 0], ref.y[:, 1]
-        cols["margin"] = np.asarray(singularity_margin(theta[1], u1))
-        cols["momentum"] = np.asarray(H)
-        cols["tau1"] = named.get("tau1", nan)
-        cols["tau2"] = named.get("tau2", nan)
+        for j in range(1, n):
+            cols[f"u{j}"] = u[:, j - 1]
+        cols[f"u{n}"] = command
+        for j in range(n):
+            cols[f"y{j + 1}"] = y[:, j]
+        for j in range(n):
+            cols[f"y{j + 1}_ref"] = ref.y[:, j]
+        cols["margin"] = margin
+        cols["momentum"] = H
+        for j in range(1, n + 1):
+            cols[f"tau{j}"] = named.get(f"tau{j}", nan)
         return cols
+
+    def _outputs(self, theta: Array, rates: Array, u: Array) -> tuple[Array, Array, Array]:
+        """y (n, N) of the true state with the controller's flat map, the controller's
+        margin (n,) and the plant's H (n,) from its full link kinematics."""
+        plant = plant_from(self.spec)
+        plan = self.plan
+        with np.errstate(all="ignore"):
+            if isinstance(plan, FlatPlan):
+                y1, y2, _, _ = flat_outputs(plan.coefficients, theta[:, 0], theta[:, 1],
+                                            theta[:, 2], u[:, 0])
+                margin = singularity_margin(theta[:, 1], u[:, 0])
+                H = momentum(plant.links, *theta.T, *rates.T)
+                return np.column_stack([y1, y2]), np.asarray(margin), np.asarray(H)
+            n = plan.n_joints
+            y = np.full((len(theta), n), np.nan)
+            margin = np.full(len(theta), np.nan)
+            y_dot = np.empty(n)
+            for k in range(len(theta)):
+                if np.isfinite(theta[k]).all() and np.isfinite(u[k]).all():
+                    margin[k] = abs(chain_outputs(plan.model.K, plan.model.inertia, theta[k],
+                                                  u[k], y[k], y_dot))
+            p = plant.as_array().reshape(4, n + 1)
+            H = chain_momentum(p[0], p[1], p[2], p[3], theta, rates)
+        return y, margin, np.asarray(H)
 
 
 def run_track(spec: Spec) -> TrackRun:

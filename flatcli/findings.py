@@ -16,8 +16,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from flatcli.core.chainplan import Plan
 from flatcli.core.metrics import RESOLVED, Metric, Status
-from flatcli.core.planning import FlatPlan
 from flatcli.experiment import TrackRun, plan_and_optimization, run_track
 from flatcli.report import cell_text, fmt, table
 from flatcli.spec import Spec
@@ -66,7 +66,7 @@ class TrackedPlan:
     """A plan tracked from the paper's initial state with both gain readings."""
 
     label: str
-    plan: FlatPlan
+    plan: Plan
     runs: Mapping[str, TrackRun]
 
 

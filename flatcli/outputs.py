@@ -23,17 +23,20 @@ from flatcli.units import units_of
 
 
 def plan_frame(samples: PlanSamples) -> pd.DataFrame:
-    """plan.parquet's rows: angles, rates, inputs, flat outputs, margin and H per sample."""
+    """plan.parquet's rows: angles, rates, inputs, flat outputs, margin and H per sample
+    (th0..thN, u1'..u(N-1)' and uN = thN', y1..yN on a robot of N joints)."""
+    n = samples.theta.shape[-1] - 1  # N joints
     frame = pd.DataFrame({"t": samples.t})
-    for i in range(3):
+    for i in range(n + 1):
         frame[f"theta{i}"] = samples.theta[:, i]
-    for i in range(3):
+    for i in range(n + 1):
         frame[f"theta{i}_dot"] = samples.theta_dot[:, i]
-    frame["u1_dot"] = samples.u1_dot
-    frame["u2"] = samples.u2
+    for j in range(1, n):
+        frame[f"u{j}_dot"] = samples.u_dot[:, j - 1]
+    frame[f"u{n}"] = samples.theta_dot[:, n]
     for name, arr in (("", samples.y), ("_dot", samples.y_dot), ("_ddot", samples.y_ddot)):
-        frame[f"y1{name}"] = arr[:, 0]
-        frame[f"y2{name}"] = arr[:, 1]
+        for j in range(n):
+            frame[f"y{j + 1}{name}"] = arr[:, j]
     frame["margin"] = samples.margin
     frame["momentum"] = samples.momentum
     frame.attrs["units"] = units_of(frame.columns)

@@ -19,10 +19,17 @@ import pandas as pd
 
 from flatcli import __version__
 from flatcli.actuators import actuators_section
+from flatcli.core.chainplan import Plan
 from flatcli.core.model import constraint_coefficients
 from flatcli.core.optimize import required_fold
-from flatcli.core.planning import FlatPlan, PlanSamples
-from flatcli.experiment import TrackRun, plan_and_optimization, plan_from, run_track
+from flatcli.core.planning import PlanSamples
+from flatcli.experiment import (
+    TrackRun,
+    flat_plan_from,
+    plan_and_optimization,
+    plan_from,
+    run_track,
+)
 from flatcli.findings import (
     GAIN_READINGS,
     gains_verdict,
@@ -61,7 +68,7 @@ COMPARED_MODELS = ("paper", "derived")
 class Reproduction:
     """Everything REPORT.md is written from."""
 
-    plans: dict[str, tuple[FlatPlan, PlanSamples]]
+    plans: dict[str, tuple[Plan, PlanSamples]]
     tracks: dict[tuple[str, str], TrackRun]
     sections: list[str]
 
@@ -71,7 +78,7 @@ def _say(quiet: bool, text: str) -> None:
         print(text, flush=True)
 
 
-def plan_figures(plans: dict[str, tuple[FlatPlan, PlanSamples]], out: Path) -> None:
+def plan_figures(plans: dict[str, tuple[Plan, PlanSamples]], out: Path) -> None:
     """Fig. 2 (flat outputs) and Fig. 3 (angles) for both coefficient sets."""
     styles = {"derived": "-", "paper": "--"}
     fig = new_figure(8, 4.5)
@@ -117,7 +124,7 @@ def _errors_at(run: TrackRun, times: tuple[float, ...]) -> list[tuple[float, flo
 
 def run_paper(base: Spec, out: Path, quiet: bool) -> Reproduction:
     """Plans and closed-loop runs of the paper's example under both models and gains."""
-    plans: dict[str, tuple[FlatPlan, PlanSamples]] = {}
+    plans: dict[str, tuple[Plan, PlanSamples]] = {}
     for model in COMPARED_MODELS:
         spec = base.with_overrides({"robot.model": model})
         plan = plan_from(spec)
@@ -239,8 +246,8 @@ def optimized_plans_section(base: Spec, out: Path) -> list[str]:
     rows: list[list[Any]] = []
     curves: list[tuple[str, PlanSamples]] = []
     fine = 4001
-    cubic = plan_from(base)
-    entries: list[tuple[str, FlatPlan, str]] = [("paper's cubic, th1' = 0.1, 0.5", cubic, "-")]
+    cubic = flat_plan_from(base)
+    entries: list[tuple[str, Plan, str]] = [("paper's cubic, th1' = 0.1, 0.5", cubic, "-")]
     for label, overrides in OPTIMIZED_PLANS:
         plan, result = plan_and_optimization(base.with_overrides(overrides))
         assert result is not None

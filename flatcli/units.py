@@ -14,6 +14,7 @@ when the perturbation is relative.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterable
 
 from flatcli.core.metrics import STATUS_NAMES
@@ -74,6 +75,18 @@ UNITS: dict[str, str] = {
     **{status: DIMENSIONLESS for status in STATUS_NAMES},
 }
 
+#: The unit of the indexed columns of a robot of any N joints, by their name with the index
+#: written ``#`` (theta3, u2_dot, y4_ref, tau5, mass_6, initial_rate_2, ...).
+INDEXED_UNITS: dict[str, str] = {
+    "theta#": _ANGLE, "theta#_dot": _RATE, "theta#_ref": _ANGLE,
+    "u#": _RATE, "u#_dot": _ACCEL,
+    "y#": _ANGLE, "y#_dot": _RATE, "y#_ddot": _ACCEL, "y#_ref": _ANGLE,
+    "tau#": _TORQUE,
+    "initial_#": _ANGLE, "initial_rate_#": _RATE,
+    "mass_#": "kg", "inertia_#": "kg m^2", "length_#": "m", "com_#": "m",
+}
+_INDEX = re.compile(r"(?<=[a-z_])\d+")
+
 #: Suffixes of summary.parquet's statistics of a metric (in the metric's unit).
 STATISTICS = ("_median", "_p95", "_max")
 #: Suffixes of summary.parquet's fractions and their confidence bounds (dimensionless).
@@ -87,6 +100,9 @@ def unit_of(column: str, spec: Spec | None = None) -> str | None:
     """
     if column in UNITS:
         return UNITS[column]
+    indexed = _INDEX.sub("#", column, count=1)
+    if indexed in INDEXED_UNITS:
+        return INDEXED_UNITS[indexed]
     for suffix in FRACTIONS:
         if column.endswith(suffix):
             return DIMENSIONLESS
@@ -112,7 +128,7 @@ def spec_key_unit(dotted: str, spec: Spec | None = None) -> str | None:
         key = lookup(dotted)
     except SpecError:
         return None
-    if key.kind not in ("float", "int", "vector"):
+    if key.kind not in ("float", "int", "vector", "numbers"):
         return None
     return key.unit or DIMENSIONLESS
 

@@ -171,12 +171,27 @@ def test_design_reports_flatness(tmp_path: Path) -> None:
     assert code == 1 and "robot: not flat" in out and "l0 - d0 = 0" in out
 
 
+def test_design_of_a_longer_chain_prints_its_barycentric_matrix() -> None:
+    links = ["--set", "robot.mass=[2,1,1,0.6]", "--set", "robot.inertia=[0.08,0.03,0.03,0.2]",
+             "--set", "robot.length=[0.3,0.25,0.25,0.25]", "--set", "plan.start=[0,1,0.3,0]",
+             "--set", "plan.goal=[0.4,2,0.6,0]", "--set", "track.initial=[0,1,0.3,0]",
+             "--set", "track.kp=[1,1,1]", "--set", "track.kv=[2,2,2]"]
+    code, out = run("design", *links, "--set", "robot.com=[0.12,0.1,0.1,0]")
+    assert code == 0 and "3 joints: barycentric matrix K" in out
+    assert "robot: flat with the outputs y_j = th_j (j < 3), y3 = th0 + I3 th3 / h_0(q)" in out
+    # K_10 = m0 (l0 - d0)(m1 d1 + (m2 + m3) l1) / M = 2 (0.18)(0.1 + 0.4) / 4.6, by hand
+    assert f"K_10 = {2 * 0.18 * 0.5 / 4.6:.6g} kg m^2" in out
+    code, out = run("design", *links, "--set", "robot.com=[0.12,0.1,0.1,0.01]")
+    assert code == 1 and "robot: flat, but the paper's outputs do not apply: com[3]" in out
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [
         (["plan", "--set", "plan.duraton=3"], "unknown key 'plan.duraton' (did you mean "
                                               "'plan.duration'?)"),
-        (["plan", "--set", "track.kp=[1,2,3]"], "track.kp: expected a list of 2 numbers"),
+        (["plan", "--set", "track.kp=[1,2,3]"],
+         "track.kp: expected 2 numbers (one per joint 1..N) for a robot of 2 joints"),
         (["track", "--set", "robot.mass=[1,-1,1]"], "robot.mass[1]: must be > 0 kg"),
         (["plan", "--set", "robot.com=[0.1,0.1,0.003]"], "the paper's flat outputs do not "
                                                          "apply: com[2] = d2 = 0.003 m"),

@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 from sympy import QQ
 from sympy.polys.rings import PolyElement, PolyRing, ring
 
+from flatcli.core.chain import barycentric_matrix
 from flatcli.core.model import (
     MODELS,
     PAPER_ROBOT,
@@ -396,6 +397,24 @@ def test_flatness_check_reports_every_failing_condition() -> None:
     assert len(flatness_check(robot).failures) == 3
     for named in ("d2", "l0 - d0", "m1 d1 + m2 l1"):
         assert named in message
+
+
+def test_a_longer_chain_with_k10_zero_is_unsupported_not_uncontrollable() -> None:
+    """N = 3 with l0 = d0: every K_0b vanishes (the base's centre of mass on joint 1: its
+    offset from the system's does not move with the arm, G_i0 = 0 in K = G^T diag(m) G),
+    but K_12 does not, so h_0 still varies with th2: flatcli says it cannot plan for the
+    design, not that the robot is uncontrollable."""
+    robot = RobotParams(mass=(2, 1, 1, 0.6), inertia=(0.08, 0.03, 0.03, 0.2),
+                        length=(0.3, 0.25, 0.25, 0.25), com=(0.3, 0.1, 0.1, 0.0))
+    K = barycentric_matrix(*(np.asarray(v, dtype=float) for v in
+                             (robot.mass, robot.length, robot.com)))
+    assert np.all(K[0] == 0) and K[1, 2] != 0
+    check = flatness_check(robot)
+    assert check.unsupported and check.controllable and not check.is_flat
+    assert "l0 = d0 makes K_10" in check.message() and "through th2)" in check.message()
+    with pytest.raises(FlatcliError, match=r"^flatcli cannot plan for this design: l0 = d0"):
+        require_flat(robot)
+    assert flatness_check(robot.with_(com=(0.12, 0.1, 0.1, 0.0))).is_flat
 
 
 @pytest.mark.parametrize(

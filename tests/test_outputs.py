@@ -5,11 +5,15 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
+import pytest
 
+from flatcli.core.dynamics import chain_momentum as dynamics_momentum
+from flatcli.core.dynamics import make_chain
 from flatcli.experiment import plan_from, run_track
 from flatcli.outputs import plan_frame, track_frame, write_track
 from flatcli.spec import resolve
@@ -100,3 +104,53 @@ def test_dynamic_track_table(tmp_path: Path) -> None:
     assert not frame_is_kinematic(frame)
     assert run.metrics["peak_torque"] == max(frame["tau1"].abs().max(),
                                              frame["tau2"].abs().max())
+
+
+#: A robot of three joints (base + 3 links, d3 = 0) and a maneuver for it.
+THREE_JOINTS = {
+    "robot": {"mass": [2.0, 1.0, 1.0, 0.6], "inertia": [0.08, 0.03, 0.03, 0.2],
+              "length": [0.3, 0.25, 0.25, 0.25], "com": [0.12, 0.1, 0.1, 0.0]},
+    "plan": {"start": [0.0, 1.0, 0.3, 0.0], "goal": [0.4, 2.0, 0.6, 0.0], "start_rate": 0.3,
+             "goal_rate": 0.5},
+    "track": {"initial": [0.05, 0.95, 0.32, 0.02], "kp": [100.0] * 3, "kv": [20.0] * 3,
+              "dt": 0.01},
+}
+
+
+def test_a_robot_of_three_joints_has_a_column_per_link_and_output(tmp_path: Path) -> None:
+    spec = resolve(THREE_JOINTS)
+    plan = plan_from(spec)
+    samples = plan.sample(plan.grid(11))
+    frame = plan_frame(samples)
+    assert list(frame.columns) == [
+        "t", "theta0", "theta1", "theta2", "theta3", "theta0_dot", "theta1_dot", "theta2_dot",
+        "theta3_dot", "u1_dot", "u2_dot", "u3", "y1", "y2", "y3", "y1_dot", "y2_dot", "y3_dot",
+        "y1_ddot", "y2_ddot", "y3_ddot", "margin", "momentum"]
+    assert frame["u3"].tolist() == frame["theta3_dot"].tolist()  # the last joint's input
+    run = run_track(spec)
+    assert run.metrics["status"] == "ok"
+    write_track(tmp_path, run, {"command": "test"})
+    track = pd.read_parquet(tmp_path / "track.parquet")
+    assert list(track.columns) == [
+        "t", "theta0", "theta1", "theta2", "theta3", "theta0_dot", "theta1_dot", "theta2_dot",
+        "theta3_dot", "theta0_ref", "theta1_ref", "theta2_ref", "theta3_ref", "u1", "u2", "u3",
+        "y1", "y2", "y3", "y1_ref", "y2_ref", "y3_ref", "margin", "momentum", "tau1", "tau2",
+        "tau3"]
+    units = column_units(tmp_path / "track.parquet")
+    assert set(units) == set(track.columns)
+    assert units["theta3"] == "rad" and units["u2"] == "rad/s" and units["tau3"] == "N m"
+    # H of the plant by another route: the mass matrix of the Lagrangian dynamics,
+    # H = (M(q) q')_0 (flatcli/core/dynamics.py), not the link kinematics the table used
+    chain = make_chain(*(THREE_JOINTS["robot"][k] for k in ("mass", "inertia", "length", "com")))
+    theta = track[[f"theta{i}" for i in range(4)]].to_numpy()
+    rates = track[[f"theta{i}_dot" for i in range(4)]].to_numpy()
+    np.testing.assert_allclose(track["momentum"], dynamics_momentum(chain, theta, rates),
+                               rtol=0, atol=1e-12)
+    # y = (th1, th2, th0 + I3 th3 / h0(q)) of the true state: the first two are the angles,
+    # and the flat outputs converge to the plan's (err_y_final)
+    assert track["y1"].tolist() == track["theta1"].tolist()
+    assert track["y2"].tolist() == track["theta2"].tolist()
+    last = track.iloc[-1]
+    error = np.sqrt(sum((last[f"y{j}"] - last[f"y{j}_ref"]) ** 2 for j in (1, 2, 3)))
+    assert error == pytest.approx(run.metrics["err_y_final"], rel=1e-9)
+    assert error < 1e-6

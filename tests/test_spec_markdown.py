@@ -32,7 +32,7 @@ def test_each_key_is_one_row_with_default_unit_and_bounds() -> None:
     rows = section_table("robot").splitlines()
     assert rows[0] == "| key | default | unit | allowed | meaning |"
     assert len(rows) == 2 + len(SCHEMA["robot"])
-    assert rows[2].startswith("| `mass` | [1, 1, 1] | kg | > 0 |")
+    assert rows[2].startswith("| `mass` | [1, 1, 1] | kg | N + 1 numbers, each > 0 |")
     assert "| `model` | \"derived\" |  | \"derived\", \"paper\" |" in section_table("robot")
     assert "| inf | rad/s | > 0 (inf: no limit) |" in section_table("track")
 

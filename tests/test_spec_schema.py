@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+import re
 from dataclasses import fields
 
 import pytest
@@ -9,7 +11,7 @@ import pytest
 from flatcli.core.model import MODELS
 from flatcli.core.optimize import OBJECTIVES
 from flatcli.core.simulate import INTEGRATORS
-from flatcli.spec import LINKS, SCHEMA, SECTIONS, Spec, SpecError, all_keys, lookup, resolve
+from flatcli.spec import GAINS, LINKS, SCHEMA, SECTIONS, Spec, SpecError, all_keys, lookup, resolve
 
 
 def test_sections_are_the_toml_tables() -> None:
@@ -32,9 +34,63 @@ def test_choices_come_from_the_core() -> None:
     assert lookup("track.integrator").choices == INTEGRATORS
 
 
-def test_per_link_vectors_hold_links_numbers() -> None:
-    for dotted in ("robot.mass", "robot.com", "plan.start", "track.initial", "plant.com"):
-        assert lookup(dotted).length == LINKS
+def test_per_link_vectors_follow_the_robot() -> None:
+    for dotted in ("robot.mass", "robot.com", "plan.start", "track.initial", "plant.com",
+                   "plan.optimize.angle_limit"):
+        key = lookup(dotted)
+        assert key.size == "links" and len(key.default or (0.0,) * LINKS) == LINKS
+    assert lookup("track.kp").size == lookup("track.kv").size == "joints"
+    assert len(lookup("track.kp").default) == GAINS
+    for dotted in ("plan.start_rate", "plan.goal_rate", "track.initial_rate"):
+        assert lookup(dotted).size == "inner" and lookup(dotted).kind == "numbers"
+
+
+FOUR_LINKS = {
+    "robot": {"mass": [2.0, 1.0, 1.0, 0.6], "inertia": [0.08, 0.03, 0.03, 0.2],
+              "length": [0.3, 0.25, 0.25, 0.25], "com": [0.12, 0.1, 0.1, 0.0]},
+    "plan": {"start": [0, 1, 0.3, 0], "goal": [0.4, 2, 0.6, 0]},
+    "track": {"initial": [0, 1, 0.3, 0], "kp": [1, 2, 3], "kv": [4, 5, 6]},
+}
+
+
+def test_a_robot_of_three_joints_sizes_every_per_link_key() -> None:
+    spec = resolve(FOUR_LINKS)
+    assert spec.joints == 3
+    assert spec.plan.optimize.angle_limit == (math.inf,) * 4  # a uniform default follows N
+    assert spec.plan.start_rate == 0.1  # one number: every joint 1..N-1
+    spec = resolve(FOUR_LINKS, {"plan.start_rate": [0.2, 0.3], "track.initial_rate": 0.1})
+    assert spec.plan.start_rate == (0.2, 0.3) and spec.track.initial_rate == 0.1
+    # a scalar stays a float (not a 1-list): the JSON, hence the digest, of every existing
+    # spec is what it was, so their sweep directories still resume
+    assert '"start_rate":0.1}' in resolve({}).to_json()
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        ({"plan.start": [0, 1, 0]}, "plan.start: expected 4 numbers (one per link 0..N) for "
+                                    "a robot of 3 joints (robot.mass has 4 links), got 3"),
+        ({"track.kp": [1, 2]}, "track.kp: expected 3 numbers (one per joint 1..N)"),
+        ({"plan.goal_rate": [0.1, 0.2, 0.3]},
+         "plan.goal_rate: expected 2 numbers (one per joint 1..N-1)"),
+        ({"robot.com": [0.1, 0.1, 0.0]}, "robot.com: expected 4 numbers"),
+        ({"plant.inertia": [1, 1, 1, 1, 1]}, "plant.inertia: expected 4 numbers"),
+        ({"plan.optimize.angle_limit": [1, 1, 1]}, "plan.optimize.angle_limit: expected 4"),
+        ({"track.initial_rate": []}, "track.initial_rate: expected a number or a list of "
+                                     "N - 1 numbers"),
+    ],
+)
+def test_a_key_of_the_wrong_length_is_refused_naming_it(overrides: dict[str, object],
+                                                        message: str) -> None:
+    with pytest.raises(SpecError, match="^" + re.escape(message)):
+        resolve(FOUR_LINKS, overrides)
+
+
+def test_a_default_of_the_papers_robot_must_be_set_for_another() -> None:
+    user = {"robot": FOUR_LINKS["robot"], "plan": FOUR_LINKS["plan"]}
+    with pytest.raises(SpecError, match=r"^track.initial: expected 4 numbers .* got 3 \(the "
+                                        r"default is the paper's robot's: set it\)$"):
+        resolve(user)
 
 
 def test_tree_mirrors_the_records_and_values_the_keys() -> None:

@@ -149,3 +149,49 @@ def test_grid_columns_hold_what_each_cell_ran_with() -> None:
     assert last["track.kp"][1] == [10.0, 13.0] and last["track.kv"][1] == [3.0, 4.0]
     assert first["track.rate_limit"] == (pa.float64(), 5.0)
     assert last["track.rate_limit"] == (pa.float64(), float("inf"))  # inf: no limit
+
+
+def test_a_chunk_of_a_three_joint_robot_perturbs_every_link() -> None:
+    """N = 3: four links perturbed, two initial rates, columns named by link and joint; a
+    drawn mass <= 0 is an error naming its link; the others run."""
+    spec = resolve({
+        "robot": {"mass": [2.0, 1.0, 1.0, 0.6], "inertia": [0.08, 0.03, 0.03, 0.2],
+                  "length": [0.3, 0.25, 0.25, 0.25], "com": [0.12, 0.1, 0.1, 0.0]},
+        "plan": {"start": [0.0, 1.0, 0.3, 0.0], "goal": [0.4, 2.0, 0.6, 0.0],
+                 "start_rate": [0.3, 0.3], "goal_rate": 0.5},
+        "track": {"initial": [0.0, 1.0, 0.3, 0.0], "kp": [100.0] * 3, "kv": [20.0] * 3,
+                  "dt": 0.01},
+        "sweep": {"trials": 8, "seed": 5, "perturb": {
+            "initial": {"dist": "normal", "std": 0.01},
+            "initial_rate": {"dist": "uniform", "low": -0.02, "high": [0.02, 0.0]},
+            "mass": {"dist": "uniform", "low": [0, 0, 0, -1.5], "high": [0, 0, 0, 0.2]}}}})
+    frame = run_chunk(layout(spec).cells[0], Chunk(0, 0, 8)).table.to_pandas()
+    assert {f"initial_{i}" for i in range(4)} <= set(frame.columns)
+    assert {"initial_rate_1", "initial_rate_2", "mass_3"} <= set(frame.columns)
+    assert "initial_rate" not in frame.columns and "initial_4" not in frame.columns
+    assert frame["initial_rate_2"].between(0.3 - 0.02, 0.3).all()  # plan.start_rate + draw
+    assert (frame["mass_0"] == 2.0).all()  # a zero-width draw leaves link 0 as it is
+    bad = frame["mass_3"] <= 0
+    assert bad.any() and (~bad).any()
+    assert frame.loc[bad, "reason"].str.startswith("plant.mass[3]: must be > 0 kg").all()
+    assert (frame.loc[~bad, "status"] != "error").all()  # simulated (a light link diverges)
+    assert frame.loc[frame["status"] == "ok", "err_y_final"].notna().all()
+
+
+def test_a_grid_of_end_rates_is_a_number_column_or_a_list_column() -> None:
+    """plan.goal_rate takes a number or one per inner joint: a grid of numbers stays float64
+    (as before N links), a grid holding a list is list<float64> with a number spread over the
+    joints, as the spec itself reads it."""
+    numbers = resolve({"sweep": {"grid": {"plan.goal_rate": [0.4, 0.6]}}})
+    cells = layout(numbers).cells
+    assert [grid_columns(c.values, c.spec)["plan.goal_rate"] for c in cells] == [
+        (pa.float64(), 0.4), (pa.float64(), 0.6)]
+    mixed = resolve({
+        "robot": {"mass": [2.0, 1.0, 1.0, 0.6], "inertia": [0.08, 0.03, 0.03, 0.2],
+                  "length": [0.3, 0.25, 0.25, 0.25], "com": [0.12, 0.1, 0.1, 0.0]},
+        "plan": {"start": [0.0, 1.0, 0.3, 0.0], "goal": [0.4, 2.0, 0.6, 0.0]},
+        "track": {"initial": [0.0, 1.0, 0.3, 0.0], "kp": [100.0] * 3, "kv": [20.0] * 3},
+        "sweep": {"grid": {"plan.goal_rate": [0.5, [0.4, 0.6]]}}})
+    cells = layout(mixed).cells
+    assert [grid_columns(c.values, c.spec)["plan.goal_rate"] for c in cells] == [
+        (pa.list_(pa.float64()), [0.5, 0.5]), (pa.list_(pa.float64()), [0.4, 0.6])]

@@ -8,7 +8,13 @@ from scipy.special import ndtri
 from flatcli.experiment import plan_from
 from flatcli.spec import perturbations, resolve
 from flatcli.sweep import N_VARIATES, PERTURB_SLOTS, draw_perturbations, nominal_values
-from flatcli.sweep.draws import invalid_plants, invalid_servos
+from flatcli.sweep.draws import (
+    invalid_plants,
+    invalid_servos,
+    perturb_slots,
+    perturbation_columns,
+    variates,
+)
 
 
 def test_perturbation_draws_are_independent_of_each_other_and_well_distributed() -> None:
@@ -84,3 +90,18 @@ def test_an_invalid_plant_gets_the_message_of_its_spec_key() -> None:
         "plant.length[1]: must be > 0 m, got 0",
         "plant.com[1]: expected a finite number [m], got nan",
     ]
+
+
+def test_a_robot_of_n_joints_lays_out_its_own_variates() -> None:
+    """The README's rule for N joints: the quantities in order, N + 1 per link quantity,
+    N - 1 initial rates; for N = 2 it is PERTURB_SLOTS."""
+    assert perturb_slots(2) == PERTURB_SLOTS and variates(2) == N_VARIATES
+    slots = perturb_slots(4)
+    assert slots["initial"] == (0, 1, 2, 3, 4) and slots["initial_rate"] == (5, 6, 7)
+    assert slots["mass"] == (8, 9, 10, 11, 12) and slots["com"] == (23, 24, 25, 26, 27)
+    assert slots["momentum"] == (28,) and slots["torque_limit"] == (30,)
+    assert variates(4) == 31 == 4 * 5 + 5 + 3 + 3
+    assert perturbation_columns("initial_rate", 4) == ["initial_rate_1", "initial_rate_2",
+                                                       "initial_rate_3"]
+    assert perturbation_columns("initial_rate") == ["initial_rate"]
+    assert perturbation_columns("length", 4)[-1] == "length_4"

@@ -31,6 +31,7 @@ from flatcli.core.planning import (
     ENERGY_ORDER,
     ENERGY_PIECES,
     Boundary,
+    FlatPlan,
     FlatTrajectory,
     PlanSamples,
     min_acceleration_trajectory,
@@ -196,6 +197,10 @@ class ChainPlan:
                     zeros.append(float(found.x))
         inside = [z for z in zeros if 0.0 < z < self.duration]
         return np.unique(np.round(np.asarray(inside, dtype=float), 12))
+
+
+#: A planned maneuver: the paper's robot's (``planning.FlatPlan``) or an N-link chain's.
+Plan = FlatPlan | ChainPlan
 
 
 def plan_chain(

@@ -360,6 +360,8 @@ class FlatnessCheck:
 
     failures: tuple[str, ...]
     controllable: bool = True
+    #: N >= 3 only: the outputs may be flat, but flatcli's planner cannot use them (K_10 = 0)
+    unsupported: bool = False
 
     @property
     def is_flat(self) -> bool:
@@ -377,10 +379,13 @@ def flatness_check(params: RobotParams) -> FlatnessCheck:
     The conditions (Franch et al. 2003, Sec. V, with "!=" where the extracted text has "="):
     d2 = 0 (link 2's centre of mass on joint 2), and c0 a1 != 0, i.e. I2 != 0, m0 != 0,
     l0 != d0 and m1 d1 + m2 l1 != 0, since det[g1, g2, [g1, g2]] = c0 a1 sin th1 / A^2.
-    For N links: d_N = 0, I_N != 0, and K_10 = m0 (l0 - d0)(m1 d1 + (m2 + ... + mN) l1) / M
-    != 0 (for N = 2, a1 = 2 M K_10), which makes the base's locked inertia h_0 vary with th1
-    (``chainflat``). I_N > 0 and m0 > 0 hold for every valid RobotParams, so only the others
-    can fail here.
+    For N links: d_N = 0, I_N != 0, and the base's locked inertia h_0(q) not constant (the
+    outputs are flat where dh_0/dt != 0, ``chainflat``). flatcli's N-link planner scales the
+    margin by K_10 = m0 (l0 - d0)(m1 d1 + (m2 + ... + mN) l1) / M and needs K_10 != 0 (for
+    N = 2, a1 = 2 M K_10, and K_10 = 0 is the loss of controllability above). For N >= 3 a
+    design with K_10 = 0 may still be flat through K_ab (1 <= a < b < N), so it is reported
+    ``unsupported``, not uncontrollable. I_N > 0 and m0 > 0 hold for every valid RobotParams,
+    so only the others can fail here.
     """
     n = params.n_joints
     mass, length, com = params.mass, params.length, params.com
@@ -389,7 +394,6 @@ def flatness_check(params: RobotParams) -> FlatnessCheck:
     arm = mass[1] * d1 + sum(mass[2:]) * l1
     scale = max(length)
     failures = []
-    controllable = True
     if abs(d_last) > DESIGN_ZERO_TOL * scale:
         outputs = ("y1 = th1, y2 = th0 - c0 th2/(a0 + a1 cos th1)" if n == 2 else
                    f"y_j = th_j (j < {n}), y{n} = th0 + I{n} th{n} / h_0")
@@ -400,21 +404,24 @@ def flatness_check(params: RobotParams) -> FlatnessCheck:
             "with outputs not known in closed form; flatcli plans with the paper's outputs "
             "only)"
         )
-    if abs(l0 - d0) <= DESIGN_ZERO_TOL * scale:
-        controllable = False
-        what = "a1 = 0, so det[g1, g2, [g1, g2]] = c0 a1 sin th1 / A^2 vanishes" if n == 2 else (
-            "K_10 = 0, so the base's locked inertia h_0 does not vary with th1")
-        failures.append(f"length[0] = com[0] = {l0:g} m: l0 - d0 = 0 makes {what} "
+    zero_offset = abs(l0 - d0) <= DESIGN_ZERO_TOL * scale
+    zero_arm = abs(arm) <= DESIGN_ZERO_TOL * max(mass) * scale
+    if n > 2 and (zero_offset or zero_arm):
+        why = "l0 = d0" if zero_offset else f"m1 d1 + (m2 + ... + m{n}) l1 = 0"
+        failures.append(
+            f"{why} makes K_10 = m0 (l0 - d0)(m1 d1 + (m2 + ... + m{n}) l1) / M = 0: h_0 does "
+            f"not vary with th1, and flatcli's {n}-link planner, which scales the singularity "
+            "margin by K_10, cannot plan for it (the outputs may still be flat through "
+            f"{'th2' if n == 3 else f'th2..th{n - 1}'})"
+        )
+        return FlatnessCheck(tuple(failures), True, unsupported=True)
+    if zero_offset:
+        failures.append(f"length[0] = com[0] = {l0:g} m: l0 - d0 = 0 makes a1 = 0, so "
+                        "det[g1, g2, [g1, g2]] = c0 a1 sin th1 / A^2 vanishes (not controllable)")
+    if zero_arm:
+        failures.append("m1 d1 + m2 l1 = 0 makes a1 = 0, so det[g1, g2, [g1, g2]] vanishes "
                         "(not controllable)")
-    if abs(arm) <= DESIGN_ZERO_TOL * max(mass) * scale:
-        controllable = False
-        if n == 2:
-            failures.append("m1 d1 + m2 l1 = 0 makes a1 = 0, so det[g1, g2, [g1, g2]] vanishes "
-                            "(not controllable)")
-        else:
-            failures.append(f"m1 d1 + (m2 + ... + m{n}) l1 = 0 makes K_10 = 0, so the base's "
-                            "locked inertia h_0 does not vary with th1 (not controllable)")
-    return FlatnessCheck(tuple(failures), controllable)
+    return FlatnessCheck(tuple(failures), not (zero_offset or zero_arm))
 
 
 def require_flat(params: RobotParams) -> None:
@@ -422,6 +429,7 @@ def require_flat(params: RobotParams) -> None:
     apply to the design (flatcli plans with them only)."""
     check = flatness_check(params)
     if not check.is_flat:
-        what = ("the paper's flat outputs do not apply" if check.controllable
+        what = ("flatcli cannot plan for this design" if check.unsupported
+                else "the paper's flat outputs do not apply" if check.controllable
                 else "robot is not differentially flat")
         raise FlatcliError(f"{what}: {check.message()}")

@@ -57,7 +57,8 @@ class Limits:
 
     singular_threshold: float | None = None  # track.singular_threshold [rad/s]
     min_margin: float | None = None  # plan.optimize.min_margin [rad/s]
-    rate_limit: float | None = None  # track.rate_limit or plan.optimize.rate_limit [rad/s]
+    #: track.rate_limit, or plan.optimize.rate_limit (one for every joint or one per joint)
+    rate_limit: float | Sequence[float] | None = None  # [rad/s]
     angle_limit: Sequence[float] | None = None  # plan.optimize.angle_limit, per angle [rad]
 
 
@@ -91,10 +92,12 @@ def plan_figure(samples: PlanSamples, limits: Limits | None = None) -> Figure:
     fig = new_figure(14, 7.5)
     ax = fig.subplots(2, 3, sharex=True)
     t = samples.t
-    ax[0, 0].plot(t, samples.y[:, 0], label="y1 = th1")
-    ax[0, 0].plot(t, samples.y[:, 1], label="y2")
+    n = samples.y.shape[1]  # N joints
+    for j in range(n):
+        ax[0, 0].plot(t, samples.y[:, j], label=f"y{j + 1} = th{j + 1}" if j < n - 1
+                      else f"y{n}")
     ax[0, 0].set_ylabel("flat outputs [rad]")
-    for i in range(3):
+    for i in range(n + 1):
         ax[0, 1].plot(t, samples.theta[:, i], color=f"C{i}", label=f"th{i}")
         ax[0, 2].plot(t, samples.theta_dot[:, i], color=f"C{i}", label=f"th{i}'")
         bound = None if lim.angle_limit is None else lim.angle_limit[i]
@@ -102,19 +105,36 @@ def plan_figure(samples: PlanSamples, limits: Limits | None = None) -> Figure:
             ax[0, 1].axhline(bound, ls="--", lw=1.1, color=f"C{i}",
                              label=f"plan.optimize.angle_limit[{i}] = +-{bound:g} rad")
             ax[0, 1].axhline(-bound, ls="--", lw=1.1, color=f"C{i}")
-    limit_line(ax[0, 2], lim.rate_limit, "plan.optimize.rate_limit", "rad/s", symmetric=True)
+    if isinstance(lim.rate_limit, Sequence):
+        for j, bound in enumerate(lim.rate_limit, start=1):
+            if math.isfinite(bound):
+                ax[0, 2].axhline(bound, ls="--", lw=1.1, color=f"C{j}",
+                                 label=f"plan.optimize.rate_limit[{j - 1}] = +-{bound:g} rad/s")
+                ax[0, 2].axhline(-bound, ls="--", lw=1.1, color=f"C{j}")
+    else:
+        limit_line(ax[0, 2], lim.rate_limit, "plan.optimize.rate_limit", "rad/s",
+                   symmetric=True)
     ax[0, 1].set_ylabel("angles [rad]")
     ax[0, 2].set_ylabel("joint rates [rad/s]")
-    ax[1, 0].semilogy(t, samples.margin, color="k", label="margin abs(sin y1 * y1')")
+    ax[1, 0].semilogy(t, samples.margin, color="k", label=margin_label(n, "y1 * y1'"))
     limit_line(ax[1, 0], lim.singular_threshold, "track.singular_threshold", "rad/s")
     limit_line(ax[1, 0], lim.min_margin, "plan.optimize.min_margin", "rad/s", colour="C1")
     ax[1, 0].set_ylim(top=30 * float(np.max(samples.margin)))  # room for the legend above
     ax[1, 0].set_ylabel("singularity margin [rad/s]")
     ax[1, 1].plot(t, samples.momentum, color="C4", label="H (full link kinematics)")
     ax[1, 1].set_ylabel("angular momentum H [kg m^2/s]")
-    ax[1, 2].plot(t, samples.u1_dot, color="C1", label="u1' (input)")
-    ax[1, 2].set_ylabel("u1' [rad/s^2]")
+    for j in range(1, n):
+        ax[1, 2].plot(t, samples.u_dot[:, j - 1], color=f"C{j}", label=f"u{j}' (input)")
+    ax[1, 2].set_ylabel("u1' [rad/s^2]" if n == 2 else "u_j' = th_j'' [rad/s^2]")
     return fig
+
+
+def margin_label(joints: int, paper: str) -> str:
+    """The legend of the singularity margin: abs(sin th1 * th1') on the paper's robot, the
+    rate of change of the base's locked inertia beyond it."""
+    if joints == 2:
+        return f"margin abs(sin {paper})"
+    return "margin abs(dh_0/dt) / (2 abs(K_10))"
 
 
 def plot_track(cols: dict[str, Array], path: Path, title: str, limits: Limits | None = None
@@ -134,20 +154,22 @@ def track_figure(cols: dict[str, Array], limits: Limits | None = None) -> Figure
     fig = new_figure(14, 7.5)
     ax = fig.subplots(2, 3, sharex=True)
     t = cols["t"]
-    for name in ("y1", "y2"):
+    n = sum(1 for name in cols if name.startswith("theta") and name[5:].isdigit()) - 1
+    for name in (f"y{j}" for j in range(1, n + 1)):
         line = ax[0, 0].plot(t, cols[name], label=name)[0]
         ax[0, 0].plot(t, cols[f"{name}_ref"], "--", color=line.get_color(), label=f"{name} ref")
-    for i in range(3):
+    for i in range(n + 1):
         line = ax[0, 1].plot(t, cols[f"theta{i}"], label=f"th{i}")[0]
         ax[0, 1].plot(t, cols[f"theta{i}_ref"], "--", color=line.get_color(), label=f"th{i} ref")
-    for i in (1, 2):
+    for i in range(1, n + 1):
         ax[0, 2].plot(t, cols[f"theta{i}_dot"], color=f"C{i}", label=f"th{i}' applied")
+    assert not isinstance(lim.rate_limit, Sequence)  # track.rate_limit is one number
     limit_line(ax[0, 2], lim.rate_limit, "track.rate_limit", "rad/s", symmetric=True)
-    ey = np.hypot(cols["y1"] - cols["y1_ref"], cols["y2"] - cols["y2_ref"])
-    eth = np.sqrt(sum((cols[f"theta{i}"] - cols[f"theta{i}_ref"]) ** 2 for i in range(3)))
+    ey = np.sqrt(sum((cols[f"y{j}"] - cols[f"y{j}_ref"]) ** 2 for j in range(1, n + 1)))
+    eth = np.sqrt(sum((cols[f"theta{i}"] - cols[f"theta{i}_ref"]) ** 2 for i in range(n + 1)))
     ax[1, 0].semilogy(t, ey, label="norm(y - y_ref)")
     ax[1, 0].semilogy(t, eth, label="norm(th - th_ref)")
-    ax[1, 1].semilogy(t, cols["margin"], color="k", label="margin abs(sin th1 * u1)")
+    ax[1, 1].semilogy(t, cols["margin"], color="k", label=margin_label(n, "th1 * u1"))
     limit_line(ax[1, 1], lim.singular_threshold, "track.singular_threshold", "rad/s")
     if "momentum" in cols:
         ax[1, 2].plot(t, cols["momentum"], color="C4", label="H (full link kinematics)")

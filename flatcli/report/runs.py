@@ -7,52 +7,61 @@ from typing import Any
 
 import numpy as np
 
+from flatcli.core.chainplan import Plan
 from flatcli.core.optimize import OptimizeResult
 from flatcli.core.planning import FlatPlan, PlanSamples
 from flatcli.report.tables import fmt, table
 
 
-def plan_summary(plan: FlatPlan, samples: PlanSamples) -> dict[str, float]:
-    """The headline numbers of a plan (see the README for definitions)."""
+def plan_summary(plan: Plan, samples: PlanSamples) -> dict[str, float]:
+    """The headline numbers of a plan (see the README for definitions): ``max_abs_theta{i}``
+    and ``peak_rate{i}`` for every angle th0..thN."""
     t_min = float(samples.t[int(np.argmin(samples.margin))])
-    return {
+    links = samples.theta.shape[1]
+    out = {
         "max_abs_momentum": float(np.max(np.abs(samples.momentum))),
         "min_margin": float(np.min(samples.margin)),
         "min_margin_time": t_min,
-        "max_abs_theta0": float(np.max(np.abs(samples.theta[:, 0]))),
-        "max_abs_theta1": float(np.max(np.abs(samples.theta[:, 1]))),
-        "max_abs_theta2": float(np.max(np.abs(samples.theta[:, 2]))),
-        "peak_rate0": float(np.max(np.abs(samples.theta_dot[:, 0]))),
-        "peak_rate1": float(np.max(np.abs(samples.theta_dot[:, 1]))),
-        "peak_rate2": float(np.max(np.abs(samples.theta_dot[:, 2]))),
-        "input_energy": plan.input_energy(),
     }
+    for i in range(links):
+        out[f"max_abs_theta{i}"] = float(np.max(np.abs(samples.theta[:, i])))
+    for i in range(links):
+        out[f"peak_rate{i}"] = float(np.max(np.abs(samples.theta_dot[:, i])))
+    out["input_energy"] = plan.input_energy()
+    return out
 
 
-def plan_text(name: str, plan: FlatPlan, samples: PlanSamples) -> str:
+def plan_text(name: str, plan: Plan, samples: PlanSamples) -> str:
     """Terminal summary of a plan."""
     s = plan_summary(plan, samples)
+    n = samples.y.shape[1]
     ends = [
         ["t = 0", *samples.y[0], *samples.y_dot[0]],
         [f"t = {plan.duration:g} s", *samples.y[-1], *samples.y_dot[-1]],
     ]
+    outputs = [f"y{j} [rad]" for j in range(1, n + 1)]
+    rates = [f"y{j}' [rad/s]" for j in range(1, n + 1)]
+    if isinstance(plan, FlatPlan):
+        model, margin = plan.model, "min margin abs(sin y1 * y1')"
+        energy = "input energy, integral of th1'^2 + th2'^2"
+    else:
+        model, margin = "derived", "min margin abs(dh_0/dt) / (2 abs(K_10))"
+        energy = f"input energy, integral of th1'^2 + ... + th{n}'^2"
     lines = [
-        f"plan {name!r}: model {plan.model}, {type(plan.trajectory.basis).__name__}"
+        f"plan {name!r}: {n} joints, model {model}, {type(plan.trajectory.basis).__name__}"
         f" of size {plan.trajectory.basis.size}, T = {plan.duration:g} s,"
         f" {len(samples.t)} samples",
-        table(["boundary", "y1 [rad]", "y2 [rad]", "y1' [rad/s]", "y2' [rad/s]"], ends, 6),
+        table(["boundary", *outputs, *rates], ends, 6),
         "",
         table(
             ["quantity", "value", "unit"],
             [
                 ["max abs(H) along the plan (full kinematics)", s["max_abs_momentum"], "kg m^2/s"],
-                ["min margin abs(sin y1 * y1')", s["min_margin"], "rad/s"],
+                [margin, s["min_margin"], "rad/s"],
                 ["  at t", s["min_margin_time"], "s"],
-                ["max abs(theta2)", s["max_abs_theta2"], "rad"],
-                ["peak abs(theta0')", s["peak_rate0"], "rad/s"],
-                ["peak abs(theta1')", s["peak_rate1"], "rad/s"],
-                ["peak abs(theta2')", s["peak_rate2"], "rad/s"],
-                ["input energy, integral of th1'^2 + th2'^2", s["input_energy"], "rad^2/s"],
+                [f"max abs(theta{n})", s[f"max_abs_theta{n}"], "rad"],
+                *([f"peak abs(theta{i}')", s[f"peak_rate{i}"], "rad/s"] for i in range(n + 1)),
+                [energy, s["input_energy"], "rad^2/s"],
             ],
         ),
     ]

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from flatcli.spec.keys import SpecError
-from flatcli.spec.schema import SCHEMA, Spec, check_value, from_values
+from flatcli.spec.schema import SCHEMA, Spec, check_value, fit_sizes, from_values
 from flatcli.spec.sweeps import PERTURB_PREFIX, is_perturbation_param, validate_sweep
 
 
@@ -40,8 +40,8 @@ def build(values: Mapping[str, Any]) -> Spec:
             name, param = dotted.removeprefix(PERTURB_PREFIX).split(".")
             perturb[name] = {**perturb.get(name, {}), param: value}
         checked["sweep.perturb"] = perturb
-    spec = from_values(checked)
-    validate_sweep(spec.sweep)
+    spec = fit_sizes(from_values(checked), checked)
+    validate_sweep(spec.sweep, spec.joints)
     return spec
 
 

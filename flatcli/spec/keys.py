@@ -43,8 +43,12 @@ class Key:
     choices : the allowed words of a "choice"
     nullable : None is allowed (it means "see doc")
     allow_inf : inf is a meaningful value (no limit)
-    length : how many numbers a "vector" holds
+    length : how many numbers a "vector" holds (0: as many as ``size`` says)
     default_doc : the README's default column when the default is not a plain value
+    size : what a vector's length follows on a robot of N joints (``SIZES``): "links"
+        (N + 1), "joints" (N) or "inner" (N - 1, the joints before the last); a "numbers"
+        key is one number (for every item) or such a list. The length is checked against
+        the robot once the whole spec is read (``fit_sizes``)
     """
 
     kind: str
@@ -58,6 +62,7 @@ class Key:
     allow_inf: bool = False
     length: int = 0
     default_doc: str = ""
+    size: str = ""
 
     def check(self, where: str, value: Any) -> Any:
         """``value`` normalised (floats, tuples), or SpecError naming ``where``."""
@@ -84,6 +89,10 @@ class Key:
             text = f"{'>' if self.low_open else '>='} {self.low:g}"
         if self.allow_inf:
             text += " (inf: no limit)"
+        if self.size:
+            count = SIZES[self.size].count
+            items = f"{count} numbers" if self.kind == "vector" else f"a number or {count}"
+            text = f"{items}, each {text}" if text else items
         return text
 
     def _unit(self) -> str:
@@ -143,11 +152,25 @@ def _check_choice(key: Key, where: str, value: Any) -> str:
 
 
 def _check_vector(key: Key, where: str, value: Any) -> tuple[float, ...]:
-    if not isinstance(value, list | tuple) or len(value) != key.length:
+    if key.size:
+        least = SIZES[key.size].length(MIN_JOINTS)
+        if not isinstance(value, list | tuple) or len(value) < least:
+            raise SpecError(f"{where}: expected a list of {SIZES[key.size].count} >= {least} "
+                            f"numbers{key._unit()}, got {value!r}")
+    elif not isinstance(value, list | tuple) or len(value) != key.length:
         raise SpecError(
             f"{where}: expected a list of {key.length} numbers{key._unit()}, got {value!r}"
         )
     return tuple(key.check_item(where, i, v) for i, v in enumerate(value))
+
+
+def _check_numbers(key: Key, where: str, value: Any) -> float | tuple[float, ...]:
+    if isinstance(value, list | tuple):
+        if not value:
+            raise SpecError(f"{where}: expected a number or a list of "
+                            f"{SIZES[key.size].count} numbers{key._unit()}, got {value!r}")
+        return tuple(key.check_item(where, i, v) for i, v in enumerate(value))
+    return key._number(where, value)
 
 
 def _check_table(key: Key, where: str, value: Any) -> dict[str, Any]:
@@ -163,7 +186,31 @@ _CHECKS = {
     "str": _check_str,
     "choice": _check_choice,
     "vector": _check_vector,
+    "numbers": _check_numbers,
     "table": _check_table,
+}
+
+
+@dataclass(frozen=True)
+class Size:
+    """What the length of a robot-sized vector counts, for N joints: ``offset`` + N items,
+    named ``count`` in messages."""
+
+    offset: int
+    count: str
+    items: str
+
+    def length(self, joints: int) -> int:
+        return joints + self.offset
+
+
+#: The smallest robot: the paper's base and two links.
+MIN_JOINTS = 2
+#: The sizes of robot-sized vectors (``Key.size``).
+SIZES: dict[str, Size] = {
+    "links": Size(1, "N + 1", "one per link 0..N"),
+    "joints": Size(0, "N", "one per joint 1..N"),
+    "inner": Size(-1, "N - 1", "one per joint 1..N-1"),
 }
 
 
@@ -196,12 +243,22 @@ def integer(default: int | None, doc: str, *, ge: int | None = None, nullable: b
     return _declare(Key("int", default, doc, low=ge, nullable=nullable, default_doc=default_doc))
 
 
-def vector(length: int, default: tuple[float, ...] | None, doc: str, unit: str = "", *,
-           gt: float | None = None, ge: float | None = None, inf: bool = False,
+def vector(length: int | str, default: tuple[float, ...] | None, doc: str, unit: str = "",
+           *, gt: float | None = None, ge: float | None = None, inf: bool = False,
            nullable: bool = False, default_doc: str = "") -> Any:
-    """A list of ``length`` floats, each bounded like a number key."""
+    """A list of ``length`` floats, each bounded like a number key; a ``SIZES`` name for a
+    length that follows the robot's."""
+    sized = {"size": length} if isinstance(length, str) else {"length": length}
     return _declare(Key("vector", default, doc, unit, allow_inf=inf, nullable=nullable,
-                        length=length, default_doc=default_doc, **_low(gt, ge)))
+                        default_doc=default_doc, **sized, **_low(gt, ge)))
+
+
+def numbers(size: str, default: float | None, doc: str, unit: str = "", *,
+            gt: float | None = None, ge: float | None = None, inf: bool = False,
+            nullable: bool = False, default_doc: str = "") -> Any:
+    """One number for every item, or a list of them, as many as ``size`` (``SIZES``) says."""
+    return _declare(Key("numbers", default, doc, unit, allow_inf=inf, nullable=nullable,
+                        size=size, default_doc=default_doc, **_low(gt, ge)))
 
 
 def choice(choices: tuple[str, ...], default: str | None, doc: str, *,

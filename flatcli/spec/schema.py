@@ -8,7 +8,9 @@ its helper (``number``, ``integer``, ``vector``, ``choice``, ``flag``, ``text``,
 from ``flatcli.spec.keys``) with default, doc, unit and bounds. ``SCHEMA`` is derived from
 these records, and so are the README's spec tables (``python -m flatcli.spec --markdown``).
 Choices come from their one home: the core's ``MODELS``, ``OBJECTIVES`` and ``INTEGRATORS``.
-A vector's length is a value of its key (``LINKS``, ``GAINS``), checked like its bounds.
+A vector's length is a value of its key, checked like its bounds; the per-link, per-joint
+and per-output keys follow the robot (``Key.size``): ``robot.mass`` sets the number N of
+joints, and ``fit_sizes`` checks every other such key against it.
 
 Records are built only by ``flatcli.spec.build`` (which validates every value first), so
 every record in the program holds valid values.
@@ -17,10 +19,11 @@ every record in the program holds valid values.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import hashlib
 import json
 import math
-from collections.abc import Iterator, Mapping
+from collections.abc import Collection, Iterator, Mapping
 from dataclasses import Field, dataclass, field, fields, is_dataclass
 from typing import Any
 
@@ -34,12 +37,14 @@ from flatcli.core.simulate import (
     INTEGRATORS,
 )
 from flatcli.spec.keys import (
+    SIZES,
     Key,
     SpecError,
     choice,
     flag,
     integer,
     number,
+    numbers,
     suggest,
     table,
     text,
@@ -47,9 +52,10 @@ from flatcli.spec.keys import (
 )
 from flatcli.storage import to_jsonable
 
-#: Numbers of a per-link vector: the planar robot's links 0 (base), 1, 2.
+#: Numbers of a per-link vector of the paper's robot: links 0 (base), 1, 2. A robot of N
+#: joints has N + 1 links (``robot.mass`` sets N); the per-link keys follow it.
 LINKS = 3
-#: Numbers of a gain vector: one per flat output y1, y2.
+#: Numbers of a gain vector of the paper's robot: one per flat output y1, y2 (N on N joints).
 GAINS = 2
 #: Flat-output bases of ``plan.basis``; "auto" picks one (see ``flatcli.experiment``).
 BASES = ("auto", "poly", "bspline")
@@ -62,15 +68,16 @@ Vector = tuple[float, ...]
 class RobotSpec:
     """the nominal robot (what the planner and controller believe)"""
 
-    mass: Vector = vector(LINKS, (1.0, 1.0, 1.0), "link masses m0, m1, m2", "kg", gt=0)
-    inertia: Vector = vector(LINKS, (0.0533, 0.0533, 0.0533),
+    mass: Vector = vector("links", (1.0, 1.0, 1.0), "link masses m0, m1, m2 (the base and N links: "
+                          "their number sets the robot's N joints)", "kg", gt=0)
+    inertia: Vector = vector("links", (0.0533, 0.0533, 0.0533),
                              "inertias about each link's centre of mass", "kg m^2", gt=0)
-    length: Vector = vector(LINKS, (0.2, 0.2, 0.2),
-                            "link lengths, joint to joint (l2 does not enter the dynamics)", "m",
-                            gt=0)
-    com: Vector = vector(LINKS, (0.1, 0.1, 0.0),
-                         "d_i, distance of each link's centre of mass from its proximal joint",
-                         "m")
+    length: Vector = vector("links", (0.2, 0.2, 0.2),
+                            "link lengths, joint to joint (the last one, l_N, does not enter the "
+                            "dynamics)", "m", gt=0)
+    com: Vector = vector("links", (0.1, 0.1, 0.0),
+                         "d_i, distance of each link's centre of mass from its proximal joint "
+                         "(flat: d_N = 0)", "m")
     model: str = choice(MODELS, "derived", "constraint coefficients: \"derived\" (correct) or "
                         "\"paper\" (the appendix as printed)")
 
@@ -83,10 +90,11 @@ class OptimizeSpec:
         OBJECTIVES, None, "what to optimise (none: the plain plan): \"energy\" (integral of "
         "th1'^2 + th2'^2), \"peak_rate\" (max of abs th1', abs th2'), \"effort\" (T x energy), "
         "\"margin\" (maximise the minimum singularity margin)", nullable=True)
-    angle_limit: Vector = vector(LINKS, (INF, INF, INF), "bound on abs th_i along the plan",
-                                 "rad", gt=0, inf=True)
-    rate_limit: float = number(INF, "bound on abs th1', abs th2' along the plan", "rad/s", gt=0,
-                               inf=True)
+    angle_limit: Vector = vector("links", (INF, INF, INF), "bound on abs th_i along the plan (left "
+                                 "out: none on every link)", "rad", gt=0, inf=True)
+    rate_limit: float | Vector = numbers("joints", INF, "bound on abs th_j' along the plan (one "
+                                         "for every joint, or one per joint)", "rad/s", gt=0,
+                                         inf=True)
     min_margin: float = number(0.02, "lower bound on the signed margin sin th1 * th1' along the "
                                "plan (it never crosses the singular set; 0 would let th2' spike "
                                "without bound between the check samples)", "rad/s", gt=0)
@@ -101,10 +109,12 @@ class PlanSpec:
     """the point-to-point maneuver"""
 
     duration: float = number(2.0, "maneuver time T", "s", gt=0)
-    start: Vector = vector(LINKS, (1.8, 1.0, 0.0), "th0, th1, th2 at t = 0", "rad")
-    goal: Vector = vector(LINKS, (1.2, 2.0, 0.0), "th0, th1, th2 at t = T", "rad")
-    start_rate: float = number(0.1, "th1'(0), a free end rate (non-zero)", "rad/s")
-    goal_rate: float = number(0.5, "th1'(T), a free end rate (non-zero)", "rad/s")
+    start: Vector = vector("links", (1.8, 1.0, 0.0), "th0, th1, th2 (th0..thN) at t = 0", "rad")
+    goal: Vector = vector("links", (1.2, 2.0, 0.0), "th0, th1, th2 (th0..thN) at t = T", "rad")
+    start_rate: float | Vector = numbers("inner", 0.1, "th1'(0) (th1'..th_N-1'), a free end rate "
+                                         "(non-zero)", "rad/s")
+    goal_rate: float | Vector = numbers("inner", 0.5, "th1'(T) (th1'..th_N-1'), a free end rate "
+                                        "(non-zero)", "rad/s")
     samples: int = integer(201, "points of the output time grid", ge=2)
     basis: str = choice(BASES, "auto", "flat-output basis: polynomials, clamped B-splines "
                         "(scipy), or auto: the paper's cubic, or quintic B-splines when "
@@ -119,14 +129,15 @@ class PlanSpec:
 class TrackSpec:
     """the closed loop"""
 
-    initial: Vector = vector(LINKS, (1.96, 0.8, -0.1), "th(0) of the plant (Fig. 4)", "rad")
-    initial_rate: float | None = number(
-        None, "u1(0) = th1'(0) of the plant and the controller", "rad/s", nullable=True,
+    initial: Vector = vector("links", (1.96, 0.8, -0.1), "th(0) of the plant (Fig. 4)", "rad")
+    initial_rate: float | Vector | None = numbers(
+        "inner", None, "u1(0) = th1'(0) (u_j(0) = th_j'(0), j < N) of the plant and the "
+        "controller", "rad/s", nullable=True,
         default_doc="the plan's th1'(0) (plan.start_rate, or the optimised plan's own)")
-    kp: Vector = vector(GAINS, (10.0, 13.0), "kp1, kp2: feedback gains, as printed in the paper",
-                        "1/s^2")
-    kv: Vector = vector(GAINS, (100.0, 110.0), "kv1, kv2: feedback gains, as printed in the "
-                        "paper", "1/s")
+    kp: Vector = vector("joints", (10.0, 13.0), "kp1, kp2 (kp1..kpN): feedback gains, as printed "
+                        "in the paper", "1/s^2")
+    kv: Vector = vector("joints", (100.0, 110.0), "kv1, kv2 (kv1..kvN): feedback gains, as "
+                        "printed in the paper", "1/s")
     dt: float = number(1e-3, "output sampling step: trace, metrics, track.parquet (and RK4's "
                        "step); must divide the duration", "s", gt=0)
     integrator: str = choice(INTEGRATORS, "adaptive", "\"adaptive\" (compiled Dormand-Prince "
@@ -155,13 +166,13 @@ class TrackSpec:
 class PlantSpec:
     """the robot the simulation integrates (default: the `[robot]`)"""
 
-    mass: Vector | None = vector(LINKS, None, "the plant's masses", "kg", gt=0, nullable=True,
+    mass: Vector | None = vector("links", None, "the plant's masses", "kg", gt=0, nullable=True,
                                  default_doc="robot.mass")
-    inertia: Vector | None = vector(LINKS, None, "the plant's inertias", "kg m^2", gt=0,
+    inertia: Vector | None = vector("links", None, "the plant's inertias", "kg m^2", gt=0,
                                     nullable=True, default_doc="robot.inertia")
-    length: Vector | None = vector(LINKS, None, "the plant's lengths", "m", gt=0, nullable=True,
+    length: Vector | None = vector("links", None, "the plant's lengths", "m", gt=0, nullable=True,
                                    default_doc="robot.length")
-    com: Vector | None = vector(LINKS, None, "the plant's d_i, any d2 (an imperfect "
+    com: Vector | None = vector("links", None, "the plant's d_i, any d_N (an imperfect "
                                 "counterweight: the paper's flat outputs no longer apply)", "m",
                                 nullable=True, default_doc="robot.com")
     momentum: float = number(0.0, "the plant's angular momentum H0 (the controller assumes 0)",
@@ -211,6 +222,11 @@ class Spec:
     track: TrackSpec = field(default_factory=TrackSpec)
     plant: PlantSpec = field(default_factory=PlantSpec)
     sweep: SweepSpec = field(default_factory=SweepSpec)
+
+    @property
+    def joints(self) -> int:
+        """N, the robot's joints (2: the paper's base and two links)."""
+        return len(self.robot.mass) - 1
 
     @property
     def tree(self) -> dict[str, Any]:
@@ -325,3 +341,66 @@ def _record(record_type: type, prefix: str, values: Mapping[str, Any]) -> object
         elif dotted in values:
             kwargs[f.name] = values[dotted]
     return record_type(**kwargs)
+
+
+def fit_sizes(spec: Spec, given: Collection[str]) -> Spec:
+    """The spec with every robot-sized key checked against N = ``spec.joints``.
+
+    A list must have the length its key's size gives for N (``Key.size``); a "numbers" key's
+    single number stands for every item. A key the user did not set (not in ``given``)
+    whose default holds one value for every item (``plan.optimize.angle_limit``: inf) takes
+    N's length; any other default is the paper's robot's, so a robot of other N must set it.
+
+    Raises
+    ------
+    SpecError naming the key, the length expected and why.
+    """
+    joints = spec.joints
+    replaced: dict[str, Any] = {}
+    for section, keys in SCHEMA.items():
+        for name, key in keys.items():
+            if not key.size:
+                continue
+            dotted = f"{section}.{name}" if section else name
+            value = _get(spec, dotted)
+            if not isinstance(value, tuple):
+                continue
+            want = SIZES[key.size].length(joints)
+            if len(value) != want and dotted not in given and len(set(value)) == 1:
+                replaced[dotted] = (value[0],) * want
+                continue
+            hint = "" if dotted in given else " (the default is the paper's robot's: set it)"
+            check_size(dotted, value, joints, hint)
+    return _replaced(spec, replaced) if replaced else spec
+
+
+def check_size(dotted: str, value: Any, joints: int, hint: str = "") -> None:
+    """SpecError unless a robot-sized key's list has its length for ``joints`` joints (one
+    number always does for a "numbers" key; so does any value of another key)."""
+    key = lookup(dotted)
+    if not key.size or not isinstance(value, list | tuple):
+        return
+    size = SIZES[key.size]
+    want = size.length(joints)
+    if len(value) != want:
+        raise SpecError(
+            f"{dotted}: expected {want} numbers ({size.items}) for a robot of {joints} "
+            f"joints (robot.mass has {joints + 1} links), got {len(value)}{hint}"
+        )
+
+
+def _get(record: Any, dotted: str) -> Any:
+    for part in dotted.split("."):
+        record = getattr(record, part)
+    return record
+
+
+def _replaced(record: Any, values: Mapping[str, Any], prefix: str = "") -> Any:
+    changes: dict[str, Any] = {}
+    for f in fields(record):
+        dotted = f"{prefix}{f.name}"
+        if _is_section(f):
+            changes[f.name] = _replaced(getattr(record, f.name), values, f"{dotted}.")
+        elif dotted in values:
+            changes[f.name] = values[dotted]
+    return dataclasses.replace(record, **changes)

@@ -13,8 +13,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from flatcli.spec.keys import SpecError, suggest
-from flatcli.spec.schema import SweepSpec, all_keys, check_value, lookup
+from flatcli.spec.keys import MIN_JOINTS, SIZES, SpecError, suggest
+from flatcli.spec.schema import SweepSpec, all_keys, check_size, check_value, lookup
 
 #: The distributions a perturbation draws from.
 DISTRIBUTIONS = ("normal", "uniform")
@@ -53,14 +53,18 @@ class Perturbation:
     relative: bool = False
 
 
-def size(name: str) -> int:
-    """How many numbers the quantity ``name`` holds (a vector key's length, or 1)."""
+def size(name: str, joints: int = MIN_JOINTS) -> int:
+    """How many numbers the quantity ``name`` holds on a robot of ``joints`` joints (its
+    key's length, or 1)."""
     key = lookup(PERTURB_TARGETS[name])
+    if key.size:
+        return SIZES[key.size].length(joints)
     return key.length if key.kind == "vector" else 1
 
 
-def perturbation(name: str, table: Any) -> Perturbation:
-    """Check one ``[sweep.perturb]`` entry; its record, or SpecError naming what is wrong."""
+def perturbation(name: str, table: Any, joints: int = MIN_JOINTS) -> Perturbation:
+    """Check one ``[sweep.perturb]`` entry of a spec whose robot has ``joints`` joints; its
+    record, or SpecError naming what is wrong."""
     where = f"{PERTURB_PREFIX}{name}"
     if name not in PERTURB_TARGETS:
         raise SpecError(
@@ -86,7 +90,7 @@ def perturbation(name: str, table: Any) -> Perturbation:
     for key in required:
         if key not in table:
             raise SpecError(f"{where}.{key}: required for a {dist} perturbation")
-    n = size(name)
+    n = size(name, joints)
     numbers = {key: _numbers(f"{where}.{key}", table[key], n) for key in params if key in table}
     if dist == "normal":
         if any(s < 0 for s in _items(numbers["std"], n)):
@@ -104,9 +108,9 @@ def perturbation(name: str, table: Any) -> Perturbation:
     return Perturbation(str(dist), relative=relative, **numbers)
 
 
-def perturbations(sweep: SweepSpec) -> dict[str, Perturbation]:
+def perturbations(sweep: SweepSpec, joints: int = MIN_JOINTS) -> dict[str, Perturbation]:
     """The records of a sweep's perturbations, in ``PERTURB_TARGETS`` order."""
-    return {name: perturbation(name, sweep.perturb[name])
+    return {name: perturbation(name, sweep.perturb[name], joints)
             for name in PERTURB_TARGETS if name in sweep.perturb}
 
 
@@ -137,15 +141,16 @@ def grid_overrides(key: str, value: Any) -> dict[str, Any]:
     return {key: value}
 
 
-def validate_sweep(sweep: SweepSpec) -> None:
-    """Check every perturbation and every grid entry of a ``[sweep]``."""
+def validate_sweep(sweep: SweepSpec, joints: int = MIN_JOINTS) -> None:
+    """Check every perturbation and every grid entry of a ``[sweep]`` (robot of ``joints``)."""
     for name, table in sweep.perturb.items():
-        perturbation(name, table)
+        perturbation(name, table, joints)
     for dotted, values in sweep.grid.items():
-        validate_grid_entry(sweep.perturb, dotted, values)
+        validate_grid_entry(sweep.perturb, dotted, values, joints)
 
 
-def validate_grid_entry(perturb: Mapping[str, Any], dotted: str, values: Any) -> None:
+def validate_grid_entry(perturb: Mapping[str, Any], dotted: str, values: Any,
+                        joints: int = MIN_JOINTS) -> None:
     """Check one ``[sweep.grid]`` entry and its non-empty list of values.
 
     An entry is a spec key with a list of values, or a *group*: any other name with a list
@@ -163,16 +168,17 @@ def validate_grid_entry(perturb: Mapping[str, Any], dotted: str, values: Any) ->
             if not keys:
                 raise SpecError(f"{where}: a group table needs at least one spec key")
             for key in keys:
-                _validate_grid_value(perturb, f"{where} group key {key!r}", key, table[key])
+                _validate_grid_value(perturb, f"{where} group key {key!r}", key, table[key],
+                                     joints)
         return
     if any(isinstance(v, dict) for v in values):
         raise SpecError(f"{where}: mixes tables and plain values")
     for value in values:
-        _validate_grid_value(perturb, where, dotted, value)
+        _validate_grid_value(perturb, where, dotted, value, joints)
 
 
 def _validate_grid_value(perturb: Mapping[str, Any], where: str, dotted: str,
-                         value: Any) -> None:
+                         value: Any, joints: int) -> None:
     if dotted.startswith(PERTURB_PREFIX):
         parts = dotted.split(".")
         if not is_perturbation_param(dotted) or parts[2] not in perturb:
@@ -180,7 +186,7 @@ def _validate_grid_value(perturb: Mapping[str, Any], where: str, dotted: str,
                 f"{where}: a perturbation grid key is sweep.perturb.NAME.PARAM with NAME one of "
                 f"the [sweep.perturb] entries {sorted(perturb)}"
             )
-        perturbation(parts[2], {**perturb[parts[2]], parts[3]: value})
+        perturbation(parts[2], {**perturb[parts[2]], parts[3]: value}, joints)
         return
     if dotted.startswith("sweep.") or dotted == "name":
         raise SpecError(f"{where}: cannot grid over {dotted!r}")
@@ -188,4 +194,4 @@ def _validate_grid_value(perturb: Mapping[str, Any], where: str, dotted: str,
         lookup(dotted)
     except SpecError:
         raise SpecError(f"{where}: not a spec key{suggest(dotted, all_keys())}") from None
-    check_value(dotted, value)
+    check_size(dotted, check_value(dotted, value), joints)

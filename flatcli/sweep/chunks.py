@@ -17,10 +17,9 @@ import pyarrow as pa
 from flatcli.core.metrics import COUNT_METRICS, METRIC_NAMES, Status, describe_status
 from flatcli.core.simulate import NoiseStreams, Trials
 from flatcli.experiment import checked
-from flatcli.spec import Spec, lookup, perturbations
+from flatcli.spec import PERTURB_TARGETS, Spec, lookup, perturbations
 from flatcli.storage import null_where_nan, with_units
 from flatcli.sweep.draws import (
-    PERTURB_SLOTS,
     draw_perturbations,
     invalid_plants,
     invalid_servos,
@@ -63,10 +62,12 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
     scenario = cell.scenario
     ids = np.arange(chunk.start, chunk.stop)
     seed = spec.sweep.seed
+    joints = spec.joints
     nominal = nominal_values(spec, scenario.plan)
-    drawn = draw_perturbations(perturbations(spec.sweep), nominal, seed, ids.tolist())
+    drawn = draw_perturbations(perturbations(spec.sweep, joints), nominal, seed, ids.tolist(),
+                               joints)
     value = {name: np.broadcast_to(drawn.get(name, nominal[name]), (len(ids), nominal[name].size))
-             for name in PERTURB_SLOTS}
+             for name in PERTURB_TARGETS}
     links = np.hstack([value["mass"], value["inertia"], value["length"], value["com"]])
     initial = np.hstack([value["initial"], value["initial_rate"]])
     momentum = value["momentum"][:, 0]
@@ -104,9 +105,9 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
                                "cell": np.full(len(ids), chunk.cell, dtype=np.int64)}
     for key, (kind, v) in grid_columns(cell.values, spec).items():
         columns[key] = pa.array([v] * len(ids), type=kind)
-    for name in PERTURB_SLOTS:
+    for name in PERTURB_TARGETS:
         if name in drawn:
-            for j, col in enumerate(perturbation_columns(name)):
+            for j, col in enumerate(perturbation_columns(name, joints)):
                 columns[col] = np.ascontiguousarray(drawn[name][:, j])
     for j, metric in enumerate(METRIC_NAMES):  # null where not applicable (nan in the core)
         columns[metric] = null_where_nan(metrics[:, j])
@@ -174,11 +175,25 @@ def _grid_column(key: str, seen: list[Any], spec: Spec, applied: Mapping[str, An
         return pa.string(), None if value is None else grid_cell_text(value)
     kind = lookup(key).kind
     value = applied[key]
+    if kind == "numbers":  # a number, or a list (one per joint): float64 or list<float64>
+        if all(_is_number(v) for v in seen):
+            return pa.float64(), None if value is None else float(_one(value))
+        if value is None:
+            return pa.list_(pa.float64()), None
+        width = max(len(v) for v in seen if isinstance(v, list | tuple))
+        items = [float(v) for v in value] if isinstance(value, list | tuple) else (
+            [float(value)] * width)
+        return pa.list_(pa.float64()), items
     if value is None:
         return _ARROW_TYPES[kind], None
     if kind == "vector":
         return _ARROW_TYPES[kind], [float(v) for v in value]
     return _ARROW_TYPES[kind], value
+
+
+def _one(value: Any) -> Any:
+    """A number given as itself or as a list of one."""
+    return value[0] if isinstance(value, list | tuple) else value
 
 
 def _is_number(value: Any) -> bool:

@@ -9,7 +9,9 @@ Each trial draws ``N_VARIATES`` uniform variates from its perturbation stream, o
 position per perturbable component (``PERTURB_SLOTS``: the quantities of
 ``flatcli.spec.PERTURB_TARGETS`` in order, each as many as its spec key holds), and transforms
 those it needs (uniform: low + (high - low) u; normal: mean + std Phi^-1(u)). So adding or
-removing one perturbation never changes the values another one draws.
+removing one perturbation never changes the values another one draws. A robot of N joints
+has its own layout (``perturb_slots``): per-link quantities hold N + 1 components and
+``initial_rate`` N - 1; for the paper's robot (N = 2) it is ``PERTURB_SLOTS``.
 """
 
 from __future__ import annotations
@@ -20,42 +22,52 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.special import ndtri
 
-from flatcli.core.chainplan import ChainPlan
-from flatcli.core.planning import FlatPlan
-from flatcli.experiment import STREAM_PERTURB, initial_rate, plant_from, trial_stream
-from flatcli.spec import LINKS, PERTURB_TARGETS, Perturbation, Spec, SpecError, lookup
+from flatcli.core.chainplan import Plan
+from flatcli.experiment import STREAM_PERTURB, initial_rates, plant_from, trial_stream
+from flatcli.spec import PERTURB_TARGETS, Perturbation, Spec, SpecError, lookup
+from flatcli.spec.keys import MIN_JOINTS
 from flatcli.spec.sweeps import size
 
 Array = NDArray[np.float64]
 
 
-def _slots() -> dict[str, tuple[int, ...]]:
+def perturb_slots(joints: int = MIN_JOINTS) -> dict[str, tuple[int, ...]]:
+    """Position of each perturbable component among a trial's uniform variates, for a robot
+    of ``joints`` joints."""
     out: dict[str, tuple[int, ...]] = {}
     first = 0
     for name in PERTURB_TARGETS:
-        out[name] = tuple(range(first, first + size(name)))
-        first += size(name)
+        out[name] = tuple(range(first, first + size(name, joints)))
+        first += size(name, joints)
     return out
 
 
-#: Position of each perturbable component among a trial's uniform variates.
-PERTURB_SLOTS: dict[str, tuple[int, ...]] = _slots()
-N_VARIATES = sum(len(s) for s in PERTURB_SLOTS.values())
+def variates(joints: int = MIN_JOINTS) -> int:
+    """How many uniform variates a trial draws on a robot of ``joints`` joints."""
+    return sum(len(s) for s in perturb_slots(joints).values())
+
+
+#: Position of each perturbable component among a trial's uniform variates (N = 2).
+PERTURB_SLOTS: dict[str, tuple[int, ...]] = perturb_slots()
+N_VARIATES = variates()
 #: The spec keys of a plant's parameters, in the order of a row of ``Trials.links``.
 PLANT_KEYS = ("plant.mass", "plant.inertia", "plant.length", "plant.com")
 #: The spec keys of a trial's servo, in the order of a row of ``Trials.servo``.
 SERVO_KEYS = ("plant.servo_bandwidth", "plant.torque_limit")
 
 
-def perturbation_columns(name: str) -> list[str]:
-    """Column names of the realised values of a perturbed quantity."""
-    n = len(PERTURB_SLOTS[name])
+def perturbation_columns(name: str, joints: int = MIN_JOINTS) -> list[str]:
+    """Column names of the realised values of a perturbed quantity: ``name`` for one number,
+    else ``name_i`` with i the link (``initial_rate``: the joint, 1..N-1)."""
+    n = size(name, joints)
+    if name == "initial_rate":
+        return [name] if joints == MIN_JOINTS else [f"{name}_{j}" for j in range(1, joints)]
     return [name] if n == 1 else [f"{name}_{i}" for i in range(n)]
 
 
 def draw_perturbations(
     perturb: Mapping[str, Perturbation], nominal: Mapping[str, Array], seed: int,
-    trials: Sequence[int],
+    trials: Sequence[int], joints: int = MIN_JOINTS,
 ) -> dict[str, Array]:
     """Realised values of every perturbed quantity for the given trial ids.
 
@@ -65,16 +77,18 @@ def draw_perturbations(
     nominal : nominal value of each perturbable quantity, (n,) with n its slot count
     seed : sweep.seed
     trials : trial ids (N)
+    joints : the robot's joints (the layout of the variates, ``perturb_slots``)
 
     Returns
     -------
     {name: (N, n)} realised values
     """
-    u = np.empty((len(trials), N_VARIATES))
+    count = variates(joints)
+    u = np.empty((len(trials), count))
     for row, trial in enumerate(trials):
-        u[row] = trial_stream(seed, trial, STREAM_PERTURB).random(N_VARIATES)
+        u[row] = trial_stream(seed, trial, STREAM_PERTURB).random(count)
     out: dict[str, Array] = {}
-    for name, slots in PERTURB_SLOTS.items():
+    for name, slots in perturb_slots(joints).items():
         if name not in perturb:
             continue
         p = perturb[name]
@@ -92,12 +106,12 @@ def draw_perturbations(
     return out
 
 
-def nominal_values(spec: Spec, plan: FlatPlan | ChainPlan) -> dict[str, Array]:
+def nominal_values(spec: Spec, plan: Plan) -> dict[str, Array]:
     """Nominal value of every perturbable quantity of a (cell's) spec and its plan."""
     plant = plant_from(spec)
     return {
         "initial": np.asarray(spec.track.initial, dtype=float),
-        "initial_rate": np.array([initial_rate(spec, plan)]),
+        "initial_rate": initial_rates(spec, plan),
         "mass": np.asarray(plant.mass),
         "inertia": np.asarray(plant.inertia),
         "length": np.asarray(plant.length),
@@ -109,17 +123,18 @@ def nominal_values(spec: Spec, plan: FlatPlan | ChainPlan) -> dict[str, Array]:
 
 
 def invalid_plants(links: Array) -> list[str]:
-    """For (N, 4 LINKS) plants (``PLANT_KEYS`` side by side): why each is not a valid plant,
-    or '' if it is.
+    """For (N, 4 L) plants of L links (``PLANT_KEYS`` side by side): why each is not a valid
+    plant, or '' if it is.
 
     A perturbed value is checked by its spec key (``flatcli.spec.keys.Key``), so the reason
     is the very line ``--set plant.mass=[...]`` with that value would print, e.g.
     ``plant.mass[2]: must be > 0 kg, got -0.106467``.
     """
     valid = np.ones(len(links), dtype=bool)
+    count = links.shape[1] // len(PLANT_KEYS)
     for j, dotted in enumerate(PLANT_KEYS):
         key = lookup(dotted)
-        block = links[:, j * LINKS:(j + 1) * LINKS]
+        block = links[:, j * count:(j + 1) * count]
         valid &= np.isfinite(block).all(axis=1)
         if key.low is not None:
             valid &= (block > key.low if key.low_open else block >= key.low).all(axis=1)
@@ -146,11 +161,12 @@ def invalid_servos(servo: Array) -> list[str]:
 
 
 def _reason(values: Array) -> str:
+    count = len(values) // len(PLANT_KEYS)
     for j, dotted in enumerate(PLANT_KEYS):
         key = lookup(dotted)
-        for i in range(LINKS):
+        for i in range(count):
             try:
-                key.check_item(dotted, i, float(values[j * LINKS + i]))
+                key.check_item(dotted, i, float(values[j * count + i]))
             except SpecError as exc:
                 return str(exc)
     raise AssertionError("a plant flagged invalid passes every check")  # pragma: no cover

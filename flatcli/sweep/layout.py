@@ -14,8 +14,8 @@ from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from flatcli.core.chainplan import Plan
 from flatcli.core.model import FlatcliError
-from flatcli.core.planning import FlatPlan
 from flatcli.core.simulate import Scenario
 from flatcli.experiment import plan_from, plant_from, scenario_from
 from flatcli.spec import PERTURB_TARGETS, Spec, SpecError, grid_overrides
@@ -115,12 +115,15 @@ def layout(spec: Spec) -> Layout:
     """Expand the grid and plan every cell (SpecError naming the cell if one cannot run)."""
     grid = spec.sweep.grid
     keys = list(grid)
-    plans: dict[Any, FlatPlan] = {}
+    plans: dict[Any, Plan] = {}
     cells = []
     for index, combo in enumerate(itertools.product(*(grid[k] for k in keys))):
         values = dict(zip(keys, combo, strict=True))
-        applied = cell_spec(spec, values)
         try:
+            applied = cell_spec(spec, values)
+            if applied.joints != spec.joints:
+                raise SpecError(f"the robot has {applied.joints} joints, the sweep's [robot] "
+                                f"{spec.joints}: one sweep studies one number of joints")
             # cells that differ only outside [robot] and [plan] share one plan
             key = (applied.robot, applied.plan)
             if key not in plans:

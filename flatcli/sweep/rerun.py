@@ -45,7 +45,7 @@ def rerun_spec(lay: Layout, row: Mapping[str, Any]) -> Spec:
     cell = lay.cells[int(row["cell"])]
     values = {k: v for k, v in cell.spec.values().items() if not k.startswith("sweep.")}
     for name in lay.perturbed:
-        drawn = [float(row[c]) for c in perturbation_columns(name)]
+        drawn = [float(row[c]) for c in perturbation_columns(name, cell.spec.joints)]
         values[PERTURB_TARGETS[name]] = drawn[0] if len(drawn) == 1 else drawn
     trial = int(row["trial"])
     values["track.seed"] = lay.spec.sweep.seed
