@@ -19,7 +19,7 @@ from flatcli.core.chainplan import plan_chain
 from flatcli.core.control import Gains
 from flatcli.core.integrate import plan_flag
 from flatcli.core.metrics import Metric, Status
-from flatcli.core.model import PAPER_ROBOT, FlatcliError, RobotParams
+from flatcli.core.model import PAPER_ROBOT, RobotParams
 from flatcli.core.planning import plan_point_to_point
 from flatcli.core.simulate import NoiseStreams, Scenario, Trials, simulate
 
@@ -130,10 +130,3 @@ def test_an_exact_model_gives_the_linear_error_dynamics() -> None:
         b = e[0, i] - a
         expected = a * np.exp(r1 * t) + b * np.exp(r2 * t)
         np.testing.assert_allclose(e[:, i], expected, atol=2e-6)
-
-
-def test_the_dynamic_plant_is_refused_beyond_two_joints() -> None:
-    robot, start, goal = example(3)
-    plan = plan_chain(robot, start, goal, np.full(2, 0.3), np.full(2, 0.5), 2.0)
-    with pytest.raises(FlatcliError, match=r"^plant.model: 'dynamic' is available for the "):
-        Scenario(plan, ChainGains((100.0,) * 3, (20.0,) * 3), 1e-3, plant="dynamic")

@@ -39,6 +39,7 @@ from numpy.typing import NDArray
 from scipy.integrate import solve_ivp
 
 from flatcli.core._jit import jitable, kernel
+from flatcli.core.chaindynamic import run_chain_dynamic_kernel
 from flatcli.core.chainloop import ChainGains, run_chain_kernel
 from flatcli.core.chainplan import ChainPlan
 from flatcli.core.control import Gains
@@ -107,6 +108,14 @@ DYNAMIC_TRACE_COLUMNS: tuple[str, ...] = (
     "theta0", "theta1", "theta2", "theta0_dot", "theta1_dot", "theta2_dot", "u1",
     "tau1", "tau2", "u2",
 )  # fmt: skip
+
+
+def chain_dynamic_trace_columns(n: int) -> tuple[str, ...]:
+    """Columns of a trace of an N-link chain on the dynamic plant: th0..thN, th0'..thN',
+    u1..u(N-1), the joint torques tau1..tauN [N m] and the rate command uN of joint N
+    [rad/s] (``DYNAMIC_TRACE_COLUMNS`` for N = 2)."""
+    return (*(f"theta{i}" for i in range(n + 1)), *(f"theta{i}_dot" for i in range(n + 1)),
+            *(f"u{j}" for j in range(1, n)), *(f"tau{j}" for j in range(1, n + 1)), f"u{n}")
 
 #: Tolerances of the reference integrator.
 REFERENCE_RTOL = 1e-10
@@ -520,10 +529,6 @@ class Scenario:
                                f"got {self.servo_model!r}")
         if isinstance(self.plan, ChainPlan):
             n = self.plan.n_joints
-            if self.plant != "kinematic":
-                raise FlatcliError(f"plant.model: {self.plant!r} is available for the paper's "
-                                   f"robot (2 joints) only; a robot of {n} joints runs "
-                                   "\"kinematic\"")
             if not (isinstance(self.gains, ChainGains) and len(self.gains.kp) == n
                     and len(self.gains.kv) == n):
                 raise FlatcliError(f"track.kp, track.kv: expected {n} gains each (one per flat "
@@ -740,7 +745,8 @@ def simulate(
     event_time = np.full(N, math.nan)
     dynamic = scenario.plant == "dynamic"
     if isinstance(scenario.plan, ChainPlan):
-        columns = chain_trace_columns(scenario.plan.n_joints)
+        columns = (chain_dynamic_trace_columns if dynamic else chain_trace_columns)(
+            scenario.plan.n_joints)
     else:
         columns = DYNAMIC_TRACE_COLUMNS if dynamic else TRACE_COLUMNS
     width = len(columns)
@@ -750,10 +756,11 @@ def simulate(
             raise FlatcliError("track.integrator: \"dop853\" is the reference of the three-link "
                                "robot; use \"adaptive\" or \"rk4\" for N > 2 links")
         method = _METHOD_RK4 if integrator == "rk4" else _METHOD_ADAPTIVE
+        chain_runner = run_chain_dynamic_kernel if dynamic else run_chain_kernel
 
         def run_chain(rows: slice, tables: Array, gen: np.random.Generator, std: float) -> None:
-            run_chain_kernel(scenario, trials, method, record, metrics, status, event,
-                             event_time, trace, rows, tables, gen, std)
+            chain_runner(scenario, trials, method, record, metrics, status, event, event_time,
+                         trace, rows, tables, gen, std)
 
         _run_with_noise(run_chain, trials, angles)
         return Outcome(metrics, status, event, event_time, trace if record else None, columns)
