@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 import textwrap
 from collections.abc import Mapping, Sequence
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -28,9 +29,8 @@ from flatcli.report import COMPLETED, Progress, fmt, new_figure, save_figure, ta
 from flatcli.spec import Spec, load_spec
 from flatcli.storage import run_record, write_parquet
 
-#: The study's spec (relative to the working directory, as ``make reproduce`` runs it; else
-#: the repository's copy next to the package).
-STUDY = Path("configs/actuators_montecarlo.toml")
+#: The study's spec, shipped with flatcli (package data; configs/ links to it).
+STUDY = Path(str(resources.files("flatcli") / "data" / "actuators_montecarlo.toml"))
 #: The feedback of this section: the gains swapped (README, "The gains").
 SWAPPED = {"track.kp": [100.0, 110.0], "track.kv": [10.0, 13.0]}
 #: A cell is trackable when no trial is lost (every one resolved to the end) and the 95th
@@ -45,9 +45,7 @@ BANDWIDTH, LIMIT, MANEUVER = "plant.servo_bandwidth", "plant.torque_limit", "man
 
 def study_path() -> Path:
     """The study's spec file (``STUDY``)."""
-    if STUDY.exists():
-        return STUDY
-    return Path(__file__).resolve().parent.parent / STUDY
+    return STUDY
 
 
 def _say(quiet: bool, text: str) -> None:

@@ -19,6 +19,7 @@ import pandas as pd
 
 from flatcli import __version__
 from flatcli.actuators import actuators_section
+from flatcli.chains import chains_section
 from flatcli.core.chainplan import Plan
 from flatcli.core.model import constraint_coefficients
 from flatcli.core.optimize import required_fold
@@ -388,6 +389,7 @@ def reproduce(out: Path, montecarlo: Path | None, quiet: bool = False,
             text,
         ]
     rep.sections += actuators_section(base, out, quiet, workers, montecarlo is not None, sets)
+    rep.sections += chains_section(base, out, quiet, workers, montecarlo is not None, sets)
     if command is not None:
         rep.sections += ["", f"Made with `{command}` (flatcli {__version__})."]
     write_json(out / "run.json", run_record("reproduce", base.tree,

@@ -10,11 +10,12 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
+from flatcli.actuators import STUDY
+from flatcli.chains import CHAIN_SPECS
 from flatcli.cli import main
 from flatcli.reproduce import STUDY_SPEC
 
 ROOT = Path(__file__).resolve().parents[1]
-CONFIG = ROOT / "configs" / "paper_montecarlo.toml"
 
 
 def test_reproduce_writes_figures_tables_and_report(tmp_path: Path,
@@ -47,6 +48,12 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path,
     assert "## What the maneuver asks of the actuators" in report and "**Finding.**" in report
     assert "120 cells of 8 trials" in report
     assert (out / "fig_actuators.png").exists() and (out / "actuators/cells.parquet").exists()
+    # beyond three links: both robots, the closed loop on both plants, the studies
+    assert "## Beyond three links" in report and "| chain6 | dynamic " in report
+    assert "#### chain4: 32 trials" in report and "#### chain6: 32 trials" in report
+    for name in ("fig_chains.png", "chains/chain4/plan.parquet",
+                 "chains/chain6/track_dynamic.parquet", "chains/chain6/montecarlo/trials.parquet"):
+        assert (out / name).exists(), name
     assert "Made with `flatcli reproduce --out paper --set sweep.trials=8 -q`" in report
 
 
@@ -71,10 +78,11 @@ def test_bad_input_is_refused_before_anything_is_written(
     assert list(tmp_path.iterdir()) == []
 
 
-def test_the_study_spec_ships_as_package_data() -> None:
-    assert STUDY_SPEC.is_file() and STUDY_SPEC.parent.name == "data"
-    assert STUDY_SPEC.parent.parent == ROOT / "flatcli"
-    assert CONFIG.resolve() == STUDY_SPEC.resolve()  # configs/ links to it
+@pytest.mark.parametrize("spec", [STUDY_SPEC, STUDY, *CHAIN_SPECS])
+def test_the_study_specs_ship_as_package_data(spec: Path) -> None:
+    assert spec.is_file() and spec.parent.name == "data"
+    assert spec.parent.parent == ROOT / "flatcli"
+    assert (ROOT / "configs" / spec.name).resolve() == spec.resolve()  # configs/ links to it
     pyproject = tomllib.loads((ROOT / "pyproject.toml").read_text())
     patterns = pyproject["tool"]["setuptools"]["package-data"]["flatcli"]
-    assert any(fnmatch("data/paper_montecarlo.toml", p) for p in patterns)
+    assert any(fnmatch(f"data/{spec.name}", p) for p in patterns)
