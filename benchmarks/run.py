@@ -45,6 +45,8 @@ from benchmarks.baselines import (
     solve_ivp_trials_per_second,
     timed,
 )
+from benchmarks.chains import HEADERS as CHAIN_HEADERS
+from benchmarks.chains import run_all as run_chains
 from benchmarks.integrators import HEADERS as INTEGRATOR_HEADERS
 from benchmarks.integrators import run_all as run_integrators
 from flatcli.core.model import PAPER_ROBOT
@@ -390,6 +392,7 @@ HEADERS = {
         ["run", "trials/s", "warm trials/s", "wall", "note"],
     "Scaling: 2 workers": ["sweep", "trials/s", "warm trials/s", "wall", "peak memory (RSS)"],
     **INTEGRATOR_HEADERS,
+    **CHAIN_HEADERS,
     "Optimised plans: least energy, abs(th2) <= 3, rates <= 20, margin >= 0.05":
         ["plan", "energy [rad^2/s]", "limit violation", "max abs(H)", "time", "note"],
     LADDER: ["limit", "value", "energy [rad^2/s]", "time", "note"],
@@ -430,6 +433,7 @@ def main(argv: list[str] | None = None) -> None:
     closed_loop(bench)
     sweeps(bench, args.million)
     run_integrators(bench, sweep)
+    run_chains(bench)
     optimised(bench)
     optimised_ladder(bench)
     text = report(bench)

@@ -1,0 +1,78 @@
+"""make bench: the closed loop of an N-link chain, N = 2, 3, 4, 6 joints.
+
+The same family of robots for every N (a heavy base, equal links, the last one
+counterweighted onto its joint with a large inertia, as tests/test_chainplan.py's), a cubic
+plan through ``chainplan.plan_chain`` (the N-link path also for N = 2, so every N runs the
+same code), gains 100 / 20 per output, perturbed starts; one core, one batch per plant and
+integrator. Reported: trials/s, the median of steps and right-hand sides per trial, and the
+cost of one right-hand side, whose growth with N says where the time goes.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+
+from flatcli.core.chainloop import ChainGains
+from flatcli.core.chainplan import plan_chain
+from flatcli.core.metrics import Metric
+from flatcli.core.model import RobotParams
+from flatcli.core.simulate import Scenario, Trials, simulate
+
+JOINTS = (2, 3, 4, 6)
+SECTION = "Robots of N links: closed loop, adaptive integrator, one core"
+HEADERS = {SECTION: ["N joints", "plant", "trials/s (1 core)", "steps / trial", "rhs / trial",
+                     "us per rhs", "us per rhs / N^2"]}
+
+
+def robot(n: int) -> RobotParams:
+    """The benchmark's chain of ``n`` joints."""
+    return RobotParams(mass=[2.0] + [1.0] * (n - 1) + [0.6],
+                       inertia=[0.08] + [0.03] * (n - 1) + [0.2],
+                       length=[0.3] + [0.25] * n, com=[0.12] + [0.1] * (n - 1) + [0.0])
+
+
+def scenario_and_trials(n: int, count: int, plant: str) -> tuple[Scenario, Trials]:
+    r = robot(n)
+    start = np.r_[0.0, 1.0, np.full(n - 1, 0.3)]
+    goal = np.r_[0.4, 2.0, np.full(n - 1, 0.6)]
+    start[-1] = goal[-1] = 0.0
+    plan = plan_chain(r, start, goal, np.full(n - 1, 0.3), np.full(n - 1, 0.5), 2.0)
+    sc = Scenario(plan, ChainGains((100.0,) * n, (20.0,) * n), 1e-3, plant=plant).prepared()
+    rng = np.random.default_rng(n)
+    initial = np.hstack([start + rng.normal(0.0, 0.01, (count, n + 1)),
+                         0.3 + rng.normal(0.0, 0.005, (count, n - 1))])
+    return sc, Trials(np.tile(r.as_array(), (count, 1)), np.zeros(count), initial)
+
+
+def measure(n: int, count: int, plant: str) -> dict[str, Any]:
+    sc, trials = scenario_and_trials(n, count, plant)
+    simulate(sc, trials.subset(slice(0, 2)))  # compile / load the kernel
+    best = np.inf
+    for _ in range(2):
+        started = time.perf_counter()
+        out = simulate(sc, trials)
+        best = min(best, time.perf_counter() - started)
+    steps = float(np.median(out.metrics[:, Metric.STEPS]))
+    rhs = float(np.median(out.metrics[:, Metric.RHS_EVALUATIONS]))
+    total_rhs = float(np.sum(out.metrics[:, Metric.RHS_EVALUATIONS]))
+    us = best / total_rhs * 1e6
+    return {"joints": n, "plant": plant, "trials_per_second": count / best, "steps": steps,
+            "rhs": rhs, "us_per_rhs": us, "us_per_rhs_over_n2": us / n ** 2}
+
+
+def run_all(bench: Any) -> None:
+    section = SECTION
+    count = 200 if bench.quick else 1000
+    results = []
+    for plant in ("kinematic", "dynamic"):
+        for n in JOINTS:
+            r = bench.measure(section, f"N = {n}, {plant}", lambda n=n, plant=plant:
+                              measure(n, count, plant))
+            results.append(r)
+            bench.row(section, n, plant, f"{r['trials_per_second']:.0f}", f"{r['steps']:.0f}",
+                      f"{r['rhs']:.0f}", f"{r['us_per_rhs']:.2f}",
+                      f"{r['us_per_rhs_over_n2']:.3f}")
+    bench.raw["chains"] = {"trials": count, "results": results}
