@@ -1,4 +1,5 @@
-"""Tests of flatcli.core.optimize.api: ``optimize_plan`` on the paper's maneuver.
+"""Tests of flatcli.core.optimize.api: ``optimize_plan`` on the paper's maneuver, and on a
+chain of N >= 3 joints (the last section).
 
 Reference values and where they come from:
 
@@ -24,20 +25,30 @@ from typing import Any
 import numpy as np
 import pytest
 from optimize_support import (
+    CHAIN_FINE,
     DURATION,
     EXACT_TOL,
     GOAL,
     START,
+    base_inertia_h0,
+    chain_ends,
+    chain_energy,
+    chain_margin,
+    check_chain_plan,
     check_plan,
     fine,
+    k10,
+    optimize_chain,
     optimize_paper,
     peak_rate,
     signed_margin,
 )
 from scipy.optimize import minimize
+from test_chainplan import example_chain
 
 import flatcli.core.optimize as optimize
 from flatcli.core.basis import BSplineBasis, PolynomialBasis
+from flatcli.core.chainplan import plan_chain
 from flatcli.core.model import PAPER_ROBOT, FlatcliError
 from flatcli.core.optimize import OBJECTIVES, PlanLimits, optimize_plan
 from flatcli.core.planning import FlatPlan, plan_point_to_point
@@ -243,3 +254,110 @@ def test_infeasible_found_by_the_solver() -> None:
     assert message.startswith(head)
     reached = float(message.removeprefix(head).split(" rad/s")[0])
     assert reached == pytest.approx(optimize_paper(objective="peak_rate").objective, abs=0.01)
+
+
+# --- a chain of N >= 3 joints (the example chain of tests/test_chainplan.py) ------------
+#
+# Referees: the full link kinematics, differences and Simpson's rule on a dense sampling of
+# the returned ChainPlan (``optimize_support.check_chain_plan``, ``chain_energy``), the
+# starting guess rebuilt by ``chainplan.plan_chain`` with the same end rates and basis, and
+# the margin's mean (h_0(0) - h_0(T)) / (2 K_10 T), an upper bound of its least value (h_0
+# from the link kinematics).
+
+#: Limits the least-energy plan of the 3-joint chain breaks (it reaches |th3| = 13.8 rad and
+#: |th3'| = 20.4 rad/s; |th1'| 3.0, |th2'| 4.5 rad/s): one rate limit per joint, N + 1 angles.
+CHAIN_LIMITS = PlanLimits(angle_limit=(math.inf, math.inf, math.inf, 13.5),
+                          rate_limit=(6.0, 6.0, 19.0))
+#: Simpson's rule on 4001 samples against the optimiser's Gauss-Legendre energy.
+CHAIN_ENERGY_RTOL = 1e-6
+
+
+def test_chain_energy_under_per_joint_limits() -> None:
+    """N = 3, least energy under a per-joint rate limit and an angle limit on th3: the plan
+    meets them on a dense grid, conserves momentum, and beats the starting guess, which
+    ``plan_chain`` rebuilds from the same end rates."""
+    result = optimize_chain(3, limits=CHAIN_LIMITS)
+    assert result.success, result.message
+    s = check_chain_plan(result, 3, CHAIN_LIMITS)
+    assert chain_energy(s) == pytest.approx(result.objective, rel=CHAIN_ENERGY_RTOL)
+    # the rate limit on th3 binds
+    assert np.max(np.abs(s.theta_dot[:, 3])) == pytest.approx(19.0, rel=1e-4)
+    # the starting guess: min-acceleration plan of the same basis with the initial end rates
+    start, goal = chain_ends(3)
+    rates = [0.1, 0.1], [0.5, 0.5]
+    guess = plan_chain(example_chain(3), start, goal, *rates, DURATION, optimize.default_basis(2.0))
+    guess_energy = chain_energy(guess.sample(guess.grid(CHAIN_FINE)))
+    assert result.initial_objective == pytest.approx(guess_energy, rel=CHAIN_ENERGY_RTOL)
+    assert result.objective < guess_energy / 5
+
+
+def test_chain_peak_rate() -> None:
+    """N = 3: the least peak joint rate, as the dense sampling measures it, below the
+    starting guess's."""
+    result = optimize_chain(3, objective="peak_rate")
+    assert result.success, result.message
+    s = check_chain_plan(result, 3)
+    assert float(np.max(np.abs(s.theta_dot[:, 1:]))) == pytest.approx(result.objective, rel=1e-3)
+    assert result.objective < result.initial_objective / 5
+
+
+def test_chain_margin_reaches_its_mean() -> None:
+    """N = 3: the least margin can never exceed its mean over the maneuver; the optimum gets
+    within Tuning.margin_tie of it, and the solve (two stages) converges."""
+    result = optimize_chain(3, objective="margin")
+    assert result.success, result.message
+    s = check_chain_plan(result, 3)
+    robot = example_chain(3)
+    start, goal = chain_ends(3)
+    h0 = base_inertia_h0(robot, np.vstack([start, goal]))
+    ceiling = abs(h0[0] - h0[1]) / (2.0 * abs(k10(robot)) * DURATION)
+    assert (1 - 2 * optimize.TUNING.margin_tie) * ceiling <= result.objective <= ceiling
+    margin = chain_margin(robot, s.t, s.theta)
+    assert float(np.min(np.sign(margin[0]) * margin)) == pytest.approx(result.objective, rel=1e-3)
+    assert result.objective > result.initial_objective
+
+
+def test_chain_of_four_is_never_worse_than_its_start() -> None:
+    """N = 4, cut short (few samples and iterations): whatever the solver reached, the plan is
+    a valid plan of the chain, no worse than the starting guess."""
+    result = optimize_chain(4, constraint_samples=41, max_iter=60)
+    check_chain_plan(result, 4)
+    assert result.objective <= result.initial_objective
+    assert len(result.start_rates) == len(result.goal_rates) == 3
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"start": [0.0, 1.0, 0.3]}, r"^plan\.start: expected 4 angles"),
+        ({"goal": [0.4, 2.0, 0.6, 0.0, 0.0]}, r"^plan\.goal: expected 4 angles"),
+        ({"start_rate": [0.1, 0.1, 0.1]}, r"^plan\.start_rate: expected one number or 2"),
+        ({"goal_rate": [[0.5, 0.5]]}, r"^plan\.goal_rate: expected one number or 2"),
+        ({"model": "paper"}, r"^robot\.model: 'paper' .* three-link robot only"),
+        ({"limits": PlanLimits(angle_limit=(3.0, 3.0, 3.0))},
+         r"^plan\.optimize\.angle_limit: expected 4 numbers"),
+        ({"limits": PlanLimits(rate_limit=(5.0, 5.0))},
+         r"^plan\.optimize\.rate_limit: expected a number or 3"),
+        # th1 must move 1 rad in 2 s
+        ({"limits": PlanLimits(rate_limit=(0.4, 9.0, 9.0))},
+         r"^plan\.optimize\.rate_limit\[0\] = 0\.4 rad/s cannot be met: th1 must move 1 rad"),
+        ({"limits": PlanLimits(min_margin=5.0)},
+         r"^plan\.optimize\.min_margin = 5 rad/s cannot be met: the margin"),
+    ],
+)
+def test_chain_bad_input(kwargs: dict[str, Any], match: str) -> None:
+    """One line naming the key, before any solve."""
+    start, goal = chain_ends(3)
+    args = {"start": start, "goal": goal, **kwargs}
+    with pytest.raises(FlatcliError, match=match) as info:
+        optimize_plan(example_chain(3), args.pop("start"), args.pop("goal"), DURATION, **args)
+    assert "\n" not in str(info.value)
+
+
+def test_chain_rate_limit_below_the_least_peak() -> None:
+    """A rate limit below the least achievable peak rate (16.05 rad/s on this chain, the
+    "peak_rate" optimum) is refused in one line naming rate_limit and the rate reached."""
+    with pytest.raises(FlatcliError, match=r"^plan\.optimize\.rate_limit = 5 rad/s cannot be "
+                       r"met: the best plan found reaches \|th\d'\| = [\d.]+ rad/s") as info:
+        optimize_chain(3, limits=PlanLimits(rate_limit=5.0), constraint_samples=41, max_iter=60)
+    assert "\n" not in str(info.value)

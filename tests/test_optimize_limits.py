@@ -98,3 +98,32 @@ def test_describe_violation() -> None:
         "|th2| = 2.9 rad"
     )
     assert "min_margin = 0.02 rad/s" in describe_violation(limits, MARGIN, 0.01, 0.0)
+
+
+def test_limits_of_a_chain() -> None:
+    """N + 1 angle limits and one rate limit per joint: rows per joint, labels naming the
+    list entry; the all-inf default stretches to any N, other lengths are refused."""
+    limits = PlanLimits(angle_limit=(math.inf, 2.0, math.inf, 3.0), rate_limit=(math.inf, 4.0, 5.0))
+    assert limits.n_joints == 3
+    assert [limits.rate_of(j) for j in (1, 2, 3)] == [math.inf, 4.0, 5.0]
+    rows = limit_rows(limits, "energy", BACKOFF)
+    assert rows.label == (
+        "angle_limit[1] on th1", "angle_limit[1] on th1",
+        "angle_limit[3] on th3", "angle_limit[3] on th3",
+        "rate_limit[1] on th2'", "rate_limit[1] on th2'",
+        "rate_limit[2] on th3'", "rate_limit[2] on th3'",
+        "min_margin",
+    )  # fmt: skip
+    assert rows.quantity.tolist() == [1, 1, 3, 3, 5, 5, 6, 6, 7]
+    assert PlanLimits().for_joints(4).angle_limit == (math.inf,) * 5
+    assert limits.for_joints(3) is limits
+    assert PlanLimits(rate_limit=2.0).for_joints(5).rate_of(5) == 2.0
+    with pytest.raises(FlatcliError, match=r"^plan\.optimize\.angle_limit: expected 5 numbers"):
+        limits.for_joints(4)
+    with pytest.raises(FlatcliError, match=r"^plan\.optimize\.rate_limit: expected a number or 2"):
+        PlanLimits(rate_limit=(1.0, 2.0, 3.0)).for_joints(2)
+    with pytest.raises(FlatcliError, match=r"^plan\.optimize\.rate_limit: must be > 0"):
+        PlanLimits(rate_limit=(1.0, 0.0, 3.0))
+    line = describe_violation(limits, 6, -5.5, 0.25)
+    assert line == ("plan.optimize.rate_limit[2] = 5 rad/s cannot be met: the best plan found "
+                    "reaches |th3'| = 5.5 rad/s at t = 0.250 s")

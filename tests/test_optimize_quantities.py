@@ -8,7 +8,10 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import NDArray
+from test_chainplan import example_plan
 
+from flatcli.core.chainplan import ChainModel
+from flatcli.core.model import PAPER_ROBOT
 from flatcli.core.optimize.quantities import (
     ANGLES,
     FLAG_SIZE,
@@ -17,6 +20,8 @@ from flatcli.core.optimize.quantities import (
     RATES,
     flag_jacobian,
     flag_quantities,
+    layout,
+    layout_of,
 )
 from flatcli.core.planning import FlatPlan, state_and_rates
 
@@ -64,6 +69,46 @@ def test_flag_jacobian_against_central_differences(paper_plan: FlatPlan) -> None
         step[c] = FD_STEP * max(1.0, float(np.max(np.abs(flag[c]))))
         up = flag_quantities(paper_plan.coefficients, flag + step)
         down = flag_quantities(paper_plan.coefficients, flag - step)
+        fd = (up - down) / (2 * step[c])
+        scale = np.max(np.abs(jac[:, c, :]), axis=1, keepdims=True) + 1.0
+        np.testing.assert_allclose(jac[:, c, :] / scale, fd / scale, rtol=0, atol=FD_RTOL)
+
+
+def test_two_link_chain_path_is_the_papers(paper_plan: FlatPlan) -> None:
+    """N = 2 through the chain's flag map (``ChainModel``) gives the paper path's quantities
+    (``Coefficients``, derived) and their Jacobians along the paper's cubic: the chain's
+    margin -(dh_0/dt) / (2 K_10) is sin(y1) y1' for two links."""
+    flag = paper_flag(paper_plan, 41)
+    chain = ChainModel.of(PAPER_ROBOT)
+    assert layout_of(chain) == layout(2) and layout(2).margin == MARGIN
+    paper_values, paper_jac = flag_jacobian(paper_plan.coefficients, flag)
+    chain_values, chain_jac = flag_jacobian(chain, flag)
+    scale = np.max(np.abs(paper_values), axis=1, keepdims=True)
+    np.testing.assert_allclose(chain_values / scale, paper_values / scale, rtol=0, atol=1e-10)
+    real = np.asarray(flag_quantities(chain, flag), dtype=float)
+    np.testing.assert_allclose(real, chain_values, rtol=1e-12, atol=0)
+    jscale = np.max(np.abs(paper_jac), axis=(1, 2), keepdims=True) + 1.0
+    np.testing.assert_allclose(chain_jac / jscale, paper_jac / jscale, rtol=0, atol=1e-10)
+
+
+def test_chain_layout_and_jacobian_against_central_differences() -> None:
+    """N = 3: rows named once; the compiled complex-step Jacobian of a chain against central
+    differences of the real quantities."""
+    lay = layout(3)
+    assert lay.names == ("th0", "th1", "th2", "th3", "th1'", "th2'", "th3'", "margin")
+    assert sorted((*lay.angles, *lay.rates, lay.margin)) == list(range(lay.size))
+    plan = example_plan(3)
+    t = plan.grid(21)
+    flag = np.ascontiguousarray(plan.flags(t).T)  # (9, 21)
+    values, jac = flag_jacobian(plan.model, flag)
+    s = plan.sample(t)
+    np.testing.assert_allclose(values[list(lay.angles)].T, s.theta, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(values[list(lay.rates)].T, s.theta_dot[:, 1:], rtol=1e-12)
+    for c in range(lay.flag_size):
+        step = np.zeros((lay.flag_size, 1))
+        step[c] = FD_STEP * max(1.0, float(np.max(np.abs(flag[c]))))
+        up = np.asarray(flag_quantities(plan.model, flag + step), dtype=float)
+        down = np.asarray(flag_quantities(plan.model, flag - step), dtype=float)
         fd = (up - down) / (2 * step[c])
         scale = np.max(np.abs(jac[:, c, :]), axis=1, keepdims=True) + 1.0
         np.testing.assert_allclose(jac[:, c, :] / scale, fd / scale, rtol=0, atol=FD_RTOL)

@@ -25,7 +25,8 @@ position depends on th_N, h_N = I_N is constant, and h_0, ..., h_N-1 depend on t
 th_N-1 only. That is what makes the chain flat (``chainflat``).
 
 Functions take 1-D arrays per link and plain floats, so numba compiles them into the
-closed-loop kernels as they are.
+closed-loop kernels as they are; those of the angles allocate in the dtype of ``theta``, so
+complex angles (complex step) pass through them.
 """
 
 from __future__ import annotations
@@ -90,7 +91,7 @@ def momentum_weights(K: Array, inertia: Array, theta: Array, out: Array) -> None
     inertia matrix in absolute angles, summed over the bodies joint j moves.
     """
     n = theta.shape[0]
-    psi = np.empty(n)
+    psi = np.empty(n, dtype=theta.dtype)
     absolute_angles(theta, psi)
     tail = 0.0
     for b in range(n - 1, -1, -1):
@@ -111,7 +112,7 @@ def base_inertia_slopes(K: Array, inertia: Array, theta: Array, grad: Array, hes
     th_k exactly when b < k <= a.
     """
     n = theta.shape[0]
-    psi = np.empty(n)
+    psi = np.empty(n, dtype=theta.dtype)
     absolute_angles(theta, psi)
     h0 = 0.0
     for a in range(n):
@@ -138,9 +139,9 @@ def weight_slopes(K: Array, theta: Array, out: Array) -> None:
     """d h_j / d th_k into ``out`` (N + 1, N): row j (body/joint 0..N), column k - 1 for the
     joint angles th_k, k = 1..N [kg m^2]."""
     n = theta.shape[0]
-    psi = np.empty(n)
+    psi = np.empty(n, dtype=theta.dtype)
     absolute_angles(theta, psi)
-    col = np.zeros((n, n - 1))  # d c_b / d th_k
+    col = np.zeros((n, n - 1), dtype=theta.dtype)  # d c_b / d th_k
     for b in range(n):
         for a in range(n):
             if a == b or K[a, b] == 0.0:

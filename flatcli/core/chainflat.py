@@ -35,7 +35,10 @@ flat; flatcli reports it as unsupported (``model.flatness_check``).
 
 Functions take the controller's K (``chain.barycentric_matrix``) and inertias, angles
 (N + 1,) and rates (N - 1,) as 1-D arrays, write into output arrays, and are compiled into
-the closed-loop kernels as they are.
+the closed-loop kernels as they are. They are complex-step safe: the arrays they allocate
+take the dtype of their inputs and nothing is cast to float, so complex angles and rates (in
+complex output arrays) give derivatives exact to rounding (the optimiser's Jacobians,
+``optimize.quantities``); real inputs compute exactly what they did before.
 """
 
 from __future__ import annotations
@@ -53,12 +56,28 @@ Array = NDArray[np.float64]
 def _terms(K: Array, inertia: Array, theta: Array) -> tuple[float, Array, Array, Array]:
     """h_0, the weights h (N + 1,), grad h_0 (N,) and its Hessian (N, N) at theta."""
     n = theta.shape[0]
-    h = np.empty(n)
+    h = np.empty(n, dtype=theta.dtype)
     momentum_weights(K, inertia, theta, h)
-    grad = np.empty(n - 1)
-    hess = np.empty((n - 1, n - 1))
+    grad = np.empty(n - 1, dtype=theta.dtype)
+    hess = np.empty((n - 1, n - 1), dtype=theta.dtype)
     h0 = base_inertia_slopes(K, inertia, theta, grad, hess)
     return h0, h, grad, hess
+
+
+@jitable
+def terms(K: Array, inertia: Array, theta: Array) -> tuple[float, Array, Array, Array, Array]:
+    """Everything trigonometric of the flat maps, at the angles theta (N + 1,) [rad]: h_0,
+    the weights h (N + 1,), grad h_0 (N,), its Hessian (N, N) and the slopes d h_j / d th_k
+    (N + 1, N) [kg m^2] (``chain.weight_slopes``).
+
+    With d_N = 0 they depend on q = (th_1..th_N-1) only, not on th0 or th_N (up to the
+    rounding of the absolute angles' differences); ``flag_state_given`` takes them.
+    """
+    n = theta.shape[0] - 1
+    h0, h, grad, hess = _terms(K, inertia, theta)
+    slopes = np.empty((n + 1, n), dtype=theta.dtype)
+    weight_slopes(K, theta, slopes)
+    return h0, h, grad, hess, slopes
 
 
 @jitable
@@ -77,20 +96,36 @@ def outputs(K: Array, inertia: Array, theta: Array, u: Array, y: Array, y_dot: A
     i_n = inertia[n]
     y[n - 1] = theta[0] + i_n * theta[n] / h0
     y_dot[n - 1] = -s / h0 - i_n * theta[n] * d / (h0 * h0)
-    return float(-d / (2.0 * K[1, 0]))
+    return -d / (2.0 * K[1, 0])  # type: ignore[no-any-return]  # no float(): complex-safe
 
 
 @jitable
 def state(K: Array, inertia: Array, y: Array, y_dot: Array, theta: Array, u: Array) -> float:
     """Inverse map: y (N,), y' (N,) -> theta (N + 1,) [rad], u (N - 1,) [rad/s], written;
     returns sigma. inf/nan where D = 0 (the singular set)."""
+    _joints(y, y_dot, theta, u)
+    h0, h, grad, _ = _terms(K, inertia, theta)
+    return _invert(K, inertia, h0, h, grad, y, y_dot, theta, u)
+
+
+@jitable
+def _joints(y: Array, y_dot: Array, theta: Array, u: Array) -> None:
+    """th_j = y_j, u_j = y_j' (j < N) into theta and u; th0 = th_N = 0 for now (h_0, h_j and
+    grad do not depend on them: d_N = 0)."""
     n = theta.shape[0] - 1
     theta[0] = 0.0
     for j in range(1, n):
         theta[j] = y[j - 1]
         u[j - 1] = y_dot[j - 1]
-    theta[n] = 0.0  # h_0, h_j, grad do not depend on th0 or th_N (d_N = 0)
-    h0, h, grad, _ = _terms(K, inertia, theta)
+    theta[n] = 0.0
+
+
+@jitable
+def _invert(K: Array, inertia: Array, h0: float, h: Array, grad: Array, y: Array,
+            y_dot: Array, theta: Array, u: Array) -> float:
+    """th_N and th0 into theta from y, y' (theta's joints and u set), given the terms at q;
+    returns sigma."""
+    n = theta.shape[0] - 1
     s = 0.0
     d = 0.0
     for j in range(1, n):
@@ -99,7 +134,7 @@ def state(K: Array, inertia: Array, y: Array, y_dot: Array, theta: Array, u: Arr
     i_n = inertia[n]
     theta[n] = -h0 * (s + y_dot[n - 1] * h0) / (i_n * d)
     theta[0] = y[n - 1] - i_n * theta[n] / h0
-    return float(-d / (2.0 * K[1, 0]))
+    return -d / (2.0 * K[1, 0])  # type: ignore[no-any-return]  # no float(): complex-safe
 
 
 @jitable
@@ -114,10 +149,15 @@ def inputs(K: Array, inertia: Array, theta: Array, u: Array, v: Array, u_dot: Ar
               - I_N th_N ((dD/dq_k) / h_0^2 - 2 D (dh_0/dq_k) / h_0^3),
     dS/dq_k = sum_j (dh_j/dq_k) u_j, dD/dq_k = sum_j (d^2 h_0 / dq_j dq_k) u_j.
     """
+    h0, h, grad, hess, slopes = terms(K, inertia, theta)
+    return _inputs_given(inertia, h0, h, grad, hess, slopes, theta, u, v, u_dot)
+
+
+@jitable
+def _inputs_given(inertia: Array, h0: float, h: Array, grad: Array, hess: Array,
+                  slopes: Array, theta: Array, u: Array, v: Array, u_dot: Array) -> float:
+    """``inputs`` given the terms at q (``terms``)."""
     n = theta.shape[0] - 1
-    h0, h, grad, hess = _terms(K, inertia, theta)
-    slopes = np.empty((n + 1, n))
-    weight_slopes(K, theta, slopes)
     s = 0.0
     d = 0.0
     for j in range(1, n):
@@ -140,7 +180,7 @@ def inputs(K: Array, inertia: Array, theta: Array, u: Array, v: Array, u_dot: Ar
         alpha += df_dq * u[k - 1] + df_du * v[k - 1]
         u_dot[k - 1] = v[k - 1]
     beta = -i_n * d * inv * inv
-    return float((v[n - 1] - alpha) / beta)
+    return (v[n - 1] - alpha) / beta  # type: ignore[no-any-return]  # complex-safe
 
 
 @jitable
@@ -155,10 +195,37 @@ def flag_state(K: Array, inertia: Array, y: Array, y_dot: Array, y_ddot: Array, 
     momentum constraint).
     """
     n = theta.shape[0] - 1
-    u = np.empty(n - 1)
+    u = np.empty(n - 1, dtype=y.dtype)
     sigma = state(K, inertia, y, y_dot, theta, u)
     th_n_dot = inputs(K, inertia, theta, u, y_ddot, u_dot)
     h0, _, grad, _ = _terms(K, inertia, theta)
+    _rates(inertia, h0, grad, theta, u, y_dot, th_n_dot, theta_dot)
+    return sigma
+
+
+@jitable
+def flag_state_given(K: Array, inertia: Array, h0: float, h: Array, grad: Array, hess: Array,
+                     slopes: Array, y: Array, y_dot: Array, y_ddot: Array, theta: Array,
+                     theta_dot: Array, u_dot: Array) -> float:
+    """``flag_state`` given ``terms`` at q = (y_1..y_N-1), computed once and shared by the
+    three steps (``flag_state`` evaluates them per step, at th0 = th_N = 0 and then at the
+    state's th0, th_N: the same up to rounding). A complex-step derivative along a flag
+    component other than q passes the real terms: only q enters them.
+    """
+    n = theta.shape[0] - 1
+    u = np.empty(n - 1, dtype=y.dtype)
+    _joints(y, y_dot, theta, u)
+    sigma = _invert(K, inertia, h0, h, grad, y, y_dot, theta, u)
+    th_n_dot = _inputs_given(inertia, h0, h, grad, hess, slopes, theta, u, y_ddot, u_dot)
+    _rates(inertia, h0, grad, theta, u, y_dot, th_n_dot, theta_dot)
+    return sigma
+
+
+@jitable
+def _rates(inertia: Array, h0: float, grad: Array, theta: Array, u: Array, y_dot: Array,
+           th_n_dot: float, theta_dot: Array) -> None:
+    """theta_dot (N + 1,) from u, th_N' and y_N' (see ``flag_state``)."""
+    n = theta.shape[0] - 1
     d = 0.0
     for j in range(1, n):
         theta_dot[j] = u[j - 1]
@@ -166,4 +233,3 @@ def flag_state(K: Array, inertia: Array, y: Array, y_dot: Array, y_ddot: Array, 
     theta_dot[n] = th_n_dot
     i_n = inertia[n]
     theta_dot[0] = y_dot[n - 1] - i_n * (th_n_dot * h0 - theta[n] * d) / (h0 * h0)
-    return sigma

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -38,6 +39,8 @@ from flatcli.core.planning import (
 )
 
 Array = NDArray[np.float64]
+#: Real or complex arrays (the flag map is complex-step safe).
+AnyArray = NDArray[Any]
 
 #: Samples per unit of (pieces x degree) in the scan for sign changes of the margin.
 MARGIN_SCAN = 64
@@ -69,13 +72,36 @@ class ChainModel:
 
 
 @kernel
-def _flags_to_states(K: Array, inertia: Array, flags: Array, theta: Array, theta_dot: Array,
-                     u_dot: Array, sigma: Array) -> None:
-    """``flag_state`` at every row of flags (n, 3 N): y, y', y''."""
+def _flags_to_states(K: Array, inertia: Array, flags: AnyArray, theta: AnyArray,
+                     theta_dot: AnyArray, u_dot: AnyArray, sigma: AnyArray) -> None:
+    """``flag_state`` at every row of flags (n, 3 N): y, y', y'' (real or complex, the
+    outputs of the same dtype)."""
     n_out = flags.shape[1] // 3
     for i in range(flags.shape[0]):
         sigma[i] = flag_state(K, inertia, flags[i, :n_out], flags[i, n_out:2 * n_out],
                               flags[i, 2 * n_out:], theta[i], theta_dot[i], u_dot[i])
+
+
+def flags_to_states(model: ChainModel, flags: NDArray[np.generic]
+                    ) -> tuple[NDArray[np.generic], ...]:
+    """``chainflat.flag_state`` at every row of ``flags`` (n, 3 N): y, y', y''.
+
+    Real or complex (complex step): the outputs take the dtype of ``flags``.
+
+    Returns
+    -------
+    theta (n, N + 1) [rad], theta_dot (n, N + 1) [rad/s], u_dot (n, N - 1) [rad/s^2],
+    sigma (n,) [rad/s]; inf/nan on the singular set
+    """
+    flags = np.ascontiguousarray(flags)
+    count, n = flags.shape[0], model.n_joints
+    theta = np.empty((count, n + 1), dtype=flags.dtype)
+    theta_dot = np.empty((count, n + 1), dtype=flags.dtype)
+    u_dot = np.empty((count, n - 1), dtype=flags.dtype)
+    sigma = np.empty(count, dtype=flags.dtype)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        _flags_to_states(model.K, model.inertia, flags, theta, theta_dot, u_dot, sigma)
+    return theta, theta_dot, u_dot, sigma
 
 
 def chain_boundary(model: ChainModel, start: ArrayLike, goal: ArrayLike, start_rate: ArrayLike,

@@ -1,15 +1,18 @@
 """The decision vector, and the coefficients and flat flag that are affine in it.
 
-The boundary conditions are linear in the coefficients, and y2'(0) = k0 th1'(0),
-y2'(T) = kT th1'(T) with k0, kT fixed by the end configurations (``flat_outputs``: y2' is
-linear in u1). So the coefficients, and with them the flat flag
-F(t) = (y1, y2, y1', y2', y1'', y2'') at any time, are affine in the decision vector
+The boundary conditions are linear in the coefficients, and the flat outputs' rates at an
+end are linear in the joint rates there: for the paper's robot y1' = th1', y2' = k th1' with
+k fixed by the end configuration (``flat_outputs``); for a chain of N joints y_j' = th_j'
+(j < N) and y_N' = -(S + I_N th_N D / h_0) / h_0, S and D linear in th_1'..th_N-1'
+(``chainflat.outputs``). So the coefficients, and with them the flat flag
+F(t) = (y, y', y'') at any time, are affine in the decision vector
 
-    x = (th1'(0), th1'(T), z1, z2[, s])
+    x = (u(0), u(T), z_1, ..., z_N[, s])
 
-(the free end rates unless they are fixed; z_j: null-space coordinates of the boundary
-matrix for output j; s: an epigraph variable, whose slope is zero). The slopes are constant,
-so a problem evaluates the flag at its times once and forms it for any x as base + slope x.
+(u: the free end rates th_1'..th_N-1' unless they are fixed, th1' alone for the paper's
+robot; z_j: null-space coordinates of the boundary matrix for output j; s: an epigraph
+variable, whose slope is zero). The slopes are constant, so a problem evaluates the flag at
+its times once and forms it for any x as base + slope x.
 """
 
 from __future__ import annotations
@@ -20,8 +23,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from flatcli.core.basis import Basis
+from flatcli.core.chainflat import outputs
+from flatcli.core.chainplan import ChainModel, chain_boundary
 from flatcli.core.flatness import flat_outputs
 from flatcli.core.model import Coefficients
+from flatcli.core.optimize.quantities import Flat
 from flatcli.core.planning import (
     boundary_conditions,
     boundary_system,
@@ -64,7 +70,8 @@ class Affine:
 
         Returns
         -------
-        base : (3 outputs, n) the flag at x = 0, rows y1, y2, y1', y2', y1'', y2''
+        base : (3 outputs, n) the flag at x = 0, rows y, y', y'' (y1, y2, y1', ... for two
+            outputs)
         slope : (3 outputs, n, nv) its constant derivative in x
         """
         p = self.outputs
@@ -79,7 +86,7 @@ class Affine:
 
 
 def end_flat(k: Coefficients, theta: Array) -> tuple[float, float, float]:
-    """Flat outputs at a configuration, and how y2' scales with th1' there.
+    """Flat outputs of the paper's robot at a configuration, and how y2' scales with th1'.
 
     Parameters
     ----------
@@ -94,13 +101,39 @@ def end_flat(k: Coefficients, theta: Array) -> tuple[float, float, float]:
     return float(y1), float(y2), float(slope)
 
 
+def end_map(k: Flat, theta: Array) -> tuple[Array, Array]:
+    """Flat outputs at a configuration, and how their rates follow the joint rates there.
+
+    Parameters
+    ----------
+    k : Coefficients (d2 = 0) or ChainModel (d_N = 0)
+    theta : (N + 1,) th0..thN [rad]
+
+    Returns
+    -------
+    y : (N,) the flat outputs [rad]
+    slope : (N, N - 1) dy'/du, u = (th_1'..th_N-1') [-]: y' = slope @ u
+    """
+    if not isinstance(k, ChainModel):
+        y1, y2, ratio = end_flat(k, theta)
+        return np.array([y1, y2]), np.array([[1.0], [ratio]])
+    n = k.n_joints
+    theta = np.asarray(theta, dtype=float)
+    y, y_dot = np.empty(n), np.empty(n)
+    slope = np.empty((n, n - 1))
+    for j, u in enumerate(np.eye(n - 1)):
+        outputs(k.K, k.inertia, theta, u, y, y_dot)
+        slope[:, j] = y_dot
+    return y.copy(), slope
+
+
 def affine_map(
-    k: Coefficients,
+    k: Flat,
     basis: Basis,
     start: Array,
     goal: Array,
-    start_rate: float,
-    goal_rate: float,
+    start_rate: float | Array,
+    goal_rate: float | Array,
     free_rates: bool,
     epigraph: bool,
 ) -> tuple[Affine, Array]:
@@ -108,11 +141,12 @@ def affine_map(
 
     Parameters
     ----------
-    k : Coefficients (d2 = 0)
+    k : Coefficients (d2 = 0) or ChainModel (d_N = 0)
     basis : flat-output basis on [0, T]
-    start, goal : (3,) end configurations [rad]
-    start_rate, goal_rate : th1'(0), th1'(T) [rad/s]: of the starting guess, or the fixed end
-        rates when ``free_rates`` is False
+    start, goal : (N + 1,) end configurations [rad]
+    start_rate, goal_rate : end rates u(0), u(T) (th1' for the paper's robot, (N - 1,)
+        th_1'..th_N-1' for a chain) [rad/s]: of the starting guess, or the fixed end rates
+        when ``free_rates`` is False
     free_rates : the end rates are decision variables
     epigraph : append an epigraph variable (zero slope)
 
@@ -126,37 +160,47 @@ def affine_map(
     P = system.particular  # (size, 4)
     N = system.null  # (size, m)
     m = N.shape[1]
-    y1_0, y2_0, k0 = end_flat(k, start)  # k0 = y2'(0) / th1'(0)
-    y1_T, y2_T, kT = end_flat(k, goal)
-    # boundary right-hand sides (rows y(0), y'(0), y(T), y'(T); columns y1, y2): the fixed
-    # part R0, and the parts proportional to th1'(0) (Ra) and th1'(T) (Rb)
-    R0 = np.zeros((4, 2))
-    R0[0] = (y1_0, y2_0)
-    R0[2] = (y1_T, y2_T)
-    Ra = np.zeros((4, 2))
-    Ra[1] = (1.0, k0)
-    Rb = np.zeros((4, 2))
-    Rb[3] = (1.0, kT)
+    y_0, slope_0 = end_map(k, start)  # y'(0) = slope_0 @ u(0)
+    y_T, slope_T = end_map(k, goal)
+    p, r = slope_0.shape  # outputs, end rates per end
+    u_0 = np.atleast_1d(np.asarray(start_rate, dtype=float))
+    u_T = np.atleast_1d(np.asarray(goal_rate, dtype=float))
+    # boundary right-hand sides (rows y(0), y'(0), y(T), y'(T); columns the outputs): the
+    # fixed part R0, and the parts proportional to each end rate at t = 0 (Ra) and T (Rb)
+    R0 = np.zeros((4, p))
+    R0[0] = y_0
+    R0[2] = y_T
+    Ra = np.zeros((r, 4, p))
+    Ra[:, 1] = slope_0.T
+    Rb = np.zeros((r, 4, p))
+    Rb[:, 3] = slope_T.T
+    rhs = R0
+    for j in range(r):
+        rhs = rhs + u_0[j] * Ra[j]
+    for j in range(r):
+        rhs = rhs + u_T[j] * Rb[j]
     slopes: list[Array] = []
     if free_rates:
         base = P @ R0
-        slopes += [P @ Ra, P @ Rb]
+        slopes += [P @ R for R in (*Ra, *Rb)]
     else:
-        base = P @ (R0 + start_rate * Ra + goal_rate * Rb)
-    for out in range(2):
+        base = P @ rhs
+    for out in range(p):
         for j in range(m):
-            s = np.zeros((basis.size, 2))
+            s = np.zeros((basis.size, p))
             s[:, out] = N[:, j]
             slopes.append(s)
     if epigraph:
-        slopes.append(np.zeros((basis.size, 2)))
-    affine = Affine(basis, base, np.asarray(slopes).reshape(-1, basis.size, 2))
-    bc = boundary_conditions(k, start, goal, start_rate, goal_rate)
-    guess = min_acceleration_trajectory(basis, bc).coefficients.T  # (size, 2)
-    rhs = R0 + start_rate * Ra + goal_rate * Rb
-    z = N.T @ (guess - P @ rhs)  # (m, 2)
-    rates = [start_rate, goal_rate] if free_rates else []
-    return affine, np.concatenate([rates, z[:, 0], z[:, 1]])
+        slopes.append(np.zeros((basis.size, p)))
+    affine = Affine(basis, base, np.asarray(slopes).reshape(-1, basis.size, p))
+    if isinstance(k, ChainModel):
+        bc = chain_boundary(k, start, goal, u_0, u_T)
+    else:
+        bc = boundary_conditions(k, start, goal, float(u_0[0]), float(u_T[0]))
+    guess = min_acceleration_trajectory(basis, bc).coefficients.T  # (size, p)
+    z = N.T @ (guess - P @ rhs)  # (m, p)
+    rates = np.concatenate([u_0, u_T]) if free_rates else np.zeros(0)
+    return affine, np.concatenate([rates, *z.T])
 
 
-__all__ = ["Affine", "affine_map", "end_flat"]
+__all__ = ["Affine", "affine_map", "end_flat", "end_map"]

@@ -13,17 +13,23 @@ The steps (each a function or method below):
    ``Tuning.margin_tie`` of the best (the maximiser is not unique).
 5. ``_keep_start``: never return a plan worse than a feasible starting guess.
 6. ``_result``: the plan and its ``OptimizeResult``.
+
+The paper's robot (N = 2) is planned through its reduced constraint (``planning``, a
+``FlatPlan``); a chain of N >= 3 joints through ``chainflat`` (a ``chainplan.ChainPlan``).
+The steps are the same for both.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from flatcli.core.basis import Basis, BSplineBasis
+from flatcli.core.chainplan import ChainModel, ChainPlan
 from flatcli.core.model import (
     FlatcliError,
     Model,
@@ -36,6 +42,7 @@ from flatcli.core.optimize.feasibility import check_ends
 from flatcli.core.optimize.limits import PlanLimits
 from flatcli.core.optimize.objectives import OBJECTIVES, Objective, better
 from flatcli.core.optimize.problem import Request
+from flatcli.core.optimize.quantities import Flat
 from flatcli.core.optimize.search import Candidate, Search
 from flatcli.core.optimize.tuning import TUNING, Tuning
 from flatcli.core.planning import ENERGY_ORDER, ENERGY_PIECES, FlatPlan, FlatTrajectory
@@ -57,7 +64,9 @@ class OptimizeResult:
 
     Attributes
     ----------
-    plan : the optimised plan (same robot and model, the chosen basis)
+    plan : the optimised plan (same robot and model, the chosen basis): a ``FlatPlan`` for
+        the paper's robot (N = 2), a ``chainplan.ChainPlan`` for a chain of N >= 3 joints
+        (typed ``Any`` while callers still declare ``FlatPlan``; narrow with isinstance)
     success : the solver converged and the plan meets every limit on the check grid
     objective : final value of the objective (units of the objective, see ``objectives``)
     initial_objective : its value at the starting guess
@@ -67,9 +76,11 @@ class OptimizeResult:
     max_violation : worst limit violation on the check grid, >= 0 [rad or rad/s]
     start_rate, goal_rate : the chosen end rates th1'(0), th1'(T) [rad/s]
     message : the solver's message, and any note on the outcome
+    start_rates, goal_rates : (N - 1,) the chosen end rates th_1'..th_N-1' at 0 and T
+        [rad/s] ((start_rate,) and (goal_rate,) for N = 2)
     """
 
-    plan: FlatPlan
+    plan: Any  # FlatPlan (N = 2) | ChainPlan (N >= 3); see the attribute's description
     success: bool
     objective: float
     initial_objective: float
@@ -80,6 +91,8 @@ class OptimizeResult:
     start_rate: float
     goal_rate: float
     message: str
+    start_rates: tuple[float, ...]
+    goal_rates: tuple[float, ...]
 
 
 def default_basis(duration: float) -> BSplineBasis:
@@ -107,8 +120,8 @@ def optimize_plan(
     objective: Objective = "energy",
     limits: PlanLimits | None = None,
     free_rates: bool = True,
-    start_rate: float = 0.1,
-    goal_rate: float = 0.5,
+    start_rate: ArrayLike = 0.1,
+    goal_rate: ArrayLike = 0.5,
     constraint_samples: int = 201,
     max_iter: int = 300,
     tuning: Tuning = TUNING,
@@ -117,23 +130,29 @@ def optimize_plan(
 
     Parameters
     ----------
-    robot : a flat design (d2 = 0)
-    start, goal : (3,) configurations th0, th1, th2 [rad]
+    robot : a flat design (d_N = 0) of N >= 2 joints (``robot.n_joints``): the paper's robot
+        (N = 2) or a chain
+    start, goal : (N + 1,) configurations th0..thN [rad]
     duration : T [s] > 0
-    model : which constraint coefficients the planner believes
+    model : which constraint coefficients the planner believes ("paper": the paper's printed
+        ones, N = 2 only)
     basis : flat-output basis on [0, T]; default ``default_basis(duration)`` (quintic
         B-splines with 12 coefficients)
-    objective : "energy", "effort", "peak_rate" or "margin" (see ``objectives``).
-        "margin" is solved in two stages: the largest achievable minimum margin s*, then
-        the least-energy plan whose margin stays >= (1 - ``Tuning.margin_tie``) s* (the
-        maximiser alone is not unique: y2 does not enter the margin, and leaving it
-        arbitrary gives wild th2).
-    limits : PlanLimits; default PlanLimits() (no angle or rate limits, margin >= 0.02 rad/s)
-    free_rates : optimise th1'(0) and th1'(T) too; otherwise they stay at the given values
-    start_rate, goal_rate : th1'(0), th1'(T) [rad/s] of the starting guess (the paper's 0.1
-        and 0.5), or the fixed end rates when ``free_rates`` is False. With free rates their
-        signs follow the direction th1 moves and they are clipped into the range the limits
-        allow.
+    objective : "energy", "effort", "peak_rate" or "margin" (see ``objectives``; over all
+        N joint rates, and the margin sin(th1) th1' for N = 2, -(dh_0/dt) / (2 K_10) for a
+        chain). "margin" is solved in two stages: the largest achievable minimum margin s*,
+        then the least-energy plan whose margin stays >= (1 - ``Tuning.margin_tie``) s* (the
+        maximiser alone is not unique: y_N does not enter the margin, and leaving it
+        arbitrary gives wild th_N).
+    limits : PlanLimits; default PlanLimits() (no angle or rate limits, margin >= 0.02
+        rad/s). Its angle_limit has N + 1 numbers (all inf stands for any N), its rate_limit
+        one number or N (``PlanLimits.for_joints``)
+    free_rates : optimise the end rates too; otherwise they stay at the given values
+    start_rate, goal_rate : end rates of the starting guess (the paper's 0.1 and 0.5), or the
+        fixed end rates when ``free_rates`` is False [rad/s]: th1' for N = 2; for a chain
+        th_1'..th_N-1', (N - 1,) or one number for all. With free rates they are pointed the
+        way the margin's sign needs (for N = 2 the direction th1 moves) and moved into the
+        range the margin and the rate limits allow.
     constraint_samples : equally spaced times where the limits are imposed (>= 10); the
         check grid has ``Tuning.check_refinement`` times as many intervals
     max_iter : solver iteration limit per exchange round (>= 1)
@@ -142,7 +161,9 @@ def optimize_plan(
     Returns
     -------
     OptimizeResult; its objective is never worse than the starting guess's when that is
-    feasible (the starting guess is returned if the solver does not improve on it)
+    feasible (the starting guess is returned if the solver does not improve on it). A
+    chain's plan is checked for zeros of its margin between the check grid's samples
+    (``ChainPlan.margin_zeros``) like ``chainplan.plan_chain``'s.
 
     Raises
     ------
@@ -150,9 +171,11 @@ def optimize_plan(
     request found infeasible up front (``feasibility``), or when no plan meeting the limits
     is found; the line then describes the plan that exceeds them least, found by a phase-1
     solve minimising the largest relative excess over the angle and rate limits (e.g. the
-    least achievable peak rate when the rate limit is below it).
+    least achievable peak rate when the rate limit is below it). For N = 2 the fold th2
+    must reach (``required_fold``) is checked up front; for a chain it depends on the path,
+    so an angle or rate limit that forbids it is found by the solver (``feasibility``).
     """
-    limits = PlanLimits() if limits is None else limits
+    limits = (PlanLimits() if limits is None else limits).for_joints(robot.n_joints)
     request = _request(
         robot, model, start, goal, duration, basis, objective, limits, free_rates,
         start_rate, goal_rate, constraint_samples, max_iter, tuning,
@@ -182,14 +205,15 @@ def _request(
     objective: str,
     limits: PlanLimits,
     free_rates: bool,
-    start_rate: float,
-    goal_rate: float,
+    start_rate: ArrayLike,
+    goal_rate: ArrayLike,
     constraint_samples: int,
     max_iter: int,
     tuning: Tuning,
 ) -> Request:
     """Validate the arguments and check the request up front; the shared setting."""
     require_flat(robot)
+    n = robot.n_joints
     if objective not in OBJECTIVES:
         raise FlatcliError(
             f"plan.optimize.objective: expected one of {list(OBJECTIVES)}, got {objective!r}"
@@ -208,9 +232,29 @@ def _request(
         raise FlatcliError("plan basis: its duration differs from plan.duration")
     start_arr = np.asarray(start, dtype=float)
     goal_arr = np.asarray(goal, dtype=float)
-    k = constraint_coefficients(robot.links, model)
+    k: Flat
+    if n == 2:
+        k = constraint_coefficients(robot.links, model)
+        rates: tuple[float | NDArray[np.float64], ...] = tuple(
+            _one_rate(key, rate) for key, rate in (("start", start_rate), ("goal", goal_rate))
+        )
+    else:
+        if model != "derived":
+            raise FlatcliError(
+                f"robot.model: {model!r} (the paper's printed coefficients) exists for the "
+                f"three-link robot only; a chain of {n} joints is planned with its derived model"
+            )
+        k = ChainModel.of(robot)
+        rates = tuple(
+            _chain_rates(key, rate, n) for key, rate in (("start", start_rate), ("goal", goal_rate))
+        )
+        for key, arr in (("start", start_arr), ("goal", goal_arr)):
+            if arr.shape != (n + 1,):
+                raise FlatcliError(
+                    f"plan.{key}: expected {n + 1} angles (th0..th{n}), got shape {arr.shape}"
+                )
     ends = check_ends(
-        k, start_arr, goal_arr, start_rate, goal_rate, duration, limits, free_rates,
+        k, start_arr, goal_arr, rates[0], rates[1], duration, limits, free_rates,
         tuning.end_rate_clearance,
     )  # fmt: skip
     intervals = tuning.check_refinement * (constraint_samples - 1)
@@ -226,6 +270,27 @@ def _request(
         check=np.linspace(0.0, duration, intervals + 1),
         tuning=tuning,
     )
+
+
+def _one_rate(key: str, rate: ArrayLike) -> float:
+    """th1' at one end of the paper's robot: a number (or a list of one) [rad/s]."""
+    arr = np.asarray(rate, dtype=float)
+    if arr.size != 1:
+        raise FlatcliError(f"plan.{key}_rate: expected one number (th1'), got shape {arr.shape}")
+    return float(arr.reshape(()))
+
+
+def _chain_rates(key: str, rate: ArrayLike, n: int) -> NDArray[np.float64]:
+    """th_1'..th_N-1' at one end of a chain, (N - 1,) [rad/s]: one number broadcasts."""
+    arr = np.asarray(rate, dtype=float)
+    if arr.ndim == 0 or arr.shape == (1,):
+        return np.full(n - 1, float(arr.reshape(())))
+    if arr.shape != (n - 1,):
+        raise FlatcliError(
+            f"plan.{key}_rate: expected one number or {n - 1} (th1'..th{n - 1}'), got shape "
+            f"{arr.shape}"
+        )
+    return arr
 
 
 def _keep_start(found: Candidate, initial: Candidate) -> Candidate:
@@ -247,15 +312,30 @@ def _result(
     found: Candidate,
     initial: Candidate,
 ) -> OptimizeResult:
-    """Step 6: the plan and its record (energy and effort exactly as
-    ``FlatPlan.input_energy`` measures them)."""
+    """Step 6: the plan and its record (energy and effort exactly as the plan's
+    ``input_energy`` measures them).
 
-    def plan_at(candidate: Candidate) -> FlatPlan:
+    Raises
+    ------
+    FlatcliError if a chain's plan has a zero of its margin between the check grid's samples
+    """
+
+    def plan_at(candidate: Candidate) -> FlatPlan | ChainPlan:
         coefficients = candidate.problem.affine.coefficients(candidate.x)
         trajectory = FlatTrajectory(request.basis, coefficients)
+        if isinstance(request.k, ChainModel):
+            return ChainPlan(robot, request.k, trajectory, request.duration)
         return FlatPlan(robot, model, request.k, trajectory, request.duration)
 
     plan = plan_at(found)
+    if isinstance(plan, ChainPlan):
+        zeros = plan.margin_zeros()
+        if zeros.size:
+            raise FlatcliError(
+                f"plan.optimize: the optimised plan's margin -(dh_0/dt) / (2 K_10) is zero at "
+                f"t = {zeros[0]:.4g} s, between the samples of its check grid; raise "
+                "plan.optimize.constraint_samples or plan.optimize.min_margin"
+            )
     problem = found.problem
     reported, reported_initial = found.assessment.objective, initial.assessment.objective
     if problem.objective in ("energy", "effort"):
@@ -264,6 +344,13 @@ def _result(
         reported_initial = factor * plan_at(initial).input_energy(ENERGY_PIECES, ENERGY_ORDER)
     ends, x = request.ends, found.x
     fixed = () if request.free_rates else ("fixed end rates",)
+    r = len(np.atleast_1d(ends.start_rate))
+    if request.free_rates:
+        start_rates = tuple(float(v) for v in x[:r])
+        goal_rates = tuple(float(v) for v in x[r : 2 * r])
+    else:
+        start_rates = tuple(float(v) for v in np.atleast_1d(ends.start_rate))
+        goal_rates = tuple(float(v) for v in np.atleast_1d(ends.goal_rate))
     return OptimizeResult(
         plan=plan,
         success=found.converged,
@@ -273,9 +360,11 @@ def _result(
         evaluations=search.evaluations,
         active=active_limits(problem, x) + fixed,
         max_violation=found.assessment.max_violation,
-        start_rate=float(x[0]) if request.free_rates else ends.start_rate,
-        goal_rate=float(x[1]) if request.free_rates else ends.goal_rate,
+        start_rate=start_rates[0],
+        goal_rate=goal_rates[0],
         message=found.message,
+        start_rates=start_rates,
+        goal_rates=goal_rates,
     )
 
 

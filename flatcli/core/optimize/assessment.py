@@ -16,7 +16,6 @@ from numpy.typing import NDArray
 
 from flatcli.core.optimize.limits import PlanLimits, describe_violation
 from flatcli.core.optimize.problem import Problem
-from flatcli.core.optimize.quantities import MARGIN, RATES
 
 Array = NDArray[np.float64]
 
@@ -62,7 +61,7 @@ def assess(problem: Problem, x: Array, limits: PlanLimits) -> Assessment:
     r = problem.rows
     limited = r.limited
     q = values[r.quantity]  # (rows, n_check)
-    is_margin = (r.quantity == MARGIN)[:, None]
+    is_margin = (r.quantity == problem.layout.margin)[:, None]
     # |q| <= L rows (a = -1: q - L; a = +1: -q - L); the margin row: m - q
     excess = np.where(is_margin, r.bound[:, None] - q, -r.a[:, None] * q - r.bound[:, None])
     excess = np.where(np.isnan(excess), math.inf, excess)
@@ -87,11 +86,11 @@ def assess(problem: Problem, x: Array, limits: PlanLimits) -> Assessment:
 
 def objective_on(problem: Problem, x: Array, values: Array) -> float:
     """The user-facing objective: energy or effort by quadrature; the peak rate or the least
-    margin on the check grid (``values``: (6, n_check) from ``Problem.check_values``)."""
+    margin on the check grid (``values``: (2 N + 2, n_check) from ``Problem.check_values``)."""
     if problem.objective == "peak_rate":
-        return float(np.max(np.abs(values[list(RATES)])))
+        return float(np.max(np.abs(values[list(problem.layout.rates)])))
     if problem.objective == "margin":
-        return float(np.min(values[MARGIN]))
+        return float(np.min(values[problem.layout.margin]))
     return problem.factor * problem.energy(x)
 
 

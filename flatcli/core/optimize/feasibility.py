@@ -1,13 +1,28 @@
 """Necessary conditions checked before optimising, each refused in one line naming its key.
 
-The signed margin is sigma sin(y1) y1' = -sigma d(cos y1)/dt, so its integral over [0, T] is
-sigma (cos th1(0) - cos th1(T)): the margin can stay >= m only if that is >= m T, and th1 must
-move monotonically within one interval (k pi, (k + 1) pi). Along such a th1 path, momentum
-conservation fixes the integral of h(y1) th2 dy1 (``flatness``: y2' = (g - h th2) y1'), so
-th2 must reach a value ``required_fold`` fixes (2.67 rad on the paper's maneuver), which
-bounds the th2 angle limit and, with th2's travel there and back, the rate limit. End
-configurations outside their angle limits, fixed end rates outside the rate limit or inside
-the margin, and th1 travel faster than the rate limit allows are refused likewise.
+The paper's robot (N = 2). The signed margin is sigma sin(y1) y1' = -sigma d(cos y1)/dt, so
+its integral over [0, T] is sigma (cos th1(0) - cos th1(T)): the margin can stay >= m only if
+that is >= m T, and th1 must move monotonically within one interval (k pi, (k + 1) pi). Along
+such a th1 path, momentum conservation fixes the integral of h(y1) th2 dy1 (``flatness``:
+y2' = (g - h th2) y1'), so th2 must reach a value ``required_fold`` fixes (2.67 rad on the
+paper's maneuver), which bounds the th2 angle limit and, with th2's travel there and back,
+the rate limit. End configurations outside their angle limits, fixed end rates outside the
+rate limit or inside the margin, and th1 travel faster than the rate limit allows are refused
+likewise.
+
+A chain of N >= 3 joints. The margin is sigma_t = -(dh_0/dt) / (2 K_10) (``chainflat``), so
+its integral over [0, T] is (h_0(q(0)) - h_0(q(T))) / (2 K_10), fixed by the end
+configurations: the margin can keep one sign only if h_0 differs at the ends, and can stay
+>= m only if that integral is >= m T in size; its sign is the margin's sign sigma. At each end
+sigma_t = -grad h_0 . u / (2 K_10) is linear in the joint rates u there, so within the rate
+limits it reaches at most sum_j R_j |dh_0/dth_j| / (2 |K_10|); fixed end rates must give a
+margin >= m of sign sigma and lie within the rate limits; each joint must be able to travel
+from its start to its goal angle within its rate limit. What does not carry over is the fold:
+the analogue of ``required_fold`` (the integral of th_N d(1/h_0), which momentum conservation
+fixes) contains the line integral of sum_j (h_j / h_0) dq_j over the path of
+q = (th_1..th_N-1), which for N >= 3 depends on the path, not only on its ends, so no fold
+bound on th_N is checked up front; an angle or rate limit that forbids every fold is found by
+the solver (phase 1 names the least violation).
 """
 
 from __future__ import annotations
@@ -18,11 +33,13 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from flatcli.core.chain import base_inertia_slopes
+from flatcli.core.chainplan import ChainModel
 from flatcli.core.flatness import chart
 from flatcli.core.model import Coefficients, FlatcliError
 from flatcli.core.optimize.affine import end_flat
 from flatcli.core.optimize.limits import PlanLimits
-from flatcli.core.optimize.quantities import ANGLES, NAMES
+from flatcli.core.optimize.quantities import ANGLES, NAMES, Flat, layout
 
 Array = NDArray[np.float64]
 
@@ -33,22 +50,25 @@ class Ends:
 
     Attributes
     ----------
-    sigma : sign of the margin sin(th1) th1' along any admissible plan (+1 or -1)
-    start_rate, goal_rate : th1'(0), th1'(T) [rad/s]: the fixed end rates, or the starting
-        guesses, pointed the way th1 moves and clipped into the range the limits allow
+    sigma : sign of the margin (sin(th1) th1', or -(dh_0/dt) / (2 K_10) for a chain) along
+        any admissible plan (+1 or -1)
+    start_rate, goal_rate : the end rates th1'(0), th1'(T) [rad/s], or for a chain the
+        tuples (N - 1,) th_1'..th_N-1' at 0 and T: the fixed end rates, or the starting
+        guesses, pointed the way the margin's sign needs and clipped into the range the
+        limits allow
     """
 
     sigma: float
-    start_rate: float
-    goal_rate: float
+    start_rate: float | tuple[float, ...]
+    goal_rate: float | tuple[float, ...]
 
 
 def check_ends(
-    k: Coefficients,
+    k: Flat,
     start: Array,
     goal: Array,
-    start_rate: float,
-    goal_rate: float,
+    start_rate: float | Array,
+    goal_rate: float | Array,
     duration: float,
     limits: PlanLimits,
     free_rates: bool,
@@ -58,14 +78,15 @@ def check_ends(
 
     Parameters
     ----------
-    k : Coefficients (d2 = 0)
-    start, goal : (3,) end configurations [rad]
-    start_rate, goal_rate : th1'(0), th1'(T) [rad/s] (guesses, or fixed values)
+    k : Coefficients (d2 = 0), or ChainModel (d_N = 0) for a chain
+    start, goal : (N + 1,) end configurations [rad]
+    start_rate, goal_rate : th1'(0), th1'(T) [rad/s], or for a chain th_1'..th_N-1' at the
+        ends, (N - 1,) or one number for all (guesses, or fixed values)
     duration : T [s]
-    limits : the user's limits
+    limits : the user's limits, for N joints (``PlanLimits.for_joints``)
     free_rates : whether the end rates are decision variables
-    clearance : a free end-rate guess below the margin's minimum is raised to (1 + this)
-        times it (``Tuning.end_rate_clearance``)
+    clearance : a free end-rate guess whose margin is below min_margin is moved until it is
+        (1 + this) min_margin (``Tuning.end_rate_clearance``)
 
     Returns
     -------
@@ -76,6 +97,11 @@ def check_ends(
     FlatcliError, one line naming the spec key, for any request no plan can meet (see the
     module docstring)
     """
+    if isinstance(k, ChainModel):
+        return _check_chain_ends(
+            k, start, goal, start_rate, goal_rate, duration, limits, free_rates, clearance
+        )
+    start_rate, goal_rate = float(start_rate), float(goal_rate)
     for key, theta in (("start", start), ("goal", goal)):
         for i in ANGLES:
             if abs(theta[i]) > limits.angle_limit[i]:
@@ -117,10 +143,10 @@ def check_ends(
             f"|sin th1 th1'| = |d(cos th1)/dt| averages |cos th1(0) - cos th1(T)| / T = "
             f"{available / duration:.4g} rad/s over this maneuver"
         )
-    R = limits.rate_limit
+    R = limits.rate_of(1)
     if abs(travel) > R * duration:
         raise FlatcliError(
-            f"plan.optimize.rate_limit = {R:g} rad/s cannot be met: th1 must move "
+            f"plan.optimize.{limits.rate_key(1)} = {R:g} rad/s cannot be met: th1 must move "
             f"{abs(travel):g} rad in {duration:g} s, {abs(travel) / duration:.4g} rad/s on average"
         )
     rates = []
@@ -130,14 +156,15 @@ def check_ends(
             if low > R:
                 raise FlatcliError(
                     f"plan.optimize.min_margin = {m:g} rad/s cannot be met within "
-                    f"plan.optimize.rate_limit = {R:g} rad/s at the {key}: |sin th1| = "
+                    f"plan.optimize.{limits.rate_key(1)} = {R:g} rad/s at the {key}: |sin th1| = "
                     f"{abs(math.sin(th1)):.4g} needs |th1'| >= {low:.4g} rad/s there"
                 )
             rate = math.copysign(min(max(abs(rate), low * (1 + clearance)), R), rate)
         else:
             if abs(rate) > R:
                 raise FlatcliError(
-                    f"plan.optimize.rate_limit = {R:g} rad/s cannot be met: plan.{key}_rate = "
+                    f"plan.optimize.{limits.rate_key(1)} = {R:g} rad/s cannot be met: "
+                    f"plan.{key}_rate = "
                     f"{rate:g} rad/s is fixed (free_rates = false)"
                 )
             if abs(math.sin(th1) * rate) < m:
@@ -152,7 +179,9 @@ def check_ends(
 
 
 def required_fold(k: Coefficients, start: ArrayLike, goal: ArrayLike, nodes: int = 32) -> float:
-    """A value th2 must reach somewhere on any flat plan from ``start`` to ``goal`` [rad].
+    """A value th2 must reach somewhere on any flat plan of the paper's robot (N = 2) from
+    ``start`` to ``goal`` [rad] (for a chain of N >= 3 joints no such bound follows from the
+    ends alone: see the module docstring).
 
     With th1 moving monotonically (as a positive margin forces) the flat output obeys
     y2' = (g - h th2) th1' (``flatness``), so, integrating over th1 instead of time,
@@ -206,11 +235,11 @@ def check_fold(
         )
     side = math.copysign(1.0, v)
     travel = max(0.0, side * (v - start[2])) + max(0.0, side * (v - goal[2]))
-    R = limits.rate_limit
+    R = limits.rate_of(2)
     if travel > R * duration:
         raise FlatcliError(
-            f"plan.optimize.rate_limit = {R:g} rad/s cannot be met: momentum conservation "
-            f"forces th2 from {start[2]:g} to {v:.4g} and on to {goal[2]:g} rad, "
+            f"plan.optimize.{limits.rate_key(2)} = {R:g} rad/s cannot be met: momentum "
+            f"conservation forces th2 from {start[2]:g} to {v:.4g} and on to {goal[2]:g} rad, "
             f"{travel / duration:.4g} rad/s on average"
         )
 
@@ -218,13 +247,156 @@ def check_fold(
 def end_rate_bounds(
     theta: Array, limits: PlanLimits, rate: float
 ) -> tuple[float | None, float | None]:
-    """Bounds on a free end rate th1' [rad/s]: on the side of ``rate``, above the margin's
-    minimum min_margin / |sin th1| and within the rate limit (None: unbounded)."""
+    """Bounds on a free end rate th1' of the paper's robot [rad/s]: on the side of ``rate``,
+    above the margin's minimum min_margin / |sin th1| and within the rate limit (None:
+    unbounded)."""
     low = limits.min_margin / abs(math.sin(theta[1]))
-    high = None if math.isinf(limits.rate_limit) else limits.rate_limit
+    R = limits.rate_of(1)
+    high = None if math.isinf(R) else R
     if rate > 0:
         return low, high
     return (None if high is None else -high), -low
 
 
-__all__ = ["Ends", "check_ends", "check_fold", "end_rate_bounds", "required_fold"]
+def chain_rate_bounds(limits: PlanLimits) -> list[tuple[float | None, float | None]]:
+    """Bounds on the free end rates th_1'..th_N-1' of a chain at one end [rad/s]: within
+    each joint's rate limit (None: unbounded). The margin there is a constraint row."""
+    bounds: list[tuple[float | None, float | None]] = []
+    for joint in range(1, limits.n_joints):
+        R = limits.rate_of(joint)
+        bounds.append((None, None) if math.isinf(R) else (-R, R))
+    return bounds
+
+
+def base_inertia(model: ChainModel, theta: Array) -> tuple[float, Array]:
+    """h_0 [kg m^2] at a configuration (N + 1,), and its gradient in th_1..th_N-1
+    (N - 1,) [kg m^2] (``chain.base_inertia_slopes``; h_0 does not depend on th_N)."""
+    n = model.n_joints
+    grad = np.empty(n)
+    h0 = base_inertia_slopes(model.K, model.inertia, np.asarray(theta, dtype=float), grad,
+                             np.empty((n, n)))
+    return float(h0), grad[: n - 1]
+
+
+def margin_mean(k: Flat, start: Array, goal: Array, duration: float) -> float:
+    """The margin's mean over [0, T] on any plan between the two configurations, unsigned
+    [rad/s]: (cos th1(0) - cos th1(T)) / T for the paper's robot, (h_0(q(0)) - h_0(q(T))) /
+    (2 K_10 T) for a chain (times sigma, the margin's sign, it is the mean of the signed
+    margin: the largest least margin any plan can have)."""
+    if isinstance(k, ChainModel):
+        drop = (base_inertia(k, start)[0] - base_inertia(k, goal)[0]) / (2.0 * float(k.K[1, 0]))
+    else:
+        drop = math.cos(float(start[1])) - math.cos(float(goal[1]))
+    return drop / duration
+
+
+def _check_chain_ends(
+    model: ChainModel,
+    start: Array,
+    goal: Array,
+    start_rate: float | Array,
+    goal_rate: float | Array,
+    duration: float,
+    limits: PlanLimits,
+    free_rates: bool,
+    clearance: float,
+) -> Ends:
+    """``check_ends`` for a chain of N joints (see the module docstring)."""
+    n = model.n_joints
+    names = layout(n).names
+    for key, theta in (("start", start), ("goal", goal)):
+        for i in range(n + 1):
+            if abs(theta[i]) > limits.angle_limit[i]:
+                raise FlatcliError(
+                    f"plan.optimize.angle_limit[{i}] = {limits.angle_limit[i]:g} rad cannot be "
+                    f"met: the {key} configuration has |{names[i]}| = {abs(theta[i]):g} rad"
+                )
+    m = limits.min_margin
+    mean = margin_mean(model, start, goal, duration)
+    if mean == 0.0:
+        raise FlatcliError(
+            "plan.goal: the base's locked inertia h_0 is the same at plan.start and plan.goal, "
+            "so the margin -(dh_0/dt) / (2 K_10), whose integral over the maneuver is "
+            "(h_0(0) - h_0(T)) / (2 K_10), would have to change sign: the plan would cross "
+            "the singular set"
+        )
+    sigma = math.copysign(1.0, mean)
+    if abs(mean) < m:
+        raise FlatcliError(
+            f"plan.optimize.min_margin = {m:g} rad/s cannot be met: the margin "
+            f"-(dh_0/dt) / (2 K_10) averages (h_0(0) - h_0(T)) / (2 K_10 T) = {abs(mean):.4g} "
+            "rad/s over this maneuver"
+        )
+    for joint in range(1, n + 1):
+        R = limits.rate_of(joint)
+        travel = abs(float(goal[joint]) - float(start[joint]))
+        if travel > R * duration:
+            raise FlatcliError(
+                f"plan.optimize.{limits.rate_key(joint)} = {R:g} rad/s cannot be met: "
+                f"th{joint} must move {travel:g} rad in {duration:g} s, "
+                f"{travel / duration:.4g} rad/s on average"
+            )
+    bound = np.array([limits.rate_of(j) for j in range(1, n)])  # th_1'..th_N-1'
+    rates = []
+    for key, theta, given in (("start", start, start_rate), ("goal", goal, goal_rate)):
+        u = np.broadcast_to(np.asarray(given, dtype=float), (n - 1,)).copy()
+        # the margin at this end is slope @ u [rad/s]
+        slope = -base_inertia(model, theta)[1] / (2.0 * float(model.K[1, 0]))
+        if free_rates:
+            reach = float(np.abs(slope) @ bound)
+            if reach < m:
+                raise FlatcliError(
+                    f"plan.optimize.min_margin = {m:g} rad/s cannot be met within "
+                    f"plan.optimize.rate_limit at the {key}: the joint rates allowed there give "
+                    f"a margin of at most {reach:.4g} rad/s"
+                )
+            u = _pointed(u, slope, sigma, m * (1 + clearance), bound)
+        else:
+            for j in range(n - 1):
+                if abs(u[j]) > bound[j]:
+                    raise FlatcliError(
+                        f"plan.optimize.{limits.rate_key(j + 1)} = {bound[j]:g} rad/s cannot be "
+                        f"met: plan.{key}_rate has th{j + 1}' = {u[j]:g} rad/s, fixed "
+                        "(free_rates = false)"
+                    )
+            margin = float(slope @ u)
+            if sigma * margin < m:
+                raise FlatcliError(
+                    f"plan.optimize.min_margin = {m:g} rad/s cannot be met: the fixed "
+                    f"plan.{key}_rate gives a margin of {sigma * margin:.4g} rad/s at the {key} "
+                    f"(free_rates = false; h_0 must move from {base_inertia(model, start)[0]:.4g} "
+                    f"to {base_inertia(model, goal)[0]:.4g} kg m^2, which fixes the margin's sign)"
+                )
+        rates.append(tuple(float(v) for v in u))
+    return Ends(sigma, rates[0], rates[1])
+
+
+def _pointed(u: Array, slope: Array, sigma: float, low: float, R: Array) -> Array:
+    """End rates of a chain moved so that the margin slope @ u there is sigma-signed and at
+    least ``low``, within the rate limits R (as far as they allow): reversed if the margin
+    has the wrong sign, then shifted along the margin's gradient, least change first, joints
+    that reach their limit held there."""
+    if sigma * float(slope @ u) < 0:
+        u = -u
+    free = np.ones(u.size, dtype=bool)
+    for _ in range(u.size):
+        deficit = low - sigma * float(slope @ u)
+        direction = np.where(free, slope, 0.0)
+        size = float(direction @ direction)
+        if deficit <= 0 or size == 0.0:
+            break
+        u = np.clip(u + sigma * deficit * direction / size, -R, R)
+        free &= np.abs(u) < R
+    return u
+
+
+__all__ = [
+    "Ends",
+    "base_inertia",
+    "chain_rate_bounds",
+    "check_ends",
+    "check_fold",
+    "end_rate_bounds",
+    "margin_mean",
+    "required_fold",
+]

@@ -14,24 +14,28 @@ grids, tuning) and builds its problems.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 from numpy.typing import NDArray
 
 from flatcli.core.basis import Basis, composite_gauss_legendre
-from flatcli.core.model import Coefficients
+from flatcli.core.chainplan import ChainModel
 from flatcli.core.optimize.affine import Affine, affine_map
-from flatcli.core.optimize.feasibility import Ends, end_rate_bounds
+from flatcli.core.optimize.feasibility import (
+    Ends,
+    chain_rate_bounds,
+    end_rate_bounds,
+    margin_mean,
+)
 from flatcli.core.optimize.limits import PlanLimits, Rows, limit_rows
 from flatcli.core.optimize.objectives import EPIGRAPH, Goal, maximised
 from flatcli.core.optimize.quantities import (
-    FLAG_SIZE,
-    MARGIN,
-    RATES,
+    Flat,
     flag_jacobian,
     flag_quantities,
+    layout_of,
 )
 from flatcli.core.optimize.tuning import Tuning
 from flatcli.core.planning import ENERGY_ORDER, ENERGY_PIECES
@@ -50,7 +54,7 @@ class Problem:
 
     Parameters
     ----------
-    k : Coefficients (d2 = 0)
+    k : Coefficients (d2 = 0), or ChainModel (d_N = 0) for a chain
     affine : the coefficient map of the decision vector
     rows : the inequality rows (``limits.limit_rows``)
     goal : what is minimised
@@ -63,7 +67,7 @@ class Problem:
 
     def __init__(
         self,
-        k: Coefficients,
+        k: Flat,
         affine: Affine,
         rows: Rows,
         goal: Goal,
@@ -74,6 +78,8 @@ class Problem:
         tuning: Tuning,
     ) -> None:
         self.k = k
+        #: which rows of the pointwise quantities are angles, rates, the margin
+        self.layout = layout_of(k)
         self.affine = affine
         self.rows = rows
         self.objective = goal
@@ -85,7 +91,7 @@ class Problem:
         nodes, self.weights = composite_gauss_legendre(duration, ENERGY_PIECES, ENERGY_ORDER)
         self.flags: dict[str, tuple[Array, Array]] = {"quad": affine.flag(nodes)}
         self.needed: dict[str, list[int]] = {
-            "quad": list(RATES),
+            "quad": list(self.layout.rates),
             "grid": sorted(set(rows.quantity.tolist())),
         }
         self.check = check
@@ -142,7 +148,7 @@ class Problem:
         """
         r = self.rows
         g = self.row_values(x)
-        screened = r.quantity != MARGIN
+        screened = r.quantity != self.layout.margin
         size = np.where(np.isfinite(r.bound), r.bound, abs(float(x[-1])) if self.epigraph else 1.0)
         loose = g > self.tuning.screen * np.maximum(1.0, size)[:, None]
         self.mask = ~(screened[:, None] & loose)
@@ -150,7 +156,8 @@ class Problem:
         self.weight = 1.0 / np.clip(norms, self.tuning.gradient_floor, None)
 
     def values(self, x: Array, which: str) -> Array:
-        """(6, n) pointwise quantities (margin signed) on the grid or the quadrature nodes."""
+        """(2 N + 2, n) pointwise quantities (margin signed) on the grid or the quadrature
+        nodes."""
         key = x.tobytes()
         hit = self._values.get(which)
         if hit is not None and hit[0] == key:
@@ -159,7 +166,7 @@ class Problem:
         base, slope = self.flags[which]
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             values = np.asarray(flag_quantities(self.k, base + slope @ x), dtype=float)
-        values[MARGIN] *= self.sigma
+        values[self.layout.margin] *= self.sigma
         if not np.all(np.isfinite(values)):  # a trial point on the singular set
             big = self.tuning.big
             values = np.nan_to_num(values, nan=-big, posinf=big, neginf=-big)
@@ -167,15 +174,15 @@ class Problem:
         return values
 
     def gradients(self, x: Array, which: str) -> Array:
-        """(6, n, nv) exact gradients of ``values`` (zero for quantities not in use)."""
+        """(2 N + 2, n, nv) exact gradients of ``values`` (zero for quantities not in use)."""
         key = x.tobytes()
         hit = self._grads.get(which)
         if hit is not None and hit[0] == key:
             return hit[1]
         base, slope = self.flags[which]
         _, jac = flag_jacobian(self.k, base + slope @ x)
-        jac[MARGIN] *= self.sigma
-        grad = np.zeros((FLAG_SIZE, base.shape[1], self.nv))
+        jac[self.layout.margin] *= self.sigma
+        grad = np.zeros((self.layout.size, base.shape[1], self.nv))
         for q in self.needed[which]:
             grad[q] = np.einsum("cn,cnv->nv", jac[q], slope)
         if not np.all(np.isfinite(grad)):
@@ -184,16 +191,16 @@ class Problem:
         return grad
 
     def energy(self, x: Array) -> float:
-        """Integral of the squared joint rates th1'^2 + th2'^2 over [0, T] [rad^2/s]."""
+        """Integral of the squared joint rates th1'^2 + ... + thN'^2 over [0, T] [rad^2/s]."""
         v = self.values(x, "quad")
-        return float(self.weights @ sum(v[q] ** 2 for q in RATES))
+        return float(self.weights @ sum(v[q] ** 2 for q in self.layout.rates))
 
     def energy_gradient(self, x: Array) -> Array:
         """(nv,) gradient of ``energy``."""
         v = self.values(x, "quad")
         g = self.gradients(x, "quad")
         w = 2.0 * self.weights
-        return np.asarray(sum((w * v[q]) @ g[q] for q in RATES))
+        return np.asarray(sum((w * v[q]) @ g[q] for q in self.layout.rates))
 
     @property
     def factor(self) -> float:
@@ -241,11 +248,11 @@ class Problem:
         return np.asarray(self.weight[:, None] * self.row_jacobian(x)[self.mask])
 
     def check_values(self, x: Array) -> Array:
-        """(6, n_check) pointwise quantities on the check grid (non-finite kept)."""
+        """(2 N + 2, n_check) pointwise quantities on the check grid (non-finite kept)."""
         base, slope = self.check_flag
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             values = np.asarray(flag_quantities(self.k, base + slope @ x), dtype=float)
-        values[MARGIN] *= self.sigma
+        values[self.layout.margin] *= self.sigma
         return values
 
     def lift(self, curve: Array) -> Array:
@@ -258,9 +265,9 @@ class Problem:
             return curve
         x = np.append(curve, 0.0)
         if self.objective == "peak_rate":
-            x[-1] = np.max(np.abs(self.values(x, "grid")[list(RATES)]))
+            x[-1] = np.max(np.abs(self.values(x, "grid")[list(self.layout.rates)]))
         elif self.objective == "margin":
-            x[-1] = np.min(self.values(x, "grid")[MARGIN])
+            x[-1] = np.min(self.values(x, "grid")[self.layout.margin])
         else:
             g = self.row_values(x)
             relaxed = self.rows.c > 0
@@ -279,9 +286,9 @@ class Request:
 
     Attributes
     ----------
-    k : Coefficients (d2 = 0)
+    k : Coefficients (d2 = 0), or ChainModel (d_N = 0) for a chain of N joints
     basis : flat-output basis on [0, T]
-    start, goal : (3,) end configurations [rad]
+    start, goal : (N + 1,) end configurations [rad]
     ends : the margin's sign and the end rates (``feasibility.check_ends``)
     duration : T [s]
     free_rates : the end rates are decision variables
@@ -290,7 +297,7 @@ class Request:
     tuning : the optimiser's tuning
     """
 
-    k: Coefficients
+    k: Flat
     basis: Basis
     start: Array
     goal: Array
@@ -308,8 +315,9 @@ class Request:
 
     def problem(self, goal: Goal, limits: PlanLimits) -> Problem:
         """A fresh problem: ``goal`` under ``limits``, with bounds that keep SLSQP's steps
-        sane (free end rates on the side the margin allows, a peak rate or violation >= 0,
-        a margin <= its mean over the maneuver)."""
+        sane (free end rates within the rate limits, for the paper's robot also on the side
+        the margin allows; a peak rate or violation >= 0; a margin <= its mean over the
+        maneuver)."""
         affine, _ = affine_map(*self._map_args(goal in EPIGRAPH))
         rows = limit_rows(limits, goal, self.tuning.backoff)
         problem = Problem(
@@ -323,29 +331,32 @@ class Request:
             self.check,
             self.tuning,
         )
-        if self.free_rates:
+        if self.free_rates and isinstance(self.k, ChainModel):
+            box = chain_rate_bounds(limits)
+            problem.bounds[: 2 * len(box)] = box + box
+        elif self.free_rates:
             problem.bounds[:2] = [
-                end_rate_bounds(self.start, limits, self.ends.start_rate),
-                end_rate_bounds(self.goal, limits, self.ends.goal_rate),
+                end_rate_bounds(self.start, limits, cast(float, self.ends.start_rate)),
+                end_rate_bounds(self.goal, limits, cast(float, self.ends.goal_rate)),
             ]
         if goal in ("peak_rate", "violation"):
             problem.bounds[-1] = (0.0, None)
         elif goal == "margin":
-            drop = math.cos(float(self.start[1])) - math.cos(float(self.goal[1]))
-            problem.bounds[-1] = (None, self.ends.sigma * drop / self.duration)
+            mean = margin_mean(self.k, self.start, self.goal, self.duration)
+            problem.bounds[-1] = (None, self.ends.sigma * mean)
         return problem
 
     def _map_args(
         self, epigraph: bool
-    ) -> tuple[Coefficients, Basis, Array, Array, float, float, bool, bool]:
+    ) -> tuple[Flat, Basis, Array, Array, float | Array, float | Array, bool, bool]:
         e = self.ends
         return (
             self.k,
             self.basis,
             self.start,
             self.goal,
-            e.start_rate,
-            e.goal_rate,
+            np.asarray(e.start_rate, dtype=float),
+            np.asarray(e.goal_rate, dtype=float),
             self.free_rates,
             epigraph,
         )

@@ -150,18 +150,49 @@ class Search:
 
     def settle_margin(self, limits: PlanLimits, found: Candidate) -> Candidate:
         """The least-energy plan whose margin stays within ``Tuning.margin_tie`` of
-        the best found, as a plan of "margin" (``found`` if that one misses the limits)."""
-        tie_margin = (1 - self.request.tuning.margin_tie) * found.assessment.objective
-        tie = replace(limits, min_margin=max(limits.min_margin, tie_margin))
+        the best found, as a plan of "margin" (``found`` if that one misses the limits).
+
+        The band is thin: with the best margin at its mean, the margin must stay almost
+        constant. For the paper's robot that fixes th1(t) and the solve is easy; for a chain
+        of N >= 3 joints it fixes only h_0(q(t)), and SLSQP from the maximiser crawls along
+        the band (the example chain of ``tests/test_chainplan.py``: iteration limit after
+        600 iterations). When the solve does not converge, the band is approached from one
+        ten times wider (continuation; on that chain both solves converge, 550 iterations).
+        """
+        tie_fraction = self.request.tuning.margin_tie
+        best = found.assessment.objective
+
+        def band(fraction: float) -> PlanLimits:
+            return replace(limits, min_margin=max(limits.min_margin, (1 - fraction) * best))
+
+        tie = band(tie_fraction)
         second = self.request.problem("energy", tie)
         second.normalise(second.energy(found.curve))
         settled = self._run(second, found.curve, tie)
+        if not settled.converged:
+            wide = band(min(10 * tie_fraction, (1 + tie_fraction) / 2))
+            first = self.request.problem("energy", wide)
+            first.normalise(first.energy(found.curve))
+            widened = self._run(first, found.curve, wide)
+            if widened.converged and widened.feasible:
+                again = self.request.problem("energy", tie)
+                again.normalise(again.energy(widened.x))
+                narrowed = self._run(again, widened.x, tie)
+                if narrowed.feasible and (narrowed.converged or not settled.feasible):
+                    settled = narrowed
         problem = found.problem
         x = problem.lift(settled.x)
         here = assess(problem, x, limits)
+        message = settled.message
         if not here.feasible:
             x, here = found.x, found.assessment
-        return Candidate(problem, x, here, settled.converged, settled.message)
+            message += "; the margin maximiser itself is returned"
+        if not settled.converged:
+            message += (
+                f" (the least-energy plan whose margin stays within Tuning.margin_tie = "
+                f"{tie_fraction:g} of the best found, {best:.6g} rad/s, was not found)"
+            )
+        return Candidate(problem, x, here, settled.converged, message)
 
     def _starts(self, goal: Goal, limits: PlanLimits) -> list[Array]:
         """The starts of ``goal`` under ``limits`` besides the least-limited plan: the
