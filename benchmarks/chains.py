@@ -11,7 +11,7 @@ cost of one right-hand side, whose growth with N says where the time goes.
 from __future__ import annotations
 
 import time
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -29,12 +29,13 @@ HEADERS = {SECTION: ["N joints", "plant", "trials/s (1 core)", "steps / trial", 
 
 def robot(n: int) -> RobotParams:
     """The benchmark's chain of ``n`` joints."""
-    return RobotParams(mass=[2.0] + [1.0] * (n - 1) + [0.6],
-                       inertia=[0.08] + [0.03] * (n - 1) + [0.2],
-                       length=[0.3] + [0.25] * n, com=[0.12] + [0.1] * (n - 1) + [0.0])
+    return RobotParams(mass=(2.0, *[1.0] * (n - 1), 0.6),
+                       inertia=(0.08, *[0.03] * (n - 1), 0.2),
+                       length=(0.3, *[0.25] * n), com=(0.12, *[0.1] * (n - 1), 0.0))
 
 
-def scenario_and_trials(n: int, count: int, plant: str) -> tuple[Scenario, Trials]:
+def scenario_and_trials(n: int, count: int, plant: Literal["kinematic", "dynamic"]
+                        ) -> tuple[Scenario, Trials]:
     r = robot(n)
     start = np.r_[0.0, 1.0, np.full(n - 1, 0.3)]
     goal = np.r_[0.4, 2.0, np.full(n - 1, 0.6)]
@@ -47,7 +48,7 @@ def scenario_and_trials(n: int, count: int, plant: str) -> tuple[Scenario, Trial
     return sc, Trials(np.tile(r.as_array(), (count, 1)), np.zeros(count), initial)
 
 
-def measure(n: int, count: int, plant: str) -> dict[str, Any]:
+def measure(n: int, count: int, plant: Literal["kinematic", "dynamic"]) -> dict[str, Any]:
     sc, trials = scenario_and_trials(n, count, plant)
     simulate(sc, trials.subset(slice(0, 2)))  # compile / load the kernel
     best = np.inf
@@ -67,7 +68,8 @@ def run_all(bench: Any) -> None:
     section = SECTION
     count = 200 if bench.quick else 1000
     results = []
-    for plant in ("kinematic", "dynamic"):
+    plants: tuple[Literal["kinematic", "dynamic"], ...] = ("kinematic", "dynamic")
+    for plant in plants:
         for n in JOINTS:
             r = bench.measure(section, f"N = {n}, {plant}", lambda n=n, plant=plant:
                               measure(n, count, plant))

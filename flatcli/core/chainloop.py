@@ -27,19 +27,13 @@ from flatcli.core.chainflat import inputs, outputs
 from flatcli.core.integrate import WORK_ROWS, make_trial_integrators
 from flatcli.core.metrics import (
     ACCUMULATOR_SIZE,
-    Event,
-    Status,
-    finish_metrics,
+    conclude_trial,
     observe_errors,
     reset_accumulator,
 )
 
 Array = NDArray[np.float64]
 
-_NONE = int(Event.NONE)
-_FIRST_UNRESOLVED = int(Event.STEP_FLOOR)
-_OK, _SINGULAR = int(Status.OK), int(Status.SINGULAR)
-_DIVERGED, _UNRESOLVED = int(Status.DIVERGED), int(Status.UNRESOLVED)
 
 
 class ChainLoop(NamedTuple):
@@ -184,21 +178,9 @@ def chain_kernel(
             last, ev, t_ev, estimate, steps, evaluations = _adaptive_chain(
                 loop, obs, initial[i], breaks, local, dt, n_out, bound, rtol, atol, max_steps,
                 nb, tables[i], gen, std, record, tr, acc, work, noise, flag, ref)
-        residual = plan_residual(plan_theta, plan_theta_dot, p, h0[i])
-        first = finish_metrics(metrics[i], acc, ev == _NONE, dt, residual, estimate, steps,
-                               evaluations)
-        if ev != _NONE:
-            status[i] = _UNRESOLVED if ev >= _FIRST_UNRESOLVED else _DIVERGED
-            event_time[i] = t_ev
-        elif first >= 0:
-            status[i] = _SINGULAR
-            event_time[i] = first * dt
-        else:
-            status[i] = _OK
-            event_time[i] = math.nan
-        event[i] = ev
-        if record and last < n_out:
-            tr[last + 1:, :] = math.nan
+        conclude_trial(i, plan_residual(plan_theta, plan_theta_dot, p, h0[i]), acc, last,
+                       n_out, ev, t_ev, estimate, steps, evaluations, dt, record, tr, metrics,
+                       status, event, event_time)
 
 
 def run_chain_kernel(

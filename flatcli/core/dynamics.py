@@ -56,6 +56,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from flatcli.core._jit import jitable, kernel
+from flatcli.core.chain import barycentric_matrix
 from flatcli.core.model import FlatcliError, Links
 
 Array = NDArray[np.float64]
@@ -72,39 +73,9 @@ class Chain(NamedTuple):
     inertia: Array
 
 
-@jitable
-def coupling_matrix(mass: Array, length: Array, com: Array) -> Array:
-    """K_ab = sum_i m_i L_ia L_ib - (sum_i m_i L_ia)(sum_i m_i L_ib) / M (module docstring).
-
-    Parameters
-    ----------
-    mass : (n,) [kg]; length : (n,) l_a [m] (l_N does not enter); com : (n,) d_a [m]
-
-    Returns
-    -------
-    K : (n, n) [kg m^2], symmetric
-    """
-    n = mass.shape[0]
-    lever = np.zeros((n, n))  # L_ia
-    for i in range(n):
-        for a in range(i):
-            lever[i, a] = length[a]
-        lever[i, i] = com[i]
-    total = 0.0
-    for i in range(n):
-        total += mass[i]
-    first = np.zeros(n)  # sum_i m_i L_ia
-    for a in range(n):
-        for i in range(n):
-            first[a] += mass[i] * lever[i, a]
-    out = np.empty((n, n))
-    for a in range(n):
-        for b in range(n):
-            second = 0.0
-            for i in range(n):
-                second += mass[i] * lever[i, a] * lever[i, b]
-            out[a, b] = second - first[a] * first[b] / total
-    return out
+#: K_ab = sum_i m_i L_ia L_ib - (sum_i m_i L_ia)(sum_i m_i L_ib) / M (module docstring), (n, n)
+#: [kg m^2] from mass (n,) [kg], length (n,) and com (n,) [m]: written once, in ``chain``.
+coupling_matrix = barycentric_matrix
 
 
 def make_chain(mass: ArrayLike, inertia: ArrayLike, length: ArrayLike, com: ArrayLike) -> Chain:

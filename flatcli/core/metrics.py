@@ -363,3 +363,41 @@ def observe_errors(acc: Array, j: int, et2: float, ey2: float, margin: float, h:
     acc[_DRIFT] = max(acc[_DRIFT], abs(h - h0))
     acc[_PEAK_RATE] = max(acc[_PEAK_RATE], peak_rate)
     acc[_COUNT] += 1.0
+
+
+_EVENT_NONE = int(Event.NONE)
+_EVENT_FIRST_UNRESOLVED = int(Event.STEP_FLOOR)  # events from here on leave a trial unresolved
+_STATUS_OK, _STATUS_SINGULAR = int(Status.OK), int(Status.SINGULAR)
+_STATUS_DIVERGED, _STATUS_UNRESOLVED = int(Status.DIVERGED), int(Status.UNRESOLVED)
+
+
+@jitable
+def status_of(event: int, first: int) -> int:
+    """A trial's ``Status`` from its integrator's ``Event`` and the index of its first sample
+    below the singular threshold (-1: none)."""
+    if event != _EVENT_NONE:
+        return _STATUS_UNRESOLVED if event >= _EVENT_FIRST_UNRESOLVED else _STATUS_DIVERGED
+    return _STATUS_SINGULAR if first >= 0 else _STATUS_OK
+
+
+@jitable
+def conclude_trial(
+    i: int, residual: float, acc: Array, last: int, n: int, ev: int, t_ev: float,
+    estimate: float, steps: int, evaluations: int, dt: float, record: bool, tr: Array,
+    metrics: Array, status: NDArray[np.int64], event: NDArray[np.int64], event_time: Array,
+) -> None:
+    """Trial i of a batch concluded: its metrics (``finish_metrics``, with the plan's momentum
+    ``residual``), status, event and event time [s] (the event's, else the first singular
+    sample's, else nan); its trace ``tr`` (n + 1 samples) blanked after the last valid one."""
+    first = finish_metrics(metrics[i], acc, ev == _EVENT_NONE, dt, residual, estimate, steps,
+                           evaluations)
+    status[i] = status_of(ev, first)
+    event[i] = ev
+    if ev != _EVENT_NONE:
+        event_time[i] = t_ev
+    elif first >= 0:
+        event_time[i] = first * dt
+    else:
+        event_time[i] = math.nan
+    if record and last < n:
+        tr[last + 1:, :] = math.nan

@@ -49,6 +49,7 @@ from flatcli.core.metrics import (
     N_METRICS,
     Event,
     Status,
+    conclude_trial,
     finish_metrics,
     observe_sample,
     observe_torque,
@@ -135,10 +136,6 @@ NOISE_SLOT = 1
 #: A trial's servo when ``Trials.servo`` is None: bandwidth [rad/s], torque limit [N m].
 DEFAULT_SERVO = (DEFAULT_SERVO_BANDWIDTH, math.inf)
 
-_NONE = int(Event.NONE)
-_FIRST_UNRESOLVED = int(Event.STEP_FLOOR)  # events from here on leave a trial unresolved
-_OK, _SINGULAR = int(Status.OK), int(Status.SINGULAR)
-_DIVERGED, _UNRESOLVED = int(Status.DIVERGED), int(Status.UNRESOLVED)
 _METHOD_RK4 = 0
 _METHOD_ADAPTIVE = 1
 
@@ -205,13 +202,6 @@ def _is_flat(k: Coefficients) -> bool:
     """Whether a plant's constraint has no d2-terms (d2 = 0)."""
     return (k.a2 == 0.0 and k.a3 == 0.0 and k.b2 == 0.0 and k.b3 == 0.0 and k.c2 == 0.0
             and k.c3 == 0.0)
-
-
-@jitable
-def _status_of(event: int, first: int) -> int:
-    if event != _NONE:
-        return _UNRESOLVED if event >= _FIRST_UNRESOLVED else _DIVERGED
-    return _SINGULAR if first >= 0 else _OK
 
 
 @kernel
@@ -290,19 +280,9 @@ def _conclude(
 ) -> None:
     """Trial i's metrics, status, event and event time from its run; its trace blanked
     after the last valid sample."""
-    residual = plan_momentum_residual(plan_theta, plan_theta_dot, p, h0)
-    first = finish_metrics(metrics[i], acc, ev == _NONE, dt, residual, estimate, steps,
-                           evaluations)
-    status[i] = _status_of(ev, first)
-    event[i] = ev
-    if ev != _NONE:
-        event_time[i] = t_ev
-    elif first >= 0:
-        event_time[i] = first * dt
-    else:
-        event_time[i] = math.nan
-    if record and last < n:
-        tr[last + 1:, :] = math.nan
+    conclude_trial(i, plan_momentum_residual(plan_theta, plan_theta_dot, p, h0), acc, last, n,
+                   ev, t_ev, estimate, steps, evaluations, dt, record, tr, metrics, status,
+                   event, event_time)
 
 
 @kernel

@@ -79,10 +79,25 @@ def optimization_summary(result: OptimizeResult, objective: str) -> dict[str, An
         "evaluations": int(result.evaluations),
         "start_rate": float(result.start_rate),
         "goal_rate": float(result.goal_rate),
+        "start_rates": [float(v) for v in result.start_rates],
+        "goal_rates": [float(v) for v in result.goal_rates],
         "active": list(result.active),
         "max_violation": float(result.max_violation),
         "message": result.message,
     }
+
+
+def _chosen_rates(summary: Mapping[str, Any]) -> list[str]:
+    """The row of the end rates the optimiser chose: th1' for the paper's robot, th_1'..
+    th_N-1' for a chain."""
+    starts = summary.get("start_rates", [summary["start_rate"]])
+    goals = summary.get("goal_rates", [summary["goal_rate"]])
+    if len(starts) == 1:
+        return ["th1'(0), th1'(T) chosen [rad/s]",
+                f"{fmt(summary['start_rate'], 5)}, {fmt(summary['goal_rate'], 5)}"]
+    n = len(starts) + 1
+    return [f"th1'..th{n - 1}' at 0 and T chosen [rad/s]",
+            f"({', '.join(fmt(v, 5) for v in starts)}), ({', '.join(fmt(v, 5) for v in goals)})"]
 
 
 def optimization_text(summary: Mapping[str, Any]) -> str:
@@ -91,8 +106,7 @@ def optimization_text(summary: Mapping[str, Any]) -> str:
         ["objective", f"{summary['objective']}: {fmt(summary['value'], 5)} "
                       f"(starting plan {fmt(summary['initial_value'], 5)})"],
         ["success", "yes" if summary["success"] else f"no: {summary['message']}"],
-        ["th1'(0), th1'(T) chosen [rad/s]",
-         f"{fmt(summary['start_rate'], 5)}, {fmt(summary['goal_rate'], 5)}"],
+        _chosen_rates(summary),
         ["iterations, evaluations", f"{summary['iterations']}, {summary['evaluations']}"],
         ["max limit violation (check grid)", fmt(summary["max_violation"])],
         ["active constraints", "; ".join(summary["active"]) or "none"],

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -66,7 +65,7 @@ class OptimizeResult:
     ----------
     plan : the optimised plan (same robot and model, the chosen basis): a ``FlatPlan`` for
         the paper's robot (N = 2), a ``chainplan.ChainPlan`` for a chain of N >= 3 joints
-        (typed ``Any`` while callers still declare ``FlatPlan``; narrow with isinstance)
+        (narrow with isinstance)
     success : the solver converged and the plan meets every limit on the check grid
     objective : final value of the objective (units of the objective, see ``objectives``)
     initial_objective : its value at the starting guess
@@ -80,7 +79,7 @@ class OptimizeResult:
         [rad/s] ((start_rate,) and (goal_rate,) for N = 2)
     """
 
-    plan: Any  # FlatPlan (N = 2) | ChainPlan (N >= 3); see the attribute's description
+    plan: FlatPlan | ChainPlan
     success: bool
     objective: float
     initial_objective: float
