@@ -15,6 +15,8 @@ import pandas as pd
 import pytest
 from small_sweep import SPEC, sweep, write_spec
 
+from flatcli.sweep.layout import ID_STRIDE
+
 
 def trials(directory: Path) -> pd.DataFrame:
     return pd.read_parquet(directory / "trials.parquet")
@@ -24,8 +26,8 @@ def test_results_identical_across_workers_and_chunk_sizes(tmp_path: Path) -> Non
     spec = write_spec(tmp_path)
     runs = {
         "w1": ["--workers", "1"],
-        "w2": ["--workers", "2"],
-        "w2c7": ["--workers", "2", "--set", "sweep.chunk=7"],
+        "w2": ["--workers", "2", "--oversubscribe"],
+        "w2c7": ["--workers", "2", "--oversubscribe", "--set", "sweep.chunk=7"],
         "w1c60": ["--workers", "1", "--set", "sweep.chunk=60"],
     }
     frames = {}
@@ -35,7 +37,9 @@ def test_results_identical_across_workers_and_chunk_sizes(tmp_path: Path) -> Non
         frames[name] = trials(tmp_path / name)
     reference = frames["w1"]
     assert len(reference) == 120
-    assert reference["trial"].tolist() == list(range(120))
+    assert (reference["trial"] % ID_STRIDE).tolist() == list(range(60)) * 2
+    assert (reference.groupby("cell")["trial"].nunique() == 60).all()
+    assert reference.groupby("cell")["trial"].apply(lambda t: (t // ID_STRIDE).nunique()).max() == 1
     assert (reference["status"] == "ok").mean() > 0.9
     for name, frame in frames.items():
         pd.testing.assert_frame_equal(frame, reference, check_exact=True, obj=name)
@@ -45,11 +49,11 @@ def test_a_killed_sweep_resumes_to_the_uninterrupted_result(tmp_path: Path) -> N
     text = SPEC.replace("trials = 60", "trials = 1500").replace("chunk = 25", "chunk = 30")
     spec = write_spec(tmp_path, text)
     whole = tmp_path / "whole"
-    assert sweep(str(spec), "--out", str(whole), "-q", "--workers", "2")[0] == 0
+    assert sweep(str(spec), "--out", str(whole), "-q", "--workers", "2", "--oversubscribe")[0] == 0
 
     cut = tmp_path / "cut"
     command = [sys.executable, "-m", "flatcli.cli", "sweep", str(spec), "--out", str(cut),
-               "-q", "--workers", "2"]
+               "-q", "--workers", "2", "--oversubscribe"]
     process = subprocess.Popen(command, start_new_session=True)
     deadline = time.monotonic() + 120
     chunks = cut / "trials"
@@ -65,7 +69,7 @@ def test_a_killed_sweep_resumes_to_the_uninterrupted_result(tmp_path: Path) -> N
     assert not (cut / "trials.parquet").exists(), "killed too late to test a resume"
     assert 0 < done_before < 100
 
-    code, out = sweep(str(spec), "--out", str(cut), "--workers", "2")
+    code, out = sweep(str(spec), "--out", str(cut), "--workers", "2", "--oversubscribe")
     assert code == 0, out
     assert f"resuming with {done_before * 30} done" in out
     pd.testing.assert_frame_equal(trials(cut), trials(whole), check_exact=True)
@@ -194,7 +198,7 @@ def test_a_dead_worker_process_ends_the_sweep_cleanly_and_it_resumes(tmp_path: P
     spec = write_spec(tmp_path, text)
     out_dir = tmp_path / "d"
     command = [sys.executable, "-m", "flatcli.cli", "sweep", str(spec), "--out", str(out_dir),
-               "-q", "--workers", "2"]
+               "-q", "--workers", "2", "--oversubscribe"]
     process = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline:
@@ -210,7 +214,7 @@ def test_a_dead_worker_process_ends_the_sweep_cleanly_and_it_resumes(tmp_path: P
     assert err.startswith("error: a worker process died") and err.count("\n") == 1, err
     assert "run the same command again to resume" in err
     assert not (out_dir / "trials.parquet").exists()
-    code, out = sweep(str(spec), "--out", str(out_dir), "-q", "--workers", "2")
+    code, out = sweep(str(spec), "--out", str(out_dir), "-q", "--workers", "2", "--oversubscribe")
     assert code == 0, out
     whole = tmp_path / "whole"
     assert sweep(str(spec), "--out", str(whole), "-q", "--workers", "1")[0] == 0
