@@ -238,3 +238,37 @@ def test_a_bad_scheduler_address_is_a_one_line_error(
     assert text.startswith(f"error: --scheduler {address}: ") and text.count("\n") == 1, text
     assert message in text
     assert not out.exists()
+
+
+def test_a_scheduler_without_workers_is_a_one_line_error_not_a_hang(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("FLATCLI_DASK_WORKER_TIMEOUT", "2")
+    out = tmp_path / "d"
+    with LocalCluster(n_workers=0, processes=False, dashboard_address=None) as empty:
+        started = time.monotonic()
+        code, text = sweep(str(write_spec(tmp_path)), "--out", str(out), "-q",
+                           "--executor", "dask", "--scheduler", empty.scheduler_address)
+    assert code == 2, text
+    assert text == (f"error: --scheduler {empty.scheduler_address}: no worker joined within "
+                    "2 s (WorkerStartTimeoutError); start workers (dask worker ADDRESS), or "
+                    "use --executor local\n")
+    assert time.monotonic() - started < 60
+    assert not out.exists()
+
+
+def test_workers_that_all_leave_mid_sweep_end_it_with_one_line(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("FLATCLI_DASK_WORKER_TIMEOUT", "3")
+    executor = None
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                      dashboard_address=None) as cluster:
+        executor = flatcli.executors.DaskExecutor(cluster.scheduler_address)
+        results = executor.run(time.sleep, ((i, (0.2 * i,)) for i in range(20)))
+        assert next(results)[0] == 0
+        cluster.scale(0)  # every worker leaves; the tasks left can never run
+        with pytest.raises(flatcli.executors.WorkerLostError,
+                           match=r"^no Dask worker for 3 s at "):
+            list(results)
+        executor.close()

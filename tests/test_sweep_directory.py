@@ -239,18 +239,19 @@ def test_a_fresh_sweep_never_replaces_files_it_did_not_write(tmp_path: Path) -> 
     assert plan_directory(tmp_path, lay, force=False).mode == "fresh"  # beside it: fine
 
 
-def test_recorded_outputs_become_flatcli_files(finished: tuple[Path, Layout],
-                                               tmp_path: Path) -> None:
+def test_recorded_outputs_and_the_sweeps_figures_are_flatcli_files(
+        finished: tuple[Path, Layout], tmp_path: Path) -> None:
     directory, _ = copy_of(finished, tmp_path)
-    (directory / "sweep_errors.png").write_bytes(b"png")
+    (directory / "sweep_errors.png").write_bytes(b"png")  # plot_sweep's, recorded or not
+    (directory / "my_plot.png").write_bytes(b"png")
     (directory / "rerun-3").mkdir()
     (directory / "rerun-3" / "metrics.json").write_text("{}")
-    assert foreign_entries(directory, survey(directory).owned()) == ["rerun-3/",
-                                                                     "sweep_errors.png"]
-    record_outputs(directory, [directory / "sweep_errors.png",
-                               directory / "rerun-3" / "metrics.json"])
+    assert foreign_entries(directory, survey(directory).owned(directory)) == [
+        "my_plot.png", "rerun-3/"]
+    (directory / "my_plot.png").unlink()
+    record_outputs(directory, [directory / "rerun-3" / "metrics.json"])
     previous = survey(directory)
-    assert foreign_entries(directory, previous.owned()) == []
+    assert foreign_entries(directory, previous.owned(directory)) == []
     clear(directory, previous)
     assert not (directory / "rerun-3").exists() and not (directory / "sweep_errors.png").exists()
 

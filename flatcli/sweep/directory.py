@@ -57,6 +57,9 @@ TRIALS_DIR = "trials"
 FORMAT = 2
 #: The files a sweep writes beside trials/ (removed by --force).
 FINAL_FILES = (MANIFEST, "trials.parquet", "summary.parquet", "summary.md", "run.json")
+#: The sweep's figures (``flatcli.report.plot_sweep``, also run by ``make reproduce``),
+#: flatcli's wherever they were recorded or not.
+FIGURES = re.compile(r"sweep_[a-z_]+\.png")
 _CHUNK = re.compile(r"chunk-\d{10}-\d{9}\.parquet")
 _LEGACY_CHUNK = re.compile(r"chunk-\d{12}\.parquet")
 #: How many problems a refusal or a note names before it says "and N more".
@@ -99,11 +102,14 @@ class Previous:
     files: set[str] = field(default_factory=set)
     others: list[dict[str, Any]] = field(default_factory=list)  # more specs, no manifest
 
-    def owned(self) -> set[str]:
-        """Relative paths flatcli wrote (or would write) here."""
+    def owned(self, directory: Path | None = None) -> set[str]:
+        """Relative paths flatcli wrote (or would write) here (with ``directory``: also the
+        sweep's figures there)."""
         names = {LOCK_NAME, *self.files}
         if self.spec is not None:
             names.update(FINAL_FILES)
+            if directory is not None:
+                names.update(p.name for p in _entries(directory) if FIGURES.fullmatch(p.name))
         for cell in self.cells.values():
             names.update(f"{TRIALS_DIR}/{c}" for c in cell.get("chunks", []))
         return names
@@ -298,7 +304,7 @@ def plan_directory(directory: Path, lay: Layout, force: bool) -> Plan:
     previous = survey(directory) if directory.is_dir() else Previous()
     spec = lay.spec
     if force:
-        foreign = foreign_entries(directory, previous.owned())
+        foreign = foreign_entries(directory, previous.owned(directory))
         if foreign:
             raise SpecError(f"--force: {directory} holds files flatcli did not write "
                             f"({_listing(foreign)}); nothing was removed; move them away or "
@@ -336,7 +342,7 @@ def plan_directory(directory: Path, lay: Layout, force: bool) -> Plan:
 def clear(directory: Path, previous: Previous) -> None:
     """Remove flatcli's files from a directory (for --force): the files ``previous`` lists,
     their temporary files, and directories they leave empty (not trials/ or the lock)."""
-    owned = previous.owned()
+    owned = previous.owned(directory)
     for name in sorted(owned - {LOCK_NAME}):
         path = directory / name
         if os.path.lexists(path) and path.is_file() and not path.is_symlink():
