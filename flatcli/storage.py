@@ -133,13 +133,15 @@ def table_checksum(table: pa.Table) -> str:
     digest = hashlib.sha256()
     for name, column in zip(table.column_names, table.columns, strict=True):
         array = column.combine_chunks() if column.num_chunks != 1 else column.chunk(0)
-        digest.update(f"{name}\0{array.type}\0{len(array)}\0".encode())
-        digest.update(np.asarray(array.is_null().to_numpy(zero_copy_only=False)).tobytes())
+        digest.update(f"{name}\0{array.type}\0{len(array)}\0{array.null_count}\0".encode())
+        if array.null_count:
+            digest.update(np.asarray(array.is_null().to_numpy(zero_copy_only=False)).tobytes())
         if pa.types.is_integer(array.type) or pa.types.is_floating(array.type) \
                 or pa.types.is_boolean(array.type):
-            values = array.fill_null(pa.scalar(False if pa.types.is_boolean(array.type) else 0,
-                                               array.type))
-            digest.update(np.ascontiguousarray(values.to_numpy(zero_copy_only=False)).tobytes())
+            if array.null_count:
+                array = array.fill_null(pa.scalar(
+                    False if pa.types.is_boolean(array.type) else 0, array.type))
+            digest.update(np.ascontiguousarray(array.to_numpy(zero_copy_only=False)).tobytes())
         else:
             digest.update(json.dumps(array.to_pylist(), default=str).encode())
     return digest.hexdigest()

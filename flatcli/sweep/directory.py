@@ -38,6 +38,7 @@ from flatcli.report import summarize_trials, summary_markdown
 from flatcli.spec import SpecError
 from flatcli.storage import (
     LOCK_NAME,
+    PARQUET_META_KEY,
     atomic_path,
     provenance_metadata,
     read_provenance,
@@ -406,7 +407,11 @@ def chunk_provenance(base: Mapping[str, Any], cell: Cell, chunk: Chunk, table: p
 def chunk_problem(path: Path, cell: Cell, chunk: Chunk) -> str | None:
     """Why the file at ``path`` is not a finished ``chunk`` of ``cell`` (None if it is)."""
     try:
-        meta = read_provenance(path)
+        parquet = pq.ParquetFile(path)
+        raw = (parquet.schema_arrow.metadata or {}).get(PARQUET_META_KEY)
+        meta = json.loads(raw) if raw else {}
+        if not isinstance(meta, dict):
+            raise ValueError("provenance is not a table")
     except (OSError, ValueError, pa.ArrowException):
         return "not a readable chunk file"
     if meta.get("cell_digest") != cell.digest:
@@ -414,9 +419,9 @@ def chunk_problem(path: Path, cell: Cell, chunk: Chunk) -> str | None:
     if meta.get("trials") != [chunk.start, chunk.stop]:
         return f"holds trials {meta.get('trials')}, not [{chunk.start}, {chunk.stop}]"
     try:
-        table = pq.read_table(path)
+        table = parquet.read()
     except (OSError, ValueError, pa.ArrowException) as exc:
-        return f"unreadable data ({str(exc).splitlines()[0][:80]})"
+        return f"unreadable data ({(str(exc).splitlines() or [''])[0][:80]})"
     if table.num_rows != chunk.size or "trial" not in table.column_names or not np.array_equal(
             table.column("trial").to_numpy(), np.arange(chunk.start, chunk.stop)):
         return "its trial ids are not those of its name"
