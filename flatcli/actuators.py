@@ -10,6 +10,7 @@ lines; every number in them is computed here from those runs.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import textwrap
 from collections.abc import Mapping, Sequence
@@ -87,20 +88,65 @@ def run_study(out: Path, quiet: bool, workers: int | None, sets: Sequence[str] =
     """The study (``study_path()`` with the ``--set`` items ``sets``) into out/actuators, and
     the same trials on the kinematic plant into out/actuators/kinematic (the limit of
     infinite bandwidth): its spec, both trial tables and the study's wall time [s]."""
+    from flatcli.storage import directory_lock
     from flatcli.sweep import run_sweep
+    from flatcli.sweep.directory import record_outputs
 
     spec = load_spec(study_path(), sets)
     directory = out / "actuators"
-    result = run_sweep(spec, directory, "local", workers, None, force=True,
-                       progress=Progress(spec.name, quiet))
-    kinematic = spec.with_overrides({
-        "plant.model": "kinematic",
-        "sweep.grid": {MANEUVER: spec.sweep.grid[MANEUVER]},
-    })
-    run_sweep(kinematic, directory / "kinematic", "local", workers, None, force=True,
-              progress=Progress(f"{spec.name} (kinematic)", quiet))
+    with directory_lock(directory):
+        forget_study(directory)
+        result = run_sweep(spec, directory, "local", workers, None, force=True,
+                           progress=Progress(spec.name, quiet))
+        kinematic = spec.with_overrides({
+            "plant.model": "kinematic",
+            "sweep.grid": {MANEUVER: spec.sweep.grid[MANEUVER]},
+        })
+        run_sweep(kinematic, directory / "kinematic", "local", workers, None, force=True,
+                  progress=Progress(f"{spec.name} (kinematic)", quiet))
+        # the kinematic sweep's files are flatcli's too (``flatcli sweep --force`` there)
+        record_outputs(directory, (p for p in (directory / "kinematic").rglob("*")
+                                   if p.is_file() and not p.is_symlink()))
     return (spec, pd.read_parquet(directory / "trials.parquet"),
             pd.read_parquet(directory / "kinematic" / "trials.parquet"), result.wall_seconds)
+
+
+def forget_study(directory: Path) -> None:
+    """Before the study runs again into ``directory`` (out/actuators): remove what an
+    earlier run of it wrote beside the sweep's own files, which the sweep's ``--force``
+    would refuse as not its own: ``cells.parquet`` and the kinematic sweep under
+    ``kinematic/`` (only files flatcli wrote, as ``--force`` removes them; anything else
+    there stays, and the sweep then refuses, naming it)."""
+    from flatcli.storage import LOCK_NAME, directory_lock, read_provenance
+    from flatcli.sweep.directory import TRIALS_DIR, clear, foreign_entries, survey
+
+    cells = directory / "cells.parquet"
+    with contextlib.suppress(OSError, ValueError):
+        if cells.is_file() and not cells.is_symlink() and read_provenance(cells).get(
+                "command") == "reproduce":
+            cells.unlink()
+    nested = directory / "kinematic"
+    if not nested.is_dir() or nested.is_symlink():
+        return
+    with directory_lock(nested):
+        previous = survey(nested)
+        if previous.spec is None or foreign_entries(nested, previous.owned(nested)):
+            return
+        clear(nested, previous)
+    with contextlib.suppress(OSError):
+        (nested / LOCK_NAME).unlink()
+        (nested / TRIALS_DIR).rmdir()
+        nested.rmdir()
+
+
+def record_cells(directory: Path) -> None:
+    """List cells.parquet in the study's sweep manifest (flatcli's file: ``--force`` may
+    remove it)."""
+    from flatcli.storage import directory_lock
+    from flatcli.sweep.directory import record_outputs
+
+    with directory_lock(directory):
+        record_outputs(directory, [directory / "cells.parquet"])
 
 
 def cell_table(trials: pd.DataFrame) -> pd.DataFrame:
@@ -286,6 +332,7 @@ def actuators_section(base: Spec, out: Path, quiet: bool, workers: int | None = 
     plot_study(cells, kinematic, out / "fig_actuators.png")
     write_parquet(out / "actuators" / "cells.parquet", cells,
                   run_record("reproduce", spec.tree, study=STUDY.name))
+    record_cells(out / "actuators")
     _say(quiet, "actuator study written")
     by_label = {row[0]: row for row in demands}
     matrix = []

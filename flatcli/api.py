@@ -53,6 +53,7 @@ from flatcli.runs import (
     RunDirectoryError,
     SweepState,
     Target,
+    chunk_frames,
     claim,
     partial_summary,
     read_json,
@@ -283,13 +284,14 @@ class SweepResult(Run):
 
     @cached_property
     def trials(self) -> pd.DataFrame:
-        """trials.parquet (of a partial sweep: its finished chunks), sorted by trial."""
+        """trials.parquet (of a partial sweep: its finished chunks, in the same order: cells
+        in the grid's order, trials in order)."""
         if self.complete:
             return self.table("trials")
-        frames = [pd.read_parquet(p) for p in self.state.chunk_files]
-        if not frames:
+        if not self.state.chunk_files:
             return pd.DataFrame()
-        return pd.concat(frames, ignore_index=True).sort_values("trial", ignore_index=True)
+        frame: pd.DataFrame = chunk_frames(self.state)
+        return frame
 
     @cached_property
     def _partial(self) -> tuple[pd.DataFrame, str]:
@@ -327,12 +329,17 @@ class SweepResult(Run):
     def plot(self) -> list[Path]:
         """The summary figures (sweep_*.png) of a finished sweep; their paths."""
         from flatcli.report import plot_sweep
+        from flatcli.storage import directory_lock
+        from flatcli.sweep.directory import record_outputs
 
         if not self.complete:
             raise FlatcliError(f"--plot: {self.state.missing_text()}; the figures need "
                                "every trial (run the sweep again to finish it)")
         assert self.directory is not None
-        return plot_sweep(self.directory)
+        with directory_lock(self.directory):  # flatcli's files: --force may remove them
+            paths = plot_sweep(self.directory)
+            record_outputs(self.directory, paths)
+        return paths
 
 
 def spec_of(record: Mapping[str, Any]) -> Spec:
@@ -363,9 +370,13 @@ def plan(spec: SpecLike = None, overrides: Overrides = None) -> PlanResult:
     Returns a PlanResult (``.frame``, ``.metrics``, ``.optimization``); nothing is written
     until ``.save()``.
     """
+    from flatcli.spec.limits import require_finite_plan
+
     s = load_spec(spec, overrides)
     planned, optimization = plan_and_optimization(s)
     samples = planned.sample(planned.grid(s.plan.samples))
+    require_finite_plan({"theta": samples.theta, "theta_dot": samples.theta_dot,
+                         "u_dot": samples.u_dot, "y": samples.y})
     opt = None if optimization is None else _optimization(optimization, s)
     return PlanResult(s, plan_frame(samples), plan_summary(planned, samples), opt, planned,
                       samples)
@@ -383,34 +394,42 @@ def track(spec: SpecLike = None, overrides: Overrides = None, *,
     On a cold numba cache prints one line (the kernel compiles once, ~30 s) unless quiet.
     """
     from flatcli.outputs import track_frame
+    from flatcli.spec.limits import require_finite_plan
 
     s = load_spec(spec, overrides)
     announce_compile(quiet)
     run = run_track(s)
+    require_finite_plan({"the reference": run.scenario.reference,
+                         "theta": run.scenario.theta_reference})
     return TrackResult(s, track_frame(run), run.metrics, run)
 
 
 def sweep(spec: SpecLike, out: str | os.PathLike[str] | None = None, *,
           overrides: Overrides = None, workers: int | None = None, executor: str = "local",
           scheduler: str | None = None, force: bool = False, fail_fast: bool = False,
-          quiet: bool = False) -> SweepResult:
+          quiet: bool = False, oversubscribe: bool = False) -> SweepResult:
     """Run (or resume) a Monte Carlo sweep into ``out`` (default ``runs/<name>/``).
 
     ``workers``: processes (default one per core); ``executor``: "local" or "dask"
     (``scheduler``: an address or "local"); ``force``: start over in a directory holding
-    another sweep; ``fail_fast``: stop at the first trial that errors or diverges. Shows a
-    progress bar on stderr unless quiet. Returns the SweepResult of the directory.
+    another sweep (removing only the files flatcli wrote there); ``fail_fast``: stop at the
+    first trial that errors or diverges; ``oversubscribe``: allow more workers than cores.
+    Shows a progress bar on stderr unless quiet. Returns the SweepResult of the directory.
+    One run writes into a directory at a time (FlatcliError naming the other run's pid).
     """
     from flatcli.report import Progress
+    from flatcli.storage import check_output_dir, directory_lock
     from flatcli.sweep import run_sweep
 
     s = load_spec(spec, overrides)
     directory = Path(out) if out is not None else ROOT / s.name
+    check_output_dir(directory)
     if executor == "local":
         announce_compile(quiet)
-    done = run_sweep(s, directory, executor, workers, scheduler, force, fail_fast,
-                     Progress(s.name, quiet))
-    state = sweep_state(directory)
+    with directory_lock(directory):
+        done = run_sweep(s, directory, executor, workers, scheduler, force, fail_fast,
+                         Progress(s.name, quiet), oversubscribe=oversubscribe)
+        state = sweep_state(directory)
     assert state is not None
     return SweepResult(state, done.simulated, done.wall_seconds, done.summary_text)
 

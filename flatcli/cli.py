@@ -2,8 +2,12 @@
 (``flatcli.api``).
 
 Every user error (a bad spec, option or file, an infeasible request) ends as one line on
-stderr, ``error: ...``, with exit status 2, no traceback, and no output written. Options that
-several commands take are declared once, below, as decorators (as pip-tools does).
+stderr, ``error: ...``, with exit status 2, no traceback, and no output written. A runtime
+failure (an OS error while writing, a lost worker, no memory) is one line with exit status
+1; Ctrl-C and SIGTERM print the same line (exit status 128 + the signal's number). numpy's
+floating-point warnings never reach the terminal: the metrics and statuses say what went
+wrong. Options that several commands take are declared once, below, as decorators (as
+pip-tools does).
 
 Only click is imported up front: numpy, numba, scipy and pandas load inside the command that
 needs them, so ``flatcli --help``, ``--version`` and shell completion answer at once.
@@ -12,8 +16,13 @@ needs them, so ``flatcli --help``, ``--version`` and shell completion answer at 
 from __future__ import annotations
 
 import contextlib
+import errno
+import os
 import shlex
+import signal
 import sys
+import threading
+import warnings
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NoReturn, TypeVar
@@ -28,11 +37,14 @@ if TYPE_CHECKING:  # the core loads numba: imported where a command needs it
 F = TypeVar("F", bound=Callable[..., Any])
 
 EXIT_USAGE = 2
+EXIT_RUNTIME = 1
 RESUME_HINT = "finished chunks are kept in {}/trials; run the same command again to resume"
 #: ``flatcli.core.optimize.OBJECTIVES`` and ``flatcli.executors.EXECUTORS``, spelled out here
 #: so that ``--help`` need not import the numerical core (tests/test_cli.py checks they agree).
 OBJECTIVES = ("energy", "peak_rate", "effort", "margin")
 EXECUTORS = ("local", "dask")
+#: The signal that interrupted the run (SIGINT: Ctrl-C, or SIGTERM).
+_INTERRUPT = {"signal": int(signal.SIGINT)}
 
 
 def fail(message: str) -> NoReturn:
@@ -40,37 +52,115 @@ def fail(message: str) -> NoReturn:
     sys.exit(EXIT_USAGE)
 
 
+def interrupted_status() -> int:
+    """The exit status of an interrupted run: 128 + the signal's number."""
+    return 128 + _INTERRUPT["signal"]
+
+
+def _terminate(signum: int, frame: Any) -> None:
+    """SIGTERM: stop as Ctrl-C does (finished work kept, one line, no traceback)."""
+    _INTERRUPT["signal"] = signum
+    raise KeyboardInterrupt
+
+
+def os_error_text(exc: OSError) -> str:
+    """One line for an OS error: what failed, on which file, and why."""
+    reason = exc.strerror or str(exc) or type(exc).__name__
+    if isinstance(exc, BrokenPipeError) or exc.errno == errno.EPIPE:
+        return "standard output was closed (broken pipe)"
+    where = f"{exc.filename}: " if exc.filename is not None else ""
+    return f"{where}{reason}".replace("\n", " ")
+
+
+class _Stop(BaseException):
+    """Carries a one-line error and its exit status past click's own handlers."""
+
+    def __init__(self, message: str, status: int) -> None:
+        super().__init__(message)
+        self.message = message
+        self.status = status
+
+
+def _silence_stdout() -> None:
+    """After stdout failed: point it at /dev/null so the interpreter's final flush is quiet."""
+    with contextlib.suppress(OSError, ValueError, AttributeError):
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+
+
 @contextlib.contextmanager
 def user_errors() -> Iterator[None]:
-    """Turn domain errors into one line and exit status 2."""
+    """Turn domain errors into one line and exit status 2; numpy's floating-point errors
+    are silent inside (the metrics and statuses say what went wrong)."""
+    import numpy as np
+
     from flatcli.core.model import FlatcliError  # the core loads with the command's work
 
     try:
-        yield
+        with np.errstate(all="ignore"):
+            yield
     except FlatcliError as exc:
         fail(str(exc))
 
 
 class Cli(click.Group):
-    """A group whose usage errors are one line too."""
+    """A group whose usage errors, OS errors and interruptions are one line too."""
+
+    def invoke(self, ctx: click.Context) -> Any:
+        try:
+            return super().invoke(ctx)
+        except KeyboardInterrupt:
+            raise _Stop("interrupted", interrupted_status()) from None
+        except OSError as exc:
+            raise _Stop(os_error_text(exc), EXIT_RUNTIME) from None
+        except MemoryError:
+            raise _Stop("out of memory (lower the sizes of the spec)", EXIT_RUNTIME) from None
+        except Exception as exc:
+            if type(exc).__module__.startswith("pyarrow"):  # a damaged or foreign data file
+                first = (str(exc).splitlines() or [type(exc).__name__])[0]
+                raise _Stop(f"cannot read a data file: {first}", EXIT_RUNTIME) from None
+            raise
 
     def main(self, *args: Any, **kwargs: Any) -> Any:
         kwargs["standalone_mode"] = False
         kwargs.setdefault("prog_name", "flatcli")
+        previous = None
+        if threading.current_thread() is threading.main_thread():
+            previous = signal.signal(signal.SIGTERM, _terminate)
         try:
-            return super().main(*args, **kwargs)
+            with warnings.catch_warnings():  # numpy's errstate: ``user_errors``
+                if not sys.warnoptions:
+                    warnings.simplefilter("ignore", RuntimeWarning)
+                result = super().main(*args, **kwargs)
+                if sys.stdout is not None:
+                    sys.stdout.flush()
+                return result
+        except _Stop as stop:
+            if stop.status == EXIT_RUNTIME and "broken pipe" in stop.message:
+                _silence_stdout()
+            click.echo(f"error: {stop.message}", err=True)
+            sys.exit(stop.status)
+        except OSError as exc:  # writing the last lines to stdout
+            _silence_stdout()
+            click.echo(f"error: {os_error_text(exc)}", err=True)
+            sys.exit(EXIT_RUNTIME)
         except click.exceptions.Exit as exc:
             sys.exit(exc.exit_code)
         except click.exceptions.Abort:
             click.echo("error: interrupted", err=True)
-            sys.exit(130)
+            sys.exit(interrupted_status())
         except click.ClickException as exc:
             hint = ""
             ctx = getattr(exc, "ctx", None)
             if ctx is not None:
                 hint = f" (see '{ctx.command_path} --help')"
-            click.echo(f"error: {exc.format_message()}{hint}", err=True)
+            message = " ".join(exc.format_message().split())
+            click.echo(f"error: {message}{hint}", err=True)
             sys.exit(exc.exit_code)
+        finally:
+            if previous is not None:
+                signal.signal(signal.SIGTERM, previous)
 
 
 # ---------------------------------------------------------------------------------------
@@ -283,20 +373,25 @@ def check(spec: Path | None, sets: tuple[str, ...], workers: int | None, executo
 @executor_option
 @click.option("--scheduler", metavar="ADDRESS",
               help="Dask scheduler address (tcp://host:8786), or 'local' for a LocalCluster.")
-@click.option("--rerun", "rerun", type=int, metavar="TRIAL",
+@click.option("--rerun", "rerun", type=click.IntRange(0, 2**63 - 1), metavar="TRIAL",
               help="Re-run one finished trial alone (as flatcli track) and compare.")
 @click.option("--print-spec", is_flag=True, help="With --rerun: print that trial's track spec.")
 @click.option("--dry-run", is_flag=True,
               help="Show what the sweep would do (as flatcli check) and write nothing.")
+@click.option("--oversubscribe", is_flag=True,
+              help="Allow more --workers than this machine's cores.")
 @plot_option("Also write the summary figures.")
 def sweep(spec: Path, out: Path | None, workers: int | None, sets: tuple[str, ...],
           quiet: bool, fail_fast: bool, force: bool, executor: str, scheduler: str | None,
-          rerun: int | None, print_spec: bool, dry_run: bool, plot: bool) -> None:
+          rerun: int | None, print_spec: bool, dry_run: bool, oversubscribe: bool,
+          plot: bool) -> None:
     """Run a Monte Carlo sweep from a TOML spec with a [sweep] table (resumable)."""
     from flatcli import api
     from flatcli.executors import WorkerLostError
     from flatcli.spec import spec_toml
+    from flatcli.storage import check_output_dir, directory_lock
     from flatcli.sweep import FailFastError, rerun_and_compare, trial_spec
+    from flatcli.sweep.directory import record_outputs
 
     with user_errors():
         s = api.load_spec(spec, sets)
@@ -306,11 +401,16 @@ def sweep(spec: Path, out: Path | None, workers: int | None, sets: tuple[str, ..
                 fail("--dry-run: not with --rerun or --print-spec")
             click.echo(api.check(s, workers=workers, executor=executor, quiet=quiet).text())
             return
+        check_output_dir(directory)
         if rerun is not None and print_spec:
             click.echo(spec_toml(trial_spec(s, directory, rerun)), nl=False)
             return
         if rerun is not None:
-            result = rerun_and_compare(s, directory, rerun)
+            if not (directory / "trials.parquet").is_file():
+                fail(f"--rerun: {directory / 'trials.parquet'} not found; run the sweep first")
+            with directory_lock(directory):
+                result = rerun_and_compare(s, directory, rerun)
+                record_outputs(directory, result.target.iterdir())
             say(quiet, result.text(s.name))
             if not result.modified and not result.reproduced:
                 fail(f"--rerun: trial {rerun} did not reproduce")
@@ -318,19 +418,26 @@ def sweep(spec: Path, out: Path | None, workers: int | None, sets: tuple[str, ..
         if print_spec:
             fail("--print-spec: only with --rerun TRIAL")
         try:
-            done = api.sweep(s, directory, workers=workers, executor=executor,
-                             scheduler=scheduler, force=force, fail_fast=fail_fast, quiet=quiet)
+            with directory_lock(directory):
+                done = api.sweep(s, directory, workers=workers, executor=executor,
+                                 scheduler=scheduler, force=force, fail_fast=fail_fast,
+                                 quiet=quiet, oversubscribe=oversubscribe)
+                if plot:
+                    done.plot()
         except FailFastError as exc:
             click.echo(f"error: {exc}", err=True)
-            sys.exit(1)
+            sys.exit(EXIT_RUNTIME)
         except WorkerLostError as exc:
             click.echo(f"error: {exc}; {RESUME_HINT.format(directory)}", err=True)
-            sys.exit(1)
+            sys.exit(EXIT_RUNTIME)
+        except OSError as exc:
+            kept = os.path.isdir(directory / "trials")
+            hint = f"; {RESUME_HINT.format(directory)}" if kept else ""
+            click.echo(f"error: {os_error_text(exc)}{hint}", err=True)
+            sys.exit(EXIT_RUNTIME)
         except KeyboardInterrupt:
             click.echo(f"error: interrupted; {RESUME_HINT.format(directory)}", err=True)
-            sys.exit(130)
-    if plot:
-        done.plot()
+            sys.exit(interrupted_status())
     say(quiet, done.summary_text)
     say(quiet, f"{done.state.total} trials ({done.simulated} simulated now) in "
                f"{done.wall_seconds:.1f} s; wrote {directory}/trials.parquet, summary.md")
@@ -349,9 +456,21 @@ def summarize(directory: Path, plot: bool) -> None:
     with user_errors():
         if not (directory / "sweep.json").exists():
             summary_md = directory / "summary.md"
-            if not summary_md.exists():
+            if not summary_md.is_file():
                 fail(f"{summary_md} not found: not a sweep directory")
-            click.echo(summary_md.read_text(), nl=False)
+            if plot:  # a sweep directory without its manifest: its final tables
+                for name in ("summary.parquet", "trials.parquet"):
+                    if not (directory / name).is_file():
+                        fail(f"--plot: {directory / name} not found: not a finished sweep "
+                             "directory")
+            click.echo(summary_md.read_text(encoding="utf-8", errors="replace"), nl=False)
+            if plot:
+                from flatcli.report import plot_sweep
+                from flatcli.storage import directory_lock
+
+                with directory_lock(directory):
+                    paths = plot_sweep(directory)
+                click.echo("wrote " + ", ".join(str(p) for p in paths))
             return
         result = api.load(directory)
         assert isinstance(result, api.SweepResult)

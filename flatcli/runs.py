@@ -167,27 +167,36 @@ def claim(out: Path | None, command: str, name: str, digest: str, force: bool = 
 
 @dataclass(frozen=True)
 class SweepState:
-    """What a sweep directory holds: its manifest, the finished chunk files of its spec,
-    and whether the final tables are there."""
+    """What a sweep directory holds: its manifest, the finished chunk files of its spec
+    (and the position in the spec's grid of each one's cell), and whether the final tables
+    are there."""
 
     directory: Path
     manifest: dict[str, Any]
     chunk_files: tuple[Path, ...]
     done: int  # trials in the finished chunk files
     complete: bool  # trials.parquet, summary and run.json of this spec are written
+    chunk_cells: tuple[int, ...] = ()  # the grid position of each chunk file's cell
 
     @property
     def digest(self) -> str:
         return str(self.manifest.get("digest"))
 
     @property
+    def cells(self) -> int:
+        """Cells of the spec's grid (``grid_cells``: their keys in the grid's order; a
+        manifest written before cell keys holds their number)."""
+        cells = self.manifest["cells"]
+        return int(cells) if isinstance(cells, int) else len(self.manifest["grid_cells"])
+
+    @property
     def total(self) -> int:
-        return int(self.manifest["cells"]) * int(self.manifest["trials_per_cell"])
+        return self.cells * int(self.manifest["trials_per_cell"])
 
     @property
     def chunks_total(self) -> int:
         per_cell = math.ceil(int(self.manifest["trials_per_cell"]) / int(self.manifest["chunk"]))
-        return int(self.manifest["cells"]) * per_cell
+        return self.cells * per_cell
 
     @property
     def grid_keys(self) -> list[str]:
@@ -205,8 +214,10 @@ class SweepState:
 def sweep_state(directory: Path) -> SweepState | None:
     """The state of the sweep in ``directory``, or None if it holds none.
 
-    A chunk file counts if its provenance carries the manifest's spec digest (as a resume
-    counts it). Nothing is modified: a sweep may be running there right now.
+    A chunk file counts if it is one of the chunks the manifest lists for a cell of the
+    spec's grid and its provenance carries that cell's digest (a resume checks its content
+    too); of a manifest written before cell keys, if its provenance carries the manifest's
+    spec digest. Nothing is modified: a sweep may be running there right now.
     """
     import pyarrow as pa
     import pyarrow.parquet as pq
@@ -216,42 +227,80 @@ def sweep_state(directory: Path) -> SweepState | None:
     manifest = read_json(directory / SWEEP_MANIFEST)
     if manifest is None or not {"digest", "cells", "trials_per_cell", "chunk"} <= set(manifest):
         return None
+    cells = manifest["cells"]
+    keyed = isinstance(cells, dict)
+    if keyed and not isinstance(manifest.get("grid_cells"), list):
+        return None
     digest = manifest["digest"]
+    expected: dict[str, tuple[int, str]] = {}  # chunk file -> (grid position, cell digest)
+    for position, key in enumerate(manifest.get("grid_cells", []) if keyed else []):
+        cell = cells.get(str(key), {})
+        for name in cell.get("chunks", []):
+            expected[str(name)] = (position, str(cell.get("digest")))
     files = []
+    positions = []
     done = 0
     trials = directory / SWEEP_TRIALS
     for path in sorted(trials.glob("chunk-*.parquet")) if trials.is_dir() else []:
         try:
-            if read_provenance(path).get("digest") != digest:
-                continue
-            done += pq.read_metadata(path).num_rows
+            if keyed:
+                if path.name not in expected:
+                    continue
+                position, cell_digest = expected[path.name]
+                if read_provenance(path).get("cell_digest") != cell_digest:
+                    continue
+            else:
+                if read_provenance(path).get("digest") != digest:
+                    continue
+                position = -1
+            rows = pq.read_metadata(path).num_rows
         except (OSError, ValueError, pa.ArrowException):  # being written, or damaged
             continue
+        done += rows
         files.append(path)
+        positions.append(position)
+    if not keyed:  # the cell column of a chunk written before cell keys is its position
+        positions = []
     record = read_json(directory / RECORD)
     complete = (record is not None and record.get("digest") == digest
                 and (directory / "trials.parquet").exists()
                 and (directory / "summary.parquet").exists())
-    return SweepState(directory, manifest, tuple(files), done, complete)
+    return SweepState(directory, manifest, tuple(files), done, complete, tuple(positions))
+
+
+def chunk_frames(state: SweepState, columns: list[str] | None = None) -> Any:
+    """The finished chunk files of a partial sweep as one DataFrame, in trials.parquet's
+    order (cells in the grid's order, trials in order), ``cell`` their grid position."""
+    import pandas as pd
+
+    frames = []
+    for i, path in enumerate(state.chunk_files):
+        frame = pd.read_parquet(path, columns=columns)
+        if state.chunk_cells:
+            frame["cell"] = state.chunk_cells[i]
+        frames.append(frame)
+    if not frames:
+        return pd.DataFrame(columns=columns)
+    frame = pd.concat(frames, ignore_index=True)
+    return frame.sort_values(["cell", "trial"], ignore_index=True, kind="stable")
 
 
 def partial_summary(state: SweepState) -> tuple[Any, str]:
     """Per-cell statistics of the finished trials of an unfinished sweep: the summary
     frame, and its Markdown headed by how much is missing."""
-    import pandas as pd
 
     from flatcli.core.metrics import METRIC_NAMES
     from flatcli.report import summarize_trials, summary_markdown
 
     keys = state.grid_keys
-    columns = list(dict.fromkeys(["cell", "status", "singular_hits", *METRIC_NAMES, *keys]))
-    frames = [pd.read_parquet(p, columns=columns) for p in state.chunk_files]
-    frame = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=columns)
+    columns = list(dict.fromkeys(["trial", "cell", "status", "singular_hits", *METRIC_NAMES,
+                                  *keys]))
+    frame = chunk_frames(state, columns)
     cells: dict[int, dict[str, Any]] = {}
     for values in frame.drop_duplicates("cell").sort_values("cell").to_dict("records"):
         cells[int(values["cell"])] = {k: values[k] for k in keys}
     summary = summarize_trials(frame, cells)
-    n_cells = int(state.manifest["cells"])
+    n_cells = state.cells
     per_cell = int(state.manifest["trials_per_cell"])
     counts = frame.groupby("cell").size().to_dict() if len(frame) else {}
     unfinished = [c for c in range(n_cells) if counts.get(c, 0) < per_cell]

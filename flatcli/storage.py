@@ -1,13 +1,20 @@
-"""All file output of flatcli: atomic writes, Parquet with provenance, and run records.
+"""All file output of flatcli: atomic writes, Parquet with provenance, run records, and the
+one-writer lock of an output directory.
 
 Every file is written to a temporary name in its own directory, flushed to disk, then
 renamed over its final name, so a reader (or a resumed sweep) sees either the old file or
-the complete new one, never a half-written file.
+the complete new one, never a half-written file; a reader that opened the old file keeps
+reading it after the rename. ``directory_lock`` holds an OS-level lock (``flock``) on a
+directory's ``.flatcli.lock`` for as long as a run writes there, so two runs never mix
+their files; the kernel releases it when the process ends, however it ends.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
+import fcntl
+import hashlib
 import json
 import math
 import os
@@ -16,6 +23,7 @@ import socket
 import subprocess
 import sys
 import tempfile
+import time
 from collections.abc import Iterator, Mapping
 from datetime import UTC, datetime
 from pathlib import Path
@@ -27,6 +35,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 import flatcli
+from flatcli.core.model import FlatcliError
 
 #: Key of the Parquet schema metadata holding flatcli's provenance (JSON).
 PARQUET_META_KEY = b"flatcli"
@@ -54,8 +63,23 @@ def atomic_path(path: Path) -> Iterator[Path]:
             os.fsync(fh.fileno())
         tmp.chmod(0o666 & ~_UMASK)  # mkstemp makes 0600; give the file the usual mode
         os.replace(tmp, path)
+        _fsync_directory(path.parent)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def _fsync_directory(directory: Path) -> None:
+    """Make a rename in ``directory`` durable (where the file system allows it)."""
+    try:
+        fd = os.open(directory, os.O_RDONLY | os.O_DIRECTORY)
+    except OSError:  # pragma: no cover - a file system without directory handles
+        return
+    try:
+        os.fsync(fd)
+    except OSError:  # pragma: no cover - e.g. some network file systems
+        pass
+    finally:
+        os.close(fd)
 
 
 def write_text(path: Path, text: str) -> None:
@@ -109,6 +133,30 @@ def write_table(path: Path, table: pa.Table, provenance: Mapping[str, Any]) -> N
 def provenance_metadata(provenance: Mapping[str, Any]) -> dict[bytes, bytes]:
     """Parquet schema metadata holding ``provenance`` as JSON under ``PARQUET_META_KEY``."""
     return {PARQUET_META_KEY: json.dumps(to_jsonable(provenance), sort_keys=True).encode()}
+
+
+def table_checksum(table: pa.Table) -> str:
+    """SHA-256 of a table's content: column names, types, nulls and values, in order.
+
+    It depends on what the table holds, not on how a file stores it, so it is the same for
+    a table and for that table written to Parquet and read back, and differs when any
+    value, null or name differs.
+    """
+    digest = hashlib.sha256()
+    for name, column in zip(table.column_names, table.columns, strict=True):
+        array = column.combine_chunks() if column.num_chunks != 1 else column.chunk(0)
+        digest.update(f"{name}\0{array.type}\0{len(array)}\0{array.null_count}\0".encode())
+        if array.null_count:
+            digest.update(np.asarray(array.is_null().to_numpy(zero_copy_only=False)).tobytes())
+        if pa.types.is_integer(array.type) or pa.types.is_floating(array.type) \
+                or pa.types.is_boolean(array.type):
+            if array.null_count:
+                array = array.fill_null(pa.scalar(
+                    False if pa.types.is_boolean(array.type) else 0, array.type))
+            digest.update(np.ascontiguousarray(array.to_numpy(zero_copy_only=False)).tobytes())
+        else:
+            digest.update(json.dumps(array.to_pylist(), default=str).encode())
+    return digest.hexdigest()
 
 
 def read_provenance(path: Path) -> dict[str, Any]:
@@ -199,3 +247,166 @@ def column_units(path: Path) -> dict[str, str]:
     """{column: unit} of a Parquet file's columns that carry one."""
     return {f.name: f.metadata[UNIT_KEY].decode() for f in pq.read_schema(path)
             if f.metadata and UNIT_KEY in f.metadata}
+
+
+# ---------------------------------------------------------------------------------------
+# Output directories: usable, and one writer per directory.
+
+def check_output_dir(directory: Path, option: str = "--out") -> None:
+    """Refuse (FlatcliError) an output directory that cannot be made or written, before any
+    work: one that is a file or lies under one, a name longer than the file system allows,
+    a directory without write permission, a read-only file system."""
+    path = directory.absolute()
+    probe = path
+    while not os.path.lexists(probe):
+        probe = probe.parent
+    if not probe.is_dir():
+        what = "exists and is not a directory" if probe == path else f"{probe} is not a directory"
+        raise FlatcliError(f"{option} {directory}: {what}")
+    try:
+        longest = os.pathconf(probe, "PC_NAME_MAX")
+    except (OSError, ValueError):  # pragma: no cover - a file system that does not say
+        longest = 255
+    for part in path.relative_to(probe).parts:
+        if len(os.fsencode(part)) > longest:
+            raise FlatcliError(f"{option}: the name {part[:20]}... has {len(os.fsencode(part))} "
+                               f"bytes, more than the {longest} the file system allows")
+    if not os.access(probe, os.W_OK | os.X_OK):
+        try:
+            readonly = bool(os.statvfs(probe).f_flag & os.ST_RDONLY)
+        except OSError:  # pragma: no cover
+            readonly = False
+        why = "the file system is read-only" if readonly else "no permission to write there"
+        raise FlatcliError(f"{option} {directory}: cannot write in {probe}: {why}")
+
+
+# ---------------------------------------------------------------------------------------
+# One writer per output directory.
+
+#: The lock file of an output directory (it holds the writer's pid and host).
+LOCK_NAME = ".flatcli.lock"
+
+
+class DirectoryBusyError(FlatcliError):
+    """Another run holds the directory's lock (a usage error: exit status 2)."""
+
+
+#: Directories this process holds the lock of: resolved path -> [fd, depth].
+_HELD: dict[str, list[int]] = {}
+
+
+def _missing_ancestors(directory: Path) -> list[Path]:
+    """``directory`` and its ancestors that do not exist yet, deepest first."""
+    missing = []
+    path = directory.absolute()
+    while not os.path.lexists(path):
+        missing.append(path)
+        if path.parent == path:  # pragma: no cover - the root always exists
+            break
+        path = path.parent
+    return missing
+
+
+def _holder(fd: int) -> str:
+    """The pid (and host) the lock's holder wrote, waiting briefly for a new holder to."""
+    for _ in range(20):
+        text = os.pread(fd, 200, 0).decode("utf-8", "replace").split()
+        if text:
+            pid = text[0]
+            host = text[1] if len(text) > 1 else ""
+            return f"pid {pid}" + (f" on {host}" if host and host != socket.gethostname() else "")
+        time.sleep(0.05)
+    return "pid unknown"
+
+
+def _acquire(directory: Path) -> int:
+    path = directory / LOCK_NAME
+    while True:
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o644)
+        except FileNotFoundError:  # a refused run removed the directory it had created
+            directory.mkdir(parents=True, exist_ok=True)
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as exc:
+            if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                os.close(fd)
+                raise
+            holder = _holder(fd)
+            os.close(fd)
+            raise DirectoryBusyError(
+                f"{directory} is being written by another flatcli run ({holder}); wait for it "
+                "to finish, or use another --out"
+            ) from None
+        # the file may have been removed (by a run that created the directory and wrote
+        # nothing) between our open and our lock: then lock the new one
+        try:
+            now = os.stat(path, follow_symlinks=False)
+        except FileNotFoundError:
+            os.close(fd)
+            continue
+        mine = os.fstat(fd)
+        if (mine.st_dev, mine.st_ino) != (now.st_dev, now.st_ino):
+            os.close(fd)
+            continue
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()} {socket.gethostname()}\n".encode(), 0)
+        return fd
+
+
+@contextlib.contextmanager
+def directory_lock(directory: Path) -> Iterator[None]:
+    """Hold ``directory``'s lock for the block: the one writer there (``DirectoryBusyError``,
+    naming the holder's pid, if another process holds it).
+
+    The directory is created if need be; if the block leaves nothing in a directory it
+    created but the lock file, the directory is removed again (a refused run writes
+    nothing). Nested use in one process is allowed. The lock is an ``flock`` on
+    ``.flatcli.lock``, released by the kernel when the process ends, even by kill -9.
+    """
+    key = os.path.realpath(directory)
+    held = _HELD.get(key)
+    if held is not None:
+        held[1] += 1
+        try:
+            yield
+        finally:
+            held[1] -= 1
+        return
+    created = _missing_ancestors(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    try:
+        fd = _acquire(directory)
+    except BaseException:
+        _remove_empty(created)
+        raise
+    _HELD[key] = [fd, 1]
+    try:
+        yield
+    finally:
+        del _HELD[key]
+        try:
+            if created and [p.name for p in directory.iterdir()] == [LOCK_NAME]:
+                (directory / LOCK_NAME).unlink()
+                _remove_empty(created)
+        except OSError:  # pragma: no cover - best effort; the lock is released below
+            pass
+        os.close(fd)
+
+
+def _remove_empty(created: list[Path]) -> None:
+    for path in created:  # deepest first
+        try:
+            path.rmdir()
+        except OSError:
+            return
+
+
+def forget_inherited_locks() -> None:
+    """In a forked child: close the lock descriptors inherited from the parent, so that the
+    lock is released when the parent ends, whatever the child does."""
+    for fd, _ in _HELD.values():
+        with contextlib.suppress(OSError):
+            os.close(fd)
+    _HELD.clear()

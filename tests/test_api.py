@@ -120,7 +120,9 @@ def test_load_of_an_interrupted_sweep(tmp_path: Path) -> None:
     assert len(chunks) == 4  # 2 cells of 50 trials in chunks of 25
     for name in ("trials.parquet", "summary.parquet", "summary.md", "run.json"):
         (tmp_path / "d" / name).unlink()
-    chunks[-1].unlink()  # cell 1's second chunk never finished
+    manifest = json.loads((tmp_path / "d" / "sweep.json").read_text())
+    last = manifest["cells"][manifest["grid_cells"][1]]["chunks"][-1]
+    (tmp_path / "d" / "trials" / last).unlink()  # cell 1's second chunk never finished
     partial = flatcli.load(tmp_path / "d")
     assert isinstance(partial, api.SweepResult) and not partial.complete
     assert partial.metrics["trials"] == 100 and partial.metrics["finished"] == 75

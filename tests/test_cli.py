@@ -5,10 +5,13 @@ from __future__ import annotations
 import json
 import os
 import re
+import signal
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
+import click
 import numpy as np
 import pandas as pd
 import pytest
@@ -211,6 +214,19 @@ def test_design_of_a_longer_chain_prints_its_barycentric_matrix() -> None:
         (["sweep"], "Missing argument 'SPEC'"),
         (["sweep", "MISSING.toml"], "spec file not found"),
         (["summarize", "nowhere"], "nowhere/summary.md not found"),
+        (["design", "--set", "robot.inertia=[1e308,0.05,0.05]"], "robot.inertia[0]: must lie "
+                                                                 "within +-1e+15"),
+        (["plan", "--set", "plan.start_rate=1e308"], "plan.start_rate: must lie within"),
+        (["plan", "--set", "plan.start_rate=1e14"], "plan: th1 may sweep up to 2e+14 rad"),
+        (["track", "--set", "robot.mass=[1e-300,1e-300,1e-300]"], "robot.mass[0]: must be >="),
+        (["plan", "--set", r'name="a\u0000b"'], "name: must not contain control characters"),
+        (["plan", "--set", r'name="a\tb"'], "name: must not contain control characters"),
+        (["plan", "--set", "plan.samples=3\nplan.duration=4"], "must be one line"),
+        (["plan", "--set", "plan.samples=1000000000"], "plan.samples = 1000000000 would need"),
+        (["track", "--set", "track.dt=1e-9"], "output steps would need"),
+        (["plan", "/dev/zero"], "is not a regular file"),
+        (["sweep", "MISSING.toml", "--rerun", str(10**23)], "'--rerun': 10000000000000000000"),
+        (["sweep", "MISSING.toml", "--workers", "abc"], "'abc' is not a valid integer"),
     ],
 )
 def test_bad_input_is_one_line_exit_2_and_writes_nothing(
@@ -291,3 +307,75 @@ def test_compile_notice_only_on_a_cold_cache(tmp_path: Path,
     index.write_bytes(b"")
     stream = io.StringIO()
     assert announce_compile(False, stream) is False and stream.getvalue() == ""
+
+
+def test_summarize_plot_needs_a_finished_sweep(tmp_path: Path) -> None:
+    (tmp_path / "summary.md").write_text("a summary\n")
+    code, out = run("summarize", str(tmp_path), "--plot")
+    assert code == 2 and out == f"error: --plot: {tmp_path}/summary.parquet not found: not a " \
+                                "finished sweep directory\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["summary.md"]
+
+
+def test_the_output_directory_is_checked_before_any_work(tmp_path: Path) -> None:
+    spec = tmp_path / "s.toml"
+    spec.write_text("[sweep]\ntrials = 2\n")
+    (tmp_path / "file").write_text("")
+    code, out = run("sweep", str(spec), "--out", str(tmp_path / "file" / "d"), "-q")
+    assert code == 2 and out.count("\n") == 1 and "file is not a directory" in out
+    code, out = run("sweep", str(spec), "--out", str(tmp_path / ("n" * 300)), "-q")
+    assert code == 2 and "more than the 255 the file system allows" in out
+    code, out = run("plan", "--out", str(tmp_path / "file" / "d"), "-q")  # an OS error: exit 1
+    assert code == 1 and out.count("\n") == 1 and out.startswith("error: ")
+    assert "Not a directory" in out
+
+
+@main.command("warn-demo", hidden=True)
+def _warn_demo() -> None:
+    """(tests only) a command whose numpy arithmetic overflows and divides by zero"""
+    with np.errstate(all="warn"):
+        np.log(np.zeros(1))
+    np.float64(1e308) * 10
+    click.echo("done")
+
+
+def test_numpy_warnings_never_reach_a_successful_runs_stderr() -> None:
+    result = CliRunner().invoke(main, ["warn-demo"])
+    assert result.exit_code == 0
+    assert result.output == "done\n"
+
+
+def _cli(*args: str, **kwargs: Any) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "flatcli.cli", *args], text=True,
+                          capture_output=True, timeout=300, **kwargs)
+
+
+def test_a_closed_stdout_is_one_line_and_exit_1(tmp_path: Path) -> None:
+    command = [sys.executable, "-m", "flatcli.cli", "design"]
+    reader, writer = os.pipe()
+    os.close(reader)  # nobody reads: writing to stdout fails with EPIPE
+    with open(os.devnull, "rb") as stdin:
+        done = subprocess.run(command, stdout=writer, stderr=subprocess.PIPE, stdin=stdin,
+                              text=True, timeout=300)
+    os.close(writer)
+    assert done.returncode == 1
+    assert done.stderr == "error: standard output was closed (broken pipe)\n"
+    with open("/dev/full", "w") as full:  # a full disk under stdout
+        done = subprocess.run(command, stdout=full, stderr=subprocess.PIPE, text=True,
+                              timeout=300)
+    assert done.returncode == 1
+    assert done.stderr == "error: No space left on device\n"
+
+
+def test_sigterm_prints_the_line_ctrl_c_prints(tmp_path: Path) -> None:
+    process = subprocess.Popen([sys.executable, "-c", (
+        "import signal, sys, time, click\n"
+        "from flatcli.cli import main\n"
+        "@main.command('sleep')\n"
+        "def sleep():\n"
+        "    print('ready', flush=True); time.sleep(60)\n"
+        "main()\n"), "sleep"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert process.stdout is not None and process.stdout.readline() == "ready\n"
+    process.send_signal(signal.SIGTERM)
+    _, err = process.communicate(timeout=60)
+    assert (process.returncode, err) == (128 + signal.SIGTERM, "error: interrupted\n")

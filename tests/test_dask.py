@@ -19,6 +19,7 @@ from dask.distributed import Client, LocalCluster, get_task_stream
 from small_sweep import SPEC, sweep, write_spec
 
 import flatcli.executors
+from flatcli.sweep.layout import ID_STRIDE
 
 #: Long enough that a worker can be killed with most chunks still to run (seconds of work
 #: after the first chunk is written, against milliseconds to kill): 2 x 500 trials in 50
@@ -101,7 +102,8 @@ def test_a_dask_cluster_writes_the_local_executors_files_bit_for_bit(
     assert "resuming" not in text
     assert_same_sweep(out, reference)
     frame = pd.read_parquet(out / "trials.parquet")
-    assert frame["trial"].tolist() == list(range(120))
+    assert (frame["trial"] % ID_STRIDE).tolist() == list(range(60)) * 2  # i within each cell
+    assert frame["trial"].is_unique
     assert (frame["status"] == "ok").mean() > 0.9
 
 
@@ -126,7 +128,9 @@ def test_a_local_sweep_with_lost_chunks_is_finished_by_dask_identically(
     for name in ("trials.parquet", "summary.parquet", "summary.md", "run.json"):
         (out / name).unlink()
     trials = out / "trials"
-    lost, torn = trials / "chunk-000000000025.parquet", trials / "chunk-000000000110.parquet"
+    names = chunk_files(out)  # per cell: trials 0-24, 25-49, 50-59
+    lost, torn = trials / names[1], trials / names[5]
+    assert names[1].endswith("-000000025.parquet") and names[5].endswith("-000000050.parquet")
     lost.rename(trials / f".{lost.name}.x1y2z3.tmp")
     torn.write_bytes(torn.read_bytes()[:100])
     kept = {name: (trials / name).stat() for name in chunk_files(out) if name != torn.name}
@@ -194,7 +198,7 @@ def test_a_worker_killed_mid_sweep_changes_nothing(
     # the result is complete and identical
     assert len(chunk_files(out)) == LONG_CHUNKS
     frame = pd.read_parquet(out / "trials.parquet")
-    assert frame["trial"].tolist() == list(range(2 * LONG_TRIALS))
+    assert (frame["trial"] % ID_STRIDE).tolist() == list(range(LONG_TRIALS)) * 2
     assert_same_sweep(out, whole)
 
 
@@ -234,3 +238,37 @@ def test_a_bad_scheduler_address_is_a_one_line_error(
     assert text.startswith(f"error: --scheduler {address}: ") and text.count("\n") == 1, text
     assert message in text
     assert not out.exists()
+
+
+def test_a_scheduler_without_workers_is_a_one_line_error_not_a_hang(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("FLATCLI_DASK_WORKER_TIMEOUT", "2")
+    out = tmp_path / "d"
+    with LocalCluster(n_workers=0, processes=False, dashboard_address=None) as empty:
+        started = time.monotonic()
+        code, text = sweep(str(write_spec(tmp_path)), "--out", str(out), "-q",
+                           "--executor", "dask", "--scheduler", empty.scheduler_address)
+    assert code == 2, text
+    assert text == (f"error: --scheduler {empty.scheduler_address}: no worker joined within "
+                    "2 s (WorkerStartTimeoutError); start workers (dask worker ADDRESS), or "
+                    "use --executor local\n")
+    assert time.monotonic() - started < 60
+    assert not out.exists()
+
+
+def test_workers_that_all_leave_mid_sweep_end_it_with_one_line(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("FLATCLI_DASK_WORKER_TIMEOUT", "3")
+    executor = None
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                      dashboard_address=None) as cluster:
+        executor = flatcli.executors.DaskExecutor(cluster.scheduler_address)
+        results = executor.run(time.sleep, ((i, (0.2 * i,)) for i in range(20)))
+        assert next(results)[0] == 0
+        cluster.scale(0)  # every worker leaves; the tasks left can never run
+        with pytest.raises(flatcli.executors.WorkerLostError,
+                           match=r"^no Dask worker for 3 s at "):
+            list(results)
+        executor.close()

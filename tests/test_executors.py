@@ -1,7 +1,15 @@
-"""The local executor: every task runs once and results come back with their tags."""
+"""The local executor: every task runs once and results come back with their tags; its workers
+die with their parent, leave Ctrl-C to it, and stop at once when the run is aborted."""
 
 from __future__ import annotations
 
+import ctypes
+import os
+import signal
+import sys
+import time
+
+import numpy as np
 import pytest
 
 from flatcli.core.model import FlatcliError
@@ -29,3 +37,45 @@ def test_bad_executor_options_are_one_line_errors() -> None:
         make_executor("local", 1, "tcp://x:1")
     with pytest.raises(FlatcliError, match="--executor: expected one of"):
         make_executor("ray", 1, None)
+
+
+def worker_state() -> tuple[int, str, bool, int]:
+    """What a pool worker looks like from inside: its parent-death signal (Linux prctl
+    PR_GET_PDEATHSIG), numpy's overflow setting, whether Ctrl-C is ignored, its parent."""
+    libc = ctypes.CDLL(None, use_errno=True)
+    signum = ctypes.c_int(-1)
+    libc.prctl(2, ctypes.byref(signum), 0, 0, 0)  # PR_GET_PDEATHSIG
+    return (signum.value, np.geterr()["over"],
+            signal.getsignal(signal.SIGINT) is signal.SIG_IGN, os.getppid())
+
+
+def nap(seconds: float) -> float:
+    time.sleep(seconds)
+    return seconds
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="prctl is Linux's")
+def test_pool_workers_die_with_their_parent_and_leave_ctrl_c_to_it() -> None:
+    executor = LocalExecutor(2)
+    try:
+        states = [state for _, state in executor.run(worker_state, ((i, ()) for i in range(4)))]
+    finally:
+        executor.close()
+    for signum, over, ignores_sigint, parent in states:
+        assert signum == signal.SIGKILL
+        assert over == "ignore"
+        assert ignores_sigint
+        assert parent == os.getpid()
+
+
+def test_an_aborted_pool_stops_its_running_tasks_at_once() -> None:
+    executor = LocalExecutor(2)
+    pool = executor._pool
+    assert pool is not None
+    futures = [pool.submit(nap, 60.0) for _ in range(4)]  # as run() submits them
+    processes = list(pool._processes.values())
+    started = time.monotonic()
+    executor.close(abort=True)
+    assert time.monotonic() - started < 30  # not the 60 s the running tasks would take
+    assert all(not p.is_alive() for p in processes)
+    assert not any(f.done() and not f.cancelled() and f.exception() is None for f in futures)

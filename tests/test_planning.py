@@ -306,3 +306,44 @@ def test_a_batch_is_refused_when_any_plan_crosses(paper_maneuver: Maneuver) -> N
     rates[17] = -0.5
     with pytest.raises(FlatcliError, match="maneuver 17 of the batch"):
         plan_point_to_point(PAPER_ROBOT, start, goal, np.full(n, 0.1), rates, 2.0)
+
+
+#: Four maneuvers near the paper's (Sec. VI), each off the singular set.
+BATCH_START = np.array([[1.8, 1.0, 0.0], [1.7, 1.1, 0.1], [1.9, 0.9, -0.2], [1.6, 1.2, 0.05]])
+BATCH_GOAL = np.array([[1.2, 2.0, 0.0], [1.3, 1.9, 0.1], [1.1, 2.1, 0.0], [1.25, 1.8, -0.1]])
+BATCH_START_RATE = np.array([0.1, 0.15, 0.12, 0.2])
+BATCH_GOAL_RATE = np.array([0.5, 0.4, 0.6, 0.3])
+
+
+@pytest.mark.parametrize("basis", [None, BSplineBasis(12, 2.0, 5)], ids=["cubic", "bspline"])
+def test_a_batch_of_plans_equals_the_plans_made_one_at_a_time(basis: Basis | None) -> None:
+    batch = plan_point_to_point(PAPER_ROBOT, BATCH_START, BATCH_GOAL, BATCH_START_RATE,
+                                BATCH_GOAL_RATE, 2.0, basis=basis)
+    t = np.linspace(0.0, 2.0, 101)
+    together = batch.sample(t)
+    assert together.theta.shape == (4, 101, 3)
+    for i in range(4):
+        alone = plan_point_to_point(PAPER_ROBOT, BATCH_START[i], BATCH_GOAL[i],
+                                    BATCH_START_RATE[i], BATCH_GOAL_RATE[i], 2.0, basis=basis)
+        np.testing.assert_array_equal(batch.trajectory.coefficients[i],
+                                      alone.trajectory.coefficients)
+        samples = alone.sample(t)
+        for field in ("theta", "theta_dot", "u1_dot", "y", "margin", "momentum"):
+            np.testing.assert_array_equal(getattr(together, field)[i], getattr(samples, field),
+                                          err_msg=f"maneuver {i}: {field}")
+
+
+@pytest.mark.parametrize("i", range(4))
+def test_the_horner_path_of_evaluate_equals_sample(i: int) -> None:
+    # evaluate() of one polynomial plan runs a compiled Horner loop; sample() goes through
+    # the basis matrices and complex-step rates: two computations of the same quantities
+    plan = plan_point_to_point(PAPER_ROBOT, BATCH_START[i], BATCH_GOAL[i],
+                               BATCH_START_RATE[i], BATCH_GOAL_RATE[i], 2.0)
+    assert isinstance(plan.trajectory.basis, PolynomialBasis)
+    t = np.linspace(0.0, 2.0, 257)
+    state, inputs = plan.evaluate(t)
+    samples = plan.sample(t)
+    np.testing.assert_allclose(state[:, :3], samples.theta, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(state[:, 3], samples.theta_dot[:, 1], rtol=0, atol=1e-12)  # u1
+    np.testing.assert_allclose(inputs[:, 0], samples.u1_dot, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(inputs[:, 1], samples.theta_dot[:, 2], rtol=0, atol=1e-12)  # u2

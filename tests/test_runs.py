@@ -114,7 +114,9 @@ def tree(tmp_path_factory: pytest.TempPathFactory) -> Path:
     shutil.copytree(root / "small", root / "cut")
     for name in ("trials.parquet", "summary.parquet", "summary.md", "run.json"):
         (root / "cut" / name).unlink()
-    next(iter(sorted((root / "cut" / "trials").glob("chunk-*.parquet")))).unlink()
+    manifest = json.loads((root / "cut" / "sweep.json").read_text())
+    first = manifest["cells"][manifest["grid_cells"][0]]["chunks"][0]  # cell 0's first chunk
+    (root / "cut" / "trials" / first).unlink()
     return root
 
 

@@ -7,11 +7,14 @@ import dataclasses
 import hashlib
 import json
 import math
+import os
 from pathlib import Path
 
 import pytest
 
-from flatcli.spec import SpecError, load_spec, parse_set, resolve
+from flatcli.experiment import robot_from
+from flatcli.spec import SpecError, build, load_spec, parse_set, read_toml, resolve
+from flatcli.spec.limits import MAX_SPEC_BYTES
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
@@ -185,3 +188,79 @@ def test_records_are_frozen() -> None:
     spec = resolve({})
     with pytest.raises(dataclasses.FrozenInstanceError):
         spec.track.dt = 0.5  # type: ignore[misc]
+
+
+@pytest.mark.parametrize(
+    ("values", "message"),
+    [
+        ({"robot.inertia": [1e308, 0.05, 0.05]}, r"robot\.inertia\[0\]: must lie within "
+                                                  r"\+-1e\+15 \[kg m\^2\], got 1e\+308"),
+        ({"robot.com": [0.1, 0.1, 1e300]}, r"robot\.com\[2\]: must lie within"),
+        ({"plan.start_rate": 1e308}, r"plan\.start_rate: must lie within"),
+        ({"plan.start_rate": 10**30}, r"plan\.start_rate: integer out of range"),
+        ({"robot.mass": [1e-300, 1, 1]}, r"robot\.mass\[0\]: must be >= 1e-12"),
+        ({"plant.inertia": [1, 1, 1e-20]}, r"plant\.inertia\[2\]: must be >= 1e-12"),
+        ({"name": "a\x00b"}, r"name: must not contain control characters"),
+        ({"name": "x" * 201}, r"name: at most 200 bytes"),
+        ({"name": "\u00e9" * 101}, r"name: at most 200 bytes \(it names a directory\), got 202"),
+        ({"track.kp": [[[[[[[[[[1]]]]]]]]], 1]}, r"track\.kp: nested deeper than 8"),
+        ({"sweep.seed": 2**64}, r"sweep\.seed: integer out of range"),
+        ({"sweep.grid": {"sweep.perturb.initial.std": [0.01, [0.01, 0.02, 0.03]]},
+          "sweep.perturb": {"initial": {"dist": "normal", "std": 0.01}}},
+         r"sweep\.grid\.'sweep\.perturb\.initial\.std': mixes a list of 3 and a number"),
+        ({"sweep.grid": {"g": [{"sweep.perturb.initial.std": 0.01},
+                               {"sweep.perturb.initial.std": [0.01, 0.01, 0.01]}]},
+          "sweep.perturb": {"initial": {"dist": "normal", "std": 0.01}}},
+         r"group key 'sweep\.perturb\.initial\.std' mixes a list of 3 and a number"),
+    ],
+)
+def test_values_that_would_overflow_or_break_a_column_are_refused(
+    values: dict[str, object], message: str
+) -> None:
+    with pytest.raises(SpecError, match=message):
+        build(values)
+
+
+def test_the_largest_accepted_magnitudes_give_finite_coefficients() -> None:
+    # the bound is chosen so that the products the constraint forms stay finite:
+    # 1e15 in every mass, inertia, length and com is accepted, and every coefficient is
+    # finite (computed by the core from the spec's robot)
+    big = build({"robot.mass": [1e15] * 3, "robot.inertia": [1e15] * 3,
+                 "robot.length": [1e15] * 3, "robot.com": [1e15, 1e15, 0.0]})
+    small = build({"robot.mass": [1e-12] * 3, "robot.inertia": [1e-12] * 3,
+                   "robot.length": [1e-12] * 3, "robot.com": [1e-12, 1e-12, 0.0]})
+    for spec in (big, small):
+        k = robot_from(spec).coefficients()
+        assert all(math.isfinite(v) for v in k)
+        assert k.c0 != 0 and k.a0 != 0
+
+
+def test_set_values_are_one_line_and_one_value() -> None:
+    for text in ('name="a\nb"', "plan.duration=2\nplan.samples=3", "plan.duration=2\rx=1"):
+        with pytest.raises(SpecError, match="must be one line"):
+            parse_set([text])
+    with pytest.raises(SpecError, match="nested too deeply"):
+        parse_set(["track.kp=" + "[" * 3000 + "]" * 3000])
+    assert parse_set(["plan.duration = 3 # a comment"]) == {"plan.duration": 3}
+
+
+def test_spec_files_that_are_not_small_regular_utf8_toml_are_refused(tmp_path: Path) -> None:
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)  # opening it for reading would block until a writer came
+    cases = {
+        fifo: "is not a regular file",
+        Path("/dev/zero"): "is not a regular file",
+        tmp_path: "is a directory",
+    }
+    big = tmp_path / "big.toml"
+    big.write_text("# " + "x" * (MAX_SPEC_BYTES + 1))
+    cases[big] = f"more than the {MAX_SPEC_BYTES} a spec may have"
+    latin = tmp_path / "latin.toml"
+    latin.write_bytes('name = "caf\u00e9"\n'.encode("latin-1"))
+    cases[latin] = r"is not UTF-8 text \(byte 11\)"
+    deep = tmp_path / "deep.toml"
+    deep.write_text("x = " + "[" * 5000 + "]" * 5000 + "\n")
+    cases[deep] = "TOML nested too deeply"
+    for path, message in cases.items():
+        with pytest.raises(SpecError, match=message):
+            read_toml(path)

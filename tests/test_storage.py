@@ -1,11 +1,14 @@
-"""Atomic writes and provenance."""
+"""Atomic writes, provenance, content checksums, and the one-writer lock of a directory."""
 
 from __future__ import annotations
 
 import json
 import math
+import multiprocessing
 import os
+import signal
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -14,13 +17,19 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import pytest
 
+from flatcli.core.model import FlatcliError
 from flatcli.storage import (
+    LOCK_NAME,
     UNIT_KEY,
+    DirectoryBusyError,
     atomic_path,
+    check_output_dir,
     column_units,
+    directory_lock,
     null_where_nan,
     read_provenance,
     run_record,
+    table_checksum,
     to_jsonable,
     with_units,
     write_json,
@@ -95,3 +104,109 @@ def test_run_record_has_versions_git_and_time() -> None:
     assert {"flatcli", "numpy", "scipy", "numba"} <= set(record["versions"])
     assert set(record["git"]) == {"commit", "dirty"}
     assert record["time"].endswith("+00:00")
+
+
+def test_a_reader_holding_the_old_file_still_reads_it_after_an_atomic_replace(
+        tmp_path: Path) -> None:
+    path = tmp_path / "t.parquet"
+    old = pd.DataFrame({"x": np.arange(1000.0)})
+    write_parquet(path, old, {"digest": "old"})
+    reader = pq.ParquetFile(path)  # holds the file open, reads row groups on demand
+    with path.open("rb") as raw:
+        head = raw.read(4)
+        write_parquet(path, pd.DataFrame({"x": -np.arange(10.0)}), {"digest": "new"})
+        rest = raw.read()  # a file replaced in place would end (or change) under the reader
+    pd.testing.assert_frame_equal(reader.read().to_pandas(), old)
+    assert head + rest == _parquet_bytes(old, {"digest": "old"}, tmp_path)
+    assert read_provenance(path) == {"digest": "new"}
+    assert len(pd.read_parquet(path)) == 10
+
+
+def _parquet_bytes(frame: pd.DataFrame, provenance: dict[str, str], tmp_path: Path) -> bytes:
+    again = tmp_path / "again.parquet"
+    write_parquet(again, frame, provenance)
+    return again.read_bytes()
+
+
+def test_table_checksum_follows_the_content_not_the_file() -> None:
+    table = pa.table({"trial": pa.array([1, 2, 3]), "x": pa.array([0.5, None, np.nan]),
+                      "status": pa.array(["ok", None, "error"])})
+    buffer = pa.BufferOutputStream()
+    pq.write_table(table.replace_schema_metadata({b"k": b"v"}), buffer)
+    back = pq.read_table(pa.BufferReader(buffer.getvalue()))
+    assert table_checksum(back) == table_checksum(table)
+    assert table_checksum(table) == table_checksum(pa.concat_tables([table.slice(0, 1),
+                                                                       table.slice(1)]))
+    changes = [
+        table.set_column(1, "x", pa.array([0.5, 0.0, np.nan])),  # a null became 0
+        table.set_column(1, "x", pa.array([0.5000000000000001, None, np.nan])),  # one ulp
+        table.set_column(2, "status", pa.array(["ok", None, "errors"])),
+        table.rename_columns(["trial", "y", "status"]),
+        table.set_column(0, "trial", pa.array([1, 2, 3], type=pa.int32())),
+        table.slice(0, 2),
+    ]
+    digests = {table_checksum(t) for t in [table, *changes]}
+    assert len(digests) == len(changes) + 1
+
+
+def _hold_lock(directory: str, ready: Any, release: Any) -> None:
+    with directory_lock(Path(directory)):
+        ready.set()
+        release.wait(60)
+
+
+def test_a_second_writer_is_refused_naming_the_holders_pid(tmp_path: Path) -> None:
+    directory = tmp_path / "out"
+    context = multiprocessing.get_context("spawn")
+    ready, release = context.Event(), context.Event()
+    holder = context.Process(target=_hold_lock, args=(str(directory), ready, release))
+    holder.start()
+    try:
+        assert ready.wait(60)
+        with pytest.raises(DirectoryBusyError, match=rf"being written by another flatcli run "
+                                                     rf"\(pid {holder.pid}\)"), \
+                directory_lock(directory):
+            pass
+    finally:
+        release.set()
+        holder.join(60)
+    with directory_lock(directory), directory_lock(directory):  # nested in one process: fine
+        (directory / "x").write_text("")
+    assert sorted(p.name for p in directory.iterdir()) == [LOCK_NAME, "x"]
+
+
+def test_a_killed_holder_releases_the_lock(tmp_path: Path) -> None:
+    directory = tmp_path / "out"
+    context = multiprocessing.get_context("spawn")
+    ready, release = context.Event(), context.Event()
+    holder = context.Process(target=_hold_lock, args=(str(directory), ready, release))
+    holder.start()
+    assert ready.wait(60)
+    os.kill(holder.pid, signal.SIGKILL)
+    holder.join(60)
+    with directory_lock(directory):
+        assert (directory / LOCK_NAME).read_text().split()[0] == str(os.getpid())
+
+
+def test_a_directory_made_for_a_lock_and_left_empty_is_removed(tmp_path: Path) -> None:
+    directory = tmp_path / "a" / "b"
+    with pytest.raises(RuntimeError), directory_lock(directory):
+        raise RuntimeError("refused before writing anything")
+    assert not (tmp_path / "a").exists()
+    existing = tmp_path / "kept"
+    existing.mkdir()
+    with directory_lock(existing):
+        pass
+    assert existing.is_dir()
+
+
+def test_unusable_output_directories_are_refused_up_front(tmp_path: Path) -> None:
+    (tmp_path / "file").write_text("")
+    with pytest.raises(FlatcliError, match="exists and is not a directory"):
+        check_output_dir(tmp_path / "file")
+    with pytest.raises(FlatcliError, match="file is not a directory"):
+        check_output_dir(tmp_path / "file" / "sub")
+    with pytest.raises(FlatcliError, match="more than the 255 the file system allows"):
+        check_output_dir(tmp_path / ("x" * 300))
+    check_output_dir(tmp_path / "new" / "deeper")
+    assert not (tmp_path / "new").exists()  # nothing made

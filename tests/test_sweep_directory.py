@@ -1,8 +1,12 @@
-"""A sweep's directory (flatcli/sweep/directory.py): manifest, resume, provenance."""
+"""A sweep's directory (flatcli/sweep/directory.py): the manifest, verified chunks, what a
+resume keeps, what --force may remove, and the refusals."""
 
 from __future__ import annotations
 
+import json
 import math
+import os
+import shutil
 from pathlib import Path
 
 import pandas as pd
@@ -12,37 +16,268 @@ import pyarrow.parquet as pq
 import pytest
 from scipy.stats import binomtest
 
-from flatcli.spec import SpecError, resolve
-from flatcli.storage import PARQUET_META_KEY, column_units, read_provenance, write_table
-from flatcli.sweep import MANIFEST, TRIALS_DIR, recorded_digest, run_sweep
-from flatcli.sweep.directory import check_directory, clear, finished_chunks
+from flatcli.spec import Spec, SpecError, resolve
+from flatcli.storage import LOCK_NAME, column_units, read_provenance, to_jsonable, write_table
+from flatcli.sweep import MANIFEST, TRIALS_DIR, layout, recorded_digest, run_chunk, run_sweep
+from flatcli.sweep.directory import (
+    FINAL_FILES,
+    Previous,
+    chunk_problem,
+    chunk_provenance,
+    clear,
+    foreign_entries,
+    plan_directory,
+    record_outputs,
+    spec_differences,
+    survey,
+    verified_chunks,
+    write_manifest,
+)
+from flatcli.sweep.layout import Layout
 
 
-def test_a_directory_of_another_spec_is_refused_unless_forced(tmp_path: Path) -> None:
-    spec = resolve({})
-    check_directory(tmp_path, spec, force=False)  # empty: fine
-    (tmp_path / MANIFEST).write_text('{"digest": "abc"}')
-    assert recorded_digest(tmp_path) == "abc"
-    with pytest.raises(SpecError, match="holds a sweep of a different spec"):
-        check_directory(tmp_path, spec, force=False)
-    check_directory(tmp_path, spec, force=True)
-    (tmp_path / MANIFEST).write_text(f'{{"digest": "{spec.digest()}"}}')
-    check_directory(tmp_path, spec, force=False)
+def small_spec(**sweep: object) -> Spec:
+    return resolve({"track": {"dt": 0.004}, "sweep": {
+        "trials": 4, "chunk": 2, "seed": 3,
+        "perturb": {"initial": {"dist": "normal", "std": 0.01}},
+        "grid": {"track.sensor_noise": [0.0, 0.001]}, **sweep}})
 
 
-def test_only_chunks_of_this_digest_count_as_done(tmp_path: Path) -> None:
-    trials = tmp_path / TRIALS_DIR
-    table = pa.table({"trial": [0]})
-    write_table(trials / "chunk-a.parquet", table, {"digest": "mine"})
-    write_table(trials / "chunk-b.parquet", table, {"digest": "other"})
-    (trials / "chunk-c.parquet").write_bytes(b"half a file")
-    (trials / ".chunk-d.parquet.x.tmp").write_bytes(b"")
-    assert finished_chunks(tmp_path, "mine") == {"chunk-a.parquet"}
-    assert sorted(p.name for p in trials.iterdir()) == ["chunk-a.parquet", "chunk-b.parquet"]
-    assert PARQUET_META_KEY in pa.parquet.read_schema(trials / "chunk-a.parquet").metadata
-    assert read_provenance(trials / "chunk-a.parquet") == {"digest": "mine"}
-    clear(tmp_path)
-    assert list(trials.iterdir()) == []
+def write_chunks(directory: Path, lay: Layout) -> None:
+    """Every chunk of a layout, as the runner writes it."""
+    base = {"digest": lay.spec.digest(), "spec": lay.spec.tree}
+    for chunk in lay.chunks():
+        cell = lay.cells[chunk.cell]
+        table = run_chunk(cell, chunk).table
+        write_table(directory / TRIALS_DIR / chunk.name, table,
+                    chunk_provenance(base, cell, chunk, table))
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Layout]:
+    """A directory with a manifest and every chunk of a small two-cell sweep."""
+    directory = tmp_path_factory.mktemp("finished")
+    lay = layout(small_spec())
+    write_manifest(directory, lay)
+    write_chunks(directory, lay)
+    return directory, lay
+
+
+def copy_of(finished: tuple[Path, Layout], tmp_path: Path) -> tuple[Path, Layout]:
+    directory = tmp_path / "d"
+    shutil.copytree(finished[0], directory)
+    return directory, finished[1]
+
+
+def test_every_finished_chunk_passes_its_checks(finished: tuple[Path, Layout]) -> None:
+    directory, lay = finished
+    done, problems = verified_chunks(directory, lay)
+    assert problems == []
+    assert done == {c.name for c in lay.chunks()}
+    meta = read_provenance(directory / TRIALS_DIR / next(lay.chunks()).name)
+    first = next(lay.chunks())
+    assert meta["trials"] == [first.start, first.stop]
+    assert meta["cell_digest"] == lay.cells[0].digest
+
+
+def test_a_flipped_byte_in_a_data_page_is_found(finished: tuple[Path, Layout],
+                                                tmp_path: Path) -> None:
+    directory, lay = copy_of(finished, tmp_path)
+    chunk = next(lay.chunks())
+    path = directory / TRIALS_DIR / chunk.name
+    data = bytes(path.read_bytes())
+    original = pq.read_table(path).to_pandas()
+    footer = int.from_bytes(data[-8:-4], "little")  # Parquet: metadata length, then "PAR1"
+    caught = 0
+    for offset in range(4, len(data) - footer - 8, 31):  # bytes of the pages, not the footer
+        flipped = bytearray(data)
+        flipped[offset] ^= 0x01
+        path.write_bytes(flipped)
+        if chunk_problem(path, lay.cells[0], chunk) is not None:
+            caught += 1
+            continue
+        # not caught: the byte did not change what the file holds (a page statistic, a
+        # NaN's payload)
+        pd.testing.assert_frame_equal(pq.read_table(path).to_pandas(), original,
+                                      check_exact=True, obj=f"flipped byte {offset}")
+    assert caught > 0.5 * len(range(4, len(data) - footer - 8, 31))
+
+
+def test_a_chunk_copied_under_another_name_or_cell_is_found(finished: tuple[Path, Layout],
+                                                            tmp_path: Path) -> None:
+    directory, lay = copy_of(finished, tmp_path)
+    chunks = list(lay.chunks())
+    trials = directory / TRIALS_DIR
+    shutil.copy(trials / chunks[0].name, trials / chunks[1].name)  # same cell, other trials
+    shutil.copy(trials / chunks[0].name, trials / chunks[2].name)  # another cell
+    (trials / chunks[3].name).write_bytes(b"PAR1 half a file")
+    done, problems = verified_chunks(directory, lay)
+    assert done == {c.name for c in chunks} - {chunks[1].name, chunks[2].name, chunks[3].name}
+    assert [p.split(":")[0] for p in problems] == [f"{TRIALS_DIR}/{c.name}" for c in chunks[1:4]]
+    assert "holds trials" in problems[0]
+    assert "another spec or cell" in problems[1]
+    assert "not a readable chunk file" in problems[2]
+
+
+def test_rows_changed_and_written_back_with_valid_metadata_are_found(
+        finished: tuple[Path, Layout], tmp_path: Path) -> None:
+    directory, lay = copy_of(finished, tmp_path)
+    chunk = next(lay.chunks())
+    path = directory / TRIALS_DIR / chunk.name
+    table = pq.read_table(path)
+    metric = table.column("err_y_rms").to_pylist()
+    metric[0] = metric[0] * 2
+    changed = table.set_column(table.schema.get_field_index("err_y_rms"), "err_y_rms",
+                               pa.array(metric))
+    pq.write_table(changed, path)  # the old metadata, checksum included, kept
+    assert chunk_problem(path, lay.cells[0], chunk) == (
+        "its content does not match its checksum (the file was changed)")
+
+
+def test_another_spec_is_refused_naming_the_keys_that_differ(
+        finished: tuple[Path, Layout], tmp_path: Path) -> None:
+    directory, _ = copy_of(finished, tmp_path)
+    other = layout(small_spec(seed=4, trials=6))
+    with pytest.raises(SpecError, match=r"keys that differ: sweep\.seed \(3 -> 4\), "
+                                        r"sweep\.trials \(4 -> 6\)\); use --force"):
+        plan_directory(directory, other, force=False)
+    assert plan_directory(directory, other, force=True).mode == "restart"
+
+
+def test_without_its_manifest_a_directory_is_still_known_by_its_chunks(
+        finished: tuple[Path, Layout], tmp_path: Path) -> None:
+    directory, lay = copy_of(finished, tmp_path)
+    (directory / MANIFEST).unlink()
+    known = survey(directory)
+    assert known.spec == to_jsonable(lay.spec.tree) and known.digest == lay.spec.digest()
+    assert plan_directory(directory, lay, force=False).mode == "resume"
+    with pytest.raises(SpecError, match=r"sweep\.seed \(3 -> 5\)"):
+        plan_directory(directory, layout(small_spec(seed=5)), force=False)
+
+
+def test_only_grid_values_changed_extends_the_study(finished: tuple[Path, Layout],
+                                                     tmp_path: Path) -> None:
+    directory, lay = copy_of(finished, tmp_path)
+    more = layout(small_spec(grid={"track.sensor_noise": [0.002, 0.001, 0.0]}))
+    plan = plan_directory(directory, more, force=False)
+    assert plan.mode == "extend"
+    assert "sweep.grid.'track.sensor_noise'" in plan.note and "2 of the 3 cells" in plan.note
+    done, problems = verified_chunks(directory, more)
+    assert problems == []
+    reused = {c.name for c in lay.chunks()}
+    assert done == reused  # the new cell's chunks are the only ones to compute
+    write_manifest(directory, more, plan.previous)
+    manifest = json.loads((directory / MANIFEST).read_text())
+    assert len(manifest["cells"]) == 3
+    # a grid key added is another study
+    with pytest.raises(SpecError, match=r"sweep\.grid \(keys \['track\.sensor_noise'\] -> "):
+        plan_directory(directory, layout(small_spec(grid={
+            "track.sensor_noise": [0.0], "track.kp": [[10, 13]]})), force=False)
+
+
+def test_spec_differences_separate_grid_values_from_keys() -> None:
+    a = small_spec().tree
+    b = small_spec(grid={"track.sensor_noise": [0.0, 0.5]}).tree
+    assert spec_differences(a, b) == ([], ["sweep.grid.'track.sensor_noise'"])
+    c = resolve({"name": "x"}).tree
+    keys, _ = spec_differences(resolve({}).tree, c)
+    assert keys == ['name ("paper_example" -> "x")']
+
+
+def test_force_removes_only_flatcli_files_and_refuses_others(
+        finished: tuple[Path, Layout], tmp_path: Path) -> None:
+    directory, lay = copy_of(finished, tmp_path)
+    for name in FINAL_FILES[1:]:
+        (directory / name).write_text("a final file")
+    (directory / LOCK_NAME).write_text("")
+    (directory / TRIALS_DIR / f".{next(lay.chunks()).name}.abc123.tmp").write_text("")
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    (outside / "data.csv").write_text("precious")
+    for extra in ("notes.txt", f"{TRIALS_DIR}/data.csv", "sub/", "link"):
+        path = directory / extra
+        if extra == "link":
+            path.symlink_to(outside, target_is_directory=True)
+        elif extra.endswith("/"):
+            path.mkdir()
+        else:
+            path.write_text("mine")
+        with pytest.raises(SpecError, match=r"--force: .* holds files flatcli did not write "
+                                            rf"\({extra}\); nothing was removed"):
+            plan_directory(directory, lay, force=True)
+        if path.is_dir() and not path.is_symlink():
+            path.rmdir()
+        else:
+            path.unlink()
+    assert (outside / "data.csv").read_text() == "precious"
+    plan = plan_directory(directory, lay, force=True)
+    clear(directory, plan.previous)
+    assert sorted(p.name for p in directory.iterdir()) == [LOCK_NAME, TRIALS_DIR]
+    assert list((directory / TRIALS_DIR).iterdir()) == []
+
+
+def test_a_symlinked_trials_directory_is_refused_and_never_followed(tmp_path: Path) -> None:
+    lay = layout(small_spec())
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    (outside / "data.csv").write_text("precious")
+    directory = tmp_path / "d"
+    directory.mkdir()
+    (directory / TRIALS_DIR).symlink_to(outside)
+    for force in (False, True):
+        with pytest.raises(SpecError, match="is not a directory flatcli made"):
+            plan_directory(directory, lay, force=force)
+    assert (outside / "data.csv").read_text() == "precious"
+
+
+def test_a_fresh_sweep_never_replaces_files_it_did_not_write(tmp_path: Path) -> None:
+    lay = layout(small_spec())
+    (tmp_path / "summary.md").write_text("my summary")
+    with pytest.raises(SpecError, match=r"did not write where it would write \(summary\.md\)"):
+        plan_directory(tmp_path, lay, force=False)
+    with pytest.raises(SpecError, match=r"--force: .*\(summary\.md\)"):
+        plan_directory(tmp_path, lay, force=True)
+    (tmp_path / "summary.md").unlink()
+    (tmp_path / "notes.txt").write_text("mine")
+    assert plan_directory(tmp_path, lay, force=False).mode == "fresh"  # beside it: fine
+
+
+def test_recorded_outputs_and_the_sweeps_figures_are_flatcli_files(
+        finished: tuple[Path, Layout], tmp_path: Path) -> None:
+    directory, _ = copy_of(finished, tmp_path)
+    (directory / "sweep_errors.png").write_bytes(b"png")  # plot_sweep's, recorded or not
+    (directory / "my_plot.png").write_bytes(b"png")
+    (directory / "rerun-3").mkdir()
+    (directory / "rerun-3" / "metrics.json").write_text("{}")
+    assert foreign_entries(directory, survey(directory).owned(directory)) == [
+        "my_plot.png", "rerun-3/"]
+    (directory / "my_plot.png").unlink()
+    record_outputs(directory, [directory / "rerun-3" / "metrics.json"])
+    previous = survey(directory)
+    assert foreign_entries(directory, previous.owned(directory)) == []
+    clear(directory, previous)
+    assert not (directory / "rerun-3").exists() and not (directory / "sweep_errors.png").exists()
+
+
+def test_an_unreadable_manifest_is_refused(tmp_path: Path) -> None:
+    (tmp_path / MANIFEST).write_text("[1, 2")
+    assert recorded_digest(tmp_path) is None
+    with pytest.raises(SpecError, match="is not a flatcli sweep manifest"):
+        plan_directory(tmp_path, layout(small_spec()), force=True)
+
+
+def test_a_manifest_written_before_cell_keys_is_a_legacy_sweep(tmp_path: Path) -> None:
+    spec = small_spec()
+    (tmp_path / MANIFEST).write_text(json.dumps({"digest": spec.digest(), "spec": spec.tree}))
+    (tmp_path / TRIALS_DIR).mkdir()
+    (tmp_path / TRIALS_DIR / "chunk-000000000000.parquet").write_bytes(b"old")
+    lay = layout(spec)
+    with pytest.raises(SpecError, match="written by an older flatcli"):
+        plan_directory(tmp_path, lay, force=False)
+    plan = plan_directory(tmp_path, lay, force=True)
+    clear(tmp_path, plan.previous)
+    assert os.listdir(tmp_path / TRIALS_DIR) == [] and not (tmp_path / MANIFEST).exists()
+    assert Previous().owned() == {LOCK_NAME}
 
 
 def test_final_tables_have_nulls_units_lists_and_failure_shares(tmp_path: Path) -> None:

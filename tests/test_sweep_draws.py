@@ -2,12 +2,23 @@
 
 from __future__ import annotations
 
+from statistics import NormalDist
+
 import numpy as np
+import pytest
+from numpy.typing import NDArray
 from scipy.special import ndtri
 
 from flatcli.experiment import plan_from
 from flatcli.spec import perturbations, resolve
-from flatcli.sweep import N_VARIATES, PERTURB_SLOTS, draw_perturbations, nominal_values
+from flatcli.sweep import (
+    N_VARIATES,
+    PERTURB_SLOTS,
+    draw_perturbations,
+    layout,
+    nominal_values,
+    run_chunk,
+)
 from flatcli.sweep.draws import (
     invalid_plants,
     invalid_servos,
@@ -105,3 +116,90 @@ def test_a_robot_of_n_joints_lays_out_its_own_variates() -> None:
                                                        "initial_rate_3"]
     assert perturbation_columns("initial_rate") == ["initial_rate"]
     assert perturbation_columns("length", 4)[-1] == "length_4"
+
+
+def numpy_uniforms(seed: int, trial: int) -> NDArray[np.float64]:
+    """The README's contract, computed here with numpy alone: trial ``trial``'s 19 uniform
+    variates (a robot of N = 2 joints) come from default_rng(SeedSequence(seed,
+    spawn_key=(trial, 0)))."""
+    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(trial, 0))).random(19)
+
+
+def test_perturbation_draws_are_numpys_stream_of_each_trial() -> None:
+    perturb = {
+        "initial": {"dist": "normal", "std": [0.05, 0.02, 0.01], "mean": 0.003},
+        "initial_rate": {"dist": "uniform", "low": -0.02, "high": 0.03},
+        "mass": {"dist": "uniform", "low": -0.05, "high": 0.05, "relative": True},
+        "length": {"dist": "normal", "std": 0.001},
+        "momentum": {"dist": "normal", "std": 1e-3},
+    }
+    spec = resolve({"sweep": {"perturb": perturb}})
+    nominal = nominal_values(spec, plan_from(spec))
+    seed = 2003
+    ids = [0, 1, 7, 10**9 + 3, 4_294_967_295 * 10**9 + 999_999_999]  # up to the largest id
+    drawn = draw_perturbations(perturbations(spec.sweep), nominal, seed, ids)
+    inverse = NormalDist().inv_cdf  # the standard library's, not scipy's ndtri
+    for row, trial in enumerate(ids):
+        u = numpy_uniforms(seed, trial)
+        # README: slots initial 0-2, initial_rate 3, mass 4-6, length 10-12, momentum 16
+        expected_initial = nominal["initial"] + 0.003 + np.array(
+            [0.05, 0.02, 0.01]) * np.array([inverse(u[j]) for j in (0, 1, 2)])
+        np.testing.assert_allclose(drawn["initial"][row], expected_initial, rtol=1e-13)
+        assert drawn["initial_rate"][row, 0] == nominal["initial_rate"][0] + (
+            -0.02 + (0.03 - -0.02) * u[3])
+        np.testing.assert_array_equal(drawn["mass"][row],
+                                      nominal["mass"] * (1 + (-0.05 + 0.1 * u[4:7])))
+        np.testing.assert_allclose(drawn["length"][row], nominal["length"] + 0.001 * np.array(
+            [inverse(u[j]) for j in (10, 11, 12)]), rtol=1e-13)
+        assert drawn["momentum"][row, 0] == pytest.approx(1e-3 * inverse(u[16]), rel=1e-12)
+
+
+def test_a_sweeps_trials_carry_the_draws_of_their_ids() -> None:
+    spec = resolve({"track": {"dt": 0.004}, "sweep": {"trials": 3, "seed": 5, "perturb": {
+        "initial_rate": {"dist": "uniform", "low": -0.01, "high": 0.02}},
+        "grid": {"track.sensor_noise": [0.0, 0.001]}}})
+    lay = layout(spec)
+    for chunk in lay.chunks():
+        cell = lay.cells[chunk.cell]
+        rate = nominal_values(cell.spec, cell.scenario.plan)["initial_rate"][0]  # ~0.1
+        frame = run_chunk(cell, chunk).table.to_pandas()
+        assert len(frame) == 3
+        for trial, value in zip(frame["trial"], frame["initial_rate"], strict=True):
+            # README: low + (high - low) u, added to the plan's own th1'(0)
+            assert value == rate + (-0.01 + (0.02 - -0.01) * numpy_uniforms(5, int(trial))[3])
+
+
+@pytest.mark.parametrize(
+    ("name", "table", "reason"),
+    [
+        ("inertia", {"dist": "uniform", "low": -1.0, "high": -1.0, "relative": True},
+         r"^plant\.inertia\[0\]: must be > 0 kg m\^2, got 0$"),
+        ("inertia", {"dist": "uniform", "low": -0.5, "high": -0.4},
+         r"^plant\.inertia\[0\]: must be > 0 kg m\^2, got -0\.\d+$"),
+        ("length", {"dist": "uniform", "low": -1.0, "high": -1.0, "relative": True},
+         r"^plant\.length\[0\]: must be > 0 m, got 0$"),
+        ("length", {"dist": "uniform", "low": -2.5, "high": -1.5, "relative": True},
+         r"^plant\.length\[0\]: must be > 0 m, got -0\.\d+$"),
+    ],
+)
+def test_zero_or_negative_perturbed_inertia_or_length_is_an_error_trial(
+        name: str, table: dict[str, object], reason: str) -> None:
+    spec = resolve({"track": {"dt": 0.004}, "sweep": {"trials": 4, "perturb": {name: table}}})
+    lay = layout(spec)
+    frame = run_chunk(lay.cells[0], next(lay.chunks())).table.to_pandas()
+    assert (frame["status"] == "error").all()
+    assert frame["reason"].str.match(reason).all(), frame["reason"].tolist()
+    assert frame["err_y_rms"].isna().all()
+
+
+def test_a_zero_std_is_accepted_and_draws_the_nominal_values() -> None:
+    spec = resolve({"track": {"dt": 0.004}, "sweep": {"trials": 4, "perturb": {
+        "initial": {"dist": "normal", "std": 0.0},
+        "mass": {"dist": "normal", "std": [0.0, 0.0, 0.0], "relative": True}}}})
+    lay = layout(spec)
+    frame = run_chunk(lay.cells[0], next(lay.chunks())).table.to_pandas()
+    assert (frame[["initial_0", "initial_1", "initial_2"]].to_numpy()
+            == np.array(spec.track.initial)).all()
+    assert (frame[["mass_0", "mass_1", "mass_2"]].to_numpy() == 1.0).all()
+    assert (frame["status"] != "error").all()
+    assert frame["err_y_rms"].nunique() == 1  # identical trials

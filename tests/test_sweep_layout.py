@@ -2,30 +2,92 @@
 
 from __future__ import annotations
 
+import hashlib
+import json
+
 import pytest
 
 from flatcli.spec import SpecError, resolve
 from flatcli.sweep import cell_spec, grid_label, layout
-from flatcli.sweep.layout import CHUNK_MAX, CHUNK_MIN, default_chunk
+from flatcli.sweep.layout import CHUNK_MAX, CHUNK_MIN, ID_STRIDE, cell_keys, default_chunk
+
+GRID = {"track.dt": [0.001, 0.002], "gains": [{"label": "a", "track.kp": [1, 2]},
+                                              {"label": "b", "track.kp": [3, 4]}]}
+
+
+def sha_key(values: dict[str, object]) -> int:
+    """The README's cell key, computed here: the first 32 bits of the SHA-256 of the cell's
+    grid values as JSON with sorted keys, compact separators and numbers as floats."""
+    text = json.dumps(values, sort_keys=True, separators=(",", ":"))
+    return int(hashlib.sha256(text.encode()).hexdigest()[:8], 16)
 
 
 def test_layout_is_the_cartesian_product_in_written_order() -> None:
-    spec = resolve({"sweep": {"trials": 3, "chunk": 2, "grid": {
-        "track.dt": [0.001, 0.002], "gains": [{"label": "a", "track.kp": [1, 2]},
-                                              {"label": "b", "track.kp": [3, 4]}]}}})
+    spec = resolve({"sweep": {"trials": 3, "chunk": 2, "grid": GRID}})
     lay = layout(spec)
     assert [c.values["track.dt"] for c in lay.cells] == [0.001, 0.001, 0.002, 0.002]
     assert [c.spec.track.kp for c in lay.cells] == [(1, 2), (3, 4)] * 2
+    first = lay.cells[0]
+    expected = sha_key({"gains": {"label": "a", "track.kp": [1.0, 2.0]}, "track.dt": 0.001})
+    assert first.key == expected
+    base = expected * ID_STRIDE
     chunks = list(lay.chunks())
-    assert [(c.cell, c.start, c.stop) for c in chunks[:3]] == [(0, 0, 2), (0, 2, 3), (1, 3, 5)]
+    assert [(c.cell, c.start, c.stop) for c in chunks[:2]] == [(0, base, base + 2),
+                                                              (0, base + 2, base + 3)]
+    assert chunks[0].name == f"chunk-{expected:010d}-000000000.parquet"
+    assert chunks[1].name == f"chunk-{expected:010d}-000000002.parquet"
+    assert chunks[2].cell == 1 and chunks[2].start == lay.cells[1].key * ID_STRIDE
     assert lay.total == 12
 
 
-def test_default_chunks_come_from_the_spec_alone() -> None:
-    assert default_chunk(8000, 2000) == 8000 // 16  # about 16 chunks
-    assert default_chunk(100, 100) == 100  # never more than a cell
-    assert default_chunk(10**7, 10**6) == CHUNK_MAX
-    assert default_chunk(2000, 1000) == CHUNK_MIN
+def test_a_sweep_without_a_grid_numbers_its_trials_from_0() -> None:
+    lay = layout(resolve({"sweep": {"trials": 5, "chunk": 2}}))
+    assert [(c.start, c.stop) for c in lay.chunks()] == [(0, 2), (2, 4), (4, 5)]
+
+
+def test_adding_or_removing_grid_values_keeps_every_other_cells_ids_and_digest() -> None:
+    small = layout(resolve({"sweep": {"trials": 4, "grid": {"track.dt": [0.001, 0.002]}}}))
+    more = layout(resolve({"sweep": {"trials": 4, "grid": {
+        "track.dt": [0.0005, 0.001, 0.004, 0.002]}}}))
+    fewer = layout(resolve({"sweep": {"trials": 4, "grid": {"track.dt": [0.002]}}}))
+    by_value = {c.values["track.dt"]: c for c in more.cells}
+    for cell in (*small.cells, *fewer.cells):
+        twin = by_value[cell.values["track.dt"]]
+        assert (twin.key, twin.digest) == (cell.key, cell.digest)
+        assert [c.name for c in small.cell_chunks(cell)] == [c.name for c in
+                                                              more.cell_chunks(twin)]
+    # the key is the grid values', not their position or their spelling (2 and 2.0)
+    assert cell_keys([{"x": 2}]) == cell_keys([{"x": 2.0}]) == [sha_key({"x": 2.0})]
+    # another seed is another computation, with the same ids
+    reseeded = layout(resolve({"sweep": {"trials": 4, "seed": 9, "grid": {
+        "track.dt": [0.001, 0.002]}}}))
+    assert [c.key for c in reseeded.cells] == [c.key for c in small.cells]
+    assert all(a.digest != b.digest for a, b in zip(reseeded.cells, small.cells, strict=True))
+
+
+def test_colliding_cell_keys_are_separated_whatever_the_order() -> None:
+    # x = 30622 and x = 61955 share the first 32 bits of their digests (found by trying
+    # x = 0, 1, 2, ... until two collided); the smaller full digest keeps the key, the
+    # other takes the next one, in whichever order the grid lists them
+    a, b = {"x": 30622.0}, {"x": 61955.0}
+    assert sha_key(a) == sha_key(b)
+    full = {k: hashlib.sha256(json.dumps(v, sort_keys=True, separators=(",", ":"))
+                              .encode()).hexdigest() for k, v in (("a", a), ("b", b))}
+    first, second = (a, b) if full["a"] < full["b"] else (b, a)
+    expected = {json.dumps(first): sha_key(a), json.dumps(second): sha_key(a) + 1}
+    for cells in ([a, b], [b, a], [b, {"x": 1.0}, a]):
+        keys = cell_keys(cells)
+        assert len(set(keys)) == len(cells)
+        for cell, key in zip(cells, keys, strict=True):
+            if cell in (a, b):
+                assert key == expected[json.dumps(cell)]
+
+
+def test_default_chunks_come_from_the_cell_alone() -> None:
+    assert default_chunk(8000) == 8000 // 16  # about 16 chunks per cell
+    assert default_chunk(100) == 100  # never more than a cell
+    assert default_chunk(10**6) == CHUNK_MAX
+    assert default_chunk(2000) == CHUNK_MIN
 
 
 def test_a_cell_spec_applies_groups_and_perturbation_parameters() -> None:

@@ -19,20 +19,21 @@ def test_rerun_reproduces_a_trial_exactly(tmp_path: Path) -> None:
     spec = write_spec(tmp_path)
     out_dir = tmp_path / "d"
     assert sweep(str(spec), "--out", str(out_dir), "-q")[0] == 0
-    code, out = sweep(str(spec), "--out", str(out_dir), "--rerun", "97")
+    trial = str(pd.read_parquet(out_dir / "trials.parquet")["trial"].iloc[97])  # cell 1
+    code, out = sweep(str(spec), "--out", str(out_dir), "--rerun", trial)
     assert code == 0, out
     assert "NO" not in out and "identical" in out
-    rerun = pd.read_parquet(out_dir / "rerun-97" / "track.parquet")
+    rerun = pd.read_parquet(out_dir / f"rerun-{trial}" / "track.parquet")
     assert len(rerun) == 501
-    code, text = sweep(str(spec), "--out", str(out_dir), "--rerun", "97", "--print-spec")
+    code, text = sweep(str(spec), "--out", str(out_dir), "--rerun", trial, "--print-spec")
     assert code == 0
-    assert "trial = 97" in text and "sensor_noise = 0.001" in text
+    assert f"trial = {trial}" in text and "sensor_noise = 0.001" in text
     # a finer step for the same trial: allowed, and said to differ
-    code, out = sweep(str(spec), "--out", str(out_dir), "--rerun", "97", "--set",
+    code, out = sweep(str(spec), "--out", str(out_dir), "--rerun", trial, "--set",
                       "track.dt=0.001")
     assert code == 0, out
     assert "differs from the sweep's" in out and "NO" in out
-    assert len(pd.read_parquet(out_dir / "rerun-97" / "track.parquet")) == 1001
+    assert len(pd.read_parquet(out_dir / f"rerun-{trial}" / "track.parquet")) == 1001
 
 
 DYNAMIC = """

@@ -1,5 +1,6 @@
 """Running sweeps (flatcli/sweep/runner.py, end to end through the CLI): reproducible across
-workers and chunkings, resumable after kill -9, failures kept, bad specs refused."""
+workers and chunkings, resumable after kill -9, failures kept, bad specs refused, one writer
+per directory, no orphans, changed chunks recomputed, grid values added without recomputing."""
 
 from __future__ import annotations
 
@@ -12,8 +13,13 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
 from small_sweep import SPEC, sweep, write_spec
+
+from flatcli.storage import read_provenance
+from flatcli.sweep.layout import ID_STRIDE
 
 
 def trials(directory: Path) -> pd.DataFrame:
@@ -24,8 +30,8 @@ def test_results_identical_across_workers_and_chunk_sizes(tmp_path: Path) -> Non
     spec = write_spec(tmp_path)
     runs = {
         "w1": ["--workers", "1"],
-        "w2": ["--workers", "2"],
-        "w2c7": ["--workers", "2", "--set", "sweep.chunk=7"],
+        "w2": ["--workers", "2", "--oversubscribe"],
+        "w2c7": ["--workers", "2", "--oversubscribe", "--set", "sweep.chunk=7"],
         "w1c60": ["--workers", "1", "--set", "sweep.chunk=60"],
     }
     frames = {}
@@ -35,7 +41,9 @@ def test_results_identical_across_workers_and_chunk_sizes(tmp_path: Path) -> Non
         frames[name] = trials(tmp_path / name)
     reference = frames["w1"]
     assert len(reference) == 120
-    assert reference["trial"].tolist() == list(range(120))
+    assert (reference["trial"] % ID_STRIDE).tolist() == list(range(60)) * 2
+    assert (reference.groupby("cell")["trial"].nunique() == 60).all()
+    assert reference.groupby("cell")["trial"].apply(lambda t: (t // ID_STRIDE).nunique()).max() == 1
     assert (reference["status"] == "ok").mean() > 0.9
     for name, frame in frames.items():
         pd.testing.assert_frame_equal(frame, reference, check_exact=True, obj=name)
@@ -45,11 +53,11 @@ def test_a_killed_sweep_resumes_to_the_uninterrupted_result(tmp_path: Path) -> N
     text = SPEC.replace("trials = 60", "trials = 1500").replace("chunk = 25", "chunk = 30")
     spec = write_spec(tmp_path, text)
     whole = tmp_path / "whole"
-    assert sweep(str(spec), "--out", str(whole), "-q", "--workers", "2")[0] == 0
+    assert sweep(str(spec), "--out", str(whole), "-q", "--workers", "2", "--oversubscribe")[0] == 0
 
     cut = tmp_path / "cut"
     command = [sys.executable, "-m", "flatcli.cli", "sweep", str(spec), "--out", str(cut),
-               "-q", "--workers", "2"]
+               "-q", "--workers", "2", "--oversubscribe"]
     process = subprocess.Popen(command, start_new_session=True)
     deadline = time.monotonic() + 120
     chunks = cut / "trials"
@@ -65,7 +73,7 @@ def test_a_killed_sweep_resumes_to_the_uninterrupted_result(tmp_path: Path) -> N
     assert not (cut / "trials.parquet").exists(), "killed too late to test a resume"
     assert 0 < done_before < 100
 
-    code, out = sweep(str(spec), "--out", str(cut), "--workers", "2")
+    code, out = sweep(str(spec), "--out", str(cut), "--workers", "2", "--oversubscribe")
     assert code == 0, out
     assert f"resuming with {done_before * 30} done" in out
     pd.testing.assert_frame_equal(trials(cut), trials(whole), check_exact=True)
@@ -194,7 +202,7 @@ def test_a_dead_worker_process_ends_the_sweep_cleanly_and_it_resumes(tmp_path: P
     spec = write_spec(tmp_path, text)
     out_dir = tmp_path / "d"
     command = [sys.executable, "-m", "flatcli.cli", "sweep", str(spec), "--out", str(out_dir),
-               "-q", "--workers", "2"]
+               "-q", "--workers", "2", "--oversubscribe"]
     process = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline:
@@ -210,8 +218,128 @@ def test_a_dead_worker_process_ends_the_sweep_cleanly_and_it_resumes(tmp_path: P
     assert err.startswith("error: a worker process died") and err.count("\n") == 1, err
     assert "run the same command again to resume" in err
     assert not (out_dir / "trials.parquet").exists()
-    code, out = sweep(str(spec), "--out", str(out_dir), "-q", "--workers", "2")
+    code, out = sweep(str(spec), "--out", str(out_dir), "-q", "--workers", "2", "--oversubscribe")
     assert code == 0, out
     whole = tmp_path / "whole"
     assert sweep(str(spec), "--out", str(whole), "-q", "--workers", "1")[0] == 0
     pd.testing.assert_frame_equal(trials(out_dir), trials(whole), check_exact=True)
+
+
+def _running_sweep(spec: Path, out: Path, *extra: str) -> subprocess.Popen[str]:
+    """A long sweep in another process, once it has written a chunk."""
+    command = [sys.executable, "-m", "flatcli.cli", "sweep", str(spec), "--out", str(out),
+               "-q", *extra]
+    process = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not list((out / "trials").glob("chunk-*.parquet")) if out.exists() else True:
+        if process.poll() is not None or time.monotonic() > deadline:
+            pytest.fail("the sweep ended before it could be disturbed; make it longer")
+        time.sleep(0.01)
+    return process
+
+
+def test_a_second_writer_is_refused_naming_the_first_ones_pid(tmp_path: Path) -> None:
+    text = SPEC.replace("trials = 60", "trials = 1500").replace("chunk = 25", "chunk = 30")
+    spec = write_spec(tmp_path, text)
+    other = write_spec(tmp_path, text.replace("seed = 11", "seed = 12"), "other.toml")
+    out_dir = tmp_path / "d"
+    first = _running_sweep(spec, out_dir, "--workers", "1")
+    try:
+        for extra in ((), ("--force",)):
+            code, out = sweep(str(other), "--out", str(out_dir), "-q", *extra)
+            assert code == 2
+            assert out == (f"error: {out_dir} is being written by another flatcli run (pid "
+                           f"{first.pid}); wait for it to finish, or use another --out\n")
+    finally:
+        first.communicate(timeout=300)
+    assert first.returncode == 0
+    assert read_provenance(out_dir / "trials.parquet")["spec"]["sweep"]["seed"] == 11
+
+
+def test_sigterm_is_ctrl_c_and_leaves_no_worker_behind(tmp_path: Path) -> None:
+    text = SPEC.replace("trials = 60", "trials = 1500").replace("chunk = 25", "chunk = 30")
+    spec = write_spec(tmp_path, text)
+    out_dir = tmp_path / "d"
+    process = _running_sweep(spec, out_dir, "--workers", "2", "--oversubscribe")
+    workers = _children(process.pid)
+    assert workers
+    process.send_signal(signal.SIGTERM)
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == 128 + signal.SIGTERM
+    assert err == (f"error: interrupted; finished chunks are kept in {out_dir}/trials; run the "
+                   "same command again to resume\n")
+    _gone(workers)
+
+
+def _gone(pids: list[int], seconds: float = 30) -> None:
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        alive = [p for p in pids if Path(f"/proc/{p}").exists()
+                 and Path(f"/proc/{p}/stat").read_text().split()[2] != "Z"]
+        if not alive:
+            return
+        time.sleep(0.1)
+    pytest.fail(f"worker processes {alive} outlived their parent")
+
+
+def test_workers_of_a_killed_sweep_do_not_outlive_it(tmp_path: Path) -> None:
+    text = SPEC.replace("trials = 60", "trials = 1500").replace("chunk = 25", "chunk = 30")
+    spec = write_spec(tmp_path, text)
+    process = _running_sweep(spec, tmp_path / "d", "--workers", "2", "--oversubscribe")
+    workers = _children(process.pid)
+    assert workers
+    os.kill(process.pid, signal.SIGKILL)  # only the main process: no process group kill
+    process.communicate(timeout=60)
+    _gone(workers)
+
+
+def test_a_changed_chunk_is_computed_again_and_the_run_says_so(tmp_path: Path) -> None:
+    spec = write_spec(tmp_path)
+    out_dir = tmp_path / "d"
+    assert sweep(str(spec), "--out", str(out_dir), "-q")[0] == 0
+    whole = trials(out_dir)
+    chunk = sorted((out_dir / "trials").glob("chunk-*.parquet"))[2]
+    table = pq.read_table(chunk)
+    column = table.schema.get_field_index("err_y_rms")
+    values = table.column(column).to_pylist()
+    pq.write_table(table.set_column(column, "err_y_rms", pa.array([v * 2 for v in values])),
+                   chunk)  # the metadata, checksum included, as it was
+    code, out = sweep(str(spec), "--out", str(out_dir), "-q")
+    assert code == 0, out
+    assert out == (f"note: trials/{chunk.name}: its content does not match its checksum (the "
+                   "file was changed); computing it again\n")
+    pd.testing.assert_frame_equal(trials(out_dir), whole, check_exact=True)
+
+
+def test_grid_values_added_or_removed_reuse_finished_cells_with_the_fresh_result(
+        tmp_path: Path) -> None:
+    three = SPEC.replace('"track.sensor_noise" = [0.0, 0.001]',
+                         '"track.sensor_noise" = [0.0, 0.002, 0.001]')
+    one = SPEC.replace('"track.sensor_noise" = [0.0, 0.001]', '"track.sensor_noise" = [0.001]')
+    out_dir = tmp_path / "d"
+    assert sweep(str(write_spec(tmp_path)), "--out", str(out_dir), "-q")[0] == 0
+    before = {p.name: p.stat().st_mtime_ns for p in (out_dir / "trials").iterdir()}
+    code, out = sweep(str(write_spec(tmp_path, three, "three.toml")), "--out", str(out_dir))
+    assert code == 0, out
+    assert "sweep.grid.'track.sensor_noise'); 2 of the 3 cells were computed there before" in out
+    assert "resuming with 120 done" in out and "(60 simulated now)" in out
+    for name, mtime in before.items():  # reused, not rewritten
+        assert (out_dir / "trials" / name).stat().st_mtime_ns == mtime
+    fresh = tmp_path / "fresh"
+    assert sweep(str(tmp_path / "three.toml"), "--out", str(fresh), "-q")[0] == 0
+    pd.testing.assert_frame_equal(trials(out_dir), trials(fresh), check_exact=True)
+    # and back to one value: nothing simulated, the same rows as a fresh run of it
+    code, out = sweep(str(write_spec(tmp_path, one, "one.toml")), "--out", str(out_dir))
+    assert code == 0 and "(0 simulated now)" in out, out
+    alone = tmp_path / "alone"
+    assert sweep(str(tmp_path / "one.toml"), "--out", str(alone), "-q")[0] == 0
+    pd.testing.assert_frame_equal(trials(out_dir), trials(alone), check_exact=True)
+
+
+def test_force_twice_over_a_sweep_and_its_figures(tmp_path: Path) -> None:
+    spec = write_spec(tmp_path, SPEC.replace("trials = 60", "trials = 10"))
+    out_dir = tmp_path / "d"
+    for _ in range(2):  # what make reproduce does: --force, then the figures
+        code, out = sweep(str(spec), "--out", str(out_dir), "-q", "--force", "--plot")
+        assert code == 0, out
+    assert (out_dir / "sweep_errors.png").exists()

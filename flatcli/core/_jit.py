@@ -6,14 +6,21 @@ compiled closed-loop kernel (``simulate``), while Python callers keep calling it
 
 numba caches compiled kernels on disk, but only checks the file that holds the kernel for
 changes, not the files of the functions it inlined. So the cache directory is keyed by a
-hash of every source file of the core: a change anywhere in the core compiles afresh, never
-reuses a stale kernel. A user's own ``NUMBA_CACHE_DIR`` is respected.
+hash of every source file of the core, in every configuration: a change anywhere in the core
+compiles afresh, never reuses a stale kernel. The cache lives in
+``$XDG_CACHE_HOME/flatcli/numba/<hash>`` (default ``~/.cache``), or in
+``$NUMBA_CACHE_DIR/flatcli-<hash>`` when the user sets ``NUMBA_CACHE_DIR``; if that cannot
+be written, in ``<temporary directory>/flatcli-numba-<uid>/<hash>``; if no directory can be
+written, kernels are compiled in every process and not cached. Never in the package's own
+``__pycache__`` (numba's fallback), where a stale kernel would be found again.
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
+import tempfile
+import uuid
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar, cast
@@ -41,14 +48,50 @@ def core_source_hash() -> str:
     return digest.hexdigest()[:12]
 
 
-def _configure_cache() -> None:
-    if os.environ.get("NUMBA_CACHE_DIR"):
-        return
-    base = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"))
-    setattr(numba.config, "CACHE_DIR", str(base / "flatcli" / "numba" / core_source_hash()))  # noqa: B010
+def writable(directory: Path) -> bool:
+    """Whether files can be created in ``directory`` (made if need be)."""
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+        probe = directory / f".probe-{uuid.uuid4().hex}"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError:
+        return False
+    return True
 
 
-_configure_cache()
+def cache_candidates(source_hash: str) -> list[Path]:
+    """Where the compiled kernels of the core with ``source_hash`` may be cached, in order
+    of preference (each keyed by the hash)."""
+    user = os.environ.get("NUMBA_CACHE_DIR")
+    if user:
+        first = Path(user) / f"flatcli-{source_hash}"
+    else:
+        home = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+        first = Path(home) / "flatcli" / "numba" / source_hash
+    uid = os.getuid() if hasattr(os, "getuid") else "user"
+    return [first, Path(tempfile.gettempdir()) / f"flatcli-numba-{uid}" / source_hash]
+
+
+def cache_dir(source_hash: str) -> Path | None:
+    """The first writable directory of ``cache_candidates``, or None."""
+    for candidate in cache_candidates(source_hash):
+        if writable(candidate):
+            return candidate
+    return None
+
+
+def _configure_cache() -> bool:
+    """Point numba's cache at a hash-keyed writable directory; False if there is none."""
+    directory = cache_dir(core_source_hash())
+    if directory is None:
+        return False
+    setattr(numba.config, "CACHE_DIR", str(directory))  # noqa: B010
+    return True
+
+
+#: Whether compiled kernels are cached on disk (a writable hash-keyed directory exists).
+CACHING = _configure_cache()
 
 
 def jitable(fn: F) -> F:
@@ -57,5 +100,6 @@ def jitable(fn: F) -> F:
 
 
 def kernel(fn: F) -> F:
-    """Compile a kernel: no Python objects, IEEE semantics (no fastmath), cached on disk."""
-    return cast(F, numba.njit(cache=True, nogil=True, error_model="numpy")(fn))
+    """Compile a kernel: no Python objects, IEEE semantics (no fastmath), cached on disk
+    (``CACHING``)."""
+    return cast(F, numba.njit(cache=CACHING, nogil=True, error_model="numpy")(fn))

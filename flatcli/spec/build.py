@@ -9,14 +9,22 @@ line naming the key and what is allowed.
 from __future__ import annotations
 
 import copy
+import math
+import os
+import stat
 import tomllib
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
-from flatcli.spec.keys import SpecError
-from flatcli.spec.schema import SCHEMA, Spec, check_value, fit_sizes, from_values
+from flatcli.spec.keys import MAX_INT, SpecError
+from flatcli.spec.limits import MAX_SPEC_BYTES, check_limits
+from flatcli.spec.schema import SCHEMA, Spec, check_value, fit_sizes, from_values, lookup
 from flatcli.spec.sweeps import PERTURB_PREFIX, is_perturbation_param, validate_sweep
+
+#: Deepest nesting of lists and tables a spec value may have (a grid of groups of vectors
+#: needs 3).
+MAX_DEPTH = 8
 
 
 def build(values: Mapping[str, Any]) -> Spec:
@@ -27,6 +35,8 @@ def build(values: Mapping[str, Any]) -> Spec:
     """
     checked: dict[str, Any] = {}
     params: dict[str, Any] = {}
+    for dotted, value in values.items():
+        _scan(dotted, value, 0)
     for dotted, value in values.items():
         if dotted in SCHEMA:  # a whole section given as a scalar
             raise SpecError(f"{dotted}: expected a table")
@@ -42,7 +52,126 @@ def build(values: Mapping[str, Any]) -> Spec:
         checked["sweep.perturb"] = perturb
     spec = fit_sizes(from_values(checked), checked)
     validate_sweep(spec.sweep, spec.joints)
+    check_grid_shapes(spec.sweep.grid)
+    check_derived(spec)
+    check_limits(spec)
     return spec
+
+
+def _scan(where: str, value: Any, depth: int) -> None:
+    """Refuse what no key takes before any check looks closer: nesting deeper than
+    ``MAX_DEPTH``, integers beyond 64 bits, text that is not valid Unicode."""
+    if depth > MAX_DEPTH:
+        raise SpecError(f"{where}: nested deeper than {MAX_DEPTH} lists or tables")
+    if isinstance(value, bool):
+        return
+    if isinstance(value, int) and abs(value) > MAX_INT:
+        raise SpecError(f"{where}: integer out of range (at most 2^63 - 1), got {value:.3g}")
+    if isinstance(value, str):
+        try:
+            value.encode("utf-8")
+        except UnicodeEncodeError:
+            raise SpecError(f"{where}: not valid Unicode text") from None
+    elif isinstance(value, Mapping):
+        for k, v in value.items():
+            _scan(f"{where}.{k}", v, depth + 1)
+    elif isinstance(value, list | tuple):
+        for v in value:
+            _scan(where, v, depth + 1)
+
+
+def _shape(value: Any) -> str:
+    """What kind of column a grid value makes: a number, text, a flag, a list, a table."""
+    if isinstance(value, bool):
+        return "true/false"
+    if isinstance(value, int | float):
+        return "a number"
+    if isinstance(value, str):
+        return "text"
+    if isinstance(value, Mapping):
+        return "a table"
+    return f"a list of {len(value)}"
+
+
+def _mixed(key: str, shapes: set[str]) -> set[str]:
+    """The shapes of a grid key's values that do not fit one column: a key that takes a
+    number or one per joint (``Key.kind`` "numbers", e.g. ``plan.goal_rate``) makes a list
+    column of numbers and lists alike (a number spread over the joints)."""
+    try:
+        numbers = lookup(key).kind == "numbers"
+    except SpecError:  # a perturbation parameter or a group's name
+        numbers = False
+    if numbers and any(s.startswith("a list") for s in shapes):
+        return shapes - {"a number"}
+    return shapes
+
+
+def check_grid_shapes(grid: Mapping[str, Any]) -> None:
+    """Every value of one grid key has the same shape (all numbers, or all lists of the same
+    length, ...), and so does every group key across a group's tables: each grid key is one
+    column of trials.parquet, with one type (a key that takes a number or one per joint may
+    mix the two)."""
+    for dotted, values in grid.items():
+        where = f"sweep.grid.{dotted!r}"
+        if all(isinstance(v, Mapping) for v in values):
+            columns: dict[str, set[str]] = {}
+            for table in values:
+                for key, value in table.items():
+                    columns.setdefault(key, set()).add(_shape(value))
+            for key, shapes in columns.items():
+                shapes = _mixed(key, shapes)
+                if len(shapes) > 1:
+                    mixed = " and ".join(sorted(shapes))
+                    raise SpecError(f"{where}: group key {key!r} mixes {mixed}; give it the "
+                                    "same shape in every table")
+            continue
+        shapes = _mixed(dotted, {_shape(v) for v in values})
+        if len(shapes) > 1:
+            raise SpecError(f"{where}: mixes {' and '.join(sorted(shapes))}; give every value "
+                            "the same shape (e.g. a list of 3 numbers each)")
+
+
+#: Smallest mass [kg], inertia [kg m^2] and length [m] of a link: the constraint's
+#: coefficients are products of up to four of them, which must not underflow.
+MIN_PHYSICAL = 1e-12
+_PHYSICAL = ("mass", "inertia", "length")
+
+
+def check_derived(spec: Spec) -> None:
+    """Quantities computed from the spec before any run are meaningful numbers: the links'
+    masses, inertias and lengths are not so small that products of them underflow, and the
+    constraint coefficients of the robot (in its model) and of the plant are finite. (Plans
+    are checked where they are made.)"""
+    import numpy as np
+
+    from flatcli.core.chain import barycentric_matrix
+    from flatcli.core.model import Links, constraint_coefficients
+
+    robot, plant = spec.robot, spec.plant
+    for section, record in (("robot", robot), ("plant", plant)):
+        for name in _PHYSICAL:
+            values = getattr(record, name)
+            for i, v in enumerate(values or ()):
+                if v < MIN_PHYSICAL:
+                    raise SpecError(f"{section}.{name}[{i}]: must be >= {MIN_PHYSICAL:g} "
+                                    f"(products of such values underflow), got {v:g}")
+    nominal = (robot.mass, robot.inertia, robot.length, robot.com)
+    real = (plant.mass or robot.mass, plant.inertia or robot.inertia,
+            plant.length or robot.length, plant.com or robot.com)
+    for section, values, model in (("robot", nominal, robot.model),
+                                   ("plant", real, "derived")):
+        if spec.joints == 2:
+            k = constraint_coefficients(Links(*(v for group in values for v in group)),
+                                        model)  # type: ignore[arg-type]
+            bad = [name for name, v in zip(k._fields, k, strict=True) if not math.isfinite(v)]
+            what = f"the constraint coefficient {bad[0]}" if bad else ""
+        else:  # a chain of N links: its momentum's barycentric matrix K
+            mass, _, length, com = (np.asarray(v, dtype=float) for v in values)
+            finite = np.isfinite(barycentric_matrix(mass, length, com)).all()
+            what = "" if finite else "the barycentric matrix K"
+        if what:
+            raise SpecError(f"{section}: {what} is not finite for these parameters (mass, "
+                            "inertia, length, com); use physical magnitudes")
 
 
 def resolve(user: Mapping[str, Any], overrides: Mapping[str, Any] | None = None) -> Spec:
@@ -84,26 +213,63 @@ def parse_set(items: Iterable[str]) -> dict[str, Any]:
         key = key.strip()
         if not sep or not key:
             raise SpecError(f"--set: expected KEY=VALUE, got {item!r}")
+        if any(c in text for c in "\n\r\0"):
+            raise SpecError(f"--set {key}: the value must be one line (no newline or NUL), "
+                            f"got {text!r}")
         try:
-            value = tomllib.loads(f"v = {text.strip()}")["v"]
+            parsed = tomllib.loads(f"v = {text.strip()}")
         except tomllib.TOMLDecodeError:
             if not text.strip().replace("_", "").replace("-", "").isalnum():
                 raise SpecError(f"--set {key}: cannot read {text!r} as a TOML value") from None
-            value = text.strip()
-        out[key] = value
+            parsed = {"v": text.strip()}
+        except RecursionError:
+            raise SpecError(f"--set {key}: the value is nested too deeply") from None
+        if list(parsed) != ["v"]:
+            raise SpecError(f"--set {key}: cannot read {text!r} as one TOML value")
+        out[key] = parsed["v"]
     return out
 
 
 def read_toml(path: Path) -> dict[str, Any]:
-    """Parse a TOML file; SpecError for a missing or unreadable file."""
+    """Parse a TOML file; SpecError for a missing, unreadable, oversized or non-regular file
+    (a FIFO or a device is refused without reading from it), for text that is not UTF-8,
+    and for TOML that is invalid or nested too deeply."""
     try:
-        with path.open("rb") as fh:
-            return tomllib.load(fh)
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
     except FileNotFoundError:
         raise SpecError(f"spec file not found: {path}") from None
-    except IsADirectoryError:
-        raise SpecError(f"spec file is a directory: {path}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise SpecError(f"spec file {path} is not valid TOML: {exc}") from None
     except OSError as exc:
         raise SpecError(f"cannot read spec file {path}: {exc.strerror}") from None
+    try:
+        info = os.fstat(fd)
+        if stat.S_ISDIR(info.st_mode):
+            raise SpecError(f"spec file is a directory: {path}")
+        if not stat.S_ISREG(info.st_mode):
+            raise SpecError(f"spec file {path} is not a regular file (a FIFO, socket or "
+                            "device); give a TOML file")
+        if info.st_size > MAX_SPEC_BYTES:
+            raise SpecError(f"spec file {path} is {info.st_size} bytes, more than the "
+                            f"{MAX_SPEC_BYTES} a spec may have")
+        data = b""
+        while len(data) <= MAX_SPEC_BYTES:
+            block = os.read(fd, MAX_SPEC_BYTES + 1 - len(data))
+            if not block:
+                break
+            data += block
+    except OSError as exc:
+        raise SpecError(f"cannot read spec file {path}: {exc.strerror}") from None
+    finally:
+        os.close(fd)
+    if len(data) > MAX_SPEC_BYTES:
+        raise SpecError(f"spec file {path} is more than the {MAX_SPEC_BYTES} bytes a spec may "
+                        "have")
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise SpecError(f"spec file {path} is not UTF-8 text (byte {exc.start})") from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SpecError(f"spec file {path} is not valid TOML: {exc}") from None
+    except RecursionError:
+        raise SpecError(f"spec file {path}: TOML nested too deeply") from None

@@ -17,6 +17,15 @@ from typing import Any
 
 from flatcli.core.model import FlatcliError
 
+#: Largest magnitude of a finite number in a spec (keys that allow inf excepted): far beyond
+#: any physical value of a planar robot, and small enough that the products and powers the
+#: model forms of it (up to the fourth power) stay finite in double precision.
+MAX_MAGNITUDE = 1e15
+#: Largest integer a spec key takes (a signed 64-bit integer, as Parquet and numpy store it).
+MAX_INT = 2**63 - 1
+#: Longest text value [UTF-8 bytes]: it names directories, whose names have at most 255.
+MAX_TEXT_BYTES = 200
+
 
 class SpecError(FlatcliError):
     """A spec problem, reported to the user as one line."""
@@ -101,9 +110,15 @@ class Key:
     def _number(self, where: str, value: Any) -> float:
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise SpecError(f"{where}: expected a number{self._unit()}, got {value!r}")
-        x = float(value)
+        try:
+            x = float(value)
+        except OverflowError:  # an integer beyond the range of a float
+            x = math.copysign(math.inf, value)
         if math.isnan(x) or (math.isinf(x) and not self.allow_inf):
             raise SpecError(f"{where}: expected a finite number{self._unit()}, got {value!r}")
+        if math.isfinite(x) and abs(x) > MAX_MAGNITUDE and not self.allow_inf:
+            raise SpecError(f"{where}: must lie within +-{MAX_MAGNITUDE:.0e}{self._unit()}, "
+                            f"got {x:g}")
         self._check_low(where, x)
         return x
 
@@ -124,6 +139,8 @@ def _check_float(key: Key, where: str, value: Any) -> float:
 def _check_int(key: Key, where: str, value: Any) -> int:
     if isinstance(value, bool) or not isinstance(value, int):
         raise SpecError(f"{where}: expected an integer, got {value!r}")
+    if abs(value) > MAX_INT:
+        raise SpecError(f"{where}: must be at most {MAX_INT} (2^63 - 1), got {value:.3g}")
     key._check_low(where, value)
     return int(value)
 
@@ -139,6 +156,16 @@ def _check_str(key: Key, where: str, value: Any) -> str:
         raise SpecError(f"{where}: expected a non-empty string, got {value!r}")
     if any(c in value for c in "/\\") or value.startswith("."):
         raise SpecError(f"{where}: must not contain '/' or '\\' or start with '.'")
+    if any(ord(c) < 32 or ord(c) == 127 for c in value):
+        raise SpecError(f"{where}: must not contain control characters (NUL, newline, ...), "
+                        f"got {value!r}")
+    try:
+        size = len(value.encode("utf-8"))
+    except UnicodeEncodeError:  # a lone surrogate
+        raise SpecError(f"{where}: not valid Unicode text, got {value!r}") from None
+    if size > MAX_TEXT_BYTES:
+        raise SpecError(f"{where}: at most {MAX_TEXT_BYTES} bytes (it names a directory), "
+                        f"got {size}")
     return value
 
 

@@ -1,98 +1,469 @@
-"""A sweep's directory: its manifest, its chunk files, what a resume keeps, the final tables.
+"""A sweep's directory: its manifest, its verified chunk files, what a resume keeps, what
+``--force`` may remove, and the final tables.
 
-``sweep.json`` holds the spec's digest (``Spec.digest``); a chunk file under ``trials/`` counts
-as done only if its provenance carries the same digest. The final tables (trials.parquet,
-summary.parquet, summary.md, run.json) are built from the chunk files alone.
+``sweep.json`` (the manifest) holds the spec, its digest, every cell this directory has
+held (key, digest, grid values, chunk files) and every other file flatcli wrote there. A
+chunk file under ``trials/`` carries in its Parquet metadata the digest of its cell, its
+trial range and a checksum of its content (``flatcli.storage.table_checksum``); on a resume
+a chunk counts as done only if all three match, else it is computed again, and the run says
+so. A directory holding another spec is refused, naming the keys that differ; one whose
+spec differs only in grid values is extended, reusing the cells it has finished. ``--force``
+removes only files the manifest lists (or, without a manifest, files whose content shows
+flatcli wrote them), never follows a symbolic link, and refuses when the directory holds
+anything else. The final tables (trials.parquet, summary.parquet, summary.md, run.json) are
+built from the chunk files alone.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
+import re
 import resource
+import stat
+import sys
 import time
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
 from flatcli.core.metrics import METRIC_NAMES
 from flatcli.report import summarize_trials, summary_markdown
-from flatcli.spec import Spec, SpecError
+from flatcli.spec import SpecError
 from flatcli.storage import (
+    LOCK_NAME,
+    PARQUET_META_KEY,
     atomic_path,
     provenance_metadata,
     read_provenance,
     run_record,
+    table_checksum,
+    to_jsonable,
     write_json,
     write_parquet,
     write_text,
 )
 from flatcli.sweep.chunks import grid_columns
-from flatcli.sweep.layout import Layout
+from flatcli.sweep.layout import Cell, Chunk, Layout
 from flatcli.units import units_of
 
 MANIFEST = "sweep.json"
 TRIALS_DIR = "trials"
-#: The files a finished sweep writes beside trials/ (removed by --force).
+#: Version of sweep.json's layout (a manifest without one was written before cell keys).
+FORMAT = 2
+#: The files a sweep writes beside trials/ (removed by --force).
 FINAL_FILES = (MANIFEST, "trials.parquet", "summary.parquet", "summary.md", "run.json")
+#: The sweep's figures (``flatcli.report.plot_sweep``, also run by ``make reproduce``),
+#: flatcli's wherever they were recorded or not.
+FIGURES = re.compile(r"sweep_[a-z_]+\.png")
+_CHUNK = re.compile(r"chunk-\d{10}-\d{9}\.parquet")
+_LEGACY_CHUNK = re.compile(r"chunk-\d{12}\.parquet")
+#: How many problems a refusal or a note names before it says "and N more".
+SHOWN = 3
 
 
 def recorded_digest(directory: Path) -> str | None:
     """The spec digest of the sweep a directory holds, or None."""
     try:
         return str(json.loads((directory / MANIFEST).read_text())["digest"])
-    except (OSError, ValueError, KeyError):
+    except (OSError, ValueError, KeyError, TypeError):
         return None
 
 
-def check_directory(directory: Path, spec: Spec, force: bool) -> None:
-    """Refuse a directory holding a different sweep (unless force); never mix two specs."""
-    if not (directory / MANIFEST).exists():
-        return
-    previous = recorded_digest(directory)
-    if previous != spec.digest() and not force:
-        raise SpecError(
-            f"{directory} holds a sweep of a different spec (spec hash {str(previous)[:12]} "
-            f"vs {spec.digest()[:12]}); use --force to start over there, or another --out"
-        )
+def _listing(items: list[str]) -> str:
+    shown = ", ".join(items[:SHOWN])
+    return shown + (f" and {len(items) - SHOWN} more" if len(items) > SHOWN else "")
 
 
-def clear(directory: Path) -> None:
-    """Remove a sweep's files from a directory (for --force)."""
-    for name in FINAL_FILES:
-        (directory / name).unlink(missing_ok=True)
+# ---------------------------------------------------------------------------------------
+# What a directory holds already.
+
+@dataclass
+class Previous:
+    """What flatcli finds in a directory before a sweep starts there.
+
+    Attributes
+    ----------
+    spec : the spec tree its files were written with (None: nothing of flatcli's)
+    digest : that spec's digest
+    legacy : written by a flatcli before cell keys (other chunk names: nothing reusable)
+    cells : cell key (text) -> {"digest", "values", "chunks"} of every cell it has held
+    files : other files flatcli wrote there, relative to the directory
+    """
+
+    spec: dict[str, Any] | None = None
+    digest: str | None = None
+    legacy: bool = False
+    cells: dict[str, dict[str, Any]] = field(default_factory=dict)
+    files: set[str] = field(default_factory=set)
+    others: list[dict[str, Any]] = field(default_factory=list)  # more specs, no manifest
+
+    def owned(self, directory: Path | None = None) -> set[str]:
+        """Relative paths flatcli wrote (or would write) here (with ``directory``: also the
+        sweep's figures there)."""
+        names = {LOCK_NAME, *self.files}
+        if self.spec is not None:
+            names.update(FINAL_FILES)
+            if directory is not None:
+                names.update(p.name for p in _entries(directory) if FIGURES.fullmatch(p.name))
+        for cell in self.cells.values():
+            names.update(f"{TRIALS_DIR}/{c}" for c in cell.get("chunks", []))
+        return names
+
+
+def _manifest(directory: Path) -> dict[str, Any] | None:
+    path = directory / MANIFEST
+    if not os.path.lexists(path):
+        return None
+    try:
+        if path.is_symlink() or not path.is_file():
+            raise ValueError("not a regular file")
+        data = json.loads(path.read_text(encoding="utf-8"))
+        if not isinstance(data, dict) or not isinstance(data.get("digest"), str) \
+                or not isinstance(data.get("spec"), dict):
+            raise ValueError("no digest and spec")
+    except (OSError, ValueError) as exc:
+        raise SpecError(f"{path} is not a flatcli sweep manifest ({exc}); remove it yourself "
+                        "or use another --out") from None
+    return data
+
+
+def _chunk_provenance(path: Path) -> dict[str, Any] | None:
+    """The provenance of a chunk file flatcli wrote, or None if it is not one."""
+    try:
+        if path.is_symlink() or not path.is_file():
+            return None
+        meta = read_provenance(path)
+    except (OSError, ValueError, pa.ArrowException):
+        return None
+    return meta if isinstance(meta.get("digest"), str) and isinstance(meta.get("spec"), dict) \
+        else None
+
+
+def survey(directory: Path) -> Previous:
+    """What ``directory`` holds of flatcli's: from its manifest, or, if that is missing,
+    from the provenance of the files themselves."""
+    manifest = _manifest(directory)
     trials = directory / TRIALS_DIR
-    if trials.exists():
-        for path in trials.iterdir():
-            path.unlink()
+    if manifest is not None:
+        if manifest.get("format") != FORMAT:  # before cell keys: other chunk names
+            legacy = {f"{TRIALS_DIR}/{p.name}" for p in _entries(trials)
+                      if _LEGACY_CHUNK.fullmatch(p.name)}
+            return Previous(manifest["spec"], manifest["digest"], True, {}, legacy)
+        cells = {str(k): v for k, v in dict(manifest.get("cells", {})).items()}
+        files = {str(f) for f in manifest.get("files", [])}
+        return Previous(manifest["spec"], manifest["digest"], False, cells, files)
+    found = Previous()
+    for path in sorted(_entries(trials)):
+        if not (_CHUNK.fullmatch(path.name) or _LEGACY_CHUNK.fullmatch(path.name)):
+            continue
+        meta = _chunk_provenance(path)
+        if meta is None:
+            continue
+        _adopt(found, meta)
+        if _LEGACY_CHUNK.fullmatch(path.name):
+            found.legacy = True
+            found.files.add(f"{TRIALS_DIR}/{path.name}")
+        elif "cell_key" in meta:
+            cell = found.cells.setdefault(str(meta["cell_key"]), {
+                "digest": meta.get("cell_digest"), "values": meta.get("values", {}),
+                "chunks": []})
+            cell["chunks"].append(path.name)
+    for name in ("trials.parquet", "summary.parquet"):
+        meta = _chunk_provenance(directory / name)
+        if meta is not None:
+            _adopt(found, meta)
+    return found
 
 
-def write_manifest(directory: Path, lay: Layout) -> None:
+def _adopt(found: Previous, meta: Mapping[str, Any]) -> None:
+    if found.spec is None:
+        found.spec, found.digest = dict(meta["spec"]), str(meta["digest"])
+    elif meta["digest"] != found.digest and meta["spec"] not in found.others:
+        found.others.append(dict(meta["spec"]))
+
+
+def _entries(directory: Path) -> list[Path]:
+    """The entries of a real directory (not through a symbolic link); [] otherwise."""
+    try:
+        if directory.is_symlink() or not directory.is_dir():
+            return []
+        return list(directory.iterdir())
+    except OSError:
+        return []
+
+
+# ---------------------------------------------------------------------------------------
+# Comparing specs.
+
+def _flat(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for name, value in tree.items():
+        dotted = f"{prefix}{name}"
+        if dotted == "sweep.grid":
+            out[dotted] = value
+        elif isinstance(value, Mapping) and value and dotted != "sweep.grid":
+            out.update(_flat(value, f"{dotted}."))
+        else:
+            out[dotted] = value
+    return out
+
+
+def _show(value: Any) -> str:
+    text = "(unset)" if value is _MISSING else json.dumps(to_jsonable(value))
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+_MISSING = object()
+
+
+def spec_differences(old: Mapping[str, Any], new: Mapping[str, Any]
+                     ) -> tuple[list[str], list[str]]:
+    """The keys whose values differ between two spec trees, as ``key (old -> new)``; and,
+    separately, the grid keys whose lists of values differ (the grid's keys being the same).
+    A change of the grid's keys is a key difference of ``sweep.grid``."""
+    a = _flat(to_jsonable(old))
+    b = _flat(to_jsonable(new))
+    keys: list[str] = []
+    grid: list[str] = []
+    for dotted in [*a, *(k for k in b if k not in a)]:
+        x, y = a.get(dotted, _MISSING), b.get(dotted, _MISSING)
+        if x == y:
+            continue
+        if dotted == "sweep.grid" and isinstance(x, dict) and isinstance(y, dict) \
+                and list(x) == list(y):
+            grid.extend(f"sweep.grid.{k!r}" for k in x if x[k] != y[k])
+        elif dotted == "sweep.grid":
+            old_keys = list(x) if isinstance(x, dict) else []
+            new_keys = list(y) if isinstance(y, dict) else []
+            keys.append(f"sweep.grid (keys {old_keys} -> {new_keys})")
+        else:
+            keys.append(f"{dotted} ({_show(x)} -> {_show(y)})")
+    return keys, grid
+
+
+# ---------------------------------------------------------------------------------------
+# Before a sweep writes anything: may it, and what does it keep?
+
+@dataclass(frozen=True)
+class Plan:
+    """What a sweep does with its directory: ``mode`` is "fresh" (nothing of flatcli's
+    there), "resume" (the same spec), "extend" (the same spec but for grid values: finished
+    cells are reused), or "restart" (--force: flatcli's files there are removed first)."""
+
+    mode: str
+    previous: Previous
+    note: str = ""
+
+
+def _temporary_of(name: str) -> str | None:
+    """The file a temporary file of ``atomic_path`` (``.NAME.random.tmp``) was for."""
+    if name.startswith(".") and name.endswith(".tmp"):
+        return name[1:-4].rpartition(".")[0] or None
+    return None
+
+
+def foreign_entries(directory: Path, owned: Iterable[str]) -> list[str]:
+    """Entries under ``directory`` that flatcli did not write (a symbolic link counts as
+    one wherever it is, and is never followed), as paths relative to it."""
+    owned = set(owned)
+    parents = {str(Path(p).parent) for p in owned} | {TRIALS_DIR}
+    out: list[str] = []
+
+    def walk(path: Path, rel: str) -> None:
+        for entry in sorted(path.iterdir()):
+            name = f"{rel}{entry.name}"
+            mode = entry.lstat().st_mode
+            if stat.S_ISDIR(mode) and name in parents:
+                walk(entry, f"{name}/")
+            elif stat.S_ISREG(mode) and (name in owned or
+                                         f"{rel}{_temporary_of(entry.name)}" in owned):
+                continue
+            else:
+                out.append(name + ("/" if stat.S_ISDIR(mode) else ""))
+
+    if directory.is_dir():
+        walk(directory, "")
+    return out
+
+
+def plan_directory(directory: Path, lay: Layout, force: bool) -> Plan:
+    """Decide what a sweep of ``lay`` may do in ``directory``; SpecError (nothing written)
+    if it may not: another spec there (naming the keys that differ) unless --force, files
+    flatcli did not write where it would write or, with --force, anywhere in it."""
+    if os.path.lexists(directory) and not directory.is_dir():
+        raise SpecError(f"--out {directory}: exists and is not a directory")
+    trials = directory / TRIALS_DIR
+    if os.path.lexists(trials) and (trials.is_symlink() or not trials.is_dir()):
+        raise SpecError(f"{trials} is not a directory flatcli made (a symbolic link or a "
+                        "file); remove it yourself or use another --out")
+    previous = survey(directory) if directory.is_dir() else Previous()
     spec = lay.spec
+    if force:
+        foreign = foreign_entries(directory, previous.owned(directory))
+        if foreign:
+            raise SpecError(f"--force: {directory} holds files flatcli did not write "
+                            f"({_listing(foreign)}); nothing was removed; move them away or "
+                            "use another --out")
+    if previous.spec is None:
+        ours = [*FINAL_FILES, *(f"{TRIALS_DIR}/{c.name}" for c in lay.chunks())]
+        taken = [n for n in ours if os.path.lexists(directory / n)]
+        if taken:
+            raise SpecError(f"{directory} holds files flatcli's sweep did not write where it "
+                            f"would write ({_listing(taken)}); use another --out")
+        return Plan("fresh", previous)
+    if force:
+        return Plan("restart", previous)
+    if previous.legacy:
+        raise SpecError(f"{directory} holds a sweep written by an older flatcli (other chunk "
+                        "names); use --force to start over there, or another --out")
+    grid: list[str] = []
+    for tree in (previous.spec, *previous.others):
+        keys, changed = spec_differences(tree, spec.tree)
+        if keys:
+            raise SpecError(f"{directory} holds a sweep of a different spec (keys that differ: "
+                            f"{_listing(keys)}); use --force to start over there, or another "
+                            "--out")
+        grid = grid or changed
+    if not grid and not previous.others and previous.digest == spec.digest():
+        return Plan("resume", previous)
+    before = sum(previous.cells.get(str(c.key), {}).get("digest") == c.digest
+                 for c in lay.cells)
+    note = (f"note: {directory} holds this study with other grid values "
+            f"({_listing(grid)}); {before} of the {len(lay.cells)} cells were computed there "
+            "before, and their finished chunks are reused")
+    return Plan("extend", previous, note if grid else "")
+
+
+def clear(directory: Path, previous: Previous) -> None:
+    """Remove flatcli's files from a directory (for --force): the files ``previous`` lists,
+    their temporary files, and directories they leave empty (not trials/ or the lock)."""
+    owned = previous.owned(directory)
+    for name in sorted(owned - {LOCK_NAME}):
+        path = directory / name
+        if os.path.lexists(path) and path.is_file() and not path.is_symlink():
+            path.unlink()
+    for parent in sorted({directory / Path(n).parent for n in owned}, reverse=True):
+        rel = parent.relative_to(directory)
+        for entry in _entries(parent):
+            target = _temporary_of(entry.name)
+            if target is not None and str(rel / target) in owned and not entry.is_symlink():
+                entry.unlink(missing_ok=True)
+        if parent not in (directory, directory / TRIALS_DIR):
+            with contextlib.suppress(OSError):
+                parent.rmdir()
+
+
+def write_manifest(directory: Path, lay: Layout, previous: Previous | None = None) -> None:
+    """sweep.json: this spec, every cell and file this directory holds of flatcli's (the
+    previous ones kept when the sweep extends the directory's study), and the keys of this
+    spec's cells in the grid's order (``grid_cells``)."""
+    spec = lay.spec
+    cells = dict(previous.cells) if previous is not None else {}
+    for cell in lay.cells:
+        cells[str(cell.key)] = {"digest": cell.digest, "values": to_jsonable(cell.values),
+                                "chunks": [c.name for c in lay.cell_chunks(cell)]}
+    files = sorted({*FINAL_FILES, *(previous.files if previous is not None else ())})
     write_json(directory / MANIFEST, {
-        "digest": spec.digest(), "spec": spec.tree, "cells": len(lay.cells),
-        "trials_per_cell": lay.trials_per_cell, "chunk": lay.chunk_size,
+        "format": FORMAT, "digest": spec.digest(), "spec": spec.tree,
+        "cells": dict(sorted(cells.items())),
+        "grid_cells": [str(cell.key) for cell in lay.cells],
+        "trials_per_cell": lay.trials_per_cell,
+        "chunk": lay.chunk_size, "files": files,
     })
 
 
-def finished_chunks(directory: Path, digest: str) -> set[str]:
-    """Names of the complete chunk files of this spec in a directory; stray temp files go."""
+def record_outputs(directory: Path, paths: Iterable[Path]) -> None:
+    """Add files written into a sweep's directory after it finished (figures, re-runs) to
+    its manifest, so that --force may remove them."""
+    manifest = _manifest(directory)
+    if manifest is None or manifest.get("format") != FORMAT:
+        return
+    base = directory.resolve()
+    names = set(manifest.get("files", []))
+    for path in paths:
+        try:
+            names.add(str(path.resolve().relative_to(base)))
+        except ValueError:
+            continue
+    manifest["files"] = sorted(names)
+    write_json(directory / MANIFEST, manifest)
+
+
+# ---------------------------------------------------------------------------------------
+# Chunks: written with what verifies them, verified before they are reused.
+
+def chunk_provenance(base: Mapping[str, Any], cell: Cell, chunk: Chunk, table: pa.Table
+                     ) -> dict[str, Any]:
+    """What a chunk file records about itself: the sweep's provenance, its cell's key,
+    digest and grid values, its trial range and its content's checksum."""
+    return {**base, "cell_key": cell.key, "cell_digest": cell.digest,
+            "values": to_jsonable(cell.values), "trials": [chunk.start, chunk.stop],
+            "checksum": table_checksum(table)}
+
+
+def chunk_problem(path: Path, cell: Cell, chunk: Chunk) -> str | None:
+    """Why the file at ``path`` is not a finished ``chunk`` of ``cell`` (None if it is)."""
+    try:
+        parquet = pq.ParquetFile(path)
+        raw = (parquet.schema_arrow.metadata or {}).get(PARQUET_META_KEY)
+        meta = json.loads(raw) if raw else {}
+        if not isinstance(meta, dict):
+            raise ValueError("provenance is not a table")
+    except (OSError, ValueError, pa.ArrowException):
+        return "not a readable chunk file"
+    if meta.get("cell_digest") != cell.digest:
+        return "written for another spec or cell"
+    if meta.get("trials") != [chunk.start, chunk.stop]:
+        return f"holds trials {meta.get('trials')}, not [{chunk.start}, {chunk.stop}]"
+    try:
+        table = parquet.read()
+    except (OSError, ValueError, pa.ArrowException) as exc:
+        return f"unreadable data ({(str(exc).splitlines() or [''])[0][:80]})"
+    if table.num_rows != chunk.size or "trial" not in table.column_names or not np.array_equal(
+            table.column("trial").to_numpy(), np.arange(chunk.start, chunk.stop)):
+        return "its trial ids are not those of its name"
+    if table_checksum(table) != meta.get("checksum"):
+        return "its content does not match its checksum (the file was changed)"
+    return None
+
+
+def verified_chunks(directory: Path, lay: Layout) -> tuple[set[str], list[str]]:
+    """Names of this layout's chunk files that pass every check, and a line per file that
+    does not (it is computed again). Stray temporary files go."""
     trials = directory / TRIALS_DIR
     done: set[str] = set()
-    if not trials.exists():
-        return done
-    for path in trials.iterdir():
-        if path.name.endswith(".tmp"):
+    problems: list[str] = []
+    for path in _entries(trials):
+        if path.name.endswith(".tmp") and path.name.startswith(".chunk-"):
             path.unlink(missing_ok=True)
-        elif path.suffix == ".parquet":
-            try:
-                if read_provenance(path).get("digest") == digest:
-                    done.add(path.name)
-            except (OSError, ValueError, pa.ArrowException):
-                path.unlink(missing_ok=True)
-    return done
+    for cell in lay.cells:
+        for chunk in lay.cell_chunks(cell):
+            path = trials / chunk.name
+            if not os.path.lexists(path):
+                continue
+            problem = chunk_problem(path, cell, chunk)
+            if problem is None:
+                done.add(chunk.name)
+            else:
+                problems.append(f"{TRIALS_DIR}/{chunk.name}: {problem}")
+    return done, problems
+
+
+def finished_chunks(directory: Path, lay: Layout) -> set[str]:
+    """Names of this layout's verified chunk files."""
+    return verified_chunks(directory, lay)[0]
+
+
+def note(text: str) -> None:
+    """A line on stderr about the directory (a chunk recomputed, cells reused)."""
+    print(text, file=sys.stderr, flush=True)
 
 
 def peak_rss_mib() -> dict[str, float]:
@@ -103,7 +474,9 @@ def peak_rss_mib() -> dict[str, float]:
 
 
 def assemble_trials(directory: Path, lay: Layout, provenance: Mapping[str, Any]) -> Path:
-    """Concatenate the chunk files, in trial order, into trials.parquet (streamed)."""
+    """Concatenate the chunk files, in the grid's order, into trials.parquet (streamed);
+    ``cell`` is the cell's position in this spec's grid (a reused chunk may have been
+    written when it had another)."""
     target = directory / "trials.parquet"
     meta = provenance_metadata(provenance)
     writer = None
@@ -111,10 +484,19 @@ def assemble_trials(directory: Path, lay: Layout, provenance: Mapping[str, Any])
         try:
             for chunk in lay.chunks():
                 table = pq.read_table(directory / TRIALS_DIR / chunk.name)
+                table = table.set_column(table.schema.get_field_index("cell"), "cell",
+                                         pa.array(np.full(table.num_rows, chunk.cell,
+                                                          dtype=np.int64)))
                 table = table.replace_schema_metadata(meta)
                 if writer is None:
                     writer = pq.ParquetWriter(tmp, table.schema)
-                writer.write_table(table.cast(writer.schema))
+                try:
+                    writer.write_table(table.cast(writer.schema))
+                except (ValueError, pa.ArrowException) as exc:
+                    raise SpecError(
+                        f"{TRIALS_DIR}/{chunk.name} has other columns than the chunks before it "
+                        f"({str(exc).splitlines()[0][:80]}); use --force to start over"
+                    ) from None
         finally:
             if writer is not None:
                 writer.close()
@@ -155,3 +537,4 @@ def finish_sweep(directory: Path, lay: Layout, provenance: Mapping[str, Any], st
         trials=lay.total, chunk=lay.chunk_size, status_counts=counts, timing=timing,
     ))
     return text
+

@@ -1,14 +1,24 @@
-"""A sweep's layout, from its spec alone: grid cells, their plans, and chunks of trials.
+"""A sweep's layout, from its spec alone: grid cells, their keys and plans, chunks of trials.
 
 Cells are the Cartesian product of ``[sweep.grid]`` (in the order the keys are written), each
-cell runs ``sweep.trials`` trials, and trial ids are global (``trial = cell * trials + i``).
-Chunks are runs of consecutive trials of one cell; their size comes from the spec alone, so
-a resume with other ``--workers`` finds the same chunks.
+cell runs ``sweep.trials`` trials. A cell's *key* comes from its grid values alone (the first
+32 bits of the SHA-256 of their canonical JSON; 0 for the one cell of a sweep without a
+grid), and trial ids are ``trial = key * ID_STRIDE + i`` for the cell's trials
+``i = 0 .. trials - 1``. So adding or removing grid values never renumbers another cell's
+trials: a finished cell keeps its ids, its random draws and its chunk files, and a changed
+study reuses it. Chunks are runs of consecutive trials of one cell, named by the cell's key
+and the first trial's ``i``; their size comes from the cell alone, so a resume with other
+``--workers`` or more grid values finds the same chunks.
+
+A cell's *digest* (SHA-256 of its spec without the grid and the name, its key and
+``CHUNK_FORMAT``) is what makes two cells the same computation.
 """
 
 from __future__ import annotations
 
+import hashlib
 import itertools
+import json
 import math
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
@@ -19,18 +29,80 @@ from flatcli.core.model import FlatcliError
 from flatcli.core.simulate import Scenario
 from flatcli.experiment import plan_from, plant_from, scenario_from
 from flatcli.spec import PERTURB_TARGETS, Spec, SpecError, grid_overrides
+from flatcli.spec.limits import (
+    ID_STRIDE,
+    check_sweep,
+    cores,
+    output_steps,
+    require_finite_plan,
+)
+from flatcli.storage import to_jsonable
 
-#: Default chunk sizes: about CHUNKS_TARGET chunks per sweep, each of CHUNK_MIN to CHUNK_MAX
-#: trials (from the spec alone, so that a resume with other --workers finds the same chunks).
-CHUNKS_TARGET = 16
+#: Default chunk sizes: about CHUNKS_PER_CELL chunks per cell, each of CHUNK_MIN to CHUNK_MAX
+#: trials (from the cell alone, so that a resume with other --workers, or a study with more
+#: grid values, finds the same chunks).
+CHUNKS_PER_CELL = 16
 CHUNK_MIN = 250
 CHUNK_MAX = 1000
+#: Cell keys are below KEY_SPACE: with ID_STRIDE = 1e9, every trial id fits a signed 64-bit
+#: integer.
+KEY_SPACE = 2**32
+#: Version of what a chunk file holds; a change makes every cell's digest change, so chunks
+#: written before are recomputed rather than mixed with new ones.
+CHUNK_FORMAT = 2
 
 
-def default_chunk(total: int, per_cell: int) -> int:
+def default_chunk(per_cell: int) -> int:
     """Trials per chunk when the spec does not say: enough chunks to keep every core busy
     and to lose little to an interruption, few enough to keep per-chunk overhead small."""
-    return min(per_cell, max(CHUNK_MIN, min(CHUNK_MAX, math.ceil(total / CHUNKS_TARGET))))
+    return min(per_cell, max(CHUNK_MIN, min(CHUNK_MAX, math.ceil(per_cell / CHUNKS_PER_CELL))))
+
+
+def canonical(value: Any) -> Any:
+    """A grid value as its cell key sees it: numbers as floats (1 and 1.0 are one value)."""
+    if isinstance(value, Mapping):
+        return {str(k): canonical(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [canonical(v) for v in value]
+    if isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    return value
+
+
+def values_digest(values: Mapping[str, Any]) -> str:
+    """SHA-256 of a cell's grid values (canonical JSON, keys sorted)."""
+    text = json.dumps(to_jsonable(canonical(values)), sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def cell_keys(cells: list[dict[str, Any]]) -> list[int]:
+    """The key of each cell (see the module docstring): 0 for the cell of a sweep without a
+    grid; else the first 32 bits of its values' digest, where two cells of one grid collide
+    the one with the smaller digest keeps it and the other takes the next free key."""
+    if cells == [{}]:
+        return [0]
+    digests = [values_digest(v) for v in cells]
+    order = sorted(range(len(cells)), key=lambda i: digests[i])
+    keys = [0] * len(cells)
+    taken: set[int] = set()
+    for i in order:
+        key = int(digests[i][:8], 16)
+        while key in taken:
+            key = (key + 1) % KEY_SPACE
+        taken.add(key)
+        keys[i] = key
+    return keys
+
+
+def cell_digest(spec: Spec, key: int) -> str:
+    """What makes two cells the same computation: the cell's spec (its grid values applied)
+    without ``name`` and ``sweep.grid``, its key, and ``CHUNK_FORMAT``."""
+    tree = spec.tree
+    tree.pop("name", None)
+    tree["sweep"].pop("grid", None)
+    text = json.dumps(to_jsonable({"spec": tree, "key": key, "format": CHUNK_FORMAT}),
+                      sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()
 
 
 @dataclass(frozen=True)
@@ -45,6 +117,13 @@ class Cell:
     values: dict[str, Any]
     spec: Spec
     scenario: Scenario
+    key: int = 0
+    digest: str = ""
+
+    @property
+    def first_trial(self) -> int:
+        """The id of the cell's trial 0."""
+        return self.key * ID_STRIDE
 
 
 def grid_label(values: Mapping[str, Any]) -> str:
@@ -66,7 +145,8 @@ def _show(value: Any) -> str:
 
 @dataclass(frozen=True)
 class Chunk:
-    """Trials [start, stop) of one cell; ``name`` is its file name under trials/."""
+    """Trials [start, stop) (ids) of the cell at position ``cell`` of the grid; ``name`` is
+    its file name under trials/: the cell's key and the first trial's index in the cell."""
 
     cell: int
     start: int
@@ -74,7 +154,7 @@ class Chunk:
 
     @property
     def name(self) -> str:
-        return f"chunk-{self.start:012d}.parquet"
+        return chunk_name(self.start)
 
     @property
     def size(self) -> int:
@@ -96,10 +176,13 @@ class Layout:
 
     def chunks(self) -> Iterator[Chunk]:
         for cell in self.cells:
-            first = cell.index * self.trials_per_cell
-            for start in range(first, first + self.trials_per_cell, self.chunk_size):
-                yield Chunk(cell.index, start, min(start + self.chunk_size,
-                                                   first + self.trials_per_cell))
+            yield from self.cell_chunks(cell)
+
+    def cell_chunks(self, cell: Cell) -> Iterator[Chunk]:
+        first = cell.first_trial
+        for start in range(first, first + self.trials_per_cell, self.chunk_size):
+            yield Chunk(cell.index, start, min(start + self.chunk_size,
+                                               first + self.trials_per_cell))
 
     @property
     def grid_keys(self) -> list[str]:
@@ -111,30 +194,50 @@ class Layout:
         return [name for name in PERTURB_TARGETS if name in self.spec.sweep.perturb]
 
 
-def layout(spec: Spec) -> Layout:
-    """Expand the grid and plan every cell (SpecError naming the cell if one cannot run)."""
+def chunk_name(start: int) -> str:
+    """The file name of the chunk whose first trial is ``start``."""
+    key, i = divmod(start, ID_STRIDE)
+    return f"chunk-{key:010d}-{i:09d}.parquet"
+
+
+def layout(spec: Spec, workers: int | None = None) -> Layout:
+    """Expand the grid and plan every cell (SpecError naming the cell if one cannot run, or
+    the estimate if the cells would not fit in memory or time on ``workers``, default: one
+    per core)."""
     grid = spec.sweep.grid
-    keys = list(grid)
-    plans: dict[Any, Plan] = {}
-    cells = []
-    for index, combo in enumerate(itertools.product(*(grid[k] for k in keys))):
-        values = dict(zip(keys, combo, strict=True))
+    names = list(grid)
+    combos = [dict(zip(names, combo, strict=True))
+              for combo in itertools.product(*(grid[k] for k in names))]
+    specs = []
+    for index, values in enumerate(combos):
         try:
             applied = cell_spec(spec, values)
             if applied.joints != spec.joints:
                 raise SpecError(f"the robot has {applied.joints} joints, the sweep's [robot] "
                                 f"{spec.joints}: one sweep studies one number of joints")
+        except FlatcliError as exc:
+            raise SpecError(f"sweep.grid cell {index} ({grid_label(values)}): {exc}") from None
+        specs.append(applied)
+    trials = spec.sweep.trials
+    chunk = spec.sweep.chunk or default_chunk(trials)
+    check_sweep([output_steps(s) for s in specs], trials, min(chunk, trials),
+                workers if workers is not None else cores(), spec.joints)
+    plans: dict[Any, Plan] = {}
+    cells = []
+    for index, (values, applied, key) in enumerate(zip(combos, specs, cell_keys(combos),
+                                                       strict=True)):
+        try:
             # cells that differ only outside [robot] and [plan] share one plan
-            key = (applied.robot, applied.plan)
-            if key not in plans:
-                plans[key] = plan_from(applied)
-            scenario = scenario_from(applied, plans[key]).prepared()
+            shared = (applied.robot, applied.plan)
+            if shared not in plans:
+                plans[shared] = plan_from(applied)
+            scenario = scenario_from(applied, plans[shared]).prepared()
+            require_finite_plan({"the reference": scenario.reference,
+                                 "theta": scenario.theta_reference})
             plant_from(applied)
         except FlatcliError as exc:
             raise SpecError(f"sweep.grid cell {index} ({grid_label(values)}): {exc}") from None
-        cells.append(Cell(index, values, applied, scenario))
-    trials = spec.sweep.trials
-    chunk = spec.sweep.chunk or default_chunk(trials * len(cells), trials)
+        cells.append(Cell(index, values, applied, scenario, key, cell_digest(applied, key)))
     return Layout(spec, tuple(cells), trials, chunk)
 
 

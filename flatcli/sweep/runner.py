@@ -1,4 +1,9 @@
-"""Running (or resuming) a sweep into a directory: chunks to an executor, files as they come."""
+"""Running (or resuming) a sweep into a directory: chunks to an executor, files as they come.
+
+The directory's lock is held from before its first check to after its last file, so two
+runs never write into one directory; everything that can be refused is refused before a
+byte is written.
+"""
 
 from __future__ import annotations
 
@@ -6,17 +11,21 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from flatcli.executors import make_executor
+from flatcli.executors import default_workers, make_executor
 from flatcli.report import Progress
 from flatcli.spec import Spec
-from flatcli.storage import versions, write_table
+from flatcli.spec.limits import check_workers
+from flatcli.storage import directory_lock, versions, write_table
 from flatcli.sweep.chunks import run_chunk
 from flatcli.sweep.directory import (
+    SHOWN,
     TRIALS_DIR,
-    check_directory,
+    chunk_provenance,
     clear,
     finish_sweep,
-    finished_chunks,
+    note,
+    plan_directory,
+    verified_chunks,
     write_manifest,
 )
 from flatcli.sweep.layout import Chunk, Layout, layout
@@ -47,66 +56,83 @@ def run_sweep(
     force: bool = False,
     fail_fast: bool = False,
     progress: Progress | None = None,
+    oversubscribe: bool = False,
 ) -> SweepResult:
-    """Run (or resume) a sweep into ``directory``; write trials, summary and run record.
+    """Run (or resume, or extend) a sweep into ``directory``; write trials, summary and run
+    record.
 
     Everything that can be refused is checked before anything is written: the spec and
-    every grid cell, the directory (a different spec there is refused), the executor.
+    every grid cell, the resources they need, the directory (another run writing there,
+    another spec there, files flatcli did not write), the executor.
     """
     started = time.perf_counter()
-    lay = layout(spec)
-    check_directory(directory, spec, force)
-    executor = make_executor(executor_kind, workers, scheduler)
-    try:
-        if force:
-            clear(directory)
-        digest = spec.digest()
-        write_manifest(directory, lay)
-        done = finished_chunks(directory, digest)
-        todo = [c for c in lay.chunks() if c.name not in done]
-        resumed = lay.total - sum(c.size for c in todo)
-        provenance = {"digest": digest, "spec": spec.tree, "versions": versions()}
-        if progress is not None:
-            progress.start(lay.total, resumed, executor.description)
-        if todo and executor_kind == "local":
-            warm_up(lay)  # load the kernel once here; forked workers inherit it
-        setup = time.perf_counter() - started
-        tasks = ((c, (lay.cells[c.cell], c)) for c in todo)
-        compute = 0.0
-        watcher = watch(progress) if executor_kind == "local" else None  # per-trial counts
+    if executor_kind == "local" or scheduler == "local":
+        check_workers(workers if workers is not None else default_workers(), oversubscribe)
+    lay = layout(spec, workers if executor_kind == "local" else None)
+    with directory_lock(directory):
+        plan = plan_directory(directory, lay, force)
+        executor = make_executor(executor_kind, workers, scheduler)
         try:
-            for chunk, result in executor.run(run_chunk, tasks):
-                compute += result.seconds
-                write_table(directory / TRIALS_DIR / chunk.name, result.table,
-                            {**provenance, "chunk": [chunk.start, chunk.stop]})
-                if progress is not None:
-                    progress.advance(chunk.size, status_counts(result.table))
-                failure = result.first_failure() if fail_fast else None
-                if failure is not None:
-                    raise FailFastError(f"--fail-fast: trial {failure[0]} {failure[1]} "
-                                        f"(finished chunks kept in {directory}/{TRIALS_DIR})")
-        finally:
-            if watcher is not None:
-                watcher.stop()
+            if plan.mode == "restart":
+                clear(directory, plan.previous)
+            if plan.note:
+                note(plan.note)
+            digest = spec.digest()
+            keep = plan.previous if plan.mode in ("resume", "extend") else None
+            write_manifest(directory, lay, keep)
+            done, problems = verified_chunks(directory, lay)
+            for line in problems[:SHOWN]:
+                note(f"note: {line}; computing it again")
+            if len(problems) > SHOWN:
+                note(f"note: {len(problems) - SHOWN} more chunk files failed their checks; "
+                     "computing them again")
+            todo = [c for c in lay.chunks() if c.name not in done]
+            resumed = lay.total - sum(c.size for c in todo)
+            provenance = {"digest": digest, "spec": spec.tree, "versions": versions()}
             if progress is not None:
-                progress.close()
-        simulated = lay.total - resumed
-        running = time.perf_counter() - started - setup
-    finally:
+                progress.start(lay.total, resumed, executor.description)
+            if todo and executor_kind == "local":
+                warm_up(lay)  # load the kernel once here; forked workers inherit it
+            setup = time.perf_counter() - started
+            tasks = ((c, (lay.cells[c.cell], c)) for c in todo)
+            compute = 0.0
+            watcher = watch(progress) if executor_kind == "local" else None  # per-trial counts
+            try:
+                for chunk, result in executor.run(run_chunk, tasks):
+                    compute += result.seconds
+                    cell = lay.cells[chunk.cell]
+                    write_table(directory / TRIALS_DIR / chunk.name, result.table,
+                                chunk_provenance(provenance, cell, chunk, result.table))
+                    if progress is not None:
+                        progress.advance(chunk.size, status_counts(result.table))
+                    failure = result.first_failure() if fail_fast else None
+                    if failure is not None:
+                        raise FailFastError(f"--fail-fast: trial {failure[0]} {failure[1]} "
+                                            f"(finished chunks kept in {directory}/{TRIALS_DIR})")
+            finally:
+                if watcher is not None:
+                    watcher.stop()
+                if progress is not None:
+                    progress.close()
+            simulated = lay.total - resumed
+            running = time.perf_counter() - started - setup
+        except BaseException:
+            executor.close(abort=True)
+            raise
         executor.close()
-    summary_text = finish_sweep(directory, lay, provenance, started, {
-        "setup_seconds": setup,
-        "simulate_seconds": running,
-        "simulated_trials": simulated,
-        "resumed_trials": resumed,
-        "compute_seconds": compute,
-        "workers": executor.workers,
-        "executor": executor.description,
-    })
+        summary_text = finish_sweep(directory, lay, provenance, started, {
+            "setup_seconds": setup,
+            "simulate_seconds": running,
+            "simulated_trials": simulated,
+            "resumed_trials": resumed,
+            "compute_seconds": compute,
+            "workers": executor.workers,
+            "executor": executor.description,
+        })
     return SweepResult(directory, lay, simulated, time.perf_counter() - started, summary_text)
 
 
 def warm_up(lay: Layout) -> None:
     """Simulate one trial of the first cell, so the compiled kernel is loaded."""
     cell = lay.cells[0]
-    run_chunk(cell, Chunk(cell.index, 0, 1))
+    run_chunk(cell, Chunk(cell.index, cell.first_trial, cell.first_trial + 1))

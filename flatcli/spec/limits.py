@@ -1,0 +1,267 @@
+"""Upper bounds on what a spec may ask for, from estimates of the memory and time it needs.
+
+A request whose estimate exceeds the budget is refused before any work, with one line naming
+the estimate, the budget and the key to change. The estimates are rates measured on this
+project's machine (README, *Failures*) rounded in the request's favour: memory per plan
+sample, per output step, per trial; time per output step of a trial at the fastest any
+integrator ran. So a refused request would not have fitted, and a request that fits is never
+refused for being large.
+
+Budgets: memory is half of this machine's memory (or of the container's limit), time is 30
+days of all cores; ``FLATCLI_MEMORY_BUDGET`` (bytes, or with a K/M/G/T suffix) and
+``FLATCLI_TIME_BUDGET`` (seconds, or with an s/m/h/d suffix) set them.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Mapping
+from typing import Any
+
+from flatcli.spec.keys import SpecError
+
+#: Largest spec file read [bytes].
+MAX_SPEC_BYTES = 1 << 20
+#: Trials per grid cell at most: a trial's id is ``cell key * ID_STRIDE + i`` with
+#: ``i < sweep.trials`` (``flatcli.sweep.layout``).
+ID_STRIDE = 10**9
+
+#: ``flatcli plan``: the samples, their table and Parquet file [bytes per sample] (measured
+#: 317 at 2e6 samples).
+BYTES_PER_PLAN_SAMPLE = 300
+#: ``flatcli track``: the recorded trace, its columns, table and Parquet file [bytes per
+#: output step] (measured 825 at 2e5 steps, 1,060 at 1e6 with --plot).
+BYTES_PER_TRACK_STEP = 800
+#: One grid cell of a sweep: the reference tables of its scenario [bytes per output step]
+#: (for the paper's robot, N = 2, the (2n + 1, 6) and (n + 1, 3) float tables: 120; on N
+#: joints (2n + 1, 3 N) and (n + 1, N + 1): ``cell_step_bytes``), and per cell besides them
+#: [bytes].
+BYTES_PER_CELL_STEP = 120
+BYTES_PER_CELL = 20_000
+#: The summary of a sweep reads about 20 numbers and a status per trial [bytes per trial].
+BYTES_PER_TRIAL = 200
+#: A chunk's rows in a worker and in flight [bytes per trial] (about 60 columns for N = 2;
+#: six more perturbation columns per further joint: ``chunk_trial_bytes``).
+BYTES_PER_CHUNK_TRIAL = 500
+#: A worker process, before its first chunk [bytes] (measured 130 MiB).
+BYTES_PER_WORKER = 100 * 2**20
+#: A trial's output step at best [s] (measured 1.8e-7 to 1.1e-6 on one core of this
+#: project's machine, see README, *Performance*), and a trial's fixed cost at best [s].
+SECONDS_PER_STEP = 5e-8
+SECONDS_PER_TRIAL = 1e-5
+
+#: The planner looks for the singular set sin th1 = 0 at every multiple of pi that th1 may
+#: pass (``flatcli.core.planning.margin_zeros``), about 10 us each: at most this many.
+MAX_HALF_TURNS = 1e5
+
+MEMORY_FRACTION = 0.5
+DEFAULT_TIME_BUDGET = 30 * 86400.0
+
+
+def _parse(text: str, units: Mapping[str, float], variable: str) -> float:
+    raw = text.strip()
+    factor = 1.0
+    if raw and raw[-1].upper() in units:
+        factor = units[raw[-1].upper()]
+        raw = raw[:-1]
+    try:
+        value = float(raw) * factor
+    except ValueError:
+        value = math.nan
+    if not (value > 0 and math.isfinite(value)):
+        raise SpecError(f"{variable}: expected a positive number, got {text!r}")
+    return value
+
+
+def physical_memory() -> float:
+    """This machine's memory, or the container's limit if lower [bytes]."""
+    total = float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    for path in ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"):
+        try:
+            with open(path) as fh:
+                limit = fh.read().strip()
+        except OSError:
+            continue
+        if limit.isdigit():
+            total = min(total, float(limit))
+    return total
+
+
+def memory_budget() -> float:
+    """Memory a run may plan to use [bytes]."""
+    text = os.environ.get("FLATCLI_MEMORY_BUDGET")
+    if text:
+        return _parse(text, {"K": 2.0**10, "M": 2.0**20, "G": 2.0**30, "T": 2.0**40},
+                      "FLATCLI_MEMORY_BUDGET")
+    return MEMORY_FRACTION * physical_memory()
+
+
+def time_budget() -> float:
+    """Wall time a sweep may plan to take [s]."""
+    text = os.environ.get("FLATCLI_TIME_BUDGET")
+    if text:
+        return _parse(text, {"S": 1.0, "M": 60.0, "H": 3600.0, "D": 86400.0},
+                      "FLATCLI_TIME_BUDGET")
+    return DEFAULT_TIME_BUDGET
+
+
+def cores() -> int:
+    """Cores this process may use."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not Linux
+        return os.cpu_count() or 1
+
+
+def size_text(n: float) -> str:
+    for unit, scale in (("TiB", 2.0**40), ("GiB", 2.0**30), ("MiB", 2.0**20)):
+        if n >= scale:
+            return f"{n / scale:.3g} {unit}"
+    return f"{n / 2**10:.3g} KiB"
+
+
+def time_text(seconds: float) -> str:
+    for unit, scale in (("years", 365.25 * 86400), ("days", 86400.0), ("h", 3600.0),
+                        ("min", 60.0)):
+        if seconds >= scale:
+            return f"{seconds / scale:.3g} {unit}"
+    return f"{seconds:.3g} s"
+
+
+def require_memory(what: str, estimate: float, change: str) -> None:
+    """SpecError if ``estimate`` [bytes] exceeds the memory budget."""
+    budget = memory_budget()
+    if estimate > budget:
+        raise SpecError(f"{what} would need about {size_text(estimate)} of memory, more than "
+                        f"the {size_text(budget)} budget (FLATCLI_MEMORY_BUDGET); {change}")
+
+
+def require_time(what: str, estimate: float, change: str) -> None:
+    """SpecError if ``estimate`` [s] exceeds the time budget."""
+    budget = time_budget()
+    if estimate > budget:
+        raise SpecError(f"{what} would take at least {time_text(estimate)}, more than the "
+                        f"{time_text(budget)} budget (FLATCLI_TIME_BUDGET); {change}")
+
+
+def cell_step_bytes(joints: int = 2) -> float:
+    """A cell's reference tables per output step on a robot of ``joints`` joints [bytes]:
+    2 x 3 N floats at half steps and N + 1 plan angles (``BYTES_PER_CELL_STEP`` for N = 2)."""
+    return 8.0 * (6 * joints + joints + 1)
+
+
+def chunk_trial_bytes(joints: int = 2) -> float:
+    """A chunk's row per trial on a robot of ``joints`` joints [bytes]: each joint beyond
+    two adds six perturbation columns (initial, initial_rate, mass, inertia, length, com)."""
+    return BYTES_PER_CHUNK_TRIAL + 8.0 * 6 * (joints - 2)
+
+
+def _largest(value: Any) -> float:
+    """abs of a number, or the largest abs of a list of them."""
+    if isinstance(value, list | tuple):
+        return max((abs(float(v)) for v in value), default=0.0)
+    return abs(float(value))
+
+
+def output_steps(spec: Any) -> float:
+    """plan.duration / track.dt: the output steps of one trial."""
+    return float(spec.plan.duration) / float(spec.track.dt)
+
+
+def grid_cells(grid: Mapping[str, Any]) -> int:
+    """Cells of a grid (the product of its lists' lengths), without expanding it."""
+    return math.prod(len(v) for v in grid.values() if isinstance(v, list))
+
+
+def sweep_seconds(trials: float, steps: float, workers: int) -> float:
+    """Least wall time of ``trials`` trials of ``steps`` output steps on ``workers`` [s]."""
+    return trials * (steps * SECONDS_PER_STEP + SECONDS_PER_TRIAL) / max(workers, 1)
+
+
+def check_limits(spec: Any) -> None:
+    """Refuse a spec whose plan, trial or sweep would not fit in memory or time (SpecError
+    naming the estimate, the budget and the key to change)."""
+    plan, sweep = spec.plan, spec.sweep
+    joints = int(spec.joints)
+    require_memory(f"plan.samples = {plan.samples}",
+                   plan.samples * BYTES_PER_PLAN_SAMPLE, "lower plan.samples")
+    steps = output_steps(spec)
+    require_memory(f"plan.duration / track.dt = {steps:.3g} output steps",
+                   steps * BYTES_PER_TRACK_STEP, "raise track.dt or lower plan.duration")
+    require_memory(f"plan.optimize.constraint_samples = {plan.optimize.constraint_samples}",
+                   plan.optimize.constraint_samples * BYTES_PER_PLAN_SAMPLE,
+                   "lower plan.optimize.constraint_samples")
+    terms = plan.size if plan.basis == "bspline" or (
+        plan.basis == "auto" and plan.optimize.objective is not None) else (plan.degree or 3) + 1
+    points = plan.samples + plan.optimize.constraint_samples + 2 * steps + 1
+    require_memory(f"a flat-output basis of {terms} terms",
+                   8.0 * (3 * points * terms + 4 * float(terms) ** 2),
+                   "lower plan.size or plan.degree")
+    reach = abs(plan.goal[1] - plan.start[1]) + plan.duration * (_largest(plan.start_rate)
+                                                                   + _largest(plan.goal_rate))
+    if reach / math.pi > MAX_HALF_TURNS:
+        raise SpecError(
+            f"plan: th1 may sweep up to {reach:.3g} rad (plan.start[1] to plan.goal[1] at "
+            "plan.start_rate, plan.goal_rate over plan.duration), and the singular-set check "
+            f"examines every multiple of pi on the way, at most {MAX_HALF_TURNS:.0e}; use "
+            "smaller rates or a shorter plan.duration")
+    if sweep.trials > ID_STRIDE:
+        raise SpecError(f"sweep.trials: at most {ID_STRIDE:.0e} trials per cell (a trial's id "
+                        f"is cell key * {ID_STRIDE:.0e} + i), got {sweep.trials}")
+    cells = grid_cells(sweep.grid)
+    require_memory(f"sweep.grid of {cells:.3g} cells",
+                   cells * (BYTES_PER_CELL + steps * cell_step_bytes(joints)),
+                   "use fewer grid values")
+    total = float(cells) * sweep.trials
+    require_memory(f"{total:.3g} trials ({sweep.trials} x {cells} cells)",
+                   total * BYTES_PER_TRIAL, "lower sweep.trials or use fewer grid values")
+    chunk = min(sweep.chunk or 0, sweep.trials)
+    require_memory(f"sweep.chunk = {chunk} trials on {cores()} workers",
+                   2 * cores() * chunk * chunk_trial_bytes(joints), "lower sweep.chunk")
+    require_time(f"{total:.3g} trials of {steps:.3g} output steps on {cores()} cores",
+                 sweep_seconds(total, steps, cores()),
+                 "lower sweep.trials, use fewer grid values or raise track.dt")
+
+
+def check_sweep(cell_steps: list[float], trials: int, chunk: int, workers: int,
+                joints: int = 2) -> None:
+    """A sweep's exact cells (each with its own output steps) on ``workers`` workers, on a
+    robot of ``joints`` joints: the parent holds every cell's reference tables, each worker
+    up to three cells' and two chunks' rows."""
+    step_bytes = cell_step_bytes(joints)
+    largest = max(cell_steps, default=0.0)
+    cells = len(cell_steps)
+    require_memory(f"{cells} grid cells", sum(BYTES_PER_CELL + s * step_bytes
+                                             for s in cell_steps), "use fewer grid values")
+    per_worker = (BYTES_PER_WORKER + 3 * largest * step_bytes
+                  + 2 * chunk * chunk_trial_bytes(joints))
+    require_memory(f"--workers {workers}", workers * per_worker, "use fewer --workers")
+    require_time(f"{cells * trials:.3g} trials on {workers} workers",
+                 sum(sweep_seconds(trials, s, workers) for s in cell_steps),
+                 "lower sweep.trials, use fewer grid values, raise track.dt or use more "
+                 "--workers")
+
+
+def require_finite_plan(columns: Mapping[str, Any]) -> None:
+    """SpecError if a plan's sampled values (name -> array) are not all finite: the spec's
+    numbers are valid one by one but not together (e.g. rates so large that the flat map
+    overflows)."""
+    import numpy as np
+
+    for name, values in columns.items():
+        array = np.asarray(values, dtype=float)
+        if not np.isfinite(array).all():
+            raise SpecError(f"plan: {name} is not finite along the plan (the spec's magnitudes "
+                            "overflow the flat map); use physical values of the robot, rates "
+                            "and plan.duration")
+
+
+def check_workers(workers: int, oversubscribe: bool) -> None:
+    """More workers than cores only when asked (``--oversubscribe``)."""
+    if workers < 1:
+        raise SpecError(f"--workers: must be >= 1, got {workers}")
+    available = cores()
+    if workers > available and not oversubscribe:
+        raise SpecError(f"--workers {workers}: more than the {available} cores this process may "
+                        "use; use at most that many, or add --oversubscribe")
