@@ -260,8 +260,10 @@ def chains_section(base: Spec, out: Path, quiet: bool, workers: int | None = Non
         "",
         "### Designs",
         "",
-        "K_10 = the barycentric coupling of base and link 1 (flatness needs K_10 != 0, i.e. "
-        "l0 != d0 and m1 d1 + (m2 + ... + mN) l1 != 0) and I_N != 0 (`flatcli design`).",
+        "K_10: the barycentric coupling of base and link 1, m0 (l0 - d0)(m1 d1 + (m2 + ... + "
+        "mN) l1) / M. The outputs need d_N = 0 and I_N != 0; flatcli's planner also needs "
+        "K_10 != 0, which generalises the paper's m0 != 0, l0 != d0, m1 d1 + m2 l1 != 0 "
+        "(`flatcli design` checks all of them).",
         "",
         table(["robot", "N", "masses [kg]", "K_10 [kg m^2]", "I_N [kg m^2]", "flat"], designs,
               4),
