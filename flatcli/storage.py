@@ -145,7 +145,8 @@ def table_checksum(table: pa.Table) -> str:
     digest = hashlib.sha256()
     for name, column in zip(table.column_names, table.columns, strict=True):
         array = column.combine_chunks() if column.num_chunks != 1 else column.chunk(0)
-        digest.update(f"{name}\0{array.type}\0{len(array)}\0{array.null_count}\0".encode())
+        digest.update(f"{name}\0{_type_text(array.type)}\0{len(array)}\0{array.null_count}\0"
+                      .encode())
         if array.null_count:
             digest.update(np.asarray(array.is_null().to_numpy(zero_copy_only=False)).tobytes())
         if pa.types.is_integer(array.type) or pa.types.is_floating(array.type) \
@@ -157,6 +158,14 @@ def table_checksum(table: pa.Table) -> str:
         else:
             digest.update(json.dumps(array.to_pylist(), default=str).encode())
     return digest.hexdigest()
+
+
+def _type_text(kind: pa.DataType) -> str:
+    """A type as text without the names Parquet gives a list's items ("item" in Arrow,
+    "element" once read back), so that a table and its Parquet copy read the same."""
+    if pa.types.is_list(kind) or pa.types.is_large_list(kind):
+        return f"list<{_type_text(kind.value_type)}>"
+    return str(kind)
 
 
 def read_provenance(path: Path) -> dict[str, Any]:

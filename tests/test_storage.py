@@ -130,7 +130,8 @@ def _parquet_bytes(frame: pd.DataFrame, provenance: dict[str, str], tmp_path: Pa
 
 def test_table_checksum_follows_the_content_not_the_file() -> None:
     table = pa.table({"trial": pa.array([1, 2, 3]), "x": pa.array([0.5, None, np.nan]),
-                      "status": pa.array(["ok", None, "error"])})
+                      "status": pa.array(["ok", None, "error"]),
+                      "com": pa.array([[0.1, 0.0], None, [0.2, 0.1]])})  # a grid list column
     buffer = pa.BufferOutputStream()
     pq.write_table(table.replace_schema_metadata({b"k": b"v"}), buffer)
     back = pq.read_table(pa.BufferReader(buffer.getvalue()))
@@ -141,7 +142,8 @@ def test_table_checksum_follows_the_content_not_the_file() -> None:
         table.set_column(1, "x", pa.array([0.5, 0.0, np.nan])),  # a null became 0
         table.set_column(1, "x", pa.array([0.5000000000000001, None, np.nan])),  # one ulp
         table.set_column(2, "status", pa.array(["ok", None, "errors"])),
-        table.rename_columns(["trial", "y", "status"]),
+        table.rename_columns(["trial", "y", "status", "com"]),
+        table.set_column(3, "com", pa.array([[0.1, 0.0], None, [0.2, 0.2]])),
         table.set_column(0, "trial", pa.array([1, 2, 3], type=pa.int32())),
         table.slice(0, 2),
     ]

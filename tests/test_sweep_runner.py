@@ -343,3 +343,22 @@ def test_force_twice_over_a_sweep_and_its_figures(tmp_path: Path) -> None:
         code, out = sweep(str(spec), "--out", str(out_dir), "-q", "--force", "--plot")
         assert code == 0, out
     assert (out_dir / "sweep_errors.png").exists()
+
+
+def test_a_list_valued_grid_key_out_of_alphabetical_order_is_extended_too(
+        tmp_path: Path) -> None:
+    """track.sensor_noise before plant.com (a list column, which Parquet reads back with
+    other item names): the stored spec's grid keys are sorted, the file's are not; adding a
+    value still reuses the finished cells and their chunks pass their checksums."""
+    grid = ('"track.sensor_noise" = [0.0]\n'
+            '"plant.com" = [[0.1, 0.1, 0.0], [0.1, 0.1, 0.001]]\n')
+    base = SPEC.replace('"track.sensor_noise" = [0.0, 0.001]\n', grid)
+    more = base.replace('[[0.1, 0.1, 0.0], [0.1, 0.1, 0.001]]',
+                        '[[0.1, 0.1, 0.0], [0.1, 0.1, 0.001], [0.1, 0.1, 0.002]]')
+    assert base != SPEC and more != base
+    out_dir = tmp_path / "d"
+    assert sweep(str(write_spec(tmp_path, base)), "--out", str(out_dir), "-q")[0] == 0
+    code, out = sweep(str(write_spec(tmp_path, more, "more.toml")), "--out", str(out_dir))
+    assert code == 0, out
+    assert "2 of the 3 cells were computed there before" in out, out
+    assert "(60 simulated now)" in out and "checksum" not in out, out

@@ -237,7 +237,7 @@ def spec_differences(old: Mapping[str, Any], new: Mapping[str, Any]
         if x == y:
             continue
         if dotted == "sweep.grid" and isinstance(x, dict) and isinstance(y, dict) \
-                and list(x) == list(y):
+                and set(x) == set(y):
             grid.extend(f"sweep.grid.{k!r}" for k in x if x[k] != y[k])
         elif dotted == "sweep.grid":
             old_keys = list(x) if isinstance(x, dict) else []
