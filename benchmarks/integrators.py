@@ -24,13 +24,12 @@ from benchmarks.baselines import PAPER_MANEUVER, paper_trials, timed
 from flatcli.core.control import Gains
 from flatcli.core.metrics import Metric, Status
 from flatcli.core.model import Coefficients, Links
+from flatcli.core.paperloop import _is_flat, _kinematic_rhs_at
 from flatcli.core.planning import FlatPlan
 from flatcli.core.plant import Loop
 from flatcli.core.simulate import (
     Scenario,
     Trials,
-    _is_flat,
-    _kinematic_rhs_at,
     plant_coefficients,
     simulate,
 )

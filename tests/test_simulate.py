@@ -18,6 +18,7 @@ from scipy.integrate import solve_ivp
 from flatcli.core.control import Gains
 from flatcli.core.metrics import Event, Metric, Status
 from flatcli.core.model import PAPER_ROBOT, Coefficients, FlatcliError, Links, RobotParams
+from flatcli.core.paperloop import _kinematic_rhs_at
 from flatcli.core.planning import FlatPlan
 from flatcli.core.plant import Loop
 from flatcli.core.simulate import (
@@ -25,7 +26,6 @@ from flatcli.core.simulate import (
     Outcome,
     Scenario,
     Trials,
-    _kinematic_rhs_at,
     noise_generator,
     plant_coefficients,
     simulate,

@@ -15,7 +15,7 @@ Three integrators:
   controller's margin at each stage so that a step across the singular set stops the trial.
 * ``"dop853"``: scipy's ``solve_ivp`` (DOP853, rtol 1e-10, atol 1e-12), one trial at a time:
   the reference the compiled integrators are checked against, with the same stopping rules
-  (events on the divergence bound and on the margin's sign).
+  (events on the divergence bound and on the margin's sign; ``reference``).
 
 Two plants (``Scenario.plant``, ``plant.PLANT_MODELS``): the kinematic plant (joints follow
 their commanded rates) and the dynamic plant (a robot with inertia, joint torques from rate
@@ -24,6 +24,8 @@ torque limit may differ per trial (``Trials.servo``).
 
 Every trial is integrated alone by the same compiled code, so its result does not depend on
 which other trials share the batch, the order, the worker or the executor (bit for bit).
+The compiled batch kernels are those of ``paperloop`` (the paper's robot), ``chainloop`` and
+``chaindynamic`` (N-link chains); this module holds the public API and chooses among them.
 """
 
 from __future__ import annotations
@@ -32,62 +34,33 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.integrate import solve_ivp
 
-from flatcli.core._jit import jitable, kernel
 from flatcli.core.chaindynamic import run_chain_dynamic_kernel
 from flatcli.core.chainloop import ChainGains, run_chain_kernel
 from flatcli.core.chainplan import ChainPlan
 from flatcli.core.control import Gains
-from flatcli.core.integrate import STALL_MARGIN, WORK_ROWS, make_trial_integrators, plan_flag
-from flatcli.core.metrics import (
-    ACCUMULATOR_SIZE,
-    N_METRICS,
-    Event,
-    Status,
-    conclude_trial,
-    finish_metrics,
-    observe_sample,
-    observe_torque,
-    plan_momentum_residual,
-    reset_accumulator,
-)
-from flatcli.core.model import (
-    Coefficients,
-    FlatcliError,
-    Links,
-    constraint_coefficients,
+from flatcli.core.metrics import N_METRICS
+from flatcli.core.model import FlatcliError, Links, constraint_coefficients
+from flatcli.core.paperloop import (
+    _METHOD_ADAPTIVE,
+    _METHOD_RK4,
+    _dynamic_kernel,
+    _kinematic_kernel,
+    _plain,
 )
 from flatcli.core.planning import FlatPlan
 from flatcli.core.plant import (
-    AUX_C1,
-    AUX_R2,
-    AUX_S1,
-    AUX_SATURATED,
-    AUX_TAU1,
-    AUX_TAU2,
     DEFAULT_SERVO_BANDWIDTH,
-    DYNAMIC_AUX,
-    DYNAMIC_STATE,
-    KINEMATIC_AUX,
-    KINEMATIC_STATE,
     PLANT_MODELS,
     SERVO_MODELS,
-    DynamicLoop,
-    Loop,
     PlantModel,
     ServoModel,
-    dynamic_initial,
-    dynamic_loop,
-    dynamic_momentum,
-    dynamic_rhs,
-    kinematic_momentum,
-    kinematic_rhs,
 )
+from flatcli.core.reference import _reference_trial
 
 Array = NDArray[np.float64]
 Integrator = Literal["adaptive", "rk4", "dop853"]
@@ -118,9 +91,6 @@ def chain_dynamic_trace_columns(n: int) -> tuple[str, ...]:
     return (*(f"theta{i}" for i in range(n + 1)), *(f"theta{i}_dot" for i in range(n + 1)),
             *(f"u{j}" for j in range(1, n)), *(f"tau{j}" for j in range(1, n + 1)), f"u{n}")
 
-#: Tolerances of the reference integrator.
-REFERENCE_RTOL = 1e-10
-REFERENCE_ATOL = 1e-12
 #: Default tolerances of the adaptive integrator: 1e-6 rad or better at every output sample
 #: of the paper's example, printed or swapped gains, against a DOP853 at rtol 1e-12
 #: (tests/test_simulate.py measures it).
@@ -136,307 +106,11 @@ NOISE_SLOT = 1
 #: A trial's servo when ``Trials.servo`` is None: bandwidth [rad/s], torque limit [N m].
 DEFAULT_SERVO = (DEFAULT_SERVO_BANDWIDTH, math.inf)
 
-_METHOD_RK4 = 0
-_METHOD_ADAPTIVE = 1
-
 
 def noise_generator(seed: int, trial: int) -> np.random.Generator:
     """The sensor-noise stream of one trial: ``default_rng(SeedSequence(seed, (trial, 1)))``,
     independent of every other trial and of chunking."""
     return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(trial, NOISE_SLOT)))
-
-
-@jitable
-def _observe_kinematic(loop: Loop, obs: Any, acc: Array, j: int, x: Array, f: Array) -> None:
-    """Metrics of the kinematic plant at output sample j: H from the full link kinematics at
-    the state with the joint rates the plant applies there (f)."""
-    theta_ref, ref, threshold = obs
-    observe_sample(acc, j, x[0], x[1], x[2], x[3], f[5], f[6], f[1], f[2],
-                   kinematic_momentum(loop, x, f), theta_ref, ref, loop.kc, loop.h0, threshold)
-
-
-_rk4_kinematic, _adaptive_kinematic = make_trial_integrators(kinematic_rhs, _observe_kinematic)
-
-
-@jitable
-def _observe_dynamic(loop: DynamicLoop, obs: Any, acc: Array, j: int, x: Array, f: Array
-                     ) -> None:
-    """Metrics of the dynamic plant at output sample j: H from the full link kinematics at
-    the state (its own rates), the joint rates and torques it applies."""
-    theta_ref, ref, threshold = obs
-    observe_sample(acc, j, x[0], x[1], x[2], x[6], f[AUX_C1], f[AUX_S1], x[4], x[5],
-                   dynamic_momentum(loop, x, f), theta_ref, ref, loop.kc, loop.h0, threshold)
-    observe_torque(acc, f[AUX_TAU1], f[AUX_TAU2], f[AUX_SATURATED])
-
-
-@jitable
-def _record_dynamic(trace: Array, j: int, nx: int, x: Array, f: Array) -> None:
-    """Trace row j of the dynamic plant (``DYNAMIC_TRACE_COLUMNS``)."""
-    for i in range(nx):
-        trace[j, i] = x[i]
-    trace[j, nx] = f[AUX_TAU1]
-    trace[j, nx + 1] = f[AUX_TAU2]
-    trace[j, nx + 2] = f[AUX_R2]
-
-
-_rk4_dynamic, _adaptive_dynamic = make_trial_integrators(dynamic_rhs, _observe_dynamic,
-                                                         _record_dynamic)
-
-
-# fmt: off
-@jitable
-def _links_row(a: Array, i: int) -> Links:
-    return Links(a[i, 0], a[i, 1], a[i, 2], a[i, 3], a[i, 4], a[i, 5],
-                 a[i, 6], a[i, 7], a[i, 8], a[i, 9], a[i, 10], a[i, 11])
-
-
-@jitable
-def _coefficients_row(a: Array, i: int) -> Coefficients:
-    return Coefficients(a[i, 0], a[i, 1], a[i, 2], a[i, 3], a[i, 4], a[i, 5],
-                        a[i, 6], a[i, 7], a[i, 8], a[i, 9], a[i, 10])
-# fmt: on
-
-
-@jitable
-def _is_flat(k: Coefficients) -> bool:
-    """Whether a plant's constraint has no d2-terms (d2 = 0)."""
-    return (k.a2 == 0.0 and k.a3 == 0.0 and k.b2 == 0.0 and k.b3 == 0.0 and k.c2 == 0.0
-            and k.c3 == 0.0)
-
-
-@kernel
-def _kinematic_kernel(
-    method: int,
-    kc: Coefficients,
-    gains: Gains,
-    links: Array,
-    plant_k: Array,
-    h0: Array,
-    rate_limit: float,
-    initial: Array,
-    ref: Array,
-    theta_ref: Array,
-    breaks: Array,
-    local: Array,
-    plan_theta: Array,
-    plan_theta_dot: Array,
-    dt: float,
-    bound: float,
-    threshold: float,
-    rtol: float,
-    atol: float,
-    max_steps: int,
-    tables: Array,
-    gen: Any,
-    std: float,
-    record: bool,
-    metrics: Array,
-    status: NDArray[np.int64],
-    event: NDArray[np.int64],
-    event_time: Array,
-    trace: Array,
-) -> None:
-    """Integrate every trial of a batch, one at a time; write metrics, status, events and
-    (maybe) traces.
-
-    Shapes: ref (2n+1, 6); theta_ref (n+1, 3); breaks (m+1,), local (m, d+1, 2);
-    plan_theta, plan_theta_dot (p, 3); links (N, 12); plant_k (N, 11); h0 (N,);
-    initial (N, 4); tables (N, n, 3) or (N, 0, 3); metrics (N, N_METRICS);
-    status, event, event_time (N,); trace (N, n+1, 7) if record.
-    """
-    n = theta_ref.shape[0] - 1
-    nx = KINEMATIC_STATE
-    work = np.empty((WORK_ROWS, nx + KINEMATIC_AUX))
-    acc = np.empty(ACCUMULATOR_SIZE)
-    noise = np.zeros(3)
-    flag = np.empty(6)
-    scratch = np.empty((0, nx + 3))
-    obs = (theta_ref, ref, threshold)
-    for i in range(links.shape[0]):
-        p = _links_row(links, i)
-        kq = _coefficients_row(plant_k, i)
-        loop = Loop(kc, gains, kq, p, p.m0 + p.m1 + p.m2, h0[i], rate_limit, _is_flat(kq))
-        reset_accumulator(acc)
-        tr = trace[i] if record else scratch
-        x0 = initial[i]
-        if method == _METHOD_RK4:
-            last, ev, t_ev = _rk4_kinematic(loop, obs, x0, ref, dt, n, bound, tables[i], gen,
-                                            std, record, tr, acc, work, noise)
-            estimate, steps, evaluations = math.nan, last, 4 * last + 1
-        else:
-            last, ev, t_ev, estimate, steps, evaluations = _adaptive_kinematic(
-                loop, obs, x0, breaks, local, dt, n, bound, rtol, atol, max_steps, 3,
-                tables[i], gen, std, record, tr, acc, work, noise, flag, ref)
-        _conclude(i, p, h0[i], plan_theta, plan_theta_dot, acc, last, n, ev, t_ev, estimate,
-                  steps, evaluations, dt, record, tr, metrics, status, event, event_time)
-
-
-@jitable
-def _conclude(
-    i: int, p: Links, h0: float, plan_theta: Array, plan_theta_dot: Array, acc: Array,
-    last: int, n: int, ev: int, t_ev: float, estimate: float, steps: int, evaluations: int,
-    dt: float, record: bool, tr: Array, metrics: Array, status: NDArray[np.int64],
-    event: NDArray[np.int64], event_time: Array,
-) -> None:
-    """Trial i's metrics, status, event and event time from its run; its trace blanked
-    after the last valid sample."""
-    conclude_trial(i, plan_momentum_residual(plan_theta, plan_theta_dot, p, h0), acc, last, n,
-                   ev, t_ev, estimate, steps, evaluations, dt, record, tr, metrics, status,
-                   event, event_time)
-
-
-@kernel
-def _dynamic_kernel(
-    method: int,
-    kc: Coefficients,
-    gains: Gains,
-    robot: Links,
-    servo_is_plant: bool,
-    links: Array,
-    h0: Array,
-    servo: Array,
-    rate_limit: float,
-    initial: Array,
-    ref: Array,
-    theta_ref: Array,
-    breaks: Array,
-    local: Array,
-    plan_theta: Array,
-    plan_theta_dot: Array,
-    dt: float,
-    bound: float,
-    threshold: float,
-    rtol: float,
-    atol: float,
-    max_steps: int,
-    tables: Array,
-    gen: Any,
-    std: float,
-    record: bool,
-    metrics: Array,
-    status: NDArray[np.int64],
-    event: NDArray[np.int64],
-    event_time: Array,
-    trace: Array,
-) -> None:
-    """``_kinematic_kernel`` for the dynamic plant: ``robot`` is the nominal robot (the
-    servo's model unless ``servo_is_plant``), servo (N, 2) each trial's bandwidth [rad/s] and
-    torque limit [N m], initial (N, 4) th(0) and u1(0) (``plant.dynamic_initial`` completes
-    the state); trace (N, n+1, 10) if record (``DYNAMIC_TRACE_COLUMNS``)."""
-    n = theta_ref.shape[0] - 1
-    nx = DYNAMIC_STATE
-    work = np.empty((WORK_ROWS, nx + DYNAMIC_AUX))
-    acc = np.empty(ACCUMULATOR_SIZE)
-    noise = np.zeros(3)
-    flag = np.empty(6)
-    scratch = np.empty((0, nx + 3))
-    x0 = np.empty(nx)
-    obs = (theta_ref, ref, threshold)
-    for i in range(links.shape[0]):
-        p = _links_row(links, i)
-        loop = dynamic_loop(kc, gains, p, robot, servo_is_plant, h0[i], rate_limit,
-                            servo[i, 0], servo[i, 1])
-        dynamic_initial(loop, initial[i], ref[0], x0)
-        reset_accumulator(acc)
-        tr = trace[i] if record else scratch
-        if method == _METHOD_RK4:
-            last, ev, t_ev = _rk4_dynamic(loop, obs, x0, ref, dt, n, bound, tables[i], gen,
-                                          std, record, tr, acc, work, noise)
-            estimate, steps, evaluations = math.nan, last, 4 * last + 1
-        else:
-            last, ev, t_ev, estimate, steps, evaluations = _adaptive_dynamic(
-                loop, obs, x0, breaks, local, dt, n, bound, rtol, atol, max_steps, 3,
-                tables[i], gen, std, record, tr, acc, work, noise, flag, ref)
-        _conclude(i, p, h0[i], plan_theta, plan_theta_dot, acc, last, n, ev, t_ev, estimate,
-                  steps, evaluations, dt, record, tr, metrics, status, event, event_time)
-
-
-@kernel
-def _dynamic_rhs_kernel(loop: DynamicLoop, x: Array, ref: Array, noise: Array) -> Array:
-    out = np.empty(DYNAMIC_STATE + DYNAMIC_AUX)
-    dynamic_rhs(loop, x, ref, noise, out)
-    return out
-
-
-@kernel
-def _dynamic_rhs_at(
-    loop: DynamicLoop, breaks: Array, local: Array, t: float, x: Array, noise: Array
-) -> Array:
-    """The dynamic plant's state derivative (7,) at time t (for solve_ivp)."""
-    ref = np.empty(6)
-    plan_flag(breaks, local, t, ref)
-    out = np.empty(DYNAMIC_STATE + DYNAMIC_AUX)
-    dynamic_rhs(loop, x, ref, noise, out)
-    return out[:DYNAMIC_STATE]
-
-
-@kernel
-def _dynamic_start(loop: DynamicLoop, initial: Array, ref: Array) -> Array:
-    """The dynamic plant's state at t = 0 (``plant.dynamic_initial``)."""
-    x0 = np.empty(DYNAMIC_STATE)
-    dynamic_initial(loop, initial, ref, x0)
-    return x0
-
-
-@kernel
-def _make_dynamic_loop(kc: Coefficients, gains: Gains, links: Links, robot: Links,
-                       servo_is_plant: bool, h0: float, rate_limit: float, bandwidth: float,
-                       torque_limit: float) -> DynamicLoop:
-    return dynamic_loop(kc, gains, links, robot, servo_is_plant, h0, rate_limit, bandwidth,
-                        torque_limit)
-
-
-@kernel
-def _observe_dynamic_trace_kernel(
-    loop: DynamicLoop, theta_ref: Array, ref: Array, threshold: float, states: Array,
-    rates: Array, last: int, complete: bool, dt: float, plan_theta: Array,
-    plan_theta_dot: Array, out: Array,
-) -> int:
-    """``_observe_trace_kernel`` for the dynamic plant: states (n+1, 7), right-hand sides
-    (n+1, 7 + DYNAMIC_AUX)."""
-    acc = np.empty(ACCUMULATOR_SIZE)
-    reset_accumulator(acc)
-    obs = (theta_ref, ref, threshold)
-    for j in range(last + 1):
-        _observe_dynamic(loop, obs, acc, j, states[j], rates[j])
-    residual = plan_momentum_residual(plan_theta, plan_theta_dot, loop.links, loop.h0)
-    return finish_metrics(out, acc, complete, dt, residual, math.nan, 0, 0)
-
-
-@kernel
-def _kinematic_rhs_kernel(loop: Loop, x: Array, ref: Array, noise: Array) -> Array:
-    out = np.empty(KINEMATIC_STATE + KINEMATIC_AUX)
-    kinematic_rhs(loop, x, ref, noise, out)
-    return out
-
-
-@kernel
-def _kinematic_rhs_at(
-    loop: Loop, breaks: Array, local: Array, t: float, x: Array, noise: Array
-) -> Array:
-    """The state's derivative (4,) at time t, the plan evaluated there (for solve_ivp)."""
-    ref = np.empty(6)
-    plan_flag(breaks, local, t, ref)
-    out = np.empty(KINEMATIC_STATE + KINEMATIC_AUX)
-    kinematic_rhs(loop, x, ref, noise, out)
-    return out[:KINEMATIC_STATE]
-
-
-@kernel
-def _observe_trace_kernel(
-    loop: Loop, theta_ref: Array, ref: Array, threshold: float, states: Array, rates: Array,
-    last: int, complete: bool, dt: float, plan_theta: Array, plan_theta_dot: Array,
-    out: Array,
-) -> int:
-    """Metrics of a trace computed elsewhere (the reference integrator): states (n+1, 4) and
-    right-hand sides (n+1, 4 + KINEMATIC_AUX), samples 0..last."""
-    acc = np.empty(ACCUMULATOR_SIZE)
-    reset_accumulator(acc)
-    obs = (theta_ref, ref, threshold)
-    for j in range(last + 1):
-        _observe_kinematic(loop, obs, acc, j, states[j], rates[j])
-    residual = plan_momentum_residual(plan_theta, plan_theta_dot, loop.links, loop.h0)
-    return finish_metrics(out, acc, complete, dt, residual, math.nan, 0, 0)
 
 
 @dataclass(frozen=True)
@@ -685,10 +359,6 @@ def plant_coefficients(links: Array) -> Array:
     return np.ascontiguousarray(np.stack(np.broadcast_arrays(*k), axis=-1))
 
 
-def _plain(k: Coefficients) -> Coefficients:
-    return Coefficients(*(float(v) for v in k))
-
-
 def simulate(
     scenario: Scenario,
     trials: Trials,
@@ -804,107 +474,3 @@ def _run_with_noise(run: Callable[[slice, Array, np.random.Generator, float], No
         tables = np.ascontiguousarray(noise, dtype=float) if isinstance(noise, np.ndarray) \
             else np.zeros((trials.count, 0, angles))
         run(slice(0, trials.count), tables, quiet, 0.0)
-
-
-def _reference_trial(
-    scenario: Scenario, trials: Trials, plant_k: Array, kc: Coefficients, gains: Gains, i: int,
-    out: Array, status: NDArray[np.int64], event: NDArray[np.int64], event_time: Array,
-    trace: Array | None,
-) -> None:
-    """Trial i by solve_ivp (DOP853), with terminal events on the divergence bound and on the
-    controller's margin changing sign; its metrics from the same observer as the kernels."""
-    n = scenario.n_steps
-    times = scenario.times
-    p = Links(*(float(v) for v in trials.links[i]))
-    dynamic = scenario.plant == "dynamic"
-    noise = trials.noise_table(i, n)
-    bound = scenario.divergence_bound
-    breaks, local = scenario.pieces
-    loop: Any  # Loop or DynamicLoop, with the kernels below that take it
-    rhs_at: Any
-    rhs_full: Any
-    if dynamic:
-        bandwidth, torque_limit = trials.servo_table()[i]
-        robot = Links(*(float(v) for v in scenario.plan.robot.links))
-        loop = _make_dynamic_loop(kc, gains, p, robot, scenario.servo_model == "plant",
-                                  float(trials.momentum[i]), float(scenario.rate_limit),
-                                  float(bandwidth), float(torque_limit))
-        nx, aux, u1_index = DYNAMIC_STATE, DYNAMIC_AUX, 6
-        rhs_at, rhs_full = _dynamic_rhs_at, _dynamic_rhs_kernel
-        start = np.asarray(_dynamic_start(loop, np.asarray(trials.initial[i], dtype=float),
-                                          scenario.reference[0]))
-    else:
-        kq = _plain(Coefficients(*plant_k[i]))
-        loop = Loop(kc, gains, kq, p, p.m0 + p.m1 + p.m2, float(trials.momentum[i]),
-                    float(scenario.rate_limit), bool(_is_flat(kq)))
-        nx, aux, u1_index = KINEMATIC_STATE, KINEMATIC_AUX, 3
-        rhs_at, rhs_full = _kinematic_rhs_at, _kinematic_rhs_kernel
-        start = np.asarray(trials.initial[i], dtype=float)
-
-    def rhs(t: float, x: Array, noise_row: Array) -> Array:
-        return np.asarray(rhs_at(loop, breaks, local, t, x, noise_row))
-
-    def blowup(t: float, x: Array, noise_row: Array) -> float:
-        return float(bound - np.max(np.abs(x)))
-
-    def crossing(t: float, x: Array, noise_row: Array) -> float:
-        return float(np.sin(x[1] + noise_row[1]) * x[u1_index])
-
-    blowup.terminal = True  # type: ignore[attr-defined]
-    crossing.terminal = True  # type: ignore[attr-defined]
-    states = np.full((n + 1, nx), math.nan)
-    states[0] = start
-    stopped, when = int(Event.NONE), math.nan
-    # without noise one integration over the whole grid; with noise one per interval, so the
-    # solver never steps across a jump of the measured angles
-    segments = [(0, n)] if not np.any(noise) else [(s, s + 1) for s in range(n)]
-    x = start
-    for begin, stop in segments:
-        with np.errstate(all="ignore"):
-            sol = solve_ivp(rhs, (times[begin], times[stop]), x, method="DOP853",
-                            t_eval=times[begin: stop + 1], rtol=REFERENCE_RTOL,
-                            atol=REFERENCE_ATOL, args=(noise[begin],),
-                            events=[blowup, crossing])
-        got = sol.y.T
-        states[begin: begin + len(got)] = got
-        if sol.status == 1:  # a terminal event; crossing the singular set takes precedence
-            if len(sol.t_events[1]):
-                stopped, when = int(Event.CROSSED), float(sol.t_events[1][0])
-            else:
-                stopped, when = int(Event.BOUND), float(sol.t_events[0][0])
-            break
-        if sol.status == -1 or len(got) < stop - begin + 1:  # the solver gave up
-            last_x = sol.y[:, -1] if sol.y.size else x
-            near = abs(crossing(float(sol.t[-1]) if sol.t.size else times[begin], last_x,
-                                noise[begin])) < STALL_MARGIN
-            stopped = int(Event.STALLED if near else Event.STEP_FLOOR)
-            when = float(sol.t[-1]) if sol.t.size else float(times[begin])
-            break
-        x = got[-1]
-    finite = np.isfinite(states).all(axis=1) & (np.abs(states) <= bound).all(axis=1)
-    last = int(np.argmin(finite)) - 1 if not finite.all() else n
-    if stopped == int(Event.NONE) and last < n:
-        stopped, when = int(Event.BOUND), float(times[last + 1])
-    rates = np.full((n + 1, nx + aux), math.nan)
-    for j in range(last + 1):
-        ref = scenario.reference[2 * j]
-        rates[j] = rhs_full(loop, states[j], ref, noise[min(j, n - 1)])
-    theta_ref = scenario.theta_reference
-    plan_theta, plan_theta_dot = scenario.plan_on_own_grid
-    observe = _observe_dynamic_trace_kernel if dynamic else _observe_trace_kernel
-    first = observe(loop, theta_ref, scenario.reference, float(scenario.singular_threshold),
-                    states, rates, last, stopped == int(Event.NONE), float(scenario.dt),
-                    plan_theta, plan_theta_dot, out)
-    code = Status.SINGULAR if first >= 0 else Status.OK
-    if stopped != int(Event.NONE):
-        code = Event(stopped).status
-    status[i] = int(code)
-    event[i] = stopped
-    if stopped != int(Event.NONE):
-        event_time[i] = when
-    elif first >= 0:
-        event_time[i] = first * scenario.dt
-    if trace is not None:
-        trace[:, :nx] = states
-        trace[:, nx:] = rates[:, [AUX_TAU1, AUX_TAU2, AUX_R2]] if dynamic else rates[:, :3]
-        trace[last + 1:] = math.nan
