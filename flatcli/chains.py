@@ -295,7 +295,15 @@ def chains_section(base: Spec, out: Path, quiet: bool, workers: int | None = Non
         "Figure `fig_chains.png`; files in `chains/` (plan.parquet, track_kinematic.parquet, "
         "track_dynamic.parquet per robot).",
         "",
-        "### What changes with N: the base's drift depends on the path",
+        "### What changes with N: the singular set, and a drift that depends on the path",
+        "",
+        "The singular set sin(th1) th1' = 0 of the paper becomes D = grad h_0(q) . q' = 0: "
+        "the configurations where grad h_0 vanishes (for instance every joint straight or "
+        "folded back, th_j = 0 or pi), and elsewhere every joint velocity tangent to the level "
+        "set of h_0. For N = 2 that is the one rate th1' = 0; for N >= 3 it is a hyperplane of "
+        "joint velocities at each q, so a plan can pass configurations where one joint stops "
+        "or turns back as long as the joints together keep changing h_0 (the margin column "
+        "above is that rate, scaled by -1 / (2 K_10)).",
         "",
         "For the paper's robot the joints' path is th1(t) alone, so the base's natural drift "
         "-integral h_1/h_0 dth1 depends on th1's ends only, and so does the rotation left for "
