@@ -44,7 +44,7 @@ from numpy.typing import NDArray
 
 from flatcli.core._jit import jitable, kernel
 from flatcli.core.chain import chain_momentum_at
-from flatcli.core.chainflat import inputs, outputs
+from flatcli.core.chainflat import inputs_given, outputs, outputs_given, terms
 from flatcli.core.chainloop import chain_matrix, plan_residual
 from flatcli.core.dynamics import (
     TRIG_ROWS,
@@ -156,11 +156,13 @@ def _commands(loop: ChainDynamicLoop, measured: Array, u: Array, ref: Array) -> 
     n = loop.Ic.shape[0] - 1
     buf = loop.buffers
     y, y_dot, v, r = buf[_Y, :n], buf[_Y_DOT, :n], buf[_V, :n], buf[_R, :n]
-    sigma = outputs(loop.Kc, loop.Ic, measured, u, y, y_dot)
+    h0, h_c, grad, hess, slopes = terms(loop.Kc, loop.Ic, measured)  # once for both maps
+    sigma = outputs_given(loop.Kc, loop.Ic, h0, h_c, grad, measured, u, y, y_dot)
     for j in range(n):
         v[j] = (ref[2 * n + j] + loop.kv[j] * (ref[n + j] - y_dot[j])
                 + loop.kp[j] * (ref[j] - y[j]))
-    command = inputs(loop.Kc, loop.Ic, measured, u, v, buf[_U_DOT, : n - 1])
+    command = inputs_given(loop.Ic, h0, h_c, grad, hess, slopes, measured, u, v,
+                           buf[_U_DOT, : n - 1])
     limit = loop.rate_limit
     for j in range(n - 1):
         r[j] = min(max(u[j], -limit), limit)

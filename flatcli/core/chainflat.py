@@ -84,8 +84,16 @@ def terms(K: Array, inertia: Array, theta: Array) -> tuple[float, Array, Array, 
 def outputs(K: Array, inertia: Array, theta: Array, u: Array, y: Array, y_dot: Array) -> float:
     """Forward map: state (theta (N + 1,), u (N - 1,)) -> y (N,) [rad], y' (N,) [rad/s],
     written; returns the signed margin sigma = -D / (2 K_10) [rad/s]."""
-    n = theta.shape[0] - 1
     h0, h, grad, _ = _terms(K, inertia, theta)
+    return outputs_given(K, inertia, h0, h, grad, theta, u, y, y_dot)
+
+
+@jitable
+def outputs_given(K: Array, inertia: Array, h0: float, h: Array, grad: Array, theta: Array,
+                  u: Array, y: Array, y_dot: Array) -> float:
+    """``outputs`` given the terms at q (``terms``), so that a controller that needs both
+    the outputs and the inputs at one state computes the trigonometry once."""
+    n = theta.shape[0] - 1
     s = 0.0
     d = 0.0
     for j in range(1, n):
@@ -150,11 +158,11 @@ def inputs(K: Array, inertia: Array, theta: Array, u: Array, v: Array, u_dot: Ar
     dS/dq_k = sum_j (dh_j/dq_k) u_j, dD/dq_k = sum_j (d^2 h_0 / dq_j dq_k) u_j.
     """
     h0, h, grad, hess, slopes = terms(K, inertia, theta)
-    return _inputs_given(inertia, h0, h, grad, hess, slopes, theta, u, v, u_dot)
+    return inputs_given(inertia, h0, h, grad, hess, slopes, theta, u, v, u_dot)
 
 
 @jitable
-def _inputs_given(inertia: Array, h0: float, h: Array, grad: Array, hess: Array,
+def inputs_given(inertia: Array, h0: float, h: Array, grad: Array, hess: Array,
                   slopes: Array, theta: Array, u: Array, v: Array, u_dot: Array) -> float:
     """``inputs`` given the terms at q (``terms``)."""
     n = theta.shape[0] - 1
@@ -216,7 +224,7 @@ def flag_state_given(K: Array, inertia: Array, h0: float, h: Array, grad: Array,
     u = np.empty(n - 1, dtype=y.dtype)
     _joints(y, y_dot, theta, u)
     sigma = _invert(K, inertia, h0, h, grad, y, y_dot, theta, u)
-    th_n_dot = _inputs_given(inertia, h0, h, grad, hess, slopes, theta, u, y_ddot, u_dot)
+    th_n_dot = inputs_given(inertia, h0, h, grad, hess, slopes, theta, u, y_ddot, u_dot)
     _rates(inertia, h0, grad, theta, u, y_dot, th_n_dot, theta_dot)
     return sigma
 

@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 from flatcli.core._jit import jitable, kernel
 from flatcli.core.chain import barycentric_matrix, chain_momentum_at, momentum_weights
-from flatcli.core.chainflat import inputs, outputs
+from flatcli.core.chainflat import inputs_given, outputs, outputs_given, terms
 from flatcli.core.integrate import WORK_ROWS, make_trial_integrators
 from flatcli.core.metrics import (
     ACCUMULATOR_SIZE,
@@ -79,11 +79,12 @@ def chain_rhs(loop: ChainLoop, x: Array, ref: Array, noise: Array, out: Array) -
     for i in range(n + 1):
         measured[i] = x[i] + noise[i]
     u = x[n + 1: 2 * n]
-    sigma = outputs(loop.Kc, loop.Ic, measured, u, y, y_dot)
+    h0, h_c, grad, hess, slopes = terms(loop.Kc, loop.Ic, measured)  # once for both maps
+    sigma = outputs_given(loop.Kc, loop.Ic, h0, h_c, grad, measured, u, y, y_dot)
     for j in range(n):
         v[j] = (ref[2 * n + j] + loop.kv[j] * (ref[n + j] - y_dot[j])
                 + loop.kp[j] * (ref[j] - y[j]))
-    command = inputs(loop.Kc, loop.Ic, measured, u, v, u_dot)
+    command = inputs_given(loop.Ic, h0, h_c, grad, hess, slopes, measured, u, v, u_dot)
     limit = loop.rate_limit
     momentum_weights(loop.Kq, loop.Iq, x[: n + 1], h)
     base = loop.h0
