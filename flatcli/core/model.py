@@ -409,8 +409,8 @@ def flatness_check(params: RobotParams) -> FlatnessCheck:
     if n > 2 and (zero_offset or zero_arm):
         why = "l0 = d0" if zero_offset else f"m1 d1 + (m2 + ... + m{n}) l1 = 0"
         failures.append(
-            f"{why} makes K_10 = m0 (l0 - d0)(m1 d1 + (m2 + ... + m{n}) l1) / M = 0: h_0 does "
-            f"not vary with th1, and flatcli's {n}-link planner, which scales the singularity "
+            f"{why} makes K_10 = m0 (l0 - d0)(m1 d1 + (m2 + ... + m{n}) l1) / M = 0: h_0 loses "
+            f"its cos(th1) term, and flatcli's {n}-link planner, which scales the singularity "
             "margin by K_10, cannot plan for it (the outputs may still be flat through "
             f"{'th2' if n == 3 else f'th2..th{n - 1}'})"
         )
