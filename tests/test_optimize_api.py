@@ -321,9 +321,16 @@ def test_chain_of_four_is_never_worse_than_its_start() -> None:
     """N = 4, cut short (few samples and iterations): whatever the solver reached, the plan is
     a valid plan of the chain, no worse than the starting guess."""
     result = optimize_chain(4, constraint_samples=41, max_iter=60)
-    check_chain_plan(result, 4)
+    s = check_chain_plan(result, 4)
     assert result.objective <= result.initial_objective
     assert len(result.start_rates) == len(result.goal_rates) == 3
+    # the energy recomputed by Simpson's rule on the dense samples
+    assert chain_energy(s) == pytest.approx(result.objective, rel=CHAIN_ENERGY_RTOL)
+    # 60 iterations cannot converge on 38 decision variables: the result says so, and what
+    # limited it
+    assert not result.success
+    assert "plan.optimize.max_iter = 60 iterations" in result.message
+    assert "not a converged optimum" in result.message
 
 
 @pytest.mark.parametrize(

@@ -96,6 +96,7 @@ def solve(problem: Problem, x: Array, limits: PlanLimits, max_iter: int) -> Solu
     least = (start.relative_violation, x)  # the least violating point, if none is feasible
     iterations = 0
     message = ""
+    status = 0
     converged = False
     for _ in range(tuning.exchange_rounds):
         problem.prepare(x)
@@ -113,6 +114,7 @@ def solve(problem: Problem, x: Array, limits: PlanLimits, max_iter: int) -> Solu
         iterations += int(result.nit)
         converged = bool(result.success)
         message = str(result.message)
+        status = int(result.status)
         x = np.asarray(result.x, dtype=float)
         found = assess(problem, x, limits)
         if found.feasible and (best is None or sign * found.objective < best[0]):
@@ -148,7 +150,30 @@ def solve(problem: Problem, x: Array, limits: PlanLimits, max_iter: int) -> Solu
     if chosen is not x:
         converged = False
         message += "; an earlier point was kept, better than the last round's plan"
+    if not converged and status != 0:
+        message += stop_note(status, max_iter, problem.nv)
     return Solution(chosen, iterations, problem.evaluations - evaluations, message, converged)
+
+
+def stop_note(status: int, max_iter: int, nv: int) -> str:
+    """What limited an unconverged solve, for its message: SLSQP's ``status`` in the last
+    round (9: its iteration limit; any other: its subproblem or line search broke down).
+
+    Observed on chains of N >= 4 joints (8 N + 2 (N - 1) decision variables with the default
+    basis): SLSQP crawls, its objective still falling by ~1e-6 relative per iteration after
+    thousands, in every round and for every objective; the plan kept is the best one seen that
+    meets the limits, but it is not a converged optimum.
+    """
+    if status == 9:
+        return (
+            f" (SLSQP stopped at plan.optimize.max_iter = {max_iter} iterations in its last "
+            f"exchange round, {nv} decision variables: the plan is the best found that meets "
+            "the limits, not a converged optimum; a larger max_iter may converge)"
+        )
+    return (
+        f" (SLSQP stopped without converging, status {status}, {nv} decision variables: the "
+        "plan is the best found that meets the limits, not a converged optimum)"
+    )
 
 
 def exchange_times(excess: Array, check: Array) -> Array:
@@ -173,4 +198,4 @@ def exchange_times(excess: Array, check: Array) -> Array:
     return np.unique(np.asarray(times, dtype=float))
 
 
-__all__ = ["Solution", "exchange_times", "solve"]
+__all__ = ["Solution", "exchange_times", "solve", "stop_note"]
