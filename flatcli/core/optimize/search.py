@@ -88,7 +88,7 @@ class Search:
         self.iterations = 0
         self.evaluations = 0
         self._curve0 = request.start_curve()
-        self._best: dict[tuple[Goal, PlanLimits], Candidate] = {}
+        self._best: dict[tuple[Goal, PlanLimits, bool], Candidate] = {}
 
     def start(self, goal: Goal, limits: PlanLimits) -> Candidate:
         """The starting guess as a plan of ``goal`` under ``limits``."""
@@ -96,14 +96,16 @@ class Search:
         x = problem.lift(self._curve0)
         return Candidate(problem, x, assess(problem, x, limits), False, "")
 
-    def best(self, goal: Goal, limits: PlanLimits) -> Candidate:
+    def best(self, goal: Goal, limits: PlanLimits, polish: bool = True) -> Candidate:
         """The best plan of ``goal`` under ``limits`` from the starts of the module
-        docstring ("Robustness"); the least violating one if none meets the limits."""
-        key = (goal, limits)
+        docstring ("Robustness"); the least violating one if none meets the limits.
+        ``polish``: let ``solver.solve`` polish unconverged chains' energy (False for the
+        least-energy plans other goals start from, which then stay as they were)."""
+        key = (goal, limits, polish)
         if key in self._best:
             return self._best[key]
         relaxed = limits.margin_only()
-        free = None if relaxed == limits else self.best(goal, relaxed)
+        free = None if relaxed == limits else self.best(goal, relaxed, polish)
         if free is not None:
             problem = self._problem(goal, limits)
             problem.adopt(free.problem)
@@ -114,9 +116,9 @@ class Search:
                 self._best[key] = found
                 return found
         starts = ([] if free is None else [free.curve]) + self._starts(goal, limits)
-        found = self.solve(goal, limits, starts[0])
+        found = self.solve(goal, limits, starts[0], polish)
         for curve in starts[1:]:
-            other = self.solve(goal, limits, curve)
+            other = self.solve(goal, limits, curve, polish)
             if other.beats(found) or (
                 not found.feasible
                 and other.assessment.relative_violation < found.assessment.relative_violation
@@ -125,15 +127,15 @@ class Search:
         self._best[key] = found
         return found
 
-    def solve(self, goal: Goal, limits: PlanLimits, curve: Array) -> Candidate:
+    def solve(self, goal: Goal, limits: PlanLimits, curve: Array, polish: bool = True) -> Candidate:
         """One ``solver.solve`` of ``goal`` under ``limits`` from a flat curve, counted."""
         problem = self._problem(goal, limits)
-        return self._run(problem, problem.lift(curve), limits)
+        return self._run(problem, problem.lift(curve), limits, polish)
 
     def least_violation(self, goal: Goal, limits: PlanLimits, found: Candidate) -> Candidate:
         """Phase 1, from the better of the starting guess and the least-energy plan
         under the margin alone; then ``goal`` again if the limits are met after all."""
-        relaxed = self.best("energy", limits.margin_only()).curve
+        relaxed = self.best("energy", limits.margin_only(), polish=False).curve
         phase = self.request.problem("violation", limits)
         cubic = phase.lift(self._curve0)
         start = min((phase.lift(relaxed), cubic), key=lambda x: float(x[-1]))
@@ -200,7 +202,7 @@ class Search:
         limits when it meets them ("peak_rate" then skips the starting guess)."""
         if goal not in ("peak_rate", "margin"):
             return [self._curve0]
-        energy = self.best("energy", limits)
+        energy = self.best("energy", limits, polish=False)
         if not energy.feasible:
             return [self._curve0]
         return [energy.curve] if goal == "peak_rate" else [self._curve0, energy.curve]
@@ -212,8 +214,10 @@ class Search:
         problem.normalise(assess(problem, x0, limits).objective)
         return problem
 
-    def _run(self, problem: Problem, x: Array, limits: PlanLimits) -> Candidate:
-        found = solve(problem, x, limits, self.max_iter)
+    def _run(
+        self, problem: Problem, x: Array, limits: PlanLimits, polish: bool = True
+    ) -> Candidate:
+        found = solve(problem, x, limits, self.max_iter, polish)
         self.iterations += found.iterations
         self.evaluations += found.evaluations
         here = assess(problem, found.x, limits)

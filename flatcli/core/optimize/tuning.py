@@ -53,6 +53,13 @@ class Tuning:
         [rad^2], peak rate or margin [rad/s]), so a zero objective never divides by 0
     gradient_floor : floor of a constraint row's gradient norm when rows are normalised
         (units of the row per unit of the decision vector)
+    polish_restarts, polish_iter : when the last exchange round of an energy or effort solve
+        on a chain of N >= 3 joints does not converge, SLSQP is restarted from the best plan
+        up to ``polish_restarts`` times, for at most ``polish_iter`` iterations each, in
+        coordinates whitened by the Gauss-Newton Hessian of the energy at the restart point
+        (``solver``) [-]
+    polish_floor : eigenvalues of that Hessian are floored at this fraction of the largest
+        before whitening [-]
     """
 
     solver_tol: float = 1e-10
@@ -72,6 +79,9 @@ class Tuning:
     big: float = 1e6
     scale_floor: float = 1e-12
     gradient_floor: float = 1e-8
+    polish_restarts: int = 40
+    polish_iter: int = 50
+    polish_floor: float = 1e-9
 
     def __post_init__(self) -> None:
         for f in fields(self):
