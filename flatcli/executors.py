@@ -103,6 +103,14 @@ class Executor(Protocol):
     def close(self, abort: bool = False) -> None: ...
 
 
+def _alive(process: Any) -> bool:
+    """Whether a pool's worker process is still running (False once it cannot be asked)."""
+    try:
+        return bool(process.is_alive())
+    except (OSError, ValueError, AssertionError):
+        return False
+
+
 def default_workers() -> int:
     """One worker per core this process may use."""
     try:
@@ -178,9 +186,14 @@ class LocalExecutor:
                 with contextlib.suppress(OSError, ValueError):
                     process.kill()
             pool.shutdown(wait=False, cancel_futures=True)
+            deadline = time.monotonic() + 5.0
             for process in processes:
                 with contextlib.suppress(OSError, ValueError, AssertionError):
                     process.join(timeout=5)
+            # the pool's own thread may reap a killed worker at the same moment (then our
+            # join returns before the exit status is recorded): wait until it is
+            while any(_alive(p) for p in processes) and time.monotonic() < deadline:
+                time.sleep(0.01)
             return
         pool.shutdown(wait=True, cancel_futures=True)
 
