@@ -81,6 +81,19 @@ def terms(K: Array, inertia: Array, theta: Array) -> tuple[float, Array, Array, 
 
 
 @jitable
+def _sums(h: Array, grad: Array, u: Array) -> tuple[float, float]:
+    """S = sum_{j<N} h_j u_j [kg m^2/s] and D = sum_{j<N} dh_0/dth_j u_j = dh_0/dt
+    [kg m^2/s] of the module docstring, from the weights h (N + 1,), grad h_0 (N,) and the
+    rates u (N - 1,)."""
+    s = 0.0
+    d = 0.0
+    for j in range(1, u.shape[0] + 1):
+        s += h[j] * u[j - 1]
+        d += grad[j - 1] * u[j - 1]
+    return s, d
+
+
+@jitable
 def outputs(K: Array, inertia: Array, theta: Array, u: Array, y: Array, y_dot: Array) -> float:
     """Forward map: state (theta (N + 1,), u (N - 1,)) -> y (N,) [rad], y' (N,) [rad/s],
     written; returns the signed margin sigma = -D / (2 K_10) [rad/s]."""
@@ -94,13 +107,10 @@ def outputs_given(K: Array, inertia: Array, h0: float, h: Array, grad: Array, th
     """``outputs`` given the terms at q (``terms``), so that a controller that needs both
     the outputs and the inputs at one state computes the trigonometry once."""
     n = theta.shape[0] - 1
-    s = 0.0
-    d = 0.0
     for j in range(1, n):
         y[j - 1] = theta[j]
         y_dot[j - 1] = u[j - 1]
-        s += h[j] * u[j - 1]
-        d += grad[j - 1] * u[j - 1]
+    s, d = _sums(h, grad, u)
     i_n = inertia[n]
     y[n - 1] = theta[0] + i_n * theta[n] / h0
     y_dot[n - 1] = -s / h0 - i_n * theta[n] * d / (h0 * h0)
@@ -134,11 +144,7 @@ def _invert(K: Array, inertia: Array, h0: float, h: Array, grad: Array, y: Array
     """th_N and th0 into theta from y, y' (theta's joints and u set), given the terms at q;
     returns sigma."""
     n = theta.shape[0] - 1
-    s = 0.0
-    d = 0.0
-    for j in range(1, n):
-        s += h[j] * u[j - 1]
-        d += grad[j - 1] * u[j - 1]
+    s, d = _sums(h, grad, u)
     i_n = inertia[n]
     theta[n] = -h0 * (s + y_dot[n - 1] * h0) / (i_n * d)
     theta[0] = y[n - 1] - i_n * theta[n] / h0
@@ -166,11 +172,7 @@ def inputs_given(inertia: Array, h0: float, h: Array, grad: Array, hess: Array,
                   slopes: Array, theta: Array, u: Array, v: Array, u_dot: Array) -> float:
     """``inputs`` given the terms at q (``terms``)."""
     n = theta.shape[0] - 1
-    s = 0.0
-    d = 0.0
-    for j in range(1, n):
-        s += h[j] * u[j - 1]
-        d += grad[j - 1] * u[j - 1]
+    s, d = _sums(h, grad, u)
     i_n = inertia[n]
     th_n = theta[n]
     inv = 1.0 / h0
