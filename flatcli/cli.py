@@ -519,32 +519,56 @@ def export(directory: Path, as_csv: bool, out: Path | None) -> None:
     click.echo("wrote " + ", ".join(str(p) for p in paths))
 
 
+#: The sections of ``flatcli reproduce`` (``flatcli.reproduce.SECTION_NAMES``; the CLI does
+#: not import the numerical libraries to list them).
+REPRODUCE_SECTIONS = ("paper", "optimized", "montecarlo", "actuators", "chains")
+
+
 @main.command()
 @out_option(Path("runs/paper"), "Output directory.")
 @click.option("--montecarlo", "montecarlo", type=click.Path(path_type=Path, dir_okay=False),
               help="Sweep spec of the Monte Carlo study [default: paper_montecarlo.toml, "
                    "shipped with flatcli].")
-@click.option("--no-montecarlo", is_flag=True, help="Skip the Monte Carlo study.")
-@workers_option("Worker processes for the study.")
+@click.option("--no-montecarlo", is_flag=True, help="Skip the Monte Carlo studies.")
+@click.option("--only", "only", multiple=True, type=click.Choice(REPRODUCE_SECTIONS),
+              help="Compute only this section (repeatable); the report keeps the others' "
+                   "last results.")
+@click.option("--force", is_flag=True,
+              help="Compute every section run again, even if its inputs and code are "
+                   "unchanged since it was last computed here.")
+@workers_option("Worker processes for the studies.")
 @set_option("Override a key of the studies' specs (Monte Carlo, actuators), repeatable.")
 @quiet_option()
-def reproduce(out: Path, montecarlo: Path | None, no_montecarlo: bool, workers: int | None,
-              sets: tuple[str, ...], quiet: bool) -> None:
-    """The paper's figures 2-4 and numbers, and the Monte Carlo study, with REPORT.md."""
+def reproduce(out: Path, montecarlo: Path | None, no_montecarlo: bool, only: tuple[str, ...],
+              force: bool, workers: int | None, sets: tuple[str, ...], quiet: bool) -> None:
+    """The paper's figures 2-4 and numbers, and the Monte Carlo studies, with REPORT.md.
+
+    A section whose inputs and code are unchanged since it was last computed into the
+    directory is reused (and says so); the headlines and the report's path are printed.
+    """
     from flatcli.reproduce import STUDY_SPEC
     from flatcli.reproduce import reproduce as run
 
     words = ["flatcli", "reproduce", "--out", str(out)]
     words += [] if montecarlo is None else ["--montecarlo", str(montecarlo)]
     words += ["--no-montecarlo"] if no_montecarlo else []
+    words += [w for name in only for w in ("--only", name)]
+    words += ["--force"] if force else []
     words += [] if workers is None else ["--workers", str(workers)]
     words += [w for item in sets for w in ("--set", item)]
     words += ["-q"] if quiet else []
     with user_errors():
         study = None if no_montecarlo else (montecarlo or STUDY_SPEC)
-        path = run(out, study, quiet, workers, sets, command=shlex.join(words))
-    if not quiet:
-        click.echo(path.read_text())
+        path, results = run(out, study, quiet, workers, sets, command=shlex.join(words),
+                            only=only, force=force)
+    if quiet:
+        return
+    reused = sum(r.reused for r in results)
+    click.echo(f"\n{path}: {len(results)} sections ({len(results) - reused} computed, "
+               f"{reused} reused)")
+    for result in results:
+        for text in result.headline:
+            click.echo(f"- {result.section.name}: {text}")
 
 
 if __name__ == "__main__":
