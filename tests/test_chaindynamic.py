@@ -32,7 +32,7 @@ from flatcli.core.chaindynamic import (
     chain_dynamic_state,
     make_scratch,
 )
-from flatcli.core.chainflat import inputs, outputs
+from flatcli.core.chainflat import inputs, outputs, scratch
 from flatcli.core.chainloop import ChainGains, chain_matrix
 from flatcli.core.chainplan import ChainPlan, plan_chain
 from flatcli.core.control import Gains
@@ -73,11 +73,13 @@ AGREE_ANGLES = 1e-7
 AGREE_COLUMNS = 1e-6
 #: The compiled plant against DOP853 at rtol 1e-12 on the numpy right-hand side, N = 4 with
 #: both limits clipping: at the default tolerances observed 7e-6 rad (in th_4, which turns
-#: 20 rad at up to 30 rad/s) and 1e-4 rad/s; at rtol 1e-10 (TIGHTER) 3e-10 rad and 2e-8
-#: rad/s: the gap is the compiled integrator's own error.
+#: 20 rad at up to 30 rad/s) and 1e-4 rad/s; at rtol 1e-10 (TIGHTER) 3e-10 to 2e-8 rad:
+#: the gap is the compiled integrator's own error, largest where a clipped rate or torque
+#: kinks the right-hand side, and there it depends on where the steps fall (two builds
+#: whose terms round differently in the last bit moved it from 3e-10 to 2e-8 rad).
 AGREE_WITH_DOP853 = 2e-5
 TIGHTER = {"rtol": 1e-10, "atol": 1e-13}
-AGREE_TIGHTER = 1e-8
+AGREE_TIGHTER = 1e-7
 #: The paper's start and u1(0) = its th1'(0) = 0.1 (paper, Sec. VI), and Fig. 4's start.
 ON_PLAN = (1.8, 1.0, 0.0, 0.1)
 FIG4 = (1.96, 0.8, -0.1, 0.1)
@@ -242,7 +244,7 @@ def loop_for(plan: ChainPlan, plant: RobotParams, servo_is_plant: bool, h0: floa
     return chain_dynamic_loop(plan.model.K, plan.model.inertia, np.full(n, kp), np.full(n, kv),
                               chain_matrix(params, n), params[nb:2 * nb].copy(),
                               servo_is_plant, params, h0, rate_limit, bandwidth, torque_limit,
-                              *make_scratch(n))
+                              *make_scratch(n), scratch(n))
 
 
 @pytest.mark.parametrize("n", [3, 5])

@@ -75,12 +75,18 @@ def barycentric_matrix(mass: Array, length: Array, com: Array) -> Array:
 
 
 @jitable
-def absolute_angles(theta: Array, out: Array) -> None:
-    """psi (N + 1,) from relative angles theta (N + 1,) [rad]: psi_a = th0 + ... + th_a."""
-    acc = 0.0
+def link_trig(theta: Array, cs: Array, sn: Array) -> None:
+    """cos and sin of every link's angle relative to the base, psi_a - psi_0 = th1 + ... +
+    th_a (0 for the base), into ``cs``, ``sn`` (N + 1,), from the relative angles theta
+    (N + 1,) [rad]: the one trigonometric evaluation the weights below need, since
+    cos(psi_a - psi_b) = cs_a cs_b + sn_a sn_b and sin(psi_a - psi_b) = sn_a cs_b - cs_a sn_b.
+    Relative to the base, so a large th0 costs no precision (th0 never enters)."""
+    acc = theta[0] * 0.0  # the dtype of theta (complex for complex steps)
     for a in range(theta.shape[0]):
-        acc += theta[a]
-        out[a] = acc
+        if a > 0:
+            acc += theta[a]
+        cs[a] = np.cos(acc)
+        sn[a] = np.sin(acc)
 
 
 @jitable
@@ -91,13 +97,23 @@ def momentum_weights(K: Array, inertia: Array, theta: Array, out: Array) -> None
     inertia matrix in absolute angles, summed over the bodies joint j moves.
     """
     n = theta.shape[0]
-    psi = np.empty(n, dtype=theta.dtype)
-    absolute_angles(theta, psi)
-    tail = 0.0
+    cs = np.empty(n, dtype=theta.dtype)
+    sn = np.empty(n, dtype=theta.dtype)
+    link_trig(theta, cs, sn)
+    momentum_weights_given(K, inertia, cs, sn, out)
+
+
+@jitable
+def momentum_weights_given(K: Array, inertia: Array, cs: Array, sn: Array, out: Array
+                           ) -> None:
+    """``momentum_weights`` given the links' trigonometry (``link_trig``)."""
+    n = cs.shape[0]
+    tail = cs[0] * 0.0
     for b in range(n - 1, -1, -1):
-        c = inertia[b]
+        c = inertia[b] + K[b, b]
         for a in range(n):
-            c += K[a, b] * np.cos(psi[a] - psi[b])
+            if a != b and K[a, b] != 0.0:
+                c += K[a, b] * (cs[a] * cs[b] + sn[a] * sn[b])
         tail += c
         out[b] = tail
 
@@ -112,9 +128,18 @@ def base_inertia_slopes(K: Array, inertia: Array, theta: Array, grad: Array, hes
     th_k exactly when b < k <= a.
     """
     n = theta.shape[0]
-    psi = np.empty(n, dtype=theta.dtype)
-    absolute_angles(theta, psi)
-    h0 = 0.0
+    cs = np.empty(n, dtype=theta.dtype)
+    sn = np.empty(n, dtype=theta.dtype)
+    link_trig(theta, cs, sn)
+    return base_inertia_slopes_given(K, inertia, cs, sn, grad, hess)
+
+
+@jitable
+def base_inertia_slopes_given(K: Array, inertia: Array, cs: Array, sn: Array, grad: Array,
+                              hess: Array) -> float:
+    """``base_inertia_slopes`` given the links' trigonometry (``link_trig``)."""
+    n = cs.shape[0]
+    h0 = cs[0] * 0.0
     for a in range(n):
         h0 += inertia[a] + K[a, a]
     grad[:] = 0.0
@@ -124,14 +149,14 @@ def base_inertia_slopes(K: Array, inertia: Array, theta: Array, grad: Array, hes
             k = K[a, b]
             if k == 0.0:
                 continue
-            c = np.cos(psi[a] - psi[b])
-            s = np.sin(psi[a] - psi[b])
+            c = cs[a] * cs[b] + sn[a] * sn[b]
+            s = sn[a] * cs[b] - cs[a] * sn[b]
             h0 += 2.0 * k * c
             for j in range(b + 1, a + 1):  # joints j = b+1..a, stored at j - 1
                 grad[j - 1] -= 2.0 * k * s
                 for m in range(b + 1, a + 1):
                     hess[j - 1, m - 1] -= 2.0 * k * c
-    return h0
+    return h0  # type: ignore[no-any-return]  # complex-safe
 
 
 @jitable
@@ -139,20 +164,30 @@ def weight_slopes(K: Array, theta: Array, out: Array) -> None:
     """d h_j / d th_k into ``out`` (N + 1, N): row j (body/joint 0..N), column k - 1 for the
     joint angles th_k, k = 1..N [kg m^2]."""
     n = theta.shape[0]
-    psi = np.empty(n, dtype=theta.dtype)
-    absolute_angles(theta, psi)
-    col = np.zeros((n, n - 1), dtype=theta.dtype)  # d c_b / d th_k
+    cs = np.empty(n, dtype=theta.dtype)
+    sn = np.empty(n, dtype=theta.dtype)
+    col = np.empty((n, n - 1), dtype=theta.dtype)
+    link_trig(theta, cs, sn)
+    weight_slopes_given(K, cs, sn, col, out)
+
+
+@jitable
+def weight_slopes_given(K: Array, cs: Array, sn: Array, col: Array, out: Array) -> None:
+    """``weight_slopes`` given the links' trigonometry (``link_trig``) and the scratch
+    ``col`` (N + 1, N)."""
+    n = cs.shape[0]
+    col[:, :] = 0.0  # d c_b / d th_k
     for b in range(n):
         for a in range(n):
             if a == b or K[a, b] == 0.0:
                 continue
-            s = np.sin(psi[a] - psi[b])
+            s = sn[a] * cs[b] - cs[a] * sn[b]  # sin(psi_a - psi_b)
             lo, hi = (b, a) if a > b else (a, b)
             sign = 1.0 if a > b else -1.0  # d(psi_a - psi_b)/d th_k for lo < k <= hi
             for k in range(lo + 1, hi + 1):
                 col[b, k - 1] -= K[a, b] * s * sign
     for k in range(n - 1):
-        tail = 0.0
+        tail = cs[0] * 0.0
         for b in range(n - 1, -1, -1):
             tail += col[b, k]
             out[b, k] = tail

@@ -44,7 +44,14 @@ from numpy.typing import NDArray
 
 from flatcli.core._jit import jitable, kernel
 from flatcli.core.chain import chain_momentum_at
-from flatcli.core.chainflat import inputs_given, outputs, outputs_given, terms
+from flatcli.core.chainflat import (
+    Scratch,
+    first_terms_into,
+    inputs_given,
+    outputs_given,
+    scratch_like,
+    terms_into,
+)
 from flatcli.core.chainloop import chain_matrix, plan_residual
 from flatcli.core.dynamics import (
     TRIG_ROWS,
@@ -100,7 +107,7 @@ class ChainDynamicLoop(NamedTuple):
     h0 : the plant's angular momentum [kg m^2/s]; rate_limit : joint-rate limit [rad/s]
     bandwidth : servo bandwidth [rad/s]; torque_limit : joint-torque limit [N m] (inf: none)
     buffers : (BUFFER_ROWS, N + 1), trig : (TRIG_ROWS, N + 1), matrices : (MATRICES, N + 1,
-        N + 1) scratch of the right-hand side
+        N + 1) scratch of the right-hand side; work : the flat maps' (``chainflat.Scratch``)
     """
 
     Kc: Array
@@ -118,6 +125,7 @@ class ChainDynamicLoop(NamedTuple):
     buffers: Array
     trig: Array
     matrices: Array
+    work: Scratch
 
 
 @jitable
@@ -137,7 +145,7 @@ def _same_chain(a: Chain, b: Chain) -> bool:
 def chain_dynamic_loop(
     Kc: Array, Ic: Array, kp: Array, kv: Array, Kq: Array, Iq: Array, servo_is_plant: bool,
     params: Array, h0: float, rate_limit: float, bandwidth: float, torque_limit: float,
-    buffers: Array, trig: Array, matrices: Array,
+    buffers: Array, trig: Array, matrices: Array, work: Scratch,
 ) -> ChainDynamicLoop:
     """A ``ChainDynamicLoop`` for a plant (its K ``Kq`` and inertias ``Iq``) and a servo
     model: the plant (``servo_is_plant``) or the controller's nominal chain (Kc, Ic)."""
@@ -145,7 +153,7 @@ def chain_dynamic_loop(
     servo = plant if servo_is_plant else Chain(Kc, Ic)
     same = servo_is_plant or _same_chain(plant, servo)
     return ChainDynamicLoop(Kc, Ic, kp, kv, plant, servo, same, params, h0, rate_limit,
-                            bandwidth, torque_limit, buffers, trig, matrices)
+                            bandwidth, torque_limit, buffers, trig, matrices, work)
 
 
 @jitable
@@ -156,7 +164,9 @@ def _commands(loop: ChainDynamicLoop, measured: Array, u: Array, ref: Array) -> 
     n = loop.Ic.shape[0] - 1
     buf = loop.buffers
     y, y_dot, v, r = buf[_Y, :n], buf[_Y_DOT, :n], buf[_V, :n], buf[_R, :n]
-    h0, h_c, grad, hess, slopes = terms(loop.Kc, loop.Ic, measured)  # once for both maps
+    work = loop.work
+    h0 = terms_into(loop.Kc, loop.Ic, measured, work)  # once for both maps
+    h_c, grad, hess, slopes = work.h, work.grad, work.hess, work.slopes
     sigma = outputs_given(loop.Kc, loop.Ic, h0, h_c, grad, measured, u, y, y_dot)
     for j in range(n):
         v[j] = (ref[2 * n + j] + loop.kv[j] * (ref[n + j] - y_dot[j])
@@ -303,7 +313,10 @@ def _observe(loop: ChainDynamicLoop, obs: Any, acc: Array, j: int, x: Array, f: 
     for i in range(nb):
         d = x[i] - theta_ref[j, i]
         et2 += d * d
-    sigma = outputs(loop.Kc, loop.Ic, x[:nb], x[2 * nb: nx], y, y_dot)
+    work = loop.work
+    h0 = first_terms_into(loop.Kc, loop.Ic, x[:nb], work)
+    sigma = outputs_given(loop.Kc, loop.Ic, h0, work.h, work.grad, x[:nb], x[2 * nb: nx], y,
+                          y_dot)
     ey2 = 0.0
     for i in range(n):
         e = y[i] - ref[2 * j, i]
@@ -373,11 +386,12 @@ def chain_dynamic_kernel(
     buffers = np.zeros((BUFFER_ROWS, nb))
     trig = np.zeros((TRIG_ROWS, nb))
     matrices = np.zeros((MATRICES, nb, nb))
+    maps = scratch_like(Ic)
     for i in range(params.shape[0]):
         p = params[i]
         loop = chain_dynamic_loop(Kc, Ic, kp, kv, Kq[i], Iq[i], servo_is_plant, p, h0[i],
                                   rate_limit, servo[i, 0], servo[i, 1], buffers, trig,
-                                  matrices)
+                                  matrices, maps)
         chain_dynamic_initial(loop, initial[i], ref[0], x0)
         reset_accumulator(acc)
         tr = trace[i] if record else scratch

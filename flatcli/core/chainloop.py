@@ -22,8 +22,20 @@ import numpy as np
 from numpy.typing import NDArray
 
 from flatcli.core._jit import jitable, kernel
-from flatcli.core.chain import barycentric_matrix, chain_momentum_at, momentum_weights
-from flatcli.core.chainflat import inputs_given, outputs, outputs_given, terms
+from flatcli.core.chain import (
+    barycentric_matrix,
+    chain_momentum_at,
+    link_trig,
+    momentum_weights_given,
+)
+from flatcli.core.chainflat import (
+    Scratch,
+    first_terms_into,
+    inputs_given,
+    outputs_given,
+    scratch_like,
+    terms_into,
+)
 from flatcli.core.integrate import WORK_ROWS, make_trial_integrators
 from flatcli.core.metrics import (
     ACCUMULATOR_SIZE,
@@ -45,6 +57,7 @@ class ChainLoop(NamedTuple):
         length, com side by side (for H from the full kinematics)
     h0 : the plant's angular momentum [kg m^2/s]; rate_limit : joint-rate limit [rad/s]
     buffers : (6, N + 1) scratch rows for the right-hand side
+    work : the flat maps' scratch (``chainflat.Scratch``)
     """
 
     Kc: Array
@@ -57,6 +70,7 @@ class ChainLoop(NamedTuple):
     h0: float
     rate_limit: float
     buffers: Array
+    work: Scratch
 
 
 @jitable
@@ -79,14 +93,17 @@ def chain_rhs(loop: ChainLoop, x: Array, ref: Array, noise: Array, out: Array) -
     for i in range(n + 1):
         measured[i] = x[i] + noise[i]
     u = x[n + 1: 2 * n]
-    h0, h_c, grad, hess, slopes = terms(loop.Kc, loop.Ic, measured)  # once for both maps
+    work = loop.work
+    h0 = terms_into(loop.Kc, loop.Ic, measured, work)  # once for both maps
+    h_c, grad, hess, slopes = work.h, work.grad, work.hess, work.slopes
     sigma = outputs_given(loop.Kc, loop.Ic, h0, h_c, grad, measured, u, y, y_dot)
     for j in range(n):
         v[j] = (ref[2 * n + j] + loop.kv[j] * (ref[n + j] - y_dot[j])
                 + loop.kp[j] * (ref[j] - y[j]))
     command = inputs_given(loop.Ic, h0, h_c, grad, hess, slopes, measured, u, v, u_dot)
     limit = loop.rate_limit
-    momentum_weights(loop.Kq, loop.Iq, x[: n + 1], h)
+    link_trig(x[: n + 1], work.cs, work.sn)  # the plant's own angles
+    momentum_weights_given(loop.Kq, loop.Iq, work.cs, work.sn, h)
     base = loop.h0
     for j in range(1, n):
         rate = min(max(x[n + j], -limit), limit)
@@ -116,7 +133,11 @@ def _observe_chain(loop: ChainLoop, obs: Any, acc: Array, j: int, x: Array, f: A
     for i in range(n + 1):
         d = x[i] - theta_ref[j, i]
         et2 += d * d
-    sigma = outputs(loop.Kc, loop.Ic, x[: n + 1], x[n + 1: 2 * n], y, y_dot)
+    work = loop.work
+    theta = x[: n + 1]
+    h0 = first_terms_into(loop.Kc, loop.Ic, theta, work)
+    sigma = outputs_given(loop.Kc, loop.Ic, h0, work.h, work.grad, theta, x[n + 1: 2 * n], y,
+                          y_dot)
     ey2 = 0.0
     for i in range(n):
         e = y[i] - ref[2 * j, i]
@@ -166,9 +187,11 @@ def chain_kernel(
     scratch = np.empty((0, nx + nb))
     obs = (theta_ref, ref, threshold)
     buffers = np.zeros((6, nb))
+    maps = scratch_like(Ic)
     for i in range(params.shape[0]):
         p = params[i]
-        loop = ChainLoop(Kc, Ic, kp, kv, Kq[i], p[nb: 2 * nb], p, h0[i], rate_limit, buffers)
+        loop = ChainLoop(Kc, Ic, kp, kv, Kq[i], p[nb: 2 * nb], p, h0[i], rate_limit, buffers,
+                         maps)
         reset_accumulator(acc)
         tr = trace[i] if record else scratch
         if method == 0:
