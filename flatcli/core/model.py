@@ -441,10 +441,11 @@ def require_flat(params: RobotParams) -> None:
     apply to the design (flatcli plans with them only)."""
     check = flatness_check(params)
     if not check.is_flat:
-        what = ("robot is not differentially flat (every h_j is constant: the momentum "
-                "constraint integrates)" if not check.controllable
-                else "flatcli cannot plan for this design (flat, but not with the closed-form "
-                "outputs)" if check.unsupported
-                else "the paper's flat outputs do not apply (the robot is flat, with outputs "
-                "not known in closed form)")
-        raise FlatcliError(f"{what}: {check.message()}")
+        what, tail = (
+            ("robot is not differentially flat", "every h_j is constant: the momentum "
+             "constraint integrates") if not check.controllable
+            else ("flatcli cannot plan for this design", "the robot is still controllable, "
+                  "hence flat, but not with the closed-form outputs") if check.unsupported
+            else ("the paper's flat outputs do not apply", "the robot is still controllable, "
+                  "hence flat, with outputs not known in closed form"))
+        raise FlatcliError(f"{what}: {check.message()}; {tail}")
