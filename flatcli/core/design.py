@@ -219,11 +219,14 @@ def wedge(robot: RobotParams, theta: Array) -> Array:
     (..., C) [kg^2 m^4 / rad^3], C = (N + 1) N (N - 1) / 6, in the order of
     ``wedge_components``: h_i F_jk - h_j F_ik + h_k F_ij, F_jk = dh_k/dth_j - dh_j/dth_k
     """
-    h = constraint_form(robot, theta)
-    slopes = form_slopes(robot, theta)
+    return _wedge_of(constraint_form(robot, theta), form_slopes(robot, theta))
+
+
+def _wedge_of(h: Array, slopes: Array) -> Array:
+    """``wedge`` from h (..., N + 1) and slopes (..., N + 1, N + 1)."""
     curl = np.swapaxes(slopes, -1, -2) - slopes  # F[..., j, k] = dh_k/dth_j - dh_j/dth_k
     out = [h[..., i] * curl[..., j, k] - h[..., j] * curl[..., i, k] + h[..., k] * curl[..., i, j]
-           for i, j, k in wedge_components(robot.n_joints)]
+           for i, j, k in wedge_components(h.shape[-1] - 1)]
     return np.stack(out, axis=-1)
 
 
@@ -251,7 +254,8 @@ def design_verdict(robot: RobotParams, samples: int = SAMPLES,
     mass, inertia, length, com = _arrays(robot)
     scale = inertia_scale(mass, inertia, length, com)
     theta = sample_configurations(n, samples)
-    values = np.abs(wedge(robot, theta)) / scale**2
+    h, slopes = constraint_form(robot, theta), form_slopes(robot, theta)
+    values = np.abs(_wedge_of(h, slopes)) / scale**2
     where = np.unravel_index(int(np.argmax(values)), values.shape)
     top = float(values[where])
     at = tuple(float(v) for v in theta[where[0]])
@@ -265,8 +269,7 @@ def design_verdict(robot: RobotParams, samples: int = SAMPLES,
                          tolerance=rtol, samples=samples, scale=scale, k10=k10, conserved=None)
     check = flatness_check(robot)
     if top <= rtol:
-        constant = np.abs(form_slopes(robot, theta)).max() / scale <= rtol
-        weights = constraint_form(robot, theta).mean(axis=0) if constant else None
+        weights = h.mean(axis=0) if np.abs(slopes).max() / scale <= rtol else None
         reasons = [f"w ^ dw = 0: {found}: ker w is integrable, the robot is not "
                    "controllable, hence not flat", _impossible(weights), *check.failures]
         return replace(base, reasons=tuple(reasons), conserved=None if weights is None
