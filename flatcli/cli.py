@@ -32,12 +32,16 @@ import click
 from flatcli import __version__
 
 if TYPE_CHECKING:  # the core loads numba: imported where a command needs it
-    from flatcli.core.model import FlatnessCheck, RobotParams
+    from flatcli.core.design import DesignVerdict
+    from flatcli.core.model import RobotParams
 
 F = TypeVar("F", bound=Callable[..., Any])
 
 EXIT_USAGE = 2
 EXIT_RUNTIME = 1
+#: ``flatcli design``'s exit status per verdict of ``flatcli.core.design.VERDICTS`` (bad input
+#: is EXIT_USAGE, 2): 0 closed-form outputs, 1 flat without them, 3 not flat.
+DESIGN_EXIT = {"closed_form": 0, "flat": 1, "not_flat": 3}
 RESUME_HINT = "finished chunks are kept in {}/trials; run the same command again to resume"
 #: ``flatcli.core.optimize.OBJECTIVES`` and ``flatcli.executors.EXECUTORS``, spelled out here
 #: so that ``--help`` need not import the numerical core (tests/test_cli.py checks they agree).
@@ -284,12 +288,15 @@ def track(spec: Path | None, sets: tuple[str, ...], out: Path | None, force: boo
 @spec_argument()
 @set_option()
 def design(spec: Path | None, sets: tuple[str, ...]) -> None:
-    """Check whether the paper's flat outputs apply to a design; print its coefficients.
+    """Is the design flat, and do the closed-form flat outputs apply? Prints its constraint
+    coefficients (N = 2) or barycentric matrix (N >= 3) and the verdict with its reasons.
 
-    Exit status 0 when they apply (flatcli can plan for it), 1 when they do not.
+    Exit status (the robot's verdict): 0 closed_form (flatcli plans it), 1 flat (outputs not
+    known in closed form), 3 not_flat (the constraint integrates), 2 bad input.
     """
     from flatcli import api
-    from flatcli.core.model import constraint_coefficients, flatness_check
+    from flatcli.core.design import design_verdict
+    from flatcli.core.model import constraint_coefficients
     from flatcli.experiment import checked, plant_from, robot_from
     from flatcli.report import table
 
@@ -297,7 +304,6 @@ def design(spec: Path | None, sets: tuple[str, ...]) -> None:
         s = api.load_spec(spec, sets)
         robot = robot_from(s)
         plant = plant_from(s)
-    check = flatness_check(robot)
     if robot.n_joints == 2:
         k = constraint_coefficients(robot.links, checked(s.robot.model))
         rows = [[name, float(v)] for name, v in zip(k._fields, k, strict=True)]
@@ -305,10 +311,11 @@ def design(spec: Path | None, sets: tuple[str, ...]) -> None:
         click.echo(table(["coefficient", "value"], rows, 6))
     else:
         click.echo(chain_constants(s.name, robot))
-    click.echo(design_verdict("robot", check, robot.n_joints))
+    verdict = design_verdict(robot)
+    click.echo(verdict_lines("robot", verdict))
     if plant != robot:
-        click.echo(design_verdict("plant", flatness_check(plant), plant.n_joints))
-    sys.exit(0 if check.is_flat else 1)
+        click.echo(verdict_lines("plant", design_verdict(plant)))
+    sys.exit(DESIGN_EXIT[verdict.verdict])
 
 
 def chain_constants(name: str, robot: RobotParams) -> str:
@@ -325,21 +332,13 @@ def chain_constants(name: str, robot: RobotParams) -> str:
                       f"K_10 = {model.K[1, 0]:.6g} kg m^2, I{n} = {model.inertia[n]:.6g} kg m^2"])
 
 
-def design_verdict(what: str, check: FlatnessCheck, joints: int = 2) -> str:
-    """One line: do the paper's flat outputs (or their N-link generalisation) apply, and if
-    not, is the design still flat."""
-    if check.is_flat and joints == 2:
-        return (f"{what}: flat with the paper's outputs (d2 = 0, c0 a1 != 0); singular where "
-                "sin th1 = 0 or th1' = 0")
-    if check.is_flat:
-        return (f"{what}: flat with the outputs y_j = th_j (j < {joints}), y{joints} = th0 + "
-                f"I{joints} th{joints} / h_0(q) (d{joints} = 0, K_10 != 0); singular where "
-                "dh_0/dt = 0")
-    if check.unsupported:
-        return f"{what}: flatcli cannot plan for it: {check.message()}"
-    if check.controllable:
-        return f"{what}: flat, but the paper's outputs do not apply: {check.message()}"
-    return f"{what}: not flat: {check.message()}"
+def verdict_lines(what: str, verdict: DesignVerdict) -> str:
+    """``what: <verdict>: <headline>``, then one indented line per reason and the numbers of
+    the K_10 test."""
+    lines = [f"{what}: {verdict.verdict}: {verdict.headline}"]
+    lines += [f"  {what}: {reason}" for reason in verdict.reasons]
+    lines.append(f"  {what}: {verdict.numbers()}")
+    return "\n".join(lines)
 
 
 @main.command()

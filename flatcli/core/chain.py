@@ -74,6 +74,26 @@ def barycentric_matrix(mass: Array, length: Array, com: Array) -> Array:
     return out
 
 
+def inertia_scale(mass: Array, inertia: Array, length: Array, com: Array) -> float:
+    """J = sum_a (I_a + sum_i m_i L_ia^2) [kg m^2]: the chain's own inertia scale.
+
+    sum_i m_i L_ia^2 = m_a d_a^2 + (m_a+1 + ... + m_N) l_a^2 bounds K_aa, so
+    |K_ab| <= sqrt(K_aa K_bb) <= J and sum_a I_a + trace K <= J: a coupling K_ab is small
+    when |K_ab| / J is (the design checks, ``model.flatness_check`` and ``design``, use it as
+    their scale). l_N does not enter.
+
+    Parameters
+    ----------
+    mass, inertia, length, com : (N + 1,) [kg, kg m^2, m, m]
+
+    Returns
+    -------
+    J : float [kg m^2], > 0 for any valid robot (every inertia > 0)
+    """
+    lever = lever_arms(np.asarray(length, dtype=float), np.asarray(com, dtype=float))
+    return float(np.sum(inertia) + np.asarray(mass, dtype=float) @ np.sum(lever**2, axis=1))
+
+
 @jitable
 def link_trig(theta: Array, cs: Array, sn: Array) -> None:
     """cos and sin of every link's angle relative to the base, psi_a - psi_0 = th1 + ... +

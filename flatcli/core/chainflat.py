@@ -30,8 +30,9 @@ The *signed margin* is sigma = -D / (2 K_10) [rad/s]: for N = 2 exactly the pape
 sin(th1) th1'. The outputs need I_N != 0 and h_0 not constant. K_10 = m0 (l0 - d0)(m1 d1 +
 (m2 + ... + mN) l1) / M; flatcli normalises the margin by it and so plans for K_10 != 0 only
 (the paper's conditions m0 != 0, l0 != d0, m1 d1 + m2 l1 != 0, generalised). For N >= 3 a
-design with K_10 = 0 keeps h_0 varying through the K_ab of the outer links and may still be
-flat; flatcli reports it as unsupported (``model.flatness_check``).
+design with K_10 = 0 is flat when another K_ab (a != b) couples the links (h_0 then still
+varies) and not flat when K is diagonal (``design``); flatcli reports it as unsupported
+(``model.flatness_check``).
 
 Functions take the controller's K (``chain.barycentric_matrix``) and inertias, angles
 (N + 1,) and rates (N - 1,) as 1-D arrays, write into output arrays, and are compiled into
