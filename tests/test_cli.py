@@ -349,7 +349,7 @@ def test_compile_notice_only_on_a_cold_cache(tmp_path: Path,
     assert announce_compile(False, stream) is True
     assert stream.getvalue() == COMPILING + "\n"
     assert announce_compile(True, stream) is True and stream.getvalue().count("\n") == 1
-    index = tmp_path / "core_0123" / "paperloop._kinematic_kernel-124.py311.nbi"
+    index = tmp_path / "core_0123" / "kernels.paper_kinematic_batch-124.py311.nbi"
     index.parent.mkdir()
     index.write_bytes(b"")
     stream = io.StringIO()

@@ -72,6 +72,7 @@ class Scratch(NamedTuple):
     hess: Array  # (N, N) its Hessian
     col: Array  # (N + 1, N) d c_b / d th_k (scratch of the slopes)
     slopes: Array  # (N + 1, N) d h_j / d th_k
+    at: Array  # (N + 3,) the angles they were last computed at, 1.0 (0.0: none), h_0
 
 
 def scratch(n: int, dtype: type = float) -> Scratch:
@@ -80,7 +81,7 @@ def scratch(n: int, dtype: type = float) -> Scratch:
     return Scratch(np.zeros(nb, dtype=dtype), np.zeros(nb, dtype=dtype),
                    np.zeros(nb, dtype=dtype), np.zeros(n, dtype=dtype),
                    np.zeros((n, n), dtype=dtype), np.zeros((nb, n), dtype=dtype),
-                   np.zeros((nb, n), dtype=dtype))
+                   np.zeros((nb, n), dtype=dtype), np.zeros(nb + 2, dtype=dtype))
 
 
 @jitable
@@ -92,14 +93,44 @@ def scratch_like(theta: Array) -> Scratch:
     return Scratch(np.empty(nb, dtype=dtype), np.empty(nb, dtype=dtype),
                    np.empty(nb, dtype=dtype), np.empty(n, dtype=dtype),
                    np.empty((n, n), dtype=dtype), np.empty((nb, n), dtype=dtype),
-                   np.empty((nb, n), dtype=dtype))
+                   np.empty((nb, n), dtype=dtype), np.zeros(nb + 2, dtype=dtype))
 
 
 @jitable
 def first_terms_into(K: Array, inertia: Array, theta: Array, work: Scratch) -> float:
-    """h_0 returned; the weights h (N + 1,), grad h_0 (N,) and its Hessian (N, N) at theta
-    written into ``work`` (what the forward map needs)."""
+    """h_0 returned; the links' trigonometry (``chain.link_trig``), the weights h (N + 1,),
+    grad h_0 (N,) and its Hessian (N, N) at theta written into ``work`` (what the forward
+    map needs)."""
     link_trig(theta, work.cs, work.sn)
+    h0 = first_terms_given(K, inertia, work)
+    nb = theta.shape[0]
+    for a in range(nb):
+        work.at[a] = theta[a]
+    work.at[nb] = 1.0
+    work.at[nb + 1] = h0
+    return h0
+
+
+@jitable
+def first_terms_at(K: Array, inertia: Array, theta: Array, work: Scratch) -> float:
+    """``first_terms_into`` unless ``work`` already holds the terms at exactly these angles
+    (the right-hand side's, at the state an output sample then observes); returns h_0."""
+    nb = theta.shape[0]
+    if work.at[nb] == 1.0:
+        same = True
+        for a in range(nb):
+            if work.at[a] != theta[a]:
+                same = False
+                break
+        if same:
+            return work.at[nb + 1]  # type: ignore[no-any-return]
+    return first_terms_into(K, inertia, theta, work)
+
+
+@jitable
+def first_terms_given(K: Array, inertia: Array, work: Scratch) -> float:
+    """``first_terms_into`` with the links' trigonometry already in ``work.cs``,
+    ``work.sn``."""
     momentum_weights_given(K, inertia, work.cs, work.sn, work.h)
     return base_inertia_slopes_given(K, inertia, work.cs, work.sn, work.grad, work.hess)
 
