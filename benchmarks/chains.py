@@ -15,10 +15,10 @@ from typing import Any, Literal
 
 import numpy as np
 
-from flatcli.core.chainloop import ChainGains
-from flatcli.core.chainplan import plan_chain
+from flatcli.core.control import Gains
 from flatcli.core.metrics import Metric
 from flatcli.core.model import RobotParams
+from flatcli.core.planning import plan_chain
 from flatcli.core.simulate import Scenario, Trials, simulate
 
 JOINTS = (2, 3, 4, 6)
@@ -41,7 +41,7 @@ def scenario_and_trials(n: int, count: int, plant: Literal["kinematic", "dynamic
     goal = np.r_[0.4, 2.0, np.full(n - 1, 0.6)]
     start[-1] = goal[-1] = 0.0
     plan = plan_chain(r, start, goal, np.full(n - 1, 0.3), np.full(n - 1, 0.5), 2.0)
-    sc = Scenario(plan, ChainGains((100.0,) * n, (20.0,) * n), 1e-3, plant=plant).prepared()
+    sc = Scenario(plan, Gains((100.0,) * n, (20.0,) * n), 1e-3, plant=plant).prepared()
     rng = np.random.default_rng(n)
     initial = np.hstack([start + rng.normal(0.0, 0.01, (count, n + 1)),
                          0.3 + rng.normal(0.0, 0.005, (count, n - 1))])

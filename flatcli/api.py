@@ -31,10 +31,9 @@ from typing import TYPE_CHECKING, Any, TextIO
 
 import pandas as pd
 
-from flatcli.core.chainplan import Plan
 from flatcli.core.model import FlatcliError
 from flatcli.core.optimize import OptimizeResult
-from flatcli.core.planning import PlanSamples
+from flatcli.core.planning import Plan, PlanSamples
 from flatcli.experiment import TrackRun, plan_and_optimization, run_track
 from flatcli.outputs import plan_frame, write_track
 from flatcli.report import (

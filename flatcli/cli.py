@@ -321,7 +321,7 @@ def design(spec: Path | None, sets: tuple[str, ...]) -> None:
 def chain_constants(name: str, robot: RobotParams) -> str:
     """The constants of an N-link robot's momentum: the barycentric matrix K [kg m^2] (H =
     sum_ab (K_ab cos(psi_a - psi_b) + I_a delta_ab) psi_a' psi_b') and I_N."""
-    from flatcli.core.chainplan import ChainModel
+    from flatcli.core.flatmodel import ChainModel
     from flatcli.report import table
 
     model = ChainModel.of(robot)

@@ -13,16 +13,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from flatcli.core.basis import Basis, BSplineBasis, PolynomialBasis
-from flatcli.core.chain import chain_momentum
-from flatcli.core.chainflat import outputs as chain_outputs
-from flatcli.core.chainloop import ChainGains
-from flatcli.core.chainplan import Plan, plan_chain
 from flatcli.core.control import Gains
-from flatcli.core.flatness import flat_outputs, singularity_margin
 from flatcli.core.metrics import COUNT_METRICS, METRIC_NAMES, describe_status
-from flatcli.core.model import RobotParams, momentum
+from flatcli.core.model import RobotParams
 from flatcli.core.optimize import DEFAULT_BSPLINE_DEGREE, OptimizeResult, PlanLimits, optimize_plan
-from flatcli.core.planning import FlatPlan, plan_point_to_point
+from flatcli.core.planning import Plan, plan_point_to_point
 from flatcli.core.simulate import (
     NoiseStreams,
     Outcome,
@@ -86,8 +81,7 @@ def joint_rates(value: float | tuple[float, ...], joints: int) -> Array:
 def plan_and_optimization(spec: Spec) -> tuple[Plan, OptimizeResult | None]:
     """The reference plan of a spec, and the optimiser's report when it optimised one.
 
-    The paper's robot (N = 2) is planned by ``planning`` (``FlatPlan``), a robot of more
-    joints by ``chainplan`` (``ChainPlan``).
+    One planner for every N (``planning.plan_point_to_point``, or the optimiser).
     """
     robot = robot_from(spec)
     p, opt = spec.plan, spec.plan.optimize
@@ -102,14 +96,8 @@ def plan_and_optimization(spec: Spec) -> tuple[Plan, OptimizeResult | None]:
     start_rate = joint_rates(p.start_rate, joints)
     goal_rate = joint_rates(p.goal_rate, joints)
     if opt.objective is None:
-        if joints > 2:
-            return plan_chain(robot, start, goal, start_rate, goal_rate, p.duration,
-                              basis_from(spec)), None
-        plan = plan_point_to_point(
-            robot, start, goal, float(start_rate[0]), float(goal_rate[0]), p.duration, model,
-            basis_from(spec),
-        )
-        return plan, None
+        return plan_point_to_point(robot, start, goal, start_rate, goal_rate, p.duration, model,
+                                   basis_from(spec)), None
     result = optimize_plan(
         robot, start, goal, p.duration,
         model=model,
@@ -134,11 +122,11 @@ def plan_from(spec: Spec) -> Plan:
     return plan_and_optimization(spec)[0]
 
 
-def flat_plan_from(spec: Spec) -> FlatPlan:
+def flat_plan_from(spec: Spec) -> Plan:
     """``plan_from`` where the paper's robot (N = 2) is required: its analyses (the fold,
     the actuators, the findings) are about that robot."""
     plan = plan_from(spec)
-    if not isinstance(plan, FlatPlan):
+    if plan.n_joints != 2:
         raise SpecError(f"robot.mass: this needs the paper's robot (3 links, 2 joints), got "
                         f"{spec.joints + 1} links")
     return plan
@@ -149,7 +137,7 @@ def scenario_from(spec: Spec, plan: Plan) -> Scenario:
     kp, kv = track.kp, track.kv
     return Scenario(
         plan=plan,
-        gains=Gains(kp[0], kp[1], kv[0], kv[1]) if spec.joints == 2 else ChainGains(kp, kv),
+        gains=Gains(kp, kv),
         dt=track.dt,
         rate_limit=track.rate_limit,
         singular_threshold=track.singular_threshold,
@@ -273,25 +261,11 @@ class TrackRun:
         """y (n, N) of the true state with the controller's flat map, the controller's
         margin (n,) and the plant's H (n,) from its full link kinematics."""
         plant = plant_from(self.spec)
-        plan = self.plan
+        model = self.plan.model
+        y, _, sigma = model.outputs(theta, u)
         with np.errstate(all="ignore"):
-            if isinstance(plan, FlatPlan):
-                y1, y2, _, _ = flat_outputs(plan.coefficients, theta[:, 0], theta[:, 1],
-                                            theta[:, 2], u[:, 0])
-                margin = singularity_margin(theta[:, 1], u[:, 0])
-                H = momentum(plant.links, *theta.T, *rates.T)
-                return np.column_stack([y1, y2]), np.asarray(margin), np.asarray(H)
-            n = plan.n_joints
-            y = np.full((len(theta), n), np.nan)
-            margin = np.full(len(theta), np.nan)
-            y_dot = np.empty(n)
-            for k in range(len(theta)):
-                if np.isfinite(theta[k]).all() and np.isfinite(u[k]).all():
-                    margin[k] = abs(chain_outputs(plan.model.K, plan.model.inertia, theta[k],
-                                                  u[k], y[k], y_dot))
-            p = plant.as_array().reshape(4, n + 1)
-            H = chain_momentum(p[0], p[1], p[2], p[3], theta, rates)
-        return y, margin, np.asarray(H)
+            H = model.momentum(plant, theta, rates)
+        return y, np.abs(sigma), np.asarray(H)
 
 
 def run_track(spec: Spec) -> TrackRun:

@@ -23,7 +23,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from flatcli.core.control import Gains
 from flatcli.core.model import PAPER_ROBOT, Model, RobotParams
-from flatcli.core.planning import Basis, FlatPlan, plan_point_to_point
+from flatcli.core.planning import Basis, Plan, plan_point_to_point
 from flatcli.core.simulate import Scenario, Trials
 
 Array = NDArray[np.float64]
@@ -45,14 +45,14 @@ PAPER_MANEUVER = Maneuver(
     start=(1.8, 1.0, 0.0), goal=(1.2, 2.0, 0.0), start_rate=0.1, goal_rate=0.5, duration=2.0
 )
 # Paper, eqs. 39-42 (gains as printed) and Fig. 4 (initial angles); u1(0) = y1d'(0).
-PRINTED_GAINS = Gains(kp1=10.0, kp2=13.0, kv1=100.0, kv2=110.0)
-SWAPPED_GAINS = Gains(kp1=100.0, kp2=110.0, kv1=10.0, kv2=13.0)
+PRINTED_GAINS = Gains((10.0, 13.0), (100.0, 110.0))
+SWAPPED_GAINS = Gains((100.0, 110.0), (10.0, 13.0))
 FIG4_INITIAL = (1.96, 0.8, -0.1, 0.1)
 #: Simulation step of the paper scenario [s].
 PAPER_DT = 1e-3
 
 
-def make_plan(model: Model = "derived", basis: Basis | None = None) -> FlatPlan:
+def make_plan(model: Model = "derived", basis: Basis | None = None) -> Plan:
     """The paper's maneuver planned for the paper's robot with the given model and basis."""
     m = PAPER_MANEUVER
     return plan_point_to_point(
@@ -93,19 +93,19 @@ def paper_maneuver() -> Maneuver:
 
 
 @pytest.fixture(scope="session")
-def paper_plan() -> FlatPlan:
+def paper_plan() -> Plan:
     """The paper's cubic plan with the derived (correct) coefficients."""
     return make_plan("derived")
 
 
 @pytest.fixture(scope="session")
-def paper_plan_as_printed() -> FlatPlan:
+def paper_plan_as_printed() -> Plan:
     """The paper's cubic plan with the coefficients as printed (``model="paper"``)."""
     return make_plan("paper")
 
 
 @pytest.fixture(scope="session")
-def plan_factory() -> Callable[..., FlatPlan]:
+def plan_factory() -> Callable[..., Plan]:
     """``make_plan(model, basis)``: the paper's maneuver with another model or basis."""
     return make_plan
 
@@ -133,7 +133,7 @@ def fig4_initial() -> Array:
 
 
 @pytest.fixture(scope="session")
-def paper_scenario(paper_plan: FlatPlan) -> Scenario:
+def paper_scenario(paper_plan: Plan) -> Scenario:
     """The derived plan tracked with the printed gains at dt = 1 ms."""
     return Scenario(paper_plan, PRINTED_GAINS, PAPER_DT)
 

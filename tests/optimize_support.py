@@ -24,10 +24,9 @@ from scipy.integrate import simpson
 from test_chainplan import example_chain
 
 from flatcli.core.chain import chain_momentum
-from flatcli.core.chainplan import ChainPlan
 from flatcli.core.model import PAPER_ROBOT, RobotParams, momentum
 from flatcli.core.optimize import TUNING, OptimizeResult, PlanLimits, optimize_plan
-from flatcli.core.planning import FlatPlan, PlanSamples
+from flatcli.core.planning import Plan, PlanSamples
 
 Array = NDArray[np.float64]
 
@@ -60,7 +59,7 @@ def optimize_paper(**kwargs: Any) -> OptimizeResult:
     return _CACHE[key]
 
 
-def fine(plan: FlatPlan) -> PlanSamples:
+def fine(plan: Plan) -> PlanSamples:
     """The plan sampled on the ``FINE`` grid."""
     return plan.sample(plan.grid(FINE))
 
@@ -168,7 +167,7 @@ def check_chain_plan(result: OptimizeResult, n: int, limits: PlanLimits | None =
     and end rates, every limit, one sign of the margin; returns the samples."""
     limits = PlanLimits() if limits is None else limits
     plan = result.plan
-    assert isinstance(plan, ChainPlan) and plan.n_joints == n
+    assert isinstance(plan, Plan) and plan.n_joints == n
     robot, (start, goal) = plan.robot, chain_ends(n)
     t = plan.grid(CHAIN_FINE)
     s = plan.sample(t)

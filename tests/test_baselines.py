@@ -11,7 +11,7 @@ from benchmarks import baselines as b
 from benchmarks.baselines import shooting
 from flatcli.core.control import Gains
 from flatcli.core.model import Links, constraint_coefficients
-from flatcli.core.planning import FlatPlan
+from flatcli.core.planning import Plan
 from flatcli.core.simulate import Scenario, simulate
 
 #: python-control's quintic with flatcli's end accelerations is flatcli's cubic: the two
@@ -28,7 +28,7 @@ MOMENTUM_TOL = 1e-12
 
 
 @pytest.fixture(scope="module")
-def cubic() -> FlatPlan:
+def cubic() -> Plan:
     return b.PAPER_MANEUVER.cubic()
 
 
@@ -42,7 +42,7 @@ def test_python_control_reproduces_flatcli_cubic() -> None:
     np.testing.assert_allclose(result.state[-1], b.PAPER_MANEUVER.goal_state, atol=1e-12)
 
 
-def test_flat_system_round_trip(cubic: FlatPlan) -> None:
+def test_flat_system_round_trip(cubic: Plan) -> None:
     system = b.robot_flat_system(cubic.coefficients)
     x = np.array([1.7, 1.3, 0.4, 0.3])
     u = np.array([0.2, -1.5])
@@ -80,7 +80,7 @@ def test_plant_coefficients_match_flatcli() -> None:
     ],
 )
 def test_compiled_kernel_matches_flatcli_simulate(
-    cubic: FlatPlan, gains: Gains, rate_limit: float, spread: float
+    cubic: Plan, gains: Gains, rate_limit: float, spread: float
 ) -> None:
     tracking = b.Tracking(gains=gains, rate_limit=rate_limit)
     trials = b.paper_trials(6, seed=1, tracking=tracking, spread=spread)
@@ -95,14 +95,14 @@ def test_compiled_kernel_matches_flatcli_simulate(
     np.testing.assert_allclose(batch, expected, rtol=0, atol=SAME_LOOP_TOL)
 
 
-def test_compiled_kernel_independent_of_threads(cubic: FlatPlan) -> None:
+def test_compiled_kernel_independent_of_threads(cubic: Plan) -> None:
     trials = b.paper_trials(64, seed=2)
     one = b.compiled_closed_loop(cubic, trials, threads=1)
     two = b.compiled_closed_loop(cubic, trials, threads=2)
     np.testing.assert_array_equal(one, two)
 
 
-def test_solve_ivp_agrees_with_rk4(cubic: FlatPlan) -> None:
+def test_solve_ivp_agrees_with_rk4(cubic: Plan) -> None:
     trials = b.paper_trials(2, seed=4)
     run = b.solve_ivp_trials_per_second(cubic, trials)
     rk4 = b.compiled_closed_loop(cubic, trials)
@@ -163,7 +163,7 @@ def test_timed_and_machine_info() -> None:
         assert info[key]
 
 
-def test_flat_system_dynamics_match_plan(cubic: FlatPlan) -> None:
+def test_flat_system_dynamics_match_plan(cubic: Plan) -> None:
     system = b.robot_flat_system(cubic.coefficients)
     samples = cubic.sample(np.linspace(0.1, 1.9, 7))
     for j in range(samples.t.size):
@@ -174,7 +174,7 @@ def test_flat_system_dynamics_match_plan(cubic: FlatPlan) -> None:
         np.testing.assert_allclose(rates, expected, rtol=1e-12, atol=1e-12)
 
 
-def test_plan_quality_of_the_cubic(cubic: FlatPlan) -> None:
+def test_plan_quality_of_the_cubic(cubic: Plan) -> None:
     # the paper's cubic, derived model: th2 reaches 3.93 rad, th2'(0) = 48.8 rad/s
     # (tests/test_planning.py::test_derived_plan_matches_physics_note) and the input energy
     # is about 101 (tests/test_optimize_api.py, CUBIC_ENERGY = 101.19)

@@ -33,8 +33,7 @@ from flatcli.core.chaindynamic import (
     make_scratch,
 )
 from flatcli.core.chainflat import inputs, outputs, scratch
-from flatcli.core.chainloop import ChainGains, chain_matrix
-from flatcli.core.chainplan import ChainPlan, plan_chain
+from flatcli.core.chainloop import chain_matrix
 from flatcli.core.control import Gains
 from flatcli.core.dynamics import (
     Chain,
@@ -46,7 +45,7 @@ from flatcli.core.dynamics import (
 )
 from flatcli.core.metrics import Metric, Status
 from flatcli.core.model import PAPER_ROBOT, RobotParams
-from flatcli.core.planning import plan_point_to_point
+from flatcli.core.planning import Plan, plan_chain, plan_point_to_point
 from flatcli.core.simulate import (
     DYNAMIC_TRACE_COLUMNS,
     NoiseStreams,
@@ -85,15 +84,15 @@ ON_PLAN = (1.8, 1.0, 0.0, 0.1)
 FIG4 = (1.96, 0.8, -0.1, 0.1)
 
 
-def chain_plan(n: int) -> tuple[ChainPlan, RobotParams, Array]:
+def chain_plan(n: int) -> tuple[Plan, RobotParams, Array]:
     """The maneuver of tests/test_chainloop.py for n joints: plan, robot, start."""
     robot, start, goal = example(n)
     return plan_chain(robot, start, goal, np.full(n - 1, 0.3), np.full(n - 1, 0.5), 2.0), \
         robot, start
 
 
-def gains(n: int, kp: float = 100.0, kv: float = 20.0) -> ChainGains:
-    return ChainGains((kp,) * n, (kv,) * n)
+def gains(n: int, kp: float = 100.0, kv: float = 20.0) -> Gains:
+    return Gains((kp,) * n, (kv,) * n)
 
 
 def dynamic_trials(initial: Array, plant: RobotParams, h0: float = 0.0,
@@ -160,7 +159,7 @@ def full_momentum(robot: RobotParams, q: Array, qd: Array) -> Array:
 
 
 def test_the_dynamic_plant_runs_any_number_of_joints() -> None:
-    """Scenario accepts plant = "dynamic" for a ChainPlan; the trace has the N-link columns
+    """Scenario accepts plant = "dynamic" for a Plan; the trace has the N-link columns
     (the three-body plant's for N = 2) and torques, and the kinematic metrics of torque stay
     null while the dynamic ones are filled."""
     assert chain_dynamic_trace_columns(2) == DYNAMIC_TRACE_COLUMNS
@@ -187,7 +186,7 @@ def test_the_dynamic_plant_runs_any_number_of_joints() -> None:
 @pytest.mark.parametrize("noise", [0.0, 1e-4])
 @pytest.mark.parametrize("servo_model", ["robot", "plant"])
 def test_two_joints_agree_with_the_three_body_plant(servo_model: str, noise: float) -> None:
-    """The paper's maneuver as a ChainPlan on this plant and as a FlatPlan on the three-body
+    """The paper's maneuver as a Plan on this plant and as a Plan on the three-body
     plant: the same trials (an imperfect counterweight d2 = 4 mm, H0 = 1e-3, printed gains;
     no torque limit, and a 30 N m limit that clips the servo where th2' is turned round on
     the plan's start and loses the trial from Fig. 4's start) give the same statuses,
@@ -200,9 +199,9 @@ def test_two_joints_agree_with_the_three_body_plant(servo_model: str, noise: flo
     trials = Trials(np.tile(plant.as_array(), (4, 1)), np.full(4, 1e-3), initial,
                     NoiseStreams(noise, 3, np.arange(4)), servo)
     kp, kv = (10.0, 13.0), (100.0, 110.0)
-    three = run(Scenario(paper, Gains(*kp, *kv), 1e-3, plant="dynamic",
+    three = run(Scenario(paper, Gains(kp, kv), 1e-3, plant="dynamic",
                          servo_model=servo_model), trials)  # type: ignore[arg-type]
-    ours = run(Scenario(chain, ChainGains(kp, kv), 1e-3, plant="dynamic",
+    ours = run(Scenario(chain, Gains(kp, kv), 1e-3, plant="dynamic",
                         servo_model=servo_model), trials)  # type: ignore[arg-type]
     assert three.trace is not None and ours.trace is not None
     assert ours.columns == three.columns
@@ -235,7 +234,7 @@ def test_two_joints_agree_with_the_three_body_plant(servo_model: str, noise: flo
 # --------------------------------------------------------------------------------------
 
 
-def loop_for(plan: ChainPlan, plant: RobotParams, servo_is_plant: bool, h0: float = 0.0,
+def loop_for(plan: Plan, plant: RobotParams, servo_is_plant: bool, h0: float = 0.0,
              rate_limit: float = np.inf, bandwidth: float = 100.0,
              torque_limit: float = np.inf, kp: float = 100.0, kv: float = 20.0) -> object:
     n = plan.n_joints

@@ -15,13 +15,12 @@ from numpy.typing import NDArray
 from scipy.integrate import solve_ivp
 
 from flatcli.core.chainflat import scratch
-from flatcli.core.chainloop import ChainGains, ChainLoop, chain_matrix, chain_rhs
-from flatcli.core.chainplan import plan_chain
+from flatcli.core.chainloop import ChainLoop, chain_matrix, chain_rhs
 from flatcli.core.control import Gains
 from flatcli.core.integrate import plan_flag
 from flatcli.core.metrics import Metric, Status
 from flatcli.core.model import PAPER_ROBOT, RobotParams
-from flatcli.core.planning import plan_point_to_point
+from flatcli.core.planning import plan_chain, plan_point_to_point
 from flatcli.core.simulate import NoiseStreams, Scenario, Trials, simulate
 
 Array = NDArray[np.float64]
@@ -41,7 +40,7 @@ def example(n: int) -> tuple[RobotParams, Array, Array]:
 def scenario(n: int, kp: float = 100.0, kv: float = 20.0) -> tuple[Scenario, RobotParams, Array]:
     robot, start, goal = example(n)
     plan = plan_chain(robot, start, goal, np.full(n - 1, 0.3), np.full(n - 1, 0.5), 2.0)
-    return Scenario(plan, ChainGains((kp,) * n, (kv,) * n), 1e-3), robot, start
+    return Scenario(plan, Gains((kp,) * n, (kv,) * n), 1e-3), robot, start
 
 
 def test_two_links_are_the_papers_closed_loop() -> None:
@@ -51,8 +50,8 @@ def test_two_links_are_the_papers_closed_loop() -> None:
                     np.array([[1.96, 0.8, -0.1, 0.1]]), NoiseStreams(1e-3, 3, np.array([5])))
     for kp, kv in (((10.0, 13.0), (100.0, 110.0)), ((100.0, 110.0), (10.0, 13.0))):
         for integrator in ("adaptive", "rk4"):
-            a = simulate(Scenario(paper, Gains(*kp, *kv), 1e-3), trials, integrator, True)
-            b = simulate(Scenario(chain, ChainGains(kp, kv), 1e-3), trials, integrator, True)
+            a = simulate(Scenario(paper, Gains(kp, kv), 1e-3), trials, integrator, True)
+            b = simulate(Scenario(chain, Gains(kp, kv), 1e-3), trials, integrator, True)
             assert a.trace is not None and b.trace is not None
             np.testing.assert_allclose(b.trace[0], a.trace[0], atol=1e-9)
             assert a.status[0] == b.status[0]

@@ -13,9 +13,8 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from flatcli.core.chainplan import ChainPlan, plan_chain
 from flatcli.core.model import PAPER_ROBOT, FlatcliError, RobotParams
-from flatcli.core.planning import plan_point_to_point
+from flatcli.core.planning import Plan, plan_chain, plan_point_to_point
 
 Array = NDArray[np.float64]
 
@@ -32,7 +31,7 @@ def example_chain(n: int) -> RobotParams:
                        length=[0.3] + [0.25] * n, com=[0.12] + [0.1] * (n - 1) + [0.0])
 
 
-def example_plan(n: int, goal_rate: float = 0.5) -> ChainPlan:
+def example_plan(n: int, goal_rate: float = 0.5) -> Plan:
     start = np.r_[0.0, 1.0, np.full(n - 1, 0.3)]
     goal = np.r_[0.4, 2.0, np.full(n - 1, 0.6)]
     start[-1] = goal[-1] = 0.0
@@ -87,14 +86,14 @@ def test_a_plan_through_the_singular_set_is_refused() -> None:
     with pytest.raises(FlatcliError, match=r"plan: the margin .* is zero at t = ") as info:
         example_plan(3, goal_rate=-0.5)
     # the same curve, built without the check, samples a sign change at the named time
-    import flatcli.core.chainplan as cp
+    from flatcli.core.planning import min_acceleration_trajectory
 
     plan = example_plan(3)
-    curve = cp.min_acceleration_trajectory(
+    curve = min_acceleration_trajectory(
         plan.trajectory.basis,
-        cp.chain_boundary(plan.model, [0.0, 1.0, 0.3, 0.0], [0.4, 2.0, 0.6, 0.0], [0.3, 0.3],
-                          [-0.5, -0.5]))
-    crossing = ChainPlan(plan.robot, plan.model, curve, 2.0)
+        plan.model.boundary([0.0, 1.0, 0.3, 0.0], [0.4, 2.0, 0.6, 0.0], [0.3, 0.3],
+                            [-0.5, -0.5]))
+    crossing = Plan(plan.robot, plan.model, curve, 2.0)
     t = np.linspace(0.0, 2.0, 20_001)
     sigma = crossing.signed_margin(t)
     flips = t[np.flatnonzero(np.sign(sigma[:-1]) != np.sign(sigma[1:]))]

@@ -15,10 +15,10 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from numpy.typing import NDArray
 
-from flatcli.core.control import Gains, feedback
+from flatcli.core.control import Gains, PaperGains, feedback
 from flatcli.core.flatness import flat_inputs, flat_outputs
 from flatcli.core.model import MODELS, PAPER_ROBOT, Model, constraint_coefficients
-from flatcli.core.planning import FlatPlan
+from flatcli.core.planning import Plan
 from flatcli.core.simulate import Integrator, Scenario, Trials, simulate
 
 Array = NDArray[np.float64]
@@ -47,7 +47,7 @@ def closed_form(e0: float, e0_dot: float, kp: float, kv: float, t: Array) -> tup
     return e.real, e_dot.real
 
 
-def initial_flat_error(plan: FlatPlan, initial: Array) -> tuple[Array, Array]:
+def initial_flat_error(plan: Plan, initial: Array) -> tuple[Array, Array]:
     """(2,) e(0) and e'(0) from the initial state and the plan at t = 0."""
     y = np.array(flat_outputs(plan.coefficients, *initial))
     t0 = np.array([0.0])
@@ -57,7 +57,7 @@ def initial_flat_error(plan: FlatPlan, initial: Array) -> tuple[Array, Array]:
     )
 
 
-def simulated_flat_error(plan: FlatPlan, scenario: Scenario, trace: Array) -> tuple[Array, Array]:
+def simulated_flat_error(plan: Plan, scenario: Scenario, trace: Array) -> tuple[Array, Array]:
     """(n + 1, 2) y - y_ref and y' - y_ref' from a recorded trace."""
     y = np.array(flat_outputs(plan.coefficients, *trace[:, :4].T)).T
     t = scenario.times
@@ -68,7 +68,7 @@ def simulated_flat_error(plan: FlatPlan, scenario: Scenario, trace: Array) -> tu
 
 
 def gain_pairs(gains: Gains) -> tuple[tuple[float, float], tuple[float, float]]:
-    return (gains.kp1, gains.kv1), (gains.kp2, gains.kv2)
+    return (gains.kp[0], gains.kv[0]), (gains.kp[1], gains.kv[1])
 
 
 # --------------------------------------------------------------------------------------
@@ -78,13 +78,14 @@ def gain_pairs(gains: Gains) -> tuple[tuple[float, float], tuple[float, float]]:
 
 @pytest.mark.parametrize("model", MODELS)
 def test_feedback_on_the_reference_returns_the_planned_inputs(
-    plan_factory: Callable[..., FlatPlan], printed_gains: Gains, model: Model
+    plan_factory: Callable[..., Plan], printed_gains: Gains, model: Model
 ) -> None:
     """Zero error: v = y_d'', so (u1', u2) are the plan's u1' and th2'."""
     plan = plan_factory(model)
     s = plan.sample(plan.grid(201))
     ref = np.array([*s.y.T, *s.y_dot.T, *s.y_ddot.T])  # y1, y2, y1', y2', y1'', y2''
-    u1_dot, u2 = feedback(plan.coefficients, printed_gains, *s.theta.T, s.y_dot[:, 0], ref)
+    u1_dot, u2 = feedback(plan.coefficients, printed_gains.paper(), *s.theta.T, s.y_dot[:, 0],
+                          ref)
     np.testing.assert_allclose(u1_dot, s.u1_dot, atol=1e-12)
     np.testing.assert_allclose(u2, s.u2, rtol=1e-10, atol=1e-10)
 
@@ -99,7 +100,7 @@ GAIN = st.floats(0.0, 200.0)
 @given(
     state=st.tuples(ANGLE, ANGLE, ANGLE, RATE),
     ref=st.tuples(ANGLE, ANGLE, RATE, RATE, st.floats(-50, 50), st.floats(-50, 50)),
-    gains=st.builds(Gains, GAIN, GAIN, GAIN, GAIN),
+    gains=st.builds(PaperGains, GAIN, GAIN, GAIN, GAIN),
 )
 def test_feedback_is_flat_inputs_of_the_linear_law(
     model: Model,
@@ -126,7 +127,7 @@ def test_feedback_is_flat_inputs_of_the_linear_law(
 
 @pytest.mark.parametrize("integrator", ["adaptive", "rk4", "dop853"])
 def test_flat_errors_follow_the_linear_error_dynamics(
-    paper_plan: FlatPlan,
+    paper_plan: Plan,
     paper_gains: Gains,
     fig4_initial: Array,
     trials_factory: Callable[..., Trials],
@@ -146,7 +147,7 @@ def test_flat_errors_follow_the_linear_error_dynamics(
 
 
 def test_printed_gains_barely_correct_and_swapped_gains_do(
-    paper_plan: FlatPlan, printed_gains: Gains, swapped_gains: Gains, fig4_initial: Array
+    paper_plan: Plan, printed_gains: Gains, swapped_gains: Gains, fig4_initial: Array
 ) -> None:
     """The paper's Fig. 4 start, in closed form: with the gains as printed the slow pole
     (-kv/2 + sqrt(kv^2/4 - kp) ~ -0.1) leaves most of the flat-output error after 2 s (a
@@ -162,7 +163,7 @@ def test_printed_gains_barely_correct_and_swapped_gains_do(
 
 
 def test_model_error_breaks_the_linear_error_dynamics(
-    paper_plan_as_printed: FlatPlan,
+    paper_plan_as_printed: Plan,
     swapped_gains: Gains,
     fig4_initial: Array,
     trials_factory: Callable[..., Trials],

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from flatcli.core.chain import chain_momentum
-from flatcli.core.chainplan import ChainPlan
+from flatcli.core.planning import Plan
 from flatcli.experiment import plan_and_optimization
 from flatcli.reproduce.chains import CHAIN_SPECS
 from flatcli.spec import load_spec
@@ -22,7 +22,7 @@ def test_a_chain_spec_is_optimised_with_its_per_joint_limits() -> None:
         "plan.optimize.angle_limit=[inf,inf,inf,0.8]", "plan.optimize.constraint_samples=41",
         "plan.start_rate=[0.3,0.2]"))
     plan, result = plan_and_optimization(spec)
-    assert isinstance(plan, ChainPlan) and result is not None and result.success
+    assert isinstance(plan, Plan) and result is not None and result.success
     assert result.objective < result.initial_objective
     s = plan.sample(plan.grid(4001))
     assert np.all(np.abs(s.theta_dot[:, 1:]).max(axis=0) <= np.array([3, 3, 10]) * (1 + 1e-3))

@@ -31,7 +31,7 @@ from flatcli.core.metrics import (
     reset_accumulator,
 )
 from flatcli.core.model import PAPER_ROBOT, RobotParams
-from flatcli.core.planning import FlatPlan
+from flatcli.core.planning import Plan
 from flatcli.core.simulate import Scenario, Trials, simulate
 
 Array = NDArray[np.float64]
@@ -43,7 +43,7 @@ METRIC_ATOL = 1e-15
 #: <= 3e-16 at rates of ~50 rad/s, 1.4e-12 at th2' = 1.7e5 rad/s before a pole), per rad/s.
 DRIFT_ATOL_PER_RATE = 1e-16
 
-PRINTED = Gains(kp1=10.0, kp2=13.0, kv1=100.0, kv2=110.0)  # paper, eqs. 39-42
+PRINTED = Gains((10.0, 13.0), (100.0, 110.0))  # paper, eqs. 39-42
 FIG4 = (1.96, 0.8, -0.1, 0.1)  # paper, Fig. 4; u1(0) = y1d'(0) of the plan
 
 
@@ -111,7 +111,7 @@ CASES = {
 }  # fmt: skip
 
 
-def expected_metrics(plan: FlatPlan, scenario: Scenario, case: Case, trace: Array) -> Array:
+def expected_metrics(plan: Plan, scenario: Scenario, case: Case, trace: Array) -> Array:
     """(N_METRICS,) from the trace, the plan and the plant, in the order of METRIC_NAMES
     (the integrators' own counters and error estimate are taken as reported)."""
     valid = np.isfinite(trace[:, 0])
@@ -153,7 +153,7 @@ def expected_metrics(plan: FlatPlan, scenario: Scenario, case: Case, trace: Arra
 
 @pytest.mark.parametrize("name", list(CASES))
 def test_metrics_equal_independent_computation(
-    plan_factory: Callable[..., FlatPlan], trials_factory: Callable[..., Trials], name: str
+    plan_factory: Callable[..., Plan], trials_factory: Callable[..., Trials], name: str
 ) -> None:
     case = CASES[name]
     plan = plan_factory(case.model)

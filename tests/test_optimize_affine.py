@@ -1,6 +1,6 @@
 """Tests of flatcli.core.optimize.affine: coefficients and flat flag affine in x.
 
-References: ``planning.boundary_conditions`` (the flat boundary values of a maneuver),
+References: ``FlatModel.boundary`` (the flat boundary values of a maneuver),
 ``FlatTrajectory.derivative`` (the basis evaluated directly), the paper's cubic
 (``conftest``: Franch et al. 2003, Sec. VI) and ``flatness.flat_outputs``.
 """
@@ -11,11 +11,12 @@ import numpy as np
 import pytest
 
 from flatcli.core.basis import PolynomialBasis
+from flatcli.core.flatmodel import flat_model
 from flatcli.core.flatness import flat_outputs
-from flatcli.core.model import PAPER_ROBOT, constraint_coefficients
+from flatcli.core.model import PAPER_ROBOT
 from flatcli.core.optimize import default_basis
-from flatcli.core.optimize.affine import affine_map, end_flat
-from flatcli.core.planning import FlatPlan, FlatTrajectory, boundary_conditions
+from flatcli.core.optimize.affine import affine_map
+from flatcli.core.planning import FlatTrajectory, Plan
 
 #: Linear algebra on coefficients of order 1-10 (pseudo-inverse plus null space): observed
 #: ~1e-13.
@@ -23,7 +24,7 @@ LINEAR_TOL = 1e-10
 #: The paper's cubic rebuilt from its decision vector: observed 1.3e-12 relative.
 REBUILT_TOL = 1e-9
 
-K = constraint_coefficients(PAPER_ROBOT.links)
+K = flat_model(PAPER_ROBOT)  # the paper's closed form
 START = np.array([1.8, 1.0, 0.0])
 GOAL = np.array([1.2, 2.0, 0.0])
 
@@ -37,7 +38,7 @@ def test_any_decision_vector_meets_the_boundary_conditions(free_rates: bool) -> 
     for _ in range(5):
         x = curve + rng.normal(scale=0.3, size=curve.size)
         rates = (x[0], x[1]) if free_rates else (0.2, 0.4)
-        bc = boundary_conditions(K, START, GOAL, *rates)
+        bc = K.boundary(START, GOAL, *rates)
         trajectory = FlatTrajectory(basis, affine.coefficients(x))
         ends = np.array([0.0, 2.0])
         y, y_dot = trajectory.derivative(ends, 0), trajectory.derivative(ends, 1)
@@ -64,7 +65,7 @@ def test_flag_is_the_basis_evaluated() -> None:
     assert affine.outputs == 2 and slope.shape == (6, t.size, x.size)
 
 
-def test_starting_guess_is_the_papers_cubic(paper_plan: FlatPlan) -> None:
+def test_starting_guess_is_the_papers_cubic(paper_plan: Plan) -> None:
     """In a cubic basis the min-acceleration start with the paper's rates is the cubic."""
     basis = PolynomialBasis(3, 2.0)
     affine, curve = affine_map(K, basis, START, GOAL, 0.1, 0.5, True, False)
@@ -74,10 +75,13 @@ def test_starting_guess_is_the_papers_cubic(paper_plan: FlatPlan) -> None:
     )
 
 
-def test_end_flat_is_linear_in_the_rate() -> None:
-    y1, y2, slope = end_flat(K, START)
+def test_the_end_map_is_linear_in_the_rate() -> None:
+    """``FlatModel.end_map`` against the forward map (``flatness.flat_outputs``) at two
+    rates: y' = slope th1'."""
+    y, slope = K.end_map(START)
     for u1 in (0.3, -2.0):
-        f = flat_outputs(K, *START, u1)
-        assert (f[0], f[1]) == (y1, y2)
-        assert f[3] == pytest.approx(slope * u1, rel=1e-14)
-    assert y1 == START[1]
+        f = flat_outputs(K.coefficients, *START, u1)
+        assert (f[0], f[1]) == (y[0], y[1])
+        assert f[2] == pytest.approx(slope[0, 0] * u1, rel=1e-14)
+        assert f[3] == pytest.approx(slope[1, 0] * u1, rel=1e-14)
+    assert y[0] == START[1]

@@ -9,7 +9,7 @@ Reference values and where they come from:
   ``tests/test_planning.py`` checks against the full link kinematics); the optimiser's own
   starting guess must reproduce them;
 * re-choosing only the cubic's end rates: a two-variable minimisation of
-  ``FlatPlan.input_energy`` of ``planning.plan_point_to_point`` by scipy's Nelder-Mead, done
+  ``Plan.input_energy`` of ``planning.plan_point_to_point`` by scipy's Nelder-Mead, done
   in the test (no optimiser code involved);
 * the cubic's least margin sin(1) * 0.1 = 0.0841 rad/s, at t = 0 (the paper's end rate);
 * the largest possible least margin, (cos th1(0) - cos th1(T)) / T = 0.4782 rad/s (the
@@ -48,10 +48,9 @@ from test_chainplan import example_chain
 
 import flatcli.core.optimize as optimize
 from flatcli.core.basis import BSplineBasis, PolynomialBasis
-from flatcli.core.chainplan import plan_chain
 from flatcli.core.model import PAPER_ROBOT, FlatcliError
 from flatcli.core.optimize import OBJECTIVES, PlanLimits, optimize_plan
-from flatcli.core.planning import FlatPlan, plan_point_to_point
+from flatcli.core.planning import Plan, plan_chain, plan_point_to_point
 
 #: The optimiser's design target: the optimised energy is at most a third of the cubic's.
 ENERGY_FRACTION = 1.0 / 3.0
@@ -86,7 +85,7 @@ def test_public_names() -> None:
 # --- the design targets on the paper's maneuver ----------------------------------------
 
 
-def test_energy_target(paper_plan: FlatPlan) -> None:
+def test_energy_target(paper_plan: Plan) -> None:
     """Energy <= 1/3 of the cubic's, limits met, |H| ~ 0, margin above 0.02."""
     cubic = paper_plan.input_energy()
     assert cubic == pytest.approx(CUBIC_ENERGY, abs=CUBIC_ENERGY_TOL)
@@ -158,7 +157,7 @@ def test_limit_is_active_and_met(limits: PlanLimits, active: str) -> None:
     assert optimize_paper().objective <= result.objective <= ENERGY_FRACTION * CUBIC_ENERGY
 
 
-def test_fixed_end_rates(paper_maneuver: Any, paper_plan: FlatPlan) -> None:
+def test_fixed_end_rates(paper_maneuver: Any, paper_plan: Plan) -> None:
     result = optimize_paper(free_rates=False)
     s = check_plan(result, PlanLimits())
     m = paper_maneuver
@@ -197,7 +196,7 @@ def test_margin_objective() -> None:
     [PolynomialBasis(7, 2.0), BSplineBasis(10, 2.0, 5)],
     ids=["poly7", "bspline10"],
 )
-def test_bases(paper_plan: FlatPlan, basis: PolynomialBasis | BSplineBasis) -> None:
+def test_bases(paper_plan: Plan, basis: PolynomialBasis | BSplineBasis) -> None:
     """Each basis starts from the paper's cubic (it contains it) and reaches the target."""
     result = optimize_paper(basis=basis)
     check_plan(result, PlanLimits())
@@ -259,7 +258,7 @@ def test_infeasible_found_by_the_solver() -> None:
 # --- a chain of N >= 3 joints (the example chain of tests/test_chainplan.py) ------------
 #
 # Referees: the full link kinematics, differences and Simpson's rule on a dense sampling of
-# the returned ChainPlan (``optimize_support.check_chain_plan``, ``chain_energy``), the
+# the returned Plan (``optimize_support.check_chain_plan``, ``chain_energy``), the
 # starting guess rebuilt by ``chainplan.plan_chain`` with the same end rates and basis, and
 # the margin's mean (h_0(0) - h_0(T)) / (2 K_10 T), an upper bound of its least value (h_0
 # from the link kinematics).

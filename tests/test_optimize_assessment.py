@@ -1,7 +1,7 @@
 """Tests of flatcli.core.optimize.assessment: candidates measured on the check grid.
 
 Reference: the paper's cubic (Franch et al. 2003, Sec. VI; ``conftest.paper_plan``) sampled
-by ``FlatPlan.sample`` on the same check grid.
+by ``Plan.sample`` on the same check grid.
 """
 
 from __future__ import annotations
@@ -13,14 +13,15 @@ import pytest
 from optimize_support import DURATION, GOAL, START
 
 from flatcli.core.basis import PolynomialBasis
-from flatcli.core.model import PAPER_ROBOT, constraint_coefficients
+from flatcli.core.flatmodel import flat_model
+from flatcli.core.model import PAPER_ROBOT
 from flatcli.core.optimize import TUNING, PlanLimits
 from flatcli.core.optimize.assessment import active_limits, assess
 from flatcli.core.optimize.feasibility import Ends
 from flatcli.core.optimize.problem import Request
-from flatcli.core.planning import FlatPlan
+from flatcli.core.planning import Plan
 
-K = constraint_coefficients(PAPER_ROBOT.links)
+K = flat_model(PAPER_ROBOT)  # the paper's closed form
 
 
 def cubic_request() -> Request:
@@ -32,7 +33,7 @@ def cubic_request() -> Request:
     )  # fmt: skip
 
 
-def test_the_cubic_against_a_rate_limit(paper_plan: FlatPlan) -> None:
+def test_the_cubic_against_a_rate_limit(paper_plan: Plan) -> None:
     r = cubic_request()
     s = paper_plan.sample(r.check)
     peak = float(np.max(np.abs(s.theta_dot[:, 1:])))
@@ -52,7 +53,7 @@ def test_the_cubic_against_a_rate_limit(paper_plan: FlatPlan) -> None:
     np.testing.assert_array_equal(np.max(excess, axis=0) > 0, np.abs(s.theta_dot[:, 2]) > 20.0)
 
 
-def test_objectives_on_the_check_grid(paper_plan: FlatPlan) -> None:
+def test_objectives_on_the_check_grid(paper_plan: Plan) -> None:
     r = cubic_request()
     s = paper_plan.sample(r.check)
     curve = r.start_curve()

@@ -18,15 +18,16 @@ import numpy as np
 import pytest
 from optimize_support import DURATION, GOAL, START, fine, optimize_paper
 
+from flatcli.core.flatmodel import flat_model
 from flatcli.core.flatness import chart
-from flatcli.core.model import PAPER_ROBOT, FlatcliError, constraint_coefficients
+from flatcli.core.model import PAPER_ROBOT, FlatcliError
 from flatcli.core.optimize import PlanLimits, optimize_plan, required_fold
 from flatcli.core.optimize.feasibility import Ends, check_ends, end_rate_bounds
 
 #: Where th2 must reach on this maneuver [rad] (``required_fold``, 4 digits; the test
 #: below checks it against an optimised plan's own momentum balance).
 FOLD = 2.672
-K = constraint_coefficients(PAPER_ROBOT.links)
+K = flat_model(PAPER_ROBOT)  # the paper's closed form
 
 
 @pytest.mark.parametrize(
@@ -127,7 +128,7 @@ def test_required_fold() -> None:
     s = fine(optimize_paper().plan)
     assert np.max(s.theta[:, 2]) >= v
     # the identity behind the bound: integral of h th2 dth1 = integral of g dth1 - dy2
-    _, g, h = chart(K, np.cos(s.y[:, 0]), np.sin(s.y[:, 0]))
+    _, g, h = chart(K.coefficients, np.cos(s.y[:, 0]), np.sin(s.y[:, 0]))
     dt = s.t[1] - s.t[0]
     lhs = np.trapezoid(h * s.theta[:, 2] * s.y_dot[:, 0], dx=dt)
     rhs = np.trapezoid(g * s.y_dot[:, 0], dx=dt) - (s.y[-1, 1] - s.y[0, 1])

@@ -1,6 +1,6 @@
 """Tests of flatcli.core.optimize.problem: the programme, its exact gradients, ``Request``.
 
-References: ``FlatPlan.input_energy`` (the plan's energy computed by planning) and central
+References: ``Plan.input_energy`` (the plan's energy computed by planning) and central
 finite differences of the problem's own values.
 """
 
@@ -12,14 +12,15 @@ import numpy as np
 import pytest
 from optimize_support import DURATION, GOAL, START
 
-from flatcli.core.model import PAPER_ROBOT, constraint_coefficients
+from flatcli.core.flatmodel import flat_model
+from flatcli.core.model import PAPER_ROBOT
 from flatcli.core.optimize import TUNING, PlanLimits, default_basis
 from flatcli.core.optimize.affine import affine_map
 from flatcli.core.optimize.feasibility import Ends
 from flatcli.core.optimize.limits import limit_rows
 from flatcli.core.optimize.problem import Problem, Request
 from flatcli.core.optimize.quantities import MARGIN, RATES
-from flatcli.core.planning import FlatPlan, FlatTrajectory
+from flatcli.core.planning import FlatTrajectory, Plan
 
 #: Identities that hold to rounding.
 EXACT_TOL = 1e-12
@@ -28,7 +29,7 @@ EXACT_TOL = 1e-12
 FD_STEP = 1e-6
 FD_RTOL = 1e-6
 
-K = constraint_coefficients(PAPER_ROBOT.links)
+K = flat_model(PAPER_ROBOT)  # the paper's closed form
 
 
 def request(samples: int = 21) -> Request:
@@ -50,7 +51,7 @@ def test_gradients_against_central_differences() -> None:
     rows = limit_rows(limits, "energy", TUNING.backoff)
     problem = Problem(K, affine, rows, "energy", 1.0, DURATION, grid, grid, TUNING)
     trajectory = FlatTrajectory(basis, affine.coefficients(x0))
-    plan = FlatPlan(PAPER_ROBOT, "derived", K, trajectory, DURATION)
+    plan = Plan(PAPER_ROBOT, K, trajectory, DURATION)
     assert problem.energy(x0) == pytest.approx(plan.input_energy(), rel=EXACT_TOL)
     gradient = problem.energy_gradient(x0)
     jac = problem.row_jacobian(x0).reshape(-1, x0.size)

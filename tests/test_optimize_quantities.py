@@ -1,6 +1,6 @@
 """Tests of flatcli.core.optimize.quantities: pointwise quantities from the flat flag.
 
-References: ``planning.state_and_rates`` (the plan's own state and rates, computed through
+References: ``flatmodel.state_and_rates`` (the plan's own state and rates, computed through
 its complex-step derivative of the flat map) and central finite differences.
 """
 
@@ -10,7 +10,7 @@ import numpy as np
 from numpy.typing import NDArray
 from test_chainplan import example_plan
 
-from flatcli.core.chainplan import ChainModel
+from flatcli.core.flatmodel import ChainModel, state_and_rates
 from flatcli.core.model import PAPER_ROBOT
 from flatcli.core.optimize.quantities import (
     ANGLES,
@@ -23,7 +23,7 @@ from flatcli.core.optimize.quantities import (
     layout,
     layout_of,
 )
-from flatcli.core.planning import FlatPlan, state_and_rates
+from flatcli.core.planning import Plan
 
 #: Identities that hold to rounding.
 EXACT_TOL = 1e-12
@@ -33,7 +33,7 @@ FD_STEP = 1e-6
 FD_RTOL = 1e-6
 
 
-def paper_flag(plan: FlatPlan, n: int) -> NDArray[np.float64]:
+def paper_flag(plan: Plan, n: int) -> NDArray[np.float64]:
     """(6, n) flat flag of a plan on n equally spaced times."""
     s = plan.sample(plan.grid(n))
     return np.vstack([s.y.T, s.y_dot.T, s.y_ddot.T])
@@ -47,11 +47,11 @@ def test_layout() -> None:
     assert FLAG_SIZE == 6
 
 
-def test_flag_quantities_match_planning(paper_plan: FlatPlan) -> None:
+def test_flag_quantities_match_planning(paper_plan: Plan) -> None:
     """The closed-form th2' equals planning's complex-step th' along the paper's cubic."""
     s = paper_plan.sample(paper_plan.grid(101))
     flag = paper_flag(paper_plan, 101)
-    q = flag_quantities(paper_plan.coefficients, flag)
+    q = flag_quantities(paper_plan.model, flag)
     state, state_dot = state_and_rates(paper_plan.coefficients, s.y, s.y_dot, s.y_ddot)
     np.testing.assert_allclose(q[list(ANGLES)].T, state[:, :3], rtol=EXACT_TOL, atol=EXACT_TOL)
     scale = np.max(np.abs(state_dot[:, 1:3]))
@@ -59,29 +59,29 @@ def test_flag_quantities_match_planning(paper_plan: FlatPlan) -> None:
     np.testing.assert_allclose(q[MARGIN], np.sin(s.y[:, 0]) * s.y_dot[:, 0], rtol=EXACT_TOL)
 
 
-def test_flag_jacobian_against_central_differences(paper_plan: FlatPlan) -> None:
+def test_flag_jacobian_against_central_differences(paper_plan: Plan) -> None:
     flag = paper_flag(paper_plan, 41)
-    values, jac = flag_jacobian(paper_plan.coefficients, flag)
-    real = flag_quantities(paper_plan.coefficients, flag)
+    values, jac = flag_jacobian(paper_plan.model, flag)
+    real = flag_quantities(paper_plan.model, flag)
     np.testing.assert_allclose(values, real, rtol=EXACT_TOL)  # complex arithmetic: rounding
     for c in range(FLAG_SIZE):
         step = np.zeros((FLAG_SIZE, 1))
         step[c] = FD_STEP * max(1.0, float(np.max(np.abs(flag[c]))))
-        up = flag_quantities(paper_plan.coefficients, flag + step)
-        down = flag_quantities(paper_plan.coefficients, flag - step)
+        up = flag_quantities(paper_plan.model, flag + step)
+        down = flag_quantities(paper_plan.model, flag - step)
         fd = (up - down) / (2 * step[c])
         scale = np.max(np.abs(jac[:, c, :]), axis=1, keepdims=True) + 1.0
         np.testing.assert_allclose(jac[:, c, :] / scale, fd / scale, rtol=0, atol=FD_RTOL)
 
 
-def test_two_link_chain_path_is_the_papers(paper_plan: FlatPlan) -> None:
+def test_two_link_chain_path_is_the_papers(paper_plan: Plan) -> None:
     """N = 2 through the chain's flag map (``ChainModel``) gives the paper path's quantities
     (``Coefficients``, derived) and their Jacobians along the paper's cubic: the chain's
     margin -(dh_0/dt) / (2 K_10) is sin(y1) y1' for two links."""
     flag = paper_flag(paper_plan, 41)
     chain = ChainModel.of(PAPER_ROBOT)
     assert layout_of(chain) == layout(2) and layout(2).margin == MARGIN
-    paper_values, paper_jac = flag_jacobian(paper_plan.coefficients, flag)
+    paper_values, paper_jac = flag_jacobian(paper_plan.model, flag)
     chain_values, chain_jac = flag_jacobian(chain, flag)
     scale = np.max(np.abs(paper_values), axis=1, keepdims=True)
     np.testing.assert_allclose(chain_values / scale, paper_values / scale, rtol=0, atol=1e-10)

@@ -16,13 +16,14 @@ import numpy as np
 import pytest
 from optimize_support import DURATION, GOAL, START, check_plan, optimize_paper
 
-from flatcli.core.model import PAPER_ROBOT, constraint_coefficients
+from flatcli.core.flatmodel import flat_model
+from flatcli.core.model import PAPER_ROBOT
 from flatcli.core.optimize import TUNING, PlanLimits, default_basis, optimize_plan
 from flatcli.core.optimize.feasibility import check_ends
 from flatcli.core.optimize.problem import Request
 from flatcli.core.optimize.search import Search
 
-K = constraint_coefficients(PAPER_ROBOT.links)
+K = flat_model(PAPER_ROBOT)  # the paper's closed form
 
 
 def search(limits: PlanLimits) -> Search:

@@ -6,14 +6,15 @@ import numpy as np
 import pytest
 from optimize_support import DURATION, GOAL, START
 
-from flatcli.core.model import PAPER_ROBOT, constraint_coefficients
+from flatcli.core.flatmodel import flat_model
+from flatcli.core.model import PAPER_ROBOT
 from flatcli.core.optimize import TUNING, PlanLimits, Tuning, default_basis
 from flatcli.core.optimize.assessment import assess
 from flatcli.core.optimize.feasibility import Ends
 from flatcli.core.optimize.problem import Request
 from flatcli.core.optimize.solver import exchange_times, solve
 
-K = constraint_coefficients(PAPER_ROBOT.links)
+K = flat_model(PAPER_ROBOT)  # the paper's closed form
 
 
 def request(samples: int = 41, tuning: Tuning = TUNING) -> Request:

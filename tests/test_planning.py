@@ -10,6 +10,7 @@ import pytest
 from numpy.typing import NDArray
 
 from flatcli.core.basis import Basis, BSplineBasis, PolynomialBasis
+from flatcli.core.flatmodel import paper_margin_zeros as margin_zeros
 from flatcli.core.flatness import flat_inputs
 from flatcli.core.model import (
     MODELS,
@@ -20,9 +21,8 @@ from flatcli.core.model import (
     momentum,
 )
 from flatcli.core.planning import (
-    FlatPlan,
+    Plan,
     PlanSamples,
-    margin_zeros,
     plan_point_to_point,
 )
 
@@ -47,11 +47,11 @@ FD_STEP = 1e-3
 FD_TOL = 1e-9
 
 
-def sample(plan: FlatPlan, n: int = DENSE) -> PlanSamples:
+def sample(plan: Plan, n: int = DENSE) -> PlanSamples:
     return plan.sample(plan.grid(n))
 
 
-def test_momentum_along_derived_plan_vanishes(paper_plan: FlatPlan) -> None:
+def test_momentum_along_derived_plan_vanishes(paper_plan: Plan) -> None:
     """|H| from the full kinematics vanishes to rounding along the corrected plan."""
     s = sample(paper_plan)
     H = momentum(PAPER_ROBOT.links, *s.theta.T, *s.theta_dot.T)
@@ -59,7 +59,7 @@ def test_momentum_along_derived_plan_vanishes(paper_plan: FlatPlan) -> None:
     assert np.max(np.abs(H)) < DERIVED_MOMENTUM_BOUND
 
 
-def test_momentum_along_printed_plan_is_off(paper_plan_as_printed: FlatPlan) -> None:
+def test_momentum_along_printed_plan_is_off(paper_plan_as_printed: Plan) -> None:
     """The plan made with the printed coefficients obeys A th0' = B' th1' + C th2' with the
     printed b1' = -0.01 instead of b1 = -0.03 (tests/test_model.py derives both), so its true
     momentum is, in closed form, H = (b1' - b1) cos(th1) th1' / M: compared pointwise with H
@@ -87,7 +87,7 @@ def test_momentum_along_printed_plan_is_off(paper_plan_as_printed: FlatPlan) -> 
     ],
 )
 def test_boundary_values_of_y2_dot(
-    plan_factory: Callable[..., FlatPlan], model: Model, t: float, expected: float, tol: float
+    plan_factory: Callable[..., Plan], model: Model, t: float, expected: float, tol: float
 ) -> None:
     plan = plan_factory(model)
     y2_dot = plan.trajectory.derivative(np.array([t]), 1)[0, 1]
@@ -106,7 +106,7 @@ def bases(duration: float) -> list[Basis]:
 @pytest.mark.parametrize("model", MODELS)
 @pytest.mark.parametrize("which", range(4))
 def test_plan_meets_its_boundary_conditions(
-    plan_factory: Callable[..., FlatPlan], paper_maneuver: Maneuver, model: Model, which: int
+    plan_factory: Callable[..., Plan], paper_maneuver: Maneuver, model: Model, which: int
 ) -> None:
     """th(0) = start, th(T) = goal, th1'(0), th1'(T) = the chosen end rates, in every basis."""
     m = paper_maneuver
@@ -118,7 +118,7 @@ def test_plan_meets_its_boundary_conditions(
 
 @pytest.mark.parametrize("which", [1, 2, 3])
 def test_richer_bases_reproduce_the_cubic(
-    plan_factory: Callable[..., FlatPlan], paper_plan: FlatPlan, which: int
+    plan_factory: Callable[..., Plan], paper_plan: Plan, which: int
 ) -> None:
     """The cubic Hermite curve minimises the integral of |y''|^2; every basis here holds it."""
     plan = plan_factory("derived", bases(paper_plan.duration)[which])
@@ -131,7 +131,7 @@ def test_richer_bases_reproduce_the_cubic(
         )
 
 
-def central_difference(plan: FlatPlan, t: Array, h: float) -> Array:
+def central_difference(plan: Plan, t: Array, h: float) -> Array:
     """(n, 3) th'(t) by the 8th-order central difference of th(t) (independent of the plan)."""
     weights = np.array([1 / 280, -4 / 105, 1 / 5, -4 / 5, 0.0, 4 / 5, -1 / 5, 4 / 105, -1 / 280])
     theta = np.stack([plan.sample(t + j * h).theta for j in range(-4, 5)])
@@ -140,7 +140,7 @@ def central_difference(plan: FlatPlan, t: Array, h: float) -> Array:
 
 @pytest.mark.parametrize("model", MODELS)
 def test_exact_rates_agree_with_finite_differences(
-    plan_factory: Callable[..., FlatPlan], model: Model
+    plan_factory: Callable[..., Plan], model: Model
 ) -> None:
     plan = plan_factory(model)
     t = np.linspace(0.01, plan.duration - 0.01, 60)
@@ -153,7 +153,7 @@ def test_exact_rates_agree_with_finite_differences(
 
 @pytest.mark.parametrize("model", MODELS)
 def test_plan_inputs_are_the_flat_inputs(
-    plan_factory: Callable[..., FlatPlan], model: Model
+    plan_factory: Callable[..., Plan], model: Model
 ) -> None:
     """u2 = flat_inputs(y'') at the plan's state equals the plan's th2'."""
     plan = plan_factory(model)
@@ -166,7 +166,7 @@ def test_plan_inputs_are_the_flat_inputs(
 
 
 @pytest.mark.parametrize("model", MODELS)
-def test_plan_obeys_its_own_constraint(plan_factory: Callable[..., FlatPlan], model: Model) -> None:
+def test_plan_obeys_its_own_constraint(plan_factory: Callable[..., Plan], model: Model) -> None:
     """th0' (complex step) equals the base rate the planner's model implies (H = 0)."""
     plan = plan_factory(model)
     s = sample(plan, 401)
@@ -175,7 +175,7 @@ def test_plan_obeys_its_own_constraint(plan_factory: Callable[..., FlatPlan], mo
     np.testing.assert_allclose(s.theta_dot[:, 0], th0_dot, rtol=1e-12, atol=1e-12)
 
 
-def test_the_corrected_plan_folds_link_2_past_link_1(paper_plan: FlatPlan) -> None:
+def test_the_corrected_plan_folds_link_2_past_link_1(paper_plan: Plan) -> None:
     """The cubic's start: th1' = 0.1 (its boundary condition), th2'(0) large (eq. 39 divides
     by h th1' = 0.1 h there); and momentum conservation makes th2 pass pi (link 2 folds past
     link 1), as ``required_fold`` (tests/test_optimize_feasibility.py) says any monotone plan
@@ -190,7 +190,7 @@ def test_the_corrected_plan_folds_link_2_past_link_1(paper_plan: FlatPlan) -> No
     assert s.theta[:, 2].max() > np.pi
 
 
-def test_margin_is_reported_along_the_plan(paper_plan: FlatPlan) -> None:
+def test_margin_is_reported_along_the_plan(paper_plan: Plan) -> None:
     s = sample(paper_plan, 201)
     np.testing.assert_array_equal(s.margin, np.abs(np.sin(s.y[:, 0]) * s.y_dot[:, 0]))
     # the minimum is at t = 0: sin(1) * 0.1 (paper's start, th1 = 1, th1' = 0.1)
@@ -202,7 +202,7 @@ def test_margin_is_reported_along_the_plan(paper_plan: FlatPlan) -> None:
 # --------------------------------------------------------------------------------------
 
 
-def plan_with(maneuver: Maneuver, **changes: object) -> FlatPlan:
+def plan_with(maneuver: Maneuver, **changes: object) -> Plan:
     args: dict[str, object] = {
         "robot": PAPER_ROBOT,
         "start": np.array(maneuver.start),
@@ -258,7 +258,8 @@ def test_a_plan_through_the_singular_set_is_refused(paper_maneuver: Maneuver) ->
     """th1'(T) = -0.5 against th1'(0) = +0.1: y1' must pass through 0 inside (0, T). The
     refusal names the time, which a dense sampling of the margin brackets."""
     basis = PolynomialBasis(3, paper_maneuver.duration)
-    from flatcli.core.planning import boundary_conditions, min_acceleration_trajectory
+    from flatcli.core.flatmodel import boundary_conditions
+    from flatcli.core.planning import min_acceleration_trajectory
 
     k = PAPER_ROBOT.coefficients("derived")
     bc = boundary_conditions(k, paper_maneuver.start, paper_maneuver.goal, 0.1, -0.5)

@@ -31,7 +31,7 @@ from flatcli.core.control import Gains, feedback
 from flatcli.core.dynamics import bias_forces, make_chain, mass_matrix
 from flatcli.core.metrics import METRIC_NAMES, Metric, Status
 from flatcli.core.model import PAPER_ROBOT, Coefficients, RobotParams, momentum
-from flatcli.core.planning import FlatPlan
+from flatcli.core.planning import Plan
 from flatcli.core.plant import (
     AUX_R2,
     AUX_TAU1,
@@ -40,8 +40,6 @@ from flatcli.core.plant import (
     DYNAMIC_STATE,
     dynamic_loop,
     dynamic_rhs,
-    plan_motion,
-    plan_torques,
 )
 from flatcli.core.simulate import (
     DYNAMIC_TRACE_COLUMNS,
@@ -81,7 +79,7 @@ def dynamic_trials(initial: tuple[float, ...] | Array, plant: RobotParams = PAPE
                   np.tile([bandwidth, torque_limit], (n, 1)))
 
 
-def dynamic(plan: FlatPlan, gains: Gains, **settings: object) -> Scenario:
+def dynamic(plan: Plan, gains: Gains, **settings: object) -> Scenario:
     return Scenario(plan, gains, 1e-3, plant="dynamic", **settings)  # type: ignore[arg-type]
 
 
@@ -169,7 +167,7 @@ def assert_outcome_close(out: Outcome, stored: dict[str, Array], name: str, dt: 
                                **INTEGRATED, err_msg=f"{name}: trace")
 
 
-def test_kinematic_plant_outcomes_are_unchanged(paper_plan: FlatPlan) -> None:
+def test_kinematic_plant_outcomes_are_unchanged(paper_plan: Plan) -> None:
     """The cases of tests/data/make_kinematic_golden.py (adaptive with and without noise,
     RK4 with a rate limit, DOP853; trials that finish and trials that diverge) give the
     numbers they gave when the file was written (the commit it names), to the tolerances
@@ -193,7 +191,7 @@ def test_kinematic_plant_outcomes_are_unchanged(paper_plan: FlatPlan) -> None:
 
 
 def test_the_stored_outcomes_are_compared_with_a_tolerance_not_bit_for_bit(
-        paper_plan: FlatPlan) -> None:
+        paper_plan: Plan) -> None:
     """The comparison above would catch a real change (a trial's error moved by 1e-6 rad,
     a status changed) and passes a difference in the last bits (what another CPU gives)."""
     golden = _golden_module()
@@ -219,7 +217,7 @@ def test_the_stored_outcomes_are_compared_with_a_tolerance_not_bit_for_bit(
     assert golden.TRACE_STRIDE > 1
 
 
-def test_the_kinematic_plant_ignores_the_servo(paper_plan: FlatPlan) -> None:
+def test_the_kinematic_plant_ignores_the_servo(paper_plan: Plan) -> None:
     initial = np.array([ON_PLAN, (1.96, 0.8, -0.1, 0.1)])
     scenario = Scenario(paper_plan, SWAPPED_GAINS, 1e-3)
     plain = run(scenario, Trials(np.tile(PAPER_ROBOT.as_array(), (2, 1)), np.zeros(2), initial))
@@ -236,7 +234,7 @@ def test_the_kinematic_plant_ignores_the_servo(paper_plan: FlatPlan) -> None:
 
 
 def test_dynamic_rhs_solves_the_equations_of_motion_and_the_servo_law(
-    paper_plan: FlatPlan,
+    paper_plan: Plan,
 ) -> None:
     """At random states: the accelerations satisfy M q'' + C q' = (0, tau1, tau2) with M, C
     of the general chain, the torques are the computed torque of the servo's model
@@ -252,12 +250,12 @@ def test_dynamic_rhs_solves_the_equations_of_motion_and_the_servo_law(
             x = np.r_[rng.uniform(-3, 3, 3) + np.array([0, 1.5, 0]), rng.uniform(-4, 4, 3),
                       rng.uniform(0.05, 1.0)]
             bandwidth = float(rng.uniform(5, 500))
-            loop = dynamic_loop(kc, SWAPPED_GAINS, plant.links, PAPER_ROBOT.links,
+            loop = dynamic_loop(kc, SWAPPED_GAINS.paper(), plant.links, PAPER_ROBOT.links,
                                 servo_is_plant, 0.0, np.inf, bandwidth, np.inf)
             dynamic_rhs(loop, x, ref, np.zeros(3), out)
             q, qd, qdd = x[:3], x[3:6], out[3:6]
             tau = out[[AUX_TAU1, AUX_TAU2]]
-            u1_dot, u2 = feedback(kc, SWAPPED_GAINS, *x[:3], x[6], ref)
+            u1_dot, u2 = feedback(kc, SWAPPED_GAINS.paper(), *x[:3], x[6], ref)
             assert out[6] == u1_dot and out[AUX_R2] == u2
             np.testing.assert_array_equal(out[:3], qd)
             plant_chain = make_chain(plant.mass, plant.inertia, plant.length, plant.com)
@@ -278,7 +276,7 @@ def test_dynamic_rhs_solves_the_equations_of_motion_and_the_servo_law(
 
 
 def test_initial_state_starts_the_servo_in_equilibrium_with_the_plants_momentum(
-    paper_plan: FlatPlan,
+    paper_plan: Plan,
 ) -> None:
     """th1'(0) = u1(0), th2'(0) = the controller's u2 at t = 0, H(0) = H0 of the plant."""
     plant = PAPER_ROBOT.with_(com=(0.1, 0.1, 0.003))
@@ -289,7 +287,7 @@ def test_initial_state_starts_the_servo_in_equilibrium_with_the_plants_momentum(
     kc = Coefficients(*map(float, paper_plan.coefficients))
     flag = np.concatenate([paper_plan.trajectory.derivative(np.array([0.0]), order)[0]
                            for order in (0, 1, 2)])  # y1, y2, y1', y2', y1'', y2'' at t = 0
-    _, u2 = feedback(kc, PRINTED_GAINS, *initial, flag)
+    _, u2 = feedback(kc, PRINTED_GAINS.paper(), *initial, flag)
     assert tr["theta1_dot"][0] == initial[3]
     assert tr["theta2_dot"][0] == pytest.approx(float(u2), rel=1e-12)
     assert tr["u2"][0] == tr["theta2_dot"][0]
@@ -305,7 +303,7 @@ def test_initial_state_starts_the_servo_in_equilibrium_with_the_plants_momentum(
 
 @pytest.mark.parametrize("h0", [0.0, 0.3])
 def test_free_motion_conserves_momentum_and_kinetic_energy(
-    paper_plan: FlatPlan, h0: float
+    paper_plan: Plan, h0: float
 ) -> None:
     """torque_limit = 0: no torque at all. From th = (0, 1.57, 1), th1' = 0.5 and th2' the
     feed-forward command (no feedback: gains 0, so the controller's margin stays positive and
@@ -313,7 +311,7 @@ def test_free_motion_conserves_momentum_and_kinetic_energy(
     full kinematics and T from the links' velocities stay constant to 1e-10 relative (of
     T, and of H0 or of the largest momentum term)."""
     plant = PAPER_ROBOT.with_(com=(0.1, 0.1, 0.003))
-    scenario = dynamic(paper_plan, Gains(0.0, 0.0, 0.0, 0.0), **TIGHT)
+    scenario = dynamic(paper_plan, Gains((0.0, 0.0), (0.0, 0.0)), **TIGHT)
     out = run(scenario, dynamic_trials((0.0, 1.57, 1.0, 0.5), plant, h0, torque_limit=0.0))
     assert out.status[0] == Status.OK
     tr = trace_of(out)
@@ -331,7 +329,7 @@ def test_free_motion_conserves_momentum_and_kinetic_energy(
                                                                   abs=1e-15)
 
 
-def test_the_kinematic_plant_is_recovered_as_the_bandwidth_grows(paper_plan: FlatPlan) -> None:
+def test_the_kinematic_plant_is_recovered_as_the_bandwidth_grows(paper_plan: Plan) -> None:
     """From the plan's start, swapped gains: max over the samples of |th_dynamic -
     th_kinematic| shrinks as 1/bandwidth (log-log slope -1 within 15 %; observed 0.52,
     0.15, 0.045, 0.013 rad at 30, 100, 300, 1000 rad/s, largest at t ~ 0.05 s where th2' =
@@ -360,7 +358,7 @@ def test_the_kinematic_plant_is_recovered_as_the_bandwidth_grows(paper_plan: Fla
 
 
 def test_a_torque_limited_servo_saturates_where_the_commands_demand_it(
-    paper_plan: FlatPlan,
+    paper_plan: Plan,
 ) -> None:
     """The cubic from its start asks for ~32 N m (th2'(0) = 48.8 rad/s turning round). With
     a 10 N m limit: the applied torque is the servo's computed-torque demand (recomputed from
@@ -396,7 +394,7 @@ def test_a_torque_limited_servo_saturates_where_the_commands_demand_it(
     assert lag[at_limit].max() > 10 * lag[~at_limit].max()
 
 
-def test_a_torque_limit_never_reached_changes_nothing(paper_plan: FlatPlan) -> None:
+def test_a_torque_limit_never_reached_changes_nothing(paper_plan: Plan) -> None:
     scenario = dynamic(paper_plan, SWAPPED_GAINS)
     free = run(scenario, dynamic_trials(ON_PLAN))
     limited = run(scenario, dynamic_trials(ON_PLAN, torque_limit=1e3))
@@ -404,7 +402,7 @@ def test_a_torque_limit_never_reached_changes_nothing(paper_plan: FlatPlan) -> N
     np.testing.assert_array_equal(free.trace, limited.trace)  # type: ignore[arg-type]
 
 
-def test_rate_limit_clips_the_commands_of_the_dynamic_plant(paper_plan: FlatPlan) -> None:
+def test_rate_limit_clips_the_commands_of_the_dynamic_plant(paper_plan: Plan) -> None:
     """With the servo's model exact, a first-order lag towards a clipped command never
     exceeds the limit: the cubic asks for th2' = 48.8 rad/s, 20 is allowed."""
     limit = 20.0
@@ -426,7 +424,7 @@ def test_rate_limit_clips_the_commands_of_the_dynamic_plant(paper_plan: FlatPlan
 
 @pytest.mark.parametrize("gains", [PRINTED_GAINS, SWAPPED_GAINS])
 def test_adaptive_and_dop853_agree_on_the_dynamic_plant(
-    paper_plan: FlatPlan, gains: Gains
+    paper_plan: Plan, gains: Gains
 ) -> None:
     plant = PAPER_ROBOT.with_(com=(0.1, 0.1, 0.002))
     trials = dynamic_trials(np.array([ON_PLAN, (1.96, 0.8, -0.1, 0.1)]), plant, 1e-4)
@@ -442,7 +440,7 @@ def test_adaptive_and_dop853_agree_on_the_dynamic_plant(
                                    reference.metrics[:, Metric[name]], rtol=1e-5)
 
 
-def test_dynamic_metrics_are_what_their_names_say(paper_plan: FlatPlan) -> None:
+def test_dynamic_metrics_are_what_their_names_say(paper_plan: Plan) -> None:
     """peak_torque, peak_rate and momentum_drift recomputed from the trace (H with the full
     kinematics); the drift is the integration's and shrinks with the tolerance."""
     plant = PAPER_ROBOT.with_(com=(0.1, 0.1, 0.003))
@@ -461,7 +459,7 @@ def test_dynamic_metrics_are_what_their_names_say(paper_plan: FlatPlan) -> None:
     assert drifts[1] < drifts[0] / 10 and drifts[0] > 0
 
 
-def test_dynamic_batch_equals_one_at_a_time_bit_for_bit(paper_plan: FlatPlan) -> None:
+def test_dynamic_batch_equals_one_at_a_time_bit_for_bit(paper_plan: Plan) -> None:
     """Trials with different plants, servos and noise streams, batched or alone."""
     rng = np.random.default_rng(5)
     n = 4
@@ -489,7 +487,7 @@ def test_servo_values_are_validated() -> None:
         dynamic_trials(ON_PLAN, torque_limit=-1.0)
 
 
-def test_scenario_rejects_unknown_plant_models(paper_plan: FlatPlan) -> None:
+def test_scenario_rejects_unknown_plant_models(paper_plan: Plan) -> None:
     with pytest.raises(ValueError, match=r"plant\.model"):
         Scenario(paper_plan, SWAPPED_GAINS, 1e-3, plant="elastic")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match=r"plant\.servo_model"):
@@ -498,13 +496,13 @@ def test_scenario_rejects_unknown_plant_models(paper_plan: FlatPlan) -> None:
 
 
 def test_plan_motion_is_the_plans_own_motion_and_needs_no_base_torque(
-    paper_plan: FlatPlan,
+    paper_plan: Plan,
 ) -> None:
     """th, th' equal the plan's samples; th'' equals a central difference of the plan's
     exact rates (h = 1e-5 s: truncation ~ h^2 th'''' ~ 1e-5 of th''); and the base row of
     M q'' + C q' (dH/dt) vanishes, since the plan conserves H."""
     t = paper_plan.grid(401)[1:-1]
-    q, qd, qdd = plan_motion(paper_plan, t)
+    q, qd, qdd = paper_plan.motion(t)
     samples = paper_plan.sample(t)
     np.testing.assert_allclose(q, samples.theta, rtol=0, atol=1e-12)
     np.testing.assert_allclose(qd, samples.theta_dot, rtol=1e-12, atol=1e-12)
@@ -514,11 +512,11 @@ def test_plan_motion_is_the_plans_own_motion_and_needs_no_base_torque(
     np.testing.assert_allclose(qdd, difference, rtol=1e-5, atol=1e-5 * np.abs(qdd).max())
     chain = make_chain(PAPER_ROBOT.mass, PAPER_ROBOT.inertia, PAPER_ROBOT.length,
                        PAPER_ROBOT.com)
-    Q = plan_torques(paper_plan, chain, t)
+    Q = paper_plan.torques(chain, t)
     assert np.abs(Q[:, 0]).max() <= 1e-12 * np.abs(Q[:, 1:]).max()
 
 
-def test_servo_torques_approach_the_plans_inverse_dynamics(paper_plan: FlatPlan) -> None:
+def test_servo_torques_approach_the_plans_inverse_dynamics(paper_plan: Plan) -> None:
     """Started on the plan with an exact servo model, the torques the closed loop applies
     tend to the plan's own (``plan_torques``: inverse dynamics, complex-step accelerations)
     as 1/bandwidth once the servo has caught up (t >= 50 ms; at t = 0 it starts from rest:
@@ -527,7 +525,7 @@ def test_servo_torques_approach_the_plans_inverse_dynamics(paper_plan: FlatPlan)
     chain = make_chain(PAPER_ROBOT.mass, PAPER_ROBOT.inertia, PAPER_ROBOT.length,
                        PAPER_ROBOT.com)
     t = np.arange(2001) * 1e-3
-    ideal = plan_torques(paper_plan, chain, t)[:, 1:]
+    ideal = paper_plan.torques(chain, t)[:, 1:]
     gaps = []
     for bandwidth in (300.0, 3000.0):
         out = run(dynamic(paper_plan, SWAPPED_GAINS, servo_model="plant", rtol=1e-10,

@@ -3,7 +3,7 @@ finding, and the plans' demands.
 
 References: statistics recomputed here with numpy from hand-made trial rows; the Wilson
 interval from its closed form (Wilson, J. Am. Stat. Assoc. 22, 1927); the plan's exact rates
-from ``FlatPlan.sample`` (complex step through the inverse map, another route than
+from ``Plan.sample`` (complex step through the inverse map, another route than
 ``plant.plan_motion``). End to end, the section is run by tests/test_reproduce.py.
 """
 

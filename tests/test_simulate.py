@@ -18,7 +18,7 @@ from scipy.integrate import solve_ivp
 from flatcli.core.control import Gains
 from flatcli.core.metrics import Event, Metric, Status
 from flatcli.core.model import PAPER_ROBOT, FlatcliError, RobotParams
-from flatcli.core.planning import FlatPlan
+from flatcli.core.planning import Plan
 from flatcli.core.simulate import (
     NoiseStreams,
     Outcome,
@@ -96,7 +96,7 @@ def perturbed_trials(n: int, seed: int, initial_std: float = 0.05) -> Trials:
 @pytest.mark.parametrize(("integrator", "bound"), [("adaptive", DEFAULT_ACCURACY),
                                                   ("rk4", RK4_ACCURACY)])
 def test_integrators_agree_with_a_tight_dop853(
-    paper_plan: FlatPlan, paper_gains: Gains, fig4_initial: Array,
+    paper_plan: Plan, paper_gains: Gains, fig4_initial: Array,
     trials_factory: Callable[..., Trials], integrator: str, bound: float,
 ) -> None:
     """The paper's example (Fig. 4 start), every output sample, both gain readings."""
@@ -110,7 +110,7 @@ def test_integrators_agree_with_a_tight_dop853(
 
 
 def test_adaptive_error_shrinks_with_the_tolerance(
-    paper_plan: FlatPlan, swapped_gains: Gains, fig4_initial: Array,
+    paper_plan: Plan, swapped_gains: Gains, fig4_initial: Array,
     trials_factory: Callable[..., Trials],
 ) -> None:
     trials = trials_factory(fig4_initial)
@@ -128,14 +128,14 @@ def test_adaptive_error_shrinks_with_the_tolerance(
     assert all(a < b for a, b in itertools.pairwise(steps)), steps
 
 
-def test_error_estimate_bounds_the_true_final_error(paper_plan: FlatPlan) -> None:
+def test_error_estimate_bounds_the_true_final_error(paper_plan: Plan) -> None:
     """err_estimate against DOP853 at rtol 1e-12 on 100 perturbed trials (50 per gain
     reading) that run to the end. The estimate sums the embedded local error estimates of
     the angles, so it is conservative (median ratio ~1e3: the closed loop damps errors) except
     where the loop amplifies them, near the singular set: it bounded 98 of these 100
     (make bench measures a larger sample)."""
     ratios = []
-    readings = ((Gains(10.0, 13.0, 100.0, 110.0), 3), (Gains(100.0, 110.0, 10.0, 13.0), 4))
+    readings = ((Gains((10.0, 13.0), (100.0, 110.0)), 3), (Gains((100.0, 110.0), (10.0, 13.0)), 4))
     for gains, seed in readings:
         scenario = Scenario(paper_plan, gains, 1e-3)
         trials = perturbed_trials(130, seed, initial_std=0.02)
@@ -161,7 +161,7 @@ def test_error_estimate_bounds_the_true_final_error(paper_plan: FlatPlan) -> Non
 @pytest.mark.parametrize("integrator", ["adaptive", "rk4", "dop853"])
 @pytest.mark.parametrize("rate", [-0.05, -0.1])
 def test_a_trial_driven_into_the_singular_set_is_diverged_by_every_integrator(
-    paper_plan: FlatPlan, paper_gains: Gains, trials_factory: Callable[..., Trials],
+    paper_plan: Plan, paper_gains: Gains, trials_factory: Callable[..., Trials],
     integrator: str, rate: float,
 ) -> None:
     """u1(0) against the plan's th1'(0) = +0.1: the feedback drives u1 towards 0, where it
@@ -208,7 +208,7 @@ def reference_event(scenario: Scenario, trials: Trials) -> float:
 
 
 def test_rk4_never_steps_over_the_singular_set(
-    paper_plan: FlatPlan, swapped_gains: Gains, trials_factory: Callable[..., Trials],
+    paper_plan: Plan, swapped_gains: Gains, trials_factory: Callable[..., Trials],
 ) -> None:
     """u1(0) = -0.05: before, RK4 stepped over the pole and called the trial 'singular', with
     err_theta_max 19.6 / 43.6 / 102 / 723 rad at dt = 2 / 1 / 0.5 / 0.25 ms, not converging.
@@ -223,7 +223,7 @@ def test_rk4_never_steps_over_the_singular_set(
 
 
 def test_statuses_agree_between_integrators_on_perturbed_trials(
-    paper_plan: FlatPlan, swapped_gains: Gains
+    paper_plan: Plan, swapped_gains: Gains
 ) -> None:
     """Swapped gains, large initial errors: some trials finish, some cross the singular set,
     some blow up. The compiled integrators resolve exactly the trials the reference does."""
@@ -239,7 +239,7 @@ def test_statuses_agree_between_integrators_on_perturbed_trials(
 
 
 def test_max_steps_spent_leaves_a_trial_unresolved(
-    paper_plan: FlatPlan, printed_gains: Gains, fig4_initial: Array,
+    paper_plan: Plan, printed_gains: Gains, fig4_initial: Array,
     trials_factory: Callable[..., Trials],
 ) -> None:
     out = run(Scenario(paper_plan, printed_gains, 1e-3, max_steps=20),
@@ -250,7 +250,7 @@ def test_max_steps_spent_leaves_a_trial_unresolved(
 
 
 def test_an_unreachable_tolerance_leaves_a_trial_unresolved(
-    paper_plan: FlatPlan, printed_gains: Gains, fig4_initial: Array,
+    paper_plan: Plan, printed_gains: Gains, fig4_initial: Array,
     trials_factory: Callable[..., Trials],
 ) -> None:
     """rtol below the rounding of the state: the step size collapses away from the singular
@@ -261,7 +261,7 @@ def test_an_unreachable_tolerance_leaves_a_trial_unresolved(
 
 
 def test_nominal_trial_is_ok(
-    paper_plan: FlatPlan, printed_gains: Gains, fig4_initial: Array,
+    paper_plan: Plan, printed_gains: Gains, fig4_initial: Array,
     trials_factory: Callable[..., Trials],
 ) -> None:
     out = run(Scenario(paper_plan, printed_gains, 1e-3), trials_factory(fig4_initial))
@@ -272,7 +272,7 @@ def test_nominal_trial_is_ok(
 
 
 def test_a_threshold_above_the_least_margin_gives_singular_hits_but_a_resolved_trial(
-    paper_plan: FlatPlan, printed_gains: Gains, fig4_initial: Array,
+    paper_plan: Plan, printed_gains: Gains, fig4_initial: Array,
     trials_factory: Callable[..., Trials],
 ) -> None:
     trials = trials_factory(fig4_initial)
@@ -287,10 +287,10 @@ def test_a_threshold_above_the_least_margin_gives_singular_hits_but_a_resolved_t
 
 
 def test_unstable_gains_diverge(
-    paper_plan: FlatPlan, fig4_initial: Array, trials_factory: Callable[..., Trials]
+    paper_plan: Plan, fig4_initial: Array, trials_factory: Callable[..., Trials]
 ) -> None:
     """kv = 1e4 puts a pole near -1e4: dt |lambda| = 10 is far outside RK4's stability region."""
-    out = run(Scenario(paper_plan, Gains(1e6, 1e6, 1e4, 1e4), 1e-3),
+    out = run(Scenario(paper_plan, Gains((1e6, 1e6), (1e4, 1e4)), 1e-3),
               trials_factory(fig4_initial), "rk4")
     assert out.status[0] == Status.DIVERGED
     assert 0 < out.event_time[0] < 0.1
@@ -299,7 +299,7 @@ def test_unstable_gains_diverge(
 
 @pytest.mark.parametrize("integrator", ["adaptive", "rk4", "dop853"])
 def test_a_divergence_bound_stops_the_trial_where_it_is_crossed(
-    paper_plan: FlatPlan, printed_gains: Gains, fig4_initial: Array,
+    paper_plan: Plan, printed_gains: Gains, fig4_initial: Array,
     trials_factory: Callable[..., Trials], integrator: str,
 ) -> None:
     """th2 reaches 3.93 rad along the plan: a bound of 3 is crossed mid-run; the trace stops
@@ -327,7 +327,7 @@ def test_a_divergence_bound_stops_the_trial_where_it_is_crossed(
 
 @pytest.mark.parametrize("integrator", ["adaptive", "rk4", "dop853"])
 def test_momentum_drift_of_the_kinematic_plant_is_rounding(
-    paper_plan: FlatPlan, printed_gains: Gains, integrator: str
+    paper_plan: Plan, printed_gains: Gains, integrator: str
 ) -> None:
     """Perturbed plants (d2 != 0, H0 != 0): the plant solves th0' from its H0, so H from the
     full kinematics at its states with its applied rates is H0 to rounding."""
@@ -393,7 +393,7 @@ def test_batch_equals_one_at_a_time_bit_for_bit(
 
 @pytest.mark.parametrize("integrator", ["adaptive", "rk4"])
 def test_rate_limit_bounds_the_applied_rates_without_wind_up(
-    paper_plan: FlatPlan, printed_gains: Gains, fig4_initial: Array,
+    paper_plan: Plan, printed_gains: Gains, fig4_initial: Array,
     trials_factory: Callable[..., Trials], integrator: str,
 ) -> None:
     """A limit of 0.3 rad/s clips th1' (the plan needs up to ~0.7) and th2' (48.8 at t = 0).
@@ -499,7 +499,7 @@ def test_zero_noise_equals_no_noise(paper_scenario: Scenario, fig4_initial: Arra
     ],
 )
 def test_plant_mismatch_shows_in_the_plan_residual_not_the_drift(
-    paper_plan: FlatPlan, printed_gains: Gains, fig4_initial: Array,
+    paper_plan: Plan, printed_gains: Gains, fig4_initial: Array,
     trials_factory: Callable[..., Trials], plant: RobotParams, h0: float,
 ) -> None:
     out = run(Scenario(paper_plan, printed_gains, 1e-3), trials_factory(fig4_initial, plant, h0),
@@ -535,7 +535,7 @@ def test_plant_mismatch_shows_in_the_plan_residual_not_the_drift(
     ],
 )
 def test_scenario_rejects_bad_settings(
-    paper_plan: FlatPlan, printed_gains: Gains, changes: dict[str, float], match: str
+    paper_plan: Plan, printed_gains: Gains, changes: dict[str, float], match: str
 ) -> None:
     args = {"dt": 1e-3, **changes}
     with pytest.raises(FlatcliError, match=match.replace(".", r"\.").replace(r"\\+", r"\+")):

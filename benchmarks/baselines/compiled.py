@@ -13,7 +13,7 @@ from benchmarks.baselines.loop import LoopInputs, loop_inputs
 from benchmarks.baselines.problem import PAPER_TRACKING, Tracking
 from benchmarks.baselines.timing import Throughput, throughput
 from flatcli.core.planning import (
-    FlatPlan,
+    Plan,
 )
 from flatcli.core.simulate import Trials
 
@@ -106,7 +106,7 @@ def _rk4_kernel(
 
 
 def compiled_closed_loop(
-    plan: FlatPlan,
+    plan: Plan,
     trials: Trials,
     tracking: Tracking = PAPER_TRACKING,
     threads: int | None = None,
@@ -121,7 +121,7 @@ def compiled_closed_loop(
 
     Parameters
     ----------
-    plan : FlatPlan in a PolynomialBasis (the cubic by default)
+    plan : Plan in a PolynomialBasis (the cubic by default)
     trials : Trials (N); their noise, if any, is ignored
     tracking : Tracking (gains, dt, rate limit; its initial state is not used: trials')
     threads : numba threads for this call (default: numba's current setting)
@@ -147,7 +147,7 @@ def compiled_closed_loop(
 
 
 def compiled_trials_per_second(
-    plan: FlatPlan,
+    plan: Plan,
     trials: Trials,
     tracking: Tracking = PAPER_TRACKING,
     threads: int = 2,

@@ -13,7 +13,7 @@ from scipy.integrate import solve_ivp
 from benchmarks.baselines.loop import loop_inputs
 from benchmarks.baselines.problem import PAPER_TRACKING, Tracking
 from flatcli.core.planning import (
-    FlatPlan,
+    Plan,
 )
 from flatcli.core.simulate import Trials
 
@@ -41,7 +41,7 @@ class IvpRun:
 
 
 def solve_ivp_trials_per_second(
-    plan: FlatPlan,
+    plan: Plan,
     trials: Trials,
     tracking: Tracking = PAPER_TRACKING,
     method: str = "RK45",

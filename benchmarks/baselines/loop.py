@@ -11,7 +11,7 @@ from numpy.typing import NDArray
 
 from benchmarks.baselines.problem import Tracking
 from flatcli.core.basis import PolynomialBasis
-from flatcli.core.planning import FlatPlan
+from flatcli.core.planning import Plan
 from flatcli.core.simulate import Trials
 
 Array = NDArray[np.float64]
@@ -83,7 +83,7 @@ class LoopInputs:
     rate_limit: float
 
 
-def loop_inputs(plan: FlatPlan, tracking: Tracking, trials: Trials) -> LoopInputs:
+def loop_inputs(plan: Plan, tracking: Tracking, trials: Trials) -> LoopInputs:
     """Unpack a polynomial plan, a tracking setting and trials into ``LoopInputs``."""
     basis = plan.trajectory.basis
     if not isinstance(basis, PolynomialBasis):
@@ -110,7 +110,7 @@ def loop_inputs(plan: FlatPlan, tracking: Tracking, trials: Trials) -> LoopInput
         poly=poly,
         duration=T,
         controller=np.array([k.a0, k.a1, k.b0, k.b1, k.c0], dtype=float),
-        gains=np.asarray(tracking.gains, dtype=float),
+        gains=np.asarray(tracking.gains.paper(), dtype=float),
         plant=plant_coefficients(trials.links),
         total_mass=np.ascontiguousarray(trials.links[:, :3].sum(axis=1)),
         h0=np.ascontiguousarray(trials.momentum, dtype=float),

@@ -11,7 +11,7 @@ from benchmarks.baselines.loop import LoopInputs, loop_inputs
 from benchmarks.baselines.problem import PAPER_TRACKING, Tracking
 from benchmarks.baselines.timing import Throughput, throughput
 from flatcli.core.planning import (
-    FlatPlan,
+    Plan,
 )
 from flatcli.core.simulate import Trials
 
@@ -53,7 +53,7 @@ def _batch_rates(
 
 
 def numpy_batch_rk4(
-    plan: FlatPlan,
+    plan: Plan,
     trials: Trials,
     tracking: Tracking = PAPER_TRACKING,
     chunk: int = 16384,
@@ -103,7 +103,7 @@ def numpy_batch_rk4(
 
 
 def numpy_trials_per_second(
-    plan: FlatPlan,
+    plan: Plan,
     trials: Trials,
     tracking: Tracking = PAPER_TRACKING,
     repeat: int = 1,

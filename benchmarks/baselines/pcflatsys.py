@@ -16,15 +16,13 @@ from scipy.optimize import NonlinearConstraint
 
 from benchmarks.baselines.problem import PAPER_MANEUVER, Maneuver
 from benchmarks.baselines.quality import PlanQuality, flat_plan_quality, limits_violation
+from flatcli.core.flatmodel import state_and_rates
 from flatcli.core.flatness import flat_accelerations, flat_inputs, flat_outputs, flat_state
 from flatcli.core.model import (
     Coefficients,
     base_rate,
 )
-from flatcli.core.planning import (
-    FlatPlan,
-    state_and_rates,
-)
+from flatcli.core.planning import Plan
 
 Array = NDArray[np.float64]
 
@@ -66,7 +64,7 @@ def robot_flat_system(k: Coefficients) -> fs.FlatSystem:
     )
 
 
-def matching_end_inputs(plan: FlatPlan) -> tuple[Array, Array]:
+def matching_end_inputs(plan: Plan) -> tuple[Array, Array]:
     """Inputs u(0), u(T) whose flat accelerations are those of ``plan`` at its two ends.
 
     python-control imposes the whole flag (y, y', y'') at both ends, flatcli's cubic only

@@ -17,7 +17,7 @@ from flatcli.core.model import (
     constraint_coefficients,
 )
 from flatcli.core.planning import (
-    FlatPlan,
+    Plan,
     plan_point_to_point,
 )
 from flatcli.core.simulate import Trials
@@ -26,9 +26,9 @@ Array = NDArray[np.float64]
 Triple = tuple[float, float, float]
 
 #: The paper's printed gains (kp1, kp2, kv1, kv2): closed-loop poles near -0.1 and -100.
-PRINTED_GAINS = Gains(kp1=10.0, kp2=13.0, kv1=100.0, kv2=110.0)
+PRINTED_GAINS = Gains((10.0, 13.0), (100.0, 110.0))
 #: kp and kv swapped: well-damped poles, errors ~1e-5 at t = T.
-SWAPPED_GAINS = Gains(kp1=100.0, kp2=110.0, kv1=10.0, kv2=13.0)
+SWAPPED_GAINS = Gains((100.0, 110.0), (10.0, 13.0))
 
 
 @dataclass(frozen=True)
@@ -67,7 +67,7 @@ class Maneuver:
         """(4,) prolonged state at t = T."""
         return np.array([*self.goal, self.goal_rate])
 
-    def cubic(self) -> FlatPlan:
+    def cubic(self) -> Plan:
         """flatcli's cubic plan of this maneuver (the paper's choice of basis)."""
         return plan_point_to_point(
             self.robot,

@@ -9,12 +9,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from flatcli.core.basis import composite_gauss_legendre
+from flatcli.core.flatmodel import state_and_rates
 from flatcli.core.model import (
     Coefficients,
     RobotParams,
     momentum,
 )
-from flatcli.core.planning import ENERGY_ORDER, ENERGY_PIECES, FlatPlan, state_and_rates
+from flatcli.core.planning import ENERGY_ORDER, ENERGY_PIECES, Plan
 
 Array = NDArray[np.float64]
 
@@ -93,7 +94,7 @@ def flat_plan_quality(
 
 
 def plan_quality(
-    plan: FlatPlan,
+    plan: Plan,
     angle_limit: float | None = None,
     rate_limit: float | None = None,
     min_margin: float | None = None,

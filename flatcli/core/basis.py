@@ -150,6 +150,30 @@ class BSplineBasis:
         return np.ascontiguousarray(breaks, dtype=float), local
 
 
+@dataclass(frozen=True)
+class FlatTrajectory:
+    """Flat outputs y(t) = coefficients @ phi(t) in a basis: coefficients (..., N, size) for
+    the N outputs (a leading batch of plans allowed)."""
+
+    basis: Basis
+    coefficients: Array
+
+    def derivative(self, t: Array, order: int) -> Array:
+        """(..., n, N): d^order y / dt^order at times t (n,) [rad/s^order]."""
+        phi = self.basis.matrix(np.atleast_1d(np.asarray(t, dtype=float)), order)
+        return phi @ np.swapaxes(self.coefficients, -1, -2)
+
+    def flags(self, t: Array) -> Array:
+        """(n, 3 N) y, y', y'' at times t (n,) (one plan)."""
+        return np.ascontiguousarray(np.hstack([self.derivative(t, k) for k in range(3)]))
+
+    def piecewise(self) -> tuple[Array, Array]:
+        """One curve as piecewise polynomials: ``Basis.piecewise`` of its coefficients."""
+        if self.coefficients.ndim != 2:
+            raise ValueError("FlatTrajectory.piecewise: one plan at a time")
+        return self.basis.piecewise(self.coefficients)
+
+
 def composite_gauss_legendre(duration: float, pieces: int, order: int) -> tuple[Array, Array]:
     """Nodes and weights of the Gauss-Legendre rule of ``order`` nodes on each of ``pieces``
     equal pieces of [0, duration] [s]."""

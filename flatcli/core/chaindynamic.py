@@ -50,6 +50,7 @@ from flatcli.core.chainflat import (
     outputs_given,
     terms_into,
 )
+from flatcli.core.control import law
 from flatcli.core.dynamics import (
     TRIG_ROWS,
     Chain,
@@ -163,8 +164,7 @@ def _commands(loop: ChainDynamicLoop, measured: Array, u: Array, ref: Array) -> 
     h_c, grad, hess, slopes = work.h, work.grad, work.hess, work.slopes
     sigma = outputs_given(loop.Kc, loop.Ic, h0, h_c, grad, measured, u, y, y_dot)
     for j in range(n):
-        v[j] = (ref[2 * n + j] + loop.kv[j] * (ref[n + j] - y_dot[j])
-                + loop.kp[j] * (ref[j] - y[j]))
+        v[j] = law(ref, j, n, loop.kp[j], loop.kv[j], y[j], y_dot[j])
     command = inputs_given(loop.Ic, h0, h_c, grad, hess, slopes, measured, u, v,
                            buf[_U_DOT, : n - 1])
     limit = loop.rate_limit

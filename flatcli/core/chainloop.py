@@ -35,6 +35,7 @@ from flatcli.core.chainflat import (
     outputs_given,
     terms_into,
 )
+from flatcli.core.control import law
 from flatcli.core.metrics import (
     observe_errors,
 )
@@ -95,8 +96,7 @@ def chain_rhs(loop: ChainLoop, x: Array, ref: Array, noise: Array, out: Array) -
     h_c, grad, hess, slopes = work.h, work.grad, work.hess, work.slopes
     sigma = outputs_given(loop.Kc, loop.Ic, h0, h_c, grad, measured, u, y, y_dot)
     for j in range(n):
-        v[j] = (ref[2 * n + j] + loop.kv[j] * (ref[n + j] - y_dot[j])
-                + loop.kp[j] * (ref[j] - y[j]))
+        v[j] = law(ref, j, n, loop.kp[j], loop.kv[j], y[j], y_dot[j])
     command = inputs_given(loop.Ic, h0, h_c, grad, hess, slopes, measured, u, v, u_dot)
     limit = loop.rate_limit
     if noisy:  # the plant's own angles (without noise the controller's trigonometry is theirs)
@@ -165,11 +165,3 @@ def chain_matrix(params: Array, n: int) -> Array:
     nb = n + 1
     return np.ascontiguousarray(barycentric_matrix(params[:nb], params[2 * nb: 3 * nb],
                                                    params[3 * nb: 4 * nb]))
-
-
-class ChainGains(NamedTuple):
-    """Feedback gains of an N-link chain: kp (N,) [1/s^2] and kv (N,) [1/s], one per flat
-    output y_1..y_N."""
-
-    kp: tuple[float, ...]
-    kv: tuple[float, ...]

@@ -35,6 +35,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from flatcli.core._jit import jitable, kernel
+from flatcli.core.chain import barycentric_matrices
 from flatcli.core.chaindynamic import (
     ChainDynamicLoop,
     chain_dynamic_aux,
@@ -48,6 +49,7 @@ from flatcli.core.chaindynamic import (
 )
 from flatcli.core.chainflat import Scratch, scratch
 from flatcli.core.chainloop import ChainLoop, chain_rhs, observe_chain, plan_residual
+from flatcli.core.control import Gains
 from flatcli.core.dynamics import ThreeBody
 from flatcli.core.integrate import WORK_ROWS, make_trial_integrators, plan_flag, record_rates
 from flatcli.core.metrics import (
@@ -57,7 +59,7 @@ from flatcli.core.metrics import (
     plan_momentum_residual,
     reset_accumulator,
 )
-from flatcli.core.model import Coefficients, Links
+from flatcli.core.model import Coefficients, Links, RobotParams, constraint_coefficients
 from flatcli.core.plant import (
     DYNAMIC_AUX,
     DYNAMIC_STATE,
@@ -260,7 +262,7 @@ def make_single(ops: Ops) -> tuple[Callable[..., None], Callable[..., None],
 
 
 class PaperShared(NamedTuple):
-    """The controller of the paper's robot: its coefficients, gains (``control.Gains``),
+    """The controller of the paper's robot: its coefficients, gains (``control.PaperGains``),
     the joint-rate limit [rad/s]; for the dynamic plant the nominal robot's three-body
     chain (the servo's model unless ``servo_is_plant``)."""
 
@@ -574,14 +576,55 @@ def chain_dynamic_trace(states: Array, rates: Array, last: int, trace: Array) ->
     _chain_dynamic_record(states, rates, last, trace)
 
 
+def paper_shared(model: Any, gains: Gains, rate_limit: float, servo_is_plant: bool,
+                 robot: RobotParams) -> PaperShared:
+    """What every trial shares in the paper's closed form: its coefficients, gains, the
+    rate limit, the nominal robot (the servo's model unless ``servo_is_plant``)."""
+    K = barycentric_matrices(robot.as_array()[None, :])[0]
+    links = Links(*(float(v) for v in robot.links))
+    return PaperShared(Coefficients(*(float(v) for v in model.coefficients)), gains.paper(),
+                       float(rate_limit),
+                       ThreeBody(K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2], K[2, 2],
+                                 links.i0, links.i1, links.i2),
+                       links, servo_is_plant)
+
+
+def chain_shared(model: Any, gains: Gains, rate_limit: float, servo_is_plant: bool,
+                 robot: RobotParams) -> ChainShared:
+    """What every trial shares in the general chain: the controller's K and inertias,
+    gains, the rate limit, whether the servo knows the plant (writable copies: the model's
+    arrays are read-only, a type the kernels' plant records do not share)."""
+    return ChainShared(np.array(model.K, dtype=float), np.array(model.inertia, dtype=float),
+                       np.asarray(gains.kp, dtype=float), np.asarray(gains.kv, dtype=float),
+                       float(rate_limit), servo_is_plant)
+
+
+def paper_plant(params: Array, plant: str) -> Array:
+    """Per trial, what the paper's closed form needs of the plant: its constraint
+    coefficients (the kinematic plant, (T, 11)) or its barycentric matrix (the dynamic
+    plant, (T, 3, 3))."""
+    if plant == "kinematic":
+        k = constraint_coefficients(Links(*np.asarray(params, dtype=float).T), "derived")
+        return np.ascontiguousarray(np.stack(np.broadcast_arrays(*k), axis=-1))
+    return barycentric_matrices(params)
+
+
+def chain_plant(params: Array, plant: str) -> Array:
+    """Per trial, the plant's barycentric matrix (T, N + 1, N + 1)."""
+    return barycentric_matrices(params)
+
+
 @dataclass(frozen=True)
 class Kernels:
     """The compiled functions of one (model, plant) combination: its batch kernel and its
-    single-trial kernels (initial state, right-hand side, observer of a trace)."""
+    single-trial kernels (initial state, right-hand side, observer of a trace), and how
+    its shared record and per-trial plant arrays are made (``paper_shared``, ...)."""
 
     ops: Ops
     batch: Callable[..., None]
     single: tuple[Callable[..., Any], ...]
+    shared: Callable[..., Any]
+    plant: Callable[[Array, str], Array]
 
     def buffers(self, n: int, flag_size: int) -> Buffers:
         """Fresh buffers for a robot of N = ``n`` joints."""
@@ -598,17 +641,17 @@ KERNELS: dict[tuple[str, str], Kernels] = {
     ("paper", "kinematic"): Kernels(
         PAPER_KINEMATIC, paper_kinematic_batch,
         (paper_kinematic_start, paper_kinematic_derivative, paper_kinematic_metrics,
-         paper_kinematic_trace)),
+         paper_kinematic_trace), paper_shared, paper_plant),
     ("paper", "dynamic"): Kernels(
         PAPER_DYNAMIC, paper_dynamic_batch,
         (paper_dynamic_start, paper_dynamic_derivative, paper_dynamic_metrics,
-         paper_dynamic_trace)),
+         paper_dynamic_trace), paper_shared, paper_plant),
     ("chain", "kinematic"): Kernels(
         CHAIN_KINEMATIC, chain_kinematic_batch,
         (chain_kinematic_start, chain_kinematic_derivative, chain_kinematic_metrics,
-         chain_kinematic_trace)),
+         chain_kinematic_trace), chain_shared, chain_plant),
     ("chain", "dynamic"): Kernels(
         CHAIN_DYNAMIC, chain_dynamic_batch,
         (chain_dynamic_start, chain_dynamic_derivative, chain_dynamic_metrics,
-         chain_dynamic_trace)),
+         chain_dynamic_trace), chain_shared, chain_plant),
 }

@@ -1,160 +1,69 @@
 """Point-to-point plans in flat outputs, and everything a plan implies along its time grid.
 
-A plan is a pair of curves y(t) = (y1, y2) written in a basis (``basis``: polynomials of any
-degree or clamped B-splines), with the boundary values of y and y' imposed exactly. The start
-and goal configurations fix y(0), y(T) and, through the forward map, y2'(0) and y2'(T) once
-the free end rates th1'(0) = y1'(0) and th1'(T) = y1'(T) are chosen (the paper picks 0.1 and
-0.5). Coefficients the boundary conditions leave free are chosen to minimise the acceleration
-energy of y (for a cubic there are none); ``flatcli.core.optimize`` chooses them otherwise.
+A plan is N curves y(t) (the flat outputs of a robot of N joints: y1 = th1, y2 = th0 -
+c0 th2 / A for the paper's robot, y_j = th_j and y_N = th0 + I_N th_N / h_0 for a chain)
+written in a basis (``basis``: polynomials of any degree or clamped B-splines), with the
+boundary values of y and y' imposed exactly. The start and goal configurations fix y(0),
+y(T) and, through the forward map (``flatmodel``), y'(0) and y'(T) once the free end rates
+of the inner joints th_j'(0), th_j'(T), j < N, are chosen (the paper picks th1' = 0.1 and
+0.5). Coefficients the boundary conditions leave free are chosen to minimise the
+acceleration energy of y (for a cubic there are none); ``flatcli.core.optimize`` chooses
+them otherwise. One planner serves every N and basis; the model answers the rest.
 
-Everything else follows from y through ``flatness.flag_state``: th(t), u1' and u2, and th'(t)
-(here by complex step through the inverse map along the flat flag: no finite difference, and
-never from the constraint), the singularity margin, and H from the full link kinematics.
-
-A plan whose signed margin sin(y1) y1' changes sign or touches zero inside (0, T) passes
-through the singular set, where the inverse map is infinite: it is not a plan, and
-``plan_point_to_point`` refuses it (``margin_zeros`` finds those times exactly, from the
-roots of the piecewise polynomials y1' and y1 - k pi).
+Everything else follows from y through the model's inverse map: th(t), its exact rates
+(never from the constraint), the inputs, the signed singularity margin, and H from the full
+link kinematics. A plan whose signed margin changes sign or touches zero inside (0, T)
+passes through the singular set, where the inverse map is infinite: it is not a plan, and
+``plan_point_to_point`` refuses it (``FlatModel.margin_zeros``).
 """
 
 from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from flatcli.core._jit import allocating_kernel
-from flatcli.core.basis import Basis, PolynomialBasis, composite_gauss_legendre, quadrature
-from flatcli.core.flatness import flag_state, flat_outputs, flat_state, singularity_margin
-from flatcli.core.model import (
-    Coefficients,
-    FlatcliError,
-    Model,
-    RobotParams,
-    momentum,
-    require_flat,
+from flatcli.core.basis import (
+    Basis,
+    FlatTrajectory,
+    PolynomialBasis,
+    composite_gauss_legendre,
+    quadrature,
 )
+from flatcli.core.dynamics import Chain, inverse_dynamics
+from flatcli.core.flatmodel import (
+    COMPLEX_STEP,
+    Boundary,
+    ChainModel,
+    FlatModel,
+    PaperModel,
+    flat_model,
+)
+from flatcli.core.model import Coefficients, FlatcliError, Model, RobotParams, require_flat
 
 Array = NDArray[np.float64]
 
-#: Complex-step size: derivatives exact to rounding, since no difference is taken.
-COMPLEX_STEP = 1e-30
-
-#: Composite Gauss-Legendre rule of ``FlatPlan.input_energy`` (and the optimiser's energy):
+#: Composite Gauss-Legendre rule of ``Plan.input_energy`` (and the optimiser's energy):
 #: pieces of [0, T], nodes per piece.
 ENERGY_PIECES = 64
 ENERGY_ORDER = 8
 
-#: A root of y1' (or of y1 - k pi) with |imaginary part| below this (relative to 1 + |root|)
-#: counts as real: a double root, where the margin touches zero, comes out as a close pair.
-ROOT_IMAG_TOL = 1e-7
-
-
-@dataclass(frozen=True)
-class FlatTrajectory:
-    """y(t) = coefficients @ phi(t): coefficients (..., 2, size) in a basis."""
-
-    basis: Basis
-    coefficients: Array
-
-    def derivative(self, t: Array, order: int) -> Array:
-        """(..., n, 2): d^order y / dt^order at times t (n,) [rad/s^order]."""
-        phi = self.basis.matrix(np.atleast_1d(np.asarray(t, dtype=float)), order)
-        return phi @ np.swapaxes(self.coefficients, -1, -2)
-
-    def piecewise(self) -> tuple[Array, Array]:
-        """One curve as piecewise polynomials: ``Basis.piecewise`` of its coefficients."""
-        if self.coefficients.ndim != 2:
-            raise ValueError("FlatTrajectory.piecewise: one plan at a time")
-        return self.basis.piecewise(self.coefficients)
-
-
-@dataclass(frozen=True)
-class Boundary:
-    """Flat boundary conditions: y and y' at t = 0 and t = T, each (2,)."""
-
-    y_start: Array
-    y_dot_start: Array
-    y_goal: Array
-    y_dot_goal: Array
-
-
-def boundary_conditions(
-    k: Coefficients,
-    start: ArrayLike,
-    goal: ArrayLike,
-    start_rate: ArrayLike,
-    goal_rate: ArrayLike,
-) -> Boundary:
-    """Flat boundary values for moving from configuration ``start`` to ``goal``.
-
-    Parameters
-    ----------
-    k : Coefficients (d2 = 0)
-    start, goal : (..., 3) th0, th1, th2 [rad]
-    start_rate, goal_rate : (...) th1' at the two ends [rad/s], the free choice of the paper
-
-    Returns
-    -------
-    Boundary with fields (..., 2)
-
-    Raises
-    ------
-    FlatcliError if an end lies on the singular set (sin th1 = 0 or th1' = 0).
-    """
-    if np.ndim(start_rate) == 0 and np.ndim(goal_rate) == 0 and np.shape(start) == (3,) == (
-        np.shape(goal)
-    ):
-        return _one_boundary(k, start, goal, float(start_rate), float(goal_rate))  # type: ignore[arg-type]
-    # both ends in one vectorised evaluation: axis -1 of ends is (start, goal)
-    ends = np.stack(np.broadcast_arrays(np.asarray(start, float), np.asarray(goal, float)),
-                    axis=-1)  # (..., 3, 2)
-    rates = np.stack(np.broadcast_arrays(np.asarray(start_rate, float),
-                                         np.asarray(goal_rate, float)), axis=-1)  # (..., 2)
-    if not np.all(rates != 0):
-        key = "plan.start_rate" if np.any(rates[..., 0] == 0) else "plan.goal_rate"
-        raise FlatcliError(f"{key}: must be != 0, the flat map is singular where th1' = 0")
-    near = np.abs(np.sin(ends[..., 1, :])) < 1e-9
-    if np.any(near):
-        side = 0 if np.any(near[..., 0]) else 1
-        th1 = float(ends[..., 1, side][near[..., side]].flat[0])
-        raise FlatcliError(
-            f"plan.{('start', 'goal')[side]}[1] = {th1:g} rad lies on the singular set "
-            "sin th1 = 0; choose th1 away from multiples of pi"
-        )
-    y1, y2, y1_dot, y2_dot = flat_outputs(k, ends[..., 0, :], ends[..., 1, :], ends[..., 2, :],
-                                          rates)
-    y = np.stack(np.broadcast_arrays(y1, y2), axis=-1)  # (..., end, output)
-    y_dot = np.stack(np.broadcast_arrays(y1_dot, y2_dot), axis=-1)
-    return Boundary(y[..., 0, :], y_dot[..., 0, :], y[..., 1, :], y_dot[..., 1, :])
-
-
-def _one_boundary(
-    k: Coefficients, start: Sequence[float], goal: Sequence[float], start_rate: float,
-    goal_rate: float,
-) -> Boundary:
-    """``boundary_conditions`` of one maneuver, in plain floats (numpy's per-call overhead
-    would dominate a single plan)."""
-    flags = []
-    for side, theta, rate in (("start", start, start_rate), ("goal", goal, goal_rate)):
-        th0, th1, th2 = (float(v) for v in theta)
-        if rate == 0:
-            raise FlatcliError(
-                f"plan.{side}_rate: must be != 0, the flat map is singular where th1' = 0"
-            )
-        if abs(math.sin(th1)) < 1e-9:
-            raise FlatcliError(
-                f"plan.{side}[1] = {th1:g} rad lies on the singular set sin th1 = 0; "
-                "choose th1 away from multiples of pi"
-            )
-        flags.append(flat_outputs(k, th0, th1, th2, rate))
-    (a1, a2, a1d, a2d), (b1, b2, b1d, b2d) = flags
-    return Boundary(np.array([a1, a2]), np.array([a1d, a2d]), np.array([b1, b2]),
-                    np.array([b1d, b2d]))
+__all__ = [
+    "COMPLEX_STEP",
+    "ENERGY_ORDER",
+    "ENERGY_PIECES",
+    "Boundary",
+    "FlatTrajectory",
+    "Plan",
+    "PlanSamples",
+    "boundary_system",
+    "min_acceleration_trajectory",
+    "plan_chain",
+    "plan_point_to_point",
+]
 
 
 @dataclass(frozen=True)
@@ -205,7 +114,7 @@ def boundary_system(basis: Basis) -> BoundarySystem:  # bases are frozen datacla
 
 
 def boundary_rhs(boundary: Boundary) -> Array:
-    """(..., 4, 2): y(0), y'(0), y(T), y'(T) of both outputs, matching ``BoundarySystem``."""
+    """(..., 4, N): y(0), y'(0), y(T), y'(T) of the N outputs, matching ``BoundarySystem``."""
     return np.stack(
         [boundary.y_start, boundary.y_dot_start, boundary.y_goal, boundary.y_dot_goal], axis=-2
     )
@@ -242,53 +151,11 @@ def min_acceleration_trajectory(basis: Basis, boundary: Boundary) -> FlatTraject
 
     For a cubic the boundary conditions fix it; for a richer basis this is still the cubic
     when the basis contains it (the cubic Hermite curve minimises that integral). A batch of
-    boundary conditions (fields (..., 2)) gives a batch of curves.
+    boundary conditions (fields (..., N)) gives a batch of curves.
     """
     operator = min_acceleration_operator(basis)  # type: ignore[arg-type]
     coefficients = operator @ boundary_rhs(boundary)  # (..., size, 2)
     return FlatTrajectory(basis, np.ascontiguousarray(np.swapaxes(coefficients, -1, -2)))
-
-
-def _unit_interval_roots(a: Array) -> list[float]:
-    """Real roots in [0, 1] of the polynomial sum_j a_j s^j (exact zero: every s is one)."""
-    scale = float(np.max(np.abs(a)))
-    if scale == 0.0:
-        return [0.0]
-    trimmed = np.trim_zeros(np.where(np.abs(a) > 1e-14 * scale, a, 0.0), "b")
-    if trimmed.size <= 1:
-        return []
-    roots = np.polynomial.polynomial.polyroots(trimmed)
-    real = roots.real[np.abs(roots.imag) <= ROOT_IMAG_TOL * (1.0 + np.abs(roots.real))]
-    return sorted(float(r) for r in real if 0.0 <= r <= 1.0)
-
-
-def margin_zeros(trajectory: FlatTrajectory) -> Array:
-    """Times in (0, T) where the signed margin sin(y1) y1' of one plan is zero [s].
-
-    y1' = 0 at the real roots of y1' on each polynomial piece (double roots included, where
-    the margin touches zero without changing sign); sin y1 = 0 where y1 = k pi between the
-    extremes of y1. Empty for a plan that stays off the singular set.
-    """
-    breaks, local = trajectory.piecewise()
-    y1 = local[:, :, 0]  # (m, degree + 1) in s on each piece
-    powers = np.arange(1, y1.shape[1])
-    times: list[float] = []
-    values = [float(y1[0, 0]), float(np.sum(y1[-1]))]  # y1(0), y1(T)
-    for i in range(y1.shape[0]):
-        lo, width = float(breaks[i]), float(breaks[i + 1] - breaks[i])
-        for s in _unit_interval_roots(y1[i, 1:] * powers):  # dy1/ds
-            times.append(lo + width * s)
-            values.append(float(np.polynomial.polynomial.polyval(s, y1[i])))
-    low, high = min(values), max(values)
-    for k in range(math.ceil(low / math.pi), math.floor(high / math.pi) + 1):
-        shifted = y1.copy()
-        shifted[:, 0] -= k * math.pi
-        for i in range(y1.shape[0]):
-            lo, width = float(breaks[i]), float(breaks[i + 1] - breaks[i])
-            times.extend(lo + width * s for s in _unit_interval_roots(shifted[i]))
-    duration = float(breaks[-1])
-    inside = [t for t in times if 0.0 < t < duration]
-    return np.unique(np.asarray(inside, dtype=float))
 
 
 @dataclass(frozen=True)
@@ -317,58 +184,55 @@ class PlanSamples:
         return self.theta_dot[..., 2]
 
 
-def state_and_rates(k: Coefficients, y: Array, y_dot: Array, y_ddot: Array) -> tuple[Array, Array]:
-    """State and its exact time derivative along a flat curve.
-
-    Parameters
-    ----------
-    k : Coefficients (d2 = 0)
-    y, y_dot, y_ddot : (..., 2) flat outputs and two derivatives
-
-    Returns
-    -------
-    state : (..., 4) th0, th1, th2 [rad], u1 [rad/s]
-    state_dot : (..., 4) th0', th1', th2' [rad/s], u1' [rad/s^2] (complex step)
-    """
-    z = [y[..., 0], y[..., 1], y_dot[..., 0], y_dot[..., 1]]
-    dz = [y_dot[..., 0], y_dot[..., 1], y_ddot[..., 0], y_ddot[..., 1]]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        state = np.stack(flat_state(k, *z), axis=-1)
-        perturbed = [zi + 1j * COMPLEX_STEP * dzi for zi, dzi in zip(z, dz, strict=True)]
-        state_dot = np.stack(flat_state(k, *perturbed), axis=-1).imag / COMPLEX_STEP
-    return state, state_dot
-
-
 @dataclass(frozen=True)
-class FlatPlan:
-    """A planned maneuver: the flat curve, the robot and model it was planned for."""
+class Plan:
+    """A planned maneuver: the flat curves, the robot and the flat model it was planned for
+    (which the controller believes too)."""
 
     robot: RobotParams
-    model: Model
-    coefficients: Coefficients
-    trajectory: FlatTrajectory
+    model: FlatModel
+    trajectory: FlatTrajectory  # coefficients (N, size), or (..., N, size) for a batch
     duration: float
+
+    @property
+    def n_joints(self) -> int:
+        """N, the robot's joints."""
+        return self.model.n_joints
+
+    @property
+    def coefficients(self) -> Coefficients:
+        """The paper's constraint coefficients the plan was made with (the three-link robot
+        in closed form only: ``flatmodel.PaperModel``)."""
+        if not isinstance(self.model, PaperModel):
+            raise FlatcliError("plan: the constraint coefficients exist for the paper's "
+                               "three-link robot in closed form only")
+        return self.model.coefficients
+
+    def flags(self, t: Array) -> Array:
+        """(..., n, 3 N) y, y', y'' at times t (n,) [s]."""
+        return np.ascontiguousarray(np.concatenate(
+            [self.trajectory.derivative(t, k) for k in range(3)], axis=-1))
 
     def sample(self, t: Array) -> PlanSamples:
         """Evaluate the plan at times t (n,) [s] within [0, duration]."""
         t = np.asarray(t, dtype=float)
-        y = self.trajectory.derivative(t, 0)
-        y_dot = self.trajectory.derivative(t, 1)
-        y_ddot = self.trajectory.derivative(t, 2)
-        state, state_dot = state_and_rates(self.coefficients, y, y_dot, y_ddot)
-        theta, theta_dot = state[..., :3], state_dot[..., :3]
-        H = momentum(self.robot.links, *np.moveaxis(theta, -1, 0), *np.moveaxis(theta_dot, -1, 0))
+        n = self.n_joints
+        flags = self.flags(t)
+        theta, theta_dot, u_dot, sigma = self.model.flags_to_states(flags)
         return PlanSamples(
-            t=t,
-            theta=theta,
-            theta_dot=theta_dot,
-            u_dot=state_dot[..., 3:4],
-            y=y,
-            y_dot=y_dot,
-            y_ddot=y_ddot,
-            margin=np.asarray(singularity_margin(y[..., 0], y_dot[..., 0])),
-            momentum=np.asarray(H),
+            t=t, theta=theta, theta_dot=theta_dot, u_dot=u_dot, y=flags[..., :n],
+            y_dot=flags[..., n:2 * n], y_ddot=flags[..., 2 * n:],
+            margin=np.abs(np.asarray(sigma)), momentum=self.momentum(theta, theta_dot),
         )
+
+    def momentum(self, theta: Array, theta_dot: Array) -> Array:
+        """H [kg m^2/s] of the planning robot from its full link kinematics at angles theta
+        and rates theta_dot (..., N + 1) (``FlatModel.momentum``)."""
+        return self.model.momentum(self.robot, theta, theta_dot)
+
+    def signed_margin(self, t: Array) -> Array:
+        """(n,) the signed margin along the plan [rad/s]."""
+        return np.asarray(self.model.signed_margin(self.flags(np.asarray(t, dtype=float))))
 
     def evaluate(self, t: Array) -> tuple[Array, Array]:
         """States and inputs only (what a controller needs; cheaper than ``sample``).
@@ -379,118 +243,48 @@ class FlatPlan:
 
         Returns
         -------
-        state : (..., n, 4) th0, th1, th2 [rad], u1 [rad/s]
-        inputs : (..., n, 2) u1' [rad/s^2], u2 = th2' [rad/s]
+        state : (..., n, 2 N) th0..thN [rad], u_1..u_N-1 [rad/s]
+        inputs : (..., n, N) u_1'..u_N-1' [rad/s^2], th_N' [rad/s]
         """
         t = np.asarray(t, dtype=float)
-        k = self.coefficients
-        basis = self.trajectory.basis
-        if isinstance(basis, PolynomialBasis) and self.trajectory.coefficients.ndim == 2:
-            # one plan in a polynomial basis: a compiled loop (Horner), no numpy call per term
-            state = np.empty((t.size, 4))
-            inputs = np.empty((t.size, 2))
-            _polynomial_state_inputs(self.trajectory.coefficients, basis.duration, t.ravel(),
-                                     Coefficients(*map(float, k)), state, inputs)
-            return state, inputs
-        y = self.trajectory.derivative(t, 0)
-        y_dot = self.trajectory.derivative(t, 1)
-        y_ddot = self.trajectory.derivative(t, 2)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            th0, th1, th2, u1, u1_dot, u2, _ = flag_state(
-                k, y[..., 0], y[..., 1], y_dot[..., 0], y_dot[..., 1], y_ddot[..., 0],
-                y_ddot[..., 1])
-        return np.stack([th0, th1, th2, u1], axis=-1), np.stack([u1_dot, u2], axis=-1)
+        fast = self.model.fast_evaluate(self.trajectory, t)
+        if fast is not None:
+            return fast
+        n = self.n_joints
+        theta, theta_dot, u_dot, _ = self.model.flags_to_states(self.flags(t))
+        state = np.concatenate([theta, theta_dot[..., 1:n]], axis=-1)
+        return state, np.concatenate([u_dot, theta_dot[..., n:]], axis=-1)
+
+    def motion(self, t: Array) -> tuple[Array, Array, Array]:
+        """The angles q (n, N + 1) [rad], rates q' [rad/s] and accelerations q'' [rad/s^2] the
+        plan asks of the robot at times t (n,) [s], exactly (``FlatModel.motion``)."""
+        return self.model.motion(self.trajectory, t)
+
+    def torques(self, chain: Chain, t: Array) -> Array:
+        """The generalised forces M q'' + C q' the plan asks of a robot (its ``dynamics.Chain``)
+        at times t (n,) [s]: (n, N + 1) [N m], the base's first (dH/dt: ~0 for a plan of this
+        robot), then the joint torques an ideal actuator would apply
+        (``dynamics.inverse_dynamics``)."""
+        q, q_dot, q_ddot = self.motion(t)
+        return inverse_dynamics(chain, q, q_dot, q_ddot)
 
     def grid(self, samples: int) -> Array:
         """(samples,) equally spaced times over [0, duration] [s]."""
         return np.linspace(0.0, self.duration, samples)
 
     def input_energy(self, pieces: int = ENERGY_PIECES, order: int = ENERGY_ORDER) -> float:
-        """Integral over [0, T] of th1'^2 + th2'^2 [rad^2/s] (composite Gauss-Legendre)."""
+        """Integral over [0, T] of the sum of the joint rates squared, th_1'^2 + ... + th_N'^2
+        [rad^2/s] (composite Gauss-Legendre)."""
         t, weights = composite_gauss_legendre(self.duration, pieces, order)
         rates = self.sample(t).theta_dot
         if rates.ndim > 2:
             raise ValueError("input_energy: one plan at a time")
-        return float(weights @ (rates[:, 1] ** 2 + rates[:, 2] ** 2))
+        return float(weights @ np.sum(rates[:, 1:] ** 2, axis=1))
 
     def margin_zeros(self) -> Array:
-        """Times in (0, T) where the plan meets the singular set [s] (``margin_zeros``)."""
-        return margin_zeros(self.trajectory)
-
-
-@allocating_kernel
-def _polynomial_state_inputs(
-    coefficients: Array, duration: float, t: Array, k: Coefficients, state: Array,
-    inputs: Array,
-) -> None:
-    """State (n, 4) and inputs (n, 2) of one polynomial plan at times t (n,), by Horner."""
-    size = coefficients.shape[1]
-    for i in range(t.shape[0]):
-        s = t[i] / duration
-        flag = np.empty(6)  # y1, y2, y1', y2', y1'', y2''
-        for o in range(2):
-            p = coefficients[o, size - 1]
-            dp = 0.0
-            half_ddp = 0.0
-            for j in range(size - 2, -1, -1):
-                half_ddp = half_ddp * s + dp
-                dp = dp * s + p
-                p = p * s + coefficients[o, j]
-            flag[o] = p
-            flag[2 + o] = dp / duration
-            flag[4 + o] = 2.0 * half_ddp / (duration * duration)
-        th0, th1, th2, u1, u1_dot, u2, _ = flag_state(k, flag[0], flag[1], flag[2], flag[3],
-                                                      flag[4], flag[5])
-        state[i, 0], state[i, 1], state[i, 2], state[i, 3] = th0, th1, th2, u1
-        inputs[i, 0], inputs[i, 1] = u1_dot, u2
-
-
-def _touches_singular_set(basis: PolynomialBasis, coefficients: Array) -> NDArray[np.bool_]:
-    """(B,) which polynomial plans (coefficients (B, 2, size)) meet the singular set inside
-    (0, T), all at once: a real root of y1' in (0, 1) (eigenvalues of the companion matrices),
-    or a monotone y1 whose ends lie on either side of a multiple of pi."""
-    a = coefficients[:, 0, :]  # y1 in s = t / T
-    d = a[:, 1:] * np.arange(1, a.shape[1])  # dy1/ds, (B, degree)
-    bad = np.zeros(a.shape[0], dtype=bool)
-    lead = np.abs(d[:, -1]) > 1e-14 * np.max(np.abs(d), axis=1)
-    if d.shape[1] >= 2:
-        n = d.shape[1] - 1  # degree of dy1/ds
-        companion = np.zeros((int(lead.sum()), n, n))
-        companion[:, 1:, :-1] = np.eye(n - 1)
-        companion[:, :, -1] = -d[lead, :-1] / d[lead, -1:]
-        roots = np.linalg.eigvals(companion)
-        real = np.abs(roots.imag) <= ROOT_IMAG_TOL * (1.0 + np.abs(roots.real))
-        bad[lead] = np.any(real & (roots.real > 0.0) & (roots.real < 1.0), axis=1)
-    for row in np.flatnonzero(~lead):  # degenerate leading coefficient: one at a time
-        bad[row] = any(0.0 < s < 1.0 for s in _unit_interval_roots(d[row]))
-    ends = np.stack([a[:, 0], a.sum(axis=1)], axis=1)
-    crosses_pi = np.floor(ends[:, 0] / math.pi) != np.floor(ends[:, 1] / math.pi)
-    return np.asarray(bad | crosses_pi, dtype=bool)
-
-
-def require_off_singular_set(trajectory: FlatTrajectory) -> None:
-    """Raise FlatcliError if a plan (or any plan of a batch) meets the singular set inside
-    (0, T): its signed margin sin(y1) y1' changes sign or touches zero (``margin_zeros``)."""
-    coefficients = trajectory.coefficients
-    batch = coefficients.reshape(-1, *coefficients.shape[-2:])
-    if isinstance(trajectory.basis, PolynomialBasis) and len(batch) > 1:
-        suspects = np.flatnonzero(_touches_singular_set(trajectory.basis, batch))
-    else:
-        suspects = np.arange(len(batch))
-    for row in suspects:
-        single = FlatTrajectory(trajectory.basis, batch[row])
-        zeros = margin_zeros(single)
-        if zeros.size:
-            t = float(zeros[0])
-            y1, y1_dot = (float(single.derivative(np.array([t]), order)[0, 0]) for order in (0, 1))
-            factor = "th1' = 0" if abs(y1_dot) <= abs(math.sin(y1)) else "sin th1 = 0"
-            which = f" (maneuver {row} of the batch)" if len(batch) > 1 else ""
-            raise FlatcliError(
-                f"plan: the signed margin sin(th1) th1' is zero at t = {t:.4g} s inside the "
-                f"maneuver{which} ({factor}): the plan crosses the singular set, where the flat "
-                "map is infinite; change plan.start_rate / plan.goal_rate or plan.duration, or "
-                "use --optimize, which keeps the margin above plan.optimize.min_margin"
-            )
+        """Times in (0, T) where the plan meets the singular set [s]
+        (``FlatModel.margin_zeros``)."""
+        return self.model.margin_zeros(self.trajectory)
 
 
 def plan_point_to_point(
@@ -500,40 +294,51 @@ def plan_point_to_point(
     start_rate: ArrayLike,
     goal_rate: ArrayLike,
     duration: float,
-    model: Model = "derived",
+    model: Model | FlatModel = "derived",
     basis: Basis | None = None,
-) -> FlatPlan:
-    """Flatness-based plan from ``start`` to ``goal`` in ``duration`` seconds.
+) -> Plan:
+    """Flatness-based plan from ``start`` to ``goal`` in ``duration`` seconds, any N.
 
     Parameters
     ----------
-    robot : a flat design (d2 = 0); otherwise FlatcliError says which condition fails
-    start, goal : (..., 3) configurations th0, th1, th2 [rad]; a batch of configurations
-        (and of rates) plans a batch of maneuvers at once
-    start_rate, goal_rate : (...) th1' at the ends [rad/s] (non-zero)
+    robot : a design whose closed-form flat outputs apply (``model.flatness_check``)
+    start, goal : (N + 1,) configurations th0..thN [rad]; for the paper's robot a batch
+        (..., 3) of configurations (and of rates) plans a batch of maneuvers at once
+    start_rate, goal_rate : the inner joints' rates th_1'..th_N-1' at the ends [rad/s]
+        (non-zero margin): N - 1 numbers, or one for all
     duration : T [s] > 0
-    model : which constraint coefficients the planner believes
+    model : which constraint coefficients the planner believes ("paper": the printed ones,
+        three links only), or the flat model itself (e.g. the general ``ChainModel`` of a
+        three-link robot, whose closed form ``flat_model`` would pick)
     basis : default: cubic polynomials, the paper's choice
 
     Returns
     -------
-    FlatPlan
+    Plan
 
     Raises
     ------
-    FlatcliError, one line naming the key: a design that is not flat, an end on the
-    singular set, or a plan that meets the singular set inside (0, T)
-    (``require_off_singular_set``).
+    FlatcliError, one line naming the key: a design whose outputs do not apply, an end on
+    the singular set, or a plan that meets the singular set inside (0, T).
     """
     require_flat(robot)
     if not (duration > 0 and math.isfinite(duration)):
         raise FlatcliError(f"plan.duration: must be a finite number > 0 s, got {duration}")
-    k = robot.coefficients(model)
+    flat = model if isinstance(model, FlatModel) else flat_model(robot, model)
     if basis is None:
         basis = PolynomialBasis(3, duration)
     elif not math.isclose(basis.duration, duration):
         raise FlatcliError("plan basis: its duration differs from plan.duration")
-    bc = boundary_conditions(k, start, goal, start_rate, goal_rate)
-    trajectory = min_acceleration_trajectory(basis, bc)
-    require_off_singular_set(trajectory)
-    return FlatPlan(robot, model, k, trajectory, float(duration))
+    boundary = flat.boundary(start, goal, start_rate, goal_rate)
+    trajectory = min_acceleration_trajectory(basis, boundary)
+    flat.require_off_singular_set(trajectory)
+    return Plan(robot, flat, trajectory, float(duration))
+
+
+def plan_chain(robot: RobotParams, start: ArrayLike, goal: ArrayLike, start_rate: ArrayLike,
+               goal_rate: ArrayLike, duration: float, basis: Basis | None = None) -> Plan:
+    """``plan_point_to_point`` through the general N-link model (``flatmodel.ChainModel``)
+    for any N, the paper's robot included (whose closed form ``flat_model`` would pick):
+    to compare the two, or to run the general code on N = 2."""
+    return plan_point_to_point(robot, start, goal, start_rate, goal_rate, duration,
+                               ChainModel.of(robot), basis)

@@ -44,19 +44,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from flatcli.core._jit import jitable
-from flatcli.core.control import Gains, feedback, feedback_at
+from flatcli.core.control import PaperGains, feedback, feedback_at
 from flatcli.core.dynamics import (
-    Chain,
     ThreeBody,
-    inverse_dynamics,
     three_body,
     three_body_joint_space,
     three_body_terms,
 )
-from flatcli.core.flatness import flag_state
 from flatcli.core.metrics import observe_sample, observe_torque
 from flatcli.core.model import Coefficients, Links, base_rate_at, momentum_at
-from flatcli.core.planning import COMPLEX_STEP, FlatPlan
 
 Array = NDArray[np.float64]
 
@@ -91,7 +87,7 @@ AUX_TAU1, AUX_TAU2, AUX_R2, AUX_SATURATED, AUX_C1, AUX_S1, AUX_C12, AUX_S12 = ra
 class Loop(NamedTuple):
     """What one trial's closed loop needs (floats and tuples of floats, for the kernels).
 
-    kc : the controller's coefficients (d2 = 0); gains : Gains
+    kc : the controller's coefficients (d2 = 0); gains : PaperGains
     kq : the plant's constraint coefficients (derived model, its own d2)
     links : the plant's link parameters; total_mass : the plant's M [kg]
     h0 : the plant's angular momentum [kg m^2/s]; rate_limit : joint-rate limit [rad/s]
@@ -100,7 +96,7 @@ class Loop(NamedTuple):
     """
 
     kc: Coefficients
-    gains: Gains
+    gains: PaperGains
     kq: Coefficients
     links: Links
     total_mass: float
@@ -158,7 +154,7 @@ def kinematic_momentum(loop: Loop, x: Array, f: Array) -> float:
 class DynamicLoop(NamedTuple):
     """What one trial's closed loop with the dynamic plant needs (floats, for the kernels).
 
-    kc : the controller's coefficients; gains : Gains
+    kc : the controller's coefficients; gains : PaperGains
     links : the plant's link parameters (for H from the full kinematics)
     plant : the plant's chain (``dynamics.three_body``); servo : the servo's model of it
     same_model : servo and plant are the same chain (its terms are computed once)
@@ -167,7 +163,7 @@ class DynamicLoop(NamedTuple):
     """
 
     kc: Coefficients
-    gains: Gains
+    gains: PaperGains
     links: Links
     plant: ThreeBody
     servo: ThreeBody
@@ -179,7 +175,7 @@ class DynamicLoop(NamedTuple):
 
 
 @jitable
-def dynamic_loop(kc: Coefficients, gains: Gains, links: Links, servo_links: Links,
+def dynamic_loop(kc: Coefficients, gains: PaperGains, links: Links, servo_links: Links,
                  servo_is_plant: bool, h0: float, rate_limit: float, bandwidth: float,
                  torque_limit: float) -> DynamicLoop:
     """A ``DynamicLoop`` for a plant and a servo model (``servo_is_plant``: the servo knows
@@ -338,43 +334,3 @@ def record_dynamic(trace: Array, j: int, nx: int, x: Array, f: Array) -> None:
     trace[j, nx] = f[AUX_TAU1]
     trace[j, nx + 1] = f[AUX_TAU2]
     trace[j, nx + 2] = f[AUX_R2]
-
-
-def plan_motion(plan: FlatPlan, t: Array) -> tuple[Array, Array, Array]:
-    """The angles, rates and accelerations a plan asks of the robot, exactly.
-
-    th and th' from the flat flag (``flatness.flag_state``: th0' the exact derivative of
-    eq. 35, th1' = y1', th2' = u2), and th'' by complex step of the same map along the flag's
-    own derivative (y', y'', y''') (no finite difference).
-
-    Parameters
-    ----------
-    plan : FlatPlan
-    t : (n,) times [s] within [0, duration]
-
-    Returns
-    -------
-    q (n, 3) [rad], q' (n, 3) [rad/s], q'' (n, 3) [rad/s^2]
-    """
-    t = np.asarray(t, dtype=float)
-    y = [plan.trajectory.derivative(t, order) for order in range(4)]
-    z = [y[0][:, 0], y[0][:, 1], y[1][:, 0], y[1][:, 1], y[2][:, 0], y[2][:, 1]]
-    dz = [y[1][:, 0], y[1][:, 1], y[2][:, 0], y[2][:, 1], y[3][:, 0], y[3][:, 1]]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        th0, th1, th2, u1, _, u2, th0_dot = flag_state(plan.coefficients, *z)
-        moved = [zi + 1j * COMPLEX_STEP * dzi for zi, dzi in zip(z, dz, strict=True)]
-        rates = flag_state(plan.coefficients, *moved)
-    th0_ddot, u1_dot, u2_dot = (np.asarray(rates[i]).imag / COMPLEX_STEP for i in (6, 3, 5))
-    q = np.stack([th0, th1, th2], axis=-1)
-    q_dot = np.stack([th0_dot, u1, u2], axis=-1)
-    q_ddot = np.stack([th0_ddot, u1_dot, u2_dot], axis=-1)
-    return (np.asarray(q, dtype=float), np.asarray(q_dot, dtype=float),
-            np.asarray(q_ddot, dtype=float))
-
-
-def plan_torques(plan: FlatPlan, chain: Chain, t: Array) -> Array:
-    """The generalised forces M q'' + C q' a plan asks of a robot (``plan_motion``,
-    ``dynamics.inverse_dynamics``): (n, 3) [N m], the base's first (dH/dt: ~0 for a plan of
-    this robot), then the joint torques tau1, tau2 an ideal actuator would apply."""
-    q, q_dot, q_ddot = plan_motion(plan, t)
-    return inverse_dynamics(chain, q, q_dot, q_ddot)

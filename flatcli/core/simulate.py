@@ -34,31 +34,26 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
 
-from flatcli.core.chain import barycentric_matrices
-from flatcli.core.chainloop import ChainGains
-from flatcli.core.chainplan import ChainPlan
 from flatcli.core.control import Gains
-from flatcli.core.dynamics import ThreeBody
 from flatcli.core.kernels import (
     ADAPTIVE,
     KERNELS,
     RK4,
-    ChainShared,
     Grid,
     Kernels,
-    PaperShared,
     Results,
     Settings,
     TrialArrays,
+    paper_plant,
 )
 from flatcli.core.metrics import N_METRICS
-from flatcli.core.model import Coefficients, FlatcliError, Links, constraint_coefficients
-from flatcli.core.planning import FlatPlan
+from flatcli.core.model import FlatcliError
+from flatcli.core.planning import Plan
 from flatcli.core.plant import (
     DEFAULT_SERVO_BANDWIDTH,
     PLANT_MODELS,
@@ -76,6 +71,12 @@ INTEGRATORS: tuple[Integrator, ...] = ("adaptive", "rk4", "dop853")
 TRACE_COLUMNS: tuple[str, ...] = (
     "theta0", "theta1", "theta2", "u1", "theta0_dot", "theta1_dot", "theta2_dot",
 )  # fmt: skip
+def trace_columns(scenario: Scenario) -> tuple[str, ...]:
+    """The trace columns of a scenario's trials (``Outcome.columns``)."""
+    columns = chain_dynamic_trace_columns if scenario.plant == "dynamic" else chain_trace_columns
+    return columns(scenario.n_joints)
+
+
 def chain_trace_columns(n: int) -> tuple[str, ...]:
     """Columns of a trace of an N-link chain: th0..thN, u1..u(N-1), then th0'..thN'."""
     return (*(f"theta{i}" for i in range(n + 1)), *(f"u{j}" for j in range(1, n)),
@@ -125,8 +126,8 @@ class Scenario:
 
     Attributes
     ----------
-    plan : FlatPlan (the paper's robot) or ChainPlan (N links), also the controller's model
-    gains : Gains, or ChainGains for a ChainPlan
+    plan : Plan, whose model the controller believes
+    gains : Gains, one kp and kv per flat output
     dt : output sampling step [s] (the trace, the metrics, track.parquet; also RK4's step);
         must divide the plan's duration
     rate_limit : joint-rate limit [rad/s]; inf for none
@@ -140,8 +141,8 @@ class Scenario:
         nominal model) or "plant" (each trial's plant)
     """
 
-    plan: FlatPlan | ChainPlan
-    gains: Gains | ChainGains
+    plan: Plan
+    gains: Gains
     dt: float
     rate_limit: float = math.inf
     singular_threshold: float = 1e-2
@@ -187,21 +188,16 @@ class Scenario:
         if self.servo_model not in SERVO_MODELS:
             raise FlatcliError(f"plant.servo_model: expected one of {list(SERVO_MODELS)}, "
                                f"got {self.servo_model!r}")
-        if isinstance(self.plan, ChainPlan):
-            n = self.plan.n_joints
-            if not (isinstance(self.gains, ChainGains) and len(self.gains.kp) == n
-                    and len(self.gains.kv) == n):
-                raise FlatcliError(f"track.kp, track.kv: expected {n} gains each (one per flat "
-                                   f"output) for a robot of {n} joints")
-        elif not isinstance(self.gains, Gains):
-            raise FlatcliError("track.kp, track.kv: expected 2 gains each for the three-link "
-                               "robot")
+        n = self.plan.n_joints
+        if self.gains.n_outputs != n:
+            raise FlatcliError(f"track.kp, track.kv: expected {n} gains each (one per flat "
+                               f"output) for a robot of {n} joints, got {self.gains.n_outputs}")
         object.__setattr__(self, "n_steps", steps)
 
     @property
     def n_joints(self) -> int:
         """N: 2 for the paper's robot."""
-        return self.plan.n_joints if isinstance(self.plan, ChainPlan) else 2
+        return self.plan.n_joints
 
     def prepared(self) -> Scenario:
         """This scenario with its reference tables computed (before shipping it to workers)."""
@@ -361,49 +357,19 @@ class Outcome:
 
 def plant_coefficients(links: Array) -> Array:
     """(N, 11) derived constraint coefficients for (N, 12) plant parameters."""
-    k = constraint_coefficients(Links(*np.asarray(links, dtype=float).T), "derived")
-    return np.ascontiguousarray(np.stack(np.broadcast_arrays(*k), axis=-1))
-
-
-def _shared(scenario: Scenario, kind: str) -> PaperShared | ChainShared:
-    """What every trial of the scenario shares in the kernels (``kernels``)."""
-    servo_is_plant = scenario.servo_model == "plant"
-    if kind == "chain":
-        assert isinstance(scenario.plan, ChainPlan) and isinstance(scenario.gains, ChainGains)
-        return ChainShared(np.ascontiguousarray(scenario.plan.model.K),
-                           np.ascontiguousarray(scenario.plan.model.inertia),
-                           np.asarray(scenario.gains.kp, dtype=float),
-                           np.asarray(scenario.gains.kv, dtype=float),
-                           float(scenario.rate_limit), servo_is_plant)
-    assert isinstance(scenario.plan, FlatPlan) and isinstance(scenario.gains, Gains)
-    robot = scenario.plan.robot
-    K = barycentric_matrices(robot.as_array()[None, :])[0]
-    links = Links(*(float(v) for v in robot.links))
-    return PaperShared(_plain(scenario.plan.coefficients),
-                       Gains(*(float(v) for v in scenario.gains)), float(scenario.rate_limit),
-                       ThreeBody(K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2], K[2, 2],
-                                 links.i0, links.i1, links.i2),
-                       links, servo_is_plant)
-
-
-def _plain(k: Coefficients) -> Coefficients:
-    return Coefficients(*(float(v) for v in k))
+    return paper_plant(np.ascontiguousarray(links, dtype=float), "kinematic")
 
 
 def kernel_inputs(scenario: Scenario, trials: Trials) -> tuple[
-        Kernels, PaperShared | ChainShared, TrialArrays, Grid, Settings]:
+        Kernels, Any, TrialArrays, Grid, Settings]:
     """The kernels of a scenario's (model, plant) and everything they take but the noise,
     the buffers and the results."""
-    kind = "chain" if isinstance(scenario.plan, ChainPlan) else "paper"
-    kernels = KERNELS[(kind, scenario.plant)]
+    plan = scenario.plan
+    kernels = KERNELS[(plan.model.kind, scenario.plant)]
     params = np.ascontiguousarray(trials.links, dtype=float)
-    if kind == "paper" and scenario.plant == "kinematic":
-        plant = plant_coefficients(params)
-    else:
-        plant = barycentric_matrices(params)
     arrays = TrialArrays(params, np.ascontiguousarray(trials.momentum, dtype=float),
                          trials.servo_table(), np.ascontiguousarray(trials.initial, dtype=float),
-                         np.ascontiguousarray(plant))
+                         np.ascontiguousarray(kernels.plant(params, scenario.plant)))
     plan_theta, plan_theta_dot = scenario.plan_on_own_grid
     breaks, local = scenario.pieces
     grid = Grid(scenario.reference, scenario.theta_reference, breaks, local, plan_theta,
@@ -411,7 +377,9 @@ def kernel_inputs(scenario: Scenario, trials: Trials) -> tuple[
     settings = Settings(float(scenario.dt), float(scenario.divergence_bound),
                         float(scenario.singular_threshold), float(scenario.rtol),
                         float(scenario.atol), int(scenario.max_steps), False)
-    return kernels, _shared(scenario, kind), arrays, grid, settings
+    shared = kernels.shared(plan.model, scenario.gains, scenario.rate_limit,
+                            scenario.servo_model == "plant", plan.robot)
+    return kernels, shared, arrays, grid, settings
 
 
 def closed_loop_rhs(scenario: Scenario, trials: Trials, i: int = 0) -> Callable[..., Array]:
@@ -465,11 +433,7 @@ def simulate(
     if trials.links.shape[1] != 4 * angles:
         raise ValueError(f"Trials: links (N, {4 * angles}) expected for this scenario")
     N = trials.count
-    dynamic = scenario.plant == "dynamic"
-    if isinstance(scenario.plan, ChainPlan):
-        columns = (chain_dynamic_trace_columns if dynamic else chain_trace_columns)(joints)
-    else:
-        columns = DYNAMIC_TRACE_COLUMNS if dynamic else TRACE_COLUMNS
+    columns = trace_columns(scenario)
     width = len(columns)
     results = Results(np.empty((N, N_METRICS)), np.zeros(N, dtype=np.int64),
                       np.zeros(N, dtype=np.int64), np.full(N, math.nan),

@@ -7,9 +7,8 @@ from typing import Any
 
 import numpy as np
 
-from flatcli.core.chainplan import Plan
 from flatcli.core.optimize import OptimizeResult
-from flatcli.core.planning import FlatPlan, PlanSamples
+from flatcli.core.planning import Plan, PlanSamples
 from flatcli.report.tables import fmt, table
 
 
@@ -41,12 +40,9 @@ def plan_text(name: str, plan: Plan, samples: PlanSamples) -> str:
     ]
     outputs = [f"y{j} [rad]" for j in range(1, n + 1)]
     rates = [f"y{j}' [rad/s]" for j in range(1, n + 1)]
-    if isinstance(plan, FlatPlan):
-        model, margin = plan.model, "min margin abs(sin y1 * y1')"
-        energy = "input energy, integral of th1'^2 + th2'^2"
-    else:
-        model, margin = "derived", "min margin abs(dh_0/dt) / (2 abs(K_10))"
-        energy = f"input energy, integral of th1'^2 + ... + th{n}'^2"
+    model, margin = plan.model.name, f"min margin {plan.model.margin_label}"
+    energy = ("input energy, integral of th1'^2 + th2'^2" if n == 2
+              else f"input energy, integral of th1'^2 + ... + th{n}'^2")
     lines = [
         f"plan {name!r}: {n} joints, model {model}, {type(plan.trajectory.basis).__name__}"
         f" of size {plan.trajectory.basis.size}, T = {plan.duration:g} s,"

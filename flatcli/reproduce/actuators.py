@@ -24,7 +24,7 @@ from scipy.stats import binomtest
 
 from flatcli.core.dynamics import make_chain
 from flatcli.core.metrics import STATUS_NAMES
-from flatcli.core.plant import DEFAULT_SERVO_BANDWIDTH, plan_motion, plan_torques
+from flatcli.core.plant import DEFAULT_SERVO_BANDWIDTH
 from flatcli.experiment import flat_plan_from, robot_from, run_track
 from flatcli.report import COMPLETED, Progress, fmt, new_figure, save_figure, table
 from flatcli.reproduce.findings import OPTIMIZED_PLANS
@@ -54,7 +54,7 @@ def study_path() -> Path:
 def plan_demands(base: Spec, plans: Sequence[tuple[str, Mapping[str, Any]]],
                  steps: Steps | None = None) -> list[list[Any]]:
     """Per plan: the ideal peak torques and rates (inverse dynamics of the plan,
-    ``plant.plan_torques``) and the closed loop on the dynamic plant (default servo, no
+    ``Plan.torques``) and the closed loop on the dynamic plant (default servo, no
     torque limit, gains swapped) from the plan's start and from Fig. 4's."""
     rows = []
     chain_of: dict[Any, Any] = {}
@@ -65,8 +65,8 @@ def plan_demands(base: Spec, plans: Sequence[tuple[str, Mapping[str, Any]]],
         if robot not in chain_of:
             chain_of[robot] = make_chain(robot.mass, robot.inertia, robot.length, robot.com)
         t = plan.grid(PLAN_SAMPLES)
-        torques = plan_torques(plan, chain_of[robot], t)
-        _, rates, _ = plan_motion(plan, t)
+        torques = plan.torques(chain_of[robot], t)
+        _, rates, _ = plan.motion(t)
         on_plan = run_track(spec.with_overrides({"track.initial": list(spec.plan.start)}))
         fig4 = run_track(spec)
         m, f = on_plan.metrics, fig4.metrics

@@ -19,8 +19,9 @@ import numpy as np
 import pandas as pd
 
 from flatcli.core.chain import chain_momentum, momentum_weights
-from flatcli.core.chainplan import ChainModel, Plan
+from flatcli.core.flatmodel import ChainModel
 from flatcli.core.model import RobotParams, flatness_check
+from flatcli.core.planning import Plan
 from flatcli.experiment import TrackRun, plan_from, robot_from, run_track
 from flatcli.outputs import plan_frame, track_frame
 from flatcli.report import Progress, fmt, new_figure, save_figure, table

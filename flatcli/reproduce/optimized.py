@@ -7,9 +7,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from flatcli.core.chainplan import Plan
 from flatcli.core.optimize import required_fold
-from flatcli.core.planning import PlanSamples
+from flatcli.core.planning import Plan, PlanSamples
 from flatcli.experiment import flat_plan_from, plan_and_optimization
 from flatcli.report import finish_grid, fmt, new_figure, plan_summary, table
 from flatcli.reproduce.findings import (
@@ -42,7 +41,7 @@ def run(context: Context) -> Outcome:
         rows.append([label, s["input_energy"], max(s["peak_rate1"], s["peak_rate2"]),
                      s["max_abs_theta2"], s["min_margin"], s["max_abs_momentum"], note])
         curves.append((label, samples))
-    fold = required_fold(cubic.coefficients, base.plan.start, base.plan.goal)
+    fold = required_fold(cubic.model, base.plan.start, base.plan.goal)  # type: ignore[arg-type]
     steps.step("tracking every plan with both gain readings")
     tracked = tracked_plans_table(track_plans(base, [
         ("paper's cubic", {}), *((label, overrides) for label, overrides in OPTIMIZED_PLANS)

@@ -14,9 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from flatcli.core.chainplan import Plan
 from flatcli.core.model import constraint_coefficients
-from flatcli.core.planning import PlanSamples
+from flatcli.core.planning import Plan, PlanSamples
 from flatcli.experiment import TrackRun, plan_from, run_track
 from flatcli.outputs import plan_frame, track_frame, track_limits
 from flatcli.report import fmt, new_figure, plan_summary, plot_track, save_figure, table

@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.special import ndtri
 
-from flatcli.core.chainplan import Plan
+from flatcli.core.planning import Plan
 from flatcli.experiment import STREAM_PERTURB, initial_rates, plant_from, trial_stream
 from flatcli.spec import PERTURB_TARGETS, Perturbation, Spec, SpecError, lookup
 from flatcli.spec.keys import MIN_JOINTS

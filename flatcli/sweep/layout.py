@@ -24,8 +24,8 @@ from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from flatcli.core.chainplan import Plan
 from flatcli.core.model import FlatcliError
+from flatcli.core.planning import Plan
 from flatcli.core.simulate import Scenario
 from flatcli.experiment import plan_from, plant_from, scenario_from
 from flatcli.spec import PERTURB_TARGETS, Spec, SpecError, grid_overrides

@@ -26,10 +26,10 @@ TRACE_STRIDE = 10
 
 #: The cases: (name, gains, rate limit [rad/s], noise std [rad], integrator).
 CASES = (
-    ("printed_adaptive", Gains(10.0, 13.0, 100.0, 110.0), np.inf, 0.0, "adaptive"),
-    ("swapped_adaptive_noise", Gains(100.0, 110.0, 10.0, 13.0), np.inf, 1e-3, "adaptive"),
-    ("swapped_rk4_limited", Gains(100.0, 110.0, 10.0, 13.0), 20.0, 0.0, "rk4"),
-    ("printed_dop853", Gains(10.0, 13.0, 100.0, 110.0), np.inf, 0.0, "dop853"),
+    ("printed_adaptive", Gains((10.0, 13.0), (100.0, 110.0)), np.inf, 0.0, "adaptive"),
+    ("swapped_adaptive_noise", Gains((100.0, 110.0), (10.0, 13.0)), np.inf, 1e-3, "adaptive"),
+    ("swapped_rk4_limited", Gains((100.0, 110.0), (10.0, 13.0)), 20.0, 0.0, "rk4"),
+    ("printed_dop853", Gains((10.0, 13.0), (100.0, 110.0)), np.inf, 0.0, "dop853"),
 )
 
 

@@ -23,16 +23,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from flatcli.core.basis import Basis
-from flatcli.core.chainflat import outputs
-from flatcli.core.chainplan import ChainModel, chain_boundary
-from flatcli.core.flatness import flat_outputs
-from flatcli.core.model import Coefficients
 from flatcli.core.optimize.quantities import Flat
-from flatcli.core.planning import (
-    boundary_conditions,
-    boundary_system,
-    min_acceleration_trajectory,
-)
+from flatcli.core.planning import boundary_system, min_acceleration_trajectory
 
 Array = NDArray[np.float64]
 
@@ -85,28 +77,13 @@ class Affine:
         return base, slope
 
 
-def end_flat(k: Coefficients, theta: Array) -> tuple[float, float, float]:
-    """Flat outputs of the paper's robot at a configuration, and how y2' scales with th1'.
-
-    Parameters
-    ----------
-    k : Coefficients (d2 = 0)
-    theta : (3,) th0, th1, th2 [rad]
-
-    Returns
-    -------
-    y1, y2 [rad], and y2' / th1' [-] (y2' is linear in th1')
-    """
-    y1, y2, _, slope = flat_outputs(k, float(theta[0]), float(theta[1]), float(theta[2]), 1.0)
-    return float(y1), float(y2), float(slope)
-
-
 def end_map(k: Flat, theta: Array) -> tuple[Array, Array]:
-    """Flat outputs at a configuration, and how their rates follow the joint rates there.
+    """Flat outputs at a configuration, and how their rates follow the joint rates there
+    (``FlatModel.end_map``).
 
     Parameters
     ----------
-    k : Coefficients (d2 = 0) or ChainModel (d_N = 0)
+    k : the flat model the planner believes
     theta : (N + 1,) th0..thN [rad]
 
     Returns
@@ -114,17 +91,7 @@ def end_map(k: Flat, theta: Array) -> tuple[Array, Array]:
     y : (N,) the flat outputs [rad]
     slope : (N, N - 1) dy'/du, u = (th_1'..th_N-1') [-]: y' = slope @ u
     """
-    if not isinstance(k, ChainModel):
-        y1, y2, ratio = end_flat(k, theta)
-        return np.array([y1, y2]), np.array([[1.0], [ratio]])
-    n = k.n_joints
-    theta = np.asarray(theta, dtype=float)
-    y, y_dot = np.empty(n), np.empty(n)
-    slope = np.empty((n, n - 1))
-    for j, u in enumerate(np.eye(n - 1)):
-        outputs(k.K, k.inertia, theta, u, y, y_dot)
-        slope[:, j] = y_dot
-    return y.copy(), slope
+    return k.end_map(theta)
 
 
 def affine_map(
@@ -141,7 +108,7 @@ def affine_map(
 
     Parameters
     ----------
-    k : Coefficients (d2 = 0) or ChainModel (d_N = 0)
+    k : the flat model the planner believes
     basis : flat-output basis on [0, T]
     start, goal : (N + 1,) end configurations [rad]
     start_rate, goal_rate : end rates u(0), u(T) (th1' for the paper's robot, (N - 1,)
@@ -193,14 +160,11 @@ def affine_map(
     if epigraph:
         slopes.append(np.zeros((basis.size, p)))
     affine = Affine(basis, base, np.asarray(slopes).reshape(-1, basis.size, p))
-    if isinstance(k, ChainModel):
-        bc = chain_boundary(k, start, goal, u_0, u_T)
-    else:
-        bc = boundary_conditions(k, start, goal, float(u_0[0]), float(u_T[0]))
+    bc = k.boundary(start, goal, u_0, u_T)
     guess = min_acceleration_trajectory(basis, bc).coefficients.T  # (size, p)
     z = N.T @ (guess - P @ rhs)  # (m, p)
     rates = np.concatenate([u_0, u_T]) if free_rates else np.zeros(0)
     return affine, np.concatenate([rates, *z.T])
 
 
-__all__ = ["Affine", "affine_map", "end_flat", "end_map"]
+__all__ = ["Affine", "affine_map", "end_map"]

@@ -27,13 +27,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from flatcli.core.basis import Basis, BSplineBasis
-from flatcli.core.chainplan import ChainModel, ChainPlan
+from flatcli.core.basis import Basis, BSplineBasis, FlatTrajectory
+from flatcli.core.flatmodel import flat_model
 from flatcli.core.model import (
     FlatcliError,
     Model,
     RobotParams,
-    constraint_coefficients,
     require_flat,
 )
 from flatcli.core.optimize.assessment import active_limits
@@ -44,7 +43,7 @@ from flatcli.core.optimize.problem import Request
 from flatcli.core.optimize.quantities import Flat
 from flatcli.core.optimize.search import Candidate, Search
 from flatcli.core.optimize.tuning import TUNING, Tuning
-from flatcli.core.planning import ENERGY_ORDER, ENERGY_PIECES, FlatPlan, FlatTrajectory
+from flatcli.core.planning import ENERGY_ORDER, ENERGY_PIECES, Plan
 
 Array = NDArray[np.float64]
 
@@ -79,7 +78,7 @@ class OptimizeResult:
         [rad/s] ((start_rate,) and (goal_rate,) for N = 2)
     """
 
-    plan: FlatPlan | ChainPlan
+    plan: Plan
     success: bool
     objective: float
     initial_objective: float
@@ -231,19 +230,17 @@ def _request(
         raise FlatcliError("plan basis: its duration differs from plan.duration")
     start_arr = np.asarray(start, dtype=float)
     goal_arr = np.asarray(goal, dtype=float)
-    k: Flat
-    if n == 2:
-        k = constraint_coefficients(robot.links, model)
+    if n > 2 and model != "derived":
+        raise FlatcliError(
+            f"robot.model: {model!r} (the paper's printed coefficients) exists for the "
+            f"three-link robot only; a chain of {n} joints is planned with its derived model"
+        )
+    k: Flat = flat_model(robot, model)
+    if n == 2:  # the one inner rate th1' as a number
         rates: tuple[float | NDArray[np.float64], ...] = tuple(
             _one_rate(key, rate) for key, rate in (("start", start_rate), ("goal", goal_rate))
         )
     else:
-        if model != "derived":
-            raise FlatcliError(
-                f"robot.model: {model!r} (the paper's printed coefficients) exists for the "
-                f"three-link robot only; a chain of {n} joints is planned with its derived model"
-            )
-        k = ChainModel.of(robot)
         rates = tuple(
             _chain_rates(key, rate, n) for key, rate in (("start", start_rate), ("goal", goal_rate))
         )
@@ -319,15 +316,13 @@ def _result(
     FlatcliError if a chain's plan has a zero of its margin between the check grid's samples
     """
 
-    def plan_at(candidate: Candidate) -> FlatPlan | ChainPlan:
+    def plan_at(candidate: Candidate) -> Plan:
         coefficients = candidate.problem.affine.coefficients(candidate.x)
         trajectory = FlatTrajectory(request.basis, coefficients)
-        if isinstance(request.k, ChainModel):
-            return ChainPlan(robot, request.k, trajectory, request.duration)
-        return FlatPlan(robot, model, request.k, trajectory, request.duration)
+        return Plan(robot, request.k, trajectory, request.duration)
 
     plan = plan_at(found)
-    if isinstance(plan, ChainPlan):
+    if plan.n_joints > 2:  # (N = 2: the check grid's margin rows rule crossings out exactly)
         zeros = plan.margin_zeros()
         if zeros.size:
             raise FlatcliError(

@@ -29,15 +29,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any, cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from flatcli.core.chain import base_inertia_slopes
-from flatcli.core.chainplan import ChainModel
+from flatcli.core.flatmodel import ChainModel, PaperModel
 from flatcli.core.flatness import chart
-from flatcli.core.model import Coefficients, FlatcliError
-from flatcli.core.optimize.affine import end_flat
+from flatcli.core.model import FlatcliError
 from flatcli.core.optimize.limits import PlanLimits
 from flatcli.core.optimize.quantities import ANGLES, NAMES, Flat, layout
 
@@ -97,10 +96,23 @@ def check_ends(
     FlatcliError, one line naming the spec key, for any request no plan can meet (see the
     module docstring)
     """
-    if isinstance(k, ChainModel):
-        return _check_chain_ends(
-            k, start, goal, start_rate, goal_rate, duration, limits, free_rates, clearance
-        )
+    check: Any = _END_CHECKS[k.kind]
+    return cast(Ends, check(k, start, goal, start_rate, goal_rate, duration, limits,
+                            free_rates, clearance))
+
+
+def _check_paper_ends(
+    k: PaperModel,
+    start: Array,
+    goal: Array,
+    start_rate: float | Array,
+    goal_rate: float | Array,
+    duration: float,
+    limits: PlanLimits,
+    free_rates: bool,
+    clearance: float,
+) -> Ends:
+    """``check_ends`` for the paper's robot (see the module docstring)."""
     start_rate, goal_rate = float(start_rate), float(goal_rate)
     for key, theta in (("start", start), ("goal", goal)):
         for i in ANGLES:
@@ -178,7 +190,7 @@ def check_ends(
     return Ends(sigma, rates[0], rates[1])
 
 
-def required_fold(k: Coefficients, start: ArrayLike, goal: ArrayLike, nodes: int = 32) -> float:
+def required_fold(k: PaperModel, start: ArrayLike, goal: ArrayLike, nodes: int = 32) -> float:
     """A value th2 must reach somewhere on any flat plan of the paper's robot (N = 2) from
     ``start`` to ``goal`` [rad] (for a chain of N >= 3 joints no such bound follows from the
     ends alone: see the module docstring).
@@ -196,7 +208,7 @@ def required_fold(k: Coefficients, start: ArrayLike, goal: ArrayLike, nodes: int
 
     Parameters
     ----------
-    k : Coefficients (d2 = 0)
+    k : the paper's closed-form model (d2 = 0)
     start, goal : (3,) th0, th1, th2 [rad]; th1 must differ and sin th1 keep its sign
     nodes : Gauss-Legendre nodes for the two integrals over th1 (smooth integrands)
 
@@ -212,13 +224,13 @@ def required_fold(k: Coefficients, start: ArrayLike, goal: ArrayLike, nodes: int
     x, w = np.polynomial.legendre.leggauss(nodes)
     th1 = 0.5 * (hi - lo) * (x + 1.0) + lo
     weights = 0.5 * (hi - lo) * w
-    _, g, h = chart(k, np.cos(th1), np.sin(th1))
-    rise = end_flat(k, goal)[1] - end_flat(k, start)[1]
+    _, g, h = chart(k.coefficients, np.cos(th1), np.sin(th1))
+    rise = float(k.end_map(goal)[0][1]) - float(k.end_map(start)[0][1])
     return (float(weights @ g) - rise) / float(weights @ h)
 
 
 def check_fold(
-    k: Coefficients, start: Array, goal: Array, duration: float, limits: PlanLimits
+    k: PaperModel, start: Array, goal: Array, duration: float, limits: PlanLimits
 ) -> None:
     """th2 must reach ``required_fold``: against the th2 angle limit and the rate limit.
 
@@ -270,24 +282,16 @@ def chain_rate_bounds(limits: PlanLimits) -> list[tuple[float | None, float | No
 
 def base_inertia(model: ChainModel, theta: Array) -> tuple[float, Array]:
     """h_0 [kg m^2] at a configuration (N + 1,), and its gradient in th_1..th_N-1
-    (N - 1,) [kg m^2] (``chain.base_inertia_slopes``; h_0 does not depend on th_N)."""
-    n = model.n_joints
-    grad = np.empty(n)
-    h0 = base_inertia_slopes(model.K, model.inertia, np.asarray(theta, dtype=float), grad,
-                             np.empty((n, n)))
-    return float(h0), grad[: n - 1]
+    (N - 1,) [kg m^2] (``ChainModel.base_inertia``)."""
+    return model.base_inertia(theta)
 
 
 def margin_mean(k: Flat, start: Array, goal: Array, duration: float) -> float:
     """The margin's mean over [0, T] on any plan between the two configurations, unsigned
     [rad/s]: (cos th1(0) - cos th1(T)) / T for the paper's robot, (h_0(q(0)) - h_0(q(T))) /
     (2 K_10 T) for a chain (times sigma, the margin's sign, it is the mean of the signed
-    margin: the largest least margin any plan can have)."""
-    if isinstance(k, ChainModel):
-        drop = (base_inertia(k, start)[0] - base_inertia(k, goal)[0]) / (2.0 * float(k.K[1, 0]))
-    else:
-        drop = math.cos(float(start[1])) - math.cos(float(goal[1]))
-    return drop / duration
+    margin: the largest least margin any plan can have; ``FlatModel.margin_mean``)."""
+    return float(k.margin_mean(start, goal, duration))
 
 
 def _check_chain_ends(
@@ -369,6 +373,10 @@ def _check_chain_ends(
                 )
         rates.append(tuple(float(v) for v in u))
     return Ends(sigma, rates[0], rates[1])
+
+
+#: The up-front checks of each kind of model (``FlatModel.kind``).
+_END_CHECKS = {"paper": _check_paper_ends, "chain": _check_chain_ends}
 
 
 def _pointed(u: Array, slope: Array, sigma: float, low: float, R: Array) -> Array:

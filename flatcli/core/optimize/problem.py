@@ -21,7 +21,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from flatcli.core.basis import Basis, composite_gauss_legendre
-from flatcli.core.chainplan import ChainModel
 from flatcli.core.optimize.affine import Affine, affine_map
 from flatcli.core.optimize.feasibility import (
     Ends,
@@ -54,7 +53,7 @@ class Problem:
 
     Parameters
     ----------
-    k : Coefficients (d2 = 0), or ChainModel (d_N = 0) for a chain
+    k : the flat model the planner believes (``flatmodel``)
     affine : the coefficient map of the decision vector
     rows : the inequality rows (``limits.limit_rows``)
     goal : what is minimised
@@ -286,7 +285,7 @@ class Request:
 
     Attributes
     ----------
-    k : Coefficients (d2 = 0), or ChainModel (d_N = 0) for a chain of N joints
+    k : the flat model the planner believes (``flatmodel``)
     basis : flat-output basis on [0, T]
     start, goal : (N + 1,) end configurations [rad]
     ends : the margin's sign and the end rates (``feasibility.check_ends``)
@@ -331,10 +330,10 @@ class Request:
             self.check,
             self.tuning,
         )
-        if self.free_rates and isinstance(self.k, ChainModel):
+        if self.free_rates and self.k.n_joints > 2:
             box = chain_rate_bounds(limits)
             problem.bounds[: 2 * len(box)] = box + box
-        elif self.free_rates:
+        elif self.free_rates:  # th1' alone: on the side the margin's sign needs
             problem.bounds[:2] = [
                 end_rate_bounds(self.start, limits, cast(float, self.ends.start_rate)),
                 end_rate_bounds(self.goal, limits, cast(float, self.ends.goal_rate)),
