@@ -51,7 +51,7 @@ def build(values: Mapping[str, Any]) -> Spec:
             perturb[name] = {**perturb.get(name, {}), param: value}
         checked["sweep.perturb"] = perturb
     spec = fit_sizes(from_values(checked), checked)
-    validate_sweep(spec.sweep, spec.joints)
+    validate_sweep(spec.sweep, spec.joints, spec.plant.torque_limit)
     check_grid_shapes(spec.sweep.grid)
     check_derived(spec)
     check_limits(spec)
