@@ -255,9 +255,10 @@ def plan(spec: Path | None, sets: tuple[str, ...], out: Path | None, force: bool
 
     with user_errors():
         s = api.load_spec(spec, overrides(sets, objective))
-        target = api.output_target("plan", s, out, force)  # refused before any work
-        result = api.plan(s)
-        directory = result.save(target, plot=plot)
+        with api.output_lock(out):  # one writer from the check to the last file
+            target = api.output_target("plan", s, out, force)  # refused before any work
+            result = api.plan(s)
+            directory = result.save(target, plot=plot)
     say(quiet, result.text())
     say(quiet, f"wrote {directory}/plan.parquet" + (" and plan.png" if plot else ""))
 
@@ -273,9 +274,10 @@ def track(spec: Path | None, sets: tuple[str, ...], out: Path | None, force: boo
 
     with user_errors():
         s = api.load_spec(spec, overrides(sets, objective))
-        target = api.output_target("track", s, out, force)  # refused before any work
-        result = api.track(s, quiet=quiet)
-        directory = result.save(target, plot=plot)
+        with api.output_lock(out):  # one writer from the check to the last file
+            target = api.output_target("track", s, out, force)  # refused before any work
+            result = api.track(s, quiet=quiet)
+            directory = result.save(target, plot=plot)
     say(quiet, result.text())
     say(quiet, f"wrote {directory}/" + ", ".join(result.files))
 
@@ -452,18 +454,21 @@ def summarize(directory: Path, plot: bool) -> None:
     Of an interrupted sweep: the tables of its finished trials, and how much is missing.
     """
     from flatcli import api
+    from flatcli.files import is_regular, kind, read_text
 
     with user_errors():
-        if not (directory / "sweep.json").exists():
+        if kind(directory / "sweep.json") == "missing":
             summary_md = directory / "summary.md"
-            if not summary_md.is_file():
-                fail(f"{summary_md} not found: not a sweep directory")
+            if not is_regular(summary_md):
+                what = kind(summary_md)
+                fail(f"{summary_md} not found: not a sweep directory" if what == "missing" else
+                     f"{summary_md} is {what}, not flatcli's summary")
             if plot:  # a sweep directory without its manifest: its final tables
                 for name in ("summary.parquet", "trials.parquet"):
-                    if not (directory / name).is_file():
+                    if not is_regular(directory / name):
                         fail(f"--plot: {directory / name} not found: not a finished sweep "
                              "directory")
-            click.echo(summary_md.read_text(encoding="utf-8", errors="replace"), nl=False)
+            click.echo(read_text(summary_md), nl=False)
             if plot:
                 from flatcli.report import plot_sweep
                 from flatcli.storage import directory_lock

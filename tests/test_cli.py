@@ -18,6 +18,7 @@ import pytest
 from click.testing import CliRunner
 
 from flatcli.cli import main
+from flatcli.storage import LOCK_NAME
 
 #: y2'(0) and y2'(2) of the paper's example with the correct b1: README, *The physics, and the
 #: paper's errata* (derived in tests/test_planning.py::test_boundary_values_of_y2_dot).
@@ -158,7 +159,7 @@ def test_out_holding_a_different_run_is_refused_unless_force(tmp_path: Path) -> 
         assert not (target / "track.parquet").exists()
     code, out = run("track", "--out", str(target), "-q", "--force")
     assert code == 0, out
-    assert sorted(p.name for p in target.iterdir()) == ["metrics.json", "run.json",
+    assert sorted(p.name for p in target.iterdir()) == [LOCK_NAME, "metrics.json", "run.json",
                                                         "track.parquet"]
 
 
