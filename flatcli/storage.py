@@ -400,9 +400,11 @@ def directory_lock(directory: Path) -> Iterator[None]:
     naming the holder's pid, if another process holds it).
 
     The directory is created if need be; if the block leaves nothing in a directory it
-    created but the lock file, the directory is removed again (a refused run writes
-    nothing). Nested use in one process is allowed. The lock is an ``flock`` on
-    ``.flatcli.lock``, released by the kernel when the process ends, even by kill -9.
+    created, the directory is removed again (a refused run writes nothing). The lock file
+    is removed when the block ends if this run created it (one left by a killed run stays,
+    harmless: the kernel released its lock). Nested use in one process is allowed. The lock
+    is an ``flock`` on ``.flatcli.lock``, released by the kernel when the process ends,
+    even by kill -9.
     """
     key = os.path.realpath(directory)
     held = _HELD.get(key)
@@ -422,18 +424,15 @@ def directory_lock(directory: Path) -> Iterator[None]:
         _remove_empty(created)
         raise
     _HELD[key] = [fd, 1]
-    failed = True
     try:
         yield
-        failed = False
     finally:
         del _HELD[key]
         try:
-            if created and [p.name for p in directory.iterdir()] == [LOCK_NAME]:
+            if new_lock:  # a run leaves no lock file behind (a waiting run re-checks it)
                 (directory / LOCK_NAME).unlink()
+            if created and not any(directory.iterdir()):
                 _remove_empty(created)
-            elif new_lock and failed:  # a refused run leaves nothing behind
-                (directory / LOCK_NAME).unlink()
         except OSError:  # pragma: no cover - best effort; the lock is released below
             pass
         os.close(fd)

@@ -176,7 +176,8 @@ def test_a_second_writer_is_refused_naming_the_holders_pid(tmp_path: Path) -> No
         holder.join(60)
     with directory_lock(directory), directory_lock(directory):  # nested in one process: fine
         (directory / "x").write_text("")
-    assert sorted(p.name for p in directory.iterdir()) == [LOCK_NAME, "x"]
+        assert (directory / LOCK_NAME).is_file()
+    assert sorted(p.name for p in directory.iterdir()) == ["x"]  # the lock file went with it
 
 
 def test_a_killed_holder_releases_the_lock(tmp_path: Path) -> None:
@@ -323,11 +324,15 @@ def test_a_lock_file_that_is_not_a_regular_file_is_refused(tmp_path: Path, what:
     assert os.path.lexists(lock) and not (tmp_path / "elsewhere").exists()
 
 
-def test_a_refused_run_leaves_no_lock_file_behind(tmp_path: Path) -> None:
+def test_a_run_leaves_no_lock_file_behind(tmp_path: Path) -> None:
     (tmp_path / "mine.txt").write_text("")
     with pytest.raises(FlatcliError), directory_lock(tmp_path):
         raise FlatcliError("refused")
     assert [p.name for p in tmp_path.iterdir()] == ["mine.txt"]
+    with directory_lock(tmp_path):
+        assert (tmp_path / LOCK_NAME).read_text().split()[0] == str(os.getpid())
+    assert [p.name for p in tmp_path.iterdir()] == ["mine.txt"]
+    (tmp_path / LOCK_NAME).write_text("")  # left by a run killed with kill -9: kept, harmless
     with directory_lock(tmp_path):
         pass
     assert sorted(p.name for p in tmp_path.iterdir()) == [LOCK_NAME, "mine.txt"]
