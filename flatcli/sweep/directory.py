@@ -80,6 +80,8 @@ _LEGACY_CHUNK = re.compile(r"chunk-[0-9]{12}\.parquet")
 EXPORTS = ("trials.csv", "summary.csv", "cells.csv")
 #: The files ``flatcli sweep --rerun TRIAL`` writes into DIR/rerun-TRIAL/ (and its export).
 RERUN_FILES = ("track.parquet", "metrics.json", "run.json", "track.png", "track.csv")
+#: The directory ``flatcli sweep --rerun TRIAL`` writes into.
+RERUN_DIR = re.compile(r"rerun-[0-9]{1,19}")
 #: A directory of a nested sweep: the kinematic twin of reproduce's actuators study.
 NESTED = "kinematic"
 
@@ -95,7 +97,7 @@ _TOP_FILES = (*FINAL_FILES, LOCK_NAME, "cells.parquet", *EXPORTS)
 RECORDED = re.compile(
     rf"(?:{NESTED}/)?(?:{_either(_TOP_FILES)}"
     rf"|{FIGURES.pattern}|{TRIALS_DIR}/{_CHUNK.pattern}|{TRIALS_DIR}/{_LEGACY_CHUNK.pattern})"
-    rf"|rerun-[0-9]{{1,19}}/(?:{_either(RERUN_FILES)})")
+    rf"|{RERUN_DIR.pattern}/(?:{_either(RERUN_FILES)})")
 #: How many problems a refusal or a note names before it says "and N more".
 SHOWN = 3
 
