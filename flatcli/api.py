@@ -146,8 +146,24 @@ def output_lock(out: str | os.PathLike[str] | None) -> contextlib.AbstractContex
     """The lock of the directory ``out`` a plan or track run writes into (none for a new
     directory of its own, which no other run can choose): held from the check of ``out``
     to the run's last file, so two runs never mix their files there (FlatcliError naming
-    the other run's pid)."""
-    return directory_lock(Path(out)) if out is not None else contextlib.nullcontext()
+    the other run's pid). ``out`` is checked first (it can be made and written), so the
+    lock never makes a directory that cannot be written."""
+    if out is None:
+        return contextlib.nullcontext()
+    check_output_dir(Path(out))
+    return directory_lock(Path(out))
+
+
+def duration_note(spec: Spec, command: str) -> str | None:
+    """A line for stderr before a long ``command`` ("plan" or "track") run starts: the least
+    time it takes (``flatcli.spec.limits``), if that is more than ``NOTICE_SECONDS``."""
+    from flatcli.spec.limits import NOTICE_SECONDS, plan_seconds, time_text, track_seconds
+
+    seconds = track_seconds(spec) if command == "track" else plan_seconds(spec.joints)
+    if seconds < NOTICE_SECONDS:
+        return None
+    return (f"note: this {command} run of a robot of {spec.joints} joints takes at least "
+            f"{time_text(seconds)} (the N-link flat maps cost O(N^4) per point)")
 
 
 @contextlib.contextmanager

@@ -15,21 +15,33 @@ needs them, so ``flatcli --help``, ``--version`` and shell completion answer at 
 
 from __future__ import annotations
 
-import contextlib
-import errno
-import os
-import shlex
-import signal
 import sys
-import threading
-import warnings
-from collections.abc import Callable, Iterator
-from pathlib import Path
-from typing import TYPE_CHECKING, Any, NoReturn, TypeVar
 
-import click
+try:  # too little memory to load even these (ulimit -v): one line, not a traceback
+    import contextlib
+    import errno
+    import importlib
+    import os
+    import resource
+    import shlex
+    import signal
+    import threading
+    import time
+    import warnings
+    from collections.abc import Callable, Iterator
+    from pathlib import Path
+    from typing import TYPE_CHECKING, Any, NoReturn, TypeVar
 
-from flatcli import __version__
+    import click
+
+    from flatcli import STARTUP_ERROR, __version__
+
+    if STARTUP_ERROR is not None:
+        raise STARTUP_ERROR
+except (ImportError, MemoryError) as _exc:  # pragma: no cover - exercised in a subprocess
+    sys.stderr.write(f"error: cannot start flatcli: {type(_exc).__name__} while loading its "
+                     "modules; out of memory? (a limit such as ulimit -v, or a container's)\n")
+    raise SystemExit(1) from None
 
 if TYPE_CHECKING:  # the core loads numba: imported where a command needs it
     from flatcli.core.model import FlatnessCheck, RobotParams
@@ -38,6 +50,8 @@ F = TypeVar("F", bound=Callable[..., Any])
 
 EXIT_USAGE = 2
 EXIT_RUNTIME = 1
+#: How an OS error on the standard output names its "file".
+STDOUT = "standard output"
 RESUME_HINT = "finished chunks are kept in {}/trials; run the same command again to resume"
 #: ``flatcli.core.optimize.OBJECTIVES`` and ``flatcli.executors.EXECUTORS``, spelled out here
 #: so that ``--help`` need not import the numerical core (tests/test_cli.py checks they agree).
@@ -68,17 +82,121 @@ def os_error_text(exc: OSError) -> str:
     reason = exc.strerror or str(exc) or type(exc).__name__
     if isinstance(exc, BrokenPipeError) or exc.errno == errno.EPIPE:
         return "standard output was closed (broken pipe)"
+    if exc.filename == STDOUT and exc.errno == errno.EBADF:
+        return "standard output is closed: nothing could be printed (redirect it, e.g. > /dev/null)"
     where = f"{exc.filename}: " if exc.filename is not None else ""
     return f"{where}{reason}".replace("\n", " ")
+
+
+#: The libraries every command loads, in the order they load.
+LIBRARIES = ("numpy", "pandas", "pyarrow", "scipy.optimize", "numba")
+#: How long loading them may take in the probe of ``probe_libraries`` [s] (about 2 s here).
+PROBE_SECONDS = 30.0
+#: Marks the probe's own line among what the libraries print.
+PROBE_MARK = "flatcli-probe: "
+
+
+def probe_libraries() -> str | None:
+    """Under an address-space limit (``ulimit -v``), load the numerical libraries in a
+    forked child first: the one line saying why they cannot be loaded, or None.
+
+    A shared object that fails to map is an ImportError, but OpenBLAS, when it cannot map
+    its buffers at load time, retries forever: only another process can see that and end
+    it. Without a limit nothing is probed (and nothing costs anything).
+    """
+    soft = resource.getrlimit(resource.RLIMIT_AS)[0]
+    if soft == resource.RLIM_INFINITY or "numpy" in sys.modules:
+        return None
+    read, write = os.pipe()
+    try:
+        pid = os.fork()
+    except OSError:  # no memory even to fork: the command's own imports will say so
+        os.close(read)
+        os.close(write)
+        return None
+    if pid == 0:  # the child: load, report, end without the parent's clean-up
+        os.close(read)
+        status = 0
+        try:
+            os.dup2(write, 2)  # what a library prints itself (OpenBLAS) goes to the parent
+            for name in LIBRARIES:
+                importlib.import_module(name)
+            _exercise_blas()
+        except BaseException as exc:
+            status = 1
+            with contextlib.suppress(BaseException):
+                os.write(write, f"\n{PROBE_MARK}{library_error_text(exc)}".encode()[:4000])
+        os._exit(status)
+    os.close(write)
+    deadline = time.monotonic() + PROBE_SECONDS
+    while not (ended := os.waitpid(pid, os.WNOHANG))[0]:
+        if time.monotonic() > deadline:
+            os.kill(pid, signal.SIGKILL)
+            os.waitpid(pid, 0)
+            os.close(read)
+            return (f"loading the numerical libraries did not end within {PROBE_SECONDS:.0f} s "
+                    f"under the address-space limit of {soft / 2**20:.0f} MiB (ulimit -v; "
+                    "OpenBLAS retries forever when it cannot map its buffers): raise that "
+                    "limit")
+        time.sleep(0.02)
+    with os.fdopen(read, "rb") as pipe:
+        said = pipe.read(1 << 16).decode("utf-8", "replace")
+    if os.WIFEXITED(ended[1]) and os.WEXITSTATUS(ended[1]) == 0:
+        return None
+    if PROBE_MARK in said:
+        return said.rpartition(PROBE_MARK)[2].strip()
+    last = ([line.strip() for line in said.splitlines() if line.strip()] or [
+        f"the process loading them ended with status {os.waitstatus_to_exitcode(ended[1])}"])[-1]
+    return (f"cannot load the numerical libraries ({last[:160]}); this process may use at most "
+            f"{soft / 2**20:.0f} MiB of address space (ulimit -v): raise that limit")
+
+
+def _exercise_blas() -> None:
+    """Make both copies of OpenBLAS (numpy's and scipy's) map their buffers, as a plan's
+    first solve does: where they cannot, OpenBLAS ends the process itself."""
+    import numpy as np
+    import scipy.linalg
+
+    a = np.eye(64) + np.ones((64, 64)) / 64
+    np.linalg.solve(a, np.ones(64))
+    scipy.linalg.lu_factor(a)
+
+
+def _while_importing(exc: BaseException) -> bool:
+    """Whether ``exc`` was raised while a module was being imported (a library that failed
+    to load, e.g. under a memory limit), not by a command's own work."""
+    if "shared object" in str(exc):  # a library's own loader (llvmlite loads on first use)
+        return True
+    tb = exc.__traceback__
+    while tb is not None:
+        if tb.tb_frame.f_code.co_filename.startswith("<frozen importlib"):
+            return True
+        tb = tb.tb_next
+    return False
+
+
+def library_error_text(exc: BaseException) -> str:
+    """One line for a library that could not be loaded: why, and the memory limit if any
+    (a shared object that fails to map under ``ulimit -v`` is the usual cause)."""
+    while exc.__cause__ is not None or exc.__context__ is not None:  # the first failure
+        exc = exc.__cause__ or exc.__context__  # type: ignore[assignment]
+    lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
+    why = f"{type(exc).__name__}: {lines[-1][:160]}" if lines else type(exc).__name__
+    limit = resource.getrlimit(resource.RLIMIT_AS)[0]
+    hint = (f"; this process may use at most {limit / 2**20:.0f} MiB of address space "
+            "(ulimit -v): raise that limit" if limit != resource.RLIM_INFINITY else
+            "; out of memory, or a broken installation")
+    return f"cannot load the numerical libraries ({why}){hint}"
 
 
 class _Stop(BaseException):
     """Carries a one-line error and its exit status past click's own handlers."""
 
-    def __init__(self, message: str, status: int) -> None:
+    def __init__(self, message: str, status: int, hard: bool = False) -> None:
         super().__init__(message)
         self.message = message
         self.status = status
+        self.hard = hard  # exit at once: a half-loaded library may crash the interpreter's exit
 
 
 def _silence_stdout() -> None:
@@ -108,14 +226,21 @@ class Cli(click.Group):
     """A group whose usage errors, OS errors and interruptions are one line too."""
 
     def invoke(self, ctx: click.Context) -> Any:
+        problem = probe_libraries()
+        if problem is not None:
+            raise _Stop(problem, EXIT_RUNTIME)
         try:
             return super().invoke(ctx)
         except KeyboardInterrupt:
             raise _Stop("interrupted", interrupted_status()) from None
-        except OSError as exc:
+        except ImportError as exc:
+            raise _Stop(library_error_text(exc), EXIT_RUNTIME, hard=True) from None
+        except (OSError, MemoryError) as exc:
+            if _while_importing(exc):
+                raise _Stop(library_error_text(exc), EXIT_RUNTIME, hard=True) from None
+            if isinstance(exc, MemoryError):
+                raise _Stop("out of memory (lower the sizes of the spec)", EXIT_RUNTIME) from None
             raise _Stop(os_error_text(exc), EXIT_RUNTIME) from None
-        except MemoryError:
-            raise _Stop("out of memory (lower the sizes of the spec)", EXIT_RUNTIME) from None
         except Exception as exc:
             if type(exc).__module__.startswith("pyarrow"):  # a damaged or foreign data file
                 first = (str(exc).splitlines() or [type(exc).__name__])[0]
@@ -140,9 +265,15 @@ class Cli(click.Group):
             if stop.status == EXIT_RUNTIME and "broken pipe" in stop.message:
                 _silence_stdout()
             click.echo(f"error: {stop.message}", err=True)
+            if stop.hard:
+                with contextlib.suppress(OSError, ValueError, AttributeError):
+                    sys.stderr.flush()
+                os._exit(stop.status)
             sys.exit(stop.status)
         except OSError as exc:  # writing the last lines to stdout
             _silence_stdout()
+            if exc.filename is None:
+                exc.filename = STDOUT
             click.echo(f"error: {os_error_text(exc)}", err=True)
             sys.exit(EXIT_RUNTIME)
         except click.exceptions.Exit as exc:
@@ -226,9 +357,30 @@ def overrides(sets: tuple[str, ...], objective: str | None = None) -> list[str]:
     return [*sets, *extra]
 
 
+def show(text: str, nl: bool = True) -> None:
+    """Print a command's report on standard output. A closed standard output (``>&-``: Python
+    then has none) or a failing one (a full disk, ``/dev/full``) is an OS error naming it:
+    one line on stderr, exit status 1 (a closed pipe: ``os_error_text``)."""
+    if sys.stdout is None:
+        raise OSError(errno.EBADF, "closed", STDOUT)
+    try:
+        click.echo(text, nl=nl)
+    except BrokenPipeError:
+        raise
+    except OSError as exc:
+        raise OSError(exc.errno, exc.strerror or str(exc), STDOUT) from None
+
+
+def require_stdout(quiet: bool = False) -> None:
+    """Before a command's work: its report could not be printed (standard output closed),
+    so refuse now (exit status 1) rather than after the work."""
+    if not quiet and sys.stdout is None:
+        raise OSError(errno.EBADF, "closed", STDOUT)
+
+
 def say(quiet: bool, text: str) -> None:
     if not quiet:
-        click.echo(text)
+        show(text)
 
 
 # ---------------------------------------------------------------------------------------
@@ -253,10 +405,15 @@ def plan(spec: Path | None, sets: tuple[str, ...], out: Path | None, force: bool
     """Plan a point-to-point maneuver through the flat outputs; write plan.parquet."""
     from flatcli import api
 
+    require_stdout(quiet)
+
     with user_errors():
         s = api.load_spec(spec, overrides(sets, objective))
         with api.output_lock(out):  # one writer from the check to the last file
             target = api.output_target("plan", s, out, force)  # refused before any work
+            note = api.duration_note(s, "plan")
+            if note is not None and not quiet:
+                click.echo(note, err=True)
             result = api.plan(s)
             directory = result.save(target, plot=plot)
     say(quiet, result.text())
@@ -272,10 +429,15 @@ def track(spec: Path | None, sets: tuple[str, ...], out: Path | None, force: boo
     """Track the plan in closed loop from a perturbed initial state; write track.parquet."""
     from flatcli import api
 
+    require_stdout(quiet)
+
     with user_errors():
         s = api.load_spec(spec, overrides(sets, objective))
         with api.output_lock(out):  # one writer from the check to the last file
             target = api.output_target("track", s, out, force)  # refused before any work
+            note = api.duration_note(s, "track")
+            if note is not None and not quiet:
+                click.echo(note, err=True)
             result = api.track(s, quiet=quiet)
             directory = result.save(target, plot=plot)
     say(quiet, result.text())
@@ -303,13 +465,13 @@ def design(spec: Path | None, sets: tuple[str, ...]) -> None:
     if robot.n_joints == 2:
         k = constraint_coefficients(robot.links, checked(s.robot.model))
         rows = [[name, float(v)] for name, v in zip(k._fields, k, strict=True)]
-        click.echo(f"robot {s.name!r}, {s.robot.model} coefficients [kg^2 m^2]:")
-        click.echo(table(["coefficient", "value"], rows, 6))
+        show(f"robot {s.name!r}, {s.robot.model} coefficients [kg^2 m^2]:")
+        show(table(["coefficient", "value"], rows, 6))
     else:
-        click.echo(chain_constants(s.name, robot))
-    click.echo(design_verdict("robot", check, robot.n_joints))
+        show(chain_constants(s.name, robot))
+    show(design_verdict("robot", check, robot.n_joints))
     if plant != robot:
-        click.echo(design_verdict("plant", flatness_check(plant), plant.n_joints))
+        show(design_verdict("plant", flatness_check(plant), plant.n_joints))
     sys.exit(0 if check.is_flat else 1)
 
 
@@ -357,9 +519,11 @@ def check(spec: Path | None, sets: tuple[str, ...], workers: int | None, executo
     and warnings. Writes nothing."""
     from flatcli import api
 
+    require_stdout()
+
     with user_errors():
         report = api.check(spec, sets, workers=workers, executor=executor, quiet=quiet)
-    click.echo(report.text())
+    show(report.text())
 
 
 @main.command()
@@ -388,6 +552,7 @@ def sweep(spec: Path, out: Path | None, workers: int | None, sets: tuple[str, ..
           rerun: int | None, print_spec: bool, dry_run: bool, oversubscribe: bool,
           plot: bool) -> None:
     """Run a Monte Carlo sweep from a TOML spec with a [sweep] table (resumable)."""
+    require_stdout(quiet)
     from flatcli import api
     from flatcli.executors import WorkerLostError
     from flatcli.spec import spec_toml
@@ -401,11 +566,11 @@ def sweep(spec: Path, out: Path | None, workers: int | None, sets: tuple[str, ..
         if dry_run:
             if rerun is not None or print_spec:
                 fail("--dry-run: not with --rerun or --print-spec")
-            click.echo(api.check(s, workers=workers, executor=executor, quiet=quiet).text())
+            show(api.check(s, workers=workers, executor=executor, quiet=quiet).text())
             return
         check_output_dir(directory)
         if rerun is not None and print_spec:
-            click.echo(spec_toml(trial_spec(s, directory, rerun)), nl=False)
+            show(spec_toml(trial_spec(s, directory, rerun)), nl=False)
             return
         if rerun is not None:
             if not (directory / "trials.parquet").is_file():
@@ -468,24 +633,24 @@ def summarize(directory: Path, plot: bool) -> None:
                     if not is_regular(directory / name):
                         fail(f"--plot: {directory / name} not found: not a finished sweep "
                              "directory")
-            click.echo(read_text(summary_md), nl=False)
+            show(read_text(summary_md), nl=False)
             if plot:
                 from flatcli.report import plot_sweep
                 from flatcli.storage import directory_lock
 
                 with directory_lock(directory):
                     paths = plot_sweep(directory)
-                click.echo("wrote " + ", ".join(str(p) for p in paths))
+                show("wrote " + ", ".join(str(p) for p in paths))
             return
         result = api.load(directory)
         assert isinstance(result, api.SweepResult)
         if plot and not result.complete:
             fail(f"--plot: {result.state.missing_text()}; the figures need every trial "
                  "(run the sweep again to finish it)")
-        click.echo(result.summary_text)
+        show(result.summary_text)
         if plot:
             paths = result.plot()
-            click.echo("wrote " + ", ".join(str(p) for p in paths))
+            show("wrote " + ", ".join(str(p) for p in paths))
 
 
 @main.command()
@@ -500,13 +665,13 @@ def runs(directory: Path, compare: tuple[Path, Path] | None) -> None:
 
     if compare:
         try:
-            click.echo(compare_runs(*compare))
+            show(compare_runs(*compare))
         except RunDirectoryError as exc:
             fail(str(exc))
         return
     if not directory.is_dir():
         fail(f"{directory}: no such directory")
-    click.echo(runs_table(directory))
+    show(runs_table(directory))
 
 
 @main.command()
@@ -521,7 +686,7 @@ def export(directory: Path, as_csv: bool, out: Path | None) -> None:
 
     with user_errors():
         paths = export_csv(directory, out)
-    click.echo("wrote " + ", ".join(str(p) for p in paths))
+    show("wrote " + ", ".join(str(p) for p in paths))
 
 
 @main.command()
@@ -536,6 +701,7 @@ def export(directory: Path, as_csv: bool, out: Path | None) -> None:
 def reproduce(out: Path, montecarlo: Path | None, no_montecarlo: bool, workers: int | None,
               sets: tuple[str, ...], quiet: bool) -> None:
     """The paper's figures 2-4 and numbers, and the Monte Carlo study, with REPORT.md."""
+    require_stdout(quiet)
     from flatcli.reproduce import STUDY_SPEC
     from flatcli.reproduce import reproduce as run
 
@@ -549,7 +715,7 @@ def reproduce(out: Path, montecarlo: Path | None, no_montecarlo: bool, workers: 
         study = None if no_montecarlo else (montecarlo or STUDY_SPEC)
         path = run(out, study, quiet, workers, sets, command=shlex.join(words))
     if not quiet:
-        click.echo(path.read_text())
+        show(path.read_text())
 
 
 if __name__ == "__main__":
