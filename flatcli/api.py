@@ -377,7 +377,6 @@ class SweepResult(Run):
     def plot(self) -> list[Path]:
         """The summary figures (sweep_*.png) of a finished sweep; their paths."""
         from flatcli.report import plot_sweep
-        from flatcli.storage import directory_lock
         from flatcli.sweep.directory import record_outputs
 
         if not self.complete:
@@ -466,7 +465,6 @@ def sweep(spec: SpecLike, out: str | os.PathLike[str] | None = None, *,
     One run writes into a directory at a time (FlatcliError naming the other run's pid).
     """
     from flatcli.report import Progress
-    from flatcli.storage import check_output_dir, directory_lock
     from flatcli.sweep import run_sweep
 
     s = load_spec(spec, overrides)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import errno
+import io
 import json
 import os
 import re
@@ -524,3 +526,62 @@ def test_too_little_memory_to_load_the_libraries_is_one_line(tmp_path: Path) -> 
     assert done.stderr.startswith("error: cannot load the numerical libraries (")
     assert f"at most {limit / 2**20:.0f} MiB of address space (ulimit -v)" in done.stderr
     assert not (tmp_path / "p").exists()
+
+
+def _hold(directory: str, ready: Any, release: Any) -> None:
+    from flatcli.storage import directory_lock
+
+    with directory_lock(Path(directory)):
+        ready.set()
+        release.wait(60)
+
+
+@pytest.mark.parametrize("command", ["plan", "track"])
+def test_plan_and_track_refuse_a_directory_another_run_writes_before_any_work(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, command: str) -> None:
+    import multiprocessing
+
+    import flatcli.api
+
+    def computed(*args: Any, **kwargs: Any) -> Any:
+        raise AssertionError("computed while another run writes there")
+
+    monkeypatch.setattr(flatcli.api, "plan_and_optimization", computed)
+    monkeypatch.setattr(flatcli.api, "run_track", computed)
+    out = tmp_path / "o"
+    context = multiprocessing.get_context("spawn")
+    ready, release = context.Event(), context.Event()
+    holder = context.Process(target=_hold, args=(str(out), ready, release))
+    holder.start()
+    try:
+        assert ready.wait(60)
+        result = CliRunner().invoke(main, [command, "--out", str(out), "-q"])
+        assert result.exit_code == 2, (result.output, result.exception)
+        assert result.output == (f"error: {out} is being written by another flatcli run (pid "
+                                 f"{holder.pid}); wait for it to finish, or use another --out\n")
+    finally:
+        release.set()
+        holder.join(60)
+    assert not out.exists()  # the holder made it and left it empty: removed
+
+
+@main.command("print-demo", hidden=True)
+def _print_demo() -> None:
+    """(tests only) a command that prints without flushing, as a library might"""
+    print("left in the buffer")
+
+
+class _FullStdout(io.StringIO):
+    """A standard output whose disk is full: writes are buffered, the flush fails."""
+
+    def flush(self) -> None:
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+
+def test_a_failing_last_flush_of_stdout_names_it(monkeypatch: pytest.MonkeyPatch,
+                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.setattr(sys, "stdout", _FullStdout())
+    with pytest.raises(SystemExit) as stop:
+        main(["print-demo"])
+    assert stop.value.code == 1
+    assert capsys.readouterr().err == "error: standard output: No space left on device\n"

@@ -76,7 +76,7 @@ def test_bad_export_requests_exit_2(tmp_path: Path) -> None:
     assert code == 2 and out == "error: export: choose a format: --csv\n"
 
 
-@pytest.mark.timeout(30)  # a FIFO opened blindly would block
+@pytest.mark.timeout(30, method="thread")  # a FIFO opened blindly would block
 def test_a_table_or_a_csv_name_that_is_not_a_regular_file_is_refused(tmp_path: Path) -> None:
     run = tmp_path / "r"
     code, out = cli("plan", "--out", str(run), "-q")

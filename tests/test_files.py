@@ -45,7 +45,7 @@ def test_kind_names_every_entry_without_following_links(tmp_path: Path) -> None:
     assert kind(Path("/dev/null")) == "a device"
 
 
-@pytest.mark.timeout(20)  # a FIFO opened blindly would block here forever
+@pytest.mark.timeout(20, method="thread")  # a FIFO opened blindly would block here forever
 def test_only_a_regular_file_is_read(tmp_path: Path) -> None:
     made = entries(tmp_path)
     assert read_bounded(made["file"], 1) == b"x"

@@ -230,7 +230,7 @@ def test_a_good_record_beside_is_listed_as_it_was(tmp_path: Path) -> None:
     assert info.time is not None and info.time.year == 2026
 
 
-@pytest.mark.timeout(30)  # a FIFO opened blindly would block flatcli runs forever
+@pytest.mark.timeout(30, method="thread")  # a FIFO opened blindly would block flatcli runs forever
 def test_a_record_that_is_not_a_regular_file_or_too_large_is_listed_unread(
         tmp_path: Path) -> None:
     from flatcli.files import MAX_RECORD_BYTES
@@ -253,7 +253,7 @@ def test_a_record_that_is_not_a_regular_file_or_too_large_is_listed_unread(
     assert code == 0 and out.count("unreadable") == 5, out
 
 
-@pytest.mark.timeout(30)
+@pytest.mark.timeout(30, method="thread")
 @pytest.mark.parametrize("what", ["fifo", "dir", "link"])
 def test_out_holding_something_else_where_a_run_writes_is_refused(tmp_path: Path,
                                                                   what: str) -> None:

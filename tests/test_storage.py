@@ -308,7 +308,7 @@ def test_a_directory_without_write_permission_is_refused(tmp_path: Path) -> None
         check_output_dir(readable / "run")
 
 
-@pytest.mark.timeout(30)  # a FIFO opened blindly would block
+@pytest.mark.timeout(30, method="thread")  # a FIFO opened blindly would block
 @pytest.mark.parametrize("what", ["a FIFO", "a directory", "a symbolic link"])
 def test_a_lock_file_that_is_not_a_regular_file_is_refused(tmp_path: Path, what: str) -> None:
     lock = tmp_path / LOCK_NAME

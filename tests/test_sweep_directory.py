@@ -451,7 +451,7 @@ def test_every_name_flatcli_records_passes_the_manifest_check(
     assert "not a positive integer" in str(manifest_problem({**legacy, "cells": "2"}))
 
 
-@pytest.mark.timeout(30)  # a FIFO opened blindly would block forever
+@pytest.mark.timeout(30, method="thread")  # a FIFO opened blindly would block forever
 def test_a_manifest_that_is_not_a_regular_file_or_too_large_is_refused_unread(
         tmp_path: Path) -> None:
     lay = layout(small_spec())
@@ -517,7 +517,7 @@ def test_an_entry_named_like_a_flatcli_file_is_not_flatclis(
     assert victim.read_text() == "precious" and os.path.lexists(path)
 
 
-@pytest.mark.timeout(30)  # a FIFO opened blindly would block the resume forever
+@pytest.mark.timeout(30, method="thread")  # a FIFO opened blindly would block the resume forever
 @pytest.mark.parametrize("what", ["a FIFO", "a directory", "a symbolic link"])
 def test_a_chunk_that_is_not_a_regular_file_is_refused_before_any_work(
         finished: tuple[Path, Layout], tmp_path: Path, what: str) -> None:

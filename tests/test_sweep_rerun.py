@@ -101,7 +101,7 @@ def test_same_treats_nan_as_reproduced() -> None:
     assert not same(1.0, 1.0 + 1e-15) and not same(math.nan, 0.0)
 
 
-@pytest.mark.timeout(30)  # a FIFO opened blindly would block
+@pytest.mark.timeout(30, method="thread")  # a FIFO opened blindly would block
 def test_a_trials_table_that_is_not_a_regular_file_is_refused_unread(tmp_path: Path) -> None:
     os.mkfifo(tmp_path / "trials.parquet")
     with pytest.raises(FlatcliError, match=r"trials\.parquet is a FIFO, not the sweep's table"):
