@@ -559,6 +559,7 @@ def sweep(spec: Path, out: Path | None, workers: int | None, sets: tuple[str, ..
     from flatcli.storage import check_output_dir, directory_lock
     from flatcli.sweep import FailFastError, rerun_and_compare, trial_spec
     from flatcli.sweep.directory import record_outputs
+    from flatcli.sweep.rerun import trials_table
 
     with user_errors():
         s = api.load_spec(spec, sets)
@@ -573,8 +574,7 @@ def sweep(spec: Path, out: Path | None, workers: int | None, sets: tuple[str, ..
             show(spec_toml(trial_spec(s, directory, rerun)), nl=False)
             return
         if rerun is not None:
-            if not (directory / "trials.parquet").is_file():
-                fail(f"--rerun: {directory / 'trials.parquet'} not found; run the sweep first")
+            trials_table(directory)  # there, and a regular file
             with directory_lock(directory):
                 result = rerun_and_compare(s, directory, rerun)
                 record_outputs(directory, result.target.iterdir())

@@ -433,13 +433,16 @@ def run_info(directory: Path) -> RunInfo | None:
     if not has_record and not has_manifest:
         return None
     record = read_json(directory / RECORD) if has_record else None
+    raw = record or {}
     if record is not None and _record_problem(record) is not None:
         record = None
     state = sweep_state(directory) if has_manifest else None
     if has_manifest and state is None:
         return _unreadable(directory, "sweep")
-    if state is None and record is None:
-        return _unreadable(directory, "?")
+    if state is None and record is None:  # what can be told of it: its command and spec
+        command = raw.get("command")
+        return _unreadable(directory, command if isinstance(command, str) else "?",
+                           raw.get("spec"))
     command = str(record.get("command")) if record is not None else "sweep"
     spec = (record or {}).get("spec") or (state.manifest.get("spec") if state else None) or {}
     when = _parse_time(record.get("time")) if record is not None else None
@@ -502,6 +505,12 @@ def list_runs(root: Path) -> list[RunInfo]:
     return sorted(infos, key=lambda i: (i.time.timestamp() if i.time else 0.0, str(i.path)))
 
 
+def shown(text: str) -> str:
+    """Text read from a run's files as a terminal may show it: control, format and separator
+    characters (an escape sequence, a bidirectional override) escaped, not printed."""
+    return text if text.isprintable() else ascii(text)[1:-1]
+
+
 def _resolved(path: Path) -> Path | None:
     """A path with its links followed (None for a loop of links)."""
     try:
@@ -522,7 +531,8 @@ def runs_table(root: Path) -> str:
         if _resolved(info.path) in latest:
             where += " (latest)"
         when = f"{info.time:%Y-%m-%d %H:%M:%S}" if info.time else "-"
-        rows.append([where, info.command, info.name, when, info.status, info.metrics_text()])
+        rows.append([shown(c) for c in (where, info.command, info.name, when, info.status,
+                                         info.metrics_text())])
     return table(["run", "command", "name", "time", "status", "key metrics"], rows)
 
 
@@ -551,7 +561,7 @@ def _show(value: Any) -> str:
     if value is _ABSENT:
         return "(not set)"
     if isinstance(value, str):
-        return value
+        return shown(value)
     return json.dumps(value, separators=(", ", " = ")).replace('"', "")
 
 
@@ -571,11 +581,11 @@ def compare_runs(a: Path, b: Path) -> str:
     fa, fb = flat_spec(first.spec), flat_spec(second.spec)
     keys = [k for k in fa if k in fb] + [k for k in fa if k not in fb] + \
            [k for k in fb if k not in fa]
-    rows = [[k, _show(fa.get(k, _ABSENT)), _show(fb.get(k, _ABSENT))]
+    rows = [[shown(k), _show(fa.get(k, _ABSENT)), _show(fb.get(k, _ABSENT))]
             for k in keys if not _same(fa.get(k, None), fb.get(k, None))
             or (k in fa) != (k in fb)]
-    lines = [f"A = {a} ({first.command} {first.name!r}), B = {b} ({second.command} "
-             f"{second.name!r})", ""]
+    lines = [f"A = {a} ({shown(first.command)} {first.name!r}), B = {b} "
+             f"({shown(second.command)} {second.name!r})", ""]
     if rows:
         lines += [f"{len(rows)} spec key{'s differ' if len(rows) > 1 else ' differs'}:", "",
                   table(["key", "A", "B"], rows)]
@@ -584,7 +594,7 @@ def compare_runs(a: Path, b: Path) -> str:
     metric_keys = [k for k in first.metrics if k in second.metrics]
     if metric_keys:
         lines += ["", table(["metric", "A", "B"],
-                            [[k, first.metrics[k], second.metrics[k]] for k in metric_keys])]
+                            [[shown(k), first.metrics[k], second.metrics[k]] for k in metric_keys])]
     if first.status != second.status:
-        lines += ["", f"status: A {first.status}, B {second.status}"]
+        lines += ["", f"status: A {shown(first.status)}, B {shown(second.status)}"]
     return "\n".join(lines)

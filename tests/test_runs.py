@@ -284,3 +284,18 @@ def test_a_run_record_in_place_of_a_sweep_manifest_is_not_a_sweep(tmp_path: Path
     assert sweep_state(tmp_path) is None
     (info,) = list_runs(tmp_path)
     assert info.command == "sweep" and info.status == "unreadable"
+
+
+def test_text_from_a_record_is_shown_escaped(tmp_path: Path) -> None:
+    # a hostile record: an escape sequence that would clear the terminal, a bidi override
+    for name, record in (("a", {**GOOD_PLAN, "spec": {"name": "x\x1b[2Jy\u202e"}}),
+                         ("b", {**GOOD_PLAN, "spec": {"name": "z", "k\u2028": "v\x85"}})):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "run.json").write_text(json.dumps(record))
+    text = runs_table(tmp_path)
+    assert "\x1b" not in text and "\u202e" not in text and r"x\x1b[2Jy\u202e" in text
+    compared = compare_runs(tmp_path / "a", tmp_path / "b")
+    assert compared.isprintable() or all(c.isprintable() or c == "\n" for c in compared)
+    assert r"k\u2028" in compared and r"v\x85" in compared
+    code, out = cli("runs", str(tmp_path), "--compare", str(tmp_path / "a"), str(tmp_path / "b"))
+    assert code == 0 and "\x1b" not in out

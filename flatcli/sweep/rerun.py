@@ -27,15 +27,22 @@ from flatcli.sweep.draws import perturbation_columns
 from flatcli.sweep.layout import Layout, layout
 
 
-def trial_row(directory: Path, trial: int) -> dict[str, Any]:
-    """A finished trial's row of trials.parquet; FlatcliError if there is none to re-run."""
+def trials_table(directory: Path) -> Path:
+    """A finished sweep's trials.parquet; FlatcliError if there is none (or something else
+    than a regular file stands there: it is never opened, a FIFO would block)."""
     trials_path = directory / "trials.parquet"
     what = kind(trials_path)
     if what == "missing":
         raise FlatcliError(f"--rerun: {trials_path} not found; run the sweep first")
-    if what != "file":  # never opened: a FIFO would block
+    if what != "file":
         raise FlatcliError(f"--rerun: {trials_path} is {what}, not the sweep's table; remove "
                            "it yourself and run the sweep again")
+    return trials_path
+
+
+def trial_row(directory: Path, trial: int) -> dict[str, Any]:
+    """A finished trial's row of trials.parquet; FlatcliError if there is none to re-run."""
+    trials_path = trials_table(directory)
     frame = pd.read_parquet(trials_path, filters=[("trial", "==", trial)])
     if frame.empty:
         raise FlatcliError(f"--rerun: no trial {trial} in {trials_path}")
