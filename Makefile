@@ -1,39 +1,57 @@
 # flatcli: two commands on a fresh machine with only python3:
-#   make reproduce   the paper's figures and numbers, and the Monte Carlo study -> runs/paper/
+#   make reproduce   the paper's figures and numbers, and the Monte Carlo studies -> runs/paper/
 #   make test        lint (ruff, mypy) and the test suite
-# The virtual environment .venv is created and filled here, pinned by constraints.txt.
+# The virtual environment .venv is created and filled here, pinned by constraints.txt:
+# `reproduce` installs what flatcli needs to run, `test` (and `bench`) add the tools.
 
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
-STAMP  := $(VENV)/.installed-stamp
+RUN_STAMP := $(VENV)/.installed-run
+DEV_STAMP := $(VENV)/.installed-dev
+# pip's own lines, one per package it fetches or installs (the rest is noise); its exit
+# status is kept (pipefail)
+SHELL := /bin/bash
+.SHELLFLAGS := -o pipefail -ec
+PIP_LINES := grep --line-buffered -E '^(Collecting|Installing collected|Successfully installed|ERROR|error)' || true
 
-.PHONY: all install test lint reproduce bench bench-full clean
+.PHONY: all install install-dev test lint reproduce bench bench-full clean
 
 all: test
 
-$(STAMP): pyproject.toml constraints.txt
+$(BIN)/python:
+	@echo "flatcli: creating the virtual environment $(VENV) with $(PYTHON)"
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -c constraints.txt -e '.[dev]'
-	touch $(STAMP)
 
-install: $(STAMP)
+$(RUN_STAMP): pyproject.toml constraints.txt | $(BIN)/python
+	@echo "flatcli: installing flatcli and what it runs on (numpy, scipy, numba, pandas, pyarrow, matplotlib; about a minute the first time)"
+	$(BIN)/python -m pip install -c constraints.txt -e . 2>&1 | { $(PIP_LINES); }
+	@touch $@
 
-lint: $(STAMP)
+$(DEV_STAMP): $(RUN_STAMP)
+	@echo "flatcli: installing the tools of the tests (pytest, hypothesis, sympy, ruff, mypy, dask, python-control)"
+	$(BIN)/python -m pip install -c constraints.txt -e '.[dev]' 2>&1 | { $(PIP_LINES); }
+	@touch $@
+
+install: $(RUN_STAMP)
+
+install-dev: $(DEV_STAMP)
+
+lint: $(DEV_STAMP)
 	$(BIN)/ruff check flatcli tests benchmarks
 	$(BIN)/mypy
 
 test: lint
 	$(BIN)/pytest -q
 
-reproduce: $(STAMP)
+reproduce: $(RUN_STAMP)
 	$(BIN)/flatcli reproduce --out runs/paper
 
-bench: $(STAMP)
+bench: $(DEV_STAMP)
 	$(BIN)/python -m benchmarks.run --out runs/bench
 
-bench-full: $(STAMP)
+bench-full: $(DEV_STAMP)
 	$(BIN)/python -m benchmarks.run --out runs/bench --million
 
 clean:

@@ -23,14 +23,10 @@ from scipy.integrate import solve_ivp
 from benchmarks.baselines import PAPER_MANEUVER, paper_trials, timed
 from flatcli.core.control import Gains
 from flatcli.core.metrics import Metric, Status
-from flatcli.core.model import Coefficients, Links
-from flatcli.core.paperloop import _is_flat, _kinematic_rhs_at
-from flatcli.core.planning import FlatPlan
-from flatcli.core.plant import Loop
 from flatcli.core.simulate import (
     Scenario,
     Trials,
-    plant_coefficients,
+    closed_loop_rhs,
     simulate,
 )
 
@@ -58,18 +54,9 @@ HEADERS = {
 def reference(scenario: Scenario, trials: Trials, i: int, times: Array) -> Array | None:
     """Trial i by scipy's DOP853 at rtol 1e-12 on the kernel's right-hand side: the angles
     at ``times`` (None if it cannot finish: a diverging trial has no accuracy to compare)."""
-    plan = scenario.plan
-    assert isinstance(plan, FlatPlan)  # the paper's robot
-    kc = Coefficients(*map(float, plan.coefficients))
-    kq = Coefficients(*plant_coefficients(trials.links[i: i + 1])[0])
-    p = Links(*map(float, trials.links[i]))
-    assert isinstance(scenario.gains, Gains)
-    loop = Loop(kc, scenario.gains, kq, p, p.m0 + p.m1 + p.m2, float(trials.momentum[i]),
-                float(scenario.rate_limit), bool(_is_flat(kq)))
-    breaks, local = scenario.pieces
-    zero = np.zeros(3)
+    rhs = closed_loop_rhs(scenario, trials, i)
     with np.errstate(all="ignore"):
-        sol = solve_ivp(lambda t, x: _kinematic_rhs_at(loop, breaks, local, t, x, zero),
+        sol = solve_ivp(lambda t, x: rhs(t, x),
                         (0.0, float(times[-1])), trials.initial[i], method="DOP853",
                         t_eval=times, rtol=1e-12, atol=1e-14)
     return np.asarray(sol.y[:3].T) if sol.status == 0 else None

@@ -109,7 +109,7 @@ def kernel_cached() -> bool:
     import flatcli.core._jit  # noqa: F401  (sets numba's cache directory)
 
     root = Path(getattr(numba.config, "CACHE_DIR", "") or "")
-    return root.is_dir() and any(root.glob("**/paperloop.*.nbi"))
+    return root.is_dir() and any(root.glob("**/kernels.*_batch-*.nbi"))
 
 
 def announce_compile(quiet: bool, stream: TextIO | None = None) -> bool:

@@ -42,7 +42,8 @@ except (ImportError, MemoryError) as _exc:  # pragma: no cover - exercised in a 
     raise SystemExit(1) from None
 
 if TYPE_CHECKING:  # the core loads numba: imported where a command needs it
-    from flatcli.core.model import FlatnessCheck, RobotParams
+    from flatcli.core.design import DesignVerdict
+    from flatcli.core.model import RobotParams
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -50,6 +51,9 @@ EXIT_USAGE = 2
 EXIT_RUNTIME = 1
 #: How an OS error on the standard output names its "file".
 STDOUT = "standard output"
+#: ``flatcli design``'s exit status per verdict of ``flatcli.core.design.VERDICTS`` (bad input
+#: is EXIT_USAGE, 2): 0 closed-form outputs, 1 flat without them, 3 not flat.
+DESIGN_EXIT = {"closed_form": 0, "flat": 1, "not_flat": 3}
 RESUME_HINT = "finished chunks are kept in {}/trials; run the same command again to resume"
 #: ``flatcli.core.optimize.OBJECTIVES`` and ``flatcli.executors.EXECUTORS``, spelled out here
 #: so that ``--help`` need not import the numerical core (tests/test_cli.py checks they agree).
@@ -345,12 +349,15 @@ def track(spec: Path | None, sets: tuple[str, ...], out: Path | None, force: boo
 @spec_argument()
 @set_option()
 def design(spec: Path | None, sets: tuple[str, ...]) -> None:
-    """Check whether the paper's flat outputs apply to a design; print its coefficients.
+    """Is the design flat, and do the closed-form flat outputs apply? Prints its constraint
+    coefficients (N = 2) or barycentric matrix (N >= 3) and the verdict with its reasons.
 
-    Exit status 0 when they apply (flatcli can plan for it), 1 when they do not.
+    Exit status (the robot's verdict): 0 closed_form (flatcli plans it), 1 flat (outputs not
+    known in closed form), 3 not_flat (the constraint integrates), 2 bad input.
     """
     from flatcli import api
-    from flatcli.core.model import constraint_coefficients, flatness_check
+    from flatcli.core.design import design_verdict
+    from flatcli.core.model import constraint_coefficients
     from flatcli.experiment import checked, plant_from, robot_from
     from flatcli.report import table
 
@@ -358,7 +365,6 @@ def design(spec: Path | None, sets: tuple[str, ...]) -> None:
         s = api.load_spec(spec, sets)
         robot = robot_from(s)
         plant = plant_from(s)
-    check = flatness_check(robot)
     if robot.n_joints == 2:
         k = constraint_coefficients(robot.links, checked(s.robot.model))
         rows = [[name, float(v)] for name, v in zip(k._fields, k, strict=True)]
@@ -366,10 +372,11 @@ def design(spec: Path | None, sets: tuple[str, ...]) -> None:
         show(table(["coefficient", "value"], rows, 6))
     else:
         show(chain_constants(s.name, robot))
-    show(design_verdict("robot", check, robot.n_joints))
+    verdict = design_verdict(robot)
+    show(verdict_lines("robot", verdict))
     if plant != robot:
-        show(design_verdict("plant", flatness_check(plant), plant.n_joints))
-    sys.exit(0 if check.is_flat else 1)
+        show(verdict_lines("plant", design_verdict(plant)))
+    sys.exit(DESIGN_EXIT[verdict.verdict])
 
 
 def chain_constants(name: str, robot: RobotParams) -> str:
@@ -386,21 +393,13 @@ def chain_constants(name: str, robot: RobotParams) -> str:
                       f"K_10 = {model.K[1, 0]:.6g} kg m^2, I{n} = {model.inertia[n]:.6g} kg m^2"])
 
 
-def design_verdict(what: str, check: FlatnessCheck, joints: int = 2) -> str:
-    """One line: do the paper's flat outputs (or their N-link generalisation) apply, and if
-    not, is the design still flat."""
-    if check.is_flat and joints == 2:
-        return (f"{what}: flat with the paper's outputs (d2 = 0, c0 a1 != 0); singular where "
-                "sin th1 = 0 or th1' = 0")
-    if check.is_flat:
-        return (f"{what}: flat with the outputs y_j = th_j (j < {joints}), y{joints} = th0 + "
-                f"I{joints} th{joints} / h_0(q) (d{joints} = 0, K_10 != 0); singular where "
-                "dh_0/dt = 0")
-    if check.unsupported:
-        return f"{what}: flatcli cannot plan for it: {check.message()}"
-    if check.controllable:
-        return f"{what}: flat, but the paper's outputs do not apply: {check.message()}"
-    return f"{what}: not flat: {check.message()}"
+def verdict_lines(what: str, verdict: DesignVerdict) -> str:
+    """``what: <verdict>: <headline>``, then one indented line per reason and the numbers of
+    the K_10 test."""
+    lines = [f"{what}: {verdict.verdict}: {verdict.headline}"]
+    lines += [f"  {what}: {reason}" for reason in verdict.reasons]
+    lines.append(f"  {what}: {verdict.numbers()}")
+    return "\n".join(lines)
 
 
 @main.command()
@@ -586,18 +585,33 @@ def export(directory: Path, as_csv: bool, out: Path | None) -> None:
     show("wrote " + ", ".join(str(p) for p in paths))
 
 
+#: The sections of ``flatcli reproduce`` (``flatcli.reproduce.SECTION_NAMES``; the CLI does
+#: not import the numerical libraries to list them).
+REPRODUCE_SECTIONS = ("paper", "optimized", "montecarlo", "actuators", "chains")
+
+
 @main.command()
 @out_option(Path("runs/paper"), "Output directory.")
 @click.option("--montecarlo", "montecarlo", type=click.Path(path_type=Path, dir_okay=False),
               help="Sweep spec of the Monte Carlo study [default: paper_montecarlo.toml, "
                    "shipped with flatcli].")
-@click.option("--no-montecarlo", is_flag=True, help="Skip the Monte Carlo study.")
-@workers_option("Worker processes for the study.")
+@click.option("--no-montecarlo", is_flag=True, help="Skip the Monte Carlo studies.")
+@click.option("--only", "only", multiple=True, type=click.Choice(REPRODUCE_SECTIONS),
+              help="Compute only this section (repeatable); the report keeps the others' "
+                   "last results.")
+@click.option("--force", is_flag=True,
+              help="Compute every section run again, even if its inputs and code are "
+                   "unchanged since it was last computed here.")
+@workers_option("Worker processes for the studies.")
 @set_option("Override a key of the studies' specs (Monte Carlo, actuators), repeatable.")
 @quiet_option()
-def reproduce(out: Path, montecarlo: Path | None, no_montecarlo: bool, workers: int | None,
-              sets: tuple[str, ...], quiet: bool) -> None:
-    """The paper's figures 2-4 and numbers, and the Monte Carlo study, with REPORT.md."""
+def reproduce(out: Path, montecarlo: Path | None, no_montecarlo: bool, only: tuple[str, ...],
+              force: bool, workers: int | None, sets: tuple[str, ...], quiet: bool) -> None:
+    """The paper's figures 2-4 and numbers, and the Monte Carlo studies, with REPORT.md.
+
+    A section whose inputs and code are unchanged since it was last computed into the
+    directory is reused (and says so); the headlines and the report's path are printed.
+    """
     require_stdout(quiet)
     from flatcli.reproduce import STUDY_SPEC
     from flatcli.reproduce import reproduce as run
@@ -605,14 +619,23 @@ def reproduce(out: Path, montecarlo: Path | None, no_montecarlo: bool, workers: 
     words = ["flatcli", "reproduce", "--out", str(out)]
     words += [] if montecarlo is None else ["--montecarlo", str(montecarlo)]
     words += ["--no-montecarlo"] if no_montecarlo else []
+    words += [w for name in only for w in ("--only", name)]
+    words += ["--force"] if force else []
     words += [] if workers is None else ["--workers", str(workers)]
     words += [w for item in sets for w in ("--set", item)]
     words += ["-q"] if quiet else []
     with user_errors():
         study = None if no_montecarlo else (montecarlo or STUDY_SPEC)
-        path = run(out, study, quiet, workers, sets, command=shlex.join(words))
-    if not quiet:
-        show(path.read_text())
+        path, results = run(out, study, quiet, workers, sets, command=shlex.join(words),
+                            only=only, force=force)
+    if quiet:
+        return
+    reused = sum(r.reused for r in results)
+    show(f"\n{path}: {len(results)} sections ({len(results) - reused} computed, "
+         f"{reused} reused)")
+    for result in results:
+        for text in result.headline:
+            show(f"- {result.section.name}: {text}")
 
 
 if __name__ == "__main__":

@@ -14,6 +14,7 @@ import pytest
 from numpy.typing import NDArray
 from scipy.integrate import solve_ivp
 
+from flatcli.core.chainflat import scratch
 from flatcli.core.chainloop import ChainGains, ChainLoop, chain_matrix, chain_rhs
 from flatcli.core.chainplan import plan_chain
 from flatcli.core.control import Gains
@@ -82,7 +83,7 @@ def test_the_compiled_integrators_agree_with_dop853(n: int) -> None:
     nb = n + 1
     loop = ChainLoop(plan.model.K, plan.model.inertia, np.full(n, 100.0), np.full(n, 20.0),
                      chain_matrix(params, n), params[nb:2 * nb], params, 0.0, np.inf,
-                     np.zeros((6, nb)))
+                     np.zeros((6, nb)), scratch(n))
     breaks, local = sc.pieces
     zero = np.zeros(nb)
 

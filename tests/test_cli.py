@@ -164,16 +164,47 @@ def test_out_holding_a_different_run_is_refused_unless_force(tmp_path: Path) -> 
                                                         "track.parquet"]
 
 
-def test_design_reports_flatness(tmp_path: Path) -> None:
-    code, out = run("design")
-    assert code == 0 and "robot: flat with the paper's outputs" in out and "-0.03" in out
-    code, out = run("design", "--set", "robot.com=[0.1,0.1,0.002]")
-    # an imperfect counterweight: still flat (controllable, codimension one), but not with the
-    # paper's closed-form outputs, so flatcli cannot plan for it
-    assert code == 1 and "robot: flat, but the paper's outputs do not apply" in out
-    assert "com[2] = d2 = 0.002 m" in out and "not flat" not in out
-    code, out = run("design", "--set", "robot.com=[0.2,0.1,0]")
-    assert code == 1 and "robot: not flat" in out and "l0 - d0 = 0" in out
+def verdict_block(out: str, what: str) -> list[str]:
+    """The lines of ``flatcli design``'s verdict for ``what`` (robot or plant)."""
+    return [line for line in out.splitlines() if line.lstrip().startswith(f"{what}: ")]
+
+
+@pytest.mark.parametrize(
+    ("sets", "verdict", "named"),
+    [
+        ([], "closed_form", "d2 = 0 and c0 a1 != 0"),
+        # an imperfect counterweight: controllable, flat, but not with the paper's outputs
+        (["robot.com=[0.1,0.1,0.002]"], "flat", "com[2] = d2 = 0.002 m"),
+        # the audit's: l0 = d0 makes a1 = 0, but d2 != 0 keeps the robot controllable
+        (["robot.com=[0.2,0.1,0.01]"], "flat", "l0 - d0 = 0 makes a1 = 2 M K_10 = 0"),
+        # l0 = d0 and d2 = 0: every h_j constant
+        (["robot.com=[0.2,0.1,0]"], "not_flat", "th2 [kg m^2 rad] is conserved"),
+    ],
+)
+def test_design_gives_a_verdict_and_its_exit_status(sets: list[str], verdict: str,
+                                                   named: str) -> None:
+    """Exit 0 closed_form, 1 flat, 3 not_flat; one headline, one line per reason, the
+    numbers; a flat design is never called not flat, nor an integrable one flat."""
+    code, out = run("design", *(arg for s in sets for arg in ("--set", s)))
+    assert code == {"closed_form": 0, "flat": 1, "not_flat": 3}[verdict], out
+    assert "a1" in out and "c3" in out  # the coefficients, as before
+    lines = verdict_block(out, "robot")
+    assert lines[0].startswith(f"robot: {verdict}: ")
+    assert all(line.startswith("  robot: ") for line in lines[1:])
+    assert any(named in line for line in lines)
+    assert "max |w ^ dw| / J^2 = " in out and "|K_10| / J = " in out
+    if verdict == "not_flat":
+        assert "hence flat" not in out and "reorients the base" in out
+    else:
+        assert "not flat" not in out and "not_flat" not in out
+
+
+def test_design_exit_codes_cover_every_verdict() -> None:
+    from flatcli.cli import DESIGN_EXIT
+    from flatcli.core.design import VERDICTS
+
+    assert set(DESIGN_EXIT) == set(VERDICTS)
+    assert sorted(DESIGN_EXIT.values()) == [0, 1, 3]  # 2 is bad input
 
 
 def test_design_of_a_longer_chain_prints_its_barycentric_matrix() -> None:
@@ -183,11 +214,27 @@ def test_design_of_a_longer_chain_prints_its_barycentric_matrix() -> None:
              "--set", "track.kp=[1,1,1]", "--set", "track.kv=[2,2,2]"]
     code, out = run("design", *links, "--set", "robot.com=[0.12,0.1,0.1,0]")
     assert code == 0 and "3 joints: barycentric matrix K" in out
-    assert "robot: flat with the outputs y_j = th_j (j < 3), y3 = th0 + I3 th3 / h_0(q)" in out
+    assert "robot: closed_form: " in out
+    assert "the flat outputs y_j = th_j (j < 3), y3 = th0 + I3 th3 / h_0(q) apply" in out
     # K_10 = m0 (l0 - d0)(m1 d1 + (m2 + m3) l1) / M = 2 (0.18)(0.1 + 0.4) / 4.6, by hand
     assert f"K_10 = {2 * 0.18 * 0.5 / 4.6:.6g} kg m^2" in out
     code, out = run("design", *links, "--set", "robot.com=[0.12,0.1,0.1,0.01]")
-    assert code == 1 and "robot: flat, but the paper's outputs do not apply: com[3]" in out
+    assert code == 1 and "robot: flat: " in out and "com[3] = d3 = 0.01 m" in out
+
+
+def test_design_of_the_audits_chain4_is_not_flat_and_the_plant_gets_its_own_verdict() -> None:
+    """chain4 with com = [0.3, -0.3, -0.1, 0]: every K_ab (a != b) vanishes, the constraint
+    integrates (exit 3), and the conserved combination is printed; a plant that differs gets
+    its own verdict, while the exit status stays the robot's."""
+    spec = str(Path(__file__).parents[1] / "configs" / "chain4.toml")
+    code, out = run("design", spec, "--set", "robot.com=[0.3,-0.3,-0.1,0]")
+    assert code == 3 and "robot: not_flat: " in out
+    # K diagonal, so h_j = sum_{b >= j} (I_b + K_bb): K_11 = 0.15, K_22 = 0.03, K_00 = K_33 = 0
+    # (by hand: K_bb = sum_i m_i L_ib^2 - F_b^2 / M with F_b = 0), I = (0.1, 0.0533, 0.0533, 0.15)
+    assert "0.5366 th0 + 0.4366 th1 + 0.2333 th2 + 0.15 th3" in out and "plant:" not in out
+    code, out = run("design", spec, "--set", "plant.com=[0.1,0.1,0.1,0.01]")
+    assert code == 0 and "robot: closed_form: " in out
+    assert verdict_block(out, "plant")[0].startswith("plant: flat: ")
 
 
 @pytest.mark.parametrize(
@@ -304,7 +351,7 @@ def test_compile_notice_only_on_a_cold_cache(tmp_path: Path,
     assert announce_compile(False, stream) is True
     assert stream.getvalue() == COMPILING + "\n"
     assert announce_compile(True, stream) is True and stream.getvalue().count("\n") == 1
-    index = tmp_path / "core_0123" / "paperloop._kinematic_kernel-124.py311.nbi"
+    index = tmp_path / "core_0123" / "kernels.paper_kinematic_batch-124.py311.nbi"
     index.parent.mkdir()
     index.write_bytes(b"")
     stream = io.StringIO()

@@ -9,10 +9,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from flatcli.chains import CHAIN_SPECS
 from flatcli.core.chain import chain_momentum
 from flatcli.core.chainplan import ChainPlan
 from flatcli.experiment import plan_and_optimization
+from flatcli.reproduce.chains import CHAIN_SPECS
 from flatcli.spec import load_spec
 
 

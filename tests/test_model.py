@@ -411,10 +411,53 @@ def test_a_longer_chain_with_k10_zero_is_unsupported_not_uncontrollable() -> Non
     assert np.all(K[0] == 0) and K[1, 2] != 0
     check = flatness_check(robot)
     assert check.unsupported and check.controllable and not check.is_flat
-    assert "l0 = d0 makes K_10" in check.message() and "through th2)" in check.message()
-    with pytest.raises(FlatcliError, match=r"^flatcli cannot plan for this design: l0 = d0"):
+    assert "l0 = d0 makes K_10" in check.message() and "cannot plan for it" in check.message()
+    with pytest.raises(FlatcliError, match=r"^flatcli cannot plan for this design: l0 = d0.*; "
+                       r"the robot is still controllable, hence flat"):
         require_flat(robot)
     assert flatness_check(robot.with_(com=(0.12, 0.1, 0.1, 0.0))).is_flat
+
+
+@pytest.mark.parametrize(
+    ("robot", "controllable"),
+    [
+        # N = 2, l0 = d0 (a1 = 0) but d2 != 0: K_12 = m2 d2 (m0 l1 + m1 (l1 - d1)) / M != 0
+        (PAPER_ROBOT.with_(com=(0.2, 0.1, 0.01)), True),
+        # N = 2, l0 = d0 and d1 = (m0 + m1) l1 / m1: base and link 1 balance on joint 2, so
+        # K_12 = 0 as well and K is diagonal whatever d2 is
+        (PAPER_ROBOT.with_(com=(0.2, 0.4, 0.05)), False),
+        # chain4 with l0 = d0, m1 d1 + (m2 + m3) l1 = 0 and m2 d2 + m3 l2 = 0 (the audit's)
+        (RobotParams(mass=(2, 1, 1, 0.5), inertia=(0.1, 0.0533, 0.0533, 0.15),
+                     length=(0.3, 0.2, 0.2, 0.2), com=(0.3, -0.3, -0.1, 0.0)), False),
+    ],
+)
+def test_controllable_is_a_coupling_between_links(robot: RobotParams,
+                                                   controllable: bool) -> None:
+    """``controllable`` is False exactly when K is diagonal (every h_j constant), whichever
+    closed-form condition fails; the error says so and never calls an integrable robot flat.
+    (tests/test_core_design.py checks the same designs against w ^ dw from sympy.)"""
+    check = flatness_check(robot)
+    assert not check.is_flat and check.controllable == controllable
+    with pytest.raises(FlatcliError) as info:
+        require_flat(robot)
+    message = str(info.value)
+    assert ("not differentially flat" in message) != controllable
+    assert ("hence flat" in message) == controllable
+
+
+def test_k10_is_zero_relative_to_the_robots_own_scale() -> None:
+    """The paper's robot scaled down to micro-units (lengths x 1e-6, masses x 1e-6, inertias
+    x 1e-18: K_10 = 1e-20 kg m^2) keeps its verdict; K_10 at rounding level of the robot's
+    inertia (l0 - d0 = 1e-14 l0) counts as 0."""
+    r = PAPER_ROBOT
+    tiny = RobotParams(mass=tuple(1e-6 * m for m in r.mass),
+                       inertia=tuple(1e-18 * i for i in r.inertia),
+                       length=tuple(1e-6 * v for v in r.length),
+                       com=tuple(1e-6 * v for v in r.com))
+    assert flatness_check(tiny).is_flat
+    nearly = r.with_(com=(0.2 * (1 - 1e-14), 0.1, 0.0))
+    check = flatness_check(nearly)
+    assert not check.is_flat and not check.controllable
 
 
 @pytest.mark.parametrize(

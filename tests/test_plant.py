@@ -11,7 +11,8 @@ References, none of them the code under test:
 * the kinematic plant for the limit of infinite servo bandwidth;
 * scipy's DOP853 (``track.integrator = "dop853"``) for the compiled integrator;
 * tests/data/kinematic_golden.npz: the kinematic plant's outcomes written by
-  tests/data/make_kinematic_golden.py at commit fdd19c3, before the dynamic plant existed.
+  tests/data/make_kinematic_golden.py at the commit it names (a change detector compared with
+  stated tolerances, since another CPU rounds the last bits differently; not a referee).
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ from test_dynamics import link_kinetic_energy
 
 from flatcli.core.control import Gains, feedback
 from flatcli.core.dynamics import bias_forces, make_chain, mass_matrix
-from flatcli.core.metrics import Metric, Status
+from flatcli.core.metrics import METRIC_NAMES, Metric, Status
 from flatcli.core.model import PAPER_ROBOT, Coefficients, RobotParams, momentum
 from flatcli.core.planning import FlatPlan
 from flatcli.core.plant import (
@@ -44,6 +45,7 @@ from flatcli.core.plant import (
 )
 from flatcli.core.simulate import (
     DYNAMIC_TRACE_COLUMNS,
+    TRACE_COLUMNS,
     NoiseStreams,
     Outcome,
     Scenario,
@@ -112,14 +114,71 @@ def _golden_module() -> ModuleType:
     return module
 
 
-def test_kinematic_plant_outcomes_are_unchanged_bit_for_bit(paper_plan: FlatPlan) -> None:
+#: How far a stored outcome may be from today's on another machine. numba compiles for the
+#: host CPU and glibc picks per-CPU versions of sin, cos and pow (FMA or not), so the last
+#: bits differ (measured: this project's CPU against the file's, and against glibc's plain
+#: versions with GLIBC_TUNABLES=glibc.cpu.hwcaps=-AVX2,-FMA: up to 5e-12 rad in the traces
+#: of resolved trials). Justified per kind of number, for trials resolved to the end:
+#: * integrated quantities (errors, margins, peaks, the error estimate, the trace): rounding
+#:   differences of ~1e-16 per step stay near 1e-12, unless a step-size decision flips,
+#:   which moves the solution by about one local error, bounded by the tolerance (rtol
+#:   5e-8): relative 2e-7, four times the integrator's rtol, plus an absolute 1e-10 (the
+#:   default atol) for values near zero;
+INTEGRATED = {"rtol": 2e-7, "atol": 1e-10}
+#: * momentum_drift is itself rounding (H from the full kinematics against H0, ~1e-16):
+#:   a few hundred ulps of H, whose terms are ~1 kg m^2/s here;
+ROUNDING_H = 1e-13
+#: * counts decided by a comparison (a sample's margin against the singular threshold, a
+#:   step accepted or not): the same up to the one decision rounding can flip.
+COUNT_SLACK = {"singular_hits": 1, "steps": 2, "rhs_evaluations": 14}
+#: A trial that stopped early (diverged, unresolved) stopped next to a pole of the feedback,
+#: where every difference is amplified without bound (measured: peak rates of 1e4 rad/s
+#: that differ by 7e-3 relative between two CPUs): only its status, its event and the output
+#: interval its event fell in are the same on every machine.
+
+
+def assert_outcome_close(out: Outcome, stored: dict[str, Array], name: str, dt: float) -> None:
+    """``out`` against a stored outcome, to the tolerances above: statuses and events
+    exactly; resolved trials' numbers to the tolerances; stopped trials' event times to
+    their output interval."""
+    for field in ("status", "event"):
+        np.testing.assert_array_equal(getattr(out, field), stored[f"{name}/{field}"],
+                                      err_msg=f"{name}: {field}")
+    resolved = np.isin(stored[f"{name}/status"], [int(Status.OK), int(Status.SINGULAR)])
+    stopped = stored[f"{name}/event"] != 0
+    np.testing.assert_array_equal(np.floor(out.event_time[stopped] / dt),
+                                  np.floor(stored[f"{name}/event_time"][stopped] / dt),
+                                  err_msg=f"{name}: event_time (output interval)")
+    want = stored[f"{name}/metrics"][resolved]
+    got_all = out.metrics[resolved]
+    for k, metric in enumerate(METRIC_NAMES):
+        got, ref = got_all[:, k], want[:, k]
+        message = f"{name}: {metric}"
+        np.testing.assert_array_equal(np.isnan(got), np.isnan(ref), err_msg=message)
+        if metric in COUNT_SLACK:
+            np.testing.assert_allclose(got, ref, rtol=0, atol=COUNT_SLACK[metric],
+                                       err_msg=message)
+        elif metric == "momentum_drift":
+            np.testing.assert_allclose(got, ref, rtol=0, atol=ROUNDING_H, err_msg=message)
+        elif metric == "first_hit_time":  # a sample time: one sample either way (a count)
+            np.testing.assert_allclose(got, ref, rtol=0, atol=dt * (1 + 1e-9), err_msg=message)
+        else:
+            np.testing.assert_allclose(got, ref, **INTEGRATED, err_msg=message)
+    assert out.trace is not None
+    np.testing.assert_allclose(out.trace[resolved], stored[f"{name}/trace"][resolved],
+                               **INTEGRATED, err_msg=f"{name}: trace")
+
+
+def test_kinematic_plant_outcomes_are_unchanged(paper_plan: FlatPlan) -> None:
     """The cases of tests/data/make_kinematic_golden.py (adaptive with and without noise,
-    RK4 with a rate limit, DOP853; trials that finish and trials that diverge) give the very
-    numbers they gave before the dynamic plant was added. (Bit for bit with the pinned
-    versions of constraints.txt on this project's machines; another libm may round cos and
-    sin differently in the last bit: regenerate the file there, at the commit it names.)"""
+    RK4 with a rate limit, DOP853; trials that finish and trials that diverge) give the
+    numbers they gave when the file was written (the commit it names), to the tolerances
+    stated above: a change detector for the kinematic plant, not a referee (the referees
+    are DOP853 at tight tolerance and the full link kinematics, tests/test_simulate.py).
+    Bit-identity holds on one machine only and is tested where it holds (batch against one
+    at a time, workers, executors, resume)."""
     golden = _golden_module()
-    stored = np.load(DATA / "kinematic_golden.npz")
+    stored = dict(np.load(DATA / "kinematic_golden.npz"))
     for name, gains, limit, std, integrator in golden.CASES:
         count = 2 if integrator == "dop853" else 5
         trials = golden.golden_trials(count)
@@ -127,12 +186,37 @@ def test_kinematic_plant_outcomes_are_unchanged_bit_for_bit(paper_plan: FlatPlan
             trials = Trials(trials.links, trials.momentum, trials.initial,
                             NoiseStreams(std, 7, np.arange(count, dtype=np.int64)))
         out = run(Scenario(paper_plan, gains, 2e-3, rate_limit=limit), trials, integrator)
-        for field in ("metrics", "status", "event", "event_time"):
-            np.testing.assert_array_equal(getattr(out, field), stored[f"{name}/{field}"],
-                                          err_msg=f"{name}: {field}")
         assert out.trace is not None
-        np.testing.assert_array_equal(out.trace[:, ::golden.TRACE_STRIDE],
-                                      stored[f"{name}/trace"], err_msg=f"{name}: trace")
+        out = Outcome(out.metrics, out.status, out.event, out.event_time,
+                      out.trace[:, ::golden.TRACE_STRIDE], out.columns)
+        assert_outcome_close(out, stored, name, 2e-3)
+
+
+def test_the_stored_outcomes_are_compared_with_a_tolerance_not_bit_for_bit(
+        paper_plan: FlatPlan) -> None:
+    """The comparison above would catch a real change (a trial's error moved by 1e-6 rad,
+    a status changed) and passes a difference in the last bits (what another CPU gives)."""
+    golden = _golden_module()
+    stored = dict(np.load(DATA / "kinematic_golden.npz"))
+    name = "printed_adaptive"
+    metrics = stored[f"{name}/metrics"]
+    trace = stored[f"{name}/trace"]
+    same = Outcome(metrics, stored[f"{name}/status"], stored[f"{name}/event"],
+                   stored[f"{name}/event_time"], trace, TRACE_COLUMNS)
+    last_bits = Outcome(metrics * (1 + 4e-16), same.status, same.event, same.event_time,
+                        np.nextafter(trace, np.inf), TRACE_COLUMNS)
+    assert_outcome_close(last_bits, stored, name, 2e-3)
+    moved = metrics.copy()
+    moved[:, 2] += 1e-6  # err_theta_final
+    with pytest.raises(AssertionError, match="err_theta_final"):
+        assert_outcome_close(Outcome(moved, *(getattr(same, f) for f in (
+            "status", "event", "event_time", "trace"))), stored, name, 2e-3)
+    flipped = same.status.copy()
+    flipped[0] = int(Status.DIVERGED)
+    with pytest.raises(AssertionError, match="status"):
+        assert_outcome_close(Outcome(metrics, flipped, same.event, same.event_time, trace),
+                             stored, name, 2e-3)
+    assert golden.TRACE_STRIDE > 1
 
 
 def test_the_kinematic_plant_ignores_the_servo(paper_plan: FlatPlan) -> None:

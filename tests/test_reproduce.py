@@ -10,10 +10,10 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from flatcli.actuators import STUDY
-from flatcli.chains import CHAIN_SPECS
-from flatcli.cli import main
-from flatcli.reproduce import STUDY_SPEC
+from flatcli.cli import REPRODUCE_SECTIONS, main
+from flatcli.reproduce import SECTION_NAMES, STUDY_SPEC
+from flatcli.reproduce.actuators import STUDY
+from flatcli.reproduce.chains import CHAIN_SPECS
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -55,6 +55,38 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path,
                  "chains/chain6/track_dynamic.parquet", "chains/chain6/montecarlo/trials.parquet"):
         assert (out / name).exists(), name
     assert "Made with `flatcli reproduce --out paper --set sweep.trials=8 -q`" in report
+    assert "## Headlines" in report
+
+    # a second run reuses every section (nothing changed) and says so; the report's sections
+    # are the same
+    again = CliRunner().invoke(main, ["reproduce", "--out", "paper", "--set", "sweep.trials=8"])
+    assert again.exit_code == 0, again.output
+    assert "5 sections (0 computed, 5 reused)" in again.output
+    assert again.output.count("reused: unchanged since") == 5
+    assert "- paper: the printed b1 is wrong" in again.output  # the headlines, not the report
+    assert len(again.output.splitlines()) < 40
+    body = report.split("## How this report was made")[0]
+    assert (out / "REPORT.md").read_text().split("## How this report was made")[0] == body
+
+    # a file a section wrote is gone: that section alone is computed again
+    (out / "fig2_flat_outputs.png").unlink()
+    third = CliRunner().invoke(main, ["reproduce", "--out", "paper", "--set", "sweep.trials=8"])
+    assert third.exit_code == 0, third.output
+    assert "5 sections (1 computed, 4 reused)" in third.output
+    assert "fig2_flat_outputs.png changed or is missing" in third.output
+    assert (out / "fig2_flat_outputs.png").exists()
+
+    # --only computes the named section (with --force even if unchanged) and keeps the rest;
+    # another --set changes the studies' inputs, which --only then leaves out of the report
+    only = CliRunner().invoke(main, ["reproduce", "--out", "paper", "--set", "sweep.trials=8",
+                                     "--only", "optimized", "--force"])
+    assert only.exit_code == 0, only.output
+    assert "5 sections (1 computed, 4 reused)" in only.output and "(--force)" in only.output
+    other = CliRunner().invoke(main, ["reproduce", "--out", "paper", "--set", "sweep.trials=9",
+                                      "--only", "paper"])
+    assert other.exit_code == 0, other.output
+    assert "2 sections (0 computed, 2 reused)" in other.output  # paper and optimized
+    assert "flatcli reproduce --only montecarlo" in (out / "REPORT.md").read_text()
 
 
 @pytest.mark.parametrize(
@@ -66,6 +98,8 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path,
         (["--workers", "0"], "--workers: must be >= 1, got 0"),
         (["--no-montecarlo", "--set", "sweep.trials=3"], "--set: changes the Monte Carlo"),
         (["--montecarlo", "missing.toml"], "spec file not found: missing.toml"),
+        (["--only", "figures"], "Invalid value for '--only'"),
+        (["--no-montecarlo", "--only", "montecarlo"], "skipped by --no-montecarlo"),
     ],
 )
 def test_bad_input_is_refused_before_anything_is_written(
@@ -86,3 +120,7 @@ def test_the_study_specs_ship_as_package_data(spec: Path) -> None:
     pyproject = tomllib.loads((ROOT / "pyproject.toml").read_text())
     patterns = pyproject["tool"]["setuptools"]["package-data"]["flatcli"]
     assert any(fnmatch(f"data/{spec.name}", p) for p in patterns)
+
+
+def test_the_command_line_knows_every_section() -> None:
+    assert REPRODUCE_SECTIONS == SECTION_NAMES

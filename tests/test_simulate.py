@@ -17,17 +17,15 @@ from scipy.integrate import solve_ivp
 
 from flatcli.core.control import Gains
 from flatcli.core.metrics import Event, Metric, Status
-from flatcli.core.model import PAPER_ROBOT, Coefficients, FlatcliError, Links, RobotParams
-from flatcli.core.paperloop import _kinematic_rhs_at
+from flatcli.core.model import PAPER_ROBOT, FlatcliError, RobotParams
 from flatcli.core.planning import FlatPlan
-from flatcli.core.plant import Loop
 from flatcli.core.simulate import (
     NoiseStreams,
     Outcome,
     Scenario,
     Trials,
+    closed_loop_rhs,
     noise_generator,
-    plant_coefficients,
     simulate,
 )
 
@@ -66,16 +64,10 @@ def reference_final(scenario: Scenario, trials: Trials, i: int, t_eval: Array | 
     """Trial i by solve_ivp DOP853 at rtol 1e-12 (no noise): the states at ``t_eval``
     (default: t = T), or None if it cannot finish."""
     plan = scenario.plan
-    kc = Coefficients(*map(float, plan.coefficients))
-    kq = Coefficients(*plant_coefficients(trials.links[i : i + 1])[0])
-    p = Links(*map(float, trials.links[i]))
-    loop = Loop(kc, scenario.gains, kq, p, p.m0 + p.m1 + p.m2, float(trials.momentum[i]),
-                float(scenario.rate_limit), False)
-    breaks, local = scenario.pieces
-    zero = np.zeros(3)
+    loop_rhs = closed_loop_rhs(scenario, trials, i)
 
     def rhs(t: float, x: Array) -> Array:
-        return np.asarray(_kinematic_rhs_at(loop, breaks, local, t, x, zero))
+        return loop_rhs(t, x)
 
     times = np.array([plan.duration]) if t_eval is None else t_eval
     with np.errstate(all="ignore"):
@@ -196,16 +188,10 @@ def reference_event(scenario: Scenario, trials: Trials) -> float:
     """When the tight DOP853 must stop trial 0: its state leaves the divergence bound or its
     margin sin th1 * u1 reaches 0 (terminal events), or the solver gives up [s]."""
     plan = scenario.plan
-    kc = Coefficients(*map(float, plan.coefficients))
-    kq = Coefficients(*plant_coefficients(trials.links[:1])[0])
-    p = Links(*map(float, trials.links[0]))
-    loop = Loop(kc, scenario.gains, kq, p, p.m0 + p.m1 + p.m2, float(trials.momentum[0]),
-                float(scenario.rate_limit), False)
-    breaks, local = scenario.pieces
-    zero = np.zeros(3)
+    loop_rhs = closed_loop_rhs(scenario, trials, 0)
 
     def rhs(t: float, x: Array) -> Array:
-        return np.asarray(_kinematic_rhs_at(loop, breaks, local, t, x, zero))
+        return loop_rhs(t, x)
 
     def bound(t: float, x: Array) -> float:
         return float(scenario.divergence_bound - np.max(np.abs(x)))

@@ -101,5 +101,20 @@ def jitable(fn: F) -> F:
 
 def kernel(fn: F) -> F:
     """Compile a kernel: no Python objects, IEEE semantics (no fastmath), cached on disk
-    (``CACHING``)."""
+    (``CACHING``), and without numba's runtime (no reference counting, no allocation).
+
+    numba counts the references of every array a compiled function extracts from a record
+    or slices, with an atomic operation per count; on the N-link loop, whose records hold a
+    dozen arrays, that cost three times the arithmetic. A kernel instead takes every array
+    it writes from its caller and allocates nothing (numba refuses ``np.empty`` and friends
+    here at compile time); the numbers are the same to the bit. Kernels that must allocate
+    use ``allocating_kernel``.
+    """
+    options: dict[str, Any] = {"_nrt": False}  # an option numba's type stubs do not list
+    return cast(F, numba.njit(cache=CACHING, nogil=True, error_model="numpy", **options)(fn))
+
+
+def allocating_kernel(fn: F) -> F:
+    """``kernel`` with numba's runtime: for kernels that allocate or return arrays (batch
+    helpers called once per batch, not per step)."""
     return cast(F, numba.njit(cache=CACHING, nogil=True, error_model="numpy")(fn))

@@ -36,31 +36,32 @@ th0'(0) such that H = (M q')_0 = H0 of the plant.
 
 from __future__ import annotations
 
-import math
 from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
-from flatcli.core._jit import jitable, kernel
-from flatcli.core.chain import chain_momentum_at
-from flatcli.core.chainflat import inputs_given, outputs, outputs_given, terms
-from flatcli.core.chainloop import chain_matrix, plan_residual
+from flatcli.core._jit import jitable
+from flatcli.core.chain import chain_momentum_given
+from flatcli.core.chainflat import (
+    Scratch,
+    first_terms_at,
+    inputs_given,
+    outputs_given,
+    terms_into,
+)
 from flatcli.core.dynamics import (
     TRIG_ROWS,
     Chain,
     absolute_motion,
     chain_terms,
     free_floating_accelerations,
+    joint_accelerations,
     joint_space,
 )
-from flatcli.core.integrate import WORK_ROWS, make_trial_integrators
 from flatcli.core.metrics import (
-    ACCUMULATOR_SIZE,
-    conclude_trial,
     observe_errors,
     observe_torque,
-    reset_accumulator,
 )
 
 Array = NDArray[np.float64]
@@ -100,7 +101,7 @@ class ChainDynamicLoop(NamedTuple):
     h0 : the plant's angular momentum [kg m^2/s]; rate_limit : joint-rate limit [rad/s]
     bandwidth : servo bandwidth [rad/s]; torque_limit : joint-torque limit [N m] (inf: none)
     buffers : (BUFFER_ROWS, N + 1), trig : (TRIG_ROWS, N + 1), matrices : (MATRICES, N + 1,
-        N + 1) scratch of the right-hand side
+        N + 1) scratch of the right-hand side; work : the flat maps' (``chainflat.Scratch``)
     """
 
     Kc: Array
@@ -118,6 +119,7 @@ class ChainDynamicLoop(NamedTuple):
     buffers: Array
     trig: Array
     matrices: Array
+    work: Scratch
 
 
 @jitable
@@ -137,7 +139,7 @@ def _same_chain(a: Chain, b: Chain) -> bool:
 def chain_dynamic_loop(
     Kc: Array, Ic: Array, kp: Array, kv: Array, Kq: Array, Iq: Array, servo_is_plant: bool,
     params: Array, h0: float, rate_limit: float, bandwidth: float, torque_limit: float,
-    buffers: Array, trig: Array, matrices: Array,
+    buffers: Array, trig: Array, matrices: Array, work: Scratch,
 ) -> ChainDynamicLoop:
     """A ``ChainDynamicLoop`` for a plant (its K ``Kq`` and inertias ``Iq``) and a servo
     model: the plant (``servo_is_plant``) or the controller's nominal chain (Kc, Ic)."""
@@ -145,7 +147,7 @@ def chain_dynamic_loop(
     servo = plant if servo_is_plant else Chain(Kc, Ic)
     same = servo_is_plant or _same_chain(plant, servo)
     return ChainDynamicLoop(Kc, Ic, kp, kv, plant, servo, same, params, h0, rate_limit,
-                            bandwidth, torque_limit, buffers, trig, matrices)
+                            bandwidth, torque_limit, buffers, trig, matrices, work)
 
 
 @jitable
@@ -156,7 +158,9 @@ def _commands(loop: ChainDynamicLoop, measured: Array, u: Array, ref: Array) -> 
     n = loop.Ic.shape[0] - 1
     buf = loop.buffers
     y, y_dot, v, r = buf[_Y, :n], buf[_Y_DOT, :n], buf[_V, :n], buf[_R, :n]
-    h0, h_c, grad, hess, slopes = terms(loop.Kc, loop.Ic, measured)  # once for both maps
+    work = loop.work
+    h0 = terms_into(loop.Kc, loop.Ic, measured, work)  # once for both maps
+    h_c, grad, hess, slopes = work.h, work.grad, work.hess, work.slopes
     sigma = outputs_given(loop.Kc, loop.Ic, h0, h_c, grad, measured, u, y, y_dot)
     for j in range(n):
         v[j] = (ref[2 * n + j] + loop.kv[j] * (ref[n + j] - y_dot[j])
@@ -218,10 +222,21 @@ def chain_dynamic_rhs(loop: ChainDynamicLoop, x: Array, ref: Array, noise: Array
     mats = loop.matrices
     theta, rates, u = x[:nb], x[nb: 2 * nb], x[2 * nb: nx]
     measured = buf[_MEASURED]
+    noisy = False
     for i in range(nb):
         measured[i] = theta[i] + noise[i]
+        noisy = noisy or noise[i] != 0.0
     sigma = _commands(loop, measured, u, ref)
-    absolute_motion(theta, rates, loop.trig)
+    if noisy:
+        absolute_motion(theta, rates, loop.trig)
+    else:  # the controller's trigonometry is the plant's (``chain.link_trig``, the same sums)
+        trig, work = loop.trig, loop.work
+        rate = 0.0
+        for a in range(nb):
+            trig[0, a] = work.cs[a]
+            trig[1, a] = work.sn[a]
+            rate += rates[a]
+            trig[2, a] = rate
     M, c = mats[_M], buf[_C]
     chain_terms(loop.plant, loop.trig, M, c)
     if loop.same_model:
@@ -232,7 +247,15 @@ def chain_dynamic_rhs(loop: ChainDynamicLoop, x: Array, ref: Array, noise: Array
     saturated = servo_demand(loop, rates[1:])
     tau = buf[_TAU, :n]
     q_ddot = buf[_Q_DDOT]
-    free_floating_accelerations(M, c, tau, mats[_MHAT], buf[_RHS], q_ddot)
+    if loop.same_model:  # the plant's Mhat and chat are the servo's: a copy for the solve
+        hat, chat, scratch_hat, rhs = mats[_MHAT_S], buf[_CHAT_S], mats[_MHAT], buf[_RHS]
+        for j in range(n):
+            rhs[j] = chat[j]
+            for k in range(n):
+                scratch_hat[j, k] = hat[j, k]
+        joint_accelerations(M, c, tau, scratch_hat, rhs, q_ddot)
+    else:
+        free_floating_accelerations(M, c, tau, mats[_MHAT], buf[_RHS], q_ddot)
     limit = loop.rate_limit
     u_dot = buf[_U_DOT]
     for i in range(nb):
@@ -281,14 +304,16 @@ def chain_dynamic_initial(loop: ChainDynamicLoop, initial: Array, ref: Array, x0
 
 @jitable
 def chain_dynamic_momentum(loop: ChainDynamicLoop, x: Array) -> float:
-    """H of the plant from its full link kinematics (``chain.chain_momentum_at``) at state x
-    with its own rates [kg m^2/s]."""
+    """H of the plant from its full link kinematics (``chain.chain_momentum_given``) at state
+    x with its own rates [kg m^2/s], given the trigonometry of its angles in
+    ``loop.work`` (``chain.link_trig``)."""
     nb = loop.Ic.shape[0]
-    return float(chain_momentum_at(loop.params, x[:nb], x[nb: 2 * nb]))
+    return float(chain_momentum_given(loop.params, loop.work.cs, loop.work.sn,
+                                      x[nb: 2 * nb]))
 
 
 @jitable
-def _observe(loop: ChainDynamicLoop, obs: Any, acc: Array, j: int, x: Array, f: Array
+def observe_chain_dynamic(loop: ChainDynamicLoop, obs: Any, acc: Array, j: int, x: Array, f: Array
              ) -> None:
     """Metrics at output sample j (see ``metrics``): angle and flat-output errors (the
     controller's flat map at the true state), the margin |sigma| there, H from the full
@@ -303,7 +328,10 @@ def _observe(loop: ChainDynamicLoop, obs: Any, acc: Array, j: int, x: Array, f: 
     for i in range(nb):
         d = x[i] - theta_ref[j, i]
         et2 += d * d
-    sigma = outputs(loop.Kc, loop.Ic, x[:nb], x[2 * nb: nx], y, y_dot)
+    work = loop.work
+    h0 = first_terms_at(loop.Kc, loop.Ic, x[:nb], work)  # its trigonometry serves H too
+    sigma = outputs_given(loop.Kc, loop.Ic, h0, work.h, work.grad, x[:nb], x[2 * nb: nx], y,
+                          y_dot)
     ey2 = 0.0
     for i in range(n):
         e = y[i] - ref[2 * j, i]
@@ -319,7 +347,7 @@ def _observe(loop: ChainDynamicLoop, obs: Any, acc: Array, j: int, x: Array, f: 
 
 
 @jitable
-def _record(trace: Array, j: int, nx: int, x: Array, f: Array) -> None:
+def record_chain_dynamic(trace: Array, j: int, nx: int, x: Array, f: Array) -> None:
     """Trace row j: the state, the torques tau_1..tau_N, the rate command r_N
     (``simulate.chain_dynamic_trace_columns``)."""
     n = (nx - 1) // 3
@@ -330,98 +358,8 @@ def _record(trace: Array, j: int, nx: int, x: Array, f: Array) -> None:
     trace[j, nx + n] = f[nx + 2 + n]
 
 
-_rk4_chain_dynamic, _adaptive_chain_dynamic = make_trial_integrators(chain_dynamic_rhs,
-                                                                     _observe, _record)
-
-
 def make_scratch(n: int) -> tuple[Array, Array, Array]:
     """Scratch arrays of a ``ChainDynamicLoop`` of N joints: buffers, trig, matrices."""
     nb = n + 1
-    return np.zeros((BUFFER_ROWS, nb)), np.zeros((TRIG_ROWS, nb)), np.zeros((MATRICES, nb, nb))
-
-
-@kernel
-def chain_dynamic_kernel(
-    method: int, Kc: Array, Ic: Array, kp: Array, kv: Array, servo_is_plant: bool, Kq: Array,
-    Iq: Array, params: Array, h0: Array, servo: Array, rate_limit: float, initial: Array,
-    ref: Array, theta_ref: Array, breaks: Array, local: Array, plan_theta: Array,
-    plan_theta_dot: Array, dt: float, bound: float, threshold: float, rtol: float,
-    atol: float, max_steps: int, tables: Array, gen: Any, std: float, record: bool,
-    metrics: Array, status: NDArray[np.int64], event: NDArray[np.int64], event_time: Array,
-    trace: Array,
-) -> None:
-    """Integrate every trial of a batch of an N-link chain on the dynamic plant, one at a
-    time (``chainloop.chain_kernel`` with the plant's dynamics and servos).
-
-    Shapes: ref (2n+1, 3N); theta_ref (n+1, N+1); Kq (T, N+1, N+1), Iq (T, N+1) the plants'
-    K and inertias; params (T, 4(N+1)); h0 (T,); servo (T, 2) bandwidth [rad/s] and torque
-    limit [N m]; initial (T, 2N) th(0), u(0) (``chain_dynamic_initial`` completes the state);
-    tables (T, n, N+1) or (T, 0, N+1); metrics (T, N_METRICS); trace (T, n+1, 4N+2) if record
-    (the state, tau_1..tau_N, r_N).
-    """
-    n_out = theta_ref.shape[0] - 1
-    nb = Ic.shape[0]
-    n = nb - 1
-    nx = 3 * n + 1
-    work = np.empty((WORK_ROWS, nx + n + 3))
-    acc = np.empty(ACCUMULATOR_SIZE)
-    noise = np.zeros(nb)
-    flag = np.empty(ref.shape[1])
-    scratch = np.empty((0, nx + n + 1))
-    x0 = np.empty(nx)
-    obs = (theta_ref, ref, threshold)
-    buffers = np.zeros((BUFFER_ROWS, nb))
-    trig = np.zeros((TRIG_ROWS, nb))
-    matrices = np.zeros((MATRICES, nb, nb))
-    for i in range(params.shape[0]):
-        p = params[i]
-        loop = chain_dynamic_loop(Kc, Ic, kp, kv, Kq[i], Iq[i], servo_is_plant, p, h0[i],
-                                  rate_limit, servo[i, 0], servo[i, 1], buffers, trig,
-                                  matrices)
-        chain_dynamic_initial(loop, initial[i], ref[0], x0)
-        reset_accumulator(acc)
-        tr = trace[i] if record else scratch
-        if method == 0:
-            last, ev, t_ev = _rk4_chain_dynamic(loop, obs, x0, ref, dt, n_out, bound,
-                                                tables[i], gen, std, record, tr, acc, work,
-                                                noise)
-            estimate, steps, evaluations = math.nan, last, 4 * last + 1
-        else:
-            last, ev, t_ev, estimate, steps, evaluations = _adaptive_chain_dynamic(
-                loop, obs, x0, breaks, local, dt, n_out, bound, rtol, atol, max_steps, nb,
-                tables[i], gen, std, record, tr, acc, work, noise, flag, ref)
-        conclude_trial(i, plan_residual(plan_theta, plan_theta_dot, p, h0[i]), acc, last,
-                       n_out, ev, t_ev, estimate, steps, evaluations, dt, record, tr, metrics,
-                       status, event, event_time)
-
-
-def run_chain_dynamic_kernel(
-    scenario: Any, trials: Any, method: int, record: bool, metrics: Array,
-    status: NDArray[np.int64], event: NDArray[np.int64], event_time: Array, trace: Array,
-    rows: slice, tables: Array, gen: np.random.Generator, std: float,
-) -> None:
-    """``chain_dynamic_kernel`` on trials ``rows`` of a scenario whose plan is a ``ChainPlan``
-    and whose plant is "dynamic" (``simulate.Scenario``, ``simulate.Trials``)."""
-    plan = scenario.plan
-    gains = scenario.gains
-    n = plan.n_joints
-    nb = n + 1
-    params = np.ascontiguousarray(trials.links[rows], dtype=float)
-    Kq = np.stack([chain_matrix(p, n) for p in params]) if len(params) else np.empty(
-        (0, nb, nb))
-    Iq = np.ascontiguousarray(params[:, nb: 2 * nb])
-    servo = np.ascontiguousarray(trials.servo_table()[rows], dtype=float)
-    plan_theta, plan_theta_dot = scenario.plan_on_own_grid
-    breaks, local = scenario.pieces
-    chain_dynamic_kernel(
-        method, np.ascontiguousarray(plan.model.K), np.ascontiguousarray(plan.model.inertia),
-        np.asarray(gains.kp, dtype=float), np.asarray(gains.kv, dtype=float),
-        scenario.servo_model == "plant", np.ascontiguousarray(Kq), Iq, params,
-        np.ascontiguousarray(trials.momentum[rows], dtype=float), servo,
-        float(scenario.rate_limit), np.ascontiguousarray(trials.initial[rows], dtype=float),
-        scenario.reference, scenario.theta_reference, breaks, local, plan_theta,
-        plan_theta_dot, float(scenario.dt), float(scenario.divergence_bound),
-        float(scenario.singular_threshold), float(scenario.rtol), float(scenario.atol),
-        int(scenario.max_steps), tables, gen, std, record, metrics[rows], status[rows],
-        event[rows], event_time[rows], trace[rows] if record else trace,
-    )
+    return (np.zeros((BUFFER_ROWS, nb)), np.zeros((TRIG_ROWS, nb)),
+            np.zeros((MATRICES, nb, nb)))

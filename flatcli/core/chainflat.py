@@ -30,8 +30,9 @@ The *signed margin* is sigma = -D / (2 K_10) [rad/s]: for N = 2 exactly the pape
 sin(th1) th1'. The outputs need I_N != 0 and h_0 not constant. K_10 = m0 (l0 - d0)(m1 d1 +
 (m2 + ... + mN) l1) / M; flatcli normalises the margin by it and so plans for K_10 != 0 only
 (the paper's conditions m0 != 0, l0 != d0, m1 d1 + m2 l1 != 0, generalised). For N >= 3 a
-design with K_10 = 0 keeps h_0 varying through the K_ab of the outer links and may still be
-flat; flatcli reports it as unsupported (``model.flatness_check``).
+design with K_10 = 0 is flat when another K_ab (a != b) couples the links (h_0 then still
+varies) and not flat when K is diagonal (``design``); flatcli reports it as unsupported
+(``model.flatness_check``).
 
 Functions take the controller's K (``chain.barycentric_matrix``) and inertias, angles
 (N + 1,) and rates (N - 1,) as 1-D arrays, write into output arrays, and are compiled into
@@ -43,25 +44,112 @@ complex output arrays) give derivatives exact to rounding (the optimiser's Jacob
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numpy.typing import NDArray
 
 from flatcli.core._jit import jitable
-from flatcli.core.chain import base_inertia_slopes, momentum_weights, weight_slopes
+from flatcli.core.chain import (
+    base_inertia_slopes_given,
+    link_trig,
+    momentum_weights_given,
+    weight_slopes_given,
+)
 
 Array = NDArray[np.float64]
+
+
+class Scratch(NamedTuple):
+    """Arrays the flat maps' terms are written into, for callers that evaluate them many
+    times (the kernels: no allocation per call); ``scratch`` makes one for N joints, of a
+    dtype (float, or complex for complex steps)."""
+
+    cs: Array  # (N + 1,) cos of the links' angles relative to the base (``chain.link_trig``)
+    sn: Array  # (N + 1,) their sin
+    h: Array  # (N + 1,) weights h_j
+    grad: Array  # (N,) grad h_0
+    hess: Array  # (N, N) its Hessian
+    col: Array  # (N + 1, N) d c_b / d th_k (scratch of the slopes)
+    slopes: Array  # (N + 1, N) d h_j / d th_k
+    at: Array  # (N + 3,) the angles they were last computed at, 1.0 (0.0: none), h_0
+
+
+def scratch(n: int, dtype: type = float) -> Scratch:
+    """A ``Scratch`` for a chain of N = ``n`` joints."""
+    nb = n + 1
+    return Scratch(np.zeros(nb, dtype=dtype), np.zeros(nb, dtype=dtype),
+                   np.zeros(nb, dtype=dtype), np.zeros(n, dtype=dtype),
+                   np.zeros((n, n), dtype=dtype), np.zeros((nb, n), dtype=dtype),
+                   np.zeros((nb, n), dtype=dtype), np.zeros(nb + 2, dtype=dtype))
+
+
+@jitable
+def scratch_like(theta: Array) -> Scratch:
+    """A ``Scratch`` for the angles theta (N + 1,), in their dtype (compiled callers)."""
+    nb = theta.shape[0]
+    n = nb - 1
+    dtype = theta.dtype
+    return Scratch(np.empty(nb, dtype=dtype), np.empty(nb, dtype=dtype),
+                   np.empty(nb, dtype=dtype), np.empty(n, dtype=dtype),
+                   np.empty((n, n), dtype=dtype), np.empty((nb, n), dtype=dtype),
+                   np.empty((nb, n), dtype=dtype), np.zeros(nb + 2, dtype=dtype))
+
+
+@jitable
+def first_terms_into(K: Array, inertia: Array, theta: Array, work: Scratch) -> float:
+    """h_0 returned; the links' trigonometry (``chain.link_trig``), the weights h (N + 1,),
+    grad h_0 (N,) and its Hessian (N, N) at theta written into ``work`` (what the forward
+    map needs)."""
+    link_trig(theta, work.cs, work.sn)
+    h0 = first_terms_given(K, inertia, work)
+    nb = theta.shape[0]
+    for a in range(nb):
+        work.at[a] = theta[a]
+    work.at[nb] = 1.0
+    work.at[nb + 1] = h0
+    return h0
+
+
+@jitable
+def first_terms_at(K: Array, inertia: Array, theta: Array, work: Scratch) -> float:
+    """``first_terms_into`` unless ``work`` already holds the terms at exactly these angles
+    (the right-hand side's, at the state an output sample then observes); returns h_0."""
+    nb = theta.shape[0]
+    if work.at[nb] == 1.0:
+        same = True
+        for a in range(nb):
+            if work.at[a] != theta[a]:
+                same = False
+                break
+        if same:
+            return work.at[nb + 1]  # type: ignore[no-any-return]
+    return first_terms_into(K, inertia, theta, work)
+
+
+@jitable
+def first_terms_given(K: Array, inertia: Array, work: Scratch) -> float:
+    """``first_terms_into`` with the links' trigonometry already in ``work.cs``,
+    ``work.sn``."""
+    momentum_weights_given(K, inertia, work.cs, work.sn, work.h)
+    return base_inertia_slopes_given(K, inertia, work.cs, work.sn, work.grad, work.hess)
+
+
+@jitable
+def terms_into(K: Array, inertia: Array, theta: Array, work: Scratch) -> float:
+    """``first_terms_into`` and the slopes d h_j / d th_k (N + 1, N) into ``work.slopes``
+    (what the inputs need too); returns h_0."""
+    h0 = first_terms_into(K, inertia, theta, work)
+    weight_slopes_given(K, work.cs, work.sn, work.col, work.slopes)
+    return h0
 
 
 @jitable
 def _terms(K: Array, inertia: Array, theta: Array) -> tuple[float, Array, Array, Array]:
     """h_0, the weights h (N + 1,), grad h_0 (N,) and its Hessian (N, N) at theta."""
-    n = theta.shape[0]
-    h = np.empty(n, dtype=theta.dtype)
-    momentum_weights(K, inertia, theta, h)
-    grad = np.empty(n - 1, dtype=theta.dtype)
-    hess = np.empty((n - 1, n - 1), dtype=theta.dtype)
-    h0 = base_inertia_slopes(K, inertia, theta, grad, hess)
-    return h0, h, grad, hess
+    work = scratch_like(theta)
+    h0 = first_terms_into(K, inertia, theta, work)
+    return h0, work.h, work.grad, work.hess
 
 
 @jitable
@@ -73,11 +161,9 @@ def terms(K: Array, inertia: Array, theta: Array) -> tuple[float, Array, Array, 
     With d_N = 0 they depend on q = (th_1..th_N-1) only, not on th0 or th_N (up to the
     rounding of the absolute angles' differences); ``flag_state_given`` takes them.
     """
-    n = theta.shape[0] - 1
-    h0, h, grad, hess = _terms(K, inertia, theta)
-    slopes = np.empty((n + 1, n), dtype=theta.dtype)
-    weight_slopes(K, theta, slopes)
-    return h0, h, grad, hess, slopes
+    work = scratch_like(theta)
+    h0 = terms_into(K, inertia, theta, work)
+    return h0, work.h, work.grad, work.hess, work.slopes
 
 
 @jitable

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from flatcli.core._jit import kernel
+from flatcli.core._jit import allocating_kernel
 from flatcli.core.basis import Basis, PolynomialBasis, composite_gauss_legendre
 from flatcli.core.chain import barycentric_matrix, chain_momentum
 from flatcli.core.chainflat import flag_state, outputs
@@ -71,7 +71,7 @@ class ChainModel:
         return int(self.inertia.shape[0]) - 1
 
 
-@kernel
+@allocating_kernel
 def _flags_to_states(K: Array, inertia: Array, flags: AnyArray, theta: AnyArray,
                      theta_dot: AnyArray, u_dot: AnyArray, sigma: AnyArray) -> None:
     """``flag_state`` at every row of flags (n, 3 N): y, y', y'' (real or complex, the

@@ -55,7 +55,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from flatcli.core._jit import jitable, kernel
+from flatcli.core._jit import allocating_kernel, jitable
 from flatcli.core.chain import barycentric_matrix
 from flatcli.core.model import FlatcliError, Links
 
@@ -301,8 +301,16 @@ def free_floating_accelerations(M: Array, c: Array, tau: Array, Mhat: Array, rhs
     Mhat : (>= n - 1, >= n - 1), rhs : (>= n - 1,) scratch
     q_ddot : (n,) written [rad/s^2]
     """
-    n = M.shape[0]
     joint_space(M, c, Mhat, rhs)
+    joint_accelerations(M, c, tau, Mhat, rhs, q_ddot)
+
+
+@jitable
+def joint_accelerations(M: Array, c: Array, tau: Array, Mhat: Array, rhs: Array,
+                        q_ddot: Array) -> None:
+    """``free_floating_accelerations`` given Mhat and chat (in ``rhs``) of ``joint_space``
+    at the same state (both overwritten)."""
+    n = M.shape[0]
     for j in range(n - 1):
         rhs[j] = tau[j] - rhs[j]
     solve_spd(Mhat, rhs, n - 1, q_ddot[1:])
@@ -316,7 +324,7 @@ def free_floating_accelerations(M: Array, c: Array, tau: Array, Mhat: Array, rhs
 # Batches of states, for Python callers (the same jitable functions, compiled once)
 
 
-@kernel
+@allocating_kernel
 def _terms_batch(coupling: Array, inertia: Array, q: Array, q_dot: Array, M: Array,
                  c: Array) -> None:
     chain = Chain(coupling, inertia)

@@ -212,7 +212,8 @@ def make_trial_integrators(
         half = 0.5 * dt
         sixth = dt / 6.0
         x, k1, k2, k3, k4, y = work[_X], work[_K1], work[_K2], work[_K3], work[_K4], work[_Y]
-        x[:nx] = x0
+        for i in range(nx):
+            x[i] = x0[i]
         noise[:] = 0.0
         before = 0.0
         crossed = False
@@ -304,7 +305,8 @@ def make_trial_integrators(
         duration = n * dt
         noisy = table.shape[0] > 0 or std > 0.0
         floor = STEP_FLOOR * duration
-        x[:nx] = x0
+        for i in range(nx):
+            x[i] = x0[i]
         noise[:] = 0.0
         load_noise(0, table, gen, std, noise)
         plan_flag(breaks, local, 0.0, ref)
@@ -424,8 +426,9 @@ def make_trial_integrators(
                 estimate += math.sqrt(angles)
                 steps += 1
                 t = t_new
-                x[:] = xn
-                k1[:] = k7
+                for i in range(x.shape[0]):  # (element by element: no runtime needed)
+                    x[i] = xn[i]
+                    k1[i] = k7[i]
                 sigma = after
                 if noisy and interval + 1 < n and t >= (interval + 1) * dt * (1.0 - 1e-14):
                     # a new noise interval: the measured angles jump, the rates with them

@@ -31,6 +31,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from flatcli.core._jit import Real, jitable
+from flatcli.core.chain import barycentric_matrix, inertia_scale
 
 Model = Literal["derived", "paper"]
 MODELS: tuple[Model, ...] = ("derived", "paper")
@@ -350,22 +351,25 @@ def momentum_at(
 
 @dataclass(frozen=True)
 class FlatnessCheck:
-    """Outcome of the design check: which conditions for the paper's flat outputs fail.
+    """Outcome of the design check: which conditions for the closed-form flat outputs fail.
 
-    ``failures`` lists every failing condition as one line; ``controllable`` is False when
-    one of them makes the robot lose controllability (then it is not flat at all). A robot
-    that fails only d2 = 0 is still controllable and driftless of codimension one, hence flat,
-    but with outputs not known in closed form: the paper's outputs do not apply to it.
+    ``failures`` lists every failing condition as one line (none of them says whether the
+    robot is controllable); ``controllable`` is False when every coupling K_ab (a != b) of
+    ``chain.barycentric_matrix`` vanishes (relative to ``chain.inertia_scale``): then every
+    h_j is constant, the constraint integrates and the robot is not controllable, hence not
+    flat. Otherwise it is controllable and, driftless of codimension one, flat: K diagonal is
+    exactly when w ^ dw = 0 (``design``, which decides it from the link kinematics), so a
+    robot that fails only d_N = 0 or K_10 != 0 is flat with outputs not known in closed form.
     """
 
     failures: tuple[str, ...]
     controllable: bool = True
-    #: N >= 3 only: the outputs may be flat, but flatcli's planner cannot use them (K_10 = 0)
+    #: N >= 3 only: K_10 = 0, which flatcli's planner cannot use (it normalises by K_10)
     unsupported: bool = False
 
     @property
     def is_flat(self) -> bool:
-        """The paper's flat outputs y1 = th1, y2 = th0 - c0 th2 / A apply."""
+        """The closed-form flat outputs apply (y1 = th1, y2 = th0 - c0 th2 / A for N = 2)."""
         return not self.failures
 
     def message(self) -> str:
@@ -382,54 +386,66 @@ def flatness_check(params: RobotParams) -> FlatnessCheck:
     For N links: d_N = 0, I_N != 0, and the base's locked inertia h_0(q) not constant (the
     outputs are flat where dh_0/dt != 0, ``chainflat``). flatcli's N-link planner scales the
     margin by K_10 = m0 (l0 - d0)(m1 d1 + (m2 + ... + mN) l1) / M and needs K_10 != 0 (for
-    N = 2, a1 = 2 M K_10, and K_10 = 0 is the loss of controllability above). For N >= 3 a
-    design with K_10 = 0 may still be flat through K_ab (1 <= a < b < N), so it is reported
-    ``unsupported``, not uncontrollable. I_N > 0 and m0 > 0 hold for every valid RobotParams,
-    so only the others can fail here.
+    N = 2, a1 = 2 M K_10). K_10 and the other couplings count as zero when
+    |K_ab| <= DESIGN_ZERO_TOL J, J = ``chain.inertia_scale`` (the robot's own scale; d_N
+    relative to the longest link). A design failing a condition may still be controllable
+    (``FlatnessCheck``): for N >= 3, K_10 = 0 is reported ``unsupported``. I_N > 0 and
+    m0 > 0 hold for every valid RobotParams, so only the others can fail here.
     """
     n = params.n_joints
     mass, length, com = params.mass, params.length, params.com
     l0, l1 = length[0], length[1]
     d0, d1, d_last = com[0], com[1], com[n]
     arm = mass[1] * d1 + sum(mass[2:]) * l1
-    scale = max(length)
+    arrays = [np.asarray(v, dtype=float) for v in (mass, params.inertia, length, com)]
+    K = barycentric_matrix(arrays[0], arrays[2], arrays[3])
+    scale = inertia_scale(*arrays)
+    zero = DESIGN_ZERO_TOL * scale
+    controllable = bool(np.max(np.abs(K - np.diag(np.diag(K)))) > zero)
+    zero_k10 = abs(K[1, 0]) <= zero
     failures = []
-    if abs(d_last) > DESIGN_ZERO_TOL * scale:
+    if abs(d_last) > DESIGN_ZERO_TOL * max(length):
         outputs = ("y1 = th1, y2 = th0 - c0 th2/(a0 + a1 cos th1)" if n == 2 else
                    f"y_j = th_j (j < {n}), y{n} = th0 + I{n} th{n} / h_0")
         failures.append(
             f"com[{n}] = d{n} = {d_last:g} m, not 0: link {n}'s centre of mass is off joint {n}, "
-            f"so the constraint depends on th{n} and the paper's flat outputs {outputs} do not "
-            "apply (the robot stays controllable and, driftless of codimension one, flat, but "
-            "with outputs not known in closed form; flatcli plans with the paper's outputs "
-            "only)"
+            f"and the closed-form flat outputs {outputs} need it on the joint (d{n} = 0)"
         )
-    zero_offset = abs(l0 - d0) <= DESIGN_ZERO_TOL * scale
-    zero_arm = abs(arm) <= DESIGN_ZERO_TOL * max(mass) * scale
-    if n > 2 and (zero_offset or zero_arm):
-        why = "l0 = d0" if zero_offset else f"m1 d1 + (m2 + ... + m{n}) l1 = 0"
+    # K_10 = 0 is decided relative to J; name the factors that vanish (each to its own scale)
+    zero_offset = zero_k10 and abs(l0 - d0) <= DESIGN_ZERO_TOL * max(length)
+    zero_arm = zero_k10 and abs(arm) <= DESIGN_ZERO_TOL * max(mass) * max(length)
+    if n > 2 and zero_k10:
+        why = ("l0 = d0" if zero_offset else f"m1 d1 + (m2 + ... + m{n}) l1 = 0" if zero_arm
+               else f"|K_10| / J = {abs(K[1, 0]) / scale:.3g}")
         failures.append(
             f"{why} makes K_10 = m0 (l0 - d0)(m1 d1 + (m2 + ... + m{n}) l1) / M = 0: h_0 loses "
             f"its cos(th1) term, and flatcli's {n}-link planner, which scales the singularity "
-            "margin by K_10, cannot plan for it (the outputs may still be flat through "
-            f"{'th2' if n == 3 else f'th2..th{n - 1}'})"
+            "margin by K_10, cannot plan for it"
         )
-        return FlatnessCheck(tuple(failures), True, unsupported=True)
+        return FlatnessCheck(tuple(failures), controllable, unsupported=True)
+    need = ("and the paper's outputs need c0 a1 != 0 (with d2 = 0, det[g1, g2, [g1, g2]] = "
+            "c0 a1 sin th1 / A^2)")
     if zero_offset:
-        failures.append(f"length[0] = com[0] = {l0:g} m: l0 - d0 = 0 makes a1 = 0, so "
-                        "det[g1, g2, [g1, g2]] = c0 a1 sin th1 / A^2 vanishes (not controllable)")
+        failures.append(f"length[0] = com[0] = {l0:g} m: l0 - d0 = 0 makes a1 = 2 M K_10 = 0, "
+                        + need)
     if zero_arm:
-        failures.append("m1 d1 + m2 l1 = 0 makes a1 = 0, so det[g1, g2, [g1, g2]] vanishes "
-                        "(not controllable)")
-    return FlatnessCheck(tuple(failures), not (zero_offset or zero_arm))
+        failures.append("m1 d1 + m2 l1 = 0 makes a1 = 2 M K_10 = 0, " + need)
+    if zero_k10 and not (zero_offset or zero_arm):
+        failures.append(f"|K_10| / J = {abs(K[1, 0]) / scale:.3g} makes "
+                        "a1 = 2 M K_10 = 0, " + need)
+    return FlatnessCheck(tuple(failures), controllable)
 
 
 def require_flat(params: RobotParams) -> None:
-    """Raise FlatcliError naming the failing condition if the paper's flat outputs do not
+    """Raise FlatcliError naming the failing condition if the closed-form flat outputs do not
     apply to the design (flatcli plans with them only)."""
     check = flatness_check(params)
     if not check.is_flat:
-        what = ("flatcli cannot plan for this design" if check.unsupported
-                else "the paper's flat outputs do not apply" if check.controllable
-                else "robot is not differentially flat")
-        raise FlatcliError(f"{what}: {check.message()}")
+        what, tail = (
+            ("robot is not differentially flat", "every h_j is constant: the momentum "
+             "constraint integrates") if not check.controllable
+            else ("flatcli cannot plan for this design", "the robot is still controllable, "
+                  "hence flat, but not with the closed-form outputs") if check.unsupported
+            else ("the paper's flat outputs do not apply", "the robot is still controllable, "
+                  "hence flat, with outputs not known in closed form"))
+        raise FlatcliError(f"{what}: {check.message()}; {tail}")

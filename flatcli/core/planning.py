@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from flatcli.core._jit import kernel
+from flatcli.core._jit import allocating_kernel
 from flatcli.core.basis import Basis, PolynomialBasis, composite_gauss_legendre, quadrature
 from flatcli.core.flatness import flag_state, flat_outputs, flat_state, singularity_margin
 from flatcli.core.model import (
@@ -418,7 +418,7 @@ class FlatPlan:
         return margin_zeros(self.trajectory)
 
 
-@kernel
+@allocating_kernel
 def _polynomial_state_inputs(
     coefficients: Array, duration: float, t: Array, k: Coefficients, state: Array,
     inputs: Array,

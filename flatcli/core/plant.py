@@ -38,7 +38,7 @@ Every right-hand side here has the same signature and writes the state's derivat
 
 from __future__ import annotations
 
-from typing import Literal, NamedTuple
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -54,6 +54,7 @@ from flatcli.core.dynamics import (
     three_body_terms,
 )
 from flatcli.core.flatness import flag_state
+from flatcli.core.metrics import observe_sample, observe_torque
 from flatcli.core.model import Coefficients, Links, base_rate_at, momentum_at
 from flatcli.core.planning import COMPLEX_STEP, FlatPlan
 
@@ -298,6 +299,45 @@ def dynamic_initial(loop: DynamicLoop, initial: Array, ref: Array, x0: Array) ->
     x0[0], x0[1], x0[2] = initial[0], initial[1], initial[2]
     x0[3] = (loop.h0 - m01 * r1 - m02 * r2) / m00
     x0[4], x0[5], x0[6] = r1, r2, u1
+
+
+@jitable
+def is_flat_plant(k: Coefficients) -> bool:
+    """Whether a plant's constraint has no d2-terms (d2 = 0): then its terms in cos th2 and
+    cos(th1 + th2) vanish and the kinematic plant skips them (the same numbers to the bit)."""
+    return (k.a2 == 0.0 and k.a3 == 0.0 and k.b2 == 0.0 and k.b3 == 0.0 and k.c2 == 0.0
+            and k.c3 == 0.0)
+
+
+@jitable
+def observe_kinematic(loop: Loop, obs: Any, acc: Array, j: int, x: Array, f: Array) -> None:
+    """Metrics of the kinematic plant at output sample j: H from the full link kinematics at
+    the state with the joint rates the plant applies there (f)."""
+    theta_ref, ref, threshold = obs
+    observe_sample(acc, j, x[0], x[1], x[2], x[3], f[5], f[6], f[1], f[2],
+                   kinematic_momentum(loop, x, f), theta_ref, ref, loop.kc, loop.h0, threshold)
+
+
+@jitable
+def observe_dynamic(loop: DynamicLoop, obs: Any, acc: Array, j: int, x: Array, f: Array
+                    ) -> None:
+    """Metrics of the dynamic plant at output sample j: H from the full link kinematics at
+    the state (its own rates), the joint rates and torques it applies."""
+    theta_ref, ref, threshold = obs
+    observe_sample(acc, j, x[0], x[1], x[2], x[6], f[AUX_C1], f[AUX_S1], x[4], x[5],
+                   dynamic_momentum(loop, x, f), theta_ref, ref, loop.kc, loop.h0, threshold)
+    observe_torque(acc, f[AUX_TAU1], f[AUX_TAU2], f[AUX_SATURATED])
+
+
+@jitable
+def record_dynamic(trace: Array, j: int, nx: int, x: Array, f: Array) -> None:
+    """Trace row j of the dynamic plant (``simulate.DYNAMIC_TRACE_COLUMNS``): the state, the
+    torques tau1, tau2 and the rate command r2."""
+    for i in range(nx):
+        trace[j, i] = x[i]
+    trace[j, nx] = f[AUX_TAU1]
+    trace[j, nx + 1] = f[AUX_TAU2]
+    trace[j, nx + 2] = f[AUX_R2]
 
 
 def plan_motion(plan: FlatPlan, t: Array) -> tuple[Array, Array, Array]:

@@ -39,19 +39,25 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from flatcli.core.chaindynamic import run_chain_dynamic_kernel
-from flatcli.core.chainloop import ChainGains, run_chain_kernel
+from flatcli.core.chain import barycentric_matrices
+from flatcli.core.chainloop import ChainGains
 from flatcli.core.chainplan import ChainPlan
 from flatcli.core.control import Gains
-from flatcli.core.metrics import N_METRICS
-from flatcli.core.model import FlatcliError, Links, constraint_coefficients
-from flatcli.core.paperloop import (
-    _METHOD_ADAPTIVE,
-    _METHOD_RK4,
-    _dynamic_kernel,
-    _kinematic_kernel,
-    _plain,
+from flatcli.core.dynamics import ThreeBody
+from flatcli.core.kernels import (
+    ADAPTIVE,
+    KERNELS,
+    RK4,
+    ChainShared,
+    Grid,
+    Kernels,
+    PaperShared,
+    Results,
+    Settings,
+    TrialArrays,
 )
+from flatcli.core.metrics import N_METRICS
+from flatcli.core.model import Coefficients, FlatcliError, Links, constraint_coefficients
 from flatcli.core.planning import FlatPlan
 from flatcli.core.plant import (
     DEFAULT_SERVO_BANDWIDTH,
@@ -60,7 +66,7 @@ from flatcli.core.plant import (
     PlantModel,
     ServoModel,
 )
-from flatcli.core.reference import _reference_trial
+from flatcli.core.reference import reference_trial
 
 Array = NDArray[np.float64]
 Integrator = Literal["adaptive", "rk4", "dop853"]
@@ -359,6 +365,75 @@ def plant_coefficients(links: Array) -> Array:
     return np.ascontiguousarray(np.stack(np.broadcast_arrays(*k), axis=-1))
 
 
+def _shared(scenario: Scenario, kind: str) -> PaperShared | ChainShared:
+    """What every trial of the scenario shares in the kernels (``kernels``)."""
+    servo_is_plant = scenario.servo_model == "plant"
+    if kind == "chain":
+        assert isinstance(scenario.plan, ChainPlan) and isinstance(scenario.gains, ChainGains)
+        return ChainShared(np.ascontiguousarray(scenario.plan.model.K),
+                           np.ascontiguousarray(scenario.plan.model.inertia),
+                           np.asarray(scenario.gains.kp, dtype=float),
+                           np.asarray(scenario.gains.kv, dtype=float),
+                           float(scenario.rate_limit), servo_is_plant)
+    assert isinstance(scenario.plan, FlatPlan) and isinstance(scenario.gains, Gains)
+    robot = scenario.plan.robot
+    K = barycentric_matrices(robot.as_array()[None, :])[0]
+    links = Links(*(float(v) for v in robot.links))
+    return PaperShared(_plain(scenario.plan.coefficients),
+                       Gains(*(float(v) for v in scenario.gains)), float(scenario.rate_limit),
+                       ThreeBody(K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2], K[2, 2],
+                                 links.i0, links.i1, links.i2),
+                       links, servo_is_plant)
+
+
+def _plain(k: Coefficients) -> Coefficients:
+    return Coefficients(*(float(v) for v in k))
+
+
+def kernel_inputs(scenario: Scenario, trials: Trials) -> tuple[
+        Kernels, PaperShared | ChainShared, TrialArrays, Grid, Settings]:
+    """The kernels of a scenario's (model, plant) and everything they take but the noise,
+    the buffers and the results."""
+    kind = "chain" if isinstance(scenario.plan, ChainPlan) else "paper"
+    kernels = KERNELS[(kind, scenario.plant)]
+    params = np.ascontiguousarray(trials.links, dtype=float)
+    if kind == "paper" and scenario.plant == "kinematic":
+        plant = plant_coefficients(params)
+    else:
+        plant = barycentric_matrices(params)
+    arrays = TrialArrays(params, np.ascontiguousarray(trials.momentum, dtype=float),
+                         trials.servo_table(), np.ascontiguousarray(trials.initial, dtype=float),
+                         np.ascontiguousarray(plant))
+    plan_theta, plan_theta_dot = scenario.plan_on_own_grid
+    breaks, local = scenario.pieces
+    grid = Grid(scenario.reference, scenario.theta_reference, breaks, local, plan_theta,
+                plan_theta_dot)
+    settings = Settings(float(scenario.dt), float(scenario.divergence_bound),
+                        float(scenario.singular_threshold), float(scenario.rtol),
+                        float(scenario.atol), int(scenario.max_steps), False)
+    return kernels, _shared(scenario, kind), arrays, grid, settings
+
+
+def closed_loop_rhs(scenario: Scenario, trials: Trials, i: int = 0) -> Callable[..., Array]:
+    """The compiled closed loop of trial i as a function f(t, x, noise=None) -> x' (the state's
+    derivative, a new array; ``noise`` the measured angles' noise, default none), for an
+    integrator written elsewhere (scipy's, in the tests and benchmarks)."""
+    kernels, shared, arrays, grid, _ = kernel_inputs(scenario, trials)
+    joints = scenario.n_joints
+    nx = kernels.ops.state(joints)
+    buffers = kernels.buffers(joints, 3 * joints)
+    out = np.empty(nx + kernels.ops.aux(joints))
+    zero = np.zeros(joints + 1)
+    rhs_at = kernels.single[1]
+
+    def rhs(t: float, x: Array, noise: Array | None = None) -> Array:
+        rhs_at(shared, arrays, i, grid, buffers, float(t), np.ascontiguousarray(x, dtype=float),
+               zero if noise is None else np.ascontiguousarray(noise, dtype=float), out)
+        return out[:nx].copy()
+
+    return rhs
+
+
 def simulate(
     scenario: Scenario,
     trials: Trials,
@@ -383,80 +458,43 @@ def simulate(
             f"track.integrator: expected one of {list(INTEGRATORS)}, got {integrator!r}"
         )
     n = scenario.n_steps
-    angles = scenario.n_joints + 1
+    joints = scenario.n_joints
+    angles = joints + 1
     if isinstance(trials.noise, np.ndarray) and trials.noise.shape[1:] != (n, angles):
         raise ValueError(f"Trials: noise must be (N, {n}, {angles}) for this scenario")
     if trials.links.shape[1] != 4 * angles:
         raise ValueError(f"Trials: links (N, {4 * angles}) expected for this scenario")
     N = trials.count
-    metrics = np.empty((N, N_METRICS))
-    status = np.zeros(N, dtype=np.int64)
-    event = np.zeros(N, dtype=np.int64)
-    event_time = np.full(N, math.nan)
     dynamic = scenario.plant == "dynamic"
     if isinstance(scenario.plan, ChainPlan):
-        columns = (chain_dynamic_trace_columns if dynamic else chain_trace_columns)(
-            scenario.plan.n_joints)
+        columns = (chain_dynamic_trace_columns if dynamic else chain_trace_columns)(joints)
     else:
         columns = DYNAMIC_TRACE_COLUMNS if dynamic else TRACE_COLUMNS
     width = len(columns)
-    trace = np.empty((N, n + 1, width)) if record else np.empty((0, 0, width))
-    if isinstance(scenario.plan, ChainPlan):
-        if integrator == "dop853":
-            raise FlatcliError("track.integrator: \"dop853\" is the reference of the three-link "
-                               "robot; use \"adaptive\" or \"rk4\" for N > 2 links")
-        method = _METHOD_RK4 if integrator == "rk4" else _METHOD_ADAPTIVE
-        chain_runner = run_chain_dynamic_kernel if dynamic else run_chain_kernel
-
-        def run_chain(rows: slice, tables: Array, gen: np.random.Generator, std: float) -> None:
-            chain_runner(scenario, trials, method, record, metrics, status, event, event_time,
-                         trace, rows, tables, gen, std)
-
-        _run_with_noise(run_chain, trials, angles)
-        return Outcome(metrics, status, event, event_time, trace if record else None, columns)
-    kc = _plain(scenario.plan.coefficients)
-    assert isinstance(scenario.gains, Gains)  # Scenario checks it against the plan
-    gains = Gains(*(float(v) for v in scenario.gains))
-    plant_k = plant_coefficients(trials.links)
-    links = np.ascontiguousarray(trials.links, dtype=float)
-    h0 = np.ascontiguousarray(trials.momentum, dtype=float)
-    initial = np.ascontiguousarray(trials.initial, dtype=float)
-    servo = trials.servo_table()
-    robot = Links(*(float(v) for v in scenario.plan.robot.links))
-    servo_is_plant = scenario.servo_model == "plant"
+    results = Results(np.empty((N, N_METRICS)), np.zeros(N, dtype=np.int64),
+                      np.zeros(N, dtype=np.int64), np.full(N, math.nan),
+                      np.empty((N, n + 1, width)) if record else np.empty((0, 0, width)))
+    kernels, shared, arrays, grid, settings = kernel_inputs(scenario, trials)
+    settings = settings._replace(record=record)
     if integrator == "dop853":
         for i in range(N):
-            _reference_trial(scenario, trials, plant_k, kc, gains, i, metrics[i], status,
-                             event, event_time, trace[i] if record else None)
-        return Outcome(metrics, status, event, event_time, trace if record else None, columns)
-    method = _METHOD_RK4 if integrator == "rk4" else _METHOD_ADAPTIVE
-    plan_theta, plan_theta_dot = scenario.plan_on_own_grid
-    breaks, local = scenario.pieces
+            reference_trial(scenario, trials, kernels, shared, arrays, grid, settings, i,
+                            results)
+    else:
+        method = RK4 if integrator == "rk4" else ADAPTIVE
+        buffers = kernels.buffers(joints, 3 * joints)
 
-    def run(rows: slice, tables: Array, gen: np.random.Generator, std: float) -> None:
-        if dynamic:
-            _dynamic_kernel(
-                method, kc, gains, robot, servo_is_plant, links[rows], h0[rows], servo[rows],
-                float(scenario.rate_limit), initial[rows], scenario.reference,
-                scenario.theta_reference, breaks, local, plan_theta, plan_theta_dot,
-                float(scenario.dt), float(scenario.divergence_bound),
-                float(scenario.singular_threshold), float(scenario.rtol),
-                float(scenario.atol), int(scenario.max_steps), tables, gen, std, record,
-                metrics[rows], status[rows], event[rows], event_time[rows],
-                trace[rows] if record else trace,
-            )
-            return
-        _kinematic_kernel(
-            method, kc, gains, links[rows], plant_k[rows], h0[rows], float(scenario.rate_limit),
-            initial[rows], scenario.reference, scenario.theta_reference, breaks, local,
-            plan_theta, plan_theta_dot, float(scenario.dt), float(scenario.divergence_bound),
-            float(scenario.singular_threshold), float(scenario.rtol), float(scenario.atol),
-            int(scenario.max_steps), tables, gen, std, record, metrics[rows], status[rows],
-            event[rows], event_time[rows], trace[rows] if record else trace,
-        )
+        def run(rows: slice, tables: Array, gen: np.random.Generator, std: float) -> None:
+            part = TrialArrays(*(a[rows] for a in arrays))
+            trace = results.trace[rows] if record else results.trace
+            out = Results(results.metrics[rows], results.status[rows], results.event[rows],
+                          results.event_time[rows], trace)
+            kernels.batch(method, shared, part, grid, settings, tables, gen, std, buffers,
+                          out)
 
-    _run_with_noise(run, trials, angles)
-    return Outcome(metrics, status, event, event_time, trace if record else None, columns)
+        _run_with_noise(run, trials, angles)
+    return Outcome(results.metrics, results.status, results.event, results.event_time,
+                   results.trace if record else None, columns)
 
 
 def _run_with_noise(run: Callable[[slice, Array, np.random.Generator, float], None],

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from flatcli.core._jit import kernel
+from flatcli.core._jit import allocating_kernel
 from flatcli.core.chainflat import flag_state_given, terms
 from flatcli.core.chainplan import ChainModel, flags_to_states
 from flatcli.core.flatness import flag_state
@@ -136,7 +136,7 @@ def _chain_quantities(model: ChainModel, flag: NDArray[np.generic]) -> NDArray[n
     return np.reshape(out, (2 * n + 2, *np.shape(flag)[1:]))
 
 
-@kernel
+@allocating_kernel
 def _chain_values(K: Array, inertia: Array, flags: Array, values: Array) -> None:
     """A chain's quantities at every row of ``flags`` (m, 3 N) into ``values`` (m, 2 N + 2):
     ``chainflat.flag_state_given`` with the terms at q computed once per row."""
@@ -195,7 +195,7 @@ def _chain_jacobian(model: ChainModel, flag: Array) -> tuple[Array, Array]:
     return np.ascontiguousarray(values.T), np.ascontiguousarray(np.transpose(jacobian, (1, 2, 0)))
 
 
-@kernel
+@allocating_kernel
 def _chain_steps(K: Array, inertia: Array, flags: Array, step: float, values: Array,
                  jacobian: Array) -> None:
     """Complex-step derivatives of a chain's quantities along each flag component, at every

@@ -20,10 +20,10 @@ import numpy as np
 import pytest
 from scipy.integrate import quad, solve_ivp
 
-from flatcli.chains import CHAIN_SPECS, natural_drift, path_rates, plan_checks
 from flatcli.core.chain import chain_momentum
 from flatcli.core.model import constraint_coefficients, flatness_check
 from flatcli.experiment import plan_from, robot_from
+from flatcli.reproduce.chains import CHAIN_SPECS, natural_drift, path_rates, plan_checks
 from flatcli.spec import load_spec, resolve
 
 

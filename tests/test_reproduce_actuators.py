@@ -15,7 +15,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from flatcli.actuators import (
+from flatcli.experiment import plan_from
+from flatcli.reproduce.actuators import (
     BANDWIDTH,
     LIMIT,
     MANEUVER,
@@ -26,7 +27,6 @@ from flatcli.actuators import (
     lost_interval,
     plan_demands,
 )
-from flatcli.experiment import plan_from
 from flatcli.spec import resolve
 
 

@@ -24,6 +24,7 @@ from flatcli.core.model import RobotParams, flatness_check
 from flatcli.experiment import TrackRun, plan_from, robot_from, run_track
 from flatcli.outputs import plan_frame, track_frame
 from flatcli.report import Progress, fmt, new_figure, save_figure, table
+from flatcli.reproduce.sections import Context, Outcome, Section
 from flatcli.spec import Spec, load_spec
 from flatcli.storage import run_record, write_parquet
 
@@ -50,11 +51,6 @@ def path_rates(joints: int) -> tuple[tuple[list[float], list[float]], ...]:
 
 #: ``--set`` items of ``make reproduce`` that also apply to these studies.
 SHARED_SETS = ("sweep.trials=", "sweep.seed=")
-
-
-def _say(quiet: bool, text: str) -> None:
-    if not quiet:
-        print(text, flush=True)
 
 
 def natural_drift(plan: Plan, samples: int = DENSE_SAMPLES) -> float:
@@ -160,15 +156,22 @@ def run_study(spec: Spec, plan: Plan, directory: Path, quiet: bool, workers: int
     its summary text, trial table and wall time [s]."""
     from flatcli.sweep import run_sweep
 
+    study = study_spec(spec, sets)
+    result = run_sweep(study, directory, "local", workers, None, force=True,
+                       progress=Progress(spec.name, quiet))
+    return result.summary_text, pd.read_parquet(directory / "trials.parquet"), \
+        result.wall_seconds
+
+
+def study_spec(spec: Spec, sets: Sequence[str]) -> Spec:
+    """A robot's Monte Carlo study: its spec started on the plan's start, with the --set items
+    of ``make reproduce`` that apply here (``SHARED_SETS``)."""
     study = spec.with_overrides({"track.initial": [float(v) for v in spec.plan.start]})
     for item in sets:
         if item.startswith(SHARED_SETS):
             key, _, value = item.partition("=")
             study = study.with_overrides({key: int(value)})
-    result = run_sweep(study, directory, "local", workers, None, force=True,
-                       progress=Progress(spec.name, quiet))
-    return result.summary_text, pd.read_parquet(directory / "trials.parquet"), \
-        result.wall_seconds
+    return study
 
 
 def demoted(markdown: str) -> str:
@@ -209,16 +212,18 @@ def paper_drift_rows(base: Spec) -> list[list[Any]]:
     return rows
 
 
-def chains_section(base: Spec, out: Path, quiet: bool, workers: int | None = None,
-                   study: bool = True, sets: Sequence[str] = ()) -> list[str]:
+def run(context: Context) -> Outcome:
     """REPORT.md's "Beyond three links" (its runs into ``out/chains``, its figure
-    ``out/fig_chains.png``); without ``study`` no Monte Carlo. ``sets``: ``make
-    reproduce``'s --set items, of which ``sweep.trials`` and ``sweep.seed`` apply here."""
-    designs, plan_rows, loop_rows, drift_rows = [], [], [], paper_drift_rows(base)
+    ``out/fig_chains.png``); without the study (``--no-montecarlo``) no Monte Carlo. Of
+    ``make reproduce``'s --set items, ``sweep.trials`` and ``sweep.seed`` apply here."""
+    base, out, steps, study = context.base, context.out, context.steps, context.study
+    designs, loop_rows, drift_rows = [], [], paper_drift_rows(base)
+    plan_rows: list[list[Any]] = []
     figures: dict[str, tuple[Plan, TrackRun]] = {}
     studies: list[str] = []
     for path in CHAIN_SPECS:
         spec = load_spec(path)
+        steps.step(f"{spec.name}: design, plan, closed loop on both plants, paths")
         directory = out / "chains" / spec.name
         robot = robot_from(spec)
         designs.append(design_row(spec.name, robot))
@@ -237,10 +242,10 @@ def chains_section(base: Spec, out: Path, quiet: bool, workers: int | None = Non
                           run_record("reproduce", spec.tree, metrics=run.metrics))
         figures[spec.name] = (plan, runs["dynamic"])
         drift_rows += path_rows(spec)
-        _say(quiet, f"{spec.name}: plan and closed loop written to {directory}")
         if study:
-            text, trials, wall = run_study(spec, plan, directory / "montecarlo", quiet,
-                                           workers, sets)
+            steps.step(f"{spec.name}: Monte Carlo study")
+            text, trials, wall = run_study(spec, plan, directory / "montecarlo", context.quiet,
+                                           context.workers, context.sets)
             cells = int(trials["cell"].nunique()) if "cell" in trials else 1
             studies += ["", f"#### {spec.name}: {len(trials)} trials in {wall:.1f} s "
                         f"({cells} cells)", "", demoted(text)]
@@ -329,4 +334,23 @@ def chains_section(base: Spec, out: Path, quiet: bool, workers: int | None = Non
             "`chains/<robot>/montecarlo/`.",
             *studies,
         ]
-    return lines
+    worst_h = max(float(row[6]) for row in plan_rows)  # max abs(H)
+    drifts = [row for row in drift_rows if row[0] != "paper (N = 2)"]
+    headline = [f"robots of N = 3 and 5 joints plan with max abs(H) {fmt(worst_h, 2)} "
+                "kg m^2/s and track on both plants; the base's natural drift depends on the "
+                f"joints' path ({', '.join(fmt(float(r[3]), 3) for r in drifts)} rad)"]
+    return Outcome(lines, headline, ("chains/**/*", "fig_chains.png"))
+
+
+def inputs(context: Context) -> dict[str, Any]:
+    """The robots' specs (their studies' with make reproduce's --set items), and whether the
+    studies run."""
+    specs = {}
+    for path in CHAIN_SPECS:
+        spec = load_spec(path)
+        specs[spec.name] = (study_spec(spec, context.sets).tree if context.study
+                            else spec.tree)
+    return {"specs": specs, "base": context.base.tree}
+
+
+SECTION = Section("chains", "beyond three links: robots of 3 and 5 joints", inputs, run)

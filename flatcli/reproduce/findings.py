@@ -8,6 +8,7 @@ closed-loop runs and the study's tables, never from constants typed in.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,6 +28,16 @@ GAIN_READINGS: dict[str, dict[str, list[float]]] = {
     "printed": {"track.kp": [10.0, 13.0], "track.kv": [100.0, 110.0]},
     "swapped": {"track.kp": [100.0, 110.0], "track.kv": [10.0, 13.0]},
 }
+#: The optimised plans REPORT.md sets beside the paper's cubic (label, plan.optimize
+#: overrides): the "Optimised plans" section and the actuators' demands.
+OPTIMIZED_PLANS: tuple[tuple[str, dict[str, Any]], ...] = (
+    ("least energy", {"plan.optimize.objective": "energy"}),
+    ("least energy, abs(th2) <= 3 rad, rates <= 5 rad/s, margin >= 0.05",
+     {"plan.optimize.objective": "energy", "plan.optimize.angle_limit": [math.inf, math.inf, 3.0],
+      "plan.optimize.rate_limit": 5.0, "plan.optimize.min_margin": 0.05}),
+    ("least peak rate", {"plan.optimize.objective": "peak_rate"}),
+    ("largest margin", {"plan.optimize.objective": "margin"}),
+)
 #: Lower bounds on the signed margin the least-energy plan is re-optimised under, to find
 #: the least that the swapped gains can track from the paper's initial state [rad/s].
 MARGIN_LADDER = (0.02, 0.05, 0.1, 0.2, 0.3, 0.4)

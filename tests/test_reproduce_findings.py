@@ -10,8 +10,8 @@ import pandas as pd
 
 from flatcli.core.metrics import Metric
 from flatcli.experiment import run_track
-from flatcli.findings import GAIN_READINGS, gains_verdict, study_findings
 from flatcli.report import fmt
+from flatcli.reproduce.findings import GAIN_READINGS, gains_verdict, study_findings
 from flatcli.spec import resolve
 
 

@@ -27,6 +27,8 @@ from flatcli.core.metrics import STATUS_NAMES
 from flatcli.core.plant import DEFAULT_SERVO_BANDWIDTH, plan_motion, plan_torques
 from flatcli.experiment import flat_plan_from, robot_from, run_track
 from flatcli.report import COMPLETED, Progress, fmt, new_figure, save_figure, table
+from flatcli.reproduce.findings import OPTIMIZED_PLANS
+from flatcli.reproduce.sections import Context, Outcome, Section, Steps
 from flatcli.spec import Spec, load_spec
 from flatcli.storage import run_record, write_parquet
 
@@ -49,18 +51,14 @@ def study_path() -> Path:
     return STUDY
 
 
-def _say(quiet: bool, text: str) -> None:
-    if not quiet:
-        print(text, flush=True)
-
-
-def plan_demands(base: Spec, plans: Sequence[tuple[str, Mapping[str, Any]]]) -> list[list[Any]]:
+def plan_demands(base: Spec, plans: Sequence[tuple[str, Mapping[str, Any]]],
+                 steps: Steps | None = None) -> list[list[Any]]:
     """Per plan: the ideal peak torques and rates (inverse dynamics of the plan,
     ``plant.plan_torques``) and the closed loop on the dynamic plant (default servo, no
     torque limit, gains swapped) from the plan's start and from Fig. 4's."""
     rows = []
     chain_of: dict[Any, Any] = {}
-    for label, overrides in plans:
+    for label, overrides in (plans if steps is None else steps.each("demands of", plans)):
         spec = base.with_overrides({**overrides, **SWAPPED, "plant.model": "dynamic"})
         plan = flat_plan_from(spec)
         robot = robot_from(spec)
@@ -294,17 +292,14 @@ def finding(cells: pd.DataFrame, demands: Mapping[str, list[Any]]) -> str:
     )
 
 
-def actuators_section(base: Spec, out: Path, quiet: bool, workers: int | None = None,
-                      study: bool = True, sets: Sequence[str] = ()) -> list[str]:
+def run(context: Context) -> Outcome:
     """REPORT.md's "What the maneuver asks of the actuators" (and its runs into
-    ``out/actuators``, its figure ``out/fig_actuators.png``); without ``study`` the plans'
-    demands only. ``sets``: ``--set`` items for the study's spec (``make reproduce`` passes
-    those of its Monte Carlo study, e.g. ``sweep.trials``)."""
-    from flatcli.reproduce import OPTIMIZED_PLANS
-
+    ``out/actuators``, its figure ``out/fig_actuators.png``); without the study (``--no-
+    montecarlo``) the plans' demands only. The ``--set`` items of ``make reproduce`` apply to
+    the study's spec too (e.g. ``sweep.trials``)."""
+    base, out, steps = context.base, context.out, context.steps
     plans = [("paper's cubic", {}), *OPTIMIZED_PLANS]
-    demands = plan_demands(base, plans)
-    _say(quiet, "actuator demands of the plans computed")
+    demands = plan_demands(base, plans, steps)
     lines = [
         "",
         "## What the maneuver asks of the actuators",
@@ -324,16 +319,20 @@ def actuators_section(base: Spec, out: Path, quiet: bool, workers: int | None = 
                "Fig. 4 start: peak torque [N m]", "Fig. 4 start: final error [rad]"],
               demands, 3),
     ]
-    if not study:
-        return lines
-    spec, trials, kinematic_trials, wall = run_study(out, quiet, workers, sets)
+    worst = max(demands, key=lambda row: max(row[1], row[2]))
+    headline = [f"following a plan exactly takes up to {fmt(max(worst[1], worst[2]), 3)} N m "
+                f"({worst[0]}); the closed loop from Fig. 4's start asks far more"]
+    if not context.study:
+        return Outcome(lines, headline, ())
+    steps.step("the study: servo bandwidth x torque limit")
+    spec, trials, kinematic_trials, wall = run_study(out, context.quiet, context.workers,
+                                                     context.sets)
     cells = cell_table(trials)
     kinematic = kinematic_levels(kinematic_trials)
     plot_study(cells, kinematic, out / "fig_actuators.png")
     write_parquet(out / "actuators" / "cells.parquet", cells,
                   run_record("reproduce", spec.tree, study=STUDY.name))
     record_cells(out / "actuators")
-    _say(quiet, "actuator study written")
     by_label = {row[0]: row for row in demands}
     matrix = []
     for maneuver in dict.fromkeys(cells[MANEUVER]):
@@ -353,7 +352,11 @@ def actuators_section(base: Spec, out: Path, quiet: bool, workers: int | None = 
             for _, r in ordered.iterrows()]
     levels = ", ".join(f"{name} {fmt(p95, 2)} rad ({lost:.0%} lost)"
                        for name, (p95, lost) in kinematic.items())
-    return [
+    trackable = cells[cells["trackable"]]
+    headline.append(f"{len(trackable)} of {len(cells)} (maneuver, servo bandwidth, torque limit) "
+                    "cells track (no trial lost, 95 % of final errors below "
+                    f"{TRACKABLE_ERROR:g} rad)")
+    return Outcome([
         *lines,
         "",
         "### Monte Carlo study: servo bandwidth and torque limit",
@@ -383,4 +386,18 @@ def actuators_section(base: Spec, out: Path, quiet: bool, workers: int | None = 
         table(["maneuver", "bandwidth", "torque limit", "trials", "lost", "diverged",
                "unresolved", "final error median", "final error p95", "peak torque median",
                "saturated", "drift median", "drift max"], full, 3),
-    ]
+    ], headline, FILES)
+
+
+#: The files this section writes (globs under the output directory).
+FILES = ("actuators/**/*", "fig_actuators.png")
+
+
+def inputs(context: Context) -> dict[str, Any]:
+    """The base spec and, with the study, its resolved spec (with the --set items)."""
+    study = load_spec(study_path(), context.sets).tree if context.study else None
+    return {"spec": context.base.tree, "study": study}
+
+
+SECTION = Section("actuators", "what the maneuver asks of the actuators (the dynamic plant)",
+                  inputs, run)

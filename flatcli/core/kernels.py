@@ -1,0 +1,614 @@
+"""The compiled closed loop: one kernel factory, one kernel per (model, plant).
+
+A closed loop is the controller's model (the paper's closed form for N = 2, ``plant``'s
+right-hand sides, or the general chain of ``chainloop`` and ``chaindynamic``) driving a
+plant (kinematic or dynamic). Each combination supplies the same few functions, its
+``Ops``:
+
+* ``make_loop(shared, trials, i, scratch)``: trial i's loop record (its plant, its H0, its
+  servo; the controller's model and gains in ``shared``);
+* ``initial_state(loop, initial, ref0, x0)``: the state at t = 0 into x0;
+* ``rhs``, ``observe``, ``record``: the right-hand side and what an output sample keeps
+  (``integrate.make_trial_integrators`` compiles the integrators around them);
+* ``residual(loop, trials, i, plan_theta, plan_theta_dot)``: the plan's momentum residual
+  on the trial's plant.
+
+``make_batch`` builds from them the batch runner every kernel is: trial after trial, RK4 or
+the adaptive Dormand-Prince, metrics and status (``metrics.conclude_trial``); ``make_rhs``
+and ``make_observer`` the single evaluations the scipy reference (``reference``) calls.
+The four kernels of each kind below are those factories' functions, compiled once
+(``KERNELS``, looked up by ``(model kind, plant)``).
+
+Every buffer a kernel writes into is made by the caller (``Buffers``): the kernels run
+without numba's reference counting (``_jit.kernel``), which on the N-link loop, whose
+records hold arrays, costs more than the arithmetic.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+
+from flatcli.core._jit import jitable, kernel
+from flatcli.core.chaindynamic import (
+    ChainDynamicLoop,
+    chain_dynamic_aux,
+    chain_dynamic_initial,
+    chain_dynamic_loop,
+    chain_dynamic_rhs,
+    chain_dynamic_state,
+    make_scratch,
+    observe_chain_dynamic,
+    record_chain_dynamic,
+)
+from flatcli.core.chainflat import Scratch, scratch
+from flatcli.core.chainloop import ChainLoop, chain_rhs, observe_chain, plan_residual
+from flatcli.core.dynamics import ThreeBody
+from flatcli.core.integrate import WORK_ROWS, make_trial_integrators, plan_flag, record_rates
+from flatcli.core.metrics import (
+    ACCUMULATOR_SIZE,
+    conclude_trial,
+    finish_metrics,
+    plan_momentum_residual,
+    reset_accumulator,
+)
+from flatcli.core.model import Coefficients, Links
+from flatcli.core.plant import (
+    DYNAMIC_AUX,
+    DYNAMIC_STATE,
+    KINEMATIC_AUX,
+    KINEMATIC_STATE,
+    DynamicLoop,
+    Loop,
+    dynamic_initial,
+    dynamic_rhs,
+    is_flat_plant,
+    kinematic_rhs,
+    observe_dynamic,
+    observe_kinematic,
+    record_dynamic,
+)
+
+Array = NDArray[np.float64]
+
+#: The kernels' integrator codes.
+RK4 = 0
+ADAPTIVE = 1
+
+
+class Grid(NamedTuple):
+    """The plan on the scenario's grids: ref (2 n + 1, 3 N) y, y', y'' at half steps;
+    theta_ref (n + 1, N + 1) its angles on the output grid; breaks, local its piecewise
+    polynomials (``integrate.plan_flag``); plan_theta, plan_theta_dot (p, N + 1) on its own
+    grid (for the momentum residual)."""
+
+    ref: Array
+    theta_ref: Array
+    breaks: Array
+    local: Array
+    plan_theta: Array
+    plan_theta_dot: Array
+
+
+class Settings(NamedTuple):
+    """dt [s], the divergence bound, the singular threshold [rad/s], rtol, atol, the step
+    budget, whether traces are kept."""
+
+    dt: float
+    bound: float
+    threshold: float
+    rtol: float
+    atol: float
+    max_steps: int
+    record: bool
+
+
+class TrialArrays(NamedTuple):
+    """What differs between trials (T of them): params (T, 4 (N + 1)) mass, inertia,
+    length, com; h0 (T,) [kg m^2/s]; servo (T, 2) bandwidth [rad/s], torque limit [N m];
+    initial (T, 2 N) th(0), u(0); plant (T, ...) the plant's constraint coefficients (the
+    paper's robot, (T, 11)) or its barycentric matrix K (chains, (T, N + 1, N + 1))."""
+
+    params: Array
+    h0: Array
+    servo: Array
+    initial: Array
+    plant: Array
+
+
+class Results(NamedTuple):
+    """Written per trial: metrics (T, N_METRICS), status, event (T,), event_time (T,),
+    trace (T, n + 1, width) if recorded (else (0, 0, width))."""
+
+    metrics: Array
+    status: NDArray[np.int64]
+    event: NDArray[np.int64]
+    event_time: Array
+    trace: Array
+
+
+class Buffers(NamedTuple):
+    """The kernels' scratch, made by the caller (``buffers``): the integrator's work rows,
+    the metrics' accumulator, the noise of the measured angles, the plan's flag, the state
+    at t = 0, an empty trace, and the loop's own scratch (``Ops.scratch``)."""
+
+    work: Array
+    acc: Array
+    noise: Array
+    flag: Array
+    x0: Array
+    no_trace: Array
+    scratch: Any
+
+
+@dataclass(frozen=True)
+class Ops:
+    """The functions of one (model, plant) combination (module docstring), and its sizes:
+    ``state(n)`` and ``aux(n)`` (what its right-hand side writes after the state's
+    derivative, the margin first), ``width(n)`` (a trace row), ``scratch(n)`` (its loop's
+    buffers)."""
+
+    make_loop: Callable[..., Any]
+    initial_state: Callable[..., None]
+    rhs: Callable[..., None]
+    observe: Callable[..., None]
+    record: Callable[..., None]
+    residual: Callable[..., float]
+    state: Callable[[int], int]
+    aux: Callable[[int], int]
+    width: Callable[[int], int]
+    scratch: Callable[[int], Any]
+
+
+def make_batch(ops: Ops) -> Callable[..., None]:
+    """The batch runner of a combination: every trial integrated alone, in order."""
+    rk4_trial, adaptive_trial = make_trial_integrators(ops.rhs, ops.observe, ops.record)
+    make_loop, initial_state, residual = ops.make_loop, ops.initial_state, ops.residual
+
+    @jitable
+    def run_batch(method: int, shared: Any, trials: TrialArrays, grid: Grid,
+                  settings: Settings, tables: Array, gen: Any, std: float, buffers: Buffers,
+                  results: Results) -> None:
+        n = grid.theta_ref.shape[0] - 1
+        angles = grid.theta_ref.shape[1]
+        obs = (grid.theta_ref, grid.ref, settings.threshold)
+        x0 = buffers.x0
+        for i in range(trials.params.shape[0]):
+            loop = make_loop(shared, trials, i, buffers.scratch)
+            initial_state(loop, trials.initial[i], grid.ref[0], x0)
+            acc = buffers.acc
+            reset_accumulator(acc)
+            tr = results.trace[i] if settings.record else buffers.no_trace
+            if method == RK4:
+                last, ev, t_ev = rk4_trial(loop, obs, x0, grid.ref, settings.dt, n,
+                                           settings.bound, tables[i], gen, std,
+                                           settings.record, tr, acc, buffers.work,
+                                           buffers.noise)
+                estimate, steps, evaluations = math.nan, last, 4 * last + 1
+            else:
+                last, ev, t_ev, estimate, steps, evaluations = adaptive_trial(
+                    loop, obs, x0, grid.breaks, grid.local, settings.dt, n, settings.bound,
+                    settings.rtol, settings.atol, settings.max_steps, angles, tables[i], gen,
+                    std, settings.record, tr, acc, buffers.work, buffers.noise, buffers.flag,
+                    grid.ref)
+            conclude_trial(i, residual(loop, trials, i, grid.plan_theta, grid.plan_theta_dot),
+                           acc, last, n, ev, t_ev, estimate, steps, evaluations, settings.dt,
+                           settings.record, tr, results.metrics, results.status,
+                           results.event, results.event_time)
+
+    return run_batch
+
+
+def make_single(ops: Ops) -> tuple[Callable[..., None], Callable[..., None],
+                                   Callable[..., int], Callable[..., None]]:
+    """(initial_of, rhs_at, observe_trace, record_trace) of a combination, one trial i at a
+    time (for the scipy reference): the state at t = 0 into ``out``; the state's derivative
+    and the aux values at time t into ``out``; the metrics of a trace computed elsewhere
+    (samples 0..last; returns the first singular sample, -1 if none); the trace rows of
+    those samples."""
+    make_loop, initial_state, rhs, observe, residual, record = (
+        ops.make_loop, ops.initial_state, ops.rhs, ops.observe, ops.residual, ops.record)
+
+    @jitable
+    def initial_of(shared: Any, trials: TrialArrays, i: int, grid: Grid, buffers: Buffers,
+                   out: Array) -> None:
+        loop = make_loop(shared, trials, i, buffers.scratch)
+        initial_state(loop, trials.initial[i], grid.ref[0], out)
+
+    @jitable
+    def rhs_at(shared: Any, trials: TrialArrays, i: int, grid: Grid, buffers: Buffers,
+               t: float, x: Array, noise: Array, out: Array) -> None:
+        """At time t, the plan's flag evaluated there (t < 0: row -t - 1 of grid.ref, the
+        flag tabulated on the half-step grid, exactly as the kernels observe it)."""
+        loop = make_loop(shared, trials, i, buffers.scratch)
+        if t < 0.0:
+            rhs(loop, x, grid.ref[int(-t) - 1], noise, out)
+            return
+        plan_flag(grid.breaks, grid.local, t, buffers.flag)
+        rhs(loop, x, buffers.flag, noise, out)
+
+    @jitable
+    def observe_trace(shared: Any, trials: TrialArrays, i: int, grid: Grid,
+                      settings: Settings, buffers: Buffers, states: Array, rates: Array,
+                      last: int, complete: bool, out: Array) -> int:
+        loop = make_loop(shared, trials, i, buffers.scratch)
+        acc = buffers.acc
+        reset_accumulator(acc)
+        obs = (grid.theta_ref, grid.ref, settings.threshold)
+        for j in range(last + 1):
+            observe(loop, obs, acc, j, states[j], rates[j])
+        return finish_metrics(out, acc, complete, settings.dt,
+                              residual(loop, trials, i, grid.plan_theta, grid.plan_theta_dot),
+                              math.nan, 0, 0)
+
+    @jitable
+    def record_trace(states: Array, rates: Array, last: int, trace: Array) -> None:
+        nx = states.shape[1]
+        for j in range(last + 1):
+            record(trace, j, nx, states[j], rates[j])
+
+    return initial_of, rhs_at, observe_trace, record_trace
+
+
+# --------------------------------------------------------------------------------------
+# The paper's robot (N = 2): the closed forms of ``plant`` and ``paperloop``
+
+
+class PaperShared(NamedTuple):
+    """The controller of the paper's robot: its coefficients, gains (``control.Gains``),
+    the joint-rate limit [rad/s]; for the dynamic plant the nominal robot's three-body
+    chain (the servo's model unless ``servo_is_plant``)."""
+
+    kc: Coefficients
+    gains: Any
+    rate_limit: float
+    robot: ThreeBody
+    robot_links: Links
+    servo_is_plant: bool
+
+
+@jitable
+def _links_row(a: Array, i: int) -> Links:
+    return Links(a[i, 0], a[i, 1], a[i, 2], a[i, 3], a[i, 4], a[i, 5],
+                 a[i, 6], a[i, 7], a[i, 8], a[i, 9], a[i, 10], a[i, 11])
+
+
+@jitable
+def _coefficients_row(a: Array, i: int) -> Coefficients:
+    return Coefficients(a[i, 0], a[i, 1], a[i, 2], a[i, 3], a[i, 4], a[i, 5],
+                        a[i, 6], a[i, 7], a[i, 8], a[i, 9], a[i, 10])
+
+
+@jitable
+def _three_body(K: Array, p: Links) -> ThreeBody:
+    """The three-body chain of a plant from its barycentric matrix K (3, 3)."""
+    return ThreeBody(K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2], K[2, 2], p.i0, p.i1, p.i2)
+
+
+@jitable
+def _paper_kinematic_loop(shared: PaperShared, trials: TrialArrays, i: int,
+                          scratch: Any) -> Loop:
+    p = _links_row(trials.params, i)
+    kq = _coefficients_row(trials.plant, i)
+    return Loop(shared.kc, shared.gains, kq, p, p.m0 + p.m1 + p.m2, trials.h0[i],
+                shared.rate_limit, is_flat_plant(kq))
+
+
+@jitable
+def _paper_dynamic_loop(shared: PaperShared, trials: TrialArrays, i: int,
+                        scratch: Any) -> DynamicLoop:
+    p = _links_row(trials.params, i)
+    plant = _three_body(trials.plant[i], p)
+    servo = plant if shared.servo_is_plant else shared.robot
+    same = shared.servo_is_plant or plant == servo
+    return DynamicLoop(shared.kc, shared.gains, p, plant, servo, same, trials.h0[i],
+                       shared.rate_limit, trials.servo[i, 0], trials.servo[i, 1])
+
+
+@jitable
+def _copy_initial(loop: Any, initial: Array, ref0: Array, x0: Array) -> None:
+    for k in range(x0.shape[0]):
+        x0[k] = initial[k]
+
+
+@jitable
+def _paper_residual(loop: Any, trials: TrialArrays, i: int, plan_theta: Array,
+                    plan_theta_dot: Array) -> float:
+    return plan_momentum_residual(plan_theta, plan_theta_dot, _links_row(trials.params, i),
+                                  trials.h0[i])
+
+
+def _no_scratch(n: int) -> Any:
+    return np.zeros(1)
+
+
+PAPER_KINEMATIC = Ops(_paper_kinematic_loop, _copy_initial, kinematic_rhs, observe_kinematic,
+                      record_rates, _paper_residual, lambda n: KINEMATIC_STATE,
+                      lambda n: KINEMATIC_AUX, lambda n: KINEMATIC_STATE + 3, _no_scratch)
+PAPER_DYNAMIC = Ops(_paper_dynamic_loop, dynamic_initial, dynamic_rhs, observe_dynamic,
+                    record_dynamic, _paper_residual, lambda n: DYNAMIC_STATE,
+                    lambda n: DYNAMIC_AUX, lambda n: DYNAMIC_STATE + 3, _no_scratch)
+
+
+# --------------------------------------------------------------------------------------
+# Chains of N links: the general model of ``chainloop`` and ``chaindynamic``
+
+
+class ChainShared(NamedTuple):
+    """The controller of a chain: its K (N + 1, N + 1) and inertias (N + 1,), gains kp, kv
+    (N,), the joint-rate limit [rad/s], and whether the dynamic plant's servo knows the
+    plant (else it believes the controller's chain)."""
+
+    Kc: Array
+    Ic: Array
+    kp: Array
+    kv: Array
+    rate_limit: float
+    servo_is_plant: bool
+
+
+class ChainScratch(NamedTuple):
+    """A chain loop's buffers: the kinematic loop's rows (6, N + 1) and the flat maps'
+    (``chainflat.Scratch``); the dynamic plant's rows, trigonometry and matrices."""
+
+    rows: Array
+    maps: Scratch
+    dynamic_rows: Array
+    trig: Array
+    matrices: Array
+
+
+def _chain_scratch(n: int) -> ChainScratch:
+    return ChainScratch(np.zeros((6, n + 1)), scratch(n), *make_scratch(n))
+
+
+@jitable
+def _chain_kinematic_loop(shared: ChainShared, trials: TrialArrays, i: int,
+                          scratch: ChainScratch) -> ChainLoop:
+    p = trials.params[i]
+    nb = shared.Ic.shape[0]
+    return ChainLoop(shared.Kc, shared.Ic, shared.kp, shared.kv, trials.plant[i],
+                     p[nb: 2 * nb], p, trials.h0[i], shared.rate_limit, scratch.rows,
+                     scratch.maps)
+
+
+@jitable
+def _chain_dynamic_loop(shared: ChainShared, trials: TrialArrays, i: int,
+                        scratch: ChainScratch) -> ChainDynamicLoop:
+    p = trials.params[i]
+    nb = shared.Ic.shape[0]
+    return chain_dynamic_loop(shared.Kc, shared.Ic, shared.kp, shared.kv, trials.plant[i],
+                              p[nb: 2 * nb], shared.servo_is_plant, p, trials.h0[i],
+                              shared.rate_limit, trials.servo[i, 0], trials.servo[i, 1],
+                              scratch.dynamic_rows, scratch.trig, scratch.matrices,
+                              scratch.maps)
+
+
+@jitable
+def _chain_residual(loop: Any, trials: TrialArrays, i: int, plan_theta: Array,
+                    plan_theta_dot: Array) -> float:
+    return plan_residual(plan_theta, plan_theta_dot, trials.params[i], trials.h0[i],
+                         loop.work.cs, loop.work.sn)
+
+
+CHAIN_KINEMATIC = Ops(_chain_kinematic_loop, _copy_initial, chain_rhs, observe_chain,
+                      record_rates, _chain_residual, lambda n: 2 * n, lambda n: 1,
+                      lambda n: 3 * n + 1, _chain_scratch)
+CHAIN_DYNAMIC = Ops(_chain_dynamic_loop, chain_dynamic_initial, chain_dynamic_rhs,
+                    observe_chain_dynamic, record_chain_dynamic, _chain_residual,
+                    chain_dynamic_state, chain_dynamic_aux, lambda n: 4 * n + 2,
+                    _chain_scratch)
+
+
+# --------------------------------------------------------------------------------------
+# The kernels: the factories' functions, compiled (numba caches each on disk)
+
+_paper_kinematic_batch = make_batch(PAPER_KINEMATIC)
+(_paper_kinematic_initial, _paper_kinematic_rhs, _paper_kinematic_observe,
+ _paper_kinematic_record) = make_single(PAPER_KINEMATIC)
+_paper_dynamic_batch = make_batch(PAPER_DYNAMIC)
+(_paper_dynamic_initial, _paper_dynamic_rhs, _paper_dynamic_observe,
+ _paper_dynamic_record) = make_single(PAPER_DYNAMIC)
+_chain_kinematic_batch = make_batch(CHAIN_KINEMATIC)
+(_chain_kinematic_initial, _chain_kinematic_rhs, _chain_kinematic_observe,
+ _chain_kinematic_record) = make_single(CHAIN_KINEMATIC)
+_chain_dynamic_batch = make_batch(CHAIN_DYNAMIC)
+(_chain_dynamic_initial, _chain_dynamic_rhs, _chain_dynamic_observe,
+ _chain_dynamic_record) = make_single(CHAIN_DYNAMIC)
+
+
+@kernel
+def paper_kinematic_batch(
+    method: int, shared: PaperShared, trials: TrialArrays, grid: Grid, settings: Settings,
+    tables: Array, gen: Any, std: float, buffers: Buffers, results: Results,
+) -> None:
+    _paper_kinematic_batch(method, shared, trials, grid, settings, tables, gen, std, buffers,
+                           results)
+
+
+@kernel
+def paper_kinematic_start(
+    shared: PaperShared, trials: TrialArrays, i: int, grid: Grid, buffers: Buffers, out: Array,
+) -> None:
+    _paper_kinematic_initial(shared, trials, i, grid, buffers, out)
+
+
+@kernel
+def paper_kinematic_derivative(
+    shared: PaperShared, trials: TrialArrays, i: int, grid: Grid, buffers: Buffers, t: float,
+    x: Array, noise: Array, out: Array,
+) -> None:
+    _paper_kinematic_rhs(shared, trials, i, grid, buffers, t, x, noise, out)
+
+
+@kernel
+def paper_kinematic_metrics(
+    shared: PaperShared, trials: TrialArrays, i: int, grid: Grid, settings: Settings,
+    buffers: Buffers, states: Array, rates: Array, last: int, complete: bool, out: Array,
+) -> int:
+    return _paper_kinematic_observe(
+        shared, trials, i, grid, settings, buffers, states, rates, last, complete, out)
+
+
+@kernel
+def paper_kinematic_trace(states: Array, rates: Array, last: int, trace: Array) -> None:
+    _paper_kinematic_record(states, rates, last, trace)
+
+
+@kernel
+def paper_dynamic_batch(
+    method: int, shared: PaperShared, trials: TrialArrays, grid: Grid, settings: Settings,
+    tables: Array, gen: Any, std: float, buffers: Buffers, results: Results,
+) -> None:
+    _paper_dynamic_batch(method, shared, trials, grid, settings, tables, gen, std, buffers,
+                         results)
+
+
+@kernel
+def paper_dynamic_start(
+    shared: PaperShared, trials: TrialArrays, i: int, grid: Grid, buffers: Buffers, out: Array,
+) -> None:
+    _paper_dynamic_initial(shared, trials, i, grid, buffers, out)
+
+
+@kernel
+def paper_dynamic_derivative(
+    shared: PaperShared, trials: TrialArrays, i: int, grid: Grid, buffers: Buffers, t: float,
+    x: Array, noise: Array, out: Array,
+) -> None:
+    _paper_dynamic_rhs(shared, trials, i, grid, buffers, t, x, noise, out)
+
+
+@kernel
+def paper_dynamic_metrics(
+    shared: PaperShared, trials: TrialArrays, i: int, grid: Grid, settings: Settings,
+    buffers: Buffers, states: Array, rates: Array, last: int, complete: bool, out: Array,
+) -> int:
+    return _paper_dynamic_observe(
+        shared, trials, i, grid, settings, buffers, states, rates, last, complete, out)
+
+
+@kernel
+def paper_dynamic_trace(states: Array, rates: Array, last: int, trace: Array) -> None:
+    _paper_dynamic_record(states, rates, last, trace)
+
+
+@kernel
+def chain_kinematic_batch(
+    method: int, shared: ChainShared, trials: TrialArrays, grid: Grid, settings: Settings,
+    tables: Array, gen: Any, std: float, buffers: Buffers, results: Results,
+) -> None:
+    _chain_kinematic_batch(method, shared, trials, grid, settings, tables, gen, std, buffers,
+                           results)
+
+
+@kernel
+def chain_kinematic_start(
+    shared: ChainShared, trials: TrialArrays, i: int, grid: Grid, buffers: Buffers, out: Array,
+) -> None:
+    _chain_kinematic_initial(shared, trials, i, grid, buffers, out)
+
+
+@kernel
+def chain_kinematic_derivative(
+    shared: ChainShared, trials: TrialArrays, i: int, grid: Grid, buffers: Buffers, t: float,
+    x: Array, noise: Array, out: Array,
+) -> None:
+    _chain_kinematic_rhs(shared, trials, i, grid, buffers, t, x, noise, out)
+
+
+@kernel
+def chain_kinematic_metrics(
+    shared: ChainShared, trials: TrialArrays, i: int, grid: Grid, settings: Settings,
+    buffers: Buffers, states: Array, rates: Array, last: int, complete: bool, out: Array,
+) -> int:
+    return _chain_kinematic_observe(
+        shared, trials, i, grid, settings, buffers, states, rates, last, complete, out)
+
+
+@kernel
+def chain_kinematic_trace(states: Array, rates: Array, last: int, trace: Array) -> None:
+    _chain_kinematic_record(states, rates, last, trace)
+
+
+@kernel
+def chain_dynamic_batch(
+    method: int, shared: ChainShared, trials: TrialArrays, grid: Grid, settings: Settings,
+    tables: Array, gen: Any, std: float, buffers: Buffers, results: Results,
+) -> None:
+    _chain_dynamic_batch(method, shared, trials, grid, settings, tables, gen, std, buffers,
+                         results)
+
+
+@kernel
+def chain_dynamic_start(
+    shared: ChainShared, trials: TrialArrays, i: int, grid: Grid, buffers: Buffers, out: Array,
+) -> None:
+    _chain_dynamic_initial(shared, trials, i, grid, buffers, out)
+
+
+@kernel
+def chain_dynamic_derivative(
+    shared: ChainShared, trials: TrialArrays, i: int, grid: Grid, buffers: Buffers, t: float,
+    x: Array, noise: Array, out: Array,
+) -> None:
+    _chain_dynamic_rhs(shared, trials, i, grid, buffers, t, x, noise, out)
+
+
+@kernel
+def chain_dynamic_metrics(
+    shared: ChainShared, trials: TrialArrays, i: int, grid: Grid, settings: Settings,
+    buffers: Buffers, states: Array, rates: Array, last: int, complete: bool, out: Array,
+) -> int:
+    return _chain_dynamic_observe(
+        shared, trials, i, grid, settings, buffers, states, rates, last, complete, out)
+
+
+@kernel
+def chain_dynamic_trace(states: Array, rates: Array, last: int, trace: Array) -> None:
+    _chain_dynamic_record(states, rates, last, trace)
+
+
+@dataclass(frozen=True)
+class Kernels:
+    """The compiled functions of one (model, plant) combination: its batch kernel and its
+    single-trial kernels (initial state, right-hand side, observer of a trace)."""
+
+    ops: Ops
+    batch: Callable[..., None]
+    single: tuple[Callable[..., Any], ...]
+
+    def buffers(self, n: int, flag_size: int) -> Buffers:
+        """Fresh buffers for a robot of N = ``n`` joints."""
+        nx = self.ops.state(n)
+        width = nx + self.ops.aux(n)
+        return Buffers(np.zeros((WORK_ROWS, width)), np.zeros(ACCUMULATOR_SIZE),
+                       np.zeros(n + 1), np.zeros(flag_size), np.zeros(nx),
+                       np.zeros((0, self.ops.width(n))), self.ops.scratch(n))
+
+
+#: Every kernel, by (model kind, plant model): "paper" is the closed form of the paper's
+#: robot (N = 2), "chain" the general N-link model.
+KERNELS: dict[tuple[str, str], Kernels] = {
+    ("paper", "kinematic"): Kernels(
+        PAPER_KINEMATIC, paper_kinematic_batch,
+        (paper_kinematic_start, paper_kinematic_derivative, paper_kinematic_metrics,
+         paper_kinematic_trace)),
+    ("paper", "dynamic"): Kernels(
+        PAPER_DYNAMIC, paper_dynamic_batch,
+        (paper_dynamic_start, paper_dynamic_derivative, paper_dynamic_metrics,
+         paper_dynamic_trace)),
+    ("chain", "kinematic"): Kernels(
+        CHAIN_KINEMATIC, chain_kinematic_batch,
+        (chain_kinematic_start, chain_kinematic_derivative, chain_kinematic_metrics,
+         chain_kinematic_trace)),
+    ("chain", "dynamic"): Kernels(
+        CHAIN_DYNAMIC, chain_dynamic_batch,
+        (chain_dynamic_start, chain_dynamic_derivative, chain_dynamic_metrics,
+         chain_dynamic_trace)),
+}
