@@ -17,7 +17,6 @@ use (PEP 562 module ``__getattr__``).
 from __future__ import annotations
 
 import os
-from importlib.metadata import PackageNotFoundError, version
 from typing import TYPE_CHECKING, Any
 
 # flatcli's matrices are small: threaded BLAS only adds overhead (SLSQP runs 3-5x slower on
@@ -26,9 +25,18 @@ from typing import TYPE_CHECKING, Any
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
+#: What kept flatcli from starting (memory too short even for importlib.metadata, e.g. under
+#: ``ulimit -v``): the command line reports it in one line (``flatcli.cli``).
+STARTUP_ERROR: BaseException | None = None
 try:
-    __version__ = version("flatcli")
-except PackageNotFoundError:  # pragma: no cover - running from a source tree
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        __version__ = version("flatcli")
+    except PackageNotFoundError:  # pragma: no cover - running from a source tree
+        __version__ = "0+unknown"
+except (ImportError, MemoryError) as _exc:  # pragma: no cover - a memory limit
+    STARTUP_ERROR = _exc
     __version__ = "0+unknown"
 
 if TYPE_CHECKING:

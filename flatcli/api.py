@@ -22,9 +22,10 @@ raises ``flatcli.FlatcliError`` (``SpecError``) with the same one line the CLI p
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
@@ -35,6 +36,7 @@ from flatcli.core.model import FlatcliError
 from flatcli.core.optimize import OptimizeResult
 from flatcli.core.planning import Plan, PlanSamples
 from flatcli.experiment import TrackRun, plan_and_optimization, run_track
+from flatcli.files import is_regular, kind, read_text
 from flatcli.outputs import plan_frame, write_track
 from flatcli.report import (
     Limits,
@@ -59,7 +61,13 @@ from flatcli.runs import (
     sweep_state,
 )
 from flatcli.spec import Spec, parse_set, read_toml, resolve
-from flatcli.storage import run_record, write_json, write_parquet
+from flatcli.storage import (
+    check_output_dir,
+    directory_lock,
+    run_record,
+    write_json,
+    write_parquet,
+)
 
 if TYPE_CHECKING:
     from flatcli.preflight import CheckReport
@@ -116,18 +124,59 @@ def _output(out: str | os.PathLike[str] | Target | None, command: str, spec: Spe
     if isinstance(out, Target):
         return out
     try:
-        return claim(None if out is None else Path(out), command, spec.name, spec.digest(),
-                     force, Path(root))
+        target = claim(None if out is None else Path(out), command, spec.name, spec.digest(),
+                       force, Path(root))
     except RunDirectoryError as exc:
         raise FlatcliError(str(exc)) from None
+    check_output_dir(target.path, "--out" if out is not None else "the run directory")
+    return target
 
 
 def output_target(command: str, spec: Spec, out: str | os.PathLike[str] | None = None,
                   force: bool = False, root: str | os.PathLike[str] = ROOT) -> Target:
     """Where a ``command`` run of ``spec`` will be saved: ``out``, or a new directory
     ``root/<name>/<stamp>/``; FlatcliError if ``out`` holds a different run (``force``
-    replaces it). The CLI asks before computing, so a refusal costs nothing."""
+    replaces it), or cannot be made or written. The CLI asks before computing (holding
+    ``output_lock``), so a refusal costs nothing."""
     return _output(out, command, spec, force, root)
+
+
+def output_lock(out: str | os.PathLike[str] | None) -> contextlib.AbstractContextManager[None]:
+    """The lock of the directory ``out`` a plan or track run writes into (none for a new
+    directory of its own, which no other run can choose): held from the check of ``out``
+    to the run's last file, so two runs never mix their files there (FlatcliError naming
+    the other run's pid). ``out`` is checked first (it can be made and written), so the
+    lock never makes a directory that cannot be written."""
+    if out is None:
+        return contextlib.nullcontext()
+    check_output_dir(Path(out))
+    return directory_lock(Path(out))
+
+
+def duration_note(spec: Spec, command: str) -> str | None:
+    """A line for stderr before a long ``command`` ("plan" or "track") run starts: the least
+    time it takes (``flatcli.spec.limits``), if that is more than ``NOTICE_SECONDS``."""
+    from flatcli.spec.limits import NOTICE_SECONDS, plan_seconds, time_text, track_seconds
+
+    seconds = track_seconds(spec) if command == "track" else plan_seconds(spec.joints)
+    if seconds < NOTICE_SECONDS:
+        return None
+    return (f"note: this {command} run of a robot of {spec.joints} joints takes at least "
+            f"{time_text(seconds)} (the N-link flat maps cost O(N^4) per point)")
+
+
+@contextlib.contextmanager
+def _saving(out: str | os.PathLike[str] | Target | None, command: str, spec: Spec,
+            force: bool, root: str | os.PathLike[str]) -> Iterator[Path]:
+    """The directory a run's files go into, under its lock (``output_lock``): checked
+    (``output_target``), made, and for a new directory linked as ``latest`` afterwards."""
+    given = None if isinstance(out, Target) else out
+    with output_lock(given):
+        target = _output(out, command, spec, force, root)
+        directory = target.open()
+        with directory_lock(directory):  # already held, unless a Target came from elsewhere
+            yield directory
+        target.finish(directory)
 
 
 # ---------------------------------------------------------------------------------------
@@ -148,6 +197,8 @@ class Run:
         """``<name>.parquet`` of the run's directory as a DataFrame."""
         if self.directory is None:
             raise FlatcliError(f"this {self.command or 'run'} is not saved; call .save() first")
+        if not _table(self.directory, f"{name}.parquet"):
+            raise FlatcliError(f"{self.directory / f'{name}.parquet'} not found")
         return pd.read_parquet(self.directory / f"{name}.parquet")
 
     def __repr__(self) -> str:
@@ -193,25 +244,24 @@ class PlanResult(Run):
         """Write plan.parquet and run.json (and plan.png with ``plot``) into ``out``, or a
         new directory ``root/<name>/<stamp>/``; return the directory."""
         spec = self.spec
-        target = _output(out, "plan", spec, force, root)
         record = run_record("plan", spec.tree, digest=spec.digest(), summary=self.metrics,
                             optimization=self.optimization)
         if plot and self.samples is None:
             raise FlatcliError("plot: only a plan computed here can be drawn")
-        directory = target.open()
-        write_parquet(directory / "plan.parquet", self.frame, record)
-        write_json(directory / RECORD, record)
-        self.files = ["plan.parquet", RECORD]
-        if plot and self.samples is not None:
-            model = spec.robot.model
-            opt = spec.plan.optimize
-            limits = Limits(singular_threshold=spec.track.singular_threshold) if (
-                self.optimization is None) else Limits(
-                spec.track.singular_threshold, opt.min_margin, opt.rate_limit, opt.angle_limit)
-            plot_plan(self.samples, directory / "plan.png", f"plan {spec.name!r} ({model} model)",
-                      limits)
-            self.files.append("plan.png")
-        target.finish(directory)
+        with _saving(out, "plan", spec, force, root) as directory:
+            write_parquet(directory / "plan.parquet", self.frame, record)
+            write_json(directory / RECORD, record)
+            self.files = ["plan.parquet", RECORD]
+            if plot and self.samples is not None:
+                model = spec.robot.model
+                opt = spec.plan.optimize
+                limits = Limits(singular_threshold=spec.track.singular_threshold) if (
+                    self.optimization is None) else Limits(
+                    spec.track.singular_threshold, opt.min_margin, opt.rate_limit,
+                    opt.angle_limit)
+                plot_plan(self.samples, directory / "plan.png",
+                          f"plan {spec.name!r} ({model} model)", limits)
+                self.files.append("plan.png")
         self.directory, self.record = directory, record
         return directory
 
@@ -246,12 +296,10 @@ class TrackResult(Run):
         if self.run is None:
             raise FlatcliError("save: only a run computed here can be saved")
         spec = self.spec
-        target = _output(out, "track", spec, force, root)
         record = run_record("track", spec.tree, digest=spec.digest(), metrics=self.metrics)
         title = f"track {spec.name!r}: kp = {spec.track.kp}, kv = {spec.track.kv}"
-        directory = target.open()
-        self.files = write_track(directory, self.run, record, title if plot else None)
-        target.finish(directory)
+        with _saving(out, "track", spec, force, root) as directory:
+            self.files = write_track(directory, self.run, record, title if plot else None)
         self.directory, self.record = directory, record
         return directory
 
@@ -308,8 +356,8 @@ class SweepResult(Run):
         if self._summary_text is not None:
             return self._summary_text
         assert self.directory is not None
-        if self.complete and (self.directory / "summary.md").exists():
-            return (self.directory / "summary.md").read_text().rstrip("\n")
+        if self.complete and is_regular(self.directory / "summary.md"):
+            return read_text(self.directory / "summary.md").rstrip("\n")
         return self._partial[1]
 
     @property
@@ -328,7 +376,6 @@ class SweepResult(Run):
     def plot(self) -> list[Path]:
         """The summary figures (sweep_*.png) of a finished sweep; their paths."""
         from flatcli.report import plot_sweep
-        from flatcli.storage import directory_lock
         from flatcli.sweep.directory import record_outputs
 
         if not self.complete:
@@ -417,7 +464,6 @@ def sweep(spec: SpecLike, out: str | os.PathLike[str] | None = None, *,
     One run writes into a directory at a time (FlatcliError naming the other run's pid).
     """
     from flatcli.report import Progress
-    from flatcli.storage import check_output_dir, directory_lock
     from flatcli.sweep import run_sweep
 
     s = load_spec(spec, overrides)
@@ -451,26 +497,45 @@ def load(directory: str | os.PathLike[str]) -> Run:
 
     A directory of runs of one name (``runs/<name>``) loads its ``latest``.
     """
+    from flatcli.sweep.directory import read_manifest
+
     path = Path(directory)
-    if (path / SWEEP_MANIFEST).exists():
+    if kind(path / SWEEP_MANIFEST) != "missing":
+        read_manifest(path)  # SpecError saying what is wrong with it
         state = sweep_state(path)
         if state is None:
             raise FlatcliError(f"{path}/{SWEEP_MANIFEST} is unreadable")
         return SweepResult(state)
+    if kind(path / RECORD) == "missing" and (path / "latest").is_dir():
+        return load(path / "latest")
     record = read_json(path / RECORD)
     if record is None:
-        if (path / "latest").is_dir():
-            return load(path / "latest")
+        if kind(path / RECORD) != "missing":
+            raise FlatcliError(f"{path / RECORD} is unreadable (not a regular file of JSON, "
+                               "or too large)")
         raise FlatcliError(f"{path} holds no flatcli run (no run.json or sweep.json)")
     command = str(record.get("command"))
-    if (path / "plan.parquet").exists() and command == "plan":
+    summary, optimization = record.get("summary", {}), record.get("optimization")
+    if _table(path, "plan.parquet") and command == "plan":
         return PlanResult(None, pd.read_parquet(path / "plan.parquet"),
-                          record.get("summary", {}), record.get("optimization"),
+                          summary if isinstance(summary, dict) else {},
+                          optimization if isinstance(optimization, dict) else None,
                           directory=path, record=record)
-    if (path / "track.parquet").exists():
-        metrics = read_json(path / "metrics.json") or record.get("metrics", {})
+    if _table(path, "track.parquet"):
+        recorded = record.get("metrics", {})
+        metrics = read_json(path / "metrics.json") or (
+            recorded if isinstance(recorded, dict) else {})
         return TrackResult(None, pd.read_parquet(path / "track.parquet"), metrics,
                            directory=path, record=record)
     run = Run(path, record)
     run.command = command
     return run
+
+
+def _table(directory: Path, name: str) -> bool:
+    """Whether a run's directory holds the table ``name`` (FlatcliError if something else
+    than a regular file stands there: it is never opened, a FIFO would block)."""
+    what = kind(directory / name)
+    if what not in ("missing", "file"):
+        raise FlatcliError(f"{directory / name} is {what}, not a table flatcli wrote")
+    return what == "file"

@@ -15,21 +15,31 @@ needs them, so ``flatcli --help``, ``--version`` and shell completion answer at 
 
 from __future__ import annotations
 
-import contextlib
-import errno
-import os
-import shlex
-import signal
 import sys
-import threading
-import warnings
-from collections.abc import Callable, Iterator
-from pathlib import Path
-from typing import TYPE_CHECKING, Any, NoReturn, TypeVar
 
-import click
+try:  # too little memory to load even these (ulimit -v): one line, not a traceback
+    import contextlib
+    import errno
+    import os
+    import shlex
+    import signal
+    import threading
+    import warnings
+    from collections.abc import Callable, Iterator
+    from pathlib import Path
+    from typing import TYPE_CHECKING, Any, NoReturn, TypeVar
 
-from flatcli import __version__
+    import click
+
+    from flatcli import STARTUP_ERROR, __version__
+    from flatcli.startup import library_error_text, probe_libraries, while_importing
+
+    if STARTUP_ERROR is not None:
+        raise STARTUP_ERROR
+except (ImportError, MemoryError) as _exc:  # pragma: no cover - exercised in a subprocess
+    sys.stderr.write(f"error: cannot start flatcli: {type(_exc).__name__} while loading its "
+                     "modules; out of memory? (a limit such as ulimit -v, or a container's)\n")
+    raise SystemExit(1) from None
 
 if TYPE_CHECKING:  # the core loads numba: imported where a command needs it
     from flatcli.core.design import DesignVerdict
@@ -39,6 +49,8 @@ F = TypeVar("F", bound=Callable[..., Any])
 
 EXIT_USAGE = 2
 EXIT_RUNTIME = 1
+#: How an OS error on the standard output names its "file".
+STDOUT = "standard output"
 #: ``flatcli design``'s exit status per verdict of ``flatcli.core.design.VERDICTS`` (bad input
 #: is EXIT_USAGE, 2): 0 closed-form outputs, 1 flat without them, 3 not flat.
 DESIGN_EXIT = {"closed_form": 0, "flat": 1, "not_flat": 3}
@@ -72,6 +84,8 @@ def os_error_text(exc: OSError) -> str:
     reason = exc.strerror or str(exc) or type(exc).__name__
     if isinstance(exc, BrokenPipeError) or exc.errno == errno.EPIPE:
         return "standard output was closed (broken pipe)"
+    if exc.filename == STDOUT and exc.errno == errno.EBADF:
+        return "standard output is closed: nothing could be printed (redirect it, e.g. > /dev/null)"
     where = f"{exc.filename}: " if exc.filename is not None else ""
     return f"{where}{reason}".replace("\n", " ")
 
@@ -79,10 +93,11 @@ def os_error_text(exc: OSError) -> str:
 class _Stop(BaseException):
     """Carries a one-line error and its exit status past click's own handlers."""
 
-    def __init__(self, message: str, status: int) -> None:
+    def __init__(self, message: str, status: int, hard: bool = False) -> None:
         super().__init__(message)
         self.message = message
         self.status = status
+        self.hard = hard  # exit at once: a half-loaded library may crash the interpreter's exit
 
 
 def _silence_stdout() -> None:
@@ -112,14 +127,21 @@ class Cli(click.Group):
     """A group whose usage errors, OS errors and interruptions are one line too."""
 
     def invoke(self, ctx: click.Context) -> Any:
+        problem = probe_libraries()
+        if problem is not None:
+            raise _Stop(problem, EXIT_RUNTIME)
         try:
             return super().invoke(ctx)
         except KeyboardInterrupt:
             raise _Stop("interrupted", interrupted_status()) from None
-        except OSError as exc:
+        except ImportError as exc:
+            raise _Stop(library_error_text(exc), EXIT_RUNTIME, hard=True) from None
+        except (OSError, MemoryError) as exc:
+            if while_importing(exc):
+                raise _Stop(library_error_text(exc), EXIT_RUNTIME, hard=True) from None
+            if isinstance(exc, MemoryError):
+                raise _Stop("out of memory (lower the sizes of the spec)", EXIT_RUNTIME) from None
             raise _Stop(os_error_text(exc), EXIT_RUNTIME) from None
-        except MemoryError:
-            raise _Stop("out of memory (lower the sizes of the spec)", EXIT_RUNTIME) from None
         except Exception as exc:
             if type(exc).__module__.startswith("pyarrow"):  # a damaged or foreign data file
                 first = (str(exc).splitlines() or [type(exc).__name__])[0]
@@ -144,9 +166,15 @@ class Cli(click.Group):
             if stop.status == EXIT_RUNTIME and "broken pipe" in stop.message:
                 _silence_stdout()
             click.echo(f"error: {stop.message}", err=True)
+            if stop.hard:
+                with contextlib.suppress(OSError, ValueError, AttributeError):
+                    sys.stderr.flush()
+                os._exit(stop.status)
             sys.exit(stop.status)
         except OSError as exc:  # writing the last lines to stdout
             _silence_stdout()
+            if exc.filename is None:
+                exc.filename = STDOUT
             click.echo(f"error: {os_error_text(exc)}", err=True)
             sys.exit(EXIT_RUNTIME)
         except click.exceptions.Exit as exc:
@@ -230,9 +258,30 @@ def overrides(sets: tuple[str, ...], objective: str | None = None) -> list[str]:
     return [*sets, *extra]
 
 
+def show(text: str, nl: bool = True) -> None:
+    """Print a command's report on standard output. A closed standard output (``>&-``: Python
+    then has none) or a failing one (a full disk, ``/dev/full``) is an OS error naming it:
+    one line on stderr, exit status 1 (a closed pipe: ``os_error_text``)."""
+    if sys.stdout is None:
+        raise OSError(errno.EBADF, "closed", STDOUT)
+    try:
+        click.echo(text, nl=nl)
+    except BrokenPipeError:
+        raise
+    except OSError as exc:
+        raise OSError(exc.errno, exc.strerror or str(exc), STDOUT) from None
+
+
+def require_stdout(quiet: bool = False) -> None:
+    """Before a command's work: its report could not be printed (standard output closed),
+    so refuse now (exit status 1) rather than after the work."""
+    if not quiet and sys.stdout is None:
+        raise OSError(errno.EBADF, "closed", STDOUT)
+
+
 def say(quiet: bool, text: str) -> None:
     if not quiet:
-        click.echo(text)
+        show(text)
 
 
 # ---------------------------------------------------------------------------------------
@@ -257,11 +306,17 @@ def plan(spec: Path | None, sets: tuple[str, ...], out: Path | None, force: bool
     """Plan a point-to-point maneuver through the flat outputs; write plan.parquet."""
     from flatcli import api
 
+    require_stdout(quiet)
+
     with user_errors():
         s = api.load_spec(spec, overrides(sets, objective))
-        target = api.output_target("plan", s, out, force)  # refused before any work
-        result = api.plan(s)
-        directory = result.save(target, plot=plot)
+        with api.output_lock(out):  # one writer from the check to the last file
+            target = api.output_target("plan", s, out, force)  # refused before any work
+            note = api.duration_note(s, "plan")
+            if note is not None and not quiet:
+                click.echo(note, err=True)
+            result = api.plan(s)
+            directory = result.save(target, plot=plot)
     say(quiet, result.text())
     say(quiet, f"wrote {directory}/plan.parquet" + (" and plan.png" if plot else ""))
 
@@ -275,11 +330,17 @@ def track(spec: Path | None, sets: tuple[str, ...], out: Path | None, force: boo
     """Track the plan in closed loop from a perturbed initial state; write track.parquet."""
     from flatcli import api
 
+    require_stdout(quiet)
+
     with user_errors():
         s = api.load_spec(spec, overrides(sets, objective))
-        target = api.output_target("track", s, out, force)  # refused before any work
-        result = api.track(s, quiet=quiet)
-        directory = result.save(target, plot=plot)
+        with api.output_lock(out):  # one writer from the check to the last file
+            target = api.output_target("track", s, out, force)  # refused before any work
+            note = api.duration_note(s, "track")
+            if note is not None and not quiet:
+                click.echo(note, err=True)
+            result = api.track(s, quiet=quiet)
+            directory = result.save(target, plot=plot)
     say(quiet, result.text())
     say(quiet, f"wrote {directory}/" + ", ".join(result.files))
 
@@ -307,14 +368,14 @@ def design(spec: Path | None, sets: tuple[str, ...]) -> None:
     if robot.n_joints == 2:
         k = constraint_coefficients(robot.links, checked(s.robot.model))
         rows = [[name, float(v)] for name, v in zip(k._fields, k, strict=True)]
-        click.echo(f"robot {s.name!r}, {s.robot.model} coefficients [kg^2 m^2]:")
-        click.echo(table(["coefficient", "value"], rows, 6))
+        show(f"robot {s.name!r}, {s.robot.model} coefficients [kg^2 m^2]:")
+        show(table(["coefficient", "value"], rows, 6))
     else:
-        click.echo(chain_constants(s.name, robot))
+        show(chain_constants(s.name, robot))
     verdict = design_verdict(robot)
-    click.echo(verdict_lines("robot", verdict))
+    show(verdict_lines("robot", verdict))
     if plant != robot:
-        click.echo(verdict_lines("plant", design_verdict(plant)))
+        show(verdict_lines("plant", design_verdict(plant)))
     sys.exit(DESIGN_EXIT[verdict.verdict])
 
 
@@ -354,9 +415,11 @@ def check(spec: Path | None, sets: tuple[str, ...], workers: int | None, executo
     and warnings. Writes nothing."""
     from flatcli import api
 
+    require_stdout()
+
     with user_errors():
         report = api.check(spec, sets, workers=workers, executor=executor, quiet=quiet)
-    click.echo(report.text())
+    show(report.text())
 
 
 @main.command()
@@ -385,12 +448,14 @@ def sweep(spec: Path, out: Path | None, workers: int | None, sets: tuple[str, ..
           rerun: int | None, print_spec: bool, dry_run: bool, oversubscribe: bool,
           plot: bool) -> None:
     """Run a Monte Carlo sweep from a TOML spec with a [sweep] table (resumable)."""
+    require_stdout(quiet)
     from flatcli import api
     from flatcli.executors import WorkerLostError
     from flatcli.spec import spec_toml
     from flatcli.storage import check_output_dir, directory_lock
     from flatcli.sweep import FailFastError, rerun_and_compare, trial_spec
     from flatcli.sweep.directory import record_outputs
+    from flatcli.sweep.rerun import trials_table
 
     with user_errors():
         s = api.load_spec(spec, sets)
@@ -398,15 +463,14 @@ def sweep(spec: Path, out: Path | None, workers: int | None, sets: tuple[str, ..
         if dry_run:
             if rerun is not None or print_spec:
                 fail("--dry-run: not with --rerun or --print-spec")
-            click.echo(api.check(s, workers=workers, executor=executor, quiet=quiet).text())
+            show(api.check(s, workers=workers, executor=executor, quiet=quiet).text())
             return
         check_output_dir(directory)
         if rerun is not None and print_spec:
-            click.echo(spec_toml(trial_spec(s, directory, rerun)), nl=False)
+            show(spec_toml(trial_spec(s, directory, rerun)), nl=False)
             return
         if rerun is not None:
-            if not (directory / "trials.parquet").is_file():
-                fail(f"--rerun: {directory / 'trials.parquet'} not found; run the sweep first")
+            trials_table(directory)  # there, and a regular file
             with directory_lock(directory):
                 result = rerun_and_compare(s, directory, rerun)
                 record_outputs(directory, result.target.iterdir())
@@ -451,35 +515,38 @@ def summarize(directory: Path, plot: bool) -> None:
     Of an interrupted sweep: the tables of its finished trials, and how much is missing.
     """
     from flatcli import api
+    from flatcli.files import is_regular, kind, read_text
 
     with user_errors():
-        if not (directory / "sweep.json").exists():
+        if kind(directory / "sweep.json") == "missing":
             summary_md = directory / "summary.md"
-            if not summary_md.is_file():
-                fail(f"{summary_md} not found: not a sweep directory")
+            if not is_regular(summary_md):
+                what = kind(summary_md)
+                fail(f"{summary_md} not found: not a sweep directory" if what == "missing" else
+                     f"{summary_md} is {what}, not flatcli's summary")
             if plot:  # a sweep directory without its manifest: its final tables
                 for name in ("summary.parquet", "trials.parquet"):
-                    if not (directory / name).is_file():
+                    if not is_regular(directory / name):
                         fail(f"--plot: {directory / name} not found: not a finished sweep "
                              "directory")
-            click.echo(summary_md.read_text(encoding="utf-8", errors="replace"), nl=False)
+            show(read_text(summary_md), nl=False)
             if plot:
                 from flatcli.report import plot_sweep
                 from flatcli.storage import directory_lock
 
                 with directory_lock(directory):
                     paths = plot_sweep(directory)
-                click.echo("wrote " + ", ".join(str(p) for p in paths))
+                show("wrote " + ", ".join(str(p) for p in paths))
             return
         result = api.load(directory)
         assert isinstance(result, api.SweepResult)
         if plot and not result.complete:
             fail(f"--plot: {result.state.missing_text()}; the figures need every trial "
                  "(run the sweep again to finish it)")
-        click.echo(result.summary_text)
+        show(result.summary_text)
         if plot:
             paths = result.plot()
-            click.echo("wrote " + ", ".join(str(p) for p in paths))
+            show("wrote " + ", ".join(str(p) for p in paths))
 
 
 @main.command()
@@ -494,13 +561,13 @@ def runs(directory: Path, compare: tuple[Path, Path] | None) -> None:
 
     if compare:
         try:
-            click.echo(compare_runs(*compare))
+            show(compare_runs(*compare))
         except RunDirectoryError as exc:
             fail(str(exc))
         return
     if not directory.is_dir():
         fail(f"{directory}: no such directory")
-    click.echo(runs_table(directory))
+    show(runs_table(directory))
 
 
 @main.command()
@@ -515,7 +582,7 @@ def export(directory: Path, as_csv: bool, out: Path | None) -> None:
 
     with user_errors():
         paths = export_csv(directory, out)
-    click.echo("wrote " + ", ".join(str(p) for p in paths))
+    show("wrote " + ", ".join(str(p) for p in paths))
 
 
 #: The sections of ``flatcli reproduce`` (``flatcli.reproduce.SECTION_NAMES``; the CLI does
@@ -545,6 +612,7 @@ def reproduce(out: Path, montecarlo: Path | None, no_montecarlo: bool, only: tup
     A section whose inputs and code are unchanged since it was last computed into the
     directory is reused (and says so); the headlines and the report's path are printed.
     """
+    require_stdout(quiet)
     from flatcli.reproduce import STUDY_SPEC
     from flatcli.reproduce import reproduce as run
 
@@ -563,11 +631,11 @@ def reproduce(out: Path, montecarlo: Path | None, no_montecarlo: bool, only: tup
     if quiet:
         return
     reused = sum(r.reused for r in results)
-    click.echo(f"\n{path}: {len(results)} sections ({len(results) - reused} computed, "
-               f"{reused} reused)")
+    show(f"\n{path}: {len(results)} sections ({len(results) - reused} computed, "
+         f"{reused} reused)")
     for result in results:
         for text in result.headline:
-            click.echo(f"- {result.section.name}: {text}")
+            show(f"- {result.section.name}: {text}")
 
 
 if __name__ == "__main__":

@@ -26,6 +26,7 @@ from flatcli.core.simulate import (
     simulate,
 )
 from flatcli.spec import Spec, SpecError
+from flatcli.spec.limits import check_track
 
 Array = NDArray[np.float64]
 
@@ -269,7 +270,9 @@ class TrackRun:
 
 
 def run_track(spec: Spec) -> TrackRun:
-    """Plan, then simulate the closed loop of a spec, recording the trace."""
+    """Plan, then simulate the closed loop of a spec, recording the trace (SpecError, before
+    any work, if that could not end within the time budget: ``check_track``)."""
+    check_track(spec)
     plan = plan_from(spec)
     scenario = scenario_from(spec, plan)
     trials = nominal_trials(spec, plan)

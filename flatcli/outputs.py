@@ -26,19 +26,20 @@ def plan_frame(samples: PlanSamples) -> pd.DataFrame:
     """plan.parquet's rows: angles, rates, inputs, flat outputs, margin and H per sample
     (th0..thN, u1'..u(N-1)' and uN = thN', y1..yN on a robot of N joints)."""
     n = samples.theta.shape[-1] - 1  # N joints
-    frame = pd.DataFrame({"t": samples.t})
+    columns: dict[str, Any] = {"t": samples.t}
     for i in range(n + 1):
-        frame[f"theta{i}"] = samples.theta[:, i]
+        columns[f"theta{i}"] = samples.theta[:, i]
     for i in range(n + 1):
-        frame[f"theta{i}_dot"] = samples.theta_dot[:, i]
+        columns[f"theta{i}_dot"] = samples.theta_dot[:, i]
     for j in range(1, n):
-        frame[f"u{j}_dot"] = samples.u_dot[:, j - 1]
-    frame[f"u{n}"] = samples.theta_dot[:, n]
+        columns[f"u{j}_dot"] = samples.u_dot[:, j - 1]
+    columns[f"u{n}"] = samples.theta_dot[:, n]
     for name, arr in (("", samples.y), ("_dot", samples.y_dot), ("_ddot", samples.y_ddot)):
         for j in range(n):
-            frame[f"y{j + 1}{name}"] = arr[:, j]
-    frame["margin"] = samples.margin
-    frame["momentum"] = samples.momentum
+            columns[f"y{j + 1}{name}"] = arr[:, j]
+    columns["margin"] = samples.margin
+    columns["momentum"] = samples.momentum
+    frame = pd.DataFrame(columns)  # built at once: one block, no fragmentation warnings
     frame.attrs["units"] = units_of(frame.columns)
     return frame
 

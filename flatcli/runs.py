@@ -27,6 +27,14 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
+from flatcli.files import (
+    MAX_RECORD_BYTES,
+    UnreadableFileError,
+    is_regular,
+    kind,
+    not_regular,
+    read_bounded,
+)
 from flatcli.report import fmt, table
 
 #: The file every finished run directory holds (plan, track, sweep, reproduce).
@@ -37,9 +45,10 @@ SWEEP_MANIFEST = "sweep.json"
 SWEEP_TRIALS = "trials"
 #: Name of the link to the newest run of a name.
 LATEST = "latest"
-#: The files a plan or track run writes; ``--force`` removes these (and only these) first.
+#: The files a plan or track run writes (and ``flatcli export --csv`` beside them);
+#: ``--force`` removes these (and only these, if they are regular files) first.
 RUN_FILES = ("run.json", "plan.parquet", "plan.png", "track.parquet", "track.png",
-             "metrics.json")
+             "metrics.json", "plan.csv", "track.csv")
 #: Default root of run directories.
 ROOT = Path("runs")
 
@@ -52,10 +61,12 @@ class RunDirectoryError(Exception):
 # Where a run goes.
 
 def read_json(path: Path) -> dict[str, Any] | None:
-    """A JSON object from a file, or None if it is missing or unreadable."""
+    """A JSON object from a file, or None if it is missing or unreadable: not a regular file
+    (never opened, so a FIFO cannot block), larger than ``MAX_RECORD_BYTES``, not JSON, not
+    an object."""
     try:
-        value = json.loads(path.read_text())
-    except (OSError, ValueError):
+        value = json.loads(read_bounded(path, MAX_RECORD_BYTES))
+    except (UnreadableFileError, ValueError, RecursionError):
         return None
     return value if isinstance(value, dict) else None
 
@@ -77,7 +88,8 @@ class Target:
             self.path.mkdir(parents=True, exist_ok=True)
             if self.force:
                 for name in RUN_FILES:
-                    (self.path / name).unlink(missing_ok=True)
+                    if is_regular(self.path / name):
+                        (self.path / name).unlink()
             return self.path
         path = self.path
         while True:
@@ -140,12 +152,16 @@ def claim(out: Path | None, command: str, name: str, digest: str, force: bool = 
                 return Target(path, fresh=True)
     if out.exists() and not out.is_dir():
         raise RunDirectoryError(f"--out {out}: is a file")
-    if (out / SWEEP_MANIFEST).exists():  # even with --force: never mix with a sweep's files
+    if kind(out / SWEEP_MANIFEST) != "missing":  # even with --force: never mix with a sweep
         raise RunDirectoryError(f"--out {out}: holds a sweep; use another --out")
+    blocked = not_regular(out, RUN_FILES)
+    if blocked:  # never opened, never replaced, never removed: not flatcli's
+        raise RunDirectoryError(f"--out {out}: holds {', '.join(blocked)} where a run writes "
+                                "its files; remove it yourself, or use another --out")
     if force:
         return Target(out, fresh=False, force=True)
     record = read_json(out / RECORD)
-    if (out / RECORD).exists() and record is None:
+    if kind(out / RECORD) != "missing" and record is None:
         raise RunDirectoryError(f"--out {out}: its run.json is unreadable; use --force to "
                                 "replace that run, or another --out")
     if record is not None:
@@ -222,15 +238,18 @@ def sweep_state(directory: Path) -> SweepState | None:
     import pyarrow as pa
     import pyarrow.parquet as pq
 
+    from flatcli.spec import SpecError
     from flatcli.storage import read_provenance
+    from flatcli.sweep.directory import read_manifest
 
-    manifest = read_json(directory / SWEEP_MANIFEST)
+    try:
+        manifest = read_manifest(directory)  # every name and count in it checked
+    except SpecError:
+        return None
     if manifest is None or not {"digest", "cells", "trials_per_cell", "chunk"} <= set(manifest):
         return None
     cells = manifest["cells"]
     keyed = isinstance(cells, dict)
-    if keyed and not isinstance(manifest.get("grid_cells"), list):
-        return None
     digest = manifest["digest"]
     expected: dict[str, tuple[int, str]] = {}  # chunk file -> (grid position, cell digest)
     for position, key in enumerate(manifest.get("grid_cells", []) if keyed else []):
@@ -241,16 +260,22 @@ def sweep_state(directory: Path) -> SweepState | None:
     positions = []
     done = 0
     trials = directory / SWEEP_TRIALS
-    for path in sorted(trials.glob("chunk-*.parquet")) if trials.is_dir() else []:
+    listed = sorted(trials.glob("chunk-*.parquet")) if kind(trials) == "a directory" else []
+    for path in listed:
+        if not is_regular(path):  # never opened: a FIFO would block
+            continue
         try:
+            meta = read_provenance(path)
+            if not isinstance(meta, dict):
+                continue
             if keyed:
                 if path.name not in expected:
                     continue
                 position, cell_digest = expected[path.name]
-                if read_provenance(path).get("cell_digest") != cell_digest:
+                if meta.get("cell_digest") != cell_digest:
                     continue
             else:
-                if read_provenance(path).get("digest") != digest:
+                if meta.get("digest") != digest:
                     continue
                 position = -1
             rows = pq.read_metadata(path).num_rows
@@ -263,8 +288,8 @@ def sweep_state(directory: Path) -> SweepState | None:
         positions = []
     record = read_json(directory / RECORD)
     complete = (record is not None and record.get("digest") == digest
-                and (directory / "trials.parquet").exists()
-                and (directory / "summary.parquet").exists())
+                and is_regular(directory / "trials.parquet")
+                and is_regular(directory / "summary.parquet"))
     return SweepState(directory, manifest, tuple(files), done, complete, tuple(positions))
 
 
@@ -347,24 +372,77 @@ class RunInfo:
         return ", ".join(f"{k} {fmt(v, 3)}" for k, v in self.metrics.items())
 
 
-def _number(value: Any) -> Any:
-    """A metric read back from JSON (non-finite floats may be stored as strings)."""
+def _number(value: Any) -> float | int | None:
+    """A metric read back from JSON (non-finite floats may be stored as strings; null is not
+    applicable, nan); None if it is not a number at all."""
     if isinstance(value, str) and value in ("nan", "inf", "-inf"):
         return float(value)
+    if value is None:
+        return math.nan
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
     return value
 
 
 #: The metrics ``flatcli runs`` shows per command (all of them are in the run's files).
 PLAN_KEYS = ("input_energy", "min_margin", "max_abs_momentum")
 TRACK_KEYS = ("err_y_final", "err_theta_rms", "min_margin", "momentum_drift")
+#: The status of a run whose record cannot be read (or holds values of the wrong types).
+UNREADABLE = "unreadable"
+
+
+def _metrics(values: Any, keys: tuple[str, ...]) -> dict[str, Any] | None:
+    """The numbers of ``keys`` in a record's table (None if it is not a table of numbers)."""
+    if not isinstance(values, Mapping):
+        return None
+    out = {k: _number(values[k]) for k in keys if k in values}
+    return None if any(v is None for v in out.values()) else out
+
+
+def _record_problem(record: Mapping[str, Any]) -> str | None:
+    """Why a run.json's values are not of the types flatcli wrote, or None."""
+    expected: dict[str, tuple[type, ...]] = {
+        "command": (str,), "time": (str,), "spec": (dict,), "summary": (dict,),
+        "metrics": (dict,), "optimization": (dict, type(None)), "status_counts": (dict,),
+        "digest": (str,), "seconds": (int, float)}
+    for key, types in expected.items():
+        if key in record and (not isinstance(record[key], types)
+                              or isinstance(record[key], bool)):
+            return f"its {key} is not a {types[0].__name__}"
+    if "time" in record and _parse_time(record["time"]) is None:
+        return "its time is not a date"
+    counts = record.get("status_counts", {})
+    if not all(isinstance(v, int) and not isinstance(v, bool) for v in counts.values()):
+        return "its status_counts are not counts"
+    return None
+
+
+def _unreadable(directory: Path, command: str, spec: Any = None) -> RunInfo:
+    spec = spec if isinstance(spec, dict) else {}
+    name = spec.get("name")
+    return RunInfo(directory, command, name if isinstance(name, str) else "", None, UNREADABLE,
+                   {}, spec)
 
 
 def run_info(directory: Path) -> RunInfo | None:
-    """What ``flatcli runs`` shows of a directory, or None if it holds no run."""
-    record = read_json(directory / RECORD)
-    state = sweep_state(directory) if (directory / SWEEP_MANIFEST).exists() else None
-    if record is None and state is None:
+    """What ``flatcli runs`` shows of a directory, or None if it holds no run. A record that
+    cannot be read (not a regular file, too large, not JSON, values of other types than
+    flatcli writes) is shown with the status "unreadable"; nothing in it is trusted."""
+    has_record = kind(directory / RECORD) != "missing"
+    has_manifest = kind(directory / SWEEP_MANIFEST) != "missing"
+    if not has_record and not has_manifest:
         return None
+    record = read_json(directory / RECORD) if has_record else None
+    raw = record or {}
+    if record is not None and _record_problem(record) is not None:
+        record = None
+    state = sweep_state(directory) if has_manifest else None
+    if has_manifest and state is None:
+        return _unreadable(directory, "sweep")
+    if state is None and record is None:  # what can be told of it: its command and spec
+        command = raw.get("command")
+        return _unreadable(directory, command if isinstance(command, str) else "?",
+                           raw.get("spec"))
     command = str(record.get("command")) if record is not None else "sweep"
     spec = (record or {}).get("spec") or (state.manifest.get("spec") if state else None) or {}
     when = _parse_time(record.get("time")) if record is not None else None
@@ -374,33 +452,40 @@ def run_info(directory: Path) -> RunInfo | None:
         command = "sweep"
         if not state.complete:
             status = f"partial {100 * state.done / max(state.total, 1):.0f}%"
-            when = datetime.fromtimestamp((directory / SWEEP_MANIFEST).stat().st_mtime)
+            when = datetime.fromtimestamp((directory / SWEEP_MANIFEST).lstat().st_mtime)
             record = None
         metrics["trials"] = state.total
         counts = (record or {}).get("status_counts", {})
         metrics.update({k: v for k, v in counts.items() if v})
-    elif command == "plan":
-        summary = record.get("summary", {}) if record else {}
-        metrics = {k: _number(summary[k]) for k in PLAN_KEYS if k in summary}
-        optimization = record.get("optimization") if record else None
+    elif record is not None and command == "plan":
+        found = _metrics(record.get("summary", {}), PLAN_KEYS)
+        if found is None:
+            return _unreadable(directory, command, spec)
+        metrics = found
+        optimization = record.get("optimization")
         if optimization:
             status = "optimised" if optimization.get("success") else "optimiser failed"
         else:
             status = "ok"
     elif record is not None and isinstance(record.get("metrics"), Mapping):
         values = record["metrics"]
-        status = str(values.get("status", "done"))
-        metrics = {k: _number(values[k]) for k in TRACK_KEYS if k in values}
+        found = _metrics(values, TRACK_KEYS)
+        if found is None or not isinstance(values.get("status", "done"), str):
+            return _unreadable(directory, command, spec)
+        status, metrics = str(values.get("status", "done")), found
     elif record is not None and "seconds" in record:
         metrics = {"seconds": _number(record["seconds"])}
-    return RunInfo(directory, command, str(spec.get("name", "")), when, status, metrics,
-                   spec)
+    name = spec.get("name", "")
+    return RunInfo(directory, command, name if isinstance(name, str) else "", when, status,
+                   metrics, spec)
 
 
 def _parse_time(value: Any) -> datetime | None:
+    if not isinstance(value, str):
+        return None
     try:
-        return datetime.fromisoformat(str(value)).astimezone()
-    except ValueError:
+        return datetime.fromisoformat(value).astimezone()
+    except (ValueError, OverflowError, OSError):
         return None
 
 
@@ -420,19 +505,34 @@ def list_runs(root: Path) -> list[RunInfo]:
     return sorted(infos, key=lambda i: (i.time.timestamp() if i.time else 0.0, str(i.path)))
 
 
+def shown(text: str) -> str:
+    """Text read from a run's files as a terminal may show it: control, format and separator
+    characters (an escape sequence, a bidirectional override) escaped, not printed."""
+    return text if text.isprintable() else ascii(text)[1:-1]
+
+
+def _resolved(path: Path) -> Path | None:
+    """A path with its links followed (None for a loop of links)."""
+    try:
+        return path.resolve()
+    except (OSError, RuntimeError):  # RuntimeError: a symlink loop (Python < 3.13)
+        return None
+
+
 def runs_table(root: Path) -> str:
     """``flatcli runs`` as a table (runs that ``latest`` points to are marked)."""
     infos = list_runs(root)
     if not infos:
         return f"no runs in {root}"
-    latest = {p.resolve() for p in root.rglob(LATEST) if p.is_symlink()}
+    latest = {r for p in root.rglob(LATEST) if p.is_symlink() and (r := _resolved(p))}
     rows = []
     for info in infos:
         where = str(info.path.relative_to(root)) if info.path != root else "."
-        if info.path.resolve() in latest:
+        if _resolved(info.path) in latest:
             where += " (latest)"
         when = f"{info.time:%Y-%m-%d %H:%M:%S}" if info.time else "-"
-        rows.append([where, info.command, info.name, when, info.status, info.metrics_text()])
+        rows.append([shown(c) for c in (where, info.command, info.name, when, info.status,
+                                         info.metrics_text())])
     return table(["run", "command", "name", "time", "status", "key metrics"], rows)
 
 
@@ -461,7 +561,7 @@ def _show(value: Any) -> str:
     if value is _ABSENT:
         return "(not set)"
     if isinstance(value, str):
-        return value
+        return shown(value)
     return json.dumps(value, separators=(", ", " = ")).replace('"', "")
 
 
@@ -481,11 +581,11 @@ def compare_runs(a: Path, b: Path) -> str:
     fa, fb = flat_spec(first.spec), flat_spec(second.spec)
     keys = [k for k in fa if k in fb] + [k for k in fa if k not in fb] + \
            [k for k in fb if k not in fa]
-    rows = [[k, _show(fa.get(k, _ABSENT)), _show(fb.get(k, _ABSENT))]
+    rows = [[shown(k), _show(fa.get(k, _ABSENT)), _show(fb.get(k, _ABSENT))]
             for k in keys if not _same(fa.get(k, None), fb.get(k, None))
             or (k in fa) != (k in fb)]
-    lines = [f"A = {a} ({first.command} {first.name!r}), B = {b} ({second.command} "
-             f"{second.name!r})", ""]
+    lines = [f"A = {a} ({shown(first.command)} {first.name!r}), B = {b} "
+             f"({shown(second.command)} {second.name!r})", ""]
     if rows:
         lines += [f"{len(rows)} spec key{'s differ' if len(rows) > 1 else ' differs'}:", "",
                   table(["key", "A", "B"], rows)]
@@ -494,7 +594,7 @@ def compare_runs(a: Path, b: Path) -> str:
     metric_keys = [k for k in first.metrics if k in second.metrics]
     if metric_keys:
         lines += ["", table(["metric", "A", "B"],
-                            [[k, first.metrics[k], second.metrics[k]] for k in metric_keys])]
+                            [[shown(k), first.metrics[k], second.metrics[k]] for k in metric_keys])]
     if first.status != second.status:
-        lines += ["", f"status: A {first.status}, B {second.status}"]
+        lines += ["", f"status: A {shown(first.status)}, B {shown(second.status)}"]
     return "\n".join(lines)

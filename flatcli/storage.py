@@ -20,6 +20,7 @@ import math
 import os
 import platform
 import socket
+import stat
 import subprocess
 import sys
 import tempfile
@@ -36,6 +37,7 @@ import pyarrow.parquet as pq
 
 import flatcli
 from flatcli.core.model import FlatcliError
+from flatcli.files import kind
 
 #: Key of the Parquet schema metadata holding flatcli's provenance (JSON).
 PARQUET_META_KEY = b"flatcli"
@@ -52,20 +54,38 @@ _UMASK = _read_umask()
 
 @contextlib.contextmanager
 def atomic_path(path: Path) -> Iterator[Path]:
-    """Yield a temporary path beside ``path``; on success rename it over ``path``."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
+    """Yield a temporary path beside ``path`` (in its directory, so the rename is atomic);
+    on success flush it to disk and rename it over ``path``. An OS error on the way names
+    ``path`` (not the temporary file, and never no file at all)."""
+    with _naming(path):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp",
+                                        dir=path.parent)
+        os.close(fd)
     tmp = Path(tmp_name)
     try:
-        yield tmp
-        with tmp.open("rb+") as fh:
-            os.fsync(fh.fileno())
-        tmp.chmod(0o666 & ~_UMASK)  # mkstemp makes 0600; give the file the usual mode
-        os.replace(tmp, path)
+        with _naming(path, tmp):
+            yield tmp
+            with tmp.open("rb+") as fh:
+                os.fsync(fh.fileno())
+            tmp.chmod(0o666 & ~_UMASK)  # mkstemp makes 0600; give the file the usual mode
+            os.replace(tmp, path)
         _fsync_directory(path.parent)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+@contextlib.contextmanager
+def _naming(path: Path, tmp: Path | None = None) -> Iterator[None]:
+    """Re-raise an OS error that names no file (or the temporary file ``tmp``) as one that
+    names ``path``: what the user asked for, and what the one line of the CLI shows."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.filename is not None and (tmp is None or exc.filename != str(tmp)):
+            raise
+        reason = exc.strerror or (str(exc).splitlines() or [type(exc).__name__])[0]
+        raise OSError(exc.errno, reason, str(path)) from None
 
 
 def _fsync_directory(directory: Path) -> None:
@@ -332,10 +352,20 @@ def _acquire(directory: Path) -> int:
     path = directory / LOCK_NAME
     while True:
         try:
-            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o644)
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW
+                         | os.O_NONBLOCK, 0o644)
         except FileNotFoundError:  # a refused run removed the directory it had created
             directory.mkdir(parents=True, exist_ok=True)
             continue
+        except OSError as exc:
+            if exc.errno not in (errno.ELOOP, errno.EISDIR, errno.ENXIO):
+                raise
+            raise FlatcliError(f"{path} is {kind(path)}, not flatcli's lock file; remove it "
+                               "yourself, or use another --out") from None
+        if not stat.S_ISREG(os.fstat(fd).st_mode):  # a FIFO, a device: never flatcli's
+            os.close(fd)
+            raise FlatcliError(f"{path} is {kind(path)}, not flatcli's lock file; remove it "
+                               "yourself, or use another --out")
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError as exc:
@@ -370,9 +400,11 @@ def directory_lock(directory: Path) -> Iterator[None]:
     naming the holder's pid, if another process holds it).
 
     The directory is created if need be; if the block leaves nothing in a directory it
-    created but the lock file, the directory is removed again (a refused run writes
-    nothing). Nested use in one process is allowed. The lock is an ``flock`` on
-    ``.flatcli.lock``, released by the kernel when the process ends, even by kill -9.
+    created, the directory is removed again (a refused run writes nothing). The lock file
+    is removed when the block ends if this run created it (one left by a killed run stays,
+    harmless: the kernel released its lock). Nested use in one process is allowed. The lock
+    is an ``flock`` on ``.flatcli.lock``, released by the kernel when the process ends,
+    even by kill -9.
     """
     key = os.path.realpath(directory)
     held = _HELD.get(key)
@@ -385,6 +417,7 @@ def directory_lock(directory: Path) -> Iterator[None]:
         return
     created = _missing_ancestors(directory)
     directory.mkdir(parents=True, exist_ok=True)
+    new_lock = not os.path.lexists(directory / LOCK_NAME)
     try:
         fd = _acquire(directory)
     except BaseException:
@@ -396,8 +429,9 @@ def directory_lock(directory: Path) -> Iterator[None]:
     finally:
         del _HELD[key]
         try:
-            if created and [p.name for p in directory.iterdir()] == [LOCK_NAME]:
+            if new_lock:  # a run leaves no lock file behind (a waiting run re-checks it)
                 (directory / LOCK_NAME).unlink()
+            if created and not any(directory.iterdir()):
                 _remove_empty(created)
         except OSError:  # pragma: no cover - best effort; the lock is released below
             pass

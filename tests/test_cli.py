@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import errno
+import io
 import json
 import os
 import re
@@ -372,9 +374,8 @@ def test_the_output_directory_is_checked_before_any_work(tmp_path: Path) -> None
     assert code == 2 and out.count("\n") == 1 and "file is not a directory" in out
     code, out = run("sweep", str(spec), "--out", str(tmp_path / ("n" * 300)), "-q")
     assert code == 2 and "more than the 255 the file system allows" in out
-    code, out = run("plan", "--out", str(tmp_path / "file" / "d"), "-q")  # an OS error: exit 1
-    assert code == 1 and out.count("\n") == 1 and out.startswith("error: ")
-    assert "Not a directory" in out
+    code, out = run("plan", "--out", str(tmp_path / "file" / "d"), "-q")  # as for a sweep
+    assert code == 2 and out.count("\n") == 1 and "file is not a directory" in out
 
 
 @main.command("warn-demo", hidden=True)
@@ -411,7 +412,7 @@ def test_a_closed_stdout_is_one_line_and_exit_1(tmp_path: Path) -> None:
         done = subprocess.run(command, stdout=full, stderr=subprocess.PIPE, text=True,
                               timeout=300)
     assert done.returncode == 1
-    assert done.stderr == "error: No space left on device\n"
+    assert done.stderr == "error: standard output: No space left on device\n"  # names it
 
 
 def test_sigterm_prints_the_line_ctrl_c_prints(tmp_path: Path) -> None:
@@ -426,3 +427,192 @@ def test_sigterm_prints_the_line_ctrl_c_prints(tmp_path: Path) -> None:
     process.send_signal(signal.SIGTERM)
     _, err = process.communicate(timeout=60)
     assert (process.returncode, err) == (128 + signal.SIGTERM, "error: interrupted\n")
+
+
+# ---------------------------------------------------------------------------------------
+# Misuse end to end (issue 23): one line, nothing outside touched, checks before the work.
+
+TINY_SWEEP = """
+name = "tiny"
+[plan]
+duration = 0.5
+[track]
+dt = 0.01
+[sweep]
+trials = 4
+chunk = 2
+[sweep.perturb]
+initial = { dist = "normal", std = 0.01 }
+"""
+
+
+@pytest.fixture(scope="module")
+def tiny_sweep(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """A finished sweep (spec file, directory) the tests copy before misusing it."""
+    root = tmp_path_factory.mktemp("tiny")
+    spec = root / "tiny.toml"
+    spec.write_text(TINY_SWEEP)
+    code, out = run("sweep", str(spec), "--out", str(root / "d"), "-q", "--workers", "1")
+    assert code == 0, out
+    return spec, root / "d"
+
+
+@pytest.mark.parametrize("where", ["files", "chunks"])
+@pytest.mark.parametrize("name", ["../victim.txt", "../../victim.txt", "{victim}"])
+def test_force_never_removes_a_file_outside_the_sweep_directory(
+        tiny_sweep: tuple[Path, Path], tmp_path: Path, where: str, name: str) -> None:
+    import shutil
+
+    spec, finished = tiny_sweep
+    directory = tmp_path / "a" / "d"
+    shutil.copytree(finished, directory)
+    victims = [tmp_path / "victim.txt", tmp_path / "a" / "victim.txt"]
+    for victim in victims:
+        victim.write_text("precious")
+    manifest = json.loads((directory / "sweep.json").read_text())
+    listed = name.format(victim=victims[0])
+    if where == "files":
+        manifest["files"].append(listed)
+    else:
+        manifest["cells"]["0"]["chunks"].append(listed)
+    (directory / "sweep.json").write_text(json.dumps(manifest))
+    before = sorted(str(p.relative_to(directory)) for p in directory.rglob("*"))
+    code, out = run("sweep", str(spec), "--out", str(directory), "-q", "--force")
+    assert code == 2 and out.count("\n") == 1 and "Traceback" not in out, out
+    assert out.startswith(f"error: {directory}/sweep.json is not a flatcli sweep manifest")
+    assert "nothing was removed" in out
+    assert all(v.read_text() == "precious" for v in victims)
+    assert sorted(str(p.relative_to(directory)) for p in directory.rglob("*")) == before
+
+
+def test_exported_csv_files_do_not_block_force(tiny_sweep: tuple[Path, Path],
+                                               tmp_path: Path) -> None:
+    import shutil
+
+    spec, finished = tiny_sweep
+    directory = tmp_path / "d"
+    shutil.copytree(finished, directory)
+    assert run("export", str(directory), "--csv")[0] == 0
+    assert run("sweep", str(spec), "--out", str(directory), "-q", "--rerun", "1")[0] == 0
+    assert run("export", str(directory / "rerun-1"), "--csv")[0] == 0
+    (directory / "notes.csv").write_text("mine")  # not flatcli's: still refused, by name
+    code, out = run("sweep", str(spec), "--out", str(directory), "-q", "--force")
+    assert code == 2 and "(notes.csv)" in out and "trials.csv" not in out, out
+    (directory / "notes.csv").unlink()
+    code, out = run("sweep", str(spec), "--out", str(directory), "-q", "--force")
+    assert code == 0, out
+    assert not (directory / "trials.csv").exists() and not (directory / "rerun-1").exists()
+
+
+@pytest.mark.parametrize("command", ["plan", "track"])
+def test_an_unwritable_out_is_refused_before_any_work(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, command: str) -> None:
+    import flatcli.api
+
+    readable = tmp_path / "readable"  # as a directory of mode 0o555 is to a user
+    readable.mkdir()
+    access = os.access
+    def denied(path: Any, mode: int, **kwargs: Any) -> bool:
+        return False if Path(path) == readable and mode & os.W_OK else access(path, mode, **kwargs)
+
+    monkeypatch.setattr(os, "access", denied)
+
+    def computed(*args: Any, **kwargs: Any) -> Any:
+        raise AssertionError("planned before the output was checked")
+
+    monkeypatch.setattr(flatcli.api, "plan_and_optimization", computed)
+    monkeypatch.setattr(flatcli.api, "run_track", computed)
+    for out in (readable, readable / "run"):
+        result = CliRunner().invoke(main, [command, "--out", str(out)])
+        code, output = result.exit_code, result.output
+        assert code == 2 and output.count("\n") == 1, (output, result.exception)
+        assert f"--out {out}: cannot write in {readable}: no permission to write there" in output
+    monkeypatch.chdir(readable)  # without --out: runs/ below an unwritable directory
+    code, output = run(command)
+    assert code == 2 and "the run directory runs/paper_example/" in output, output
+    assert list(readable.iterdir()) == []
+
+
+def _flatcli(*args: str, stdout: str, limit: int | None = None
+             ) -> subprocess.CompletedProcess[str]:
+    """flatcli in a subprocess whose standard output is closed (``>&-``) or a file, under an
+    address-space limit [bytes] if given."""
+    import resource
+
+    def limited() -> None:
+        if limit is not None:
+            resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+
+    command = [sys.executable, "-m", "flatcli", *args]
+    shell = ["sh", "-c", f'exec "$@" {stdout}', "sh", *command]
+    return subprocess.run(shell, capture_output=False, stderr=subprocess.PIPE, text=True,
+                          preexec_fn=limited, timeout=300)
+
+
+def test_a_closed_stdout_is_one_line_and_exit_1_before_any_work(tmp_path: Path) -> None:
+    done = _flatcli("plan", "--out", str(tmp_path / "p"), stdout=">&-")
+    assert done.returncode == 1
+    assert done.stderr == "error: standard output is closed: nothing could be printed " \
+                          "(redirect it, e.g. > /dev/null)\n"
+    assert not (tmp_path / "p").exists()  # refused before the work
+    quiet = _flatcli("plan", "--out", str(tmp_path / "q"), "-q", stdout=">&-")
+    assert quiet.returncode == 0 and quiet.stderr == "" and (tmp_path / "q").is_dir()
+
+
+def _hold(directory: str, ready: Any, release: Any) -> None:
+    from flatcli.storage import directory_lock
+
+    with directory_lock(Path(directory)):
+        ready.set()
+        release.wait(60)
+
+
+@pytest.mark.parametrize("command", ["plan", "track"])
+def test_plan_and_track_refuse_a_directory_another_run_writes_before_any_work(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, command: str) -> None:
+    import multiprocessing
+
+    import flatcli.api
+
+    def computed(*args: Any, **kwargs: Any) -> Any:
+        raise AssertionError("computed while another run writes there")
+
+    monkeypatch.setattr(flatcli.api, "plan_and_optimization", computed)
+    monkeypatch.setattr(flatcli.api, "run_track", computed)
+    out = tmp_path / "o"
+    context = multiprocessing.get_context("spawn")
+    ready, release = context.Event(), context.Event()
+    holder = context.Process(target=_hold, args=(str(out), ready, release))
+    holder.start()
+    try:
+        assert ready.wait(60)
+        result = CliRunner().invoke(main, [command, "--out", str(out), "-q"])
+        assert result.exit_code == 2, (result.output, result.exception)
+        assert result.output == (f"error: {out} is being written by another flatcli run (pid "
+                                 f"{holder.pid}); wait for it to finish, or use another --out\n")
+    finally:
+        release.set()
+        holder.join(60)
+    assert not out.exists()  # the holder made it and left it empty: removed
+
+
+@main.command("print-demo", hidden=True)
+def _print_demo() -> None:
+    """(tests only) a command that prints without flushing, as a library might"""
+    print("left in the buffer")
+
+
+class _FullStdout(io.StringIO):
+    """A standard output whose disk is full: writes are buffered, the flush fails."""
+
+    def flush(self) -> None:
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+
+def test_a_failing_last_flush_of_stdout_names_it(monkeypatch: pytest.MonkeyPatch,
+                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.setattr(sys, "stdout", _FullStdout())
+    with pytest.raises(SystemExit) as stop:
+        main(["print-demo"])
+    assert stop.value.code == 1
+    assert capsys.readouterr().err == "error: standard output: No space left on device\n"

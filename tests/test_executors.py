@@ -8,6 +8,7 @@ import os
 import signal
 import sys
 import time
+from typing import Any
 
 import numpy as np
 import pytest
@@ -79,3 +80,32 @@ def test_an_aborted_pool_stops_its_running_tasks_at_once() -> None:
     assert time.monotonic() - started < 30  # not the 60 s the running tasks would take
     assert all(not p.is_alive() for p in processes)
     assert not any(f.done() and not f.cancelled() and f.exception() is None for f in futures)
+
+
+def slow_square(x: int) -> int:
+    time.sleep(0.005)
+    return x * x
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_at_most_two_tasks_per_worker_are_in_flight(workers: int) -> None:
+    # the chunks in flight are what the memory estimate counts (two per worker): the pool
+    # must not take more tasks from the queue than that before their results come back
+    pulled = 0
+
+    def tasks() -> Any:
+        nonlocal pulled
+        for i in range(30):
+            pulled += 1
+            yield i, (i,)
+
+    executor = LocalExecutor(workers)
+    in_flight = []
+    try:
+        for done, (tag, result) in enumerate(executor.run(slow_square, tasks())):
+            assert result == tag * tag
+            in_flight.append(pulled - done)  # taken from the queue, not yet handed back
+    finally:
+        executor.close()
+    assert len(in_flight) == 30 and pulled == 30
+    assert max(in_flight) <= (2 * workers if workers > 1 else 1)  # one at a time in process

@@ -5,17 +5,20 @@ from __future__ import annotations
 
 import io
 import json
+import os
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
+import pytest
 from click.testing import CliRunner
 from small_sweep import SPEC, sweep, write_spec
 
 from flatcli.cli import main
 from flatcli.export import csv_ready, export_csv
+from flatcli.storage import DirectoryBusyError, directory_lock, forget_inherited_locks
 
 
 def cli(*args: str) -> tuple[int, str]:
@@ -71,3 +74,53 @@ def test_bad_export_requests_exit_2(tmp_path: Path) -> None:
     assert code == 2 and "holds no Parquet tables" in out and out.count("\n") == 1
     code, out = cli("export", str(tmp_path))
     assert code == 2 and out == "error: export: choose a format: --csv\n"
+
+
+@pytest.mark.timeout(30, method="thread")  # a FIFO opened blindly would block
+def test_a_table_or_a_csv_name_that_is_not_a_regular_file_is_refused(tmp_path: Path) -> None:
+    run = tmp_path / "r"
+    code, out = cli("plan", "--out", str(run), "-q")
+    assert code == 0, out
+    os.mkfifo(run / "extra.parquet")
+    code, out = cli("export", str(run), "--csv")
+    assert code == 2 and "extra.parquet (a FIFO), not a table" in out and out.count("\n") == 1
+    (run / "extra.parquet").unlink()
+    (run / "plan.csv").mkdir()
+    code, out = cli("export", str(run), "--csv")
+    assert code == 2 and "plan.csv (a directory) where export writes" in out, out
+    (run / "plan.csv").rmdir()
+    outside = tmp_path / "outside.csv"
+    outside.write_text("precious")
+    (run / "plan.csv").symlink_to(outside)
+    code, out = cli("export", str(run), "--csv")
+    assert code == 2 and "plan.csv (a symbolic link)" in out, out
+    assert outside.read_text() == "precious"
+
+
+def test_export_into_a_sweep_records_its_files_and_waits_for_no_writer(
+        tmp_path: Path) -> None:
+    spec = write_spec(tmp_path, SPEC.replace("trials = 60", "trials = 4").replace(
+        "chunk = 25", "chunk = 2"))
+    directory = tmp_path / "d"
+    assert sweep(str(spec), "--out", str(directory), "-q", "--workers", "1")[0] == 0
+    with directory_lock(directory), pytest.raises(  # a sweep writing there: export refuses
+            DirectoryBusyError, match="being written by another flatcli run"):
+        export_in_another_process(directory)
+    assert not (directory / "trials.csv").exists()
+    export_csv(directory)
+    files = json.loads((directory / "sweep.json").read_text())["files"]
+    assert {"trials.csv", "summary.csv"} <= set(files)
+
+
+def export_in_another_process(directory: Path) -> None:
+    """export_csv as another process would run it (this one holds the lock)."""
+    import multiprocessing
+
+    context = multiprocessing.get_context("fork")
+    with context.Pool(1) as pool:
+        pool.apply(_export_as_another_run, (directory,))
+
+
+def _export_as_another_run(directory: Path) -> None:
+    forget_inherited_locks()  # the forked child holds no lock of its parent's
+    export_csv(directory)

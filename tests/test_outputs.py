@@ -154,3 +154,27 @@ def test_a_robot_of_three_joints_has_a_column_per_link_and_output(tmp_path: Path
     error = np.sqrt(sum((last[f"y{j}"] - last[f"y{j}_ref"]) ** 2 for j in (1, 2, 3)))
     assert error == pytest.approx(run.metrics["err_y_final"], rel=1e-9)
     assert error < 1e-6
+
+
+def test_a_plan_table_of_many_joints_is_built_without_warnings() -> None:
+    # 40 joints: 245 columns; inserted one by one, pandas warned about fragmentation 100s of
+    # times (printed by `flatcli plan -q`)
+    import warnings
+
+    from flatcli.core.planning import PlanSamples
+
+    n, points = 40, 5
+    rng = np.random.default_rng(1)
+    samples = PlanSamples(
+        t=np.linspace(0, 1, points), theta=rng.random((points, n + 1)),
+        theta_dot=rng.random((points, n + 1)), u_dot=rng.random((points, n - 1)),
+        y=rng.random((points, n)), y_dot=rng.random((points, n)),
+        y_ddot=rng.random((points, n)), margin=rng.random(points), momentum=rng.random(points))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        frame = plan_frame(samples)
+    assert frame.shape == (points, 6 * n + 5)
+    assert list(frame.columns[:3]) == ["t", "theta0", "theta1"]
+    np.testing.assert_array_equal(frame[f"y{n}_ddot"], samples.y_ddot[:, n - 1])
+    np.testing.assert_array_equal(frame[f"u{n}"], samples.theta_dot[:, n])
+    np.testing.assert_array_equal(frame["u1_dot"], samples.u_dot[:, 0])

@@ -153,3 +153,33 @@ def test_unchanged_key_check_needs_a_simulated_trial() -> None:
     assert result.calibration.statuses == {"error": 4}
     assert not any("changes nothing" in w for w in result.warnings)
     assert np.isfinite(result.calibration.per_trial)
+
+
+def test_a_machine_at_its_load_is_busy(report: CheckReport) -> None:
+    # load average at least the cores: the README's "busy" (one runnable process per core)
+    at = replace(report, cores=2, load=2.0, workers=2)
+    assert any(w.startswith("this machine is busy (load average 2.0") for w in _warnings(at))
+    below = replace(report, cores=2, load=1.99, workers=2)
+    assert not any(w.startswith("this machine is busy") for w in _warnings(below))
+
+
+def test_the_calibration_runs_one_plus_128_over_cells_trials_of_each_cell(
+        tmp_path: Path) -> None:
+    spec = write_spec(tmp_path, """
+[plan]
+duration = 0.5
+[track]
+dt = 0.01
+[sweep]
+trials = 50
+[sweep.perturb]
+initial = { dist = "normal", std = 0.01 }
+[sweep.grid]
+"track.sensor_noise" = [0.0, 0.001, 0.002, 0.003, 0.004, 0.005]
+""")
+    report = api.check(spec, workers=1, quiet=True)
+    cal = report.calibration
+    assert cal is not None
+    # 1 + ceil(128 / 6) = 23 of each cell's 50: not capped, so the count itself shows
+    assert (cal.per_cell, cal.trials) == (23, 6 * 23)
+    assert f"calibration: {6 * 23} trials (23 per cell" in report.text()

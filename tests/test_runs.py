@@ -4,6 +4,7 @@ interrupted sweeps."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
 from datetime import datetime
 from pathlib import Path
@@ -189,3 +190,112 @@ def test_a_run_json_without_a_digest_is_compared_by_its_spec(tmp_path: Path) -> 
     other = spec.with_overrides({"plan.duration": 3.0})
     with pytest.raises(RunDirectoryError, match="of a different spec"):
         claim(out, "plan", other.name, other.digest())
+
+
+# ---------------------------------------------------------------------------------------
+# Records flatcli did not write (or that were changed) are never trusted.
+
+GOOD_PLAN = {"command": "plan", "time": "2026-01-02T03:04:05+00:00", "digest": "d",
+             "spec": {"name": "x"}, "summary": {"input_energy": 1.5, "min_margin": None},
+             "optimization": None}
+
+
+@pytest.mark.parametrize(("key", "value"), [
+    ("time", 123), ("time", "9999-12-31T23:59:59-23:59"), ("time", "0001-01-01T00:00:00"),
+    ("time", "yesterday"), ("time", []),
+    ("summary", [1, 2]), ("summary", "x"), ("summary", {"input_energy": "lots"}),
+    ("summary", {"input_energy": True}), ("spec", [1]), ("spec", 5), ("optimization", [1]),
+    ("optimization", 3), ("command", 7), ("command", None), ("status_counts", {"ok": "x"}),
+    ("status_counts", []), ("metrics", {"err_y_final": {}}), ("metrics", [1]),
+    ("seconds", "1"), ("digest", 5),
+])
+def test_a_run_record_of_other_types_is_listed_as_unreadable(tmp_path: Path, key: str,
+                                                             value: object) -> None:
+    run = tmp_path / "r"
+    run.mkdir()
+    record = {**GOOD_PLAN, key: value}
+    if key == "metrics":  # what a track run's record holds
+        record["command"] = "track"
+    (run / "run.json").write_text(json.dumps(record))
+    (info,) = list_runs(tmp_path)
+    assert info.status == "unreadable" and info.metrics == {}
+    code, out = cli("runs", str(tmp_path))
+    assert code == 0 and "unreadable" in out, out
+
+
+def test_a_good_record_beside_is_listed_as_it_was(tmp_path: Path) -> None:
+    (tmp_path / "run.json").write_text(json.dumps(GOOD_PLAN))
+    (info,) = list_runs(tmp_path)
+    assert info.status == "ok" and info.metrics["input_energy"] == 1.5
+    assert info.time is not None and info.time.year == 2026
+
+
+@pytest.mark.timeout(30, method="thread")  # a FIFO opened blindly would block flatcli runs forever
+def test_a_record_that_is_not_a_regular_file_or_too_large_is_listed_unread(
+        tmp_path: Path) -> None:
+    from flatcli.files import MAX_RECORD_BYTES
+
+    for name in ("fifo", "dir", "big", "link", "deep", "text"):
+        (tmp_path / name).mkdir()
+    os.mkfifo(tmp_path / "fifo" / "run.json")
+    (tmp_path / "dir" / "run.json").mkdir()
+    with (tmp_path / "big" / "run.json").open("wb") as fh:
+        fh.truncate(MAX_RECORD_BYTES + 1)  # sparse: a whole read would take 8 MiB for nothing
+    (tmp_path / "link" / "run.json").symlink_to("/dev/zero")
+    (tmp_path / "deep" / "run.json").write_text("[" * 100_000)
+    (tmp_path / "text" / "run.json").write_bytes(b"\xff\xfe not json")
+    os.mkfifo(tmp_path / "fifo" / "sweep.json")
+    infos = {i.path.name: i for i in list_runs(tmp_path)}
+    assert set(infos) == {"fifo", "big", "link", "deep", "text"}  # dir/run.json: no file
+    assert {i.status for i in infos.values()} == {"unreadable"}
+    assert infos["fifo"].command == "sweep"
+    code, out = cli("runs", str(tmp_path))
+    assert code == 0 and out.count("unreadable") == 5, out
+
+
+@pytest.mark.timeout(30, method="thread")
+@pytest.mark.parametrize("what", ["fifo", "dir", "link"])
+def test_out_holding_something_else_where_a_run_writes_is_refused(tmp_path: Path,
+                                                                  what: str) -> None:
+    out = tmp_path / "o"
+    out.mkdir()
+    victim = tmp_path / "victim.json"
+    victim.write_text("precious")
+    path = out / "run.json"
+    if what == "fifo":
+        os.mkfifo(path)
+    elif what == "dir":
+        path.mkdir()
+    else:
+        path.symlink_to(victim)
+    for force in (False, True):
+        with pytest.raises(RunDirectoryError, match=r"holds run\.json \(a .*\) where a run "
+                                                    "writes its files; remove it yourself"):
+            claim(out, "plan", "x", "d1", force=force)
+    code, output = cli("plan", "--out", str(out), "--force")
+    assert code == 2 and output.count("\n") == 1 and "run.json (a" in output, output
+    assert os.path.lexists(path) and victim.read_text() == "precious"
+    assert sorted(p.name for p in out.iterdir()) == ["run.json"]  # nothing written
+
+
+def test_a_run_record_in_place_of_a_sweep_manifest_is_not_a_sweep(tmp_path: Path) -> None:
+    (tmp_path / "sweep.json").write_text(json.dumps({"digest": "d", "spec": {},
+                                                     "files": ["../../etc/passwd"]}))
+    assert sweep_state(tmp_path) is None
+    (info,) = list_runs(tmp_path)
+    assert info.command == "sweep" and info.status == "unreadable"
+
+
+def test_text_from_a_record_is_shown_escaped(tmp_path: Path) -> None:
+    # a hostile record: an escape sequence that would clear the terminal, a bidi override
+    for name, record in (("a", {**GOOD_PLAN, "spec": {"name": "x\x1b[2Jy\u202e"}}),
+                         ("b", {**GOOD_PLAN, "spec": {"name": "z", "k\u2028": "v\x85"}})):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "run.json").write_text(json.dumps(record))
+    text = runs_table(tmp_path)
+    assert "\x1b" not in text and "\u202e" not in text and r"x\x1b[2Jy\u202e" in text
+    compared = compare_runs(tmp_path / "a", tmp_path / "b")
+    assert compared.isprintable() or all(c.isprintable() or c == "\n" for c in compared)
+    assert r"k\u2028" in compared and r"v\x85" in compared
+    code, out = cli("runs", str(tmp_path), "--compare", str(tmp_path / "a"), str(tmp_path / "b"))
+    assert code == 0 and "\x1b" not in out

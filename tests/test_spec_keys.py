@@ -68,3 +68,32 @@ def test_bounds_text_and_suggestions() -> None:
     assert LIMIT.bounds_text() == "> 0 (inf: no limit)"
     assert suggest("track.kpp", ["track.kp", "plan.size"]) == " (did you mean 'track.kp'?)"
     assert suggest("zzz", ["track.kp"]) == ""
+
+
+NAME = Key("str", "x", "")
+
+
+@pytest.mark.parametrize("value", [
+    "a\x00b", "a\tb", "a\nb", "a\x7fb", "a\x85b", "a\x9bb",  # C0, DEL, C1 (NEL, CSI)
+    "a\u2028b", "a\u2029b",  # line and paragraph separators
+    "a\u202eb", "a\u202ab", "a\u2066b", "a\u200eb",  # bidirectional controls
+    "a\u200bb", "a\ufeffb", "a\u00adb",  # zero-width space, BOM, soft hyphen
+])
+def test_text_refuses_every_control_format_and_line_separator_character(value: str) -> None:
+    with pytest.raises(SpecError) as info:
+        NAME.check("name", value)
+    text = str(info.value)
+    code = next(f"U+{ord(c):04X}" for c in value if c not in "ab")
+    assert text.startswith("name: must not contain control characters") and code in text
+    assert text.isascii() and text.isprintable()  # the line itself shows no such character
+
+
+@pytest.mark.parametrize("value", ["..", ".", ".hidden", "a/b", "a\\b", " ", ""])
+def test_text_that_names_no_directory_of_its_own_is_refused(value: str) -> None:
+    with pytest.raises(SpecError, match="name: "):
+        NAME.check("name", value)
+
+
+@pytest.mark.parametrize("value", ["a..b", "é", "日本語", "run-1.5", "a b"])
+def test_printable_text_is_a_name(value: str) -> None:
+    assert NAME.check("name", value) == value

@@ -7,16 +7,28 @@ import math
 
 import pytest
 
-from flatcli.spec import SpecError, resolve
+from flatcli.spec import SpecError, limits, resolve
 from flatcli.spec.limits import (
+    BYTES_PER_CHUNK_TRIAL,
     BYTES_PER_PLAN_SAMPLE,
     BYTES_PER_TRACK_STEP,
+    BYTES_PER_WORKER,
+    ID_STRIDE,
+    MAX_JOINTS,
+    MIN_RTOL,
+    SECONDS_PER_ATTEMPT,
+    SECONDS_PER_CHAIN_SAMPLE,
     SECONDS_PER_STEP,
     check_sweep,
+    check_track,
     check_workers,
     cores,
     memory_budget,
+    plan_sample_bytes,
+    plan_seconds,
     time_budget,
+    track_seconds,
+    track_step_bytes,
 )
 
 
@@ -119,3 +131,102 @@ def test_budgets_from_the_environment(monkeypatch: pytest.MonkeyPatch) -> None:
         memory_budget()
     monkeypatch.delenv("FLATCLI_MEMORY_BUDGET")
     assert 0 < memory_budget() < math.inf
+
+
+def chain(joints: int) -> dict[str, object]:
+    """A spec tree of a robot of ``joints`` joints (the chain family of benchmarks/chains.py:
+    a heavy base, equal links, the last counterweighted onto its joint)."""
+    n = joints
+    return {"robot": {"mass": [3.0] + [1.0] * (n - 1) + [0.5],
+                      "inertia": [0.2] + [0.0533] * (n - 1) + [0.15],
+                      "length": [0.3] + [0.2] * n, "com": [0.1] * n + [0.0]},
+            "plan": {"start": [0.0, 1.0] + [0.3] * (n - 2) + [0.0],
+                     "goal": [-1.05, 2.0] + [0.6] * (n - 2) + [0.0],
+                     "start_rate": 0.3, "goal_rate": 0.5},
+            "track": {"initial": [0.02, 0.98] + [0.3] * (n - 2) + [0.0],
+                      "kp": [25.0] * n, "kv": [10.0] * n}}
+
+
+def test_sweep_trials_fill_the_id_space_of_a_cell_and_no_more(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    # budgets that admit 1e9 trials, so that only the id space decides
+    monkeypatch.setenv("FLATCLI_MEMORY_BUDGET", "1000T")
+    monkeypatch.setenv("FLATCLI_TIME_BUDGET", "1000000d")
+    resolve({"sweep": {"trials": ID_STRIDE, "chunk": 1000}})  # ids i = 0 .. 1e9 - 1: its own
+    for trials in (ID_STRIDE + 1, ID_STRIDE + 2):
+        with pytest.raises(SpecError, match=rf"sweep\.trials: at most 1e\+09 trials per cell .*"
+                                            rf"got {trials}"):
+            resolve({"sweep": {"trials": trials, "chunk": 1000}})
+
+
+def test_the_chunks_in_flight_are_counted_on_every_worker(monkeypatch: pytest.MonkeyPatch
+                                                          ) -> None:
+    monkeypatch.setattr(limits, "cores", lambda: 4)
+    monkeypatch.setenv("FLATCLI_MEMORY_BUDGET", "1G")
+    chunk = 500_000  # two chunks in flight: 0.47 GiB on one worker, 1.9 GiB on four
+    assert 2 * chunk * BYTES_PER_CHUNK_TRIAL < 2**30 < 8 * chunk * BYTES_PER_CHUNK_TRIAL
+    with pytest.raises(SpecError, match=r"sweep\.chunk = 500000 trials on 4 workers would need "
+                                        r"about 1\.86 GiB .* lower sweep\.chunk"):
+        resolve({"sweep": {"trials": chunk, "chunk": chunk}})
+    resolve({"sweep": {"trials": chunk, "chunk": chunk // 4}})
+    # the exact layout on the given workers: the same rows per worker, times the workers
+    per_worker = BYTES_PER_WORKER + 2 * 100_000 * BYTES_PER_CHUNK_TRIAL
+    monkeypatch.setenv("FLATCLI_MEMORY_BUDGET", str(int(2.5 * per_worker)))
+    check_sweep([0.0], 10**5, 100_000, 2)
+    with pytest.raises(SpecError, match=r"--workers 3 would need"):
+        check_sweep([0.0], 10**5, 100_000, 3)
+
+
+def test_a_relative_tolerance_float64_cannot_meet_is_refused() -> None:
+    with pytest.raises(SpecError, match=r"track\.rtol: must be >= 2\.22045e-14, got 1e-15"):
+        resolve({"track": {"rtol": 1e-15}})
+    with pytest.raises(SpecError, match=r"track\.rtol: must be >= 2\.22045e-14, got 2\.2e-14"):
+        resolve({"track": {"rtol": 2.2e-14}})
+    assert resolve({"track": {"rtol": MIN_RTOL}}).track.rtol == MIN_RTOL
+    with pytest.raises(SpecError, match=r"sweep\.grid cell|track\.rtol"):
+        resolve({"sweep": {"grid": {"track.rtol": [1e-8, 1e-20]}}})
+
+
+def test_the_step_budget_of_one_trial_is_in_the_time_estimate(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("FLATCLI_TIME_BUDGET", "1h")
+    fits = int(3600 / SECONDS_PER_ATTEMPT)
+    resolve({"track": {"max_steps": fits}})
+    with pytest.raises(SpecError, match=r"track\.max_steps = 7\.2e\+09 attempted steps \(one "
+                                        r"trial that cannot meet track\.rtol spends them all\) "
+                                        r"would take at least 1 h.*lower track\.max_steps"):
+        resolve({"track": {"max_steps": fits + 1000}})
+    resolve({"track": {"max_steps": 10 * fits, "integrator": "rk4"}})  # no step control
+
+
+def test_a_robot_of_more_joints_than_flatcli_takes_is_refused_before_its_check() -> None:
+    resolve(chain(MAX_JOINTS))
+    with pytest.raises(SpecError, match=rf"robot\.mass: {MAX_JOINTS + 2} links \("
+                                        rf"{MAX_JOINTS + 1} joints\), more than the "
+                                        rf"{MAX_JOINTS + 1} links \({MAX_JOINTS} joints\)"):
+        resolve(chain(MAX_JOINTS + 1))
+    # 3000 joints: refused at once, before the O(N^3) check would take hours
+    with pytest.raises(SpecError, match=r"about \d.* h here.*at least \d.* days"):
+        resolve(chain(3000))
+
+
+def test_plan_and_track_time_grow_as_n_to_the_fourth(monkeypatch: pytest.MonkeyPatch) -> None:
+    assert plan_seconds(2) == 0.0  # the paper's closed-form maps
+    assert plan_seconds(20) == pytest.approx(16 * plan_seconds(10))
+    spec = resolve(chain(30))
+    steps = 2.0 / 1e-3
+    assert track_seconds(spec) >= SECONDS_PER_CHAIN_SAMPLE * 30**4 * (steps + 1)
+    monkeypatch.setenv("FLATCLI_TIME_BUDGET", "60")
+    check_track(spec)  # at least 8 s
+    monkeypatch.setenv("FLATCLI_TIME_BUDGET", "5")
+    with pytest.raises(SpecError, match=r"tracking a robot of 30 joints over 2e\+03 output "
+                                        r"steps .* would take at least 8\.\d+ s, more than the "
+                                        r"5 s budget .*use fewer links"):
+        check_track(spec)
+
+
+def test_memory_per_row_grows_with_the_columns_of_n_joints() -> None:
+    assert plan_sample_bytes(2) == BYTES_PER_PLAN_SAMPLE
+    assert track_step_bytes(2) == BYTES_PER_TRACK_STEP
+    assert plan_sample_bytes(10) == pytest.approx(BYTES_PER_PLAN_SAMPLE * 65 / 17)
+    assert track_step_bytes(10) == pytest.approx(BYTES_PER_TRACK_STEP * 76 / 20)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import pytest
 
 from flatcli.spec import Perturbation, SpecError, perturbation, perturbations, resolve
@@ -45,3 +47,53 @@ def test_a_grid_group_sets_its_keys_and_a_cell_can_set_a_perturbation_parameter(
     cell = spec.with_overrides({"sweep.perturb.initial.std": 0.5})
     assert cell.sweep.perturb["initial"] == {"dist": "normal", "std": 0.5}
     assert spec.sweep.perturb["initial"] == {"dist": "normal", "std": 0.1}
+
+
+@pytest.mark.parametrize("grid", [
+    {"track.kp": [[1, 2]], "gains": [{"track.kp": [10, 13], "track.kv": [100, 110]}]},
+    {"gains": [{"track.kp": [10, 13]}], "track.kp": [[1, 2], [3, 4]]},  # either order
+    {"a": [{"track.kv": [1, 2]}], "b": [{"label": "x", "track.kv": [3, 4]}]},  # two groups
+    {"sweep.perturb.initial.std": [0.1], "g": [{"sweep.perturb.initial.std": 0.2}]},
+])
+def test_a_key_set_by_two_grid_entries_is_refused(grid: dict[str, object]) -> None:
+    spec = {"sweep": {"perturb": {"initial": {"dist": "normal", "std": 0.1}}, "grid": grid}}
+    with pytest.raises(SpecError, match=r"sweep\.grid: '[a-z.]+' is set both by the (grid key|"
+                                        r"group) '\S+' and by the (grid key|group) '\S+'"):
+        resolve(spec)
+
+
+def test_keys_set_by_one_grid_entry_each_are_fine() -> None:
+    spec = resolve({"sweep": {"grid": {
+        "track.kp": [[1, 2], [3, 4]],
+        "gains": [{"label": "a", "track.kv": [1, 2]}, {"label": "b", "track.kv": [3, 4]}]}}})
+    assert list(spec.sweep.grid) == ["track.kp", "gains"]
+
+
+TORQUE = {"plant": {"model": "dynamic"},
+          "sweep": {"perturb": {"torque_limit": {"dist": "normal", "std": 0.5}}}}
+
+
+def test_a_torque_limit_perturbation_needs_a_finite_torque_limit() -> None:
+    with pytest.raises(SpecError, match=r"sweep\.perturb\.torque_limit: needs a finite "
+                                        r"plant\.torque_limit, got inf"):
+        resolve(TORQUE)
+    relative = {**TORQUE, "sweep": {"perturb": {"torque_limit": {
+        "dist": "uniform", "low": -0.1, "high": 0.1, "relative": True}}}}
+    with pytest.raises(SpecError, match="needs a finite"):
+        resolve(relative)
+    assert resolve({**TORQUE, "plant": {"model": "dynamic", "torque_limit": 2.0}})
+    with pytest.raises(SpecError, match=r"in every cell \(the grid key 'plant\.torque_limit'"):
+        resolve({**TORQUE, "sweep": {**TORQUE["sweep"],
+                                     "grid": {"plant.torque_limit": [1.0, math.inf]}}})
+    with pytest.raises(SpecError, match=r"in every cell \(the group 'limits' sets it\)"):
+        resolve({**TORQUE, "sweep": {**TORQUE["sweep"], "grid": {"limits": [
+            {"plant.torque_limit": 1.0}, {"plant.torque_limit": math.inf}]}}})
+    # every cell finite: fine, even though the spec's own value (the default) is inf
+    spec = resolve({**TORQUE, "sweep": {**TORQUE["sweep"],
+                                        "grid": {"plant.torque_limit": [1.0, 2.0]}}})
+    assert math.isinf(spec.plant.torque_limit)
+
+
+def test_a_group_label_refuses_control_characters() -> None:
+    with pytest.raises(SpecError, match=r"label must not contain control characters.*U\+2028"):
+        resolve({"sweep": {"grid": {"g": [{"label": "a\u2028b", "track.kp": [1, 2]}]}}})

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import errno
 import json
 import math
 import multiprocessing
 import os
 import signal
+import stat
 from pathlib import Path
 from typing import Any
 
@@ -174,7 +176,8 @@ def test_a_second_writer_is_refused_naming_the_holders_pid(tmp_path: Path) -> No
         holder.join(60)
     with directory_lock(directory), directory_lock(directory):  # nested in one process: fine
         (directory / "x").write_text("")
-    assert sorted(p.name for p in directory.iterdir()) == [LOCK_NAME, "x"]
+        assert (directory / LOCK_NAME).is_file()
+    assert sorted(p.name for p in directory.iterdir()) == ["x"]  # the lock file went with it
 
 
 def test_a_killed_holder_releases_the_lock(tmp_path: Path) -> None:
@@ -212,3 +215,124 @@ def test_unusable_output_directories_are_refused_up_front(tmp_path: Path) -> Non
         check_output_dir(tmp_path / ("x" * 300))
     check_output_dir(tmp_path / "new" / "deeper")
     assert not (tmp_path / "new").exists()  # nothing made
+
+
+def test_the_temporary_file_is_beside_its_target(tmp_path: Path) -> None:
+    # in the target's own directory: the rename is then atomic (one file system); a
+    # temporary file in the system's temp directory could not be renamed atomically
+    target = tmp_path / "sub" / "out.parquet"
+    with atomic_path(target) as tmp:
+        assert tmp.parent == target.parent and tmp.name.startswith(".out.parquet.")
+        assert tmp.name.endswith(".tmp") and tmp.exists()
+        tmp.write_text("x")
+    assert target.read_text() == "x"
+
+
+def test_the_file_is_flushed_to_disk_before_it_is_renamed(tmp_path: Path,
+                                                          monkeypatch: pytest.MonkeyPatch
+                                                          ) -> None:
+    events: list[tuple[str, int]] = []
+    fsync, replace = os.fsync, os.replace
+
+    def logged_fsync(fd: int) -> None:
+        info = os.fstat(fd)
+        events.append(("fsync-dir" if stat.S_ISDIR(info.st_mode) else "fsync", info.st_ino))
+        fsync(fd)
+
+    def logged_replace(src: Any, dst: Any) -> None:
+        events.append(("replace", os.stat(src).st_ino))
+        replace(src, dst)
+
+    monkeypatch.setattr(os, "fsync", logged_fsync)
+    monkeypatch.setattr(os, "replace", logged_replace)
+    target = tmp_path / "out.txt"
+    write_text(target, "data")
+    inode = target.stat().st_ino
+    assert events[:2] == [("fsync", inode), ("replace", inode)]  # the data first, then the name
+    assert events[2] == ("fsync-dir", tmp_path.stat().st_ino)  # and the rename made durable
+
+
+def test_an_os_error_while_writing_names_the_target(tmp_path: Path,
+                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    target = tmp_path / "plan.parquet"
+
+    def failing_fsync(fd: int) -> None:
+        raise OSError(errno.EIO, "Input/output error")  # no file named, as the kernel says it
+
+    monkeypatch.setattr(os, "fsync", failing_fsync)
+    with pytest.raises(OSError, match="Input/output error") as caught:
+        write_text(target, "x")
+    assert caught.value.filename == str(target) and caught.value.errno == errno.EIO
+    monkeypatch.undo()
+    with pytest.raises(OSError) as caught, atomic_path(target) as tmp:
+        raise OSError(errno.ENOSPC, "No space left on device", str(tmp))
+    assert caught.value.filename == str(target)  # not the temporary name
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_table_checksum_sees_where_the_nulls_are() -> None:
+    # the same number of nulls and the same values once nulls are filled: only the mask differs
+    a = pa.table({"x": pa.array([None, 0.0]), "n": pa.array([None, 0], type=pa.int64())})
+    b = pa.table({"x": pa.array([0.0, None]), "n": pa.array([0, None], type=pa.int64())})
+    assert table_checksum(a) != table_checksum(b)
+    assert table_checksum(a.select(["n"])) != table_checksum(b.select(["n"]))
+    flags = [pa.table({"f": pa.array(v, type=pa.bool_())}) for v in ([None, False], [False, None])]
+    assert table_checksum(flags[0]) != table_checksum(flags[1])
+
+
+def test_the_output_check_asks_for_write_permission(tmp_path: Path,
+                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    readable = tmp_path / "readable"
+    readable.mkdir()
+    access = os.access
+
+    def no_write(path: Any, mode: int, **kwargs: Any) -> bool:  # a directory mode 0o555
+        if Path(path) == readable and mode & os.W_OK:
+            return False
+        return access(path, mode, **kwargs)
+
+    monkeypatch.setattr(os, "access", no_write)
+    with pytest.raises(FlatcliError, match=r"cannot write in .*readable: no permission to "
+                                           "write there"):
+        check_output_dir(readable / "run")
+    with pytest.raises(FlatcliError, match="no permission"):
+        check_output_dir(readable)
+    check_output_dir(tmp_path / "elsewhere")
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root may write into any directory")
+def test_a_directory_without_write_permission_is_refused(tmp_path: Path) -> None:
+    readable = tmp_path / "readable"
+    readable.mkdir(mode=0o555)
+    with pytest.raises(FlatcliError, match="no permission to write there"):
+        check_output_dir(readable / "run")
+
+
+@pytest.mark.timeout(30, method="thread")  # a FIFO opened blindly would block
+@pytest.mark.parametrize("what", ["a FIFO", "a directory", "a symbolic link"])
+def test_a_lock_file_that_is_not_a_regular_file_is_refused(tmp_path: Path, what: str) -> None:
+    lock = tmp_path / LOCK_NAME
+    if what == "a FIFO":
+        os.mkfifo(lock)
+    elif what == "a directory":
+        lock.mkdir()
+    else:
+        lock.symlink_to(tmp_path / "elsewhere")
+    with pytest.raises(FlatcliError, match=f"is {what}, not flatcli's lock file"), \
+            directory_lock(tmp_path):
+        pass
+    assert os.path.lexists(lock) and not (tmp_path / "elsewhere").exists()
+
+
+def test_a_run_leaves_no_lock_file_behind(tmp_path: Path) -> None:
+    (tmp_path / "mine.txt").write_text("")
+    with pytest.raises(FlatcliError), directory_lock(tmp_path):
+        raise FlatcliError("refused")
+    assert [p.name for p in tmp_path.iterdir()] == ["mine.txt"]
+    with directory_lock(tmp_path):
+        assert (tmp_path / LOCK_NAME).read_text().split()[0] == str(os.getpid())
+    assert [p.name for p in tmp_path.iterdir()] == ["mine.txt"]
+    (tmp_path / LOCK_NAME).write_text("")  # left by a run killed with kill -9: kept, harmless
+    with directory_lock(tmp_path):
+        pass
+    assert sorted(p.name for p in tmp_path.iterdir()) == [LOCK_NAME, "mine.txt"]

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import shutil
 from pathlib import Path
 
@@ -16,16 +17,20 @@ import pyarrow.parquet as pq
 import pytest
 from scipy.stats import binomtest
 
+from flatcli.files import MAX_MANIFEST_BYTES
+from flatcli.runs import sweep_state
 from flatcli.spec import Spec, SpecError, resolve
 from flatcli.storage import LOCK_NAME, column_units, read_provenance, to_jsonable, write_table
 from flatcli.sweep import MANIFEST, TRIALS_DIR, layout, recorded_digest, run_chunk, run_sweep
 from flatcli.sweep.directory import (
     FINAL_FILES,
+    RERUN_FILES,
     Previous,
     chunk_problem,
     chunk_provenance,
     clear,
     foreign_entries,
+    manifest_problem,
     plan_directory,
     record_outputs,
     spec_differences,
@@ -340,3 +345,212 @@ def test_final_tables_have_nulls_units_lists_and_failure_shares(tmp_path: Path) 
     assert not nothing.empty and nothing["singular_fraction"].isna().all()
     assert summary.column("err_theta_rms_median").null_count == len(nothing)
     assert math.isclose(nothing["error_fraction_high"].iloc[0], 1.0)
+
+
+# ---------------------------------------------------------------------------------------
+# Names read from a manifest: only the forms flatcli writes, never outside the directory.
+
+HOSTILE_FILES = ["../victim.txt", "{outside}/victim.txt", "trials/../../victim.txt",
+                 "kinematic/../../victim.txt", "rerun-1/../../victim.txt", "notes.txt",
+                 "sub/run.json", "rerun-x/run.json", "rerun-1/notes.txt", "./run.json",
+                 "trials//chunk-0000000000-000000000.parquet", "run.json/", "",
+                 "trials/chunk-0000000000-00000000.parquet", "sweep_Errors.png",
+                 "summary.md\n"]
+HOSTILE_CHUNKS = ["../../victim.txt", "{outside}/victim.txt", "chunk-0000000000-000000000",
+                  "chunk-0000000000-0000000000.parquet", "chunk-00000000000-000000000.parquet",
+                  "sub/chunk-0000000000-000000000.parquet", "chunk-0000000000-00000000a.parquet"]
+
+
+def _victim(tmp_path: Path) -> Path:
+    outside = tmp_path / "outside"
+    outside.mkdir(exist_ok=True)
+    victim = outside / "victim.txt"
+    victim.write_text("precious")
+    return victim
+
+
+def _edit_manifest(directory: Path, edit: object) -> None:
+    path = directory / MANIFEST
+    manifest = json.loads(path.read_text())
+    edit(manifest)  # type: ignore[operator]
+    path.write_text(json.dumps(manifest))
+
+
+@pytest.mark.parametrize("name", HOSTILE_FILES)
+def test_a_manifest_listing_a_file_flatcli_does_not_write_is_refused(
+        finished: tuple[Path, Layout], tmp_path: Path, name: str) -> None:
+    directory, lay = copy_of(finished, tmp_path)
+    victim = _victim(tmp_path)
+    listed = name.format(outside=victim.parent)
+    _edit_manifest(directory, lambda m: m["files"].append(listed))
+    before = sorted(p.relative_to(directory) for p in directory.rglob("*"))
+    for force in (True, False):
+        with pytest.raises(SpecError, match=r"sweep\.json is not a flatcli sweep manifest "
+                                            r"\(it lists .*, not a file flatcli writes"):
+            plan_directory(directory, lay, force=force)
+    assert victim.read_text() == "precious"
+    assert sorted(p.relative_to(directory) for p in directory.rglob("*")) == before
+    assert recorded_digest(directory) is None
+
+
+@pytest.mark.parametrize("name", [*HOSTILE_CHUNKS, "chunk-0000000001-000000000.parquet"])
+def test_a_manifest_listing_a_chunk_flatcli_does_not_write_is_refused(
+        finished: tuple[Path, Layout], tmp_path: Path, name: str) -> None:
+    directory, lay = copy_of(finished, tmp_path)
+    victim = _victim(tmp_path)
+    key = str(lay.cells[0].key)
+    listed = name.format(outside=victim.parent)
+    if name.startswith("chunk-0000000001"):  # the form of another cell's chunk
+        listed = name.replace("0000000001", f"{(lay.cells[0].key + 1) % 2**32:010d}")
+    _edit_manifest(directory, lambda m: m["cells"][key]["chunks"].append(listed))
+    with pytest.raises(SpecError, match=rf"cell {key} lists the chunk .*, not a chunk file "
+                                        "name of that cell"):
+        plan_directory(directory, lay, force=True)
+    assert victim.read_text() == "precious"
+
+
+@pytest.mark.parametrize(("edit", "problem"), [
+    (lambda m: m.update(cells=[1, 2]), "its cells are not a table"),
+    (lambda m: m.update(files="run.json"), "its files are not a list of names"),
+    (lambda m: m.update(files=[1]), "its files are not a list of names"),
+    (lambda m: m["cells"].update({"-1": {"digest": "x"}}), "is not a cell key"),
+    (lambda m: m["cells"].update({str(2**32): {"digest": "x"}}), "is not a cell key"),
+    (lambda m: m["cells"].update({"7": {"chunks": []}}), "cell 7 has no digest"),
+    (lambda m: m["cells"].update({"7": {"digest": "x", "chunks": "chunk"}}),
+     "the chunks of cell 7 are not a list"),
+    (lambda m: m.update(grid_cells=["12345"]), "its grid_cells are not keys of its cells"),
+    (lambda m: m.update(trials_per_cell="4"), "trials_per_cell and chunk are not positive"),
+    (lambda m: m.update(trials_per_cell=True), "trials_per_cell and chunk are not positive"),
+    (lambda m: m.update(trials_per_cell=10**9 + 1), "trials_per_cell and chunk are not"),
+    (lambda m: m.update(chunk=0), "trials_per_cell and chunk are not positive"),
+    (lambda m: m.update(digest=None), "no digest and spec"),
+])
+def test_a_manifest_of_other_types_than_flatcli_writes_is_refused(
+        finished: tuple[Path, Layout], tmp_path: Path, edit: object, problem: str) -> None:
+    directory, lay = copy_of(finished, tmp_path)
+    _edit_manifest(directory, edit)
+    with pytest.raises(SpecError, match=re.escape(problem)):
+        plan_directory(directory, lay, force=True)
+    assert sweep_state(directory) is None  # and summarize / runs do not trust it either
+
+
+def test_every_name_flatcli_records_passes_the_manifest_check(
+        finished: tuple[Path, Layout]) -> None:
+    directory, _ = finished
+    manifest = json.loads((directory / MANIFEST).read_text())
+    recorded = [*FINAL_FILES, LOCK_NAME, "sweep_errors.png", "sweep_singular.png",
+                "cells.parquet", "trials.csv", "summary.csv", "cells.csv",
+                *(f"rerun-{2**63 - 1}/{n}" for n in RERUN_FILES),
+                "kinematic/sweep.json", "kinematic/.flatcli.lock", "kinematic/summary.md",
+                "kinematic/trials/chunk-0123456789-000000250.parquet",
+                "trials/chunk-000000000250.parquet"]
+    assert manifest_problem({**manifest, "files": recorded}) is None
+    assert manifest_problem(manifest) is None
+    legacy = {"digest": "d", "spec": {}, "cells": 2, "trials_per_cell": 4, "chunk": 2}
+    assert manifest_problem(legacy) is None
+    assert "not a positive integer" in str(manifest_problem({**legacy, "cells": "2"}))
+
+
+@pytest.mark.timeout(30, method="thread")  # a FIFO opened blindly would block forever
+def test_a_manifest_that_is_not_a_regular_file_or_too_large_is_refused_unread(
+        tmp_path: Path) -> None:
+    lay = layout(small_spec())
+    fifo = tmp_path / "fifo"
+    fifo.mkdir()
+    os.mkfifo(fifo / MANIFEST)
+    big = tmp_path / "big"
+    big.mkdir()
+    with (big / MANIFEST).open("wb") as fh:
+        fh.truncate(MAX_MANIFEST_BYTES + 1)
+    deep = tmp_path / "deep"
+    deep.mkdir()
+    (deep / MANIFEST).write_text("[" * 100_000)
+    for directory, problem in ((fifo, "is a FIFO"), (big, "more than the"), (deep, "not JSON")):
+        with pytest.raises(SpecError, match=f"not a flatcli sweep manifest .*{problem}"):
+            survey(directory)
+        with pytest.raises(SpecError, match=r"sweep\.json"):
+            plan_directory(directory, lay, force=True)
+        assert sweep_state(directory) is None
+
+
+def test_clear_removes_nothing_through_a_link_or_outside(finished: tuple[Path, Layout],
+                                                         tmp_path: Path) -> None:
+    directory, _ = copy_of(finished, tmp_path)
+    victim = _victim(tmp_path)
+    (victim.parent / "run.json").write_text("theirs")
+    (victim.parent / "trials").mkdir()
+    (victim.parent / "trials" / ".x.abc.tmp").write_text("theirs")
+    (directory / "rerun-3").symlink_to(victim.parent, target_is_directory=True)
+    (directory / "kinematic").symlink_to(victim.parent, target_is_directory=True)
+    (directory / "trials.parquet").symlink_to(victim)
+    previous = Previous({"name": "x"}, "d", files={
+        "rerun-3/run.json", "kinematic/trials/x", "../outside/victim.txt", "trials.parquet"})
+    clear(directory, previous)  # even called without the checks of plan_directory
+    assert victim.read_text() == "precious"
+    assert (victim.parent / "run.json").read_text() == "theirs"
+    assert (victim.parent / "trials" / ".x.abc.tmp").read_text() == "theirs"
+    assert (directory / "trials.parquet").is_symlink()
+
+
+@pytest.mark.parametrize("name", ["trials.parquet", "summary.md", "sweep_errors.png",
+                                  "trials/chunk-0000000000-000000000.parquet", LOCK_NAME])
+@pytest.mark.parametrize("what", ["a symbolic link", "a directory", "a FIFO"])
+def test_an_entry_named_like_a_flatcli_file_is_not_flatclis(
+        finished: tuple[Path, Layout], tmp_path: Path, name: str, what: str) -> None:
+    directory, lay = copy_of(finished, tmp_path)
+    victim = _victim(tmp_path)
+    path = directory / name
+    if name == "trials/chunk-0000000000-000000000.parquet":
+        path = directory / TRIALS_DIR / next(lay.chunks()).name
+        name = f"{TRIALS_DIR}/{path.name}"
+    path.unlink(missing_ok=True)
+    if what == "a symbolic link":
+        path.symlink_to(victim)
+    elif what == "a directory":
+        path.mkdir()
+    else:
+        os.mkfifo(path)
+    assert foreign_entries(directory, survey(directory).owned(directory)) == [
+        name + ("/" if what == "a directory" else "")]
+    with pytest.raises(SpecError, match=re.escape(name)):
+        plan_directory(directory, lay, force=True)
+    assert victim.read_text() == "precious" and os.path.lexists(path)
+
+
+@pytest.mark.timeout(30, method="thread")  # a FIFO opened blindly would block the resume forever
+@pytest.mark.parametrize("what", ["a FIFO", "a directory", "a symbolic link"])
+def test_a_chunk_that_is_not_a_regular_file_is_refused_before_any_work(
+        finished: tuple[Path, Layout], tmp_path: Path, what: str) -> None:
+    directory, lay = copy_of(finished, tmp_path)
+    chunk = list(lay.chunks())[1]
+    path = directory / TRIALS_DIR / chunk.name
+    elsewhere = tmp_path / "elsewhere.parquet"
+    shutil.move(path, elsewhere)  # a valid chunk, behind a link
+    if what == "a FIFO":
+        os.mkfifo(path)
+    elif what == "a directory":
+        path.mkdir()
+    else:
+        path.symlink_to(elsewhere)
+    assert chunk_problem(path, lay.cells[chunk.cell], chunk) == f"is {what}, not a chunk file"
+    with pytest.raises(SpecError, match=rf"holds {TRIALS_DIR}/{chunk.name} \({what}\) where "
+                                        r"flatcli keeps its own files; .* remove it yourself"):
+        plan_directory(directory, lay, force=False)
+    state = sweep_state(directory)
+    assert state is not None and path not in state.chunk_files
+
+
+def test_record_outputs_records_only_flatclis_names(finished: tuple[Path, Layout],
+                                                    tmp_path: Path) -> None:
+    directory, _ = copy_of(finished, tmp_path)
+    (directory / "rerun-3").mkdir()
+    for name in ("run.json", "notes.txt"):
+        (directory / "rerun-3" / name).write_text("{}")
+    (directory / "link.png").symlink_to(directory / "rerun-3" / "run.json")
+    (directory / "sweep_link.png").symlink_to(directory / "rerun-3" / "run.json")
+    record_outputs(directory, [*(directory / "rerun-3").iterdir(), directory / "sweep_link.png",
+                               tmp_path / "elsewhere.png"])
+    files = json.loads((directory / MANIFEST).read_text())["files"]
+    assert "rerun-3/run.json" in files and "rerun-3/notes.txt" not in files
+    assert not any("link" in f or "elsewhere" in f for f in files)
+    survey(directory)  # the manifest it wrote passes its own check

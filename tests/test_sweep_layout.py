@@ -4,12 +4,20 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 
 import pytest
 
 from flatcli.spec import SpecError, resolve
 from flatcli.sweep import cell_spec, grid_label, layout
-from flatcli.sweep.layout import CHUNK_MAX, CHUNK_MIN, ID_STRIDE, cell_keys, default_chunk
+from flatcli.sweep.layout import (
+    CHUNK_MAX,
+    CHUNK_MIN,
+    CHUNKS_PER_CELL,
+    ID_STRIDE,
+    cell_keys,
+    default_chunk,
+)
 
 GRID = {"track.dt": [0.001, 0.002], "gains": [{"label": "a", "track.kp": [1, 2]},
                                               {"label": "b", "track.kp": [3, 4]}]}
@@ -103,3 +111,21 @@ def test_a_cell_that_cannot_run_is_named() -> None:
     spec = resolve({"sweep": {"grid": {"plan.start_rate": [0.1, 0.0]}}})
     with pytest.raises(SpecError, match=r"sweep.grid cell 1 \(plan.start_rate = 0\)"):
         layout(spec)
+
+
+@pytest.mark.parametrize("per_cell", [4001, 8001, 8015, 12_345, 15_999, 16_000])
+def test_a_default_chunk_rounds_up_so_a_cell_has_at_most_16_chunks(per_cell: int) -> None:
+    # where 1/16 of the cell is not a whole number and the size is not clamped: rounding down
+    # would make a 17th chunk of a few trials
+    chunk = default_chunk(per_cell)
+    assert CHUNK_MIN <= chunk <= CHUNK_MAX
+    assert math.ceil(per_cell / chunk) <= CHUNKS_PER_CELL
+    assert chunk == math.ceil(per_cell / CHUNKS_PER_CELL)
+
+
+@pytest.mark.parametrize("per_cell", [1, 249, 250, 251, 3999, 16_001, 10**6])
+def test_a_default_chunk_stays_within_its_bounds_and_the_cell(per_cell: int) -> None:
+    chunk = default_chunk(per_cell)
+    assert chunk == min(per_cell, max(CHUNK_MIN, min(CHUNK_MAX, math.ceil(per_cell / 16))))
+    assert chunk <= per_cell and (chunk >= CHUNK_MIN or chunk == per_cell)
+    assert chunk <= CHUNK_MAX

@@ -3,16 +3,18 @@
 from __future__ import annotations
 
 import math
+import os
+import tomllib
 from pathlib import Path
 
 import pandas as pd
 import pytest
-from small_sweep import sweep, write_spec
+from small_sweep import SPEC, sweep, write_spec
 
 from flatcli.core.model import FlatcliError
 from flatcli.spec import resolve
 from flatcli.sweep import layout, rerun_spec
-from flatcli.sweep.rerun import same, trial_row
+from flatcli.sweep.rerun import rerun_and_compare, same, trial_row
 
 
 def test_rerun_reproduces_a_trial_exactly(tmp_path: Path) -> None:
@@ -97,3 +99,39 @@ def test_the_rerun_spec_sets_the_drawn_values_and_the_noise_stream() -> None:
 def test_same_treats_nan_as_reproduced() -> None:
     assert same(math.nan, math.nan) and same(1.0, 1) and same("ok", "ok")
     assert not same(1.0, 1.0 + 1e-15) and not same(math.nan, 0.0)
+
+
+@pytest.mark.timeout(30, method="thread")  # a FIFO opened blindly would block
+def test_a_trials_table_that_is_not_a_regular_file_is_refused_unread(tmp_path: Path) -> None:
+    os.mkfifo(tmp_path / "trials.parquet")
+    with pytest.raises(FlatcliError, match=r"trials\.parquet is a FIFO, not the sweep's table"):
+        trial_row(tmp_path, 3)
+
+
+@pytest.mark.parametrize("what", ["link", "file", "fifo inside", "directory inside"])
+def test_a_rerun_never_writes_through_a_link_or_over_something_else(
+        tmp_path: Path, what: str) -> None:
+    text = "\n".join(line for line in SPEC.splitlines()
+                     if not line.startswith(("trials =", "chunk =")))
+    spec_path = write_spec(tmp_path, text.replace("[sweep]", "[sweep]\ntrials = 2\nchunk = 2"))
+    directory = tmp_path / "d"
+    assert sweep(str(spec_path), "--out", str(directory), "-q", "--workers", "1")[0] == 0
+    spec = resolve(tomllib.loads(spec_path.read_text()))
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    trial = int(pd.read_parquet(directory / "trials.parquet")["trial"].iloc[1])
+    target = directory / f"rerun-{trial}"
+    if what == "link":
+        target.symlink_to(outside, target_is_directory=True)
+    elif what == "file":
+        target.write_text("mine")
+    else:
+        target.mkdir()
+        if what == "fifo inside":
+            os.mkfifo(target / "run.json")
+        else:
+            (target / "track.parquet").mkdir()
+    with pytest.raises(FlatcliError, match=rf"--rerun: .* holds rerun-{trial}.* where the "
+                                           "re-run writes its files; remove it yourself"):
+        rerun_and_compare(spec, directory, trial)
+    assert list(outside.iterdir()) == []

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from flatcli.spec.keys import MAX_INT, SpecError
-from flatcli.spec.limits import MAX_SPEC_BYTES, check_limits
+from flatcli.spec.limits import MAX_SPEC_BYTES, check_joints, check_limits
 from flatcli.spec.schema import SCHEMA, Spec, check_value, fit_sizes, from_values, lookup
 from flatcli.spec.sweeps import PERTURB_PREFIX, is_perturbation_param, validate_sweep
 
@@ -51,7 +51,8 @@ def build(values: Mapping[str, Any]) -> Spec:
             perturb[name] = {**perturb.get(name, {}), param: value}
         checked["sweep.perturb"] = perturb
     spec = fit_sizes(from_values(checked), checked)
-    validate_sweep(spec.sweep, spec.joints)
+    check_joints(spec.joints)  # before anything costs O(N^3)
+    validate_sweep(spec.sweep, spec.joints, spec.plant.torque_limit)
     check_grid_shapes(spec.sweep.grid)
     check_derived(spec)
     check_limits(spec)

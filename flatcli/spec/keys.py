@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import difflib
 import math
+import unicodedata
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
@@ -151,14 +152,32 @@ def _check_bool(key: Key, where: str, value: Any) -> bool:
     return value
 
 
+#: Unicode categories no text of a spec may hold: control characters (C0, DEL, C1), format
+#: characters (bidirectional controls such as U+202E, zero-width joiners, ...), and the line and
+#: paragraph separators U+2028, U+2029: they would end up in directory names and in printed
+#: lines, where they hide or reorder what follows.
+UNPRINTABLE = ("Cc", "Cf", "Zl", "Zp")
+
+
+def unprintable(text: str) -> str | None:
+    """The first character of ``text`` no spec text may hold, as ``U+XXXX``, or None."""
+    for c in text:
+        if unicodedata.category(c) in UNPRINTABLE:
+            return f"U+{ord(c):04X}"
+    return None
+
+
 def _check_str(key: Key, where: str, value: Any) -> str:
     if not isinstance(value, str) or not value.strip():
         raise SpecError(f"{where}: expected a non-empty string, got {value!r}")
     if any(c in value for c in "/\\") or value.startswith("."):
-        raise SpecError(f"{where}: must not contain '/' or '\\' or start with '.'")
-    if any(ord(c) < 32 or ord(c) == 127 for c in value):
-        raise SpecError(f"{where}: must not contain control characters (NUL, newline, ...), "
-                        f"got {value!r}")
+        raise SpecError(f"{where}: must not contain '/' or '\\' or start with '.' (it names a "
+                        f"directory: '.' and '..' are not names of their own), got {value!r}")
+    bad = unprintable(value)
+    if bad is not None:
+        raise SpecError(f"{where}: must not contain control characters (C0, C1: NUL, newline, "
+                        "U+0085, ...), format characters (U+200B, U+202E, ...) or line "
+                        f"separators (U+2028, U+2029), got {bad} in {value!a}")
     try:
         size = len(value.encode("utf-8"))
     except UnicodeEncodeError:  # a lone surrogate

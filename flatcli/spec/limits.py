@@ -28,10 +28,12 @@ MAX_SPEC_BYTES = 1 << 20
 ID_STRIDE = 10**9
 
 #: ``flatcli plan``: the samples, their table and Parquet file [bytes per sample] (measured
-#: 317 at 2e6 samples).
+#: 317 at 2e6 samples) of the paper's robot: 17 columns (6 N + 5 on N joints:
+#: ``plan_sample_bytes``).
 BYTES_PER_PLAN_SAMPLE = 300
 #: ``flatcli track``: the recorded trace, its columns, table and Parquet file [bytes per
-#: output step] (measured 825 at 2e5 steps, 1,060 at 1e6 with --plot).
+#: output step] (measured 825 at 2e5 steps, 1,060 at 1e6 with --plot) of the paper's robot:
+#: 20 columns (7 N + 6 on N joints: ``track_step_bytes``).
 BYTES_PER_TRACK_STEP = 800
 #: One grid cell of a sweep: the reference tables of its scenario [bytes per output step]
 #: (for the paper's robot, N = 2, the (2n + 1, 6) and (n + 1, 3) float tables: 120; on N
@@ -50,6 +52,32 @@ BYTES_PER_WORKER = 100 * 2**20
 #: project's machine, see README, *Performance*), and a trial's fixed cost at best [s].
 SECONDS_PER_STEP = 5e-8
 SECONDS_PER_TRIAL = 1e-5
+
+#: An attempted step of the adaptive integrator at best [s]: a trial that cannot meet its
+#: tolerance spends all of ``track.max_steps`` (measured about 1.1 us per attempt on the
+#: paper's robot: 7e5 attempts in 0.8 s).
+SECONDS_PER_ATTEMPT = 5e-7
+#: Planning a robot of N > 2 joints at best [s per N^4]: the general chain's flat maps cost
+#: O(N^4) per evaluation as the core computes them (``flatcli.core.chain``); a plan took 1.1 s
+#: at N = 50, 16 s at N = 100, 355 s at N = 200 (about 1.6e-7 N^4 s, this project's machine).
+SECONDS_PER_CHAIN_PLAN = 4e-8
+#: The flat outputs of a ``flatcli track`` trace on N > 2 joints at best [s per output sample
+#: per N^4]: the same maps at every sample (measured 2.4e-8 N^4 s per sample, N = 20 to 40).
+SECONDS_PER_CHAIN_SAMPLE = 5e-9
+#: Checking a spec of N > 2 joints: the barycentric matrix K of the robot and of the plant,
+#: O(N^3) each as the core computes it (``flatcli.core.chain.barycentric_matrix``: 0.29 s at
+#: N = 100, 2.2 s at 200, 7.3 s at 300) [s per N^3].
+SECONDS_PER_CHAIN_CHECK = 2.7e-7
+#: The most joints a robot may have: beyond it checking one spec (every sweep cell is one)
+#: takes seconds, planning at least minutes and a track run hours (the N-link maps cost
+#: O(N^3) to check and O(N^4) per point; README, *Failures*).
+MAX_JOINTS = 100
+#: Estimates above this print a note before a plan or track run starts [s].
+NOTICE_SECONDS = 5.0
+#: The smallest relative tolerance of the adaptive integrator: 100 x float64's machine
+#: epsilon (as scipy's solve_ivp); below it the error test cannot pass in double precision,
+#: so the steps shrink until the step budget is spent.
+MIN_RTOL = 100 * 2.220446049250313e-16
 
 #: The planner looks for the singular set sin th1 = 0 at every multiple of pi that th1 may
 #: pass (``flatcli.core.planning.margin_zeros``), about 10 us each: at most this many.
@@ -151,6 +179,52 @@ def cell_step_bytes(joints: int = 2) -> float:
     return 8.0 * (6 * joints + joints + 1)
 
 
+def plan_sample_bytes(joints: int = 2) -> float:
+    """plan.parquet's row and its arrays per sample on ``joints`` joints [bytes]
+    (``BYTES_PER_PLAN_SAMPLE`` for N = 2, per column: 6 N + 5 columns)."""
+    return BYTES_PER_PLAN_SAMPLE * (6 * joints + 5) / 17
+
+
+def track_step_bytes(joints: int = 2) -> float:
+    """track.parquet's row and the trace per output step on ``joints`` joints [bytes]
+    (``BYTES_PER_TRACK_STEP`` for N = 2, per column: 7 N + 6 columns)."""
+    return BYTES_PER_TRACK_STEP * (7 * joints + 6) / 20
+
+
+def check_joints(joints: int) -> None:
+    """Refuse a robot of more than ``MAX_JOINTS`` joints before its spec is checked further
+    (checking it alone would take ``SECONDS_PER_CHAIN_CHECK`` N^3 twice)."""
+    if joints > MAX_JOINTS:
+        check = 2 * SECONDS_PER_CHAIN_CHECK * float(joints) ** 3
+        raise SpecError(
+            f"robot.mass: {joints + 1} links ({joints} joints), more than the {MAX_JOINTS + 1} "
+            f"links ({MAX_JOINTS} joints) flatcli takes: checking a spec of N joints costs "
+            f"O(N^3) (about {time_text(check)} here, again for every sweep cell) and planning "
+            f"O(N^4) (at least {time_text(plan_seconds(joints))}); use fewer links")
+
+
+def plan_seconds(joints: int) -> float:
+    """Least time to plan a maneuver of a robot of ``joints`` joints [s] (N = 2, the paper's
+    closed-form maps: nothing worth counting)."""
+    return SECONDS_PER_CHAIN_PLAN * float(joints) ** 4 if joints > 2 else 0.0
+
+
+def track_seconds(spec: Any) -> float:
+    """Least time of a ``flatcli track`` run [s]: the plan, the trial's output steps and,
+    on N > 2 joints, the flat outputs of its trace at every sample."""
+    steps = output_steps(spec)
+    joints = int(spec.joints)
+    trace = SECONDS_PER_CHAIN_SAMPLE * float(joints) ** 4 * (steps + 1) if joints > 2 else 0.0
+    return plan_seconds(joints) + steps * SECONDS_PER_STEP + SECONDS_PER_TRIAL + trace
+
+
+def check_track(spec: Any) -> None:
+    """Refuse a ``flatcli track`` run that could not end within the time budget."""
+    require_time(f"tracking a robot of {spec.joints} joints over {output_steps(spec):.3g} "
+                 "output steps (its trace's flat outputs cost O(N^4) per sample)",
+                 track_seconds(spec), "use fewer links, raise track.dt or lower plan.duration")
+
+
 def chunk_trial_bytes(joints: int = 2) -> float:
     """A chunk's row per trial on a robot of ``joints`` joints [bytes]: each joint beyond
     two adds six perturbation columns (initial, initial_rate, mass, inertia, length, com)."""
@@ -182,16 +256,23 @@ def sweep_seconds(trials: float, steps: float, workers: int) -> float:
 def check_limits(spec: Any) -> None:
     """Refuse a spec whose plan, trial or sweep would not fit in memory or time (SpecError
     naming the estimate, the budget and the key to change)."""
-    plan, sweep = spec.plan, spec.sweep
+    plan, sweep, track = spec.plan, spec.sweep, spec.track
     joints = int(spec.joints)
+    require_time(f"planning a robot of {joints} joints (the N-link flat maps cost O(N^4))",
+                 plan_seconds(joints), "use fewer links (robot.mass and the other per-link "
+                 "keys)")
     require_memory(f"plan.samples = {plan.samples}",
-                   plan.samples * BYTES_PER_PLAN_SAMPLE, "lower plan.samples")
+                   plan.samples * plan_sample_bytes(joints), "lower plan.samples")
     steps = output_steps(spec)
     require_memory(f"plan.duration / track.dt = {steps:.3g} output steps",
-                   steps * BYTES_PER_TRACK_STEP, "raise track.dt or lower plan.duration")
+                   steps * track_step_bytes(joints), "raise track.dt or lower plan.duration")
     require_memory(f"plan.optimize.constraint_samples = {plan.optimize.constraint_samples}",
-                   plan.optimize.constraint_samples * BYTES_PER_PLAN_SAMPLE,
+                   plan.optimize.constraint_samples * plan_sample_bytes(joints),
                    "lower plan.optimize.constraint_samples")
+    if track.integrator == "adaptive":  # a trial that cannot meet its tolerance spends them
+        require_time(f"track.max_steps = {track.max_steps:.3g} attempted steps (one trial "
+                     "that cannot meet track.rtol spends them all)",
+                     track.max_steps * SECONDS_PER_ATTEMPT, "lower track.max_steps")
     terms = plan.size if plan.basis == "bspline" or (
         plan.basis == "auto" and plan.optimize.objective is not None) else (plan.degree or 3) + 1
     points = plan.samples + plan.optimize.constraint_samples + 2 * steps + 1
@@ -206,7 +287,7 @@ def check_limits(spec: Any) -> None:
             "plan.start_rate, plan.goal_rate over plan.duration), and the singular-set check "
             f"examines every multiple of pi on the way, at most {MAX_HALF_TURNS:.0e}; use "
             "smaller rates or a shorter plan.duration")
-    if sweep.trials > ID_STRIDE:
+    if sweep.trials > ID_STRIDE:  # ids i = 0 .. trials - 1 < ID_STRIDE stay in the cell
         raise SpecError(f"sweep.trials: at most {ID_STRIDE:.0e} trials per cell (a trial's id "
                         f"is cell key * {ID_STRIDE:.0e} + i), got {sweep.trials}")
     cells = grid_cells(sweep.grid)

@@ -50,6 +50,7 @@ from flatcli.spec.keys import (
     text,
     vector,
 )
+from flatcli.spec.limits import MIN_RTOL
 from flatcli.storage import to_jsonable
 
 #: Numbers of a per-link vector of the paper's robot: links 0 (base), 1, 2. A robot of N
@@ -143,7 +144,9 @@ class TrackSpec:
     integrator: str = choice(INTEGRATORS, "adaptive", "\"adaptive\" (compiled Dormand-Prince "
                              "5(4) with step control, to rtol/atol), \"rk4\" (compiled fixed "
                              "step dt) or \"dop853\" (solve_ivp, rtol 1e-10: the reference)")
-    rtol: float = number(DEFAULT_RTOL, "relative tolerance of the adaptive integrator", gt=0)
+    rtol: float = number(DEFAULT_RTOL, "relative tolerance of the adaptive integrator (at "
+                         "least 100 x float64's machine epsilon, as solve_ivp: a smaller one "
+                         "cannot be met)", ge=MIN_RTOL)
     atol: float = number(DEFAULT_ATOL, "absolute tolerance of the adaptive integrator",
                          "rad, rad/s", gt=0)
     max_steps: int = integer(DEFAULT_MAX_STEPS, "attempted steps the adaptive integrator may "

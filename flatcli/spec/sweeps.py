@@ -13,7 +13,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from flatcli.spec.keys import MIN_JOINTS, SIZES, SpecError, suggest
+from flatcli.spec.keys import MIN_JOINTS, SIZES, SpecError, suggest, unprintable
 from flatcli.spec.schema import SweepSpec, all_keys, check_size, check_value, lookup
 
 #: The distributions a perturbation draws from.
@@ -141,12 +141,60 @@ def grid_overrides(key: str, value: Any) -> dict[str, Any]:
     return {key: value}
 
 
-def validate_sweep(sweep: SweepSpec, joints: int = MIN_JOINTS) -> None:
-    """Check every perturbation and every grid entry of a ``[sweep]`` (robot of ``joints``)."""
+def validate_sweep(sweep: SweepSpec, joints: int = MIN_JOINTS,
+                   torque_limit: float = math.inf) -> None:
+    """Check every perturbation and every grid entry of a ``[sweep]`` (robot of ``joints``,
+    plant torque limit ``torque_limit`` [N m]): each on its own, then together (no spec key
+    varied by two grid entries; a torque-limit perturbation only on finite torque limits)."""
     for name, table in sweep.perturb.items():
         perturbation(name, table, joints)
     for dotted, values in sweep.grid.items():
         validate_grid_entry(sweep.perturb, dotted, values, joints)
+    setters = grid_setters(sweep.grid)
+    if "torque_limit" in sweep.perturb:
+        entry = setters.get("plant.torque_limit")
+        limits = [torque_limit] if entry is None else grid_values(sweep.grid, entry,
+                                                                  "plant.torque_limit")
+        if not all(math.isfinite(v) for v in limits):
+            where = "" if entry is None else f" in every cell ({_entry(sweep.grid, entry)} " \
+                "sets it)"
+            raise SpecError(f"{PERTURB_PREFIX}torque_limit: needs a finite plant.torque_limit"
+                            f"{where}, got inf (inf plus or times any draw is inf: the "
+                            "perturbation would change nothing); set plant.torque_limit")
+
+
+def grid_setters(grid: Mapping[str, Any]) -> dict[str, str]:
+    """The grid entry that sets each spec key (a plain entry its own key, a group the keys
+    of its tables); SpecError if one key is set by two entries: every cell would then hold
+    one entry's value for it and silently drop the other's (and cells would repeat)."""
+    setters: dict[str, str] = {}
+    for entry, values in grid.items():
+        keys = [entry]
+        if _is_group(values):
+            keys = list(dict.fromkeys(k for table in values for k in table if k != "label"))
+        for key in keys:
+            if key in setters:
+                raise SpecError(f"sweep.grid: {key!r} is set both by "
+                                f"{_entry(grid, setters[key])} and by {_entry(grid, entry)}; "
+                                "vary each spec key in one grid entry (put it in the group, "
+                                "or drop it there)")
+            setters[key] = entry
+    return setters
+
+
+def _is_group(values: Any) -> bool:
+    return isinstance(values, list) and bool(values) and all(isinstance(v, dict)
+                                                             for v in values)
+
+
+def _entry(grid: Mapping[str, Any], entry: str) -> str:
+    return f"the group {entry!r}" if _is_group(grid[entry]) else f"the grid key {entry!r}"
+
+
+def grid_values(grid: Mapping[str, Any], entry: str, key: str) -> list[Any]:
+    """The values a grid entry gives the spec key ``key``."""
+    return [v[key] if isinstance(v, dict) else v for v in grid[entry]
+            if not isinstance(v, dict) or key in v]
 
 
 def validate_grid_entry(perturb: Mapping[str, Any], dotted: str, values: Any,
@@ -164,6 +212,11 @@ def validate_grid_entry(perturb: Mapping[str, Any], dotted: str, values: Any,
         for table in values:
             if "label" in table and not isinstance(table["label"], str):
                 raise SpecError(f"{where}: a group's label must be a string")
+            bad = unprintable(str(table.get("label", "")))
+            if bad is not None:
+                raise SpecError(f"{where}: a group's label must not contain control "
+                                "characters, format characters or line separators, got "
+                                f"{bad} in {table['label']!a}")
             keys = [k for k in table if k != "label"]
             if not keys:
                 raise SpecError(f"{where}: a group table needs at least one spec key")

@@ -34,8 +34,19 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from flatcli.core.metrics import METRIC_NAMES
+from flatcli.files import (
+    MAX_MANIFEST_BYTES,
+    UnreadableFileError,
+    inside,
+    is_regular,
+    kind,
+    not_regular,
+    read_bounded,
+    real_directory,
+)
 from flatcli.report import summarize_trials, summary_markdown
 from flatcli.spec import SpecError
+from flatcli.spec.limits import ID_STRIDE
 from flatcli.storage import (
     LOCK_NAME,
     PARQUET_META_KEY,
@@ -50,7 +61,7 @@ from flatcli.storage import (
     write_text,
 )
 from flatcli.sweep.chunks import grid_columns
-from flatcli.sweep.layout import Cell, Chunk, Layout
+from flatcli.sweep.layout import KEY_SPACE, Cell, Chunk, Layout
 from flatcli.units import units_of
 
 MANIFEST = "sweep.json"
@@ -62,18 +73,42 @@ FINAL_FILES = (MANIFEST, "trials.parquet", "summary.parquet", "summary.md", "run
 #: The sweep's figures (``flatcli.report.plot_sweep``, also run by ``make reproduce``),
 #: flatcli's wherever they were recorded or not.
 FIGURES = re.compile(r"sweep_[a-z_]+\.png")
-_CHUNK = re.compile(r"chunk-\d{10}-\d{9}\.parquet")
-_LEGACY_CHUNK = re.compile(r"chunk-\d{12}\.parquet")
+_CHUNK = re.compile(r"chunk-[0-9]{10}-[0-9]{9}\.parquet")
+_LEGACY_CHUNK = re.compile(r"chunk-[0-9]{12}\.parquet")
+#: The CSV copies ``flatcli export DIR --csv`` writes of a sweep's tables (recorded in the
+#: manifest, so --force may remove them).
+EXPORTS = ("trials.csv", "summary.csv", "cells.csv")
+#: The files ``flatcli sweep --rerun TRIAL`` writes into DIR/rerun-TRIAL/ (and its export).
+RERUN_FILES = ("track.parquet", "metrics.json", "run.json", "track.png", "track.csv")
+#: The directory ``flatcli sweep --rerun TRIAL`` writes into.
+RERUN_DIR = re.compile(r"rerun-[0-9]{1,19}")
+#: A directory of a nested sweep: the kinematic twin of reproduce's actuators study.
+NESTED = "kinematic"
+
+
+def _either(names: Iterable[str]) -> str:
+    return "|".join(re.escape(n) for n in names)
+
+
+#: Every name a manifest may list, relative to the sweep's directory: the exact forms flatcli
+#: writes there (its final files, lock, figures, exports, chunks, a re-run's files, and those
+#: of the nested sweep ``NESTED``). Nothing else is ever removed by --force.
+_TOP_FILES = (*FINAL_FILES, LOCK_NAME, "cells.parquet", *EXPORTS)
+RECORDED = re.compile(
+    rf"(?:{NESTED}/)?(?:{_either(_TOP_FILES)}"
+    rf"|{FIGURES.pattern}|{TRIALS_DIR}/{_CHUNK.pattern}|{TRIALS_DIR}/{_LEGACY_CHUNK.pattern})"
+    rf"|{RERUN_DIR.pattern}/(?:{_either(RERUN_FILES)})")
 #: How many problems a refusal or a note names before it says "and N more".
 SHOWN = 3
 
 
 def recorded_digest(directory: Path) -> str | None:
-    """The spec digest of the sweep a directory holds, or None."""
+    """The spec digest of the sweep a directory holds, or None (none, or not readable)."""
     try:
-        return str(json.loads((directory / MANIFEST).read_text())["digest"])
-    except (OSError, ValueError, KeyError, TypeError):
+        manifest = read_manifest(directory)
+    except SpecError:
         return None
+    return None if manifest is None else str(manifest["digest"])
 
 
 def _listing(items: list[str]) -> str:
@@ -117,27 +152,87 @@ class Previous:
         return names
 
 
-def _manifest(directory: Path) -> dict[str, Any] | None:
+def read_manifest(directory: Path) -> dict[str, Any] | None:
+    """A directory's sweep.json (None if it has none), every name in it checked
+    (``manifest_problem``); SpecError if it is not a regular file, too large, not JSON, or
+    not a manifest flatcli wrote."""
     path = directory / MANIFEST
-    if not os.path.lexists(path):
+    if kind(path) == "missing":
         return None
     try:
-        if path.is_symlink() or not path.is_file():
-            raise ValueError("not a regular file")
-        data = json.loads(path.read_text(encoding="utf-8"))
-        if not isinstance(data, dict) or not isinstance(data.get("digest"), str) \
-                or not isinstance(data.get("spec"), dict):
-            raise ValueError("no digest and spec")
-    except (OSError, ValueError) as exc:
-        raise SpecError(f"{path} is not a flatcli sweep manifest ({exc}); remove it yourself "
-                        "or use another --out") from None
-    return data
+        data = json.loads(read_bounded(path, MAX_MANIFEST_BYTES))
+    except UnreadableFileError as exc:
+        problem: str | None = exc.reason
+    except (ValueError, RecursionError):
+        problem = "not JSON"
+    else:
+        problem = manifest_problem(data)
+    if problem is not None:
+        raise SpecError(f"{path} is not a flatcli sweep manifest ({problem}); nothing was "
+                        "removed; remove it yourself or use another --out")
+    return dict(data)
+
+
+def _count(value: Any, most: int | None = None) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 1 and (
+        most is None or value <= most)
+
+
+def _strings(value: Any) -> bool:
+    return isinstance(value, list) and all(isinstance(v, str) for v in value)
+
+
+def manifest_problem(data: Any) -> str | None:
+    """Why ``data`` (a parsed sweep.json) is not a manifest flatcli wrote, or None.
+
+    Every name it lists must have one of the exact forms flatcli writes (``RECORDED``;
+    a cell's chunks: ``chunk-KKKKKKKKKK-IIIIIIIII.parquet`` with that cell's key), so that
+    no name can reach outside the directory (no "..", no absolute path, no other file).
+    """
+    if not isinstance(data, dict):
+        return "not a JSON object"
+    if not isinstance(data.get("digest"), str) or not isinstance(data.get("spec"), dict):
+        return "no digest and spec"
+    files = data.get("files", [])
+    if not _strings(files):
+        return "its files are not a list of names"
+    for name in files:
+        if not RECORDED.fullmatch(name):
+            return f"it lists {name[:80]!r}, not a file flatcli writes in a sweep's directory"
+    if data.get("format") != FORMAT:  # before cell keys: counts only, chunks found by name
+        for key in ("cells", "trials_per_cell", "chunk"):
+            if key in data and not _count(data[key]):
+                return f"its {key} is not a positive integer"
+        return None
+    cells = data.get("cells")
+    if not isinstance(cells, dict):
+        return "its cells are not a table"
+    for key, cell in cells.items():
+        if not re.fullmatch(r"[0-9]{1,10}", key) or int(key) >= KEY_SPACE:
+            return f"{key[:20]!r} is not a cell key (an integer below 2^32)"
+        if not isinstance(cell, dict) or not isinstance(cell.get("digest"), str) \
+                or not isinstance(cell.get("values", {}), dict):
+            return f"cell {key} has no digest and values"
+        chunks = cell.get("chunks", [])
+        prefix = f"chunk-{int(key):010d}-"
+        if not _strings(chunks):
+            return f"the chunks of cell {key} are not a list of names"
+        for name in chunks:
+            if not (name.startswith(prefix) and _CHUNK.fullmatch(name)):
+                return (f"cell {key} lists the chunk {name[:80]!r}, not a chunk file name of "
+                        "that cell")
+    grid = data.get("grid_cells")
+    if not isinstance(grid, list) or not all(isinstance(k, str) and k in cells for k in grid):
+        return "its grid_cells are not keys of its cells"
+    if not _count(data.get("trials_per_cell"), ID_STRIDE) or not _count(data.get("chunk")):
+        return "its trials_per_cell and chunk are not positive integers"
+    return None
 
 
 def _chunk_provenance(path: Path) -> dict[str, Any] | None:
     """The provenance of a chunk file flatcli wrote, or None if it is not one."""
     try:
-        if path.is_symlink() or not path.is_file():
+        if not is_regular(path):
             return None
         meta = read_provenance(path)
     except (OSError, ValueError, pa.ArrowException):
@@ -149,12 +244,12 @@ def _chunk_provenance(path: Path) -> dict[str, Any] | None:
 def survey(directory: Path) -> Previous:
     """What ``directory`` holds of flatcli's: from its manifest, or, if that is missing,
     from the provenance of the files themselves."""
-    manifest = _manifest(directory)
+    manifest = read_manifest(directory)
     trials = directory / TRIALS_DIR
     if manifest is not None:
         if manifest.get("format") != FORMAT:  # before cell keys: other chunk names
             legacy = {f"{TRIALS_DIR}/{p.name}" for p in _entries(trials)
-                      if _LEGACY_CHUNK.fullmatch(p.name)}
+                      if _LEGACY_CHUNK.fullmatch(p.name) and is_regular(p)}
             return Previous(manifest["spec"], manifest["digest"], True, {}, legacy)
         cells = {str(k): v for k, v in dict(manifest.get("cells", {})).items()}
         files = {str(f) for f in manifest.get("files", [])}
@@ -293,6 +388,16 @@ def foreign_entries(directory: Path, owned: Iterable[str]) -> list[str]:
     return out
 
 
+def _not_regular(directory: Path, lay: Layout) -> list[str]:
+    """Entries where a sweep of ``lay`` reads or writes its files (the manifest, the final
+    tables, this layout's chunks) that are not regular files: a directory, a FIFO, a device,
+    a symbolic link; each as ``name (what it is)``."""
+    chunks = {c.name for c in lay.chunks()}
+    present = [f"{TRIALS_DIR}/{p.name}" for p in _entries(directory / TRIALS_DIR)
+               if p.name in chunks]
+    return not_regular(directory, [*FINAL_FILES, *sorted(present)])
+
+
 def plan_directory(directory: Path, lay: Layout, force: bool) -> Plan:
     """Decide what a sweep of ``lay`` may do in ``directory``; SpecError (nothing written)
     if it may not: another spec there (naming the keys that differ) unless --force, files
@@ -303,6 +408,11 @@ def plan_directory(directory: Path, lay: Layout, force: bool) -> Plan:
     if os.path.lexists(trials) and (trials.is_symlink() or not trials.is_dir()):
         raise SpecError(f"{trials} is not a directory flatcli made (a symbolic link or a "
                         "file); remove it yourself or use another --out")
+    blocked = _not_regular(directory, lay)
+    if blocked:
+        raise SpecError(f"{directory} holds {_listing(blocked)} where flatcli keeps its own "
+                        "files; flatcli neither opens nor replaces such an entry; remove it "
+                        "yourself or use another --out")
     previous = survey(directory) if directory.is_dir() else Previous()
     spec = lay.spec
     if force:
@@ -343,17 +453,24 @@ def plan_directory(directory: Path, lay: Layout, force: bool) -> Plan:
 
 def clear(directory: Path, previous: Previous) -> None:
     """Remove flatcli's files from a directory (for --force): the files ``previous`` lists,
-    their temporary files, and directories they leave empty (not trials/ or the lock)."""
+    their temporary files, and directories they leave empty (not trials/ or the lock).
+
+    Only regular files are removed, each at a name of the forms flatcli writes
+    (``manifest_problem``), reached through real directories only: never through a symbolic
+    link, never outside ``directory``.
+    """
     owned = previous.owned(directory)
     for name in sorted(owned - {LOCK_NAME}):
-        path = directory / name
-        if os.path.lexists(path) and path.is_file() and not path.is_symlink():
+        path = inside(directory, name)
+        if path is not None and is_regular(path):
             path.unlink()
-    for parent in sorted({directory / Path(n).parent for n in owned}, reverse=True):
-        rel = parent.relative_to(directory)
+    for rel in sorted({str(Path(n).parent) for n in owned}, reverse=True):
+        parent = real_directory(directory, rel)
+        if parent is None:
+            continue
         for entry in _entries(parent):
             target = _temporary_of(entry.name)
-            if target is not None and str(rel / target) in owned and not entry.is_symlink():
+            if target is not None and str(Path(rel) / target) in owned and is_regular(entry):
                 entry.unlink(missing_ok=True)
         if parent not in (directory, directory / TRIALS_DIR):
             with contextlib.suppress(OSError):
@@ -380,18 +497,24 @@ def write_manifest(directory: Path, lay: Layout, previous: Previous | None = Non
 
 
 def record_outputs(directory: Path, paths: Iterable[Path]) -> None:
-    """Add files written into a sweep's directory after it finished (figures, re-runs) to
-    its manifest, so that --force may remove them."""
-    manifest = _manifest(directory)
+    """Add files written into a sweep's directory after it finished (figures, re-runs,
+    exports) to its manifest, so that --force may remove them. Only names of the forms
+    flatcli writes there (``RECORDED``) are recorded; anything else is left out (and stays
+    the user's: --force then refuses, naming it)."""
+    manifest = read_manifest(directory)
     if manifest is None or manifest.get("format") != FORMAT:
         return
-    base = directory.resolve()
     names = set(manifest.get("files", []))
     for path in paths:
         try:
-            names.add(str(path.resolve().relative_to(base)))
+            name = path.relative_to(directory).as_posix()
         except ValueError:
-            continue
+            try:
+                name = path.resolve().relative_to(directory.resolve()).as_posix()
+            except ValueError:
+                continue
+        if RECORDED.fullmatch(name) and is_regular(directory / name):
+            names.add(name)
     manifest["files"] = sorted(names)
     write_json(directory / MANIFEST, manifest)
 
@@ -410,6 +533,8 @@ def chunk_provenance(base: Mapping[str, Any], cell: Cell, chunk: Chunk, table: p
 
 def chunk_problem(path: Path, cell: Cell, chunk: Chunk) -> str | None:
     """Why the file at ``path`` is not a finished ``chunk`` of ``cell`` (None if it is)."""
+    if not is_regular(path):  # never opened: a FIFO would block
+        return f"is {kind(path)}, not a chunk file"
     try:
         parquet = pq.ParquetFile(path)
         raw = (parquet.schema_arrow.metadata or {}).get(PARQUET_META_KEY)
@@ -441,7 +566,7 @@ def verified_chunks(directory: Path, lay: Layout) -> tuple[set[str], list[str]]:
     done: set[str] = set()
     problems: list[str] = []
     for path in _entries(trials):
-        if path.name.endswith(".tmp") and path.name.startswith(".chunk-"):
+        if path.name.endswith(".tmp") and path.name.startswith(".chunk-") and is_regular(path):
             path.unlink(missing_ok=True)
     for cell in lay.cells:
         for chunk in lay.cell_chunks(cell):

@@ -17,20 +17,32 @@ import pandas as pd
 
 from flatcli.core.model import FlatcliError
 from flatcli.experiment import run_track
+from flatcli.files import kind, not_regular
 from flatcli.outputs import write_track
 from flatcli.report import table
 from flatcli.spec import PERTURB_TARGETS, Spec, build
 from flatcli.storage import run_record
-from flatcli.sweep.directory import recorded_digest
+from flatcli.sweep.directory import RERUN_FILES, recorded_digest
 from flatcli.sweep.draws import perturbation_columns
 from flatcli.sweep.layout import Layout, layout
 
 
+def trials_table(directory: Path) -> Path:
+    """A finished sweep's trials.parquet; FlatcliError if there is none (or something else
+    than a regular file stands there: it is never opened, a FIFO would block)."""
+    trials_path = directory / "trials.parquet"
+    what = kind(trials_path)
+    if what == "missing":
+        raise FlatcliError(f"--rerun: {trials_path} not found; run the sweep first")
+    if what != "file":
+        raise FlatcliError(f"--rerun: {trials_path} is {what}, not the sweep's table; remove "
+                           "it yourself and run the sweep again")
+    return trials_path
+
+
 def trial_row(directory: Path, trial: int) -> dict[str, Any]:
     """A finished trial's row of trials.parquet; FlatcliError if there is none to re-run."""
-    trials_path = directory / "trials.parquet"
-    if not trials_path.exists():
-        raise FlatcliError(f"--rerun: {trials_path} not found; run the sweep first")
+    trials_path = trials_table(directory)
     frame = pd.read_parquet(trials_path, filters=[("trial", "==", trial)])
     if frame.empty:
         raise FlatcliError(f"--rerun: no trial {trial} in {trials_path}")
@@ -101,9 +113,16 @@ def rerun_and_compare(spec: Spec, directory: Path, trial: int) -> Rerun:
     """Re-run one trial into ``directory/rerun-TRIAL`` and compare it with its row."""
     row = trial_row(directory, trial)
     track_spec = rerun_spec(layout(spec), row)
+    target = directory / f"rerun-{trial}"
+    what = kind(target)
+    blocked = not_regular(directory, [f"{target.name}/{n}" for n in RERUN_FILES]) if (
+        what == "a directory") else [] if what == "missing" else [
+        f"{target.name} ({'a file' if what == 'file' else what})"]
+    if blocked:  # never written through: a link would lead out of the sweep's directory
+        raise FlatcliError(f"--rerun: {directory} holds {', '.join(blocked)} where the re-run "
+                           "writes its files; remove it yourself")
     run = run_track(track_spec)
     metrics = run.metrics
-    target = directory / f"rerun-{trial}"
     record = run_record("sweep --rerun", track_spec.tree, metrics=metrics, trial=trial)
     write_track(target, run, record, f"{spec.name}: trial {trial}")
     rows = [[k, row[k], v, "yes" if same(row[k], v) else "NO"]
