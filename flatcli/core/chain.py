@@ -123,6 +123,21 @@ def link_trig(theta: Array, cs: Array, sn: Array) -> None:
 
 
 @jitable
+def turn_last(cs: Array, sn: Array, cos_a: float, sin_a: float) -> None:
+    """The last link's trigonometry (``link_trig``, entry N of cs, sn) turned by an angle
+    alpha given as cos_a, sin_a: a centre of mass across the last link makes the robot the
+    one with it on the link's axis whose joint N reads th_N + alpha
+    (``model.RobotParams.placement``). alpha = 0 (cos_a = 1, sin_a = 0) changes nothing, to
+    the bit."""
+    if sin_a == 0.0 and cos_a == 1.0:
+        return
+    n = cs.shape[0] - 1
+    c, s = cs[n], sn[n]
+    cs[n] = c * cos_a - s * sin_a
+    sn[n] = s * cos_a + c * sin_a
+
+
+@jitable
 def momentum_weights(K: Array, inertia: Array, theta: Array, out: Array) -> None:
     """h_j (N + 1,) with H = sum_j h_j th_j' at the angles theta (N + 1,) [kg m^2].
 

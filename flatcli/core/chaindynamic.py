@@ -42,7 +42,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from flatcli.core._jit import jitable
-from flatcli.core.chain import chain_momentum_given
+from flatcli.core.chain import chain_momentum_given, turn_last
 from flatcli.core.chainflat import (
     Scratch,
     first_terms_at,
@@ -72,8 +72,8 @@ Array = NDArray[np.float64]
 #: rate commands r, the plant's C q', the servo model's C q', the servo model's chat_s, the
 #: servo's wanted accelerations a, its demand, the torques, a solve's right-hand side, q''.
 (_MEASURED, _Y, _Y_DOT, _V, _U_DOT, _R, _C, _C_S, _CHAT_S, _A, _DEMAND, _TAU, _RHS,
- _Q_DDOT) = range(14)
-BUFFER_ROWS = 14
+ _Q_DDOT, _PLANT_CS, _PLANT_SN) = range(16)
+BUFFER_ROWS = 16
 #: Matrices of ``ChainDynamicLoop.matrices`` (each (N + 1, N + 1)): the plant's M, the
 #: servo's M, the plant's Mhat (scratch of the solve), the servo's Mhat.
 _M, _M_S, _MHAT, _MHAT_S = range(4)
@@ -103,6 +103,9 @@ class ChainDynamicLoop(NamedTuple):
     bandwidth : servo bandwidth [rad/s]; torque_limit : joint-torque limit [N m] (inf: none)
     buffers : (BUFFER_ROWS, N + 1), trig : (TRIG_ROWS, N + 1), matrices : (MATRICES, N + 1,
         N + 1) scratch of the right-hand side; work : the flat maps' (``chainflat.Scratch``)
+    cos_p, sin_p : the turn of the plant's last link that a centre of mass across it adds
+        (``model.RobotParams.placement``; 1 and 0: none). The servo's model takes it too: the
+        nominal robot (d_N = 0, which th_N does not enter) or the plant
     """
 
     Kc: Array
@@ -121,6 +124,8 @@ class ChainDynamicLoop(NamedTuple):
     trig: Array
     matrices: Array
     work: Scratch
+    cos_p: float = 1.0
+    sin_p: float = 0.0
 
 
 @jitable
@@ -140,15 +145,17 @@ def _same_chain(a: Chain, b: Chain) -> bool:
 def chain_dynamic_loop(
     Kc: Array, Ic: Array, kp: Array, kv: Array, Kq: Array, Iq: Array, servo_is_plant: bool,
     params: Array, h0: float, rate_limit: float, bandwidth: float, torque_limit: float,
-    buffers: Array, trig: Array, matrices: Array, work: Scratch,
+    buffers: Array, trig: Array, matrices: Array, work: Scratch, offset: float = 0.0,
 ) -> ChainDynamicLoop:
-    """A ``ChainDynamicLoop`` for a plant (its K ``Kq`` and inertias ``Iq``) and a servo
-    model: the plant (``servo_is_plant``) or the controller's nominal chain (Kc, Ic)."""
+    """A ``ChainDynamicLoop`` for a plant (its K ``Kq`` and inertias ``Iq``, its last link
+    turned by ``offset`` [rad]) and a servo model: the plant (``servo_is_plant``) or the
+    controller's nominal chain (Kc, Ic)."""
     plant = Chain(Kq, Iq)
     servo = plant if servo_is_plant else Chain(Kc, Ic)
     same = servo_is_plant or _same_chain(plant, servo)
     return ChainDynamicLoop(Kc, Ic, kp, kv, plant, servo, same, params, h0, rate_limit,
-                            bandwidth, torque_limit, buffers, trig, matrices, work)
+                            bandwidth, torque_limit, buffers, trig, matrices, work,
+                            np.cos(offset), np.sin(offset))
 
 
 @jitable
@@ -237,6 +244,7 @@ def chain_dynamic_rhs(loop: ChainDynamicLoop, x: Array, ref: Array, noise: Array
             trig[1, a] = work.sn[a]
             rate += rates[a]
             trig[2, a] = rate
+    turn_last(loop.trig[0], loop.trig[1], loop.cos_p, loop.sin_p)
     M, c = mats[_M], buf[_C]
     chain_terms(loop.plant, loop.trig, M, c)
     if loop.same_model:
@@ -295,6 +303,7 @@ def chain_dynamic_initial(loop: ChainDynamicLoop, initial: Array, ref: Array, x0
         x0[2 * nb + j] = u[j]
     M = loop.matrices[_M]
     absolute_motion(x0[:nb], x0[nb: 2 * nb], loop.trig)
+    turn_last(loop.trig[0], loop.trig[1], loop.cos_p, loop.sin_p)
     chain_terms(loop.plant, loop.trig, M, loop.buffers[_C])
     acc = loop.h0
     for k in range(1, nb):
@@ -308,8 +317,14 @@ def chain_dynamic_momentum(loop: ChainDynamicLoop, x: Array) -> float:
     x with its own rates [kg m^2/s], given the trigonometry of its angles in
     ``loop.work`` (``chain.link_trig``)."""
     nb = loop.Ic.shape[0]
-    return float(chain_momentum_given(loop.params, loop.work.cs, loop.work.sn,
-                                      x[nb: 2 * nb]))
+    cs, sn = loop.work.cs, loop.work.sn
+    if loop.sin_p != 0.0 or loop.cos_p != 1.0:  # the plant's last link turned: a copy
+        cs, sn = loop.buffers[_PLANT_CS], loop.buffers[_PLANT_SN]
+        for a in range(nb):
+            cs[a] = loop.work.cs[a]
+            sn[a] = loop.work.sn[a]
+        turn_last(cs, sn, loop.cos_p, loop.sin_p)
+    return float(chain_momentum_given(loop.params, cs, sn, x[nb: 2 * nb]))
 
 
 @jitable

@@ -23,10 +23,10 @@ from numpy.typing import NDArray
 from flatcli.core._jit import jitable
 from flatcli.core.chain import (
     barycentric_matrix,
-    chain_momentum_at,
     chain_momentum_given,
     link_trig,
     momentum_weights_given,
+    turn_last,
 )
 from flatcli.core.chainflat import (
     Scratch,
@@ -52,8 +52,11 @@ class ChainLoop(NamedTuple):
     Kq, Iq : the plant's K and inertias; params : the plant's (4 (N + 1),) mass, inertia,
         length, com side by side (for H from the full kinematics)
     h0 : the plant's angular momentum [kg m^2/s]; rate_limit : joint-rate limit [rad/s]
-    buffers : (6, N + 1) scratch rows for the right-hand side
+    buffers : (8, N + 1) scratch rows for the right-hand side (the last two: the plant's
+        trigonometry when its last link is turned)
     work : the flat maps' scratch (``chainflat.Scratch``)
+    cos_p, sin_p : the turn of the plant's last link that a centre of mass across it adds
+        (``model.RobotParams.placement``; 1 and 0: none)
     """
 
     Kc: Array
@@ -67,6 +70,22 @@ class ChainLoop(NamedTuple):
     rate_limit: float
     buffers: Array
     work: Scratch
+    cos_p: float = 1.0
+    sin_p: float = 0.0
+
+
+@jitable
+def plant_trig(loop: ChainLoop, cs: Array, sn: Array) -> tuple[Array, Array]:
+    """The plant's trigonometry: ``cs``, ``sn`` (``chain.link_trig`` of its angles), or their
+    turned copy in buffers[6:8] when its last link is turned."""
+    if loop.sin_p == 0.0 and loop.cos_p == 1.0:
+        return cs, sn
+    pcs, psn = loop.buffers[6], loop.buffers[7]
+    for a in range(cs.shape[0]):
+        pcs[a] = cs[a]
+        psn[a] = sn[a]
+    turn_last(pcs, psn, loop.cos_p, loop.sin_p)
+    return pcs, psn
 
 
 @jitable
@@ -102,7 +121,8 @@ def chain_rhs(loop: ChainLoop, x: Array, ref: Array, noise: Array, out: Array) -
     if noisy:  # the plant's own angles (without noise the controller's trigonometry is theirs)
         link_trig(x[: n + 1], work.cs, work.sn)
         work.at[n + 1] = 0.0  # the terms in ``work`` are no longer all at one state
-    momentum_weights_given(loop.Kq, loop.Iq, work.cs, work.sn, h)
+    pcs, psn = plant_trig(loop, work.cs, work.sn)
+    momentum_weights_given(loop.Kq, loop.Iq, pcs, psn, h)
     base = loop.h0
     for j in range(1, n):
         rate = min(max(x[n + j], -limit), limit)
@@ -144,19 +164,22 @@ def observe_chain(loop: ChainLoop, obs: Any, acc: Array, j: int, x: Array, f: Ar
     peak = 0.0
     for i in range(1, n + 1):
         peak = max(peak, abs(f[i]))
-    h = chain_momentum_given(loop.params, work.cs, work.sn, f[: n + 1])
+    pcs, psn = plant_trig(loop, work.cs, work.sn)
+    h = chain_momentum_given(loop.params, pcs, psn, f[: n + 1])
     observe_errors(acc, j, et2, ey2, abs(sigma), h, loop.h0, peak, threshold)
 
 
 @jitable
 def plan_residual(plan_theta: Array, plan_theta_dot: Array, params: Array, h0: float,
-                  cs: Array, sn: Array) -> float:
+                  cs: Array, sn: Array, cos_p: float = 1.0, sin_p: float = 0.0) -> float:
     """max_j |H - H0| of the plan's own samples with the plant's parameters [kg m^2/s]
-    (cs, sn: scratch (N + 1,))."""
+    (cs, sn: scratch (N + 1,); cos_p, sin_p: the plant's turn of its last link)."""
     residual = 0.0
     for j in range(plan_theta.shape[0]):
-        residual = max(residual, abs(chain_momentum_at(params, plan_theta[j],
-                                                       plan_theta_dot[j], cs, sn) - h0))
+        link_trig(plan_theta[j], cs, sn)
+        turn_last(cs, sn, cos_p, sin_p)
+        residual = max(residual, abs(chain_momentum_given(params, cs, sn, plan_theta_dot[j])
+                                     - h0))
     return residual
 
 

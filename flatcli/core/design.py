@@ -52,7 +52,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from flatcli.core.chain import barycentric_matrix, chain_momentum, inertia_scale
-from flatcli.core.model import DESIGN_ZERO_TOL, RobotParams, flatness_check
+from flatcli.core.model import DESIGN_ZERO_TOL, RobotParams, flatness_check, placed
 
 Array = NDArray[np.float64]
 Verdict = Literal["closed_form", "flat", "not_flat"]
@@ -124,8 +124,12 @@ class DesignVerdict:
 
 
 def _arrays(robot: RobotParams) -> tuple[Array, Array, Array, Array]:
+    """mass, inertia, length, com of the robot's equivalent placement (``placement``: a
+    centre of mass across the last link is its turn; the angles then shift by it)."""
+    equivalent = robot.placement[0]
     return tuple(np.asarray(v, dtype=float)  # type: ignore[return-value]
-                 for v in (robot.mass, robot.inertia, robot.length, robot.com))
+                 for v in (equivalent.mass, equivalent.inertia, equivalent.length,
+                           equivalent.com))
 
 
 def _kinematic_momentum(mass: Array, inertia: Array, length: Array, com: Array,
@@ -171,7 +175,7 @@ def constraint_form(robot: RobotParams, theta: Array) -> Array:
         in the rates)
     """
     mass, inertia, length, com = _arrays(robot)
-    theta = np.asarray(theta, dtype=float)
+    theta = placed(robot, theta)[1]
     n = mass.shape[0]
     shape = (*theta.shape[:-1], n, n)  # (..., i, angle): th at the unit rates e_i
     return np.asarray(chain_momentum(mass, inertia, length, com,
@@ -192,7 +196,7 @@ def form_slopes(robot: RobotParams, theta: Array) -> Array:
     slopes : (..., N + 1, N + 1) [kg m^2 / rad], slopes[..., i, k] = dh_i/dth_k
     """
     mass, inertia, length, com = _arrays(robot)
-    theta = np.asarray(theta, dtype=float)
+    theta = placed(robot, theta)[1]
     n = mass.shape[0]
     eye = np.eye(n)
     # (..., k, i, N + 1): th + i step e_k, at the unit rates e_i

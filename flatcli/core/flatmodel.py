@@ -39,7 +39,14 @@ from flatcli.core.chain import barycentric_matrix, chain_momentum
 from flatcli.core.chainflat import flag_state as chain_flag_state
 from flatcli.core.chainflat import flag_state_given, outputs, terms
 from flatcli.core.flatness import flag_state, flat_outputs, flat_state
-from flatcli.core.model import Coefficients, FlatcliError, Model, RobotParams, momentum
+from flatcli.core.model import (
+    Coefficients,
+    FlatcliError,
+    Model,
+    RobotParams,
+    momentum,
+    placed,
+)
 
 Array = NDArray[np.float64]
 #: Real or complex arrays (the maps are complex-step safe).
@@ -52,8 +59,9 @@ COMPLEX_STEP = 1e-30
 ROOT_IMAG_TOL = 1e-7
 #: Samples per unit of (pieces x degree) in a chain's scan for sign changes of the margin.
 MARGIN_SCAN = 64
-#: Which compiled closed loop a model runs in (``kernels.KERNELS``).
-Kind = Literal["paper", "chain"]
+#: Which compiled closed loop a model runs in (``kernels.KERNELS``); "exact" is an exact
+#: plan's model (``exact.ExactModel``), which only the as-built law tracks.
+Kind = Literal["paper", "chain", "exact"]
 
 
 @dataclass(frozen=True)
@@ -170,8 +178,9 @@ class FlatModel(ABC):
     def momentum(self, robot: RobotParams, theta: Array, theta_dot: Array) -> Array:
         """H [kg m^2/s] of ``robot`` from its full link kinematics at angles theta and rates
         theta_dot (..., N + 1) (``chain.chain_momentum``)."""
-        mass, inertia, length, com = (np.asarray(v, dtype=float) for v in
-                                      (robot.mass, robot.inertia, robot.length, robot.com))
+        equivalent, theta = placed(robot, theta)  # a centre of mass across the last link
+        mass, inertia, length, com = (np.asarray(v, dtype=float) for v in (
+            equivalent.mass, equivalent.inertia, equivalent.length, equivalent.com))
         return chain_momentum(mass, inertia, length, com, theta, theta_dot)
 
     def fast_evaluate(self, trajectory: FlatTrajectory, t: Array
@@ -681,7 +690,8 @@ class PaperModel(FlatModel):
     def momentum(self, robot: RobotParams, theta: Array, theta_dot: Array) -> Array:
         """H of the three-link robot, its full link kinematics written out
         (``model.momentum``)."""
-        return np.asarray(momentum(robot.links, *np.moveaxis(theta, -1, 0),
+        equivalent, theta = placed(robot, theta)  # a centre of mass across link 2
+        return np.asarray(momentum(equivalent.links, *np.moveaxis(theta, -1, 0),
                                    *np.moveaxis(theta_dot, -1, 0)))
 
     def motion(self, trajectory: FlatTrajectory, t: Array) -> tuple[Array, Array, Array]:

@@ -59,7 +59,13 @@ from flatcli.core.metrics import (
     plan_momentum_residual,
     reset_accumulator,
 )
-from flatcli.core.model import Coefficients, Links, RobotParams, constraint_coefficients
+from flatcli.core.model import (
+    Coefficients,
+    Links,
+    RobotParams,
+    constraint_coefficients,
+    momentum,
+)
 from flatcli.core.plant import (
     DYNAMIC_AUX,
     DYNAMIC_STATE,
@@ -112,15 +118,18 @@ class Settings(NamedTuple):
 
 class TrialArrays(NamedTuple):
     """What differs between trials (T of them): params (T, 4 (N + 1)) mass, inertia,
-    length, com; h0 (T,) [kg m^2/s]; servo (T, 2) bandwidth [rad/s], torque limit [N m];
-    initial (T, 2 N) th(0), u(0); plant (T, ...) the plant's constraint coefficients (the
-    paper's robot, (T, 11)) or its barycentric matrix K (chains, (T, N + 1, N + 1))."""
+    length, com (of the plant's equivalent placement, ``model.RobotParams.placement``); h0
+    (T,) [kg m^2/s]; servo (T, 2) bandwidth [rad/s], torque limit [N m]; initial (T, 2 N)
+    th(0), u(0); plant (T, ...) the plant's constraint coefficients (the paper's robot,
+    (T, 11)) or its barycentric matrix K (chains, (T, N + 1, N + 1)); offset (T,) the turn
+    of its last link that placement adds [rad] (0: none)."""
 
     params: Array
     h0: Array
     servo: Array
     initial: Array
     plant: Array
+    offset: Array
 
 
 class Results(NamedTuple):
@@ -298,7 +307,7 @@ def _paper_kinematic_loop(shared: PaperShared, trials: TrialArrays, i: int,
     p = _links_row(trials.params, i)
     kq = _coefficients_row(trials.plant, i)
     return Loop(shared.kc, shared.gains, kq, p, p.m0 + p.m1 + p.m2, trials.h0[i],
-                shared.rate_limit, is_flat_plant(kq))
+                shared.rate_limit, is_flat_plant(kq), trials.offset[i])
 
 
 @jitable
@@ -309,7 +318,8 @@ def _paper_dynamic_loop(shared: PaperShared, trials: TrialArrays, i: int,
     servo = plant if shared.servo_is_plant else shared.robot
     same = shared.servo_is_plant or plant == servo
     return DynamicLoop(shared.kc, shared.gains, p, plant, servo, same, trials.h0[i],
-                       shared.rate_limit, trials.servo[i, 0], trials.servo[i, 1])
+                       shared.rate_limit, trials.servo[i, 0], trials.servo[i, 1],
+                       trials.offset[i])
 
 
 @jitable
@@ -321,8 +331,16 @@ def _copy_initial(loop: Any, initial: Array, ref0: Array, x0: Array) -> None:
 @jitable
 def _paper_residual(loop: Any, trials: TrialArrays, i: int, plan_theta: Array,
                     plan_theta_dot: Array) -> float:
-    return plan_momentum_residual(plan_theta, plan_theta_dot, _links_row(trials.params, i),
-                                  trials.h0[i])
+    offset = trials.offset[i]
+    links = _links_row(trials.params, i)
+    if offset == 0.0:
+        return plan_momentum_residual(plan_theta, plan_theta_dot, links, trials.h0[i])
+    residual = 0.0  # the plant's link 2 turned (``plant.Loop.offset``)
+    for j in range(plan_theta.shape[0]):
+        h = momentum(links, plan_theta[j, 0], plan_theta[j, 1], plan_theta[j, 2] + offset,
+                     plan_theta_dot[j, 0], plan_theta_dot[j, 1], plan_theta_dot[j, 2])
+        residual = max(residual, abs(h - trials.h0[i]))
+    return residual
 
 
 def _no_scratch(n: int) -> Any:
@@ -366,7 +384,7 @@ class ChainScratch(NamedTuple):
 
 
 def _chain_scratch(n: int) -> ChainScratch:
-    return ChainScratch(np.zeros((6, n + 1)), scratch(n), *make_scratch(n))
+    return ChainScratch(np.zeros((8, n + 1)), scratch(n), *make_scratch(n))
 
 
 @jitable
@@ -374,9 +392,10 @@ def _chain_kinematic_loop(shared: ChainShared, trials: TrialArrays, i: int,
                           scratch: ChainScratch) -> ChainLoop:
     p = trials.params[i]
     nb = shared.Ic.shape[0]
+    offset = trials.offset[i]
     return ChainLoop(shared.Kc, shared.Ic, shared.kp, shared.kv, trials.plant[i],
                      p[nb: 2 * nb], p, trials.h0[i], shared.rate_limit, scratch.rows,
-                     scratch.maps)
+                     scratch.maps, np.cos(offset), np.sin(offset))
 
 
 @jitable
@@ -388,14 +407,14 @@ def _chain_dynamic_loop(shared: ChainShared, trials: TrialArrays, i: int,
                               p[nb: 2 * nb], shared.servo_is_plant, p, trials.h0[i],
                               shared.rate_limit, trials.servo[i, 0], trials.servo[i, 1],
                               scratch.dynamic_rows, scratch.trig, scratch.matrices,
-                              scratch.maps)
+                              scratch.maps, trials.offset[i])
 
 
 @jitable
 def _chain_residual(loop: Any, trials: TrialArrays, i: int, plan_theta: Array,
                     plan_theta_dot: Array) -> float:
     return plan_residual(plan_theta, plan_theta_dot, trials.params[i], trials.h0[i],
-                         loop.work.cs, loop.work.sn)
+                         loop.work.cs, loop.work.sn, loop.cos_p, loop.sin_p)
 
 
 CHAIN_KINEMATIC = Ops(_chain_kinematic_loop, _copy_initial, chain_rhs, observe_chain,

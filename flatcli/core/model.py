@@ -24,6 +24,7 @@ Two independent descriptions of H live here:
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass, replace
 from typing import Literal, NamedTuple
 
@@ -117,6 +118,14 @@ class RobotParams:
     length : (N + 1,) [m] joint-to-joint, each > 0 (the last length does not enter the
         dynamics)
     com : (N + 1,) [m] d_i, distance of each link's centre of mass from its proximal joint O_i
+        along the link
+    com_across : [m] e_N, how far the last link's centre of mass lies across the link
+        (perpendicular to it, towards increasing th_N); 0 for every robot of the paper.
+        Only the last link's: its centre of mass at (d_N, e_N) in the link's frame is at
+        distance rho = hypot(d_N, e_N) along a line turned by alpha = atan2(e_N, d_N), and
+        l_N does not enter the dynamics, so the robot is exactly the one with d_N = rho and
+        e_N = 0 whose joint N reads th_N + alpha (``placement``); an inner link's offset
+        would couple its neighbours through sin terms no model here has
 
     The paper's robot has N = 2 (three links); ``links`` and ``coefficients`` (its reduced
     constraint) exist for N = 2 only, the chain functions (``chain``) for any N.
@@ -126,10 +135,15 @@ class RobotParams:
     inertia: PerLink = (0.0533, 0.0533, 0.0533)
     length: PerLink = (0.2, 0.2, 0.2)
     com: PerLink = (0.1, 0.1, 0.0)
+    com_across: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("mass", "inertia", "length", "com"):
             object.__setattr__(self, name, _per_link(name, getattr(self, name)))
+        across = float(self.com_across)
+        if not math.isfinite(across):
+            raise FlatcliError(f"com_across: must be finite, got {self.com_across!r}")
+        object.__setattr__(self, "com_across", across)
         for name in ("inertia", "length", "com"):
             size = len(getattr(self, name))
             if size != len(self.mass):
@@ -159,6 +173,18 @@ class RobotParams:
         """M = m0 + m1 + ... + mN [kg]."""
         return float(sum(self.mass))
 
+    @property
+    def placement(self) -> tuple[RobotParams, float]:
+        """The robot with the last link's centre of mass on its axis that moves exactly as
+        this one, and the angle alpha [rad] its joint N is turned by: d_N = hypot(d_N, e_N),
+        alpha = atan2(e_N, d_N) (the robot itself and 0 when e_N = 0). H, h_j, M(q) of this
+        robot at th are those of the equivalent at th + alpha e_N (``com_across``)."""
+        if self.com_across == 0.0:
+            return self, 0.0
+        d, e = self.com[-1], self.com_across
+        equivalent = replace(self, com=(*self.com[:-1], math.hypot(d, e)), com_across=0.0)
+        return equivalent, math.atan2(e, d)
+
     def with_(self, **changes: ArrayLike) -> RobotParams:
         """A copy with some fields replaced (validated again)."""
         return replace(self, **changes)  # type: ignore[arg-type]
@@ -170,6 +196,17 @@ class RobotParams:
     def coefficients(self, model: Model = "derived") -> Coefficients:
         """``constraint_coefficients`` of this robot (computed once per robot and model)."""
         return _robot_coefficients(self, model)
+
+
+def placed(robot: RobotParams, theta: ArrayLike) -> tuple[RobotParams, NDArray[np.float64]]:
+    """The robot's equivalent placement (``RobotParams.placement``) and the angles theta
+    (..., N + 1) [rad] at which it moves as ``robot`` does at theta (th_N + alpha): what every
+    function of a robot's angles that knows only d_N takes."""
+    equivalent, offset = robot.placement
+    angles = np.array(theta, dtype=np.result_type(np.asarray(theta), float))
+    if offset != 0.0:
+        angles[..., -1] += offset
+    return equivalent, angles
 
 
 @functools.lru_cache(maxsize=256)
@@ -397,7 +434,8 @@ def flatness_check(params: RobotParams) -> FlatnessCheck:
     l0, l1 = length[0], length[1]
     d0, d1, d_last = com[0], com[1], com[n]
     arm = mass[1] * d1 + sum(mass[2:]) * l1
-    arrays = [np.asarray(v, dtype=float) for v in (mass, params.inertia, length, com)]
+    equivalent = params.placement[0]
+    arrays = [np.asarray(v, dtype=float) for v in (mass, params.inertia, length, equivalent.com)]
     K = barycentric_matrix(arrays[0], arrays[2], arrays[3])
     scale = inertia_scale(*arrays)
     zero = DESIGN_ZERO_TOL * scale
@@ -410,6 +448,12 @@ def flatness_check(params: RobotParams) -> FlatnessCheck:
         failures.append(
             f"com[{n}] = d{n} = {d_last:g} m, not 0: link {n}'s centre of mass is off joint {n}, "
             f"and the closed-form flat outputs {outputs} need it on the joint (d{n} = 0)"
+        )
+    if abs(params.com_across) > DESIGN_ZERO_TOL * max(length):
+        failures.append(
+            f"com_across = e{n} = {params.com_across:g} m, not 0: link {n}'s centre of mass "
+            f"lies across the link, off joint {n}, and the closed-form flat outputs need it on "
+            "the joint"
         )
     # K_10 = 0 is decided relative to J; name the factors that vanish (each to its own scale)
     zero_offset = zero_k10 and abs(l0 - d0) <= DESIGN_ZERO_TOL * max(length)

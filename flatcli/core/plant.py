@@ -93,6 +93,9 @@ class Loop(NamedTuple):
     h0 : the plant's angular momentum [kg m^2/s]; rate_limit : joint-rate limit [rad/s]
     flat_plant : the plant has d2 = 0, so its terms in cos th2 and cos(th1 + th2) vanish and
         are skipped (the same numbers to the bit: those terms are multiplied by zero)
+    offset : the turn alpha [rad] of link 2 that a centre of mass across it adds (its
+        coefficients and links are those of its equivalent placement,
+        ``model.RobotParams.placement``): th2 + alpha enters its physics
     """
 
     kc: Coefficients
@@ -103,6 +106,7 @@ class Loop(NamedTuple):
     h0: float
     rate_limit: float
     flat_plant: bool
+    offset: float = 0.0
 
 
 @jitable
@@ -135,7 +139,7 @@ def kinematic_rhs(loop: Loop, x: Array, ref: Array, noise: Array, out: Array) ->
     if loop.flat_plant:
         c2 = c12 = 0.0
     else:
-        c2, c12 = np.cos(x2), np.cos(x1 + x2)
+        c2, c12 = np.cos(x2 + loop.offset), np.cos(x1 + x2 + loop.offset)
     w0 = base_rate_at(loop.kq, loop.total_mass, loop.h0, c1, c2, c12, w1, w2)
     if (x3 >= limit and u1_dot > 0.0) or (x3 <= -limit and u1_dot < 0.0):
         u1_dot = 0.0  # conditional integration: no wind-up while th1' is clipped
@@ -147,7 +151,8 @@ def kinematic_rhs(loop: Loop, x: Array, ref: Array, noise: Array, out: Array) ->
 def kinematic_momentum(loop: Loop, x: Array, f: Array) -> float:
     """H of the plant from its full link kinematics at state x with the rates f it applies
     (``model.momentum``; f as written by ``kinematic_rhs``) [kg m^2/s]."""
-    s12 = 0.0 if loop.flat_plant else np.sin(x[1] + x[2])  # d2 = 0: s12 is multiplied by 0
+    # d2 = 0: s12 is multiplied by 0
+    s12 = 0.0 if loop.flat_plant else np.sin(x[1] + x[2] + loop.offset)
     return float(momentum_at(loop.links, f[5], f[6], f[7], s12, f[0], f[1], f[2]))
 
 
@@ -160,6 +165,8 @@ class DynamicLoop(NamedTuple):
     same_model : servo and plant are the same chain (its terms are computed once)
     h0 : the plant's angular momentum [kg m^2/s]; rate_limit : joint-rate limit [rad/s]
     bandwidth : servo bandwidth [rad/s]; torque_limit : joint-torque limit [N m] (inf: none)
+    offset : the plant's turn of link 2 [rad] (``Loop``); the servo's model, the nominal
+        robot (d2 = 0, which th2 does not enter) or the plant, takes it too
     """
 
     kc: Coefficients
@@ -172,6 +179,7 @@ class DynamicLoop(NamedTuple):
     rate_limit: float
     bandwidth: float
     torque_limit: float
+    offset: float = 0.0
 
 
 @jitable
@@ -236,8 +244,8 @@ def dynamic_rhs(loop: DynamicLoop, x: Array, ref: Array, noise: Array, out: Arra
     limit = loop.rate_limit
     r1 = min(max(u1, -limit), limit)
     r2 = min(max(float(u2), -limit), limit)
-    c2 = np.cos(x[2])
-    s2 = np.sin(x[2])
+    c2 = np.cos(x[2] + loop.offset)
+    s2 = np.sin(x[2] + loop.offset)
     m00, m01, m02, m11, m12, m22, h0, h1, h2 = three_body_terms(loop.plant, c1, s1, c2, s2,
                                                                 x[3], x[4], x[5])
     a11, a12, a22, b1, b2 = three_body_joint_space(m00, m01, m02, m11, m12, m22, h0, h1, h2)
@@ -290,8 +298,8 @@ def dynamic_initial(loop: DynamicLoop, initial: Array, ref: Array, x0: Array) ->
     r1 = min(max(u1, -limit), limit)
     r2 = min(max(u2, -limit), limit)
     m00, m01, m02, _, _, _, _, _, _ = three_body_terms(
-        loop.plant, np.cos(initial[1]), np.sin(initial[1]), np.cos(initial[2]),
-        np.sin(initial[2]), 0.0, 0.0, 0.0)
+        loop.plant, np.cos(initial[1]), np.sin(initial[1]), np.cos(initial[2] + loop.offset),
+        np.sin(initial[2] + loop.offset), 0.0, 0.0, 0.0)
     x0[0], x0[1], x0[2] = initial[0], initial[1], initial[2]
     x0[3] = (loop.h0 - m01 * r1 - m02 * r2) / m00
     x0[4], x0[5], x0[6] = r1, r2, u1

@@ -39,6 +39,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from flatcli.core.asbuiltkernels import KERNELS as ASBUILT_KERNELS
 from flatcli.core.control import Gains
 from flatcli.core.kernels import (
     ADAPTIVE,
@@ -51,8 +52,10 @@ from flatcli.core.kernels import (
     TrialArrays,
     paper_plant,
 )
+from flatcli.core.lqr import LqrWeights, tracked
 from flatcli.core.metrics import N_METRICS
 from flatcli.core.model import FlatcliError
+from flatcli.core.pieces import PiecewiseCurves
 from flatcli.core.planning import Plan
 from flatcli.core.plant import (
     DEFAULT_SERVO_BANDWIDTH,
@@ -66,6 +69,11 @@ from flatcli.core.reference import reference_trial
 Array = NDArray[np.float64]
 Integrator = Literal["adaptive", "rk4", "dop853"]
 INTEGRATORS: tuple[Integrator, ...] = ("adaptive", "rk4", "dop853")
+#: The feedback laws (``track.controller``): the paper's linearising feedback on the flat
+#: outputs of the nominal model (``control``), or the time-varying LQR of the robot as built
+#: (``lqr``, ``asbuiltloop``).
+Controller = Literal["flat", "asbuilt"]
+CONTROLLERS: tuple[Controller, ...] = ("flat", "asbuilt")
 
 #: Columns of a trace: the kinematic plant's state, then the joint rates it applies.
 TRACE_COLUMNS: tuple[str, ...] = (
@@ -139,6 +147,11 @@ class Scenario:
     plant : "kinematic" or "dynamic" (``plant.PLANT_MODELS``)
     servo_model : what the dynamic plant's servo believes: "robot" (the plan's robot, the
         nominal model) or "plant" (each trial's plant)
+    controller : "flat" (the linearising feedback with ``gains``) or "asbuilt" (the LQR of
+        ``lqr``, designed on the plan's robot with ``lqr``; ``gains`` unused)
+    lqr : the as-built law's weights (``lqr.LqrWeights``)
+    servo_bandwidth : the dynamic plant's nominal servo bandwidth [rad/s], the lag the
+        as-built law is designed for there
     """
 
     plan: Plan
@@ -153,6 +166,9 @@ class Scenario:
     max_steps: int = DEFAULT_MAX_STEPS
     plant: PlantModel = "kinematic"
     servo_model: ServoModel = "robot"
+    controller: Controller = "flat"
+    lqr: LqrWeights = field(default_factory=LqrWeights)
+    servo_bandwidth: float = DEFAULT_SERVO_BANDWIDTH
     n_steps: int = field(init=False)
 
     def __post_init__(self) -> None:
@@ -188,6 +204,13 @@ class Scenario:
         if self.servo_model not in SERVO_MODELS:
             raise FlatcliError(f"plant.servo_model: expected one of {list(SERVO_MODELS)}, "
                                f"got {self.servo_model!r}")
+        if self.controller not in CONTROLLERS:
+            raise FlatcliError(f"track.controller: expected one of {list(CONTROLLERS)}, got "
+                               f"{self.controller!r}")
+        if self.controller == "flat" and self.plan.model.kind == "exact":
+            raise FlatcliError(
+                "track.controller: \"flat\" tracks the closed-form flat outputs, which an "
+                "exact plan (plan.method) does not have: use track.controller = \"asbuilt\"")
         n = self.plan.n_joints
         if self.gains.n_outputs != n:
             raise FlatcliError(f"track.kp, track.kv: expected {n} gains each (one per flat "
@@ -204,6 +227,16 @@ class Scenario:
         _ = self.reference, self.theta_reference, self.plan_on_own_grid, self.pieces
         return self
 
+    @cached_property
+    def tracked(self) -> Any:
+        """What the controller tracks, as curves y(t): the plan's flat outputs (the flat
+        law), or the plan's angles and the as-built law's gains (``lqr.tracked``)."""
+        if self.controller == "asbuilt":
+            servo = self.servo_bandwidth if self.plant == "dynamic" else None
+            curves: PiecewiseCurves = tracked(self.plan, self.lqr, servo)
+            return curves
+        return self.plan.trajectory
+
     @property
     def times(self) -> Array:
         """(n + 1,) the grid t_j = j dt [s]."""
@@ -213,7 +246,7 @@ class Scenario:
     def reference(self) -> Array:
         """(2 n + 1, 6) plan y1, y2, y1', y2', y1'', y2'' at half steps j dt / 2."""
         t = np.arange(2 * self.n_steps + 1, dtype=float) * (0.5 * self.dt)
-        traj = self.plan.trajectory
+        traj = self.tracked
         out = np.hstack([traj.derivative(t, 0), traj.derivative(t, 1), traj.derivative(t, 2)])
         return np.ascontiguousarray(out)
 
@@ -232,7 +265,7 @@ class Scenario:
     def pieces(self) -> tuple[Array, Array]:
         """The plan's flat outputs as piecewise polynomials (``Basis.piecewise``), which the
         adaptive integrator evaluates at its own times."""
-        breaks, local = self.plan.trajectory.piecewise()
+        breaks, local = self.tracked.piecewise()
         return np.ascontiguousarray(breaks), np.ascontiguousarray(local)
 
 
@@ -260,6 +293,8 @@ class Trials:
     servo : (N, 2) the dynamic plant's servo bandwidth [rad/s] (> 0) and torque limit [N m]
         (>= 0, inf for none) per trial, or None for the defaults (``DEFAULT_SERVO``); the
         kinematic plant ignores it
+    across : (N,) the plant's last link's centre of mass across the link, e_N [m]
+        (``model.RobotParams.com_across``), or None for 0
     """
 
     links: Array
@@ -267,6 +302,7 @@ class Trials:
     initial: Array
     noise: Array | NoiseStreams | None = None
     servo: Array | None = None
+    across: Array | None = None
 
     def __post_init__(self) -> None:
         n = self.links.shape[0]
@@ -286,6 +322,9 @@ class Trials:
                 raise FlatcliError(f"track.sensor_noise: must be >= 0 rad, got {self.noise.std}")
         elif self.noise is not None and (self.noise.ndim != 3 or self.noise.shape[0] != n):
             raise ValueError("Trials: noise (N, n, 3) expected")
+        if self.across is not None and (self.across.shape != (n,)
+                                        or not np.all(np.isfinite(self.across))):
+            raise ValueError("Trials: across (N,) finite values expected")
         if self.servo is not None:
             if self.servo.shape != (n, 2):
                 raise ValueError("Trials: servo (N, 2) expected")
@@ -309,7 +348,9 @@ class Trials:
         elif noise is not None:
             noise = noise[index]
         servo = None if self.servo is None else self.servo[index]
-        return Trials(self.links[index], self.momentum[index], self.initial[index], noise, servo)
+        across = None if self.across is None else self.across[index]
+        return Trials(self.links[index], self.momentum[index], self.initial[index], noise, servo,
+                      across)
 
     def servo_table(self) -> Array:
         """(N, 2) servo bandwidth [rad/s] and torque limit [N m] of every trial."""
@@ -360,16 +401,36 @@ def plant_coefficients(links: Array) -> Array:
     return paper_plant(np.ascontiguousarray(links, dtype=float), "kinematic")
 
 
+def placements(links: Array, across: Array | None) -> tuple[Array, Array]:
+    """Plants' parameters (T, 4 (N + 1)) of their equivalent placements (d_N = hypot(d_N, e_N))
+    and the turn of their last link (T,) [rad] (``model.RobotParams.placement``) for their
+    centres of mass across the last link ``across`` (T,) [m] (None: 0)."""
+    params = np.ascontiguousarray(links, dtype=float)
+    offset = np.zeros(params.shape[0])
+    if across is None or not np.any(across != 0.0):
+        return params, offset
+    params = params.copy()
+    nb = params.shape[1] // 4
+    turned = across != 0.0
+    d = params[turned, 4 * nb - 1]
+    offset[turned] = np.arctan2(across[turned], d)
+    params[turned, 4 * nb - 1] = np.hypot(d, across[turned])
+    return params, offset
+
+
 def kernel_inputs(scenario: Scenario, trials: Trials) -> tuple[
         Kernels, Any, TrialArrays, Grid, Settings]:
     """The kernels of a scenario's (model, plant) and everything they take but the noise,
     the buffers and the results."""
     plan = scenario.plan
-    kernels = KERNELS[(plan.model.kind, scenario.plant)]
-    params = np.ascontiguousarray(trials.links, dtype=float)
+    if scenario.controller == "asbuilt":
+        kernels = ASBUILT_KERNELS[("asbuilt", scenario.plant)]
+    else:
+        kernels = KERNELS[(plan.model.kind, scenario.plant)]
+    params, offset = placements(trials.links, trials.across)
     arrays = TrialArrays(params, np.ascontiguousarray(trials.momentum, dtype=float),
                          trials.servo_table(), np.ascontiguousarray(trials.initial, dtype=float),
-                         np.ascontiguousarray(kernels.plant(params, scenario.plant)))
+                         np.ascontiguousarray(kernels.plant(params, scenario.plant)), offset)
     plan_theta, plan_theta_dot = scenario.plan_on_own_grid
     breaks, local = scenario.pieces
     grid = Grid(scenario.reference, scenario.theta_reference, breaks, local, plan_theta,
@@ -379,6 +440,8 @@ def kernel_inputs(scenario: Scenario, trials: Trials) -> tuple[
                         float(scenario.atol), int(scenario.max_steps), False)
     shared = kernels.shared(plan.model, scenario.gains, scenario.rate_limit,
                             scenario.servo_model == "plant", plan.robot)
+    if scenario.controller == "asbuilt" and scenario.plant == "dynamic":
+        shared = shared._replace(lead=1.0 / scenario.servo_bandwidth, lagged=True)
     return kernels, shared, arrays, grid, settings
 
 
@@ -389,7 +452,7 @@ def closed_loop_rhs(scenario: Scenario, trials: Trials, i: int = 0) -> Callable[
     kernels, shared, arrays, grid, _ = kernel_inputs(scenario, trials)
     joints = scenario.n_joints
     nx = kernels.ops.state(joints)
-    buffers = kernels.buffers(joints, 3 * joints)
+    buffers = kernels.buffers(joints, grid.ref.shape[1])
     out = np.empty(nx + kernels.ops.aux(joints))
     zero = np.zeros(joints + 1)
     rhs_at = kernels.single[1]
@@ -446,7 +509,7 @@ def simulate(
                             results)
     else:
         method = RK4 if integrator == "rk4" else ADAPTIVE
-        buffers = kernels.buffers(joints, 3 * joints)
+        buffers = kernels.buffers(joints, grid.ref.shape[1])
 
         def run(rows: slice, tables: Array, gen: np.random.Generator, std: float) -> None:
             part = TrialArrays(*(a[rows] for a in arrays))
