@@ -108,7 +108,7 @@ def kernel_cached() -> bool:
     import flatcli.core._jit  # noqa: F401  (sets numba's cache directory)
 
     root = Path(getattr(numba.config, "CACHE_DIR", "") or "")
-    return root.is_dir() and any(root.glob("**/kernels.*_batch-*.nbi"))
+    return root.is_dir() and any(root.glob("**/*kernels.*_batch-*.nbi"))
 
 
 def announce_compile(quiet: bool, stream: TextIO | None = None) -> bool:
@@ -443,8 +443,7 @@ def track(spec: SpecLike = None, overrides: Overrides = None, *,
     from flatcli.spec.limits import require_finite_plan
 
     s = load_spec(spec, overrides)
-    announce_compile(quiet)
-    run = run_track(s)
+    run = run_track(s, lambda: announce_compile(quiet))
     require_finite_plan({"the reference": run.scenario.reference,
                          "theta": run.scenario.theta_reference})
     return TrackResult(s, track_frame(run), run.metrics, run)

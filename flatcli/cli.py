@@ -348,12 +348,24 @@ def track(spec: Path | None, sets: tuple[str, ...], out: Path | None, force: boo
 @main.command()
 @spec_argument()
 @set_option()
-def design(spec: Path | None, sets: tuple[str, ...]) -> None:
+@click.option("--counterweight", is_flag=True,
+              help="Design the last link's counterweight instead: the spec's last link is "
+                   "the bare link; needs --positions.")
+@click.option("--positions", nargs=4, type=float, metavar="X1 Y1 X2 Y2",
+              help="--counterweight: the segment of allowed positions in the last link's "
+                   "frame [m] (x along the link from its joint, y across).")
+@click.option("--counterweight-inertia", "own_inertia", type=float, default=0.0,
+              show_default=True, help="--counterweight: its inertia about its own centre "
+                                      "[kg m^2].")
+def design(spec: Path | None, sets: tuple[str, ...], counterweight: bool,
+           positions: tuple[float, float, float, float] | None, own_inertia: float) -> None:
     """Is the design flat, and do the closed-form flat outputs apply? Prints its constraint
     coefficients (N = 2) or barycentric matrix (N >= 3) and the verdict with its reasons.
 
     Exit status (the robot's verdict): 0 closed_form (flatcli plans it), 1 flat (outputs not
-    known in closed form), 3 not_flat (the constraint integrates), 2 bad input.
+    known in closed form), 3 not_flat (the constraint integrates), 2 bad input. With
+    --counterweight: the least-mass and least-inertia counterweights that put the last link's
+    centre of mass on its joint, each design's verdict and plan energy (exit status 0).
     """
     from flatcli import api
     from flatcli.core.design import design_verdict
@@ -361,6 +373,17 @@ def design(spec: Path | None, sets: tuple[str, ...]) -> None:
     from flatcli.experiment import checked, plant_from, robot_from
     from flatcli.report import table
 
+    if counterweight or positions is not None:
+        if not counterweight or positions is None:
+            fail("--counterweight and --positions X1 Y1 X2 Y2 go together")
+        from flatcli.designer import counterweight_options, counterweight_text
+
+        segment = [positions[:2], positions[2:]]
+        with user_errors():
+            s = api.load_spec(spec, sets)
+            options = counterweight_options(s, segment, own_inertia)
+        show(counterweight_text(s, segment, options))
+        return
     with user_errors():
         s = api.load_spec(spec, sets)
         robot = robot_from(s)

@@ -5,6 +5,7 @@ This is wiring only: every number is computed by ``flatcli.core``.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
 from typing import Any
@@ -14,6 +15,8 @@ from numpy.typing import NDArray
 
 from flatcli.core.basis import Basis, BSplineBasis, PolynomialBasis
 from flatcli.core.control import Gains
+from flatcli.core.exact import method_for, plan_exact
+from flatcli.core.lqr import LqrWeights
 from flatcli.core.metrics import COUNT_METRICS, METRIC_NAMES, describe_status
 from flatcli.core.model import RobotParams
 from flatcli.core.optimize import DEFAULT_BSPLINE_DEGREE, OptimizeResult, PlanLimits, optimize_plan
@@ -48,27 +51,32 @@ def checked(value: object) -> Any:
 def robot_from(spec: Spec) -> RobotParams:
     """The nominal robot (what the planner and controller believe)."""
     robot = spec.robot
-    return RobotParams(*checked((robot.mass, robot.inertia, robot.length, robot.com)))
+    mass, inertia, length, com = checked((robot.mass, robot.inertia, robot.length, robot.com))
+    return RobotParams(mass, inertia, length, com, robot.com_across)
 
 
 def plant_from(spec: Spec) -> RobotParams:
     """The plant: ``[plant]`` overrides of ``[robot]``."""
     robot, plant = spec.robot, spec.plant
-    return RobotParams(*checked((
+    mass, inertia, length, com = checked((
         robot.mass if plant.mass is None else plant.mass,
         robot.inertia if plant.inertia is None else plant.inertia,
         robot.length if plant.length is None else plant.length,
         robot.com if plant.com is None else plant.com,
-    )))
+    ))
+    across = robot.com_across if plant.com_across is None else plant.com_across
+    return RobotParams(mass, inertia, length, com, across)
 
 
-def basis_from(spec: Spec) -> Basis:
+def basis_from(spec: Spec, method: str = "flat") -> Basis:
     """The flat-output basis: ``auto`` is the paper's cubic, or the optimiser's default
-    (quintic B-splines, ``plan.size`` coefficients) when ``plan.optimize.objective`` is set."""
+    (quintic B-splines, ``plan.size`` coefficients) when ``plan.optimize.objective`` is set
+    or the plan is exact (the joint paths' basis, ``method``)."""
     plan = spec.plan
     kind = plan.basis
     if kind == "auto":
-        kind = "poly" if plan.optimize.objective is None else "bspline"
+        flat_cubic = plan.optimize.objective is None and method == "flat"
+        kind = "poly" if flat_cubic else "bspline"
     if kind == "bspline":
         return BSplineBasis(plan.size, plan.duration, plan.degree or DEFAULT_BSPLINE_DEGREE)
     return PolynomialBasis(plan.degree or 3, plan.duration)
@@ -96,6 +104,8 @@ def plan_and_optimization(spec: Spec) -> tuple[Plan, OptimizeResult | None]:
                         "\"derived\"")
     start_rate = joint_rates(p.start_rate, joints)
     goal_rate = joint_rates(p.goal_rate, joints)
+    if method_for(robot, p.method) == "exact":
+        return exact_plan_from(spec, robot, start, goal, start_rate, goal_rate), None
     if opt.objective is None:
         return plan_point_to_point(robot, start, goal, start_rate, goal_rate, p.duration, model,
                                    basis_from(spec)), None
@@ -116,6 +126,19 @@ def plan_and_optimization(spec: Spec) -> tuple[Plan, OptimizeResult | None]:
         max_iter=opt.max_iter,
     )
     return result.plan, result
+
+
+def exact_plan_from(spec: Spec, robot: RobotParams, start: Array, goal: Array,
+                    start_rate: Array, goal_rate: Array) -> Plan:
+    """The exact plan of a spec (``exact.plan_exact``): its objective from
+    ``plan.optimize.objective``; its limits are the flat optimiser's, refused here."""
+    opt = spec.plan.optimize
+    for key, value in (("angle_limit", opt.angle_limit), ("rate_limit", opt.rate_limit)):
+        if np.any(np.isfinite(np.asarray(value, dtype=float))):
+            raise SpecError(f"plan.optimize.{key}: limits apply to flat plans only; an exact "
+                            "plan (plan.method) minimises its objective without them")
+    return plan_exact(robot, start, goal, start_rate, goal_rate, spec.plan.duration,
+                      basis_from(spec, "exact"), checked(opt.objective))
 
 
 def plan_from(spec: Spec) -> Plan:
@@ -149,6 +172,9 @@ def scenario_from(spec: Spec, plan: Plan) -> Scenario:
         max_steps=track.max_steps,
         plant=checked(spec.plant.model),
         servo_model=checked(spec.plant.servo_model),
+        controller=checked(track.controller),
+        lqr=LqrWeights(track.lqr_bandwidth, track.lqr_terminal, track.lqr_base),
+        servo_bandwidth=spec.plant.servo_bandwidth,
     )
 
 
@@ -177,6 +203,7 @@ def nominal_trials(spec: Spec, plan: Plan) -> Trials:
         initial=np.array([[*track.initial, *initial_rates(spec, plan)]]),
         noise=NoiseStreams(track.sensor_noise, track.seed, np.array([track.trial])),
         servo=np.array([[spec.plant.servo_bandwidth, spec.plant.torque_limit]]),
+        across=np.array([plant.com_across]),
     )
 
 
@@ -269,12 +296,15 @@ class TrackRun:
         return y, np.abs(sigma), np.asarray(H)
 
 
-def run_track(spec: Spec) -> TrackRun:
+def run_track(spec: Spec, before_simulating: Callable[[], object] | None = None) -> TrackRun:
     """Plan, then simulate the closed loop of a spec, recording the trace (SpecError, before
-    any work, if that could not end within the time budget: ``check_track``)."""
+    any work, if that could not end within the time budget: ``check_track``);
+    ``before_simulating`` is called once the plan and scenario are made and valid."""
     check_track(spec)
     plan = plan_from(spec)
     scenario = scenario_from(spec, plan)
     trials = nominal_trials(spec, plan)
+    if before_simulating is not None:
+        before_simulating()
     outcome = simulate(scenario, trials, checked(spec.track.integrator), record=True)
     return TrackRun(spec, plan, scenario, outcome)

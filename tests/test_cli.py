@@ -245,8 +245,20 @@ def test_design_of_the_audits_chain4_is_not_flat_and_the_plant_gets_its_own_verd
         (["plan", "--set", "track.kp=[1,2,3]"],
          "track.kp: expected 2 numbers (one per joint 1..N) for a robot of 2 joints"),
         (["track", "--set", "robot.mass=[1,-1,1]"], "robot.mass[1]: must be > 0 kg"),
-        (["plan", "--set", "robot.com=[0.1,0.1,0.003]"], "the paper's flat outputs do not "
-                                                         "apply: com[2] = d2 = 0.003 m"),
+        (["plan", "--set", "robot.com=[0.1,0.1,0.003]", "--set", "plan.method=\"flat\""],
+         "the paper's flat outputs do not apply: com[2] = d2 = 0.003 m"),
+        (["track", "--set", "robot.com=[0.1,0.1,0.003]"], "track.controller: \"flat\" tracks "
+                                                          "the closed-form flat outputs"),
+        (["plan", "--set", "plan.method=\"exactt\""], "plan.method: expected one of ['auto', "
+                                                      "'flat', 'exact'], got 'exactt' (did you "
+                                                      "mean 'exact'?)"),
+        (["plan", "--set", "robot.com=[0.1,0.1,0.003]", "--set",
+          "plan.optimize.rate_limit=3"], "plan.optimize.rate_limit: limits apply to flat plans "
+                                         "only"),
+        (["design", "--counterweight"], "--counterweight and --positions X1 Y1 X2 Y2 go "
+                                        "together"),
+        (["design", "--counterweight", "--positions", "0.1", "0", "0.2", "0", "--set",
+          "robot.com=[0.1,0.1,0.05]"], "--positions: no allowed position lies on the ray"),
         (["plan", "--set", "plan.start_rate=0"], "plan.start_rate: must be != 0"),
         (["plan", "--set", "plan.start=[1.8,0,0]"], "plan.start[1] = 0 rad lies on the "
                                                     "singular set"),

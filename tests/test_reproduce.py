@@ -94,7 +94,8 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path,
     [
         (["--set", "sweep.trials=0"], "sweep.trials: must be >= 1, got 0"),
         # found only when the study's cells are planned (the paper's own runs come first)
-        (["--set", "robot.com=[0.1,0.1,0.003]"], "the paper's flat outputs do not apply"),
+        (["--set", "robot.com=[0.1,0.1,0.003]"], "track.controller: \"flat\" tracks the "
+                                                  "closed-form flat outputs"),
         (["--workers", "0"], "--workers: must be >= 1, got 0"),
         (["--no-montecarlo", "--set", "sweep.trials=3"], "--set: changes the Monte Carlo"),
         (["--montecarlo", "missing.toml"], "spec file not found: missing.toml"),

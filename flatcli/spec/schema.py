@@ -27,10 +27,13 @@ from collections.abc import Collection, Iterator, Mapping
 from dataclasses import Field, dataclass, field, fields, is_dataclass
 from typing import Any
 
+from flatcli.core.exact import METHODS
+from flatcli.core.lqr import DEFAULT_BANDWIDTH, DEFAULT_BASE, DEFAULT_TERMINAL
 from flatcli.core.model import MODELS
 from flatcli.core.optimize import OBJECTIVES
 from flatcli.core.plant import DEFAULT_SERVO_BANDWIDTH, PLANT_MODELS, SERVO_MODELS
 from flatcli.core.simulate import (
+    CONTROLLERS,
     DEFAULT_ATOL,
     DEFAULT_MAX_STEPS,
     DEFAULT_RTOL,
@@ -79,6 +82,9 @@ class RobotSpec:
     com: Vector = vector("links", (0.1, 0.1, 0.0),
                          "d_i, distance of each link's centre of mass from its proximal joint "
                          "(flat: d_N = 0)", "m")
+    com_across: float = number(0.0, "e_N, how far the last link's centre of mass lies across "
+                               "the link (perpendicular to it, towards increasing th_N; flat: "
+                               "0; README, *Robots as built*)", "m")
     model: str = choice(MODELS, "derived", "constraint coefficients: \"derived\" (correct) or "
                         "\"paper\" (the appendix as printed)")
 
@@ -123,6 +129,11 @@ class PlanSpec:
     degree: int | None = integer(None, "polynomial or B-spline degree", ge=3, nullable=True,
                                  default_doc="3 (poly), 5 (bspline)")
     size: int = integer(12, "B-spline coefficients per output", ge=4)
+    method: str = choice(METHODS, "auto", "how to plan: \"flat\" (the closed-form flat "
+                         "outputs; a design without them is refused), \"exact\" (joint paths "
+                         "in the basis, the base from the momentum constraint: any "
+                         "controllable design; README, *Robots as built*) or \"auto\" (flat "
+                         "where the closed form applies, exact elsewhere)")
     optimize: OptimizeSpec = field(default_factory=OptimizeSpec)
 
 
@@ -160,6 +171,17 @@ class TrackSpec:
                                inf=True)
     divergence_bound: float = number(1e4, "a state component beyond it (or non-finite) stops "
                                      "the trial as diverged", "rad, rad/s", gt=0)
+    controller: str = choice(CONTROLLERS, "flat", "the feedback: \"flat\" (the paper's "
+                             "linearising feedback on the flat outputs, gains kp, kv) or "
+                             "\"asbuilt\" (time-varying LQR of the robot as built about the "
+                             "plan, weights lqr_*; README, *Robots as built*)")
+    lqr_bandwidth: float = number(DEFAULT_BANDWIDTH, "asbuilt: b, the joint-rate weight R = "
+                                  "I / b^2 of the LQR", "rad/s", gt=0)
+    lqr_base: float = number(DEFAULT_BASE, "asbuilt: weight of the base angle's error "
+                             "relative to a joint angle's (Q = diag(lqr_base, 1, .., 1))", gt=0)
+    lqr_terminal: float = number(DEFAULT_TERMINAL, "asbuilt: t_f, the weight of the error at "
+                                 "t = T as t_f seconds of running error (P_T = t_f Q)", "s",
+                                 gt=0)
     seed: int = integer(0, "seed of the sensor-noise stream SeedSequence(seed, (trial, 1))", ge=0)
     trial: int = integer(0, "noise stream within the seed (a sweep trial's id, to re-run it)",
                          ge=0)
@@ -178,6 +200,9 @@ class PlantSpec:
     com: Vector | None = vector("links", None, "the plant's d_i, any d_N (an imperfect "
                                 "counterweight: the paper's flat outputs no longer apply)", "m",
                                 nullable=True, default_doc="robot.com")
+    com_across: float | None = number(None, "the plant's e_N (a counterweight placed across "
+                                      "the last link)", "m", nullable=True,
+                                      default_doc="robot.com_across")
     momentum: float = number(0.0, "the plant's angular momentum H0 (the controller assumes 0)",
                              "kg m^2/s")
     model: str = choice(PLANT_MODELS, "kinematic", "\"kinematic\" (the joints turn at the "

@@ -16,7 +16,7 @@ import pyarrow as pa
 
 from flatcli.core.metrics import COUNT_METRICS, METRIC_NAMES, Status, describe_status
 from flatcli.core.simulate import NoiseStreams, Trials
-from flatcli.experiment import checked
+from flatcli.experiment import checked, plant_from
 from flatcli.spec import PERTURB_TARGETS, Spec, lookup, perturbations
 from flatcli.storage import null_where_nan, with_units
 from flatcli.sweep.draws import (
@@ -83,7 +83,8 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
         noise = NoiseStreams(spec.track.sensor_noise, seed, ids[valid].astype(np.int64))
         trials = Trials(np.ascontiguousarray(links[valid]), np.ascontiguousarray(momentum[valid]),
                         np.ascontiguousarray(initial[valid]), noise,
-                        np.ascontiguousarray(servo[valid]))
+                        np.ascontiguousarray(servo[valid]),
+                        np.full(int(valid.sum()), plant_from(spec).com_across))
         outcome = simulate_counted(scenario, trials, checked(spec.track.integrator))
         metrics[valid] = outcome.metrics
         status[valid] = outcome.status
