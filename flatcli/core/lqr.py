@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -169,15 +170,14 @@ class LqrWeights:
         return np.diag([self.base] + [self.joint] * n + ([self.rate] * n if lagged else []))
 
 
-def riccati_gains(constraint: Constraint, reference: PiecewiseCurves,
-                  weights: LqrWeights = LqrWeights(), servo: float | None = None
-                  ) -> PiecewiseCurves:
-    """The gains L(t) (N S channels, row-major: joint j, then the S error components) on the
-    reference's pieces (module docstring; ``servo``: see ``linearisation``).
+def riccati(constraint: Constraint, reference: PiecewiseCurves,
+            weights: LqrWeights = LqrWeights(), servo: float | None = None) -> Any:
+    """The Riccati solution P(t) (S, S) about the reference (module docstring), as scipy's
+    dense output in s = T - t (``riccati_gains``; ``servo``: see ``linearisation``).
 
     Raises
     ------
-    FlatcliError if the Riccati integration fails (it does not for a finite plan).
+    FlatcliError if the integration fails (it does not for a finite plan).
     """
     from scipy.integrate import solve_ivp
 
@@ -202,13 +202,26 @@ def riccati_gains(constraint: Constraint, reference: PiecewiseCurves,
     if not sol.success or sol.sol is None:
         raise FlatcliError(f"track.lqr_terminal: the Riccati equation could not be "
                            f"integrated ({sol.message})")
+    return sol.sol
+
+
+def riccati_gains(constraint: Constraint, reference: PiecewiseCurves,
+                  weights: LqrWeights = LqrWeights(), servo: float | None = None
+                  ) -> PiecewiseCurves:
+    """The gains L(t) = R^-1 B^T P (N S channels, row-major: joint j, then the S error
+    components) on the reference's pieces (module docstring; ``servo``: see
+    ``linearisation``)."""
+    n = constraint.n_joints
+    size = 2 * n + 1 if servo is not None else n + 1
+    solution = riccati(constraint, reference, weights, servo)
+    duration = reference.basis.duration
     edges = reference.basis.breakpoints
     times = node_times(edges, CURVE_DEGREE)
     flat = times.ravel()
-    P = sol.sol(duration - flat).T.reshape(-1, size, size)
+    P = solution(duration - flat).T.reshape(-1, size, size)
     _, B = linearisation(constraint, reference.derivative(flat, 0)[:, :n],
                          reference.derivative(flat, 1)[:, :n], servo)
-    L = r_inv * np.swapaxes(B, 1, 2) @ P  # (count, N, S)
+    L = weights.bandwidth**2 * np.swapaxes(B, 1, 2) @ P  # (count, N, S)
     return fit(edges, CURVE_DEGREE, L.reshape(*times.shape, n * size))
 
 
@@ -225,4 +238,4 @@ def tracked(plan: Plan, weights: LqrWeights = LqrWeights(), servo: float | None 
 __all__ = ["DEFAULT_BANDWIDTH", "DEFAULT_BASE", "DEFAULT_JOINT", "DEFAULT_RATE",
            "DEFAULT_TERMINAL", "LqrWeights",
            "TrackedLayout", "linearisation", "reference_channels",
-           "riccati_gains", "tracked"]
+           "riccati", "riccati_gains", "tracked"]
