@@ -610,7 +610,7 @@ def export(directory: Path, as_csv: bool, out: Path | None) -> None:
 
 #: The sections of ``flatcli reproduce`` (``flatcli.reproduce.SECTION_NAMES``; the CLI does
 #: not import the numerical libraries to list them).
-REPRODUCE_SECTIONS = ("paper", "optimized", "montecarlo", "actuators", "chains")
+REPRODUCE_SECTIONS = ("paper", "optimized", "montecarlo", "actuators", "chains", "asbuilt")
 
 
 @main.command()

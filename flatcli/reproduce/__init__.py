@@ -3,10 +3,11 @@
 Writes into one directory (``runs/paper`` from ``make reproduce``) the figures, the plans and
 closed-loop runs as Parquet, the sweeps, and REPORT.md, whose every number is computed from
 those runs. The report is made of sections (``SECTIONS``, one module each: ``paper``,
-``optimized``, ``montecarlo``, ``actuators``, ``chains``); a section whose inputs and code
-have not changed since it was last computed into the directory is reused, not computed
-again (``sections``), so a second ``make reproduce`` takes seconds. ``only`` computes some
-sections and keeps the others' last results; ``force`` computes again whatever it runs.
+``optimized``, ``montecarlo``, ``actuators``, ``chains``, ``asbuilt``); a section whose
+inputs and code have not changed since it was last computed into the directory is reused,
+not computed again (``sections``), so a second ``make reproduce`` takes seconds. ``only``
+computes some sections and keeps the others' last results; ``force`` computes again
+whatever it runs.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from importlib import resources
 from pathlib import Path
 
 from flatcli import __version__
-from flatcli.reproduce import actuators, chains, montecarlo, optimized, paper
+from flatcli.reproduce import actuators, asbuilt, chains, montecarlo, optimized, paper
 from flatcli.reproduce.sections import Context, Result, Section, Steps, compute_or_reuse
 from flatcli.reproduce.sections import stored_result as _stored
 from flatcli.spec import load_spec, resolve
@@ -27,7 +28,7 @@ STUDY_SPEC = Path(str(resources.files("flatcli") / "data" / "paper_montecarlo.to
 
 #: The report's sections, in its order.
 SECTIONS: tuple[Section, ...] = (paper.SECTION, optimized.SECTION, montecarlo.SECTION,
-                                 actuators.SECTION, chains.SECTION)
+                                 actuators.SECTION, chains.SECTION, asbuilt.SECTION)
 SECTION_NAMES: tuple[str, ...] = tuple(s.name for s in SECTIONS)
 
 INTRO = (
