@@ -19,6 +19,7 @@ from flatcli.core.model import RobotParams
 from flatcli.core.optimize import DEFAULT_BSPLINE_DEGREE, OptimizeResult, PlanLimits, optimize_plan
 from flatcli.core.planning import Plan, plan_point_to_point
 from flatcli.core.simulate import (
+    TWIN_FACTOR,
     NoiseStreams,
     Outcome,
     Scenario,
@@ -149,6 +150,8 @@ def scenario_from(spec: Spec, plan: Plan) -> Scenario:
         max_steps=track.max_steps,
         plant=checked(spec.plant.model),
         servo_model=checked(spec.plant.servo_model),
+        twin=TWIN_FACTOR if track.error_estimate == "twin" else 0.0,
+        accuracy=track.accuracy,
     )
 
 
@@ -206,9 +209,11 @@ class TrackRun:
             values,
             self.scenario.singular_threshold,
             self.scenario.divergence_bound,
+            self.outcome.unverified(0),
         )
         out["status"] = status
         out["reason"] = reason
+        out["verified"] = bool(self.outcome.verified[0])
         event_time = float(self.outcome.event_time[0])
         out["event_time"] = None if np.isnan(event_time) else event_time
         return out

@@ -297,10 +297,13 @@ def chunk_frames(state: SweepState, columns: list[str] | None = None) -> Any:
     """The finished chunk files of a partial sweep as one DataFrame, in trials.parquet's
     order (cells in the grid's order, trials in order), ``cell`` their grid position."""
     import pandas as pd
+    import pyarrow.parquet as pq
 
     frames = []
     for i, path in enumerate(state.chunk_files):
-        frame = pd.read_parquet(path, columns=columns)
+        present = None if columns is None else [
+            c for c in columns if c in pq.read_schema(path).names]  # older files lack some
+        frame = pd.read_parquet(path, columns=present)
         if state.chunk_cells:
             frame["cell"] = state.chunk_cells[i]
         frames.append(frame)
@@ -314,12 +317,11 @@ def partial_summary(state: SweepState) -> tuple[Any, str]:
     """Per-cell statistics of the finished trials of an unfinished sweep: the summary
     frame, and its Markdown headed by how much is missing."""
 
-    from flatcli.core.metrics import METRIC_NAMES
     from flatcli.report import summarize_trials, summary_markdown
+    from flatcli.report.summary import SUMMARY_INPUTS
 
     keys = state.grid_keys
-    columns = list(dict.fromkeys(["trial", "cell", "status", "singular_hits", *METRIC_NAMES,
-                                  *keys]))
+    columns = list(dict.fromkeys(["trial", *SUMMARY_INPUTS, *keys]))
     frame = chunk_frames(state, columns)
     cells: dict[int, dict[str, Any]] = {}
     for values in frame.drop_duplicates("cell").sort_values("cell").to_dict("records"):

@@ -58,7 +58,10 @@ UNITS: dict[str, str] = {
     "torque_saturated": DIMENSIONLESS,
     "steps": DIMENSIONLESS,
     "rhs_evaluations": DIMENSIONLESS,
+    "crossings": DIMENSIONLESS,
+    "first_crossing_time": "s",
     "event_time": "s",
+    "reference_difference": _ANGLE,
     # trials.parquet: the realised perturbed quantities
     **{f"initial_{i}": _ANGLE for i in range(3)},
     "initial_rate": _RATE,
@@ -73,6 +76,10 @@ UNITS: dict[str, str] = {
     "resolved": DIMENSIONLESS,
     "simulated": DIMENSIONLESS,
     **{status: DIMENSIONLESS for status in STATUS_NAMES},
+    "verified_trials": DIMENSIONLESS,
+    "unverified_trials": DIMENSIONLESS,
+    "reference_checked": DIMENSIONLESS,
+    "reference_status_mismatches": DIMENSIONLESS,
 }
 
 #: The unit of the indexed columns of a robot of any N joints, by their name with the index

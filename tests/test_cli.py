@@ -34,7 +34,8 @@ TRACK_COLUMNS = ["t", "theta0", "theta1", "theta2", "theta0_dot", "theta1_dot", 
 METRICS = ["err_theta_rms", "err_theta_max", "err_theta_final", "err_y_rms", "err_y_max",
            "err_y_final", "singular_hits", "first_hit_time", "min_margin", "momentum_drift",
            "plan_momentum_residual", "err_estimate", "peak_rate", "peak_torque",
-           "torque_saturated", "steps", "rhs_evaluations", "status", "reason", "event_time"]
+           "torque_saturated", "steps", "rhs_evaluations", "crossings", "first_crossing_time",
+           "status", "reason", "event_time", "verified"]
 
 
 def run(*args: str) -> tuple[int, str]:

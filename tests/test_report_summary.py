@@ -91,3 +91,45 @@ def test_summary_markdown_shows_shares_with_intervals() -> None:
     ci = binomtest(1, 4).proportion_ci(0.95, method="wilson")  # 1 of 4 diverged
     assert f"| 25 ({100 * ci.low:.2g}-{100 * ci.high:.2g}) " in text
     assert max(len(line) for line in text.splitlines()) <= 80
+
+
+def test_verified_and_unverified_trials_are_never_averaged_together() -> None:
+    """Cell 0 mixes two verified trials (errors 1, 2) with an unverified one (error 100): its
+    statistics are the verified ones' alone. Cell 1 has only unverified trials: its
+    statistics are theirs, and the cell says so (statistics_of; marked * in the tables)."""
+    frame = pd.DataFrame({
+        "cell": [0, 0, 0, 1, 1],
+        "status": ["ok"] * 5,
+        "singular_hits": [0] * 5,
+        "verified": [True, True, False, False, False],
+        **{m: [1.0, 2.0, 100.0, 3.0, 5.0] for m in (
+            "err_theta_rms", "err_theta_final", "err_y_rms", "err_y_final", "min_margin",
+            "momentum_drift", "plan_momentum_residual", "peak_rate", "err_estimate")},
+        "reference_difference": [1e-7, None, None, 4e-3, None],
+        "reference_status": ["ok", None, None, "diverged", None],
+    })
+    summary = summarize_trials(frame, {0: {}, 1: {}}).set_index("cell")
+    assert summary.loc[0, "err_theta_rms_max"] == 2.0  # never the unverified 100
+    assert summary.loc[0, "err_theta_rms_median"] == 1.5
+    assert summary.loc[1, "err_theta_rms_max"] == 5.0
+    assert list(summary["statistics_of"]) == ["verified", "unverified"]
+    assert list(summary["verified_trials"]) == [2, 0]
+    assert list(summary["unverified_trials"]) == [1, 2]
+    assert list(summary["reference_checked"]) == [1, 1]
+    assert list(summary["reference_difference_max"]) == [1e-7, 4e-3]
+    assert list(summary["reference_status_mismatches"]) == [0, 1]
+    text = summary_markdown(summary.reset_index(), [])
+    assert "| 1*   |" in text and "| 0    |" in text
+    assert "Checked against the reference" in text
+
+
+def test_a_directory_without_the_accuracy_columns_has_no_verified_trials() -> None:
+    """trials.parquet written before flatcli recorded ``verified``: nothing is claimed."""
+    frame = pd.DataFrame({"cell": [0, 0], "status": ["ok", "ok"], "singular_hits": [0, 0],
+                          **{m: [1.0, 2.0] for m in (
+                              "err_theta_rms", "err_theta_final", "err_y_rms", "err_y_final",
+                              "min_margin", "momentum_drift", "plan_momentum_residual",
+                              "peak_rate", "err_estimate")}})
+    summary = summarize_trials(frame, {0: {}})
+    assert summary.loc[0, "statistics_of"] == "unverified"
+    assert summary.loc[0, "verified_trials"] == 0 and summary.loc[0, "reference_checked"] == 0

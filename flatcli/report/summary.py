@@ -2,7 +2,10 @@
 
 Statistics of a trial's numbers (errors, margin, drift, peak rate, error estimate) are taken
 over the trials resolved to the end (``RESOLVED``: ok, singular) only: a diverged or unresolved
-trial's numbers stop at an arbitrary time and an error trial has none. What is left out is
+trial's numbers stop at an arbitrary time and an error trial has none. Of those, the verified
+trials (``verified``: an integrator that controls its error) and the unverified ones (fixed-step
+RK4) are never averaged together: a cell's statistics are over its verified trials if it has
+any, else over its unverified ones, and ``statistics_of`` says which. What is left out is
 counted instead: per status, and as fractions of the cell's trials with a 95 % Wilson score
 interval (``wilson_interval``), so a reader sees how much each statistic leaves out.
 """
@@ -18,13 +21,18 @@ import pandas as pd
 from numpy.typing import NDArray
 from scipy.special import ndtri
 
-from flatcli.core.metrics import RESOLVED, STATUS_NAMES
+from flatcli.core.metrics import METRIC_NAMES, RESOLVED, STATUS_NAMES
 from flatcli.report.tables import fmt, table
 
 Array = NDArray[np.float64]
 
 #: Trials whose numbers enter the statistics: those resolved to the end (``RESOLVED``).
 COMPLETED = RESOLVED
+#: The columns of trials.parquet that ``summarize_trials`` reads (those after the metrics
+#: may be missing: a directory written before flatcli recorded them).
+SUMMARY_INPUTS: tuple[str, ...] = tuple(dict.fromkeys((
+    "cell", "status", "singular_hits", *METRIC_NAMES, "verified", "reference_difference",
+    "reference_status")))
 ERROR_METRICS = ("err_theta_rms", "err_theta_final", "err_y_rms", "err_y_final")
 #: Statuses of trials that did not run to the end, reported as fractions of a cell's trials.
 FAILURES = ("diverged", "unresolved", "error")
@@ -87,7 +95,10 @@ def summarize_trials(frame: pd.DataFrame, cells: Mapping[int, Mapping[str, Any]]
     for cell, values in cells.items():
         group = frame[frame["cell"] == cell]
         status = group["status"]
-        done = group[status.isin(RESOLVED)]
+        resolved = group[status.isin(RESOLVED)]
+        sure = _flag(resolved, "verified")
+        kind = "verified" if sure.any() else "unverified" if len(resolved) else None
+        done = resolved[sure] if sure.any() else resolved
         simulated = group[status != "error"]
         row: dict[str, Any] = {"cell": cell, **values, "trials": len(group)}
         for name in STATUS_NAMES:
@@ -115,8 +126,35 @@ def summarize_trials(frame: pd.DataFrame, cells: Mapping[int, Mapping[str, Any]]
             values_ = _present(done[metric])
             row[f"{metric}_median"] = _stat(np.median, values_)
             row[f"{metric}_max"] = _stat(np.max, values_)
+        row["verified_trials"] = int(sure.sum())
+        row["unverified_trials"] = len(resolved) - row["verified_trials"]
+        row["statistics_of"] = kind
+        _reference(row, group)
         rows.append(row)
     return pd.DataFrame(rows)
+
+
+def _flag(frame: pd.DataFrame, column: str) -> Array:
+    """A boolean column as a numpy mask (False where it is missing or null: a directory
+    written before flatcli recorded it has no verified trials)."""
+    if column not in frame:
+        return np.zeros(len(frame), dtype=bool)
+    return np.asarray(frame[column].fillna(False).astype(bool).to_numpy(), dtype=bool)
+
+
+def _reference(row: dict[str, Any], group: pd.DataFrame) -> None:
+    """The cell's trials checked against the reference integrator (``sweep.verify``): how
+    many, how far they were from it (median, max) and how many ended with another status."""
+    if "reference_status" in group:
+        checked = group[group["reference_status"].notna()]
+    else:
+        checked = group.iloc[:0]
+    row["reference_checked"] = len(checked)
+    gap = _present(checked["reference_difference"]) if len(checked) else np.zeros(0)
+    row["reference_difference_median"] = _stat(np.median, gap)
+    row["reference_difference_max"] = _stat(np.max, gap)
+    row["reference_status_mismatches"] = int(
+        (checked["reference_status"] != checked["status"]).sum()) if len(checked) else 0
 
 
 def _present(column: pd.Series) -> Array:
@@ -157,6 +195,14 @@ def summary_markdown(summary: pd.DataFrame, grid_keys: Sequence[str]) -> str:
         return [[int(r["cell"]), *(cell_text(r[c]) for c in cols)]
                 for _, r in summary.iterrows()]
 
+    def marked(lines: list[list[object]]) -> list[list[object]]:
+        """Rows whose statistics are over unverified trials: the cell marked *."""
+        kinds = summary.get("statistics_of")
+        if kinds is None:
+            return lines
+        return [[f"{line[0]}*" if kind == "unverified" else line[0], *line[1:]]
+                for line, kind in zip(lines, kinds, strict=True)]
+
     def shares(names: Sequence[str]) -> list[list[object]]:
         return [[int(r["cell"]), *(with_interval(r[f"{n}_fraction"], r[f"{n}_fraction_low"],
                                                  r[f"{n}_fraction_high"]) for n in names)]
@@ -170,6 +216,13 @@ def summary_markdown(summary: pd.DataFrame, grid_keys: Sequence[str]) -> str:
         "### Trials by status\n",
         table(["cell", "trials", *STATUS_NAMES, "resolved"],
               rows(["trials", *STATUS_NAMES, "resolved"])),
+        "\n### Accuracy of the resolved trials\n",
+        table(["cell", "resolved", "verified", "unverified", "statistics of"],
+              rows(["resolved", "verified_trials", "unverified_trials", "statistics_of"])),
+        "\nverified: resolved by an integrator that controls its error (adaptive, dop853),\n"
+        "err_estimate (where estimated) within track.accuracy. A cell's statistics below\n"
+        "are over its verified trials, or over its unverified ones (rk4, or estimates too\n"
+        "large) if it has none: such cells are marked * and never averaged with others.",
         "\n### Failures and singular hits [% of trials, 95 % interval]\n",
         table(["cell", "diverged", "unresolved", "error", "singular hit"],
               shares([*FAILURES, "singular"])),
@@ -183,7 +236,7 @@ def summary_markdown(summary: pd.DataFrame, grid_keys: Sequence[str]) -> str:
         parts += [
             f"\n### Tracking error of {name} [rad] (resolved trials: ok, singular)\n",
             table(["cell", "rms med", "rms p95", "rms max", "final med", "final p95",
-                   "final max"], rows(cols), 3),
+                   "final max"], marked(rows(cols)), 3),
         ]
     parts += [
         "\n### Singularity, momentum and integration (resolved trials)\n",
@@ -193,8 +246,19 @@ def summary_markdown(summary: pd.DataFrame, grid_keys: Sequence[str]) -> str:
                     "plan_momentum_residual_max", "err_estimate_max"]), 3),
         "\nmargin med: median of min_margin [rad/s]; peak rate [rad/s]; drift and plan\n"
         "res(idual) of H [kg m^2/s]; err est: the adaptive integrator's estimate of its\n"
-        "global error in theta at the end [rad] (- for rk4 and dop853).",
+        "global error in theta at the end [rad] (- for rk4, dop853 and\n"
+        "track.error_estimate = \"none\").",
     ]
+    if "reference_checked" in summary and (summary["reference_checked"] > 0).any():
+        parts += [
+            "\n### Checked against the reference (sweep.verify)\n",
+            table(["cell", "checked", "diff med", "diff max", "other status"],
+                  rows(["reference_checked", "reference_difference_median",
+                        "reference_difference_max", "reference_status_mismatches"]), 3),
+            "\nchecked: trials re-run with DOP853 at rtol 1e-10; diff: max over the samples\n"
+            "of the norm of the angles' difference [rad]; other status: checked trials whose\n"
+            "reference ended with another status.",
+        ]
     return "\n".join(parts)
 
 

@@ -55,8 +55,16 @@ def build(values: Mapping[str, Any]) -> Spec:
     validate_sweep(spec.sweep, spec.joints, spec.plant.torque_limit)
     check_grid_shapes(spec.sweep.grid)
     check_derived(spec)
+    check_verify(spec.sweep.verify)
     check_limits(spec)
     return spec
+
+
+def check_verify(verify: float) -> None:
+    """``sweep.verify`` is a fraction (below 1) or a whole count of trials."""
+    if verify >= 1 and (not math.isfinite(verify) or verify != int(verify)):
+        raise SpecError(f"sweep.verify: a fraction below 1 or a whole count of trials, got "
+                        f"{verify:g}")
 
 
 def _scan(where: str, value: Any, depth: int) -> None:

@@ -31,9 +31,11 @@ from flatcli.core.model import MODELS
 from flatcli.core.optimize import OBJECTIVES
 from flatcli.core.plant import DEFAULT_SERVO_BANDWIDTH, PLANT_MODELS, SERVO_MODELS
 from flatcli.core.simulate import (
+    DEFAULT_ACCURACY,
     DEFAULT_ATOL,
     DEFAULT_MAX_STEPS,
     DEFAULT_RTOL,
+    ERROR_ESTIMATES,
     INTEGRATORS,
 )
 from flatcli.spec.keys import (
@@ -151,6 +153,12 @@ class TrackSpec:
                          "rad, rad/s", gt=0)
     max_steps: int = integer(DEFAULT_MAX_STEPS, "attempted steps the adaptive integrator may "
                              "take per trial before the trial is unresolved", ge=1)
+    error_estimate: str = choice(ERROR_ESTIMATES, "twin", "the adaptive integrator's "
+                                 "err_estimate: \"twin\" (each trial that reaches T integrated "
+                                 "again at a hundredth of rtol and atol: about half the "
+                                 "trials/s) or \"none\" (err_estimate null)")
+    accuracy: float = number(DEFAULT_ACCURACY, "a resolved trial whose err_estimate exceeds it "
+                             "is not verified (its numbers are reported apart)", "rad", gt=0)
     singular_threshold: float = number(1e-2, "a sample whose margin abs(sin th1 * u1) is below "
                                        "it is a singular hit", "rad/s", ge=0)
     sensor_noise: float = number(0.0, "std of the noise on the measured angles, drawn per "
@@ -205,6 +213,10 @@ class SweepSpec:
         None, "trials per task; from the spec alone, so a resume finds the same chunks "
         "whatever --workers", ge=1, nullable=True,
         default_doc="about 1/16 of all trials, within 250..1000 (and <= trials)")
+    verify: float = number(0.0, "trials of each cell re-run with the reference integrator "
+                           "(DOP853, rtol 1e-10) and compared (reference_difference): a "
+                           "fraction if below 1 (0.01: the first 1 % of each cell's trials, at "
+                           "least one), else a whole count", ge=0)
     perturb: Mapping[str, Any] = table("random perturbations (below)")
     grid: Mapping[str, Any] = table("spec keys and their lists of values (below)")
 

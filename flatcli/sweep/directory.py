@@ -33,7 +33,6 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from flatcli.core.metrics import METRIC_NAMES
 from flatcli.files import (
     MAX_MANIFEST_BYTES,
     UnreadableFileError,
@@ -45,6 +44,7 @@ from flatcli.files import (
     real_directory,
 )
 from flatcli.report import summarize_trials, summary_markdown
+from flatcli.report.summary import SUMMARY_INPUTS
 from flatcli.spec import SpecError
 from flatcli.spec.limits import ID_STRIDE
 from flatcli.storage import (
@@ -639,8 +639,7 @@ def finish_sweep(directory: Path, lay: Layout, provenance: Mapping[str, Any], st
     """
     finishing = time.perf_counter()
     trials_path = assemble_trials(directory, lay, provenance)
-    columns = list(dict.fromkeys(["cell", "status", *METRIC_NAMES]))  # each column once
-    frame = pq.read_table(trials_path, columns=columns).to_pandas()
+    frame = pq.read_table(trials_path, columns=list(SUMMARY_INPUTS)).to_pandas()
     cells = {c.index: {k: v for k, (_, v) in grid_columns(c.values, c.spec).items()}
              for c in lay.cells}
     summary = summarize_trials(frame, cells)
