@@ -16,14 +16,10 @@ use (PEP 562 module ``__getattr__``).
 
 from __future__ import annotations
 
-import os
 from typing import TYPE_CHECKING, Any
 
-# flatcli's matrices are small: threaded BLAS only adds overhead (SLSQP runs 3-5x slower on
-# two cores) and oversubscribes the cores a sweep's worker processes already fill. Set
-# before numpy is first imported; a user's own setting wins.
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+# No thread-count variables are set here: flatcli limits the numerical libraries' threads in
+# its own work only (flatcli.threads), so a notebook's numpy keeps its threads.
 
 #: What kept flatcli from starting (memory too short even for importlib.metadata, e.g. under
 #: ``ulimit -v``): the command line reports it in one line (``flatcli.cli``).

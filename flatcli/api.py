@@ -69,6 +69,7 @@ from flatcli.storage import (
     write_json,
     write_parquet,
 )
+from flatcli.threads import computes
 
 if TYPE_CHECKING:
     from flatcli.preflight import CheckReport
@@ -411,6 +412,7 @@ def _floats(value: Any) -> Any:
 # ---------------------------------------------------------------------------------------
 # The functions.
 
+@computes
 def plan(spec: SpecLike = None, overrides: Overrides = None) -> PlanResult:
     """Plan the spec's maneuver (optimised when ``plan.optimize.objective`` is set).
 
@@ -433,6 +435,7 @@ def _optimization(result: OptimizeResult, spec: Spec) -> dict[str, Any]:
     return optimization_summary(result, str(spec.plan.optimize.objective))
 
 
+@computes
 def track(spec: SpecLike = None, overrides: Overrides = None, *,
           quiet: bool = False) -> TrackResult:
     """Plan, then simulate the closed loop of the spec's ``[track]`` on its ``[plant]``.
@@ -451,6 +454,7 @@ def track(spec: SpecLike = None, overrides: Overrides = None, *,
     return TrackResult(s, track_frame(run), run.metrics, run)
 
 
+@computes
 def sweep(spec: SpecLike, out: str | os.PathLike[str] | None = None, *,
           overrides: Overrides = None, workers: int | None = None, executor: str = "local",
           scheduler: str | None = None, force: bool = False, fail_fast: bool = False,
@@ -480,6 +484,7 @@ def sweep(spec: SpecLike, out: str | os.PathLike[str] | None = None, *,
     return SweepResult(state, done.simulated, done.wall_seconds, done.summary_text)
 
 
+@computes
 def check(spec: SpecLike, overrides: Overrides = None, *, workers: int | None = None,
           executor: str = "local", calibrate: bool = True,
           quiet: bool = False) -> CheckReport:

@@ -33,6 +33,12 @@ try:  # too little memory to load even these (ulimit -v): one line, not a traceb
 
     from flatcli import STARTUP_ERROR, __version__
     from flatcli.startup import library_error_text, probe_libraries, while_importing
+    from flatcli.threads import THREAD_VARIABLES
+
+    # The command line is flatcli's own process: one BLAS thread (flatcli.threads), set
+    # before numpy first loads; a user's own setting wins.
+    for _var in THREAD_VARIABLES:
+        os.environ.setdefault(_var, "1")
 
     if STARTUP_ERROR is not None:
         raise STARTUP_ERROR
