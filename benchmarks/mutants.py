@@ -31,6 +31,8 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from flatcli.report.tables import table
+
 #: What the tests of the copy need beside the package.
 COPIED = ("flatcli", "tests", "benchmarks", "configs", "pyproject.toml", "README.md")
 #: The kill rate the issue asks for.
@@ -278,9 +280,9 @@ def report(outcomes: list[Outcome]) -> tuple[str, float]:
     killed = sum(o.status == "killed" for o in counted)
     rate = killed / len(counted) if counted else 0.0
     lines = [f"# Mutants: {killed} of {len(counted)} killed ({100 * rate:.0f} %)", "",
-             "| mutant | kind | status | s | tests' last line |", "|---|---|---|---:|---|"]
-    lines += [f"| {o.ident} | {o.kind} | {o.status} | {o.seconds:.0f} | "
-              f"{o.detail.replace('|', '/')[:90]} |" for o in outcomes]
+             table(["mutant", "kind", "status", "s", "tests' last line"],
+                   [[o.ident, o.kind, o.status, round(o.seconds), o.detail[:90]]
+                    for o in outcomes], align=False)]
     stale = [o.ident for o in outcomes if o.status == "stale"]
     if stale:
         lines += ["", f"stale (not applied, not counted): {', '.join(stale)}"]

@@ -20,13 +20,13 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-from scipy.stats import binomtest
 
 from flatcli.core.dynamics import make_chain
 from flatcli.core.metrics import STATUS_NAMES
 from flatcli.core.plant import DEFAULT_SERVO_BANDWIDTH, plan_motion, plan_torques
 from flatcli.experiment import flat_plan_from, robot_from, run_track
 from flatcli.report import COMPLETED, Progress, fmt, new_figure, save_figure, table
+from flatcli.report.summary import wilson_interval
 from flatcli.reproduce.findings import OPTIMIZED_PLANS
 from flatcli.reproduce.sections import Context, Outcome, Section, Steps
 from flatcli.spec import Spec, load_spec
@@ -195,8 +195,8 @@ def limit_text(limit: float) -> str:
 
 def lost_interval(lost: float, trials: int) -> tuple[float, float]:
     """95 % Wilson interval of a fraction of trials lost."""
-    ci = binomtest(round(lost * trials), trials).proportion_ci(0.95, method="wilson")
-    return float(ci.low), float(ci.high)
+    low, high = wilson_interval(round(lost * trials), trials)
+    return float(low), float(high)
 
 
 def plot_study(cells: pd.DataFrame, kinematic: Mapping[str, tuple[float, float]],

@@ -12,6 +12,7 @@ import math
 import re
 from typing import Any
 
+from flatcli.report.tables import table
 from flatcli.spec.keys import Key
 from flatcli.spec.schema import SCHEMA, SECTIONS
 
@@ -50,11 +51,9 @@ def heading(section: str) -> str:
 
 def section_table(section: str) -> str:
     """The Markdown table of one section's keys."""
-    rows = ["| key | default | unit | allowed | meaning |", "|---|---|---|---|---|"]
-    for name, key in SCHEMA[section].items():
-        cells = [f"`{name}`", show_default(key), key.unit, key.bounds_text(), key.doc]
-        rows.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")
-    return "\n".join(rows)
+    rows = [[f"`{name}`", show_default(key), key.unit, key.bounds_text(), key.doc]
+            for name, key in SCHEMA[section].items()]
+    return table(["key", "default", "unit", "allowed", "meaning"], rows, align=False)
 
 
 def block(section: str) -> str:
