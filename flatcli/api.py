@@ -98,7 +98,8 @@ def load_spec(spec: SpecLike = None, overrides: Overrides = None) -> Spec:
     if isinstance(spec, Mapping):
         return resolve(spec, extra)
     if isinstance(spec, str | os.PathLike):
-        return resolve(read_toml(Path(spec)), extra)
+        path = Path(spec)
+        return resolve(read_toml(path), extra, base=path.parent, source=path)
     raise TypeError(f"spec: expected a path, a dict, a Spec or None, got {type(spec).__name__}")
 
 

@@ -50,6 +50,7 @@ class Key:
     unit : SI unit, '' for none
     low : lower bound of a number or of every item of a vector (None: unbounded)
     low_open : True: the value must be > low; False: >= low
+    high : upper bound of a number (None: unbounded), inclusive
     choices : the allowed words of a "choice"
     nullable : None is allowed (it means "see doc")
     allow_inf : inf is a meaningful value (no limit)
@@ -67,6 +68,7 @@ class Key:
     unit: str = ""
     low: float | None = None
     low_open: bool = False
+    high: float | None = None
     choices: tuple[str, ...] = ()
     nullable: bool = False
     allow_inf: bool = False
@@ -95,6 +97,8 @@ class Key:
             text = "true, false"
         elif self.low is None:
             text = ""
+        elif self.high is not None:
+            text = f"{self.low:g} to {self.high:g}"
         else:
             text = f"{'>' if self.low_open else '>='} {self.low:g}"
         if self.allow_inf:
@@ -124,9 +128,11 @@ class Key:
         return x
 
     def _check_low(self, where: str, x: float) -> None:
+        unit = f" {self.unit}" if self.unit else ""
+        if self.high is not None and not x <= self.high:
+            raise SpecError(f"{where}: must be at most {self.high:g}{unit}, got {x:g}")
         if self.low is None:
             return
-        unit = f" {self.unit}" if self.unit else ""
         if self.low_open and not x > self.low:
             raise SpecError(f"{where}: must be > {self.low:g}{unit}, got {x:g}")
         if not self.low_open and not x >= self.low:
@@ -283,10 +289,11 @@ def number(default: float | None, doc: str, unit: str = "", *, gt: float | None 
                         default_doc=default_doc, **_low(gt, ge)))
 
 
-def integer(default: int | None, doc: str, *, ge: int | None = None, nullable: bool = False,
-            default_doc: str = "") -> Any:
-    """An int key, bounded below by ``ge``."""
-    return _declare(Key("int", default, doc, low=ge, nullable=nullable, default_doc=default_doc))
+def integer(default: int | None, doc: str, unit: str = "", *, ge: int | None = None,
+            le: int | None = None, nullable: bool = False, default_doc: str = "") -> Any:
+    """An int key, bounded below by ``ge`` (and above by ``le``)."""
+    return _declare(Key("int", default, doc, unit, low=ge, high=le, nullable=nullable,
+                        default_doc=default_doc))
 
 
 def vector(length: int | str, default: tuple[float, ...] | None, doc: str, unit: str = "",

@@ -60,6 +60,11 @@ LINKS = 3
 GAINS = 2
 #: Flat-output bases of ``plan.basis``; "auto" picks one (see ``flatcli.experiment``).
 BASES = ("auto", "poly", "bspline")
+#: File formats of ``figures.format`` (``--format``): one raster, two vector.
+FIGURE_FORMATS = ("png", "pdf", "svg")
+#: Sections that say how results are shown, not what is computed: they enter no digest, so
+#: a sweep resumes and a run is "the same run" whatever figures it draws.
+PRESENTATION = ("figures",)
 INF = math.inf
 
 Vector = tuple[float, ...]
@@ -210,6 +215,16 @@ class SweepSpec:
 
 
 @dataclass(frozen=True)
+class FiguresSpec:
+    """the files figures are written as (`--format`, `--dpi`; not part of the experiment)"""
+
+    format: str = choice(FIGURE_FORMATS, "png", "file format of every figure a command writes: "
+                         "\"png\" (raster), \"pdf\" or \"svg\" (vector, for print)")
+    dpi: int = integer(150, "resolution of raster figures (png); pdf and svg are vector, their "
+                       "embedded images only use it", "dots/in", ge=50, le=1200)
+
+
+@dataclass(frozen=True)
 class Spec:
     """top level
 
@@ -225,6 +240,7 @@ class Spec:
     track: TrackSpec = field(default_factory=TrackSpec)
     plant: PlantSpec = field(default_factory=PlantSpec)
     sweep: SweepSpec = field(default_factory=SweepSpec)
+    figures: FiguresSpec = field(default_factory=FiguresSpec)
 
     @property
     def joints(self) -> int:
@@ -240,12 +256,20 @@ class Spec:
         """{dotted key: value} of every key."""
         return dict(_values(self, ""))
 
+    def experiment_tree(self) -> dict[str, Any]:
+        """``tree`` without the sections that only say how results are shown
+        (``PRESENTATION``): what the experiment is."""
+        return experiment(self.tree)
+
     def to_json(self) -> str:
-        """Canonical JSON (sorted keys, no spaces; inf written as the string "inf")."""
-        return json.dumps(to_jsonable(self.tree), sort_keys=True, separators=(",", ":"))
+        """Canonical JSON of the experiment (``experiment_tree``; sorted keys, no spaces; inf
+        written as the string "inf")."""
+        return json.dumps(to_jsonable(self.experiment_tree()), sort_keys=True,
+                          separators=(",", ":"))
 
     def digest(self) -> str:
-        """SHA-256 of the canonical JSON: what makes two sweeps the same experiment."""
+        """SHA-256 of the canonical JSON: what makes two sweeps the same experiment (the
+        figures' format is not part of it)."""
         return hashlib.sha256(self.to_json().encode()).hexdigest()
 
     def with_overrides(self, overrides: Mapping[str, Any]) -> Spec:
@@ -253,6 +277,12 @@ class Spec:
         from flatcli.spec.build import build  # build validates with the sweep's rules
 
         return build({**self.values(), **overrides})
+
+
+def experiment(tree: Mapping[str, Any]) -> dict[str, Any]:
+    """A spec tree (a Spec's, or one read from a run's record) without its ``PRESENTATION``
+    sections."""
+    return {k: v for k, v in tree.items() if k not in PRESENTATION}
 
 
 def _is_section(f: Field[Any]) -> bool:

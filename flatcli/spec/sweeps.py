@@ -243,6 +243,9 @@ def _validate_grid_value(perturb: Mapping[str, Any], where: str, dotted: str,
         return
     if dotted.startswith("sweep.") or dotted == "name":
         raise SpecError(f"{where}: cannot grid over {dotted!r}")
+    if dotted.startswith("figures."):
+        raise SpecError(f"{where}: cannot grid over {dotted!r}: figures are how a sweep is "
+                        "drawn, once for all its cells")
     try:
         lookup(dotted)
     except SpecError:

@@ -47,6 +47,7 @@ from flatcli.files import (
 from flatcli.report import summarize_trials, summary_markdown
 from flatcli.spec import SpecError
 from flatcli.spec.limits import ID_STRIDE
+from flatcli.spec.schema import experiment
 from flatcli.storage import (
     LOCK_NAME,
     PARQUET_META_KEY,
@@ -322,9 +323,10 @@ def spec_differences(old: Mapping[str, Any], new: Mapping[str, Any]
                      ) -> tuple[list[str], list[str]]:
     """The keys whose values differ between two spec trees, as ``key (old -> new)``; and,
     separately, the grid keys whose lists of values differ (the grid's keys being the same).
-    A change of the grid's keys is a key difference of ``sweep.grid``."""
-    a = _flat(to_jsonable(old))
-    b = _flat(to_jsonable(new))
+    A change of the grid's keys is a key difference of ``sweep.grid``; how figures are drawn
+    (``PRESENTATION``) is not compared."""
+    a = _flat(to_jsonable(experiment(old)))
+    b = _flat(to_jsonable(experiment(new)))
     keys: list[str] = []
     grid: list[str] = []
     for dotted in [*a, *(k for k in b if k not in a)]:
