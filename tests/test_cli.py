@@ -274,7 +274,20 @@ def test_design_of_the_audits_chain4_is_not_flat_and_the_plant_gets_its_own_verd
         (["plan", "--set", "plan.samples=1000000000"], "plan.samples = 1000000000 would need"),
         (["track", "--set", "track.dt=1e-9"], "output steps would need"),
         (["plan", "/dev/zero"], "is not a regular file"),
-        (["sweep", "MISSING.toml", "--rerun", str(10**23)], "'--rerun': 10000000000000000000"),
+        (["sweep", "MISSING.toml", "--rerun", str(10**23)],
+         "'--rerun': expected a trial id (an integer from 0 to 2^63 - 1)"),
+        (["rerun", "nowhere", "x1"], "expected a trial id"),
+        (["plan", "--robot", "chian4"], "robot: unknown robot 'chian4'; shipped: chain4, "
+                                        "chain6, paper"),
+        (["plan", "--dpi", "5000"], "--dpi: must be at most 1200 dots/in, got 5000"),
+        (["plan", "--format", "jpg"], "'--format': 'jpg' is not one of"),
+        (["plan", "--tag", "a\x1bb"], "--tag: must not contain control"),
+        (["plan", "--name", "../x"], "name: must not contain '/'"),
+        (["summarize", "nowhere", "--x", "track.dt"], "--format, --dpi, --x, --hue: only "
+                                                      "with --plot"),
+        (["runs", "--filter", "status<ok"], "< compares numbers and times"),
+        (["sweep", "flat.toml"], "sweep: 1000 identical trials (no [sweep.perturb] and no "
+                                 "track.sensor_noise)"),
         (["sweep", "MISSING.toml", "--workers", "abc"], "'abc' is not a valid integer"),
     ],
 )
@@ -282,6 +295,7 @@ def test_bad_input_is_one_line_exit_2_and_writes_nothing(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, args: list[str], message: str
 ) -> None:
     monkeypatch.chdir(tmp_path)
+    (tmp_path / "flat.toml").write_text('name = "flat"\n')  # no [sweep]: identical trials
     code, out = run(*args)
     assert code == 2, out
     assert out.startswith("error: ") and out.count("\n") == 1, out
