@@ -76,6 +76,7 @@ from flatcli.storage import (
     write_parquet,
 )
 from flatcli.threads import computes
+from flatcli.trajectory import Trajectory
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -245,6 +246,15 @@ class PlanResult(Run):
     def spec(self) -> Spec:
         return self._spec if self._spec is not None else spec_of(self.record)
 
+    @cached_property
+    def trajectory(self) -> Trajectory:
+        """The maneuver as a function of time (``flatcli.trajectory.Trajectory``):
+        ``p.trajectory(t)`` gives its states, rates, inputs and flat outputs at any t in
+        [0, T]; a loaded plan is planned again from its spec (the same plan: planning is
+        deterministic)."""
+        return Trajectory(self.plan if self.plan is not None else
+                          plan_and_optimization(self.spec)[0])
+
     def text(self) -> str:
         """What ``flatcli plan`` prints."""
         if self.plan is None or self.samples is None:
@@ -300,6 +310,12 @@ class TrackResult(Run):
     @cached_property
     def spec(self) -> Spec:
         return self._spec if self._spec is not None else spec_of(self.record)
+
+    @cached_property
+    def trajectory(self) -> Trajectory:
+        """The reference the run tracked, as a function of time (``PlanResult.trajectory``)."""
+        return Trajectory(self.run.plan if self.run is not None else
+                          plan_and_optimization(self.spec)[0])
 
     def text(self) -> str:
         """What ``flatcli track`` prints."""
