@@ -3,7 +3,7 @@
     python -m benchmarks.mutants [--out runs/mutants] [--only ID ...] [--list] [--work DIR]
 
 Each mutant is one plausible one-line bug: a file, the exact text of one line (or part of
-it), its replacement, the kind of guarantee it breaks (README, *Failures*) and the tests that
+it), its replacement, the kind of guarantee it breaks (docs/failures.md) and the tests that
 pin that guarantee. The runner copies the package, the tests and what they read into a work
 directory once, applies each mutant to that copy alone (the checkout is never touched), runs
 the mutant's tests against the copy in a fresh interpreter (``PYTHONPATH`` points at the
@@ -34,7 +34,8 @@ from pathlib import Path
 from flatcli.report.tables import table
 
 #: What the tests of the copy need beside the package.
-COPIED = ("flatcli", "tests", "benchmarks", "configs", "pyproject.toml", "README.md")
+COPIED = ("flatcli", "tests", "benchmarks", "configs", "docs", "pyproject.toml",
+          "README.md")
 #: The kill rate the issue asks for.
 TARGET = 0.9
 #: Longest run of one mutant's tests [s] (a mutant that makes a read block is caught by the

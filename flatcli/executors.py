@@ -20,6 +20,7 @@ import os
 import signal
 import sys
 import time
+import uuid
 import warnings
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -288,8 +289,10 @@ class DaskExecutor:
             item = next(queue, None)
             if item is None:
                 return False
-            # a Dask worker is not flatcli's process: one BLAS thread for the task only
-            future = self._client.submit(single_threaded, fn, *item[1], pure=False)
+            # a Dask worker is not flatcli's process: one BLAS thread for the task only; the
+            # task keeps its function's name (run_chunk-...) on the dashboard
+            key = f"{getattr(fn, '__name__', 'task')}-{uuid.uuid4().hex}"
+            future = self._client.submit(single_threaded, fn, *item[1], key=key, pure=False)
             pending[future] = item[0]
             return True
 

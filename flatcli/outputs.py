@@ -2,7 +2,7 @@
 
 ``flatcli plan``, ``flatcli track``, ``flatcli sweep --rerun`` and ``flatcli reproduce`` all
 write their tables through these functions, so a plan or a track table has the same columns
-whichever command wrote it (the README's *Output files* lists them). Each frame carries its
+whichever command wrote it (docs/outputs.md lists them). Each frame carries its
 columns' units in ``frame.attrs["units"]`` (``flatcli.units``), which ``write_parquet`` writes as
 Arrow field metadata; a value that does not apply (a sample after a trial stopped) is null.
 """

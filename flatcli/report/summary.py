@@ -61,7 +61,7 @@ def wilson_interval(successes: Any, trials: Any, confidence: float = 0.95
 
 def summarize_trials(frame: pd.DataFrame, cells: Mapping[int, Mapping[str, Any]]
                      ) -> pd.DataFrame:
-    """Per-cell statistics of a sweep's trials (definitions in the README, *Sweep output*).
+    """Per-cell statistics of a sweep's trials (definitions in docs/outputs.md, *Sweep output*).
 
     Parameters
     ----------

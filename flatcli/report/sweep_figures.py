@@ -53,7 +53,7 @@ def plot_sweep(directory: Path, file: FigureFile | None = None, x: str | None = 
                hue: str | None = None) -> list[Path]:
     """The figures of a finished sweep (``sweep_figures``) written into its directory as
     ``sweep_<name>.png`` (or ``file``'s format; default the sweep spec's ``[figures]``);
-    their paths (the README's *Sweep output* describes them)."""
+    their paths (docs/outputs.md, *Sweep output*, describes them)."""
     sweep = SweepData.load(directory)
     file = file or FigureFile.of_tree(sweep.tree)
     return [save_figure(fig, directory / file.name(f"sweep_{name}"), file)

@@ -44,7 +44,7 @@ from flatcli.storage import run_record, write_parquet
 
 #: The study's spec, shipped with flatcli (package data; configs/ links to it).
 STUDY = Path(str(resources.files("flatcli") / "data" / "actuators_montecarlo.toml"))
-#: The feedback of this section: the gains swapped (README, "The gains").
+#: The feedback of this section: the gains swapped (docs/physics.md, "The gains").
 SWAPPED = {"track.kp": [100.0, 110.0], "track.kv": [10.0, 13.0]}
 #: A cell is trackable when no trial is lost (every one resolved to the end) and the 95th
 #: percentile of the final angle error is at most this [rad].
@@ -317,7 +317,8 @@ def run(context: Context) -> Outcome:
         "## What the maneuver asks of the actuators",
         "",
         "On the robot with inertia (`plant.model = \"dynamic\"`: free-floating multibody "
-        "dynamics driven by joint torques from rate servos; README, *The dynamic plant*). "
+        "dynamics driven by joint torques from rate servos; flatcli's docs/physics.md, "
+        "*The dynamic plant*). "
         "*Plan*: the joint torques M q'' + C q' that follow the plan exactly (inverse "
         f"dynamics on {PLAN_SAMPLES} samples, accelerations by complex step) and its peak "
         f"joint rate. *Closed loop*: the feedback with the gains swapped, servo bandwidth "

@@ -260,7 +260,7 @@ def run(context: Context) -> Outcome:
         "",
         "The paper closes by stating, without a derivation, that its result extends to an "
         "n-link planar robot whose last link has its centre of mass on the preceding joint. "
-        "flatcli derives it (README, *Robots of N links*): with d_N = 0 no link position "
+        "flatcli derives it (flatcli's docs/chains.md): with d_N = 0 no link position "
         "depends on th_N, so H = h_0(q) th0' + sum_j<N h_j(q) th_j' + I_N th_N' with h_0, h_j "
         "functions of q = (th_1..th_N-1) only; y_j = th_j (j < N) and y_N = th0 + I_N th_N / "
         "h_0(q) are flat outputs, singular where dh_0/dt = 0. The robots below are "

@@ -27,7 +27,7 @@ FINE = 4001
 
 
 def run(context: Context) -> Outcome:
-    """The optimised plans beside the paper's cubic: a figure and tables (README,
+    """The optimised plans beside the paper's cubic: a figure and tables (docs/spec.md,
     ``[plan.optimize]``)."""
     base, out, steps = context.base, context.out, context.steps
     rows: list[list[Any]] = []

@@ -46,7 +46,7 @@ class Key:
     ----------
     kind : "float", "int", "bool", "str", "choice", "vector" (``length`` floats) or "table"
     default : the paper's value, already normalised (floats, tuples); None where ``nullable``
-    doc : one line for the README's spec tables
+    doc : one line for the spec tables (docs/spec.md)
     unit : SI unit, '' for none
     low : lower bound of a number or of every item of a vector (None: unbounded)
     low_open : True: the value must be > low; False: >= low
@@ -55,7 +55,7 @@ class Key:
     nullable : None is allowed (it means "see doc")
     allow_inf : inf is a meaningful value (no limit)
     length : how many numbers a "vector" holds (0: as many as ``size`` says)
-    default_doc : the README's default column when the default is not a plain value
+    default_doc : the spec tables' default column when the default is not a plain value
     size : what a vector's length follows on a robot of N joints (``SIZES``): "links"
         (N + 1), "joints" (N) or "inner" (N - 1, the joints before the last); a "numbers"
         key is one number (for every item) or such a list. The length is checked against
@@ -90,7 +90,7 @@ class Key:
         return self._number(f"{where}[{index}]", value)
 
     def bounds_text(self) -> str:
-        """What values are allowed, for the README ('> 0', '>= 1', 'true, false', ...)."""
+        """What values are allowed, for the spec tables ('> 0', '>= 1', 'true, false', ...)."""
         if self.kind == "choice":
             text = ", ".join(f'"{c}"' for c in self.choices)
         elif self.kind == "bool":

@@ -1,12 +1,13 @@
 """The spec's schema: one frozen record per TOML table, each field one key.
 
-A record's docstring starts with the one line the README's heading of its table shows.
+A record's docstring starts with the one line the heading of its table in docs/spec.md
+shows.
 
 ``[robot]``, ``[plan]``, ``[plan.optimize]``, ``[track]``, ``[plant]`` and ``[sweep]`` are the
 records below; ``Spec`` holds them and the top-level ``name``. A key is one line: its type,
 its helper (``number``, ``integer``, ``vector``, ``choice``, ``flag``, ``text``, ``table``
 from ``flatcli.spec.keys``) with default, doc, unit and bounds. ``SCHEMA`` is derived from
-these records, and so are the README's spec tables (``python -m flatcli.spec --markdown``).
+these records, and so are docs/spec.md's tables (``python -m flatcli.spec --markdown``).
 Choices come from their one home: the core's ``MODELS``, ``OBJECTIVES`` and ``INTEGRATORS``.
 A vector's length is a value of its key, checked like its bounds; the per-link, per-joint
 and per-output keys follow the robot (``Key.size``): ``robot.mass`` sets the number N of
@@ -187,7 +188,7 @@ class PlantSpec:
                              "kg m^2/s")
     model: str = choice(PLANT_MODELS, "kinematic", "\"kinematic\" (the joints turn at the "
                         "commanded rates) or \"dynamic\" (a robot with inertia: joint torques "
-                        "from rate servos; README, *The dynamic plant*)")
+                        "from rate servos; docs/physics.md, *The dynamic plant*)")
     servo_bandwidth: float = number(DEFAULT_SERVO_BANDWIDTH, "dynamic plant: each joint rate "
                                     "follows its command as a first-order lag of this bandwidth "
                                     "(exactly, while the servo's model is right and no torque "
@@ -325,7 +326,7 @@ def _sections(record_type: type, prefix: str) -> Iterator[tuple[str, type]]:
             yield from _sections(_section_type(f), f"{prefix}.{f.name}" if prefix else f.name)
 
 
-#: Section name ('' for the top level) -> its record type, in the order of the README.
+#: Section name ('' for the top level) -> its record type, in the order of docs/spec.md.
 SECTIONS: dict[str, type] = dict(_sections(Spec, ""))
 
 #: Section name -> {key name: Key}: the single list of keys, types, units and defaults.
