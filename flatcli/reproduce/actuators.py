@@ -231,7 +231,8 @@ def plot_study(cells: pd.DataFrame, kinematic: Mapping[str, tuple[float, float]]
                                for _, r in line.iterrows()])
             spread = np.abs(bounds.T - line["lost"].to_numpy())
             ax[1, j].errorbar(line[BANDWIDTH] * 1.04 ** (k - 2), line["lost"], yerr=spread,
-                              fmt="o-", color=f"C{k}", label=label, ms=4, capsize=2)
+                              fmt="o-", color=f"C{k}", label=label, ms=4, capsize=2,
+                              clip_on=False)
             ax[1, j].set_xscale("log")
         level, lost = kinematic[maneuver]
         ax[0, j].axhline(level, color="k", ls=":", label="kinematic plant")

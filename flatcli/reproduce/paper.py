@@ -59,7 +59,7 @@ def plan_figures(plans: dict[str, tuple[Plan, PlanSamples]], out: Path,
     ax.set_xlabel("$t$ [s]")
     ax.set_ylabel("flat outputs $y_d$ [rad]")
     ax.legend()
-    fig.suptitle("Fig. 2: planned flat outputs (cubic, $\\theta_1'(0)$ = 0.1, "
+    fig.suptitle("Fig. 2: planned flat outputs\n(cubic, $\\theta_1'(0)$ = 0.1, "
                  "$\\theta_1'(2)$ = 0.5 rad/s)")
     fig.tight_layout()
     save_figure(fig, out / figures.name("fig2_flat_outputs"), figures)
@@ -73,7 +73,7 @@ def plan_figures(plans: dict[str, tuple[Plan, PlanSamples]], out: Path,
     ax.set_xlabel("$t$ [s]")
     ax.set_ylabel("angles $\\theta_d$ [rad]")
     ax.legend(ncol=2)
-    fig.suptitle("Fig. 3: planned angles (dashed: the paper's printed coefficients)")
+    fig.suptitle("Fig. 3: planned angles\n(dashed: the paper's printed coefficients)")
     fig.tight_layout()
     save_figure(fig, out / figures.name("fig3_angles"), figures)
 
