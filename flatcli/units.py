@@ -2,8 +2,8 @@
 
 plan.parquet, track.parquet, trials.parquet and summary.parquet carry these as Arrow field
 metadata (key ``unit``, ``flatcli.storage.UNIT_KEY``) on every numeric column, so a reader
-(pyarrow, polars, DuckDB) finds them beside the numbers; the README's column tables say the
-same (a test compares them). Units are SI, written as in the README; ``DIMENSIONLESS`` ("1")
+(pyarrow, polars, DuckDB) finds them beside the numbers; docs/outputs.md's column tables say the
+same (a test compares them). Units are SI, written as in docs/outputs.md; ``DIMENSIONLESS`` ("1")
 marks a pure number: a count, a fraction, a relative tolerance. Columns without a unit are
 identifiers (``trial``, ``cell``) and text (``status``, ``reason``, a group's label).
 
@@ -44,7 +44,7 @@ UNITS: dict[str, str] = {
     "margin": _RATE,
     "momentum": _MOMENTUM,  # H along a plan or a run; in trials.parquet the plant's H0
     "tau1": _TORQUE, "tau2": _TORQUE,  # the dynamic plant's joint torques
-    # trials.parquet: the metrics of flatcli.core.metrics (definitions in the README)
+    # trials.parquet: the metrics of flatcli.core.metrics (definitions in docs/outputs.md)
     "err_theta_rms": _ANGLE, "err_theta_max": _ANGLE, "err_theta_final": _ANGLE,
     "err_y_rms": _ANGLE, "err_y_max": _ANGLE, "err_y_final": _ANGLE,
     "singular_hits": DIMENSIONLESS,

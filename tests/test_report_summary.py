@@ -29,14 +29,20 @@ def test_summary_counts_and_statistics_on_a_handmade_frame() -> None:
     assert summary.iloc[1]["g"] == "b"
 
 
-def test_wilson_interval_matches_scipy_binomtest() -> None:
-    # reference: scipy.stats.binomtest(k, n).proportion_ci(0.95, method="wilson")
-    counts = [(0, 1), (0, 10), (3, 10), (10, 10), (1, 2000), (530, 2000), (1999, 2000)]
-    low, high = wilson_interval([k for k, _ in counts], [n for _, n in counts])
-    for (k, n), lo, hi in zip(counts, low, high, strict=True):
-        ci = binomtest(k, n).proportion_ci(0.95, method="wilson")
-        assert lo == pytest.approx(ci.low, rel=1e-12, abs=1e-15)
-        assert hi == pytest.approx(ci.high, rel=1e-12, abs=1e-15)
+def test_wilson_interval_is_the_score_intervals_closed_form() -> None:
+    # reference: Wilson (J. Am. Stat. Assoc. 22, 1927), written out here with numpy:
+    # (p + z^2/2n -+ z sqrt(p (1 - p)/n + z^2/4n^2)) / (1 + z^2/n)
+    z = 1.959963984540054  # Phi^-1(0.975)
+    counts = [(1, 10), (3, 10), (1, 2000), (530, 2000), (1999, 2000)]
+    k = np.array([c[0] for c in counts], dtype=float)
+    n = np.array([c[1] for c in counts], dtype=float)
+    p = k / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    low, high = wilson_interval(k.astype(int), n.astype(int))
+    np.testing.assert_allclose(low, centre - half, rtol=1e-12)
+    np.testing.assert_allclose(high, centre + half, rtol=1e-12)
+    assert wilson_interval(3, 10)[0].shape == ()  # scalars in, scalars out
 
 
 def test_wilson_interval_of_no_successes_in_closed_form() -> None:

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
-from scipy.special import ndtri
+from scipy.stats import binomtest
 
 from flatcli.core.metrics import METRIC_NAMES, RESOLVED, STATUS_NAMES
 from flatcli.report.tables import fmt, table
@@ -36,17 +36,17 @@ SUMMARY_INPUTS: tuple[str, ...] = tuple(dict.fromkeys((
 ERROR_METRICS = ("err_theta_rms", "err_theta_final", "err_y_rms", "err_y_final")
 #: Statuses of trials that did not run to the end, reported as fractions of a cell's trials.
 FAILURES = ("diverged", "unresolved", "error")
-#: The standard normal quantile of a two-sided 95 % interval, Phi^-1(0.975) = 1.95996...
-Z95 = float(ndtri(0.975))
 
 
-def wilson_interval(successes: Any, trials: Any, z: float = Z95) -> tuple[Array, Array]:
-    """Wilson score interval of a binomial proportion (95 % by default).
+def wilson_interval(successes: Any, trials: Any, confidence: float = 0.95
+                    ) -> tuple[Array, Array]:
+    """Wilson score interval of a binomial proportion (95 % by default), scipy's
+    (``scipy.stats.binomtest(k, n).proportion_ci(confidence, method="wilson")``).
 
-    With p = k / n: (p + z^2 / 2n -+ z sqrt(p (1 - p) / n + z^2 / 4n^2)) / (1 + z^2 / n)
-    (Wilson 1927; Brown, Cai, DasGupta, Statist. Sci. 16, 2001). Unlike p -+ z sqrt(p (1 - p) /
-    n) it stays inside [0, 1] and is not empty at k = 0 or k = n, which is where a sweep's
-    failure counts usually are.
+    With p = k / n and z = Phi^-1((1 + confidence) / 2): (p + z^2 / 2n -+ z sqrt(p (1 - p) /
+    n + z^2 / 4n^2)) / (1 + z^2 / n) (Wilson 1927; Brown, Cai, DasGupta, Statist. Sci. 16,
+    2001). Unlike p -+ z sqrt(p (1 - p) / n) it stays inside [0, 1] and is not empty at
+    k = 0 or k = n, which is where a sweep's failure counts usually are.
 
     Parameters
     ----------
@@ -57,23 +57,19 @@ def wilson_interval(successes: Any, trials: Any, z: float = Z95) -> tuple[Array,
     -------
     low, high : arrays of k's shape
     """
-    k = np.asarray(successes, dtype=np.float64)
-    n = np.asarray(trials, dtype=np.float64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        p = k / n
-        z2n = z * z / n
-        centre = (p + z2n / 2) / (1 + z2n)
-        half = z * np.sqrt(p * (1 - p) / n + z2n / (4 * n)) / (1 + z2n)
-    # exact ends: the interval of k = 0 starts at 0, that of k = n ends at 1 (the formula's
-    # centre - half and centre + half, there, differ from them by rounding only)
-    low = np.where(k == 0, 0.0, np.clip(centre - half, 0.0, 1.0))
-    high = np.where(k == n, 1.0, np.clip(centre + half, 0.0, 1.0))
-    return np.where(n > 0, low, np.nan), np.where(n > 0, high, np.nan)
+    k, n = np.broadcast_arrays(np.asarray(successes), np.asarray(trials))
+    low = np.full(k.shape, np.nan)
+    high = np.full(k.shape, np.nan)
+    for i in np.ndindex(k.shape):
+        if n[i] > 0:
+            ci = binomtest(int(k[i]), int(n[i])).proportion_ci(confidence, method="wilson")
+            low[i], high[i] = float(ci.low), float(ci.high)
+    return low, high
 
 
 def summarize_trials(frame: pd.DataFrame, cells: Mapping[int, Mapping[str, Any]]
                      ) -> pd.DataFrame:
-    """Per-cell statistics of a sweep's trials (definitions in the README, *Sweep output*).
+    """Per-cell statistics of a sweep's trials (definitions in docs/outputs.md, *Sweep output*).
 
     Parameters
     ----------

@@ -1,12 +1,13 @@
 """The spec's schema: one frozen record per TOML table, each field one key.
 
-A record's docstring starts with the one line the README's heading of its table shows.
+A record's docstring starts with the one line the heading of its table in docs/spec.md
+shows.
 
 ``[robot]``, ``[plan]``, ``[plan.optimize]``, ``[track]``, ``[plant]`` and ``[sweep]`` are the
 records below; ``Spec`` holds them and the top-level ``name``. A key is one line: its type,
 its helper (``number``, ``integer``, ``vector``, ``choice``, ``flag``, ``text``, ``table``
 from ``flatcli.spec.keys``) with default, doc, unit and bounds. ``SCHEMA`` is derived from
-these records, and so are the README's spec tables (``python -m flatcli.spec --markdown``).
+these records, and so are docs/spec.md's tables (``python -m flatcli.spec --markdown``).
 Choices come from their one home: the core's ``MODELS``, ``OBJECTIVES`` and ``INTEGRATORS``.
 A vector's length is a value of its key, checked like its bounds; the per-link, per-joint
 and per-output keys follow the robot (``Key.size``): ``robot.mass`` sets the number N of
@@ -62,6 +63,11 @@ LINKS = 3
 GAINS = 2
 #: Flat-output bases of ``plan.basis``; "auto" picks one (see ``flatcli.experiment``).
 BASES = ("auto", "poly", "bspline")
+#: File formats of ``figures.format`` (``--format``): one raster, two vector.
+FIGURE_FORMATS = ("png", "pdf", "svg")
+#: Sections that say how results are shown, not what is computed: they enter no digest, so
+#: a sweep resumes and a run is "the same run" whatever figures it draws.
+PRESENTATION = ("figures",)
 INF = math.inf
 
 Vector = tuple[float, ...]
@@ -190,7 +196,7 @@ class PlantSpec:
                              "kg m^2/s")
     model: str = choice(PLANT_MODELS, "kinematic", "\"kinematic\" (the joints turn at the "
                         "commanded rates) or \"dynamic\" (a robot with inertia: joint torques "
-                        "from rate servos; README, *The dynamic plant*)")
+                        "from rate servos; docs/physics.md, *The dynamic plant*)")
     servo_bandwidth: float = number(DEFAULT_SERVO_BANDWIDTH, "dynamic plant: each joint rate "
                                     "follows its command as a first-order lag of this bandwidth "
                                     "(exactly, while the servo's model is right and no torque "
@@ -222,6 +228,16 @@ class SweepSpec:
 
 
 @dataclass(frozen=True)
+class FiguresSpec:
+    """the files figures are written as (`--format`, `--dpi`; not part of the experiment)"""
+
+    format: str = choice(FIGURE_FORMATS, "png", "file format of every figure a command writes: "
+                         "\"png\" (raster), \"pdf\" or \"svg\" (vector, for print)")
+    dpi: int = integer(150, "resolution of raster figures (png); pdf and svg are vector, their "
+                       "embedded images only use it", "dots/in", ge=50, le=1200)
+
+
+@dataclass(frozen=True)
 class Spec:
     """top level
 
@@ -237,6 +253,7 @@ class Spec:
     track: TrackSpec = field(default_factory=TrackSpec)
     plant: PlantSpec = field(default_factory=PlantSpec)
     sweep: SweepSpec = field(default_factory=SweepSpec)
+    figures: FiguresSpec = field(default_factory=FiguresSpec)
 
     @property
     def joints(self) -> int:
@@ -252,12 +269,20 @@ class Spec:
         """{dotted key: value} of every key."""
         return dict(_values(self, ""))
 
+    def experiment_tree(self) -> dict[str, Any]:
+        """``tree`` without the sections that only say how results are shown
+        (``PRESENTATION``): what the experiment is."""
+        return experiment(self.tree)
+
     def to_json(self) -> str:
-        """Canonical JSON (sorted keys, no spaces; inf written as the string "inf")."""
-        return json.dumps(to_jsonable(self.tree), sort_keys=True, separators=(",", ":"))
+        """Canonical JSON of the experiment (``experiment_tree``; sorted keys, no spaces; inf
+        written as the string "inf")."""
+        return json.dumps(to_jsonable(self.experiment_tree()), sort_keys=True,
+                          separators=(",", ":"))
 
     def digest(self) -> str:
-        """SHA-256 of the canonical JSON: what makes two sweeps the same experiment."""
+        """SHA-256 of the canonical JSON: what makes two sweeps the same experiment (the
+        figures' format is not part of it)."""
         return hashlib.sha256(self.to_json().encode()).hexdigest()
 
     def with_overrides(self, overrides: Mapping[str, Any]) -> Spec:
@@ -265,6 +290,12 @@ class Spec:
         from flatcli.spec.build import build  # build validates with the sweep's rules
 
         return build({**self.values(), **overrides})
+
+
+def experiment(tree: Mapping[str, Any]) -> dict[str, Any]:
+    """A spec tree (a Spec's, or one read from a run's record) without its ``PRESENTATION``
+    sections."""
+    return {k: v for k, v in tree.items() if k not in PRESENTATION}
 
 
 def _is_section(f: Field[Any]) -> bool:
@@ -307,7 +338,7 @@ def _sections(record_type: type, prefix: str) -> Iterator[tuple[str, type]]:
             yield from _sections(_section_type(f), f"{prefix}.{f.name}" if prefix else f.name)
 
 
-#: Section name ('' for the top level) -> its record type, in the order of the README.
+#: Section name ('' for the top level) -> its record type, in the order of docs/spec.md.
 SECTIONS: dict[str, type] = dict(_sections(Spec, ""))
 
 #: Section name -> {key name: Key}: the single list of keys, types, units and defaults.
