@@ -3,7 +3,7 @@
     python -m benchmarks.mutants [--out runs/mutants] [--only ID ...] [--list] [--work DIR]
 
 Each mutant is one plausible one-line bug: a file, the exact text of one line (or part of
-it), its replacement, the kind of guarantee it breaks (README, *Failures*) and the tests that
+it), its replacement, the kind of guarantee it breaks (docs/failures.md) and the tests that
 pin that guarantee. The runner copies the package, the tests and what they read into a work
 directory once, applies each mutant to that copy alone (the checkout is never touched), runs
 the mutant's tests against the copy in a fresh interpreter (``PYTHONPATH`` points at the
@@ -31,8 +31,11 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from flatcli.report.tables import table
+
 #: What the tests of the copy need beside the package.
-COPIED = ("flatcli", "tests", "benchmarks", "configs", "pyproject.toml", "README.md")
+COPIED = ("flatcli", "tests", "benchmarks", "configs", "docs", "pyproject.toml",
+          "README.md")
 #: The kill rate the issue asks for.
 TARGET = 0.9
 #: Longest run of one mutant's tests [s] (a mutant that makes a read block is caught by the
@@ -278,9 +281,9 @@ def report(outcomes: list[Outcome]) -> tuple[str, float]:
     killed = sum(o.status == "killed" for o in counted)
     rate = killed / len(counted) if counted else 0.0
     lines = [f"# Mutants: {killed} of {len(counted)} killed ({100 * rate:.0f} %)", "",
-             "| mutant | kind | status | s | tests' last line |", "|---|---|---|---:|---|"]
-    lines += [f"| {o.ident} | {o.kind} | {o.status} | {o.seconds:.0f} | "
-              f"{o.detail.replace('|', '/')[:90]} |" for o in outcomes]
+             table(["mutant", "kind", "status", "s", "tests' last line"],
+                   [[o.ident, o.kind, o.status, round(o.seconds), o.detail[:90]]
+                    for o in outcomes], align=False)]
     stale = [o.ident for o in outcomes if o.status == "stale"]
     if stale:
         lines += ["", f"stale (not applied, not counted): {', '.join(stale)}"]

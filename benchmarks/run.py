@@ -29,7 +29,6 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-import flatcli  # noqa: F401  (first: pins BLAS to one thread before numpy loads)
 from benchmarks.baselines import (
     PAPER_MANEUVER,
     PAPER_TRACKING,
@@ -55,6 +54,7 @@ from flatcli.core.planning import plan_point_to_point
 from flatcli.core.simulate import Scenario, simulate
 from flatcli.report import fmt, table
 from flatcli.storage import to_jsonable, write_json, write_text
+from flatcli.threads import limit_process
 
 HERE = Path(__file__).resolve().parent
 SPEC = HERE / "paper_sweep.toml"
@@ -426,6 +426,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--million", action="store_true", help="also a 10^6-trial sweep")
     parser.add_argument("--quick", action="store_true", help="smaller sizes (a smoke test)")
     args = parser.parse_args(argv)
+    limit_process()  # one BLAS thread, as flatcli's own processes run (flatcli.threads)
     bench = Bench(args.out, args.quick)
     args.out.mkdir(parents=True, exist_ok=True)
     print(f"flatcli bench -> {args.out} (load {load()})", flush=True)

@@ -9,6 +9,7 @@ The Python API (``flatcli.api``; each command of the CLI is a thin wrapper over 
     s = flatcli.sweep("study.toml", "runs/study", workers=2)  # s.trials, s.summary
     r = flatcli.load("runs/paper_example/latest")
     flatcli.check("study.toml").text()                    # what a sweep would do
+    df = flatcli.runs(filters=["plant.model=dynamic"])    # the runs as a DataFrame
 
 ``import flatcli`` stays light (no numpy, numba, scipy or pandas): the API loads on first
 use (PEP 562 module ``__getattr__``).
@@ -16,14 +17,10 @@ use (PEP 562 module ``__getattr__``).
 
 from __future__ import annotations
 
-import os
 from typing import TYPE_CHECKING, Any
 
-# flatcli's matrices are small: threaded BLAS only adds overhead (SLSQP runs 3-5x slower on
-# two cores) and oversubscribes the cores a sweep's worker processes already fill. Set
-# before numpy is first imported; a user's own setting wins.
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+# No thread-count variables are set here: flatcli limits the numerical libraries' threads in
+# its own work only (flatcli.threads), so a notebook's numpy keeps its threads.
 
 #: What kept flatcli from starting (memory too short even for importlib.metadata, e.g. under
 #: ``ulimit -v``): the command line reports it in one line (``flatcli.cli``).
@@ -49,6 +46,7 @@ if TYPE_CHECKING:
         load,
         load_spec,
         plan,
+        runs,
         sweep,
         track,
     )
@@ -63,6 +61,7 @@ _LAZY = {
     "check": "flatcli.api",
     "load": "flatcli.api",
     "load_spec": "flatcli.api",
+    "runs": "flatcli.api",
     "Run": "flatcli.api",
     "PlanResult": "flatcli.api",
     "TrackResult": "flatcli.api",
@@ -85,6 +84,7 @@ __all__ = [
     "load",
     "load_spec",
     "plan",
+    "runs",
     "sweep",
     "track",
 ]
@@ -98,8 +98,9 @@ def __getattr__(name: str) -> Any:
     import importlib
 
     value = getattr(importlib.import_module(module), name)
-    # cached here; importing the subpackage flatcli.sweep later rebinds 'sweep' to it, and
-    # calling that package runs the function too (flatcli/sweep/__init__.py)
+    # cached here; importing the subpackage flatcli.sweep (or the module flatcli.runs) later
+    # rebinds the name to it, and calling it runs the function too
+    # (flatcli/sweep/__init__.py, flatcli/runs.py)
     globals()[name] = value
     return value
 

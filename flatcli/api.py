@@ -39,17 +39,23 @@ from flatcli.experiment import TrackRun, plan_and_optimization, run_track
 from flatcli.files import is_regular, kind, read_text
 from flatcli.outputs import plan_frame, write_track
 from flatcli.report import (
+    FigureFile,
     Limits,
     metrics_text,
     optimization_summary,
     optimization_text,
+    plan_figure,
     plan_summary,
     plan_text,
-    plot_plan,
+    plan_title,
+    save_figure,
+    track_figure,
+    track_title,
 )
 from flatcli.runs import (
     RECORD,
     ROOT,
+    SWEEP_DIR,
     SWEEP_MANIFEST,
     RunDirectoryError,
     SweepState,
@@ -68,8 +74,12 @@ from flatcli.storage import (
     write_json,
     write_parquet,
 )
+from flatcli.threads import computes
+from flatcli.trajectory import Trajectory
 
 if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
     from flatcli.preflight import CheckReport
 
 SpecLike = str | os.PathLike[str] | Mapping[str, Any] | Spec | None
@@ -96,7 +106,8 @@ def load_spec(spec: SpecLike = None, overrides: Overrides = None) -> Spec:
     if isinstance(spec, Mapping):
         return resolve(spec, extra)
     if isinstance(spec, str | os.PathLike):
-        return resolve(read_toml(Path(spec)), extra)
+        path = Path(spec)
+        return resolve(read_toml(path), extra, base=path.parent, source=path)
     raise TypeError(f"spec: expected a path, a dict, a Spec or None, got {type(spec).__name__}")
 
 
@@ -192,6 +203,10 @@ class Run:
         self.directory = directory
         self.record: dict[str, Any] = dict(record or {})
         self.files: list[str] = []  # the files save() wrote
+        recorded = self.record.get("tags", [])
+        #: Labels of the run (``--tag``), saved in run.json; ``flatcli runs --filter`` finds
+        #: runs by them.
+        self.tags: list[str] = [str(t) for t in recorded] if isinstance(recorded, list) else []
 
     def table(self, name: str) -> pd.DataFrame:
         """``<name>.parquet`` of the run's directory as a DataFrame."""
@@ -230,6 +245,15 @@ class PlanResult(Run):
     def spec(self) -> Spec:
         return self._spec if self._spec is not None else spec_of(self.record)
 
+    @cached_property
+    def trajectory(self) -> Trajectory:
+        """The maneuver as a function of time (``flatcli.trajectory.Trajectory``):
+        ``p.trajectory(t)`` gives its states, rates, inputs and flat outputs at any t in
+        [0, T]; a loaded plan is planned again from its spec (the same plan: planning is
+        deterministic)."""
+        return Trajectory(self.plan if self.plan is not None else
+                          plan_and_optimization(self.spec)[0])
+
     def text(self) -> str:
         """What ``flatcli plan`` prints."""
         if self.plan is None or self.samples is None:
@@ -239,29 +263,30 @@ class PlanResult(Run):
             text += "\n\n" + optimization_text(self.optimization)
         return text
 
+    def plot(self) -> Figure:
+        """The plan's figure (a matplotlib Figure, drawn in flatcli's style): flat outputs,
+        angles, joint rates, the singularity margin, H and the inputs, with the limits of an
+        optimised plan; its title names the run, the robot and the objective. A loaded plan
+        is drawn from its plan.parquet."""
+        return plan_figure(self.frame, Limits.of_plan(self.spec, self.optimization is not None),
+                           plan_title(self.spec, self.optimization))
+
     def save(self, out: str | os.PathLike[str] | Target | None = None, *, force: bool = False,
              plot: bool = False, root: str | os.PathLike[str] = ROOT) -> Path:
-        """Write plan.parquet and run.json (and plan.png with ``plot``) into ``out``, or a
-        new directory ``root/<name>/<stamp>/``; return the directory."""
+        """Write plan.parquet and run.json (and with ``plot`` the figure, plan.png or the
+        format of the spec's ``[figures]``) into ``out``, or a new directory
+        ``root/<name>/<stamp>/``; return the directory."""
         spec = self.spec
         record = run_record("plan", spec.tree, digest=spec.digest(), summary=self.metrics,
-                            optimization=self.optimization)
-        if plot and self.samples is None:
-            raise FlatcliError("plot: only a plan computed here can be drawn")
+                            optimization=self.optimization, **_tags(self.tags))
+        file = FigureFile.of(spec)
         with _saving(out, "plan", spec, force, root) as directory:
             write_parquet(directory / "plan.parquet", self.frame, record)
             write_json(directory / RECORD, record)
             self.files = ["plan.parquet", RECORD]
-            if plot and self.samples is not None:
-                model = spec.robot.model
-                opt = spec.plan.optimize
-                limits = Limits(singular_threshold=spec.track.singular_threshold) if (
-                    self.optimization is None) else Limits(
-                    spec.track.singular_threshold, opt.min_margin, opt.rate_limit,
-                    opt.angle_limit)
-                plot_plan(self.samples, directory / "plan.png",
-                          f"plan {spec.name!r} ({model} model)", limits)
-                self.files.append("plan.png")
+            if plot:
+                save_figure(self.plot(), directory / file.name("plan"), file)
+                self.files.append(file.name("plan"))
         self.directory, self.record = directory, record
         return directory
 
@@ -285,19 +310,36 @@ class TrackResult(Run):
     def spec(self) -> Spec:
         return self._spec if self._spec is not None else spec_of(self.record)
 
+    @cached_property
+    def trajectory(self) -> Trajectory:
+        """The reference the run tracked, as a function of time (``PlanResult.trajectory``)."""
+        return Trajectory(self.run.plan if self.run is not None else
+                          plan_and_optimization(self.spec)[0])
+
     def text(self) -> str:
         """What ``flatcli track`` prints."""
         return metrics_text(self.spec.name, self.metrics)
 
+    def plot(self) -> Figure:
+        """The run's figure (a matplotlib Figure, drawn in flatcli's style): flat outputs and
+        angles beside the plan's, applied joint rates, tracking errors, the margin and H; on
+        the dynamic plant also the joint torques, the servos' rate errors and the joints'
+        power. Its title names the plant, the sensor noise, the rate and torque limits, the
+        gains and the status. A loaded run is drawn from its track.parquet."""
+        return track_figure(self.frame, Limits.of_track(self.spec),
+                            track_title(self.spec, self.metrics))
+
     def save(self, out: str | os.PathLike[str] | Target | None = None, *, force: bool = False,
              plot: bool = False, root: str | os.PathLike[str] = ROOT) -> Path:
-        """Write track.parquet, metrics.json and run.json (and track.png with ``plot``)
-        into ``out``, or a new directory ``root/<name>/<stamp>/``; return the directory."""
+        """Write track.parquet, metrics.json and run.json (and with ``plot`` the figure,
+        track.png or the format of the spec's ``[figures]``) into ``out``, or a new directory
+        ``root/<name>/<stamp>/``; return the directory."""
         if self.run is None:
             raise FlatcliError("save: only a run computed here can be saved")
         spec = self.spec
-        record = run_record("track", spec.tree, digest=spec.digest(), metrics=self.metrics)
-        title = f"track {spec.name!r}: kp = {spec.track.kp}, kv = {spec.track.kv}"
+        record = run_record("track", spec.tree, digest=spec.digest(), metrics=self.metrics,
+                            **_tags(self.tags))
+        title = track_title(spec, self.metrics)
         with _saving(out, "track", spec, force, root) as directory:
             self.files = write_track(directory, self.run, record, title if plot else None)
         self.directory, self.record = directory, record
@@ -373,19 +415,56 @@ class SweepResult(Run):
         return {"trials": self.state.total, "finished": self.state.done,
                 **{s: int(counts.get(s, 0)) for s in STATUS_NAMES}}
 
-    def plot(self) -> list[Path]:
-        """The summary figures (sweep_*.png) of a finished sweep; their paths."""
-        from flatcli.report import plot_sweep
-        from flatcli.sweep.directory import record_outputs
-
+    def _finished(self) -> Path:
         if not self.complete:
             raise FlatcliError(f"--plot: {self.state.missing_text()}; the figures need "
                                "every trial (run the sweep again to finish it)")
         assert self.directory is not None
-        with directory_lock(self.directory):  # flatcli's files: --force may remove them
-            paths = plot_sweep(self.directory)
-            record_outputs(self.directory, paths)
+        return self.directory
+
+    def figures(self, x: str | None = None, hue: str | None = None) -> dict[str, Figure]:
+        """The summary figures of a finished sweep, by name ("errors", "singular",
+        "margin", "momentum": ``sweep_<name>`` files), as matplotlib Figures; ``x`` and
+        ``hue``: the grid keys of sweep_singular's x axis and colours (``plot``)."""
+        from flatcli.report import sweep_figures
+
+        return sweep_figures(self._finished(), x=x, hue=hue)
+
+    def plot(self, which: str = "singular", *, x: str | None = None,
+             hue: str | None = None) -> Figure:
+        """One summary figure of a finished sweep as a matplotlib Figure: "singular" (the
+        final error, singular hits and failures against the grid key ``x``, one line per
+        value of ``hue`` and of the other grid keys), "errors", "margin" or "momentum" (per
+        cell). FlatcliError naming a key that is not one of the sweep's grid keys."""
+        from flatcli.report.sweep_figures import FIGURE_NAMES, sweep_figure
+
+        if which not in FIGURE_NAMES:
+            raise FlatcliError(f"plot: expected one of {list(FIGURE_NAMES)}, got {which!r}")
+        return sweep_figure(self._finished(), which, x=x, hue=hue)
+
+    def save_figures(self, fmt: str | None = None, dpi: int | None = None,
+                     x: str | None = None, hue: str | None = None) -> list[Path]:
+        """Write the summary figures (``sweep_<name>.png``, or ``fmt``; default the sweep
+        spec's ``[figures]``) into the sweep's directory and record them in its manifest;
+        their paths."""
+        from flatcli.report import plot_sweep
+        from flatcli.sweep.directory import record_outputs
+
+        directory = self._finished()
+        spec_file = FigureFile.of(self.spec)
+        file = FigureFile(fmt or spec_file.format, dpi or spec_file.dpi)
+        with directory_lock(directory):  # flatcli's files: --force may remove them
+            paths = plot_sweep(directory, file, x=x, hue=hue)
+            record_outputs(directory, paths)
         return paths
+
+
+def _tags(tags: Iterable[str]) -> dict[str, Any]:
+    """The ``tags`` of a run record (none: no key, as before tags existed)."""
+    from flatcli.runs import check_tags
+
+    chosen = check_tags(tags)
+    return {"tags": chosen} if chosen else {}
 
 
 def spec_of(record: Mapping[str, Any]) -> Spec:
@@ -410,6 +489,7 @@ def _floats(value: Any) -> Any:
 # ---------------------------------------------------------------------------------------
 # The functions.
 
+@computes
 def plan(spec: SpecLike = None, overrides: Overrides = None) -> PlanResult:
     """Plan the spec's maneuver (optimised when ``plan.optimize.objective`` is set).
 
@@ -432,6 +512,7 @@ def _optimization(result: OptimizeResult, spec: Spec) -> dict[str, Any]:
     return optimization_summary(result, str(spec.plan.optimize.objective))
 
 
+@computes
 def track(spec: SpecLike = None, overrides: Overrides = None, *,
           quiet: bool = False) -> TrackResult:
     """Plan, then simulate the closed loop of the spec's ``[track]`` on its ``[plant]``.
@@ -449,35 +530,56 @@ def track(spec: SpecLike = None, overrides: Overrides = None, *,
     return TrackResult(s, track_frame(run), run.metrics, run)
 
 
+@computes
 def sweep(spec: SpecLike, out: str | os.PathLike[str] | None = None, *,
           overrides: Overrides = None, workers: int | None = None, executor: str = "local",
           scheduler: str | None = None, force: bool = False, fail_fast: bool = False,
-          quiet: bool = False, oversubscribe: bool = False) -> SweepResult:
-    """Run (or resume) a Monte Carlo sweep into ``out`` (default ``runs/<name>/``).
+          quiet: bool = False, oversubscribe: bool = False,
+          tags: Iterable[str] = ()) -> SweepResult:
+    """Run (or resume) a Monte Carlo sweep into ``out`` (default ``runs/<name>/sweep/``,
+    apart from the plan and track runs of that name).
+
+    A spec whose trials would all be the same (no ``[sweep.perturb]``, no grid, no sensor
+    noise) is refused: it would repeat one track run ``sweep.trials`` times; with a grid but
+    identical trials in each cell a note says so.
 
     ``workers``: processes (default one per core); ``executor``: "local" or "dask"
     (``scheduler``: an address or "local"); ``force``: start over in a directory holding
     another sweep (removing only the files flatcli wrote there); ``fail_fast``: stop at the
     first trial that errors or diverges; ``oversubscribe``: allow more workers than cores.
-    Shows a progress bar on stderr unless quiet. Returns the SweepResult of the directory.
-    One run writes into a directory at a time (FlatcliError naming the other run's pid).
+    Shows a progress bar on stderr unless quiet. ``tags``: labels of the sweep (run.json).
+    Returns the SweepResult of the directory. One run writes into a directory at a time
+    (FlatcliError naming the other run's pid).
     """
     from flatcli.report import Progress
+    from flatcli.runs import check_tags, sweep_directory
+    from flatcli.spec.sweeps import identical_trials
     from flatcli.sweep import run_sweep
 
     s = load_spec(spec, overrides)
-    directory = Path(out) if out is not None else ROOT / s.name
+    chosen = check_tags(tags)
+    same = identical_trials(s)
+    if same is not None and not s.sweep.grid and s.sweep.trials > 1:
+        raise FlatcliError(f"sweep: {s.sweep.trials} identical trials ({same}): the sweep "
+                           "would repeat one track run; add a [sweep] table with "
+                           "[sweep.perturb] or [sweep.grid] (or track.sensor_noise), set "
+                           "sweep.trials = 1, or run flatcli track")
+    if same is not None and s.sweep.trials > 1 and not quiet:
+        print(f"note: the {s.sweep.trials} trials of each cell are identical ({same})",
+              file=sys.stderr)
+    directory = Path(out) if out is not None else sweep_directory(s.name)
     check_output_dir(directory)
     if executor == "local":
         announce_compile(quiet)
     with directory_lock(directory):
         done = run_sweep(s, directory, executor, workers, scheduler, force, fail_fast,
-                         Progress(s.name, quiet), oversubscribe=oversubscribe)
+                         Progress(s.name, quiet), oversubscribe=oversubscribe, tags=chosen)
         state = sweep_state(directory)
     assert state is not None
     return SweepResult(state, done.simulated, done.wall_seconds, done.summary_text)
 
 
+@computes
 def check(spec: SpecLike, overrides: Overrides = None, *, workers: int | None = None,
           executor: str = "local", calibrate: bool = True,
           quiet: bool = False) -> CheckReport:
@@ -494,11 +596,16 @@ def load(directory: str | os.PathLike[str]) -> Run:
     """The run a directory holds: a PlanResult, TrackResult (also ``sweep --rerun``) or
     SweepResult (finished or not); other runs (``reproduce``) as a plain Run.
 
-    A directory of runs of one name (``runs/<name>``) loads its ``latest``.
+    A directory of runs of one name (``runs/<name>``) loads its ``latest`` plan or track run,
+    or, if it has none, its sweep (``runs/<name>/sweep``).
     """
     from flatcli.sweep.directory import read_manifest
 
     path = Path(directory)
+    if kind(path / SWEEP_MANIFEST) == "missing" and kind(path / RECORD) == "missing" and \
+            not (path / "latest").is_dir() and kind(path / SWEEP_DIR / SWEEP_MANIFEST) != \
+            "missing":
+        path = path / SWEEP_DIR
     if kind(path / SWEEP_MANIFEST) != "missing":
         read_manifest(path)  # SpecError saying what is wrong with it
         state = sweep_state(path)
@@ -529,6 +636,40 @@ def load(directory: str | os.PathLike[str]) -> Run:
     run = Run(path, record)
     run.command = command
     return run
+
+
+def sweep_dir_of(directory: str | os.PathLike[str]) -> Path:
+    """A sweep's directory from what a user names: the sweep's own, or its name's
+    (``runs/<name>``, whose sweep is ``runs/<name>/sweep``)."""
+    path = Path(directory)
+    if kind(path / SWEEP_MANIFEST) == "missing" and kind(path / SWEEP_DIR / SWEEP_MANIFEST) != \
+            "missing":
+        return path / SWEEP_DIR
+    return path
+
+
+def runs(root: str | os.PathLike[str] = ROOT, filters: Iterable[str] = (),
+         sort: str | None = None, reverse: bool = False) -> pd.DataFrame:
+    """The runs below ``root`` as a DataFrame, one row per run (as ``flatcli runs``, and
+    like ``mlflow.search_runs``): ``run`` (its directory below root), ``path``, ``command``,
+    ``name``, ``time``, ``status``, ``tags``, then every number of the runs' records (a track
+    run's metrics, a plan's summary, a sweep's trials by status) and every key of their
+    resolved specs, dotted (``plant.model``, ``track.kp``).
+
+    ``filters``: ``--filter`` conditions ("status=ok", "plant.model=dynamic",
+    "err_y_final<1e-3", "tag=baseline"); ``sort``: a column (runs without it last).
+
+        >>> df = flatcli.runs(filters=["plant.model=dynamic"])
+        >>> df[df["time"] > "2026-11-20"].sort_values("err_y_final")
+    """
+    from flatcli.catalog import Filter, rows_below, runs_frame, select
+
+    path = Path(root)
+    if not path.is_dir():
+        raise FlatcliError(f"{path}: no such directory")
+    rows = select(rows_below(path), [Filter.parse(f) for f in filters], sort, reverse)
+    frame: pd.DataFrame = runs_frame(rows)
+    return frame
 
 
 def _table(directory: Path, name: str) -> bool:

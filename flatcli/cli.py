@@ -33,6 +33,12 @@ try:  # too little memory to load even these (ulimit -v): one line, not a traceb
 
     from flatcli import STARTUP_ERROR, __version__
     from flatcli.startup import library_error_text, probe_libraries, while_importing
+    from flatcli.threads import THREAD_VARIABLES
+
+    # The command line is flatcli's own process: one BLAS thread (flatcli.threads), set
+    # before numpy first loads; a user's own setting wins.
+    for _var in THREAD_VARIABLES:
+        os.environ.setdefault(_var, "1")
 
     if STARTUP_ERROR is not None:
         raise STARTUP_ERROR
@@ -196,15 +202,68 @@ class Cli(click.Group):
 
 
 # ---------------------------------------------------------------------------------------
-# Options shared by several commands, each declared once.
+# Options shared by several commands, each declared once, and listed by every command in one
+# order (``OPTION_ORDER``; tests/test_cli.py checks it).
+
+#: The order shared options take in every command's --help (by their parameter names).
+OPTION_ORDER = ("robot", "sets", "name", "tags", "objective", "out", "force", "plot", "fmt",
+                "dpi", "x", "hue", "cfg", "workers", "oversubscribe", "executor", "scheduler",
+                "quiet")
+#: The one meaning of -q in every command.
+QUIET_HELP = "Print nothing but errors (the exit status says how it went)."
+#: ``figures.format``'s choices (``flatcli.spec.schema.FIGURE_FORMATS``), spelled out so that
+#: --help need not import the numerical core.
+FIGURE_FORMATS = ("png", "pdf", "svg")
+
+
+class TrialId(click.ParamType[int, Any]):
+    """A sweep trial's id: an integer from 0 (``trial = key * 1e9 + i``), without click's
+    range text in --help."""
+
+    name = "TRIAL"
+
+    def convert(self, value: Any, param: click.Parameter | None,
+                ctx: click.Context | None) -> int:
+        try:
+            number = int(value)
+        except (TypeError, ValueError):
+            self.fail(f"expected a trial id (an integer >= 0), got {value!r}", param, ctx)
+        if not 0 <= number <= 2**63 - 1:
+            self.fail(f"expected a trial id (an integer from 0 to 2^63 - 1), got {value!r}",
+                      param, ctx)
+        return number
+
 
 def spec_argument(required: bool = False) -> Callable[[F], F]:
     return click.argument("spec", required=required, type=click.Path(path_type=Path))
 
 
+def robot_option(fn: F) -> F:
+    from flatcli.completion import complete_robot
+
+    return click.option(
+        "--robot", metavar="NAME|FILE", shell_complete=complete_robot,
+        help="The robot: a shipped robot file (chain4, chain6, paper) or your own FILE.toml, "
+             "under the spec's own keys (shorthand for --set robot=...).")(fn)
+
+
 def set_option(help: str = "Override a spec key (dotted; VALUE in TOML), repeatable."
                ) -> Callable[[F], F]:
-    return click.option("--set", "sets", multiple=True, metavar="KEY=VALUE", help=help)
+    from flatcli.completion import complete_set
+
+    return click.option("--set", "sets", multiple=True, metavar="KEY=VALUE", help=help,
+                        shell_complete=complete_set)
+
+
+def name_option(fn: F) -> F:
+    return click.option("--name", metavar="NAME",
+                        help="Name the run (shorthand for --set name=NAME): its directory is "
+                             "runs/<name>/.")(fn)
+
+
+def tag_option(fn: F) -> F:
+    return click.option("--tag", "tags", multiple=True, metavar="TAG",
+                        help="Label the run, repeatable (flatcli runs --filter tag=TAG).")(fn)
 
 
 def out_option(default: Path | None = None,
@@ -214,8 +273,8 @@ def out_option(default: Path | None = None,
                         default=default, show_default=default is not None, help=help)
 
 
-def quiet_option(help: str = "Print nothing but errors.") -> Callable[[F], F]:
-    return click.option("-q", "--quiet", is_flag=True, help=help)
+def quiet_option(fn: F) -> F:
+    return click.option("-q", "--quiet", is_flag=True, help=QUIET_HELP)(fn)
 
 
 def workers_option(help: str = "Worker processes [default: one per core].") -> Callable[[F], F]:
@@ -228,6 +287,22 @@ def plot_option(help: str) -> Callable[[F], F]:
 
 def force_option(help: str) -> Callable[[F], F]:
     return click.option("--force", is_flag=True, help=help)
+
+
+def figure_options(fn: F) -> F:
+    """--format and --dpi: how figures are written (``[figures]``)."""
+    fn = click.option("--dpi", type=int, metavar="N",
+                      help="Resolution of raster figures, 50 to 1200 dots per inch "
+                           "(figures.dpi) [default: 150].")(fn)
+    return click.option("--format", "fmt", type=click.Choice(list(FIGURE_FORMATS)),
+                        help="File format of the figures: png, or pdf and svg for print "
+                             "(figures.format) [default: png].")(fn)
+
+
+def cfg_option(fn: F) -> F:
+    return click.option("--cfg", is_flag=True,
+                        help="Print the resolved spec (TOML: robot file, includes and --set "
+                             "applied) and exit; nothing is computed or written.")(fn)
 
 
 def executor_option(fn: F) -> F:
@@ -243,19 +318,29 @@ def optimize_option(fn: F) -> F:
     )(fn)
 
 
-def spec_options(fn: F) -> F:
-    """SPEC argument, --set, --out, --force, -q: shared by the commands that run one spec."""
-    for decorator in (quiet_option(), force_option(
-            "Write into an --out directory that holds another run (its files are replaced)."),
-            out_option(), set_option(), spec_argument()):
-        fn = decorator(fn)
-    return fn
+def spec_overrides(sets: tuple[str, ...], *, robot: str | None = None,
+                   name: str | None = None, objective: str | None = None,
+                   fmt: str | None = None, dpi: int | None = None) -> dict[str, Any]:
+    """The overrides of a command line: its ``--set`` items in order, then the options that
+    are shorthands for one (``--robot``, ``--name``, ``--optimize``, ``--format``, ``--dpi``).
+    SpecError (one line) for a bad one."""
+    from flatcli.spec import parse_set
+
+    out = parse_set(sets)
+    for key, value in (("robot", robot), ("name", name),
+                       ("plan.optimize.objective", objective), ("figures.format", fmt)):
+        if value is not None:
+            out[key] = value
+    if dpi is not None:
+        out["figures.dpi"] = checked_dpi(dpi)
+    return out
 
 
-def overrides(sets: tuple[str, ...], objective: str | None = None) -> list[str]:
-    """The ``--set`` items of a command line (``--optimize`` is one more)."""
-    extra = [] if objective is None else [f"plan.optimize.objective={objective}"]
-    return [*sets, *extra]
+def checked_dpi(dpi: int) -> int:
+    """``--dpi`` checked as ``figures.dpi`` is (SpecError naming --dpi)."""
+    from flatcli.spec import lookup
+
+    return int(lookup("figures.dpi").check("--dpi", dpi))
 
 
 def show(text: str, nl: bool = True) -> None:
@@ -297,56 +382,75 @@ def main() -> None:
     """
 
 
-@main.command()
-@spec_options
-@optimize_option
-@plot_option("Also write plan.png.")
-def plan(spec: Path | None, sets: tuple[str, ...], out: Path | None, force: bool, quiet: bool,
-         objective: str | None, plot: bool) -> None:
-    """Plan a point-to-point maneuver through the flat outputs; write plan.parquet."""
+def run_options(fn: F) -> F:
+    """The options of ``plan`` and ``track``, in ``OPTION_ORDER``."""
+    for decorator in reversed((
+            spec_argument(), robot_option, set_option(), name_option, tag_option,
+            optimize_option, out_option(), force_option(
+                "Write into an --out directory that holds another run (its files are "
+                "replaced)."),
+            plot_option("Also draw the figure (plan.png, track.png; --format)."),
+            figure_options, cfg_option, quiet_option)):
+        fn = decorator(fn)
+    return fn
+
+
+def run_one(command: str, spec: Path | None, robot: str | None, sets: tuple[str, ...],
+            name: str | None, tags: tuple[str, ...], objective: str | None, out: Path | None,
+            force: bool, plot: bool, fmt: str | None, dpi: int | None, cfg: bool,
+            quiet: bool) -> None:
+    """``flatcli plan`` and ``flatcli track``: everything checked before any work (the spec,
+    the tags, ``--out``), then the run, then its files."""
     from flatcli import api
+    from flatcli.runs import check_tags
+    from flatcli.spec import spec_toml
 
-    require_stdout(quiet)
-
+    require_stdout(quiet and not cfg)
     with user_errors():
-        s = api.load_spec(spec, overrides(sets, objective))
+        s = api.load_spec(spec, spec_overrides(sets, robot=robot, name=name,
+                                               objective=objective, fmt=fmt, dpi=dpi))
+        if cfg:
+            show(spec_toml(s), nl=False)
+            return
+        chosen = check_tags(tags)
         with api.output_lock(out):  # one writer from the check to the last file
-            target = api.output_target("plan", s, out, force)  # refused before any work
-            note = api.duration_note(s, "plan")
+            target = api.output_target(command, s, out, force)  # refused before any work
+            note = api.duration_note(s, command)
             if note is not None and not quiet:
                 click.echo(note, err=True)
-            result = api.plan(s)
-            directory = result.save(target, plot=plot)
-    say(quiet, result.text())
-    say(quiet, f"wrote {directory}/plan.parquet" + (" and plan.png" if plot else ""))
-
-
-@main.command()
-@spec_options
-@optimize_option
-@plot_option("Also write track.png.")
-def track(spec: Path | None, sets: tuple[str, ...], out: Path | None, force: bool,
-          quiet: bool, objective: str | None, plot: bool) -> None:
-    """Track the plan in closed loop from a perturbed initial state; write track.parquet."""
-    from flatcli import api
-
-    require_stdout(quiet)
-
-    with user_errors():
-        s = api.load_spec(spec, overrides(sets, objective))
-        with api.output_lock(out):  # one writer from the check to the last file
-            target = api.output_target("track", s, out, force)  # refused before any work
-            note = api.duration_note(s, "track")
-            if note is not None and not quiet:
-                click.echo(note, err=True)
-            result = api.track(s, quiet=quiet)
+            result: api.PlanResult | api.TrackResult = (
+                api.plan(s) if command == "plan" else api.track(s, quiet=quiet))
+            result.tags = chosen
             directory = result.save(target, plot=plot)
     say(quiet, result.text())
     say(quiet, f"wrote {directory}/" + ", ".join(result.files))
 
 
-@main.command()
+@main.command(short_help="Plan a maneuver through the flat outputs.")
+@run_options
+def plan(spec: Path | None, robot: str | None, sets: tuple[str, ...], name: str | None,
+         tags: tuple[str, ...], objective: str | None, out: Path | None, force: bool,
+         plot: bool, fmt: str | None, dpi: int | None, cfg: bool, quiet: bool) -> None:
+    """Plan a point-to-point maneuver through the flat outputs; write plan.parquet and
+    run.json (and with --plot the figure)."""
+    run_one("plan", spec, robot, sets, name, tags, objective, out, force, plot, fmt, dpi, cfg,
+            quiet)
+
+
+@main.command(short_help="Plan, then track the plan in closed loop.")
+@run_options
+def track(spec: Path | None, robot: str | None, sets: tuple[str, ...], name: str | None,
+          tags: tuple[str, ...], objective: str | None, out: Path | None, force: bool,
+          plot: bool, fmt: str | None, dpi: int | None, cfg: bool, quiet: bool) -> None:
+    """Track the plan in closed loop from a perturbed initial state; write track.parquet,
+    metrics.json and run.json (and with --plot the figure)."""
+    run_one("track", spec, robot, sets, name, tags, objective, out, force, plot, fmt, dpi,
+            cfg, quiet)
+
+
+@main.command(short_help="Is the design flat? Its verdict and reasons.")
 @spec_argument()
+@robot_option
 @set_option()
 @click.option("--counterweight", is_flag=True,
               help="Design the last link's counterweight instead: the spec's last link is "
@@ -357,7 +461,7 @@ def track(spec: Path | None, sets: tuple[str, ...], out: Path | None, force: boo
 @click.option("--counterweight-inertia", "own_inertia", type=float, default=0.0,
               show_default=True, help="--counterweight: its inertia about its own centre "
                                       "[kg m^2].")
-def design(spec: Path | None, sets: tuple[str, ...], counterweight: bool,
+def design(spec: Path | None, robot: str | None, sets: tuple[str, ...], counterweight: bool,
            positions: tuple[float, float, float, float] | None, own_inertia: float) -> None:
     """Is the design flat, and do the closed-form flat outputs apply? Prints its constraint
     coefficients (N = 2) or barycentric matrix (N >= 3) and the verdict with its reasons.
@@ -380,24 +484,24 @@ def design(spec: Path | None, sets: tuple[str, ...], counterweight: bool,
 
         segment = [positions[:2], positions[2:]]
         with user_errors():
-            s = api.load_spec(spec, sets)
+            s = api.load_spec(spec, spec_overrides(sets, robot=robot))
             options = counterweight_options(s, segment, own_inertia)
         show(counterweight_text(s, segment, options))
         return
     with user_errors():
-        s = api.load_spec(spec, sets)
-        robot = robot_from(s)
+        s = api.load_spec(spec, spec_overrides(sets, robot=robot))
+        nominal = robot_from(s)
         plant = plant_from(s)
-    if robot.n_joints == 2:
-        k = constraint_coefficients(robot.links, checked(s.robot.model))
+    if nominal.n_joints == 2:
+        k = constraint_coefficients(nominal.links, checked(s.robot.model))
         rows = [[name, float(v)] for name, v in zip(k._fields, k, strict=True)]
         show(f"robot {s.name!r}, {s.robot.model} coefficients [kg^2 m^2]:")
         show(table(["coefficient", "value"], rows, 6))
     else:
-        show(chain_constants(s.name, robot))
-    verdict = design_verdict(robot)
+        show(chain_constants(s.name, nominal))
+    verdict = design_verdict(nominal)
     show(verdict_lines("robot", verdict))
-    if plant != robot:
+    if plant != nominal:
         show(verdict_lines("plant", design_verdict(plant)))
     sys.exit(DESIGN_EXIT[verdict.verdict])
 
@@ -425,91 +529,90 @@ def verdict_lines(what: str, verdict: DesignVerdict) -> str:
     return "\n".join(lines)
 
 
-@main.command()
+@main.command(short_help="What a sweep of SPEC would do (a dry run).")
 @spec_argument()
+@robot_option
 @set_option()
 @workers_option("Worker processes the estimate assumes [default: one per core].")
 @executor_option
-@quiet_option("No compile notice.")
-def check(spec: Path | None, sets: tuple[str, ...], workers: int | None, executor: str,
-          quiet: bool) -> None:
+@quiet_option
+def check(spec: Path | None, robot: str | None, sets: tuple[str, ...], workers: int | None,
+          executor: str, quiet: bool) -> None:
     """What a sweep of SPEC would do, without doing it: the resolved spec, the cells and
     their grid values, trials, chunks, a time and memory estimate from a short calibration,
-    and warnings. Writes nothing."""
+    and warnings. Writes nothing; with -q only the exit status says whether SPEC is valid."""
     from flatcli import api
 
-    require_stdout()
+    require_stdout(quiet)
 
     with user_errors():
-        report = api.check(spec, sets, workers=workers, executor=executor, quiet=quiet)
-    show(report.text())
+        report = api.check(spec, spec_overrides(sets, robot=robot), workers=workers,
+                           executor=executor, quiet=quiet)
+    say(quiet, report.text())
 
 
-@main.command()
+@main.command(short_help="Run a Monte Carlo sweep (resumable).")
 @spec_argument(required=True)
-@click.option("--out", type=click.Path(path_type=Path, file_okay=False),
-              help="Output directory [default: runs/<name>/].")
-@workers_option()
+@robot_option
 @set_option()
-@quiet_option("No progress and no tables.")
-@click.option("--fail-fast", is_flag=True,
-              help="Stop at the first trial that raises or diverges (exit status 1).")
+@name_option
+@tag_option
+@out_option(help="Output directory [default: runs/<name>/sweep/].")
 @force_option("Start over in a directory holding another sweep.")
+@plot_option("Also write the summary figures (sweep_*.png; --format).")
+@figure_options
+@workers_option()
+@click.option("--oversubscribe", is_flag=True,
+              help="Allow more --workers than this machine's cores.")
 @executor_option
 @click.option("--scheduler", metavar="ADDRESS",
               help="Dask scheduler address (tcp://host:8786), or 'local' for a LocalCluster.")
-@click.option("--rerun", "rerun", type=click.IntRange(0, 2**63 - 1), metavar="TRIAL",
-              help="Re-run one finished trial alone (as flatcli track) and compare.")
+@click.option("--fail-fast", is_flag=True,
+              help="Stop at the first trial that raises or diverges (exit status 1).")
+@click.option("--rerun", "rerun", type=TrialId(),
+              help="Re-run one finished trial alone (as flatcli track) and compare "
+                   "(flatcli rerun DIR TRIAL needs no SPEC).")
 @click.option("--print-spec", is_flag=True, help="With --rerun: print that trial's track spec.")
 @click.option("--dry-run", is_flag=True,
               help="Show what the sweep would do (as flatcli check) and write nothing.")
-@click.option("--oversubscribe", is_flag=True,
-              help="Allow more --workers than this machine's cores.")
-@plot_option("Also write the summary figures.")
-def sweep(spec: Path, out: Path | None, workers: int | None, sets: tuple[str, ...],
-          quiet: bool, fail_fast: bool, force: bool, executor: str, scheduler: str | None,
-          rerun: int | None, print_spec: bool, dry_run: bool, oversubscribe: bool,
-          plot: bool) -> None:
-    """Run a Monte Carlo sweep from a TOML spec with a [sweep] table (resumable)."""
+@quiet_option
+def sweep(spec: Path, robot: str | None, sets: tuple[str, ...], name: str | None,
+          tags: tuple[str, ...], out: Path | None, force: bool, plot: bool, fmt: str | None,
+          dpi: int | None, workers: int | None, oversubscribe: bool, executor: str,
+          scheduler: str | None, fail_fast: bool, rerun: int | None, print_spec: bool,
+          dry_run: bool, quiet: bool) -> None:
+    """Run a Monte Carlo sweep from a TOML spec with a [sweep] table, into
+    runs/<name>/sweep/ (or --out); running the same command again resumes it."""
     require_stdout(quiet)
     from flatcli import api
     from flatcli.executors import WorkerLostError
-    from flatcli.spec import spec_toml
+    from flatcli.runs import check_tags, sweep_directory
     from flatcli.storage import check_output_dir, directory_lock
-    from flatcli.sweep import FailFastError, rerun_and_compare, trial_spec
-    from flatcli.sweep.directory import record_outputs
-    from flatcli.sweep.rerun import trials_table
+    from flatcli.sweep import FailFastError
 
     with user_errors():
-        s = api.load_spec(spec, sets)
-        directory = out if out is not None else Path("runs") / s.name
+        s = api.load_spec(spec, spec_overrides(sets, robot=robot, name=name, fmt=fmt,
+                                               dpi=dpi))
+        directory = out if out is not None else sweep_directory(s.name)
         if dry_run:
             if rerun is not None or print_spec:
                 fail("--dry-run: not with --rerun or --print-spec")
-            show(api.check(s, workers=workers, executor=executor, quiet=quiet).text())
+            say(quiet, api.check(s, workers=workers, executor=executor, quiet=quiet).text())
             return
-        check_output_dir(directory)
-        if rerun is not None and print_spec:
-            show(spec_toml(trial_spec(s, directory, rerun)), nl=False)
-            return
-        if rerun is not None:
-            trials_table(directory)  # there, and a regular file
-            with directory_lock(directory):
-                result = rerun_and_compare(s, directory, rerun)
-                record_outputs(directory, result.target.iterdir())
-            say(quiet, result.text(s.name))
-            if not result.modified and not result.reproduced:
-                fail(f"--rerun: trial {rerun} did not reproduce")
-            return
-        if print_spec:
+        if print_spec and rerun is None:
             fail("--print-spec: only with --rerun TRIAL")
+        if rerun is not None:
+            rerun_trial(s, directory, rerun, print_spec, quiet)
+            return
+        chosen = check_tags(tags)
+        check_output_dir(directory)
         try:
             with directory_lock(directory):
                 done = api.sweep(s, directory, workers=workers, executor=executor,
                                  scheduler=scheduler, force=force, fail_fast=fail_fast,
-                                 quiet=quiet, oversubscribe=oversubscribe)
+                                 quiet=quiet, oversubscribe=oversubscribe, tags=chosen)
                 if plot:
-                    done.plot()
+                    done.save_figures()
         except FailFastError as exc:
             click.echo(f"error: {exc}", err=True)
             sys.exit(EXIT_RUNTIME)
@@ -529,18 +632,81 @@ def sweep(spec: Path, out: Path | None, workers: int | None, sets: tuple[str, ..
                f"{done.wall_seconds:.1f} s; wrote {directory}/trials.parquet, summary.md")
 
 
-@main.command()
+def rerun_trial(s: Any, directory: Path, trial: int, print_spec: bool, quiet: bool) -> None:
+    """``sweep --rerun`` and ``rerun``: one finished trial of the sweep ``s`` in ``directory``
+    re-run alone (``rerun-TRIAL/``) and compared with its row (exit status 2 if it does not
+    reproduce), or with ``print_spec`` its track spec printed."""
+    from flatcli.spec import spec_toml
+    from flatcli.storage import check_output_dir, directory_lock
+    from flatcli.sweep import rerun_and_compare, trial_spec
+    from flatcli.sweep.directory import record_outputs
+    from flatcli.sweep.rerun import trials_table
+
+    check_output_dir(directory)
+    if print_spec:
+        show(spec_toml(trial_spec(s, directory, trial)), nl=False)
+        return
+    trials_table(directory)  # there, and a regular file
+    with directory_lock(directory):
+        result = rerun_and_compare(s, directory, trial)
+        record_outputs(directory, result.target.iterdir())
+    say(quiet, result.text(s.name))
+    if not result.modified and not result.reproduced:
+        fail(f"--rerun: trial {trial} did not reproduce")
+
+
+@main.command(short_help="Re-run one trial of a sweep alone, and compare.")
+@click.argument("directory", type=click.Path(path_type=Path, file_okay=False))
+@click.argument("trial", type=TrialId())
+@click.option("--print-spec", is_flag=True, help="Print the trial's track spec and exit.")
+@figure_options
+@quiet_option
+def rerun(directory: Path, trial: int, print_spec: bool, fmt: str | None, dpi: int | None,
+          quiet: bool) -> None:
+    """Re-run trial TRIAL of the sweep in DIRECTORY alone, as flatcli track, from the spec the
+    sweep recorded (no SPEC to pass again), into DIRECTORY/rerun-TRIAL/, and check that every
+    metric reproduces (exit status 2 if not)."""
+    require_stdout(quiet)
+    from flatcli import api
+
+    with user_errors():
+        found = api.load(api.sweep_dir_of(directory))
+        if not isinstance(found, api.SweepResult):
+            fail(f"{directory}: holds a {found.command or 'run'}, not a sweep")
+        s = found.spec.with_overrides(spec_overrides((), fmt=fmt, dpi=dpi)) if (
+            fmt is not None or dpi is not None) else found.spec
+        rerun_trial(s, found.state.directory, trial, print_spec, quiet)
+
+
+@main.command(short_help="A sweep's tables again; --plot draws its figures.")
 @click.argument("directory", type=click.Path(path_type=Path, file_okay=False))
 @plot_option("Also write the summary figures (a finished sweep only).")
-def summarize(directory: Path, plot: bool) -> None:
-    """Print a sweep's summary tables again (and --plot its figures).
+@figure_options
+@click.option("--x", "x", metavar="KEY",
+              help="With --plot: the grid key sweep_singular's x axis shows [default: the "
+                   "perturbation size, or the first numeric grid key].")
+@click.option("--hue", "hue", metavar="KEY",
+              help="With --plot: the grid key whose values get a colour each (the other grid "
+                   "keys a line style).")
+@quiet_option
+def summarize(directory: Path, plot: bool, fmt: str | None, dpi: int | None, x: str | None,
+              hue: str | None, quiet: bool) -> None:
+    """Print a sweep's summary tables again (and --plot its figures, against any grid key
+    with --x and --hue).
 
     Of an interrupted sweep: the tables of its finished trials, and how much is missing.
+    DIRECTORY may be a sweep's or its name's (runs/<name>, whose sweep/ it reads).
     """
     from flatcli import api
     from flatcli.files import is_regular, kind, read_text
+    from flatcli.report import FigureFile
 
+    require_stdout(quiet)
     with user_errors():
+        if not plot and (fmt is not None or dpi is not None or x is not None or hue is not None):
+            fail("--format, --dpi, --x, --hue: only with --plot")
+        directory = api.sweep_dir_of(directory)
+        dpi = None if dpi is None else checked_dpi(dpi)
         if kind(directory / "sweep.json") == "missing":
             summary_md = directory / "summary.md"
             if not is_regular(summary_md):
@@ -552,48 +718,82 @@ def summarize(directory: Path, plot: bool) -> None:
                     if not is_regular(directory / name):
                         fail(f"--plot: {directory / name} not found: not a finished sweep "
                              "directory")
-            show(read_text(summary_md), nl=False)
+            say(quiet, read_text(summary_md).rstrip("\n"))
             if plot:
                 from flatcli.report import plot_sweep
                 from flatcli.storage import directory_lock
 
+                file = FigureFile(fmt or "png", dpi or FigureFile().dpi)
                 with directory_lock(directory):
-                    paths = plot_sweep(directory)
-                show("wrote " + ", ".join(str(p) for p in paths))
+                    paths = plot_sweep(directory, file, x=x, hue=hue)
+                say(quiet, "wrote " + ", ".join(str(p) for p in paths))
             return
         result = api.load(directory)
         assert isinstance(result, api.SweepResult)
         if plot and not result.complete:
             fail(f"--plot: {result.state.missing_text()}; the figures need every trial "
                  "(run the sweep again to finish it)")
-        show(result.summary_text)
+        say(quiet, result.summary_text)
         if plot:
-            paths = result.plot()
-            show("wrote " + ", ".join(str(p) for p in paths))
+            paths = result.save_figures(fmt=fmt, dpi=dpi, x=x, hue=hue)
+            say(quiet, "wrote " + ", ".join(str(p) for p in paths))
 
 
-@main.command()
-@click.argument("directory", required=False, default=Path("runs"),
-                type=click.Path(path_type=Path, file_okay=False))
-@click.option("--compare", nargs=2, type=click.Path(path_type=Path, file_okay=False),
-              metavar="A B", help="Show the spec keys (and key metrics) two runs differ in.")
-def runs(directory: Path, compare: tuple[Path, Path] | None) -> None:
-    """List the runs below DIRECTORY [default: runs]: command, name, time, status and key
-    metrics (plan, track, sweep, reproduce)."""
-    from flatcli.runs import RunDirectoryError, compare_runs, runs_table
+@main.command(short_help="List, filter, sort and compare runs.")
+@click.argument("directories", nargs=-1, type=click.Path(path_type=Path, file_okay=False))
+@click.option("--filter", "filters", multiple=True, metavar="KEY[OP]VALUE",
+              help="Only runs where KEY OP VALUE holds, repeatable (all must hold): OP is one "
+                   "of = != < <= > >= ~ (contains); KEY a field (command, name, status, "
+                   "time, tag), a metric (err_y_final) or a spec key (plant.model).")
+@click.option("--sort", "sort", metavar="KEY", help="Order the runs by KEY (runs without it "
+                                                    "last) [default: time].")
+@click.option("--reverse", is_flag=True, help="With --sort: largest first.")
+@click.option("--json", "as_json", is_flag=True,
+              help="Print the runs as JSON: every metric and the resolved spec of each.")
+@click.option("--compare", is_flag=True,
+              help="Compare the runs given (two or more): the spec keys they differ in, their "
+                   "key metrics side by side.")
+def runs(directories: tuple[Path, ...], filters: tuple[str, ...], sort: str | None,
+         reverse: bool, as_json: bool, compare: bool) -> None:
+    """List the runs below DIRECTORIES [default: runs]: command, name, time, status, tags and
+    key metrics (plan, track, sweep, reproduce), in a table as wide as the terminal.
 
-    if compare:
-        try:
-            show(compare_runs(*compare))
-        except RunDirectoryError as exc:
-            fail(str(exc))
-        return
-    if not directory.is_dir():
-        fail(f"{directory}: no such directory")
-    show(runs_table(directory))
+    With --compare, DIRECTORIES are the runs to compare (runs/<name>: its latest run).
+    """
+    import shutil
+
+    from flatcli.catalog import Filter, compare_runs, rows_below, runs_json, runs_table, select
+    from flatcli.runs import RunDirectoryError
+
+    with user_errors():
+        if compare:
+            if filters or sort or as_json:
+                fail("--compare: not with --filter, --sort or --json")
+            try:
+                show(compare_runs(*directories))
+            except RunDirectoryError as exc:
+                fail(str(exc))
+            return
+        chosen = [Filter.parse(f) for f in filters]
+        roots = list(directories) or [Path("runs")]
+        for root in roots:
+            if not root.is_dir():
+                fail(f"{root}: no such directory")
+        rows = [row for root in roots for row in rows_below(root)]
+        rows = select(rows, chosen, sort, reverse)
+        if as_json:
+            show(runs_json(rows))
+            return
+        if not rows and (filters or len(roots) == 1):
+            show(f"no runs in {roots[0]}" if not filters else "no runs match")
+            return
+        width = shutil.get_terminal_size().columns if (
+            sys.stdout is not None and sys.stdout.isatty()) or "COLUMNS" in os.environ \
+            else None
+        show(runs_table(roots[0], rows, width))
 
 
-@main.command()
+@main.command(short_help="A run's or sweep's tables as CSV.")
 @click.argument("directory", type=click.Path(path_type=Path, file_okay=False))
 @click.option("--csv", "as_csv", is_flag=True, help="Write CSV files (the one format so far).")
 @out_option(help="Write the files here [default: beside the tables].")
@@ -613,7 +813,8 @@ def export(directory: Path, as_csv: bool, out: Path | None) -> None:
 REPRODUCE_SECTIONS = ("paper", "optimized", "montecarlo", "actuators", "chains", "asbuilt")
 
 
-@main.command()
+@main.command(short_help="The paper's figures and numbers, and the studies.")
+@set_option("Override a key of the studies' specs (Monte Carlo, actuators), repeatable.")
 @out_option(Path("runs/paper"), "Output directory.")
 @click.option("--montecarlo", "montecarlo", type=click.Path(path_type=Path, dir_okay=False),
               help="Sweep spec of the Monte Carlo study [default: paper_montecarlo.toml, "
@@ -625,11 +826,12 @@ REPRODUCE_SECTIONS = ("paper", "optimized", "montecarlo", "actuators", "chains",
 @click.option("--force", is_flag=True,
               help="Compute every section run again, even if its inputs and code are "
                    "unchanged since it was last computed here.")
+@figure_options
 @workers_option("Worker processes for the studies.")
-@set_option("Override a key of the studies' specs (Monte Carlo, actuators), repeatable.")
-@quiet_option()
-def reproduce(out: Path, montecarlo: Path | None, no_montecarlo: bool, only: tuple[str, ...],
-              force: bool, workers: int | None, sets: tuple[str, ...], quiet: bool) -> None:
+@quiet_option
+def reproduce(sets: tuple[str, ...], out: Path, montecarlo: Path | None, no_montecarlo: bool,
+              only: tuple[str, ...], force: bool, fmt: str | None, dpi: int | None,
+              workers: int | None, quiet: bool) -> None:
     """The paper's figures 2-4 and numbers, and the Monte Carlo studies, with REPORT.md.
 
     A section whose inputs and code are unchanged since it was last computed into the
@@ -644,13 +846,18 @@ def reproduce(out: Path, montecarlo: Path | None, no_montecarlo: bool, only: tup
     words += ["--no-montecarlo"] if no_montecarlo else []
     words += [w for name in only for w in ("--only", name)]
     words += ["--force"] if force else []
+    words += [] if fmt is None else ["--format", fmt]
+    words += [] if dpi is None else ["--dpi", str(dpi)]
     words += [] if workers is None else ["--workers", str(workers)]
     words += [w for item in sets for w in ("--set", item)]
     words += ["-q"] if quiet else []
     with user_errors():
+        from flatcli.report import FigureFile
+
+        file = FigureFile(fmt or "png", FigureFile().dpi if dpi is None else checked_dpi(dpi))
         study = None if no_montecarlo else (montecarlo or STUDY_SPEC)
         path, results = run(out, study, quiet, workers, sets, command=shlex.join(words),
-                            only=only, force=force)
+                            only=only, force=force, figures=file)
     if quiet:
         return
     reused = sum(r.reused for r in results)

@@ -20,6 +20,7 @@ import os
 import signal
 import sys
 import time
+import uuid
 import warnings
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -30,6 +31,7 @@ import numpy as np
 
 from flatcli.core.model import FlatcliError
 from flatcli.storage import forget_inherited_locks
+from flatcli.threads import limit_process, single_threaded
 
 T = TypeVar("T")
 
@@ -71,8 +73,9 @@ def worker_timeout() -> float:
 
 def die_with_parent(parent: int) -> None:
     """In a worker process: be killed when the parent process ends (Linux), and end now if
-    it already has. Also: leave Ctrl-C to the parent, drop its directory locks, and keep
-    numpy's floating-point warnings off the terminal (the metrics say what went wrong)."""
+    it already has. Also: leave Ctrl-C to the parent, drop its directory locks, run one BLAS
+    thread (``flatcli.threads``), and keep numpy's floating-point warnings off the terminal
+    (the metrics say what went wrong)."""
     if sys.platform.startswith("linux"):
         with contextlib.suppress(OSError, AttributeError):
             libc = ctypes.CDLL(None, use_errno=True)
@@ -82,6 +85,7 @@ def die_with_parent(parent: int) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     forget_inherited_locks()
+    limit_process()
     np.seterr(all="ignore")
     warnings.simplefilter("ignore", RuntimeWarning)
 
@@ -285,7 +289,10 @@ class DaskExecutor:
             item = next(queue, None)
             if item is None:
                 return False
-            future = self._client.submit(fn, *item[1], pure=False)
+            # a Dask worker is not flatcli's process: one BLAS thread for the task only; the
+            # task keeps its function's name (run_chunk-...) on the dashboard
+            key = f"{getattr(fn, '__name__', 'task')}-{uuid.uuid4().hex}"
+            future = self._client.submit(single_threaded, fn, *item[1], key=key, pure=False)
             pending[future] = item[0]
             return True
 

@@ -22,6 +22,7 @@ from flatcli.core.model import RobotParams
 from flatcli.core.optimize import DEFAULT_BSPLINE_DEGREE, OptimizeResult, PlanLimits, optimize_plan
 from flatcli.core.planning import Plan, plan_point_to_point
 from flatcli.core.simulate import (
+    TWIN_FACTOR,
     NoiseStreams,
     Outcome,
     Scenario,
@@ -175,6 +176,8 @@ def scenario_from(spec: Spec, plan: Plan) -> Scenario:
         controller=checked(track.controller),
         lqr=LqrWeights(track.lqr_bandwidth, track.lqr_terminal, track.lqr_base),
         servo_bandwidth=spec.plant.servo_bandwidth,
+        twin=TWIN_FACTOR if track.error_estimate == "twin" else 0.0,
+        accuracy=track.accuracy,
     )
 
 
@@ -233,9 +236,11 @@ class TrackRun:
             values,
             self.scenario.singular_threshold,
             self.scenario.divergence_bound,
+            self.outcome.unverified(0),
         )
         out["status"] = status
         out["reason"] = reason
+        out["verified"] = bool(self.outcome.verified[0])
         event_time = float(self.outcome.event_time[0])
         out["event_time"] = None if np.isnan(event_time) else event_time
         return out

@@ -2,7 +2,7 @@
 
 ``flatcli plan``, ``flatcli track``, ``flatcli sweep --rerun`` and ``flatcli reproduce`` all
 write their tables through these functions, so a plan or a track table has the same columns
-whichever command wrote it (the README's *Output files* lists them). Each frame carries its
+whichever command wrote it (docs/outputs.md lists them). Each frame carries its
 columns' units in ``frame.attrs["units"]`` (``flatcli.units``), which ``write_parquet`` writes as
 Arrow field metadata; a value that does not apply (a sample after a trial stopped) is null.
 """
@@ -17,7 +17,7 @@ import pandas as pd
 
 from flatcli.core.planning import PlanSamples
 from flatcli.experiment import TrackRun
-from flatcli.report import Limits, plot_track
+from flatcli.report import FigureFile, Limits, plot_track
 from flatcli.storage import write_json, write_parquet
 from flatcli.units import units_of
 
@@ -52,19 +52,22 @@ def track_frame(run: TrackRun) -> pd.DataFrame:
 
 
 def write_track(directory: Path, run: TrackRun, record: Mapping[str, Any],
-                plot_title: str | None = None) -> list[str]:
-    """track.parquet, metrics.json, run.json (and track.png with a title); their names."""
+                plot_title: str | None = None, file: FigureFile | None = None) -> list[str]:
+    """track.parquet, metrics.json, run.json (and with a title the figure, ``track.png``
+    or the format of ``file``, default the run spec's ``[figures]``); their names."""
     write_parquet(directory / "track.parquet", track_frame(run), record)
     write_json(directory / "metrics.json", run.metrics)
     write_json(directory / "run.json", record)
     names = ["track.parquet", "metrics.json"]
     if plot_title is not None:
-        plot_track(run.columns, directory / "track.png", plot_title, track_limits(run))
-        names.append("track.png")
+        file = file or FigureFile.of(run.spec)
+        plot_track(run.columns, directory / file.name("track"), plot_title,
+                   track_limits(run), file)
+        names.append(file.name("track"))
     return names
 
 
 def track_limits(run: TrackRun) -> Limits:
-    """The thresholds a track figure draws: the singular threshold and the rate limit."""
-    return Limits(singular_threshold=run.scenario.singular_threshold,
-                  rate_limit=run.scenario.rate_limit)
+    """The thresholds a track figure draws: the singular threshold, the rate limit and (on
+    the dynamic plant) the torque limit."""
+    return Limits.of_track(run.spec)

@@ -28,7 +28,7 @@ import multiprocessing
 import os
 import resource
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, replace
 from typing import Any
@@ -41,7 +41,6 @@ from flatcli.core.metrics import METRIC_NAMES, STATUS_NAMES
 from flatcli.executors import default_workers
 from flatcli.report import fmt, short_key, summarize_trials, table
 from flatcli.spec import Spec, spec_toml
-from flatcli.spec.toml import toml_value
 from flatcli.sweep import Chunk, Layout, grid_cell_text, grid_label, layout, run_chunk
 
 #: Trials the calibration runs in all (at least one per cell).
@@ -226,33 +225,10 @@ def _value_text(value: Any) -> Any:
 def resolved_toml(spec: Spec, chunk: int) -> str:
     """The spec as TOML, every key, ``[sweep]`` and its tables included; the chunk size as
     resolved (commented when it is the default)."""
-    sweep = spec.sweep
-    lines = [spec_toml(spec).rstrip("\n"), "", "[sweep]", f"trials = {sweep.trials}",
-             f"seed = {sweep.seed}"]
-    if sweep.chunk is None:
-        lines.append(f"chunk = {chunk}  # the default for this sweep")
-    else:
-        lines.append(f"chunk = {sweep.chunk}")
-    if sweep.perturb:
-        lines += ["", "[sweep.perturb]"]
-        lines += [f"{_toml_key(k)} = {_inline(v)}" for k, v in sweep.perturb.items()]
-    if sweep.grid:
-        lines += ["", "[sweep.grid]"]
-        lines += [f"{_toml_key(k)} = {_inline(v)}" for k, v in sweep.grid.items()]
-    return "\n".join(lines)
-
-
-def _toml_key(key: str) -> str:
-    return key if key.replace("_", "").isalnum() else json.dumps(key)
-
-
-def _inline(value: Any) -> str:
-    if isinstance(value, Mapping):
-        return "{ " + ", ".join(f"{_toml_key(str(k))} = {_inline(v)}"
-                                for k, v in value.items()) + " }"
-    if isinstance(value, list | tuple):
-        return "[" + ", ".join(_inline(v) for v in value) + "]"
-    return toml_value(value)
+    default = spec.sweep.chunk is None
+    return spec_toml(spec, sweep=True, values={"sweep.chunk": chunk},
+                     notes={"sweep.chunk": "the default for this sweep"} if default else {}
+                     ).rstrip("\n")
 
 
 # ---------------------------------------------------------------------------------------

@@ -21,8 +21,10 @@ import json
 import math
 import os
 import secrets
-from collections.abc import Iterator, Mapping
-from dataclasses import dataclass
+import sys
+import types as _types
+from collections.abc import Iterable, Iterator, Mapping
+from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
 from typing import Any
@@ -35,7 +37,7 @@ from flatcli.files import (
     not_regular,
     read_bounded,
 )
-from flatcli.report import fmt, table
+from flatcli.report import fmt
 
 #: The file every finished run directory holds (plan, track, sweep, reproduce).
 RECORD = "run.json"
@@ -47,10 +49,16 @@ SWEEP_TRIALS = "trials"
 LATEST = "latest"
 #: The files a plan or track run writes (and ``flatcli export --csv`` beside them);
 #: ``--force`` removes these (and only these, if they are regular files) first.
-RUN_FILES = ("run.json", "plan.parquet", "plan.png", "track.parquet", "track.png",
-             "metrics.json", "plan.csv", "track.csv")
+RUN_FILES = ("run.json", "plan.parquet", "plan.png", "plan.pdf", "plan.svg", "track.parquet",
+             "track.png", "track.pdf", "track.svg", "metrics.json", "plan.csv", "track.csv")
 #: Default root of run directories.
 ROOT = Path("runs")
+#: A sweep's default directory within ``runs/<name>/``, beside the name's plan and track runs
+#: (a stamp, ``YYYYmmdd-HHMMSS-xxxxxx``, is never this name).
+SWEEP_DIR = "sweep"
+#: The most tags a run may have, and the longest tag [UTF-8 bytes].
+MAX_TAGS = 32
+MAX_TAG_BYTES = 100
 
 
 class RunDirectoryError(Exception):
@@ -59,6 +67,38 @@ class RunDirectoryError(Exception):
 
 # ---------------------------------------------------------------------------------------
 # Where a run goes.
+
+def sweep_directory(name: str, root: Path = ROOT) -> Path:
+    """A sweep's default directory: ``root/<name>/sweep/``, apart from the plan and track
+    runs of that name (so ``flatcli.load("runs/<name>")`` is their latest); a sweep that an
+    older flatcli started in ``root/<name>/`` itself resumes there."""
+    legacy = root / name
+    if kind(legacy / SWEEP_MANIFEST) != "missing":
+        return legacy
+    return legacy / SWEEP_DIR
+
+
+def check_tags(tags: Iterable[str]) -> list[str]:
+    """A run's tags (``--tag``), each once, in order; SpecError for an empty tag, one with a
+    control, format or separator character, one of more than ``MAX_TAG_BYTES`` bytes, or
+    more than ``MAX_TAGS`` tags."""
+    from flatcli.spec.keys import SpecError, unprintable
+
+    out: list[str] = []
+    for tag in tags:
+        if not isinstance(tag, str) or not tag.strip():
+            raise SpecError(f"--tag: expected a non-empty word, got {tag!r}")
+        bad = unprintable(tag)
+        if bad is not None:
+            raise SpecError(f"--tag: must not contain control, format or separator "
+                            f"characters, got {bad} in {tag!a}")
+        if len(tag.encode("utf-8", "surrogatepass")) > MAX_TAG_BYTES:
+            raise SpecError(f"--tag: at most {MAX_TAG_BYTES} bytes, got {tag[:20]!r}...")
+        if tag not in out:
+            out.append(tag)
+    if len(out) > MAX_TAGS:
+        raise SpecError(f"--tag: at most {MAX_TAGS} tags, got {len(out)}")
+    return out
 
 def read_json(path: Path) -> dict[str, Any] | None:
     """A JSON object from a file, or None if it is missing or unreadable: not a regular file
@@ -125,14 +165,16 @@ def link_latest(directory: Path) -> None:
 
 def recorded_digest(record: Mapping[str, Any]) -> str | None:
     """The spec digest a run.json records; of one written before run.json held it, the
-    digest of its spec (``Spec.digest``: SHA-256 of the canonical JSON, which run.json's
-    spec is, read back)."""
+    digest of its spec (``Spec.digest``: SHA-256 of the canonical JSON of its experiment,
+    which run.json's spec is, read back, without ``[figures]``)."""
     if "digest" in record:
         return str(record["digest"])
+    from flatcli.spec.schema import experiment
+
     spec = record.get("spec")
     if not isinstance(spec, Mapping):
         return None
-    text = json.dumps(spec, sort_keys=True, separators=(",", ":"))
+    text = json.dumps(experiment(spec), sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()
 
 
@@ -297,10 +339,13 @@ def chunk_frames(state: SweepState, columns: list[str] | None = None) -> Any:
     """The finished chunk files of a partial sweep as one DataFrame, in trials.parquet's
     order (cells in the grid's order, trials in order), ``cell`` their grid position."""
     import pandas as pd
+    import pyarrow.parquet as pq
 
     frames = []
     for i, path in enumerate(state.chunk_files):
-        frame = pd.read_parquet(path, columns=columns)
+        present = None if columns is None else [
+            c for c in columns if c in pq.read_schema(path).names]  # older files lack some
+        frame = pd.read_parquet(path, columns=present)
         if state.chunk_cells:
             frame["cell"] = state.chunk_cells[i]
         frames.append(frame)
@@ -314,12 +359,11 @@ def partial_summary(state: SweepState) -> tuple[Any, str]:
     """Per-cell statistics of the finished trials of an unfinished sweep: the summary
     frame, and its Markdown headed by how much is missing."""
 
-    from flatcli.core.metrics import METRIC_NAMES
     from flatcli.report import summarize_trials, summary_markdown
+    from flatcli.report.summary import SUMMARY_INPUTS
 
     keys = state.grid_keys
-    columns = list(dict.fromkeys(["trial", "cell", "status", "singular_hits", *METRIC_NAMES,
-                                  *keys]))
+    columns = list(dict.fromkeys(["trial", *SUMMARY_INPUTS, *keys]))
     frame = chunk_frames(state, columns)
     cells: dict[int, dict[str, Any]] = {}
     for values in frame.drop_duplicates("cell").sort_values("cell").to_dict("records"):
@@ -358,7 +402,9 @@ def _ranges(values: list[int]) -> str:
 
 @dataclass(frozen=True)
 class RunInfo:
-    """One run directory as ``flatcli runs`` shows it."""
+    """One run directory as ``flatcli runs`` shows it: ``metrics`` its key metrics,
+    ``values`` every number its record holds (a track run's metrics, a plan's summary, a
+    sweep's trials by status), ``tags`` its labels (``--tag``)."""
 
     path: Path
     command: str
@@ -367,9 +413,15 @@ class RunInfo:
     status: str
     metrics: dict[str, Any]
     spec: dict[str, Any]
+    tags: tuple[str, ...] = ()
+    values: dict[str, Any] = field(default_factory=dict)
 
-    def metrics_text(self) -> str:
-        return ", ".join(f"{k} {fmt(v, 3)}" for k, v in self.metrics.items())
+    def metrics_text(self, most: int | None = None) -> str:
+        """The key metrics as text (at most ``most`` of them, and how many more)."""
+        items = list(self.metrics.items())
+        shown_ = items if most is None else items[:most]
+        text = ", ".join(f"{k} {fmt(v, 3)}" for k, v in shown_)
+        return text + (f" (+{len(items) - len(shown_)})" if len(shown_) < len(items) else "")
 
 
 def _number(value: Any) -> float | int | None:
@@ -404,7 +456,7 @@ def _record_problem(record: Mapping[str, Any]) -> str | None:
     expected: dict[str, tuple[type, ...]] = {
         "command": (str,), "time": (str,), "spec": (dict,), "summary": (dict,),
         "metrics": (dict,), "optimization": (dict, type(None)), "status_counts": (dict,),
-        "digest": (str,), "seconds": (int, float)}
+        "digest": (str,), "seconds": (int, float), "tags": (list,)}
     for key, types in expected.items():
         if key in record and (not isinstance(record[key], types)
                               or isinstance(record[key], bool)):
@@ -414,6 +466,9 @@ def _record_problem(record: Mapping[str, Any]) -> str | None:
     counts = record.get("status_counts", {})
     if not all(isinstance(v, int) and not isinstance(v, bool) for v in counts.values()):
         return "its status_counts are not counts"
+    tags = record.get("tags", [])
+    if not isinstance(tags, list) or not all(isinstance(t, str) for t in tags):
+        return "its tags are not a list of text"
     return None
 
 
@@ -446,22 +501,28 @@ def run_info(directory: Path) -> RunInfo | None:
     command = str(record.get("command")) if record is not None else "sweep"
     spec = (record or {}).get("spec") or (state.manifest.get("spec") if state else None) or {}
     when = _parse_time(record.get("time")) if record is not None else None
+    tags = tuple(str(t) for t in (record or {}).get("tags", []) or (
+        state.manifest.get("tags", []) if state is not None else []))
     metrics: dict[str, Any] = {}
+    values: dict[str, Any] = {}
     status = "done"
     if state is not None:
         command = "sweep"
         if not state.complete:
             status = f"partial {100 * state.done / max(state.total, 1):.0f}%"
-            when = datetime.fromtimestamp((directory / SWEEP_MANIFEST).lstat().st_mtime)
+            mtime = (directory / SWEEP_MANIFEST).lstat().st_mtime
+            when = datetime.fromtimestamp(mtime).astimezone()
             record = None
         metrics["trials"] = state.total
         counts = (record or {}).get("status_counts", {})
         metrics.update({k: v for k, v in counts.items() if v})
+        values = {"trials": state.total, "finished": state.done, **counts}
     elif record is not None and command == "plan":
         found = _metrics(record.get("summary", {}), PLAN_KEYS)
         if found is None:
             return _unreadable(directory, command, spec)
         metrics = found
+        values = _numbers(record.get("summary", {}))
         optimization = record.get("optimization")
         if optimization:
             status = "optimised" if optimization.get("success") else "optimiser failed"
@@ -473,11 +534,23 @@ def run_info(directory: Path) -> RunInfo | None:
         if found is None or not isinstance(values.get("status", "done"), str):
             return _unreadable(directory, command, spec)
         status, metrics = str(values.get("status", "done")), found
+        values = _numbers(values)
     elif record is not None and "seconds" in record:
         metrics = {"seconds": _number(record["seconds"])}
+        values = dict(metrics)
     name = spec.get("name", "")
     return RunInfo(directory, command, name if isinstance(name, str) else "", when, status,
-                   metrics, spec)
+                   metrics, spec, tags, values)
+
+
+def _numbers(values: Mapping[str, Any]) -> dict[str, Any]:
+    """The numbers of a record's table (a metric that does not apply, null, as nan)."""
+    out = {}
+    for key, value in values.items():
+        number = _number(value)
+        if number is not None:
+            out[str(key)] = number
+    return out
 
 
 def _parse_time(value: Any) -> datetime | None:
@@ -519,82 +592,15 @@ def _resolved(path: Path) -> Path | None:
         return None
 
 
-def runs_table(root: Path) -> str:
-    """``flatcli runs`` as a table (runs that ``latest`` points to are marked)."""
-    infos = list_runs(root)
-    if not infos:
-        return f"no runs in {root}"
-    latest = {r for p in root.rglob(LATEST) if p.is_symlink() and (r := _resolved(p))}
-    rows = []
-    for info in infos:
-        where = str(info.path.relative_to(root)) if info.path != root else "."
-        if _resolved(info.path) in latest:
-            where += " (latest)"
-        when = f"{info.time:%Y-%m-%d %H:%M:%S}" if info.time else "-"
-        rows.append([shown(c) for c in (where, info.command, info.name, when, info.status,
-                                         info.metrics_text())])
-    return table(["run", "command", "name", "time", "status", "key metrics"], rows)
+class _CallableModule(_types.ModuleType):
+    """``flatcli.runs`` names both this module and the API function ``flatcli.api.runs``
+    (``flatcli.runs("runs")``: a DataFrame of the runs); once the module is imported its name
+    is bound to it, so calling the module runs the function (as ``flatcli.sweep``)."""
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        from flatcli.api import runs
+
+        return runs(*args, **kwargs)
 
 
-# ---------------------------------------------------------------------------------------
-# flatcli runs --compare A B.
-
-def flat_spec(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
-    """A spec tree as {dotted key: value}, into its tables too (``sweep.perturb.initial.std``,
-    ``sweep.grid."plant.com"``)."""
-    out: dict[str, Any] = {}
-    for key, value in tree.items():
-        part = f'"{key}"' if "." in key else key
-        dotted = f"{prefix}.{part}" if prefix else part
-        if isinstance(value, Mapping) and value:
-            out.update(flat_spec(value, dotted))
-        else:
-            out[dotted] = value
-    return out
-
-
-def _same(a: Any, b: Any) -> bool:
-    return json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)
-
-
-def _show(value: Any) -> str:
-    if value is _ABSENT:
-        return "(not set)"
-    if isinstance(value, str):
-        return shown(value)
-    return json.dumps(value, separators=(", ", " = ")).replace('"', "")
-
-
-_ABSENT = object()
-
-
-def compare_runs(a: Path, b: Path) -> str:
-    """The spec keys two runs differ in (and their key metrics side by side)."""
-    infos = []
-    for path in (a, b):
-        info = run_info(path)
-        if info is None:
-            raise RunDirectoryError(f"--compare: {path} holds no run (no run.json or "
-                                    "sweep.json)")
-        infos.append(info)
-    first, second = infos
-    fa, fb = flat_spec(first.spec), flat_spec(second.spec)
-    keys = [k for k in fa if k in fb] + [k for k in fa if k not in fb] + \
-           [k for k in fb if k not in fa]
-    rows = [[shown(k), _show(fa.get(k, _ABSENT)), _show(fb.get(k, _ABSENT))]
-            for k in keys if not _same(fa.get(k, None), fb.get(k, None))
-            or (k in fa) != (k in fb)]
-    lines = [f"A = {a} ({shown(first.command)} {first.name!r}), B = {b} "
-             f"({shown(second.command)} {second.name!r})", ""]
-    if rows:
-        lines += [f"{len(rows)} spec key{'s differ' if len(rows) > 1 else ' differs'}:", "",
-                  table(["key", "A", "B"], rows)]
-    else:
-        lines.append("the specs are identical")
-    metric_keys = [k for k in first.metrics if k in second.metrics]
-    if metric_keys:
-        lines += ["", table(["metric", "A", "B"],
-                            [[shown(k), first.metrics[k], second.metrics[k]] for k in metric_keys])]
-    if first.status != second.status:
-        lines += ["", f"status: A {shown(first.status)}, B {shown(second.status)}"]
-    return "\n".join(lines)
+sys.modules[__name__].__class__ = _CallableModule

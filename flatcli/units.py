@@ -2,8 +2,8 @@
 
 plan.parquet, track.parquet, trials.parquet and summary.parquet carry these as Arrow field
 metadata (key ``unit``, ``flatcli.storage.UNIT_KEY``) on every numeric column, so a reader
-(pyarrow, polars, DuckDB) finds them beside the numbers; the README's column tables say the
-same (a test compares them). Units are SI, written as in the README; ``DIMENSIONLESS`` ("1")
+(pyarrow, polars, DuckDB) finds them beside the numbers; docs/outputs.md's column tables say the
+same (a test compares them). Units are SI, written as in docs/outputs.md; ``DIMENSIONLESS`` ("1")
 marks a pure number: a count, a fraction, a relative tolerance. Columns without a unit are
 identifiers (``trial``, ``cell``) and text (``status``, ``reason``, a group's label).
 
@@ -44,7 +44,7 @@ UNITS: dict[str, str] = {
     "margin": _RATE,
     "momentum": _MOMENTUM,  # H along a plan or a run; in trials.parquet the plant's H0
     "tau1": _TORQUE, "tau2": _TORQUE,  # the dynamic plant's joint torques
-    # trials.parquet: the metrics of flatcli.core.metrics (definitions in the README)
+    # trials.parquet: the metrics of flatcli.core.metrics (definitions in docs/outputs.md)
     "err_theta_rms": _ANGLE, "err_theta_max": _ANGLE, "err_theta_final": _ANGLE,
     "err_y_rms": _ANGLE, "err_y_max": _ANGLE, "err_y_final": _ANGLE,
     "singular_hits": DIMENSIONLESS,
@@ -58,7 +58,10 @@ UNITS: dict[str, str] = {
     "torque_saturated": DIMENSIONLESS,
     "steps": DIMENSIONLESS,
     "rhs_evaluations": DIMENSIONLESS,
+    "crossings": DIMENSIONLESS,
+    "first_crossing_time": "s",
     "event_time": "s",
+    "reference_difference": _ANGLE,
     # trials.parquet: the realised perturbed quantities
     **{f"initial_{i}": _ANGLE for i in range(3)},
     "initial_rate": _RATE,
@@ -73,6 +76,10 @@ UNITS: dict[str, str] = {
     "resolved": DIMENSIONLESS,
     "simulated": DIMENSIONLESS,
     **{status: DIMENSIONLESS for status in STATUS_NAMES},
+    "verified_trials": DIMENSIONLESS,
+    "unverified_trials": DIMENSIONLESS,
+    "reference_checked": DIMENSIONLESS,
+    "reference_status_mismatches": DIMENSIONLESS,
 }
 
 #: The unit of the indexed columns of a robot of any N joints, by their name with the index

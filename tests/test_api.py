@@ -10,6 +10,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 from click.testing import CliRunner
+from matplotlib.figure import Figure
 from small_sweep import SPEC, write_spec
 
 import flatcli
@@ -75,6 +76,33 @@ def test_sweep_equals_the_cli_sweep_and_load_reads_it_back(tmp_path: Path) -> No
     assert isinstance(loaded, api.SweepResult)
     pd.testing.assert_frame_equal(loaded.trials, cli_trials, check_exact=True)
     assert loaded.summary_text == result.summary_text
+    # its figures as matplotlib Figures, against a grid key of one's choosing
+    fig = loaded.plot("singular", x="track.sensor_noise")
+    assert isinstance(fig, Figure)
+    assert {ax.get_xlabel() for ax in fig.axes if ax.get_xlabel()} == {
+        "track.sensor_noise [rad]"}
+    assert set(loaded.figures()) == {"errors", "singular", "margin", "momentum"}
+    paths = loaded.save_figures(fmt="svg", dpi=60)
+    assert next(p.name for p in paths) == "sweep_errors.svg"
+    manifest = json.loads((tmp_path / "cli" / "sweep.json").read_text())
+    assert "sweep_errors.svg" in manifest["files"]  # flatcli's: --force may remove it
+    with pytest.raises(flatcli.FlatcliError, match="plot: expected one of"):
+        loaded.plot("pie")
+
+
+def test_results_draw_themselves_as_figures(tmp_path: Path) -> None:
+    planned = flatcli.plan()
+    fig = planned.plot()
+    assert isinstance(fig, Figure) and fig.get_suptitle().startswith("plan 'paper_example'")
+    tracked = flatcli.track(overrides={"track.kp": [100, 110], "track.kv": [10, 13]},
+                            quiet=True)
+    directory = tracked.save(tmp_path / "t")
+    loaded = flatcli.load(directory)
+    assert isinstance(loaded, api.TrackResult) and loaded.run is None
+    again = loaded.plot()  # drawn from track.parquet
+    y1 = next(ln for ln in again.axes[0].get_lines() if ln.get_label() == "$y_1$")
+    assert list(y1.get_ydata()) == list(loaded.frame["y1"])
+    assert tracked.trajectory(0.0).theta.tolist() == planned.trajectory(0.0).theta.tolist()
 
 
 def test_saved_plan_loads_through_latest(tmp_path: Path) -> None:

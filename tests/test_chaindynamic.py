@@ -189,8 +189,9 @@ def test_two_joints_agree_with_the_three_body_plant(servo_model: str, noise: flo
     """The paper's maneuver as a Plan on this plant and as a Plan on the three-body
     plant: the same trials (an imperfect counterweight d2 = 4 mm, H0 = 1e-3, printed gains;
     no torque limit, and a 30 N m limit that clips the servo where th2' is turned round on
-    the plan's start and loses the trial from Fig. 4's start) give the same statuses,
-    traces, torques and metrics."""
+    the plan's start: from Fig. 4's start the clipped robot crosses the singular set and
+    tumbles to T, far from the plan and too sensitive to verify) give the same statuses,
+    traces (up to the first crossing), torques and metrics (of the verified trials)."""
     paper = plan_point_to_point(PAPER_ROBOT, [1.8, 1, 0], [1.2, 2, 0], 0.1, 0.5, 2.0)
     chain = plan_chain(PAPER_ROBOT, [1.8, 1, 0], [1.2, 2, 0], [0.1], [0.5], 2.0)
     plant = PAPER_ROBOT.with_(com=(0.1, 0.1, 0.004))
@@ -206,27 +207,35 @@ def test_two_joints_agree_with_the_three_body_plant(servo_model: str, noise: flo
     assert three.trace is not None and ours.trace is not None
     assert ours.columns == three.columns
     np.testing.assert_array_equal(three.status, [Status.OK, Status.OK, Status.OK,
-                                                 Status.DIVERGED])
+                                                 Status.SINGULAR])
     np.testing.assert_array_equal(ours.status, three.status)
+    # free of limits the trials are verified; the tumbling one is not (err_estimate 0.02 to
+    # 0.5 rad); the one the limit clips on the plan lies near track.accuracy (2.4e-8 to 2.2e-6)
+    assert three.verified[[0, 2]].all() and ours.verified[[0, 2]].all()
+    assert not three.verified[3] and not ours.verified[3]
     assert three.metrics[1, Metric.TORQUE_SATURATED] > 0  # the limit binds and is survived
+    crossed = three.metrics[:, Metric.FIRST_CROSSING_TIME]
+    assert np.isnan(crossed[:3]).all() and crossed[3] > 0
+    np.testing.assert_allclose(ours.metrics[:, Metric.FIRST_CROSSING_TIME], crossed, atol=1e-9)
     for i in range(4):
         valid = np.isfinite(three.trace[i, :, 0])
         np.testing.assert_array_equal(np.isfinite(ours.trace[i, :, 0]), valid)
+        if np.isfinite(crossed[i]):  # the same up to the crossing, which the clipping passes
+            valid &= np.arange(valid.size) * 1e-3 < crossed[i]
         gap = np.abs(ours.trace[i, valid] - three.trace[i, valid]).max(axis=0)
         assert gap[:3].max() <= AGREE_ANGLES, gap
         assert np.all(gap <= AGREE_COLUMNS * np.abs(three.trace[i, valid]).max(axis=0)), gap
-    resolved = three.status <= Status.SINGULAR
+    sure = three.verified & ours.verified
     for name in ("ERR_THETA_RMS", "ERR_THETA_FINAL", "ERR_Y_MAX", "ERR_Y_FINAL",
                  "MIN_MARGIN", "PEAK_RATE", "PEAK_TORQUE"):
-        np.testing.assert_allclose(ours.metrics[resolved, Metric[name]],
-                                   three.metrics[resolved, Metric[name]], rtol=AGREE_COLUMNS)
-    np.testing.assert_array_equal(ours.metrics[:, Metric.TORQUE_SATURATED],
-                                  three.metrics[:, Metric.TORQUE_SATURATED])
+        np.testing.assert_allclose(ours.metrics[sure, Metric[name]],
+                                   three.metrics[sure, Metric[name]], rtol=AGREE_COLUMNS)
+    np.testing.assert_array_equal(ours.metrics[sure, Metric.TORQUE_SATURATED],
+                                  three.metrics[sure, Metric.TORQUE_SATURATED])
     # the drift is the integration's own error (1e-10 to 4e-7 here): the same to 1e-5
-    np.testing.assert_allclose(ours.metrics[:, Metric.MOMENTUM_DRIFT],
-                               three.metrics[:, Metric.MOMENTUM_DRIFT], rtol=1e-5, atol=1e-12)
-    np.testing.assert_allclose(ours.event_time[~resolved], three.event_time[~resolved],
-                               rtol=0, atol=1e-9)
+    np.testing.assert_allclose(ours.metrics[sure, Metric.MOMENTUM_DRIFT],
+                               three.metrics[sure, Metric.MOMENTUM_DRIFT], rtol=1e-5,
+                               atol=1e-12)
 
 
 # --------------------------------------------------------------------------------------

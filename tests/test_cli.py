@@ -34,7 +34,8 @@ TRACK_COLUMNS = ["t", "theta0", "theta1", "theta2", "theta0_dot", "theta1_dot", 
 METRICS = ["err_theta_rms", "err_theta_max", "err_theta_final", "err_y_rms", "err_y_max",
            "err_y_final", "singular_hits", "first_hit_time", "min_margin", "momentum_drift",
            "plan_momentum_residual", "err_estimate", "peak_rate", "peak_torque",
-           "torque_saturated", "steps", "rhs_evaluations", "status", "reason", "event_time"]
+           "torque_saturated", "steps", "rhs_evaluations", "crossings", "first_crossing_time",
+           "status", "reason", "event_time", "verified"]
 
 
 def run(*args: str) -> tuple[int, str]:
@@ -286,7 +287,20 @@ def test_design_of_the_audits_chain4_is_not_flat_and_the_plant_gets_its_own_verd
         (["plan", "--set", "plan.samples=1000000000"], "plan.samples = 1000000000 would need"),
         (["track", "--set", "track.dt=1e-9"], "output steps would need"),
         (["plan", "/dev/zero"], "is not a regular file"),
-        (["sweep", "MISSING.toml", "--rerun", str(10**23)], "'--rerun': 10000000000000000000"),
+        (["sweep", "MISSING.toml", "--rerun", str(10**23)],
+         "'--rerun': expected a trial id (an integer from 0 to 2^63 - 1)"),
+        (["rerun", "nowhere", "x1"], "expected a trial id"),
+        (["plan", "--robot", "chian4"], "robot: unknown robot 'chian4'; shipped: chain4, "
+                                        "chain6, paper"),
+        (["plan", "--dpi", "5000"], "--dpi: must be at most 1200 dots/in, got 5000"),
+        (["plan", "--format", "jpg"], "'--format': 'jpg' is not one of"),
+        (["plan", "--tag", "a\x1bb"], "--tag: must not contain control"),
+        (["plan", "--name", "../x"], "name: must not contain '/'"),
+        (["summarize", "nowhere", "--x", "track.dt"], "--format, --dpi, --x, --hue: only "
+                                                      "with --plot"),
+        (["runs", "--filter", "status<ok"], "< compares numbers and times"),
+        (["sweep", "flat.toml"], "sweep: 1000 identical trials (no [sweep.perturb] and no "
+                                 "track.sensor_noise)"),
         (["sweep", "MISSING.toml", "--workers", "abc"], "'abc' is not a valid integer"),
     ],
 )
@@ -294,6 +308,7 @@ def test_bad_input_is_one_line_exit_2_and_writes_nothing(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, args: list[str], message: str
 ) -> None:
     monkeypatch.chdir(tmp_path)
+    (tmp_path / "flat.toml").write_text('name = "flat"\n')  # no [sweep]: identical trials
     code, out = run(*args)
     assert code == 2, out
     assert out.startswith("error: ") and out.count("\n") == 1, out
@@ -628,3 +643,96 @@ def test_a_failing_last_flush_of_stdout_names_it(monkeypatch: pytest.MonkeyPatch
         main(["print-demo"])
     assert stop.value.code == 1
     assert capsys.readouterr().err == "error: standard output: No space left on device\n"
+
+
+# ---------------------------------------------------------------------------------------
+# Issue 20: one --help, --cfg, figures' formats, names and tags, sweeps kept apart, rerun.
+
+def test_help_is_one_convention_across_commands() -> None:
+    from flatcli import cli
+
+    visible = {n: c for n, c in main.commands.items() if not c.hidden}  # type: ignore[attr-defined]
+    for name, command in visible.items():
+        shared = [p.name for p in command.params if p.name in cli.OPTION_ORDER]
+        assert shared == sorted(shared, key=cli.OPTION_ORDER.index), name
+        quiet = [p for p in command.params if p.name == "quiet"]
+        assert all(p.help == cli.QUIET_HELP for p in quiet), name
+        code, out = run(name, "--help")
+        assert code == 0 and "<=x<=" not in out and "9223372036854775807" not in out, name
+    code, out = run("--help")
+    commands = out.split("Commands:")[1]
+    assert code == 0 and "..." not in commands  # no summary cut short
+    assert all(f"  {name} " in commands for name in visible)
+
+
+@pytest.mark.parametrize("command", ["plan", "track"])
+def test_cfg_prints_the_resolved_spec_and_computes_nothing(
+        command: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import tomllib
+
+    from flatcli.spec import load_spec, resolve
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "mine.toml").write_text('include = ["gains.toml"]\n[plan]\nduration = 3.0\n')
+    (tmp_path / "gains.toml").write_text("[track]\nkp = [25.0, 25.0, 25.0]\n")
+    code, out = run(command, "mine.toml", "--robot", "chain4", "--set", "track.dt=0.002",
+                    "--cfg")
+    assert code == 0, out
+    assert list(tmp_path.iterdir()) == [tmp_path / "mine.toml", tmp_path / "gains.toml"] or \
+        sorted(p.name for p in tmp_path.iterdir()) == ["gains.toml", "mine.toml"]
+    printed = resolve(tomllib.loads(out))  # valid TOML, every key resolved
+    expected = load_spec(tmp_path / "mine.toml", ["robot=chain4", "track.dt=0.002"])
+    assert printed.digest() == expected.digest()
+    assert printed.joints == 3 and printed.plan.duration == 3.0 and printed.track.dt == 0.002
+    assert "[sweep]" not in out and "include" not in out
+
+
+def test_a_plan_with_a_name_tags_and_a_pdf_figure(tmp_path: Path,
+                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    code, out = run("plan", "--name", "study1", "--tag", "draft", "--tag", "pdf", "--plot",
+                    "--format", "pdf", "--dpi", "300")
+    assert code == 0, out
+    (directory,) = [p for p in (tmp_path / "runs" / "study1").iterdir() if p.name != "latest"]
+    assert sorted(p.name for p in directory.iterdir()) == ["plan.parquet", "plan.pdf",
+                                                           "run.json"]
+    assert (directory / "plan.pdf").read_bytes()[:5] == b"%PDF-"
+    record = json.loads((directory / "run.json").read_text())
+    assert record["tags"] == ["draft", "pdf"] and record["spec"]["name"] == "study1"
+    assert record["spec"]["figures"] == {"format": "pdf", "dpi": 300}
+    assert "wrote " in out and "plan.pdf" in out
+    # the same spec drawn as png is the same run: --out accepts it, --force replaces the pdf
+    code, out = run("plan", "--name", "study1", "--plot", "--out", str(directory))
+    assert code == 0 and (directory / "plan.png").exists(), out
+
+
+def test_sweeps_and_plan_track_runs_are_kept_apart(tmp_path: Path,
+                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    from small_sweep import SPEC, write_spec
+
+    from flatcli import api
+
+    monkeypatch.chdir(tmp_path)
+    spec = write_spec(tmp_path, SPEC.replace("trials = 60", "trials = 4"))
+    code, out = run("track", str(spec), "-q")
+    assert code == 0, out
+    code, out = run("sweep", str(spec), "-q", "--workers", "1", "--tag", "nightly")
+    assert code == 0, out
+    assert (tmp_path / "runs" / "small" / "sweep" / "sweep.json").is_file()
+    loaded = api.load("runs/small")  # the README's promise: its latest track run
+    assert isinstance(loaded, api.TrackResult)
+    sweep = api.load("runs/small/sweep")
+    assert isinstance(sweep, api.SweepResult) and sweep.complete
+    assert json.loads((tmp_path / "runs/small/sweep/run.json").read_text())["tags"] == [
+        "nightly"]
+    code, out = run("summarize", "runs/small")  # the name's sweep
+    assert code == 0 and "### Trials by status" in out
+    trial = int(pd.read_parquet(tmp_path / "runs/small/sweep/trials.parquet")["trial"][0])
+    code, out = run("rerun", "runs/small", str(trial))  # no SPEC: the sweep's own
+    assert code == 0, out
+    assert "re-run alone:" in out and "NO" not in out
+    assert (tmp_path / "runs/small/sweep" / f"rerun-{trial}" / "track.png").is_file()
+    code, out = run("rerun", "runs/small", str(trial), "--print-spec")
+    assert code == 0 and "[track]" in out and f"trial = {trial}" in out
+    code, out = run("rerun", str(loaded.directory), "0")
+    assert code == 2 and out.startswith("error: ") and "not a sweep" in out

@@ -111,9 +111,13 @@ CASES = {
 }  # fmt: skip
 
 
-def expected_metrics(plan: Plan, scenario: Scenario, case: Case, trace: Array) -> Array:
+def expected_metrics(plan: Plan, scenario: Scenario, case: Case, trace: Array,
+                     crossed_at: float) -> Array:
     """(N_METRICS,) from the trace, the plan and the plant, in the order of METRIC_NAMES
-    (the integrators' own counters and error estimate are taken as reported)."""
+    (the integrators' own counters and error estimate are taken as reported). Crossings of
+    the singular set are the sign changes of sin th1 * u1 between samples, and the one a
+    trial stopped at (``crossed_at``, its event time; nan if it did not stop there); the
+    time of one between samples is the later sample's (the test compares it within dt)."""
     valid = np.isfinite(trace[:, 0])
     count = int(np.argmin(valid)) if not valid.all() else len(valid)
     assert valid[:count].all() and not valid[count:].any()
@@ -129,6 +133,11 @@ def expected_metrics(plan: Plan, scenario: Scenario, case: Case, trace: Array) -
     e_y = np.linalg.norm(y - plan.trajectory.derivative(t, 0), axis=1)
     margin = np.asarray(singularity_margin(x[:, 1], x[:, 3]))
     hits = np.flatnonzero(margin < case.threshold)
+    signed = np.sin(x[:, 1]) * x[:, 3]
+    flips = np.flatnonzero(np.sign(signed[1:]) != np.sign(signed[:-1])) + 1
+    crossing_times = [*(flips * dt), *([] if np.isnan(crossed_at) else [crossed_at])]
+    crossings = len(crossing_times)
+    first_hit = min([*(hits[:1] * dt), *crossing_times], default=np.nan)
     drift = np.max(np.abs(inertial_momentum(case.plant, x[:, :3], rates) - case.h0))
     own = plan.sample(plan.grid(case.plan_samples))
     residual = np.max(np.abs(inertial_momentum(case.plant, own.theta, own.theta_dot) - case.h0))
@@ -139,14 +148,16 @@ def expected_metrics(plan: Plan, scenario: Scenario, case: Case, trace: Array) -
         "err_y_rms": np.sqrt(np.mean(e_y**2)),
         "err_y_max": e_y.max(),
         "err_y_final": np.nan if stopped else e_y[-1],
-        "singular_hits": hits.size,
-        "first_hit_time": hits[0] * dt if hits.size else np.nan,
-        "min_margin": margin.min(),
+        "singular_hits": hits.size + crossings,
+        "first_hit_time": first_hit,
+        "min_margin": 0.0 if crossings else margin.min(),
         "momentum_drift": drift,
         "plan_momentum_residual": residual,
         "peak_rate": np.max(np.abs(rates[:, 1:])),
         "peak_torque": np.nan,  # the kinematic plant has no torques
         "torque_saturated": np.nan,
+        "crossings": crossings,
+        "first_crossing_time": crossing_times[0] if crossings else np.nan,
     }
     return np.array([values.get(name, np.nan) for name in METRIC_NAMES], dtype=float)
 
@@ -174,9 +185,16 @@ def test_metrics_equal_independent_computation(
     )
     assert outcome.trace is not None
     got = outcome.metrics[0]
-    expected = expected_metrics(plan, scenario, case, outcome.trace[0])
+    crossed_at = float(outcome.event_time[0]) if outcome.event[0] == Event.CROSSED else np.nan
+    expected = expected_metrics(plan, scenario, case, outcome.trace[0], crossed_at)
     for metric in Metric:
         if metric in (Metric.ERR_ESTIMATE, Metric.STEPS, Metric.RHS_EVALUATIONS):
+            continue
+        if metric in (Metric.FIRST_HIT_TIME, Metric.FIRST_CROSSING_TIME):
+            # a crossing between samples: within the interval before the sample after it
+            np.testing.assert_allclose(got[metric], expected[metric], atol=scenario.dt,
+                                       err_msg=metric.name)
+            assert not got[metric] > expected[metric] + 1e-12, metric.name
             continue
         peak = float(np.nanmax(np.abs(outcome.trace[0, :, 4:7])))
         atol = DRIFT_ATOL_PER_RATE * max(peak, 100.0) if metric in (
@@ -187,8 +205,11 @@ def test_metrics_equal_independent_computation(
               "diverged_rk4": Status.DIVERGED}.get(name, Status.OK)  # fmt: skip
     assert outcome.status[0] == status
     steps, evaluations = got[Metric.STEPS], got[Metric.RHS_EVALUATIONS]
-    if case.integrator == "adaptive":
-        assert 0 < got[Metric.ERR_ESTIMATE] < 1e-2
+    if case.integrator == "adaptive" and status in (Status.OK, Status.SINGULAR):
+        assert 0 < got[Metric.ERR_ESTIMATE] < 1e-2  # the twin's estimate (test_simulate)
+        assert 0 < 6 * steps < evaluations
+    elif case.integrator == "adaptive":  # stopped early: no twin, no estimate
+        assert np.isnan(got[Metric.ERR_ESTIMATE])
         assert 0 < 6 * steps < evaluations
     else:
         assert np.isnan(got[Metric.ERR_ESTIMATE])
@@ -262,6 +283,18 @@ def test_describe_status() -> None:
     name, reason = describe_status(Status.SINGULAR, none, 0.25, metrics, 0.01, 1e4)
     assert name == "singular"
     assert "below 0.01" in reason and "3 samples" in reason and "t = 0.25 s" in reason
+    assert "crossed" not in reason
+    passed = metrics.copy()
+    passed[Metric.SINGULAR_HITS] = 4  # 3 samples and a crossing between two
+    passed[Metric.CROSSINGS] = 1
+    passed[Metric.FIRST_CROSSING_TIME] = 0.125
+    passed[Metric.FIRST_HIT_TIME] = 0.125
+    passed[Metric.MIN_MARGIN] = 0.0
+    name, reason = describe_status(Status.SINGULAR, none, 0.125, passed, 0.01, 1e4)
+    assert name == "singular"
+    assert "crossed the singular set 1 time, first at t = 0.125 s" in reason
+    assert "actuators' limits kept the plant's rates bounded" in reason
+    assert "3 samples" in reason and "min margin 0" in reason
     name, reason = describe_status(Status.DIVERGED, int(Event.BOUND), 1.5, metrics, 0.01, 1e4)
     assert name == "diverged" and "beyond 10000" in reason and "t = 1.5 s" in reason
     name, reason = describe_status(Status.DIVERGED, int(Event.CROSSED), 0.5, metrics, 0.01, 1e4)

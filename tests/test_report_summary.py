@@ -29,14 +29,20 @@ def test_summary_counts_and_statistics_on_a_handmade_frame() -> None:
     assert summary.iloc[1]["g"] == "b"
 
 
-def test_wilson_interval_matches_scipy_binomtest() -> None:
-    # reference: scipy.stats.binomtest(k, n).proportion_ci(0.95, method="wilson")
-    counts = [(0, 1), (0, 10), (3, 10), (10, 10), (1, 2000), (530, 2000), (1999, 2000)]
-    low, high = wilson_interval([k for k, _ in counts], [n for _, n in counts])
-    for (k, n), lo, hi in zip(counts, low, high, strict=True):
-        ci = binomtest(k, n).proportion_ci(0.95, method="wilson")
-        assert lo == pytest.approx(ci.low, rel=1e-12, abs=1e-15)
-        assert hi == pytest.approx(ci.high, rel=1e-12, abs=1e-15)
+def test_wilson_interval_is_the_score_intervals_closed_form() -> None:
+    # reference: Wilson (J. Am. Stat. Assoc. 22, 1927), written out here with numpy:
+    # (p + z^2/2n -+ z sqrt(p (1 - p)/n + z^2/4n^2)) / (1 + z^2/n)
+    z = 1.959963984540054  # Phi^-1(0.975)
+    counts = [(1, 10), (3, 10), (1, 2000), (530, 2000), (1999, 2000)]
+    k = np.array([c[0] for c in counts], dtype=float)
+    n = np.array([c[1] for c in counts], dtype=float)
+    p = k / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    low, high = wilson_interval(k.astype(int), n.astype(int))
+    np.testing.assert_allclose(low, centre - half, rtol=1e-12)
+    np.testing.assert_allclose(high, centre + half, rtol=1e-12)
+    assert wilson_interval(3, 10)[0].shape == ()  # scalars in, scalars out
 
 
 def test_wilson_interval_of_no_successes_in_closed_form() -> None:
@@ -91,3 +97,45 @@ def test_summary_markdown_shows_shares_with_intervals() -> None:
     ci = binomtest(1, 4).proportion_ci(0.95, method="wilson")  # 1 of 4 diverged
     assert f"| 25 ({100 * ci.low:.2g}-{100 * ci.high:.2g}) " in text
     assert max(len(line) for line in text.splitlines()) <= 80
+
+
+def test_verified_and_unverified_trials_are_never_averaged_together() -> None:
+    """Cell 0 mixes two verified trials (errors 1, 2) with an unverified one (error 100): its
+    statistics are the verified ones' alone. Cell 1 has only unverified trials: its
+    statistics are theirs, and the cell says so (statistics_of; marked * in the tables)."""
+    frame = pd.DataFrame({
+        "cell": [0, 0, 0, 1, 1],
+        "status": ["ok"] * 5,
+        "singular_hits": [0] * 5,
+        "verified": [True, True, False, False, False],
+        **{m: [1.0, 2.0, 100.0, 3.0, 5.0] for m in (
+            "err_theta_rms", "err_theta_final", "err_y_rms", "err_y_final", "min_margin",
+            "momentum_drift", "plan_momentum_residual", "peak_rate", "err_estimate")},
+        "reference_difference": [1e-7, None, None, 4e-3, None],
+        "reference_status": ["ok", None, None, "diverged", None],
+    })
+    summary = summarize_trials(frame, {0: {}, 1: {}}).set_index("cell")
+    assert summary.loc[0, "err_theta_rms_max"] == 2.0  # never the unverified 100
+    assert summary.loc[0, "err_theta_rms_median"] == 1.5
+    assert summary.loc[1, "err_theta_rms_max"] == 5.0
+    assert list(summary["statistics_of"]) == ["verified", "unverified"]
+    assert list(summary["verified_trials"]) == [2, 0]
+    assert list(summary["unverified_trials"]) == [1, 2]
+    assert list(summary["reference_checked"]) == [1, 1]
+    assert list(summary["reference_difference_max"]) == [1e-7, 4e-3]
+    assert list(summary["reference_status_mismatches"]) == [0, 1]
+    text = summary_markdown(summary.reset_index(), [])
+    assert "| 1*   |" in text and "| 0    |" in text
+    assert "Checked against the reference" in text
+
+
+def test_a_directory_without_the_accuracy_columns_has_no_verified_trials() -> None:
+    """trials.parquet written before flatcli recorded ``verified``: nothing is claimed."""
+    frame = pd.DataFrame({"cell": [0, 0], "status": ["ok", "ok"], "singular_hits": [0, 0],
+                          **{m: [1.0, 2.0] for m in (
+                              "err_theta_rms", "err_theta_final", "err_y_rms", "err_y_final",
+                              "min_margin", "momentum_drift", "plan_momentum_residual",
+                              "peak_rate", "err_estimate")}})
+    summary = summarize_trials(frame, {0: {}})
+    assert summary.loc[0, "statistics_of"] == "unverified"
+    assert summary.loc[0, "verified_trials"] == 0 and summary.loc[0, "reference_checked"] == 0

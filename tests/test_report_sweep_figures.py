@@ -10,14 +10,18 @@ import pytest
 
 from flatcli.core.metrics import METRIC_NAMES
 from flatcli.core.model import FlatcliError
-from flatcli.report.figures import new_figure
+from flatcli.report.figures import FigureFile, new_figure
 from flatcli.report.summary import summarize_trials
 from flatcli.report.sweep_figures import (
+    OutcomeAxis,
     SweepData,
+    errors_figure,
     grid_axis,
     log_boxes,
-    plot_errors,
+    outcomes_figure,
     plot_sweep,
+    sweep_figure,
+    sweep_figures,
 )
 from flatcli.storage import write_parquet
 
@@ -74,12 +78,99 @@ def test_cells_are_named_by_their_grid_values_outer_key_first() -> None:
     assert rows["plant.com[2] [m]"][:2] == ["0", "0.005"]
 
 
-def test_plot_sweep_writes_its_four_figures(tmp_path: Path) -> None:
-    paths = plot_sweep(_sweep_dir(tmp_path))
+def test_plot_sweep_writes_its_four_figures_in_the_format_asked(tmp_path: Path) -> None:
+    paths = plot_sweep(_sweep_dir(tmp_path), FigureFile("png", 50))
     assert [p.name for p in paths] == ["sweep_errors.png", "sweep_singular.png",
                                        "sweep_margin.png", "sweep_momentum.png"]
     for path in paths:
         assert path.read_bytes()[:4] == b"\x89PNG"
+    width, _ = _png_size(paths[0])
+    assert width == pytest.approx(50 * SweepData.load(tmp_path).width, abs=2)  # inches x dpi
+
+
+def _png_size(path: Path) -> tuple[int, int]:
+    data = path.read_bytes()
+    return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+
+
+def _panels(fig: object) -> dict[str, object]:
+    return {ax.get_title(): ax for ax in fig.axes if ax.get_visible()}  # type: ignore[attr-defined]
+
+
+def test_outcomes_against_a_chosen_grid_key_with_a_hue(tmp_path: Path) -> None:
+    directory = _sweep_dir(tmp_path)
+    sweep = SweepData.load(directory)
+    fig = outcomes_figure(sweep, OutcomeAxis.choose(sweep, "plant.com", "gains"))
+    panels = _panels(fig)
+    diverged = panels["trials that diverged"]
+    assert diverged.get_ylim()[0] == 0.0  # a share is never drawn below 0
+    assert diverged.get_xlabel() == "plant.com[2] [m]"  # the component that varies, its unit
+    # one line per gains label and initial.std value; data are the summary's shares
+    lines = [c for c in diverged.containers]
+    assert len(lines) == 4
+    summary = sweep.summary
+    for container in lines:
+        label = container.get_label()
+        gains = label.split(";")[0].removeprefix("gains = ")
+        std = float(label.split("initial.std = ")[1])
+        rows = summary[(summary["gains"] == gains) &
+                       (summary["sweep.perturb.initial.std"] == std)].sort_values("cell")
+        y = container.lines[0].get_ydata()
+        np.testing.assert_allclose(sorted(y), sorted(rows["diverged_fraction"]))
+    # colours by the hue: the two labels, two colours
+    colours = {c.get_label().split(";")[0]: c.lines[0].get_color() for c in lines}
+    assert len(set(colours.values())) == 2
+    error = panels["resolved trials (ok, singular)"]
+    assert error.get_yscale() == "log"
+    legend = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert "gains = printed; initial.std = 0.01" in legend
+    assert all(h.get_visible() for h in fig.legends[0].legend_handles)
+
+
+def test_the_default_x_is_the_perturbation_size_on_a_log_axis(tmp_path: Path) -> None:
+    sweep = SweepData.load(_sweep_dir(tmp_path))
+    axis = OutcomeAxis.choose(sweep, None, None)
+    assert axis.key == "sweep.perturb.initial.std" and axis.scale == "log"
+    fig = sweep_figure(tmp_path, "singular")
+    singular = _panels(fig)["simulated trials with a singular hit"]
+    assert singular.get_xscale() == "log" and singular.get_ylim()[0] == 0.0
+    assert _panels(fig)["trials that diverged"].get_xlabel() == "initial.std [rad]"
+    assert "outcomes against initial.std" in fig.get_suptitle()
+
+
+def test_a_grid_with_zero_noise_gets_a_symlog_axis(tmp_path: Path) -> None:
+    cells = {i: {"track.sensor_noise": v} for i, v in enumerate((0.0, 1e-4, 1e-3, 1e-2))}
+    trials = _trials(cells, 12)
+    tree = {"name": "noise", "sweep": {"grid": {"track.sensor_noise": [0.0, 1e-4, 1e-3,
+                                                                       1e-2]}},
+            "plant": {"model": "dynamic", "torque_limit": 50.0}}
+    write_parquet(tmp_path / "trials.parquet", trials, {"spec": tree})
+    write_parquet(tmp_path / "summary.parquet", summarize_trials(trials, cells), {"spec": tree})
+    fig = sweep_figure(tmp_path, "singular", x="track.sensor_noise")
+    ax = _panels(fig)["trials that diverged"]
+    assert ax.get_xscale() == "symlog" and ax.get_ylim()[0] == 0.0
+    assert ax.get_xlabel() == "track.sensor_noise [rad]"
+    title = fig.get_suptitle()
+    # the title names the plant, the noise (varied here) and the torque limit
+    assert "sweep 'noise': dynamic plant, sensor noise per cell, torque limit 50 N m" in title
+
+
+def test_x_and_hue_must_be_grid_keys(tmp_path: Path) -> None:
+    directory = _sweep_dir(tmp_path)
+    with pytest.raises(FlatcliError, match=r"--x: 'track.dt' is not a grid key of this sweep; "
+                                           r"its grid keys: .*gains"):
+        sweep_figures(directory, x="track.dt")
+    with pytest.raises(FlatcliError, match=r"--hue: 'gain' is not a grid key.*did you mean "
+                                           r"'gains'"):
+        sweep_figures(directory, hue="gain")
+    with pytest.raises(FlatcliError, match="is the --x key"):
+        sweep_figures(directory, x="gains", hue="gains")
+
+
+def test_a_text_key_on_x_is_drawn_as_categories(tmp_path: Path) -> None:
+    fig = sweep_figure(_sweep_dir(tmp_path), "singular", x="gains")
+    ax = _panels(fig)["trials that diverged"]
+    assert [t.get_text() for t in ax.get_xticklabels()] == ["printed", "swapped"]
 
 
 def test_a_cell_with_nothing_resolved_is_drawn_and_said(tmp_path: Path) -> None:
@@ -89,7 +180,11 @@ def test_a_cell_with_nothing_resolved_is_drawn_and_said(tmp_path: Path) -> None:
     tree = {"sweep": {"grid": {"track.sensor_noise": [0.0, 0.1]}}}
     write_parquet(tmp_path / "trials.parquet", trials, {"spec": tree})
     write_parquet(tmp_path / "summary.parquet", summarize_trials(trials, cells), {"spec": tree})
-    assert plot_errors(SweepData.load(tmp_path), tmp_path / "e.png").exists()
+    fig = errors_figure(SweepData.load(tmp_path))
+    share = fig.axes[-1]
+    assert share.get_ylim()[0] == 0.0  # shares start at 0
+    assert [ax.get_ylabel() for ax in fig.axes[:3]] == [
+        r"rms error of $\theta$ [rad]", "rms error of $y$ [rad]", "final error of $y$ [rad]"]
     ax = new_figure(4, 3).subplots()
     log_boxes(ax, [np.array([1e-3, 1e-2, 0.0]), np.array([])])
     texts = [t.get_text() for t in ax.texts]

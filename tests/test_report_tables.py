@@ -24,3 +24,9 @@ def test_table_aligns_numbers_right_and_text_left() -> None:
     assert lines[1] == "|-----------|------:|"
     assert lines[3] == "| long name |   100 |"
     assert len({len(line) for line in lines}) == 1
+
+
+def test_compact_table_keeps_rows_short_and_escapes_pipes() -> None:
+    text = table(["key", "n"], [["a|b", 1], ["c", 22]], align=False)
+    assert text.splitlines() == ["| key | n |", "|---|---:|", "| a\\|b | 1 |", "| c | 22 |"]
+    assert table(["x"], [["p|q"]]).splitlines()[2] == "| p\\|q |"

@@ -1,28 +1,24 @@
-"""Run directories (flatcli/runs.py): where runs go, `flatcli runs`, `--compare`, and
-interrupted sweeps."""
+"""Run directories (flatcli/runs.py): where runs go, what a run directory holds, records
+that are not trusted, and interrupted sweeps."""
 
 from __future__ import annotations
 
 import json
 import os
-import shutil
 from datetime import datetime
 from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
-from small_sweep import write_spec
+from run_tree import GOOD_PLAN, make_tree
 
 from flatcli.cli import main
 from flatcli.runs import (
     LATEST,
     RunDirectoryError,
     claim,
-    compare_runs,
-    flat_spec,
     link_latest,
     list_runs,
-    runs_table,
     stamp,
     sweep_state,
 )
@@ -93,64 +89,10 @@ def test_latest_link_is_replaced_and_a_real_directory_is_left_alone(tmp_path: Pa
     assert (other / LATEST).is_dir() and not (other / LATEST).is_symlink()
 
 
-def test_flat_spec_goes_into_tables() -> None:
-    tree = {"name": "x", "track": {"kp": [1, 2]},
-            "sweep": {"grid": {"plant.com": [[0, 0, 0]]}, "perturb": {"initial": {"std": 1}}}}
-    assert flat_spec(tree) == {"name": "x", "track.kp": [1, 2],
-                               'sweep.grid."plant.com"': [[0, 0, 0]],
-                               "sweep.perturb.initial.std": 1}
-
-
 @pytest.fixture(scope="module")
 def tree(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """runs/: two plans and a track of one name, a finished and an interrupted sweep."""
-    root = tmp_path_factory.mktemp("runs")
-    for args in (["plan"], ["plan", "--set", "plan.duration=3"],
-                 ["track", "--set", "track.kp=[100,110]", "--set", "track.kv=[10,13]"]):
-        code, out = cli(*args, "-q", "--out", str(root / "paper_example" / stamp()))
-        assert code == 0, out
-    spec = write_spec(root.parent / "specs")
-    code, out = cli("sweep", str(spec), "--out", str(root / "small"), "-q", "--workers", "1")
-    assert code == 0, out
-    shutil.copytree(root / "small", root / "cut")
-    for name in ("trials.parquet", "summary.parquet", "summary.md", "run.json"):
-        (root / "cut" / name).unlink()
-    manifest = json.loads((root / "cut" / "sweep.json").read_text())
-    first = manifest["cells"][manifest["grid_cells"][0]]["chunks"][0]  # cell 0's first chunk
-    (root / "cut" / "trials" / first).unlink()
-    return root
-
-
-def test_runs_lists_every_run_with_status_and_key_metrics(tree: Path) -> None:
-    infos = {str(i.path.relative_to(tree)): i for i in list_runs(tree)}
-    plans = [i for i in infos.values() if i.command == "plan"]
-    assert len(plans) == 2 and all(i.status == "ok" for i in plans)
-    assert {round(i.metrics["input_energy"], 6) for i in plans} == {
-        round(json.loads((i.path / "run.json").read_text())["summary"]["input_energy"], 6)
-        for i in plans}
-    (track,) = [i for i in infos.values() if i.command == "track"]
-    assert track.status == "ok" and track.metrics["err_y_final"] < 1e-4
-    assert infos["small"].status == "done" and infos["small"].metrics["trials"] == 120
-    assert infos["cut"].status == "partial 79%"  # 95 of 120 trials: one chunk of 25 lost
-    code, out = cli("runs", str(tree))
-    assert code == 0, out
-    assert [c.strip() for c in out.splitlines()[0].split("|")[1:-1]] == [
-        "run", "command", "name", "time", "status", "key metrics"]
-    assert "partial 79%" in out and "input_energy" in out and "err_y_final" in out
-    assert runs_table(tree) == out.rstrip("\n")
-
-
-def test_compare_shows_the_keys_that_differ(tree: Path) -> None:
-    plans = sorted(i.path for i in list_runs(tree) if i.command == "plan")
-    text = compare_runs(plans[0], plans[1])
-    assert "1 spec key differs:" in text
-    assert "| plan.duration |" in text
-    rows = [line for line in text.splitlines() if line.startswith("| plan.")]
-    assert len(rows) == 1
-    code, out = cli("runs", "--compare", str(plans[0]), str(plans[0]))
-    assert code == 0 and "the specs are identical" in out
-    code, out = cli("runs", "--compare", str(plans[0]), str(tree / "nowhere"))
-    assert code == 2 and out.startswith("error: --compare:") and out.count("\n") == 1
+    return make_tree(tmp_path_factory.mktemp("runs"))
 
 
 def test_sweep_state_of_an_interrupted_sweep(tree: Path) -> None:
@@ -194,11 +136,6 @@ def test_a_run_json_without_a_digest_is_compared_by_its_spec(tmp_path: Path) -> 
 
 # ---------------------------------------------------------------------------------------
 # Records flatcli did not write (or that were changed) are never trusted.
-
-GOOD_PLAN = {"command": "plan", "time": "2026-01-02T03:04:05+00:00", "digest": "d",
-             "spec": {"name": "x"}, "summary": {"input_energy": 1.5, "min_margin": None},
-             "optimization": None}
-
 
 @pytest.mark.parametrize(("key", "value"), [
     ("time", 123), ("time", "9999-12-31T23:59:59-23:59"), ("time", "0001-01-01T00:00:00"),
@@ -286,16 +223,3 @@ def test_a_run_record_in_place_of_a_sweep_manifest_is_not_a_sweep(tmp_path: Path
     assert info.command == "sweep" and info.status == "unreadable"
 
 
-def test_text_from_a_record_is_shown_escaped(tmp_path: Path) -> None:
-    # a hostile record: an escape sequence that would clear the terminal, a bidi override
-    for name, record in (("a", {**GOOD_PLAN, "spec": {"name": "x\x1b[2Jy\u202e"}}),
-                         ("b", {**GOOD_PLAN, "spec": {"name": "z", "k\u2028": "v\x85"}})):
-        (tmp_path / name).mkdir()
-        (tmp_path / name / "run.json").write_text(json.dumps(record))
-    text = runs_table(tmp_path)
-    assert "\x1b" not in text and "\u202e" not in text and r"x\x1b[2Jy\u202e" in text
-    compared = compare_runs(tmp_path / "a", tmp_path / "b")
-    assert compared.isprintable() or all(c.isprintable() or c == "\n" for c in compared)
-    assert r"k\u2028" in compared and r"v\x85" in compared
-    code, out = cli("runs", str(tmp_path), "--compare", str(tmp_path / "a"), str(tmp_path / "b"))
-    assert code == 0 and "\x1b" not in out

@@ -13,6 +13,7 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 from numpy.typing import NDArray
+from referees import ClippedLoop, Passage, through_crossings
 from scipy.integrate import solve_ivp
 
 from flatcli.core.control import Gains
@@ -20,13 +21,17 @@ from flatcli.core.metrics import Event, Metric, Status
 from flatcli.core.model import PAPER_ROBOT, FlatcliError, RobotParams
 from flatcli.core.planning import Plan
 from flatcli.core.simulate import (
+    TWIN_FACTOR,
+    TWIN_RTOL_FLOOR,
     NoiseStreams,
     Outcome,
     Scenario,
     Trials,
     closed_loop_rhs,
+    closed_loop_start,
     noise_generator,
     simulate,
+    twin_factor,
 )
 
 Array = NDArray[np.float64]
@@ -39,9 +44,16 @@ RK4_ACCURACY = 1e-5
 #: Momentum drift of the kinematic plant: H from the full kinematics at the integrated state
 #: with the applied rates; the constraint it integrates holds to rounding (observed <= 3e-17).
 DRIFT_BOUND = 1e-12
-#: Fraction of resolved perturbed trials whose true final error err_estimate bounds (observed
-#: 98 of 100 in the test's sample).
-ESTIMATE_BOUNDED = 0.95
+#: The error estimate's band (a requirement, stated with err_estimate in the docs): within
+#: 10x of the true final error on at least this share of ESTIMATE_TRIALS perturbed trials,
+#: and never below it by more than 3x.
+ESTIMATE_WITHIN = 0.9
+ESTIMATE_TRIALS = 200
+#: The paper's gains as printed (kv1 = 100, kp1 = 10, kv2 = 110, kp2 = 13) and swapped.
+PRINTED = Gains((10.0, 13.0), (100.0, 110.0))
+SWAPPED = Gains((100.0, 110.0), (10.0, 13.0))
+#: Fig. 4's start: th(0) = (1.96, 0.8, -0.1), u1(0) = 0.1 (the plan's th1'(0)).
+FIG4_START = (1.96, 0.8, -0.1, 0.1)
 #: How far u1 may exceed a clipped joint rate (relative): the switch of the conditional
 #: integration falls inside a step.
 WIND_UP_RTOL = 1e-3
@@ -71,8 +83,8 @@ def reference_final(scenario: Scenario, trials: Trials, i: int, t_eval: Array | 
 
     times = np.array([plan.duration]) if t_eval is None else t_eval
     with np.errstate(all="ignore"):
-        sol = solve_ivp(rhs, (0.0, plan.duration), trials.initial[i], method="DOP853",
-                        t_eval=times, **TIGHT)
+        sol = solve_ivp(rhs, (0.0, plan.duration), closed_loop_start(scenario, trials, i),
+                        method="DOP853", t_eval=times, **TIGHT)
     return sol.y.T if sol.status == 0 else None
 
 
@@ -128,29 +140,77 @@ def test_adaptive_error_shrinks_with_the_tolerance(
     assert all(a < b for a, b in itertools.pairwise(steps)), steps
 
 
-def test_error_estimate_bounds_the_true_final_error(paper_plan: Plan) -> None:
-    """err_estimate against DOP853 at rtol 1e-12 on 100 perturbed trials (50 per gain
-    reading) that run to the end. The estimate sums the embedded local error estimates of
-    the angles, so it is conservative (median ratio ~1e3: the closed loop damps errors) except
-    where the loop amplifies them, near the singular set: it bounded 98 of these 100
-    (make bench measures a larger sample)."""
+def test_error_estimate_is_within_the_band_of_the_true_final_error(paper_plan: Plan) -> None:
+    """err_estimate (the twin at a hundredth of the tolerances) against DOP853 at rtol 1e-12 on
+    ESTIMATE_TRIALS perturbed trials that run to the end, both gain readings, both plants. The
+    band: within 10x of the true final error on at least ESTIMATE_WITHIN of them, and never
+    below it by more than 3x (observed on 595 such trials of these four kinds: all within
+    10x, ratios 0.70 to 1.36; a twin at ten times the tolerances had 23 of 527 below 3x, one at
+    a tenth 1 of 200)."""
     ratios = []
-    readings = ((Gains((10.0, 13.0), (100.0, 110.0)), 3), (Gains((100.0, 110.0), (10.0, 13.0)), 4))
-    for gains, seed in readings:
-        scenario = Scenario(paper_plan, gains, 1e-3)
-        trials = perturbed_trials(130, seed, initial_std=0.02)
+    readings = ((PRINTED, 3, "kinematic"), (SWAPPED, 4, "kinematic"),
+                (PRINTED, 5, "dynamic"), (SWAPPED, 6, "dynamic"))
+    per_reading = ESTIMATE_TRIALS // len(readings)
+    for gains, seed, plant in readings:
+        scenario = Scenario(paper_plan, gains, 1e-3, plant=plant)  # type: ignore[arg-type]
+        trials = perturbed_trials(3 * per_reading, seed, initial_std=0.05)
         out = run(scenario, trials)
         assert out.trace is not None
-        done = np.flatnonzero(out.status == Status.OK)[:50]
-        assert done.size == 50
+        resolved = (out.status == Status.OK) | (out.status == Status.SINGULAR)
+        done = np.flatnonzero(resolved)[:per_reading]  # verified or not: the band is for all
+        assert done.size == per_reading, (plant, done.size)
         for i in done:
             reference = reference_final(scenario, trials, int(i))
             assert reference is not None
             true = np.linalg.norm(out.trace[i, -1, :3] - reference[0, :3])
             ratios.append(out.metrics[i, Metric.ERR_ESTIMATE] / true)
     ratios_ = np.asarray(ratios)
-    assert np.mean(ratios_ >= 1.0) >= ESTIMATE_BOUNDED, np.sort(ratios_)[:5]
-    assert np.median(ratios_) > 10.0
+    assert np.all(np.isfinite(ratios_))
+    within = (ratios_ <= 10.0) & (ratios_ >= 0.1)
+    assert np.mean(within) >= ESTIMATE_WITHIN, np.sort(ratios_)[[0, 1, -2, -1]]
+    assert ratios_.min() >= 1 / 3, np.sort(ratios_)[:5]
+
+
+def test_the_twin_costs_steps_and_none_turns_it_off(
+    paper_plan: Plan, printed_gains: Gains, fig4_initial: Array,
+    trials_factory: Callable[..., Trials],
+) -> None:
+    """The twin changes nothing of the trial but err_estimate and the cost; without it
+    err_estimate is null. rtol at its floor leaves no room for a tighter twin: no estimate
+    (rather than one from a twin no better than the trial)."""
+    trials = trials_factory(fig4_initial)
+    with_twin = run(Scenario(paper_plan, printed_gains, 1e-3), trials)
+    without = run(Scenario(paper_plan, printed_gains, 1e-3, twin=0), trials)
+    assert with_twin.trace is not None and without.trace is not None
+    np.testing.assert_array_equal(with_twin.trace, without.trace)
+    same = [m for m in Metric if m not in (Metric.ERR_ESTIMATE, Metric.RHS_EVALUATIONS)]
+    np.testing.assert_array_equal(with_twin.metrics[:, same], without.metrics[:, same])
+    assert np.isnan(metric(without, "err_estimate"))
+    assert 0 < metric(with_twin, "err_estimate") < 1e-7
+    assert metric(with_twin, "rhs_evaluations") > metric(without, "rhs_evaluations")
+    floor = Scenario(paper_plan, printed_gains, 1e-3, rtol=TWIN_RTOL_FLOOR, atol=1e-14)
+    assert twin_factor(floor) == 0.0
+    assert twin_factor(Scenario(paper_plan, printed_gains, 1e-3)) == TWIN_FACTOR
+    with pytest.raises(FlatcliError, match=r"track\.error_estimate"):
+        Scenario(paper_plan, printed_gains, 1e-3, twin=2.0)
+
+
+@pytest.mark.parametrize("integrator", ["adaptive", "dop853", "rk4"])
+def test_only_error_controlled_integrators_verify_a_trial(
+    paper_plan: Plan, printed_gains: Gains, fig4_initial: Array,
+    trials_factory: Callable[..., Trials], integrator: str,
+) -> None:
+    """A resolved trial is verified by the adaptive integrator and by DOP853; RK4 has no
+    tolerance: its trial is resolved (ok) but unverified, with no error estimate."""
+    out = run(Scenario(paper_plan, printed_gains, 1e-3), trials_factory(fig4_initial),
+              integrator)
+    assert out.status[0] == Status.OK
+    assert out.integrator == integrator
+    assert bool(out.verified[0]) == (integrator != "rk4")
+    assert np.isnan(metric(out, "err_estimate")) == (integrator != "adaptive")
+    stopped = run(Scenario(paper_plan, printed_gains, 1e-3),
+                  trials_factory([1.96, 0.8, -0.1, -0.05]), integrator)
+    assert stopped.status[0] == Status.DIVERGED and not stopped.verified[0]
 
 
 # --------------------------------------------------------------------------------------
@@ -205,6 +265,124 @@ def reference_event(scenario: Scenario, trials: Trials) -> float:
                         events=[bound, margin], **TIGHT)
     assert sol.status in (-1, 1)
     return float(sol.t[-1])
+
+
+#: The crossing example: the swapped gains, u1(0) = -0.05 against the plan's sign, joint
+#: rates clipped at 20 rad/s: the margin changes sign at t = 2.27 ms.
+CROSSING_START = (1.96, 0.8, -0.1, -0.05)
+CROSSING_LIMIT = 20.0
+#: Two referees at different tolerances agree to this at T, and flatcli's trial with them.
+CROSSING_AGREEMENT = 1e-6
+
+
+@pytest.fixture(scope="module")
+def crossing_referee(paper_plan: Plan) -> Passage:
+    """The crossing example by ``tests.referees`` (the loop from sympy's link kinematics, DOP853
+    restarted at the crossing), at rtol 1e-10; checked against rtol 1e-8."""
+    loop = ClippedLoop(PAPER_ROBOT, paper_plan, SWAPPED.kp, SWAPPED.kv, 0.0, CROSSING_LIMIT)  # type: ignore[arg-type]
+    x0 = np.array(CROSSING_START)
+    tight = through_crossings(loop.rhs, loop.margin, x0, paper_plan.duration, 1e-10, 1e-13)
+    loose = through_crossings(loop.rhs, loop.margin, x0, paper_plan.duration, 1e-8, 1e-11)
+    assert np.max(np.abs(tight.final - loose.final)) < CROSSING_AGREEMENT
+    assert len(tight.crossings) == len(loose.crossings) == 1
+    return tight
+
+
+@pytest.mark.parametrize("integrator", ["adaptive", "dop853", "rk4"])
+def test_a_crossing_the_rate_limit_bounds_is_passed_and_counted(
+    paper_plan: Plan, trials_factory: Callable[..., Trials], crossing_referee: Passage,
+    integrator: str,
+) -> None:
+    """With the joint rates clipped the right-hand side stays bounded where the margin
+    changes sign: the trial goes on through the crossing and ends where the independent loop
+    ends (within 1e-6 rad at T), with the crossing counted as a hit of margin 0 at the time
+    the referee's event locates. Its status is decided by how it ends: resolved, singular."""
+    scenario = Scenario(paper_plan, SWAPPED, 1e-3, rate_limit=CROSSING_LIMIT)
+    out = run(scenario, trials_factory(list(CROSSING_START)), integrator)
+    assert out.trace is not None
+    assert out.status[0] == Status.SINGULAR and out.event[0] == Event.NONE
+    np.testing.assert_allclose(out.trace[0, -1, :4], crossing_referee.final,
+                               atol=CROSSING_AGREEMENT, rtol=0)
+    assert metric(out, "crossings") == 1
+    assert metric(out, "first_crossing_time") == pytest.approx(crossing_referee.crossings[0],
+                                                               abs=1e-9)
+    assert metric(out, "min_margin") == 0.0
+    assert metric(out, "singular_hits") >= 1
+    assert metric(out, "first_hit_time") <= metric(out, "first_crossing_time")
+    assert np.isfinite(metric(out, "err_theta_final"))
+
+
+@pytest.mark.parametrize("integrator", ["adaptive", "dop853", "rk4"])
+def test_the_same_crossing_without_limits_stops_the_trial_and_is_counted(
+    paper_plan: Plan, trials_factory: Callable[..., Trials], integrator: str,
+) -> None:
+    """The other side of the rule: nothing bounds th2' at the pole, so the trial stops there,
+    diverged: at the crossing (CROSSED), or just before it where th2 leaves the divergence
+    bound (BOUND). Its row agrees with its reason: a crossing is counted, a hit of margin 0
+    at the event's time."""
+    out = run(Scenario(paper_plan, SWAPPED, 1e-3), trials_factory(list(CROSSING_START)),
+              integrator)
+    assert out.status[0] == Status.DIVERGED
+    assert out.event[0] in (Event.CROSSED, Event.BOUND)
+    assert out.event_time[0] == pytest.approx(2.27e-3, abs=1e-3 if integrator == "rk4"
+                                              else 1e-5)
+    if out.event[0] == Event.CROSSED:
+        assert metric(out, "crossings") == 1
+        assert metric(out, "first_crossing_time") == pytest.approx(out.event_time[0],
+                                                                   abs=1e-12)
+        assert metric(out, "min_margin") == 0.0 and metric(out, "singular_hits") >= 1
+    else:
+        assert metric(out, "crossings") == 0
+        assert np.isnan(metric(out, "first_crossing_time"))
+
+
+def _dynamic_passage(scenario: Scenario, trials: Trials, rtol: float) -> Passage:
+    """Trial 0 of the dynamic plant by DOP853 through its crossings (``through_crossings``
+    on flatcli's right-hand side: the dynamics are checked against a sympy Lagrangian in
+    test_dynamics; here the referee is the integration through the jumps)."""
+    rhs = closed_loop_rhs(scenario, trials, 0)
+
+    def margin(t: float, x: Array) -> float:
+        return float(np.sin(x[1]) * x[6])  # sin th1 * u1 (state th, th', u1)
+
+    return through_crossings(lambda t, x: rhs(t, x), margin, closed_loop_start(scenario, trials),
+                             scenario.plan.duration, rtol, rtol * 1e-3, limit=1000)
+
+
+#: flatcli's default tolerances against the referee on the dynamic plant through its
+#: crossings (observed 5e-9, 1e-7, 8e-7 rad in the three cases below).
+DYNAMIC_AGREEMENT = 2e-6
+
+
+@pytest.mark.parametrize(("gains", "start", "rate_limit", "torque_limit", "crossings"), [
+    (SWAPPED, CROSSING_START, CROSSING_LIMIT, np.inf, 1),  # the rate commands clipped
+    (SWAPPED, CROSSING_START, CROSSING_LIMIT, 30.0, 3),  # and the servos' torques
+    (PRINTED, FIG4_START, np.inf, 0.0, 15),  # no torque at all: free drift
+])
+def test_actuator_limits_bound_the_dynamic_plant_through_its_crossings(
+    paper_plan: Plan, trials_factory: Callable[..., Trials], gains: Gains,
+    start: tuple[float, ...], rate_limit: float, torque_limit: float, crossings: int,
+) -> None:
+    """The dynamic plant where its actuators keep the right-hand side bounded at the pole
+    (a finite rate limit, a finite torque limit; 0 N m leaves the robot drifting freely,
+    which used to be stopped at 68 ms): the trial runs to T through its crossings and ends
+    where DOP853 through the crossings ends (two tolerances agreeing to 1e-6 rad), with the
+    crossings the referee's events find, the first at the same time."""
+    servo = np.array([[100.0, torque_limit]])
+    base = trials_factory(list(start))
+    trials = Trials(base.links, base.momentum, base.initial, None, servo)
+    scenario = Scenario(paper_plan, gains, 1e-3, plant="dynamic", rate_limit=rate_limit)
+    out = run(scenario, trials)
+    assert out.trace is not None
+    assert out.status[0] == Status.SINGULAR and out.event[0] == Event.NONE
+    tight = _dynamic_passage(scenario, trials, 1e-10)
+    loose = _dynamic_passage(scenario, trials, 1e-8)
+    assert np.max(np.abs(tight.final[:3] - loose.final[:3])) < CROSSING_AGREEMENT
+    assert len(tight.crossings) == len(loose.crossings) == crossings
+    np.testing.assert_allclose(out.trace[0, -1, :3], tight.final[:3], atol=DYNAMIC_AGREEMENT,
+                               rtol=0)
+    assert metric(out, "crossings") == crossings
+    assert metric(out, "first_crossing_time") == pytest.approx(tight.crossings[0], abs=1e-9)
 
 
 def test_rk4_never_steps_over_the_singular_set(

@@ -75,7 +75,7 @@ def test_digest_changes_with_any_value_and_not_with_key_order() -> None:
         ({"plan": {"duration": -1}}, [], "plan.duration: must be > 0 s"),
         ({"plan": {"samples": 1.5}}, [], "plan.samples: expected an integer"),
         ({"track": {"dt": True}}, [], "track.dt: expected a number"),
-        ({"robot": 3}, [], "robot: expected a table"),
+        ({"robot": 3}, [], "robot: expected a [robot] table"),
         ({}, ["track.kp"], "--set: expected KEY=VALUE"),
         ({}, ["track.kp=[1,"], "--set track.kp: cannot read"),
         ({"name": "../evil"}, [], "name: must not contain '/'"),

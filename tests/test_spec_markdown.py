@@ -1,4 +1,5 @@
-"""README's spec tables (flatcli/spec/markdown.py, flatcli/spec/__main__.py) are the schema's."""
+"""docs/spec.md's spec tables (flatcli/spec/markdown.py, flatcli/spec/__main__.py) are the
+schema's."""
 
 from __future__ import annotations
 
@@ -10,15 +11,15 @@ from flatcli.spec import SCHEMA
 from flatcli.spec.__main__ import main
 from flatcli.spec.markdown import block, readme_sections, section_table, sync_readme
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+SPEC_DOC = Path(__file__).resolve().parents[1] / "docs" / "spec.md"
 
 
-def test_readme_spec_tables_are_generated_from_the_schema() -> None:
-    text = README.read_text()
-    assert readme_sections(text) == list(SCHEMA), "README lacks a spec-table block"
+def test_the_docs_spec_tables_are_generated_from_the_schema() -> None:
+    text = SPEC_DOC.read_text()
+    assert readme_sections(text) == list(SCHEMA), "docs/spec.md lacks a spec-table block"
     assert sync_readme(text) == text, (
-        "README's spec tables differ from the schema: "
-        "run python -m flatcli.spec --update-readme README.md"
+        "docs/spec.md's spec tables differ from the schema: "
+        "run python -m flatcli.spec --update-readme docs/spec.md"
     )
 
 

@@ -15,8 +15,27 @@ from flatcli.spec import GAINS, LINKS, SCHEMA, SECTIONS, Spec, SpecError, all_ke
 
 
 def test_sections_are_the_toml_tables() -> None:
-    assert list(SECTIONS) == ["", "robot", "plan", "plan.optimize", "track", "plant", "sweep"]
+    assert list(SECTIONS) == ["", "robot", "plan", "plan.optimize", "track", "plant", "sweep",
+                              "figures"]
     assert list(SCHEMA) == list(SECTIONS)
+
+
+def test_figures_enter_no_digest_and_are_bounded() -> None:
+    plain = resolve({})
+    pdf = resolve({"figures": {"format": "pdf", "dpi": 300}})
+    assert pdf.figures.format == "pdf" and pdf.figures.dpi == 300
+    assert pdf.digest() == plain.digest()  # how results are drawn is not the experiment
+    assert pdf.tree["figures"] == {"format": "pdf", "dpi": 300}  # but the record keeps it
+    assert "figures" not in pdf.experiment_tree()
+    assert resolve({"track": {"dt": 2e-3}}).digest() != plain.digest()
+    with pytest.raises(SpecError, match=r"figures.dpi: must be at most 1200 dots/in, got 5000"):
+        resolve({"figures": {"dpi": 5000}})
+    with pytest.raises(SpecError, match=r"figures.format: expected one of \['png', 'pdf', "
+                                        r"'svg'\], got 'jpg'"):
+        resolve({"figures": {"format": "jpg"}})
+    assert lookup("figures.dpi").bounds_text() == "50 to 1200"
+    with pytest.raises(SpecError, match=r"cannot grid over 'figures\.format'"):
+        resolve({"sweep": {"grid": {"figures.format": ["png", "pdf"]}}})
 
 
 def test_every_key_has_a_default_value_in_the_built_spec() -> None:

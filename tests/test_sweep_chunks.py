@@ -10,7 +10,7 @@ from flatcli.core.metrics import METRIC_NAMES
 from flatcli.spec import resolve
 from flatcli.storage import UNIT_KEY
 from flatcli.sweep import Chunk, ChunkResult, grid_cell_text, layout, run_chunk
-from flatcli.sweep.chunks import grid_columns
+from flatcli.sweep.chunks import grid_columns, verify_count
 
 
 def test_a_chunk_has_one_row_per_trial_with_draws_and_metrics_by_name() -> None:
@@ -119,9 +119,17 @@ def test_not_applicable_is_null_never_nan_and_every_number_has_a_unit() -> None:
                                                 .to_pylist(), strict=True)]
         assert _rows(table, no_hit, "first_hit_time").null_count == sum(no_hit)
         assert table.column("peak_torque").null_count == len(status)  # a kinematic plant
-        estimates = _rows(table, simulated, "err_estimate")  # the adaptive integrator's only
-        expected_nulls = 0 if cell.spec.track.integrator == "adaptive" else sum(simulated)
+        # the adaptive integrator's only, of the trials that reached T (its twin's)
+        reached = [s in ("ok", "singular") for s in status]
+        estimates = _rows(table, reached, "err_estimate")
+        expected_nulls = 0 if cell.spec.track.integrator == "adaptive" else sum(reached)
         assert estimates.null_count == expected_nulls
+        assert _rows(table, diverged, "err_estimate").null_count == sum(diverged)
+        # verified: reached T with error control and an estimate within track.accuracy
+        verified = table.column("verified").to_pylist()
+        assert all(not v for v, r in zip(verified, reached, strict=True) if not r)
+        if cell.spec.track.integrator == "rk4":
+            assert not any(verified)
         # the group's keys as columns of their own, lists as lists
         assert set(table.column("gains").to_pylist()) == {"swapped"}
         assert table.column("track.kp")[0].as_py() == [100.0, 110.0]
@@ -195,3 +203,41 @@ def test_a_grid_of_end_rates_is_a_number_column_or_a_list_column() -> None:
     cells = layout(mixed).cells
     assert [grid_columns(c.values, c.spec)["plan.goal_rate"] for c in cells] == [
         (pa.list_(pa.float64()), [0.5, 0.5]), (pa.list_(pa.float64()), [0.4, 0.6])]
+
+
+def test_verify_counts_a_fraction_rounded_up_or_a_whole_count() -> None:
+    assert verify_count(0.0, 1000) == 0
+    assert verify_count(0.01, 1000) == 10
+    assert verify_count(0.001, 10) == 1  # a fraction checks at least one trial
+    assert verify_count(0.5, 3) == 2
+    assert verify_count(1.0, 1000) == 1  # from 1 on, a count
+    assert verify_count(25.0, 1000) == 25
+    assert verify_count(5000.0, 1000) == 1000
+
+
+def test_sweep_verify_re_runs_the_first_trials_of_each_cell_with_dop853() -> None:
+    """sweep.verify = 3: the first three trials of the cell (whatever chunk they fall in) carry
+    reference_difference and reference_status; the others null. The referee is scipy's DOP853
+    at rtol 1e-10 on the same right-hand side, run apart from the trial: the difference it
+    reports is the trial's largest distance from it over the run (about 1e-7 rad at the
+    default tolerances; RK4 at dt = 10 ms much larger)."""
+    spec = resolve({"plan": FAILING["plan"], "track": {**FAILING["track"], "initial_rate": 0.1},
+                    "sweep": {"trials": 6, "seed": 5, "verify": 3,
+                              "perturb": {"initial": {"dist": "normal", "std": 0.01}},
+                              "grid": {"track.integrator": ["adaptive", "rk4"]}}})
+    lay = layout(spec)
+    for cell in lay.cells:
+        first = cell.first_trial
+        tables = [run_chunk(cell, Chunk(cell.index, first + a, first + b)).table
+                  for a, b in ((0, 2), (2, 6))]  # the checked trials span two chunks
+        difference = [v for t in tables for v in t.column("reference_difference").to_pylist()]
+        reference = [v for t in tables for v in t.column("reference_status").to_pylist()]
+        status = [v for t in tables for v in t.column("status").to_pylist()]
+        assert all(v is not None for v in difference[:3]) and difference[3:] == [None] * 3
+        assert reference[:3] == status[:3] and reference[3:] == [None] * 3
+        if cell.spec.track.integrator == "adaptive":
+            assert max(difference[:3]) < 1e-6
+        else:
+            assert max(difference[:3]) > 1e-6  # RK4 at dt = 10 ms, which nothing verifies
+        for t in tables:
+            assert t.schema.field("reference_difference").metadata[UNIT_KEY] == b"rad"

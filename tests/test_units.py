@@ -1,4 +1,4 @@
-"""The table of units (flatcli/units.py), and the README's column tables that repeat it."""
+"""The table of units (flatcli/units.py), and docs/outputs.md's column tables that repeat it."""
 
 from __future__ import annotations
 
@@ -44,8 +44,9 @@ def test_grid_columns_take_the_units_of_their_spec_keys() -> None:
 
 
 def _readme_units() -> dict[str, str]:
-    """{column: unit} of every row of the README's column tables (``| column | unit | ...``)."""
-    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    """{column: unit} of every row of docs/outputs.md's column tables (``| column | unit |
+    ...``)."""
+    text = (Path(__file__).resolve().parents[1] / "docs" / "outputs.md").read_text()
     units: dict[str, str] = {}
     in_table = False
     for line in text.splitlines():
@@ -61,7 +62,7 @@ def _readme_units() -> dict[str, str]:
     return units
 
 
-def test_the_readme_column_tables_say_what_the_files_hold() -> None:
+def test_the_docs_column_tables_say_what_the_files_hold() -> None:
     readme = _readme_units()
     for name, unit in readme.items():
         assert unit_of(name) == unit, name

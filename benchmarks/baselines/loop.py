@@ -20,7 +20,7 @@ def plant_coefficients(links: Array) -> Array:
     """(N, 11) reduced-constraint coefficients of N plants, general d2.
 
     Order: a0, a1, a2, a3, b0, b1, b2, b3, c0, c2', c3 [kg^2 m^2]: the reduced momentum
-    constraint of the README's *The physics* (checked symbolically in tests/test_model.py).
+    constraint of docs/physics.md (checked symbolically in tests/test_model.py).
     Written out here rather than taken from flatcli, so that the closed-loop baselines check it.
 
     Parameters

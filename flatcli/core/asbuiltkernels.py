@@ -59,12 +59,20 @@ def _residual(loop: Any, trials: TrialArrays, i: int, plan_theta: Array,
     return plan_residual(loop, plan_theta, plan_theta_dot)
 
 
-ASBUILT_KINEMATIC = Ops(_loop, kinematic_initial, kinematic_rhs, observe_kinematic,
+@jitable
+def _bounded(loop: Any) -> bool:
+    """The as-built law has no singular set: its commands are bounded everywhere (finite
+    gains about a finite plan), and its margin (1.0, ``asbuiltloop``) never changes sign,
+    so no trial meets a crossing to stop at or to pass (``crossings`` is 0)."""
+    return True
+
+
+ASBUILT_KINEMATIC = Ops(_loop, _bounded, kinematic_initial, kinematic_rhs, observe_kinematic,
                         record_kinematic, _residual, lambda n: n + 1, lambda n: 1,
                         lambda n: 3 * n + 1, asbuilt_scratch)
-ASBUILT_DYNAMIC = Ops(_loop, dynamic_initial, dynamic_rhs, observe_dynamic, record_dynamic,
-                      _residual, lambda n: 2 * n + 2, dynamic_aux, lambda n: 4 * n + 2,
-                      asbuilt_scratch)
+ASBUILT_DYNAMIC = Ops(_loop, _bounded, dynamic_initial, dynamic_rhs, observe_dynamic,
+                      record_dynamic, _residual, lambda n: 2 * n + 2, dynamic_aux,
+                      lambda n: 4 * n + 2, asbuilt_scratch)
 
 _kinematic_batch = make_batch(ASBUILT_KINEMATIC)
 (_kinematic_initial, _kinematic_rhs, _kinematic_observe,
@@ -77,10 +85,9 @@ _dynamic_batch = make_batch(ASBUILT_DYNAMIC)
 @kernel
 def asbuilt_kinematic_batch(
     method: int, shared: AsbuiltShared, trials: TrialArrays, grid: Grid, settings: Settings,
-    tables: Array, gen: Any, std: float, buffers: Buffers, results: Results,
+    tables: Array, buffers: Buffers, results: Results,
 ) -> None:
-    _kinematic_batch(method, shared, trials, grid, settings, tables, gen, std, buffers,
-                     results)
+    _kinematic_batch(method, shared, trials, grid, settings, tables, buffers, results)
 
 
 @kernel
@@ -102,10 +109,11 @@ def asbuilt_kinematic_derivative(
 @kernel
 def asbuilt_kinematic_metrics(
     shared: AsbuiltShared, trials: TrialArrays, i: int, grid: Grid, settings: Settings,
-    buffers: Buffers, states: Array, rates: Array, last: int, complete: bool, out: Array,
-) -> int:
+    buffers: Buffers, states: Array, rates: Array, last: int, complete: bool, crossings: Array,
+    out: Array,
+) -> float:
     return _kinematic_observe(shared, trials, i, grid, settings, buffers, states, rates, last,
-                              complete, out)
+                           complete, crossings, out)
 
 
 @kernel
@@ -116,9 +124,9 @@ def asbuilt_kinematic_trace(states: Array, rates: Array, last: int, trace: Array
 @kernel
 def asbuilt_dynamic_batch(
     method: int, shared: AsbuiltShared, trials: TrialArrays, grid: Grid, settings: Settings,
-    tables: Array, gen: Any, std: float, buffers: Buffers, results: Results,
+    tables: Array, buffers: Buffers, results: Results,
 ) -> None:
-    _dynamic_batch(method, shared, trials, grid, settings, tables, gen, std, buffers, results)
+    _dynamic_batch(method, shared, trials, grid, settings, tables, buffers, results)
 
 
 @kernel
@@ -140,10 +148,11 @@ def asbuilt_dynamic_derivative(
 @kernel
 def asbuilt_dynamic_metrics(
     shared: AsbuiltShared, trials: TrialArrays, i: int, grid: Grid, settings: Settings,
-    buffers: Buffers, states: Array, rates: Array, last: int, complete: bool, out: Array,
-) -> int:
+    buffers: Buffers, states: Array, rates: Array, last: int, complete: bool, crossings: Array,
+    out: Array,
+) -> float:
     return _dynamic_observe(shared, trials, i, grid, settings, buffers, states, rates, last,
-                            complete, out)
+                           complete, crossings, out)
 
 
 @kernel

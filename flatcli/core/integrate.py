@@ -41,7 +41,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from flatcli.core._jit import jitable
-from flatcli.core.metrics import Event
+from flatcli.core.metrics import Event, observe_crossing
 
 Array = NDArray[np.float64]
 
@@ -49,6 +49,11 @@ Array = NDArray[np.float64]
 STEP_FLOOR = 1e-12
 #: A step size collapsing where |margin| is below this [rad/s] is the singular set.
 STALL_MARGIN = 1e-6
+#: A crossing of the singular set that the actuators bound is passed in a step of at most
+#: CROSS_STEP * T: the integration closes in on it to there (the right-hand side jumps where
+#: the margin changes sign, so a step across it is only as accurate as it is short: with
+#: rates bounded by R, off by at most 2 R CROSS_STEP T).
+CROSS_STEP = 1e-11
 
 _NONE = int(Event.NONE)
 _BOUND = int(Event.BOUND)
@@ -118,16 +123,12 @@ def plan_flag(breaks: Array, local: Array, t: float, out: Array) -> None:
 
 
 @jitable
-def load_noise(j: int, table: Array, gen: Any, std: float, noise: Array) -> None:
+def load_noise(j: int, table: Array, noise: Array) -> None:
     """Sensor noise of output interval j into ``noise`` (one per measured angle): row j of
-    ``table`` if it has rows, else std * N(0, 1) draws from ``gen``, in order (call once per
-    interval, in order)."""
+    ``table`` if it has rows (else none: ``noise`` keeps its zeros)."""
     if table.shape[0] > 0:
         for i in range(noise.shape[0]):
             noise[i] = table[j, i]
-    elif std > 0.0:
-        for i in range(noise.shape[0]):
-            noise[i] = std * gen.standard_normal()
 
 
 @jitable
@@ -150,6 +151,30 @@ def _finite(x: Array) -> bool:
 def _flipped(a: float, b: float) -> bool:
     """Whether the margin changed sign (or reached zero) from a to b."""
     return (a > 0.0) != (b > 0.0) or b == 0.0
+
+
+@jitable
+def _fraction(a: float, b: float) -> float:
+    """Where, between a margin a (at 0) and b (at 1) of the other sign (or zero), the linear
+    interpolation between them is zero: in [0, 1]."""
+    if b == 0.0:
+        return 1.0
+    return min(max(a / (a - b), 0.0), 1.0)
+
+
+@jitable
+def _stage_margin(node: float, k2: Array, k3: Array, k4: Array, k5: Array, k6: Array,
+                  nx: int) -> float:
+    """The margin the Dormand-Prince stage at ``node`` (``_first_flip``) found."""
+    if node == _C2:
+        return k2[nx]  # type: ignore[no-any-return]
+    if node == _C3:
+        return k3[nx]  # type: ignore[no-any-return]
+    if node == _C4:
+        return k4[nx]  # type: ignore[no-any-return]
+    if node == _C5:
+        return k5[nx]  # type: ignore[no-any-return]
+    return k6[nx]  # type: ignore[no-any-return]
 
 
 @jitable
@@ -191,74 +216,130 @@ def make_trial_integrators(
 
     Shared arguments (see the module docstring): ``loop`` (the plant's and controller's
     parameters), ``obs`` (the observer's tables), ``x0`` (nx,), ``dt`` [s], ``n`` output
-    intervals, ``bound``, the noise source (``table`` (n, angles) or (0, angles), ``gen``,
-    ``std``), ``record`` and ``trace`` (n + 1, width: what ``record_sample`` writes per
-    sample), ``acc``
-    (the observer's accumulator) and ``work`` (WORK_ROWS, >= nx + 1: the right-hand side's
-    outputs).
+    intervals, ``bound``, ``bounded`` (the actuators bound the right-hand side at the
+    singular set: a crossing is passed, not a stop), the noise source (``table`` (n, angles)
+    or (0, angles), ``gen``, ``std``), ``record`` and ``trace`` (n + 1, width: what
+    ``record_sample`` writes per sample), ``acc`` (the observer's accumulator, where crossings
+    are counted too) and ``work`` (WORK_ROWS, >= nx + 1: the right-hand side's outputs).
     """
 
     @jitable
-    def rk4_trial(
-        loop: Any, obs: Any, x0: Array, ref: Array, dt: float, n: int, bound: float,
-        table: Array, gen: Any, std: float, record: bool, trace: Array, acc: Array,
-        work: Array, noise: Array,
-    ) -> tuple[int, int, float]:
-        """Classical RK4 on the output grid; ``ref`` (2 n + 1, 6) the plan at half steps.
+    def rk4_step(loop: Any, nx: int, x: Array, k1: Array, h: float, ref_mid: Array,
+                 ref_end: Array, noise: Array, k2: Array, k3: Array, k4: Array, y: Array,
+                 out: Array) -> float:
+        """One classical RK4 step of size h from x (k1 = rhs at x given) into ``out``;
+        returns the fraction of the step where a stage first found the margin of the other
+        sign (-1: none; the step's end is not checked here)."""
+        sigma = k1[nx]
+        half = 0.5 * h
+        for i in range(nx):
+            y[i] = x[i] + half * k1[i]
+        rhs(loop, y, ref_mid, noise, k2)
+        for i in range(nx):
+            y[i] = x[i] + half * k2[i]
+        rhs(loop, y, ref_mid, noise, k3)
+        for i in range(nx):
+            y[i] = x[i] + h * k3[i]
+        rhs(loop, y, ref_end, noise, k4)
+        sixth = h / 6.0
+        for i in range(nx):
+            out[i] = x[i] + sixth * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+        if _flipped(sigma, k2[nx]):
+            return 0.5 * _fraction(sigma, k2[nx])
+        if _flipped(sigma, k3[nx]):
+            return 0.5 * _fraction(sigma, k3[nx])
+        if _flipped(sigma, k4[nx]):
+            return _fraction(sigma, k4[nx])
+        return -1.0
 
-        Returns (last sample observed, Event, event time [s]).
+    @jitable
+    def rk4_trial(
+        loop: Any, obs: Any, x0: Array, ref: Array, breaks: Array, local: Array,
+        flag_mid: Array, flag_end: Array, dt: float, n: int, bound: float, bounded: bool,
+        table: Array, record: bool, trace: Array, acc: Array, work: Array, noise: Array,
+    ) -> tuple[int, int, float, int]:
+        """Classical RK4 on the output grid; ``ref`` (2 n + 1, 3 N) the plan at half steps.
+        Where a step meets the singular set and the actuators bound the plant there, the
+        output interval is integrated in sub-steps that close in on the crossing (each a
+        tenth of the way, from where the margin's interpolation puts it), pass it in a step
+        of at most ``CROSS_STEP`` T, and go on to the interval's end.
+
+        Returns (last sample observed, Event, event time [s], right-hand-side evaluations).
         """
         nx = x0.shape[0]
-        half = 0.5 * dt
-        sixth = dt / 6.0
         x, k1, k2, k3, k4, y = work[_X], work[_K1], work[_K2], work[_K3], work[_K4], work[_Y]
+        xn, ke = work[_XN], work[_K7]
         for i in range(nx):
             x[i] = x0[i]
         noise[:] = 0.0
+        evaluations = 0
+        floor = CROSS_STEP * n * dt
         before = 0.0
-        crossed = False
         for s in range(n + 1):
             if s < n:
-                load_noise(s, table, gen, std, noise)
+                load_noise(s, table, noise)
             rhs(loop, x, ref[2 * s], noise, k1)
-            if s > 0:  # the step that led here: a margin of another sign at its end
-                after = k1[nx]
-                if _flipped(before, after):
-                    flip = (before > 0.0) != (after > 0.0)
-                    fraction = before / (before - after) if flip else 1.0
-                    return s - 1, _CROSSED, (s - 1 + min(max(fraction, 0.0), 1.0)) * dt
+            evaluations += 1
+            if s > 0 and _flipped(before, k1[nx]):
+                # the margin here has the other sign than at the last step's start, though no
+                # stage of that step had: it changed sign in the step's last sliver, or the
+                # noise of the new interval moved the measured angles across
+                if not bounded:
+                    t_cross = (s - 1 + _fraction(before, k1[nx])) * dt
+                    observe_crossing(acc, t_cross)
+                    return s - 1, _CROSSED, t_cross, evaluations
+                observe_crossing(acc, s * dt)
             observe(loop, obs, acc, s, x, k1)
             if record:
                 record_sample(trace, s, nx, x, k1)
             if s == n:
                 break
             before = k1[nx]
-            for i in range(nx):
-                y[i] = x[i] + half * k1[i]
-            rhs(loop, y, ref[2 * s + 1], noise, k2)
-            crossed = _flipped(before, k2[nx])
-            for i in range(nx):
-                y[i] = x[i] + half * k2[i]
-            rhs(loop, y, ref[2 * s + 1], noise, k3)
-            crossed = crossed or _flipped(before, k3[nx])
-            for i in range(nx):
-                y[i] = x[i] + dt * k3[i]
-            rhs(loop, y, ref[2 * s + 2], noise, k4)
-            crossed = crossed or _flipped(before, k4[nx])
-            for i in range(nx):
-                x[i] = x[i] + sixth * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
-            if crossed:  # a stage beyond the singular set
-                return s, _CROSSED, (s + 0.5) * dt
+            frac = rk4_step(loop, nx, x, k1, dt, ref[2 * s + 1], ref[2 * s + 2], noise, k2, k3,
+                            k4, y, xn)
+            evaluations += 3
+            if frac >= 0.0 and not bounded:
+                observe_crossing(acc, (s + frac) * dt)
+                return s, _CROSSED, (s + frac) * dt, evaluations
+            if frac < 0.0:
+                for i in range(nx):
+                    x[i] = xn[i]
+            else:  # sub-steps through the crossing, to the interval's end
+                t = s * dt
+                t_end = (s + 1) * dt
+                h = frac * dt * 0.9
+                while t < t_end:
+                    h = min(h, t_end - t)
+                    plan_flag(breaks, local, t + 0.5 * h, flag_mid)
+                    plan_flag(breaks, local, t + h, flag_end)
+                    frac = rk4_step(loop, nx, x, k1, h, flag_mid, flag_end, noise, k2, k3, k4,
+                                    y, xn)
+                    rhs(loop, xn, flag_end, noise, ke)
+                    evaluations += 4
+                    if frac < 0.0 and _flipped(k1[nx], ke[nx]):
+                        frac = _fraction(k1[nx], ke[nx])
+                    if frac >= 0.0 and h > floor:
+                        h = 0.9 * frac * h if frac * h > floor else floor
+                        continue
+                    if frac >= 0.0:  # a step of at most the floor across: passed
+                        observe_crossing(acc, t + max(frac, 0.0) * h)
+                    t = t_end if t_end - t - h <= 1e-12 * dt else t + h
+                    for i in range(nx):
+                        x[i] = xn[i]
+                    for i in range(nx + 1):
+                        k1[i] = ke[i]
+                    h = t_end - t
+                before = k1[nx]
             if _out_of_bounds(x[:nx], bound):
-                return s, _BOUND, (s + 1) * dt
-        return n, _NONE, math.nan
+                return s, _BOUND, (s + 1) * dt, evaluations
+        return n, _NONE, math.nan, evaluations
 
     @jitable
     def initial_step(loop: Any, nx: int, x: Array, f: Array, ref: Array, noise: Array,
                      rtol: float, atol: float, limit: float, y: Array, f1: Array, breaks: Array,
-                     local: Array) -> float:
+                     local: Array, t: float) -> float:
         """First step size (Hairer, Norsett & Wanner, Solving ODEs I, II.4; scipy's
-        ``select_initial_step`` for order 5) for the first nx components."""
+        ``select_initial_step`` for order 5) for the first nx components, from time t."""
         d0 = 0.0
         d1 = 0.0
         for i in range(nx):
@@ -271,7 +352,7 @@ def make_trial_integrators(
         h0 = min(h0, limit)
         for i in range(nx):
             y[i] = x[i] + h0 * f[i]
-        plan_flag(breaks, local, h0, ref)
+        plan_flag(breaks, local, t + h0, ref)
         rhs(loop, y, ref, noise, f1)
         d2 = 0.0
         for i in range(nx):
@@ -287,50 +368,59 @@ def make_trial_integrators(
     @jitable
     def adaptive_trial(
         loop: Any, obs: Any, x0: Array, breaks: Array, local: Array, dt: float, n: int,
-        bound: float, rtol: float, atol: float, max_steps: int, n_angles: int, table: Array,
-        gen: Any, std: float, record: bool, trace: Array, acc: Array, work: Array,
-        noise: Array, ref: Array, samples_ref: Array,
-    ) -> tuple[int, int, float, float, int, int]:
+        bound: float, rtol: float, atol: float, max_steps: int, table: Array, record: bool,
+        trace: Array, acc: Array, work: Array, noise: Array, ref: Array, samples_ref: Array,
+        bounded: bool, observing: bool,
+    ) -> tuple[int, int, float, int, int]:
         """Dormand-Prince 5(4) with step control and dense output (see the module docstring);
-        ``breaks``, ``local`` the plan's pieces (``plan_flag``), ``samples_ref`` (2 n + 1, 6)
+        ``breaks``, ``local`` the plan's pieces (``plan_flag``), ``samples_ref`` (2 n + 1, 3 N)
         the plan at half steps (row 2 j at output sample j).
 
-        Returns (last sample observed, Event, event time [s], error estimate [rad],
-        accepted steps, right-hand-side evaluations).
+        Where a step meets the singular set: without ``bounded`` the trial stops there
+        (``CROSSED``); with it the step is taken again, shorter, closing in on the crossing
+        (each time a tenth of the way, from where the margin's interpolation between the
+        stages puts it), until a step of at most ``CROSS_STEP`` T passes it; the crossing is
+        counted (``metrics.observe_crossing``) and the integration restarts on the far side
+        with a fresh first stage. Without ``observing`` nothing is observed or recorded and
+        the steps need not meet the output times (a twin solution, ``err_estimate``).
+
+        Returns (last sample observed, Event, event time [s], accepted steps,
+        right-hand-side evaluations); the final state is left in ``work[_X]``.
         """
         nx = x0.shape[0]
         x, xn, y, xs = work[_X], work[_XN], work[_Y], work[_XS]
         k1, k2, k3, k4, k5, k6, k7 = (work[_K1], work[_K2], work[_K3], work[_K4], work[_K5],
                                       work[_K6], work[_K7])
         duration = n * dt
-        noisy = table.shape[0] > 0 or std > 0.0
+        noisy = table.shape[0] > 0
         floor = STEP_FLOOR * duration
+        cross_floor = CROSS_STEP * duration
         for i in range(nx):
             x[i] = x0[i]
         noise[:] = 0.0
-        load_noise(0, table, gen, std, noise)
+        load_noise(0, table, noise)
         plan_flag(breaks, local, 0.0, ref)
         rhs(loop, x, ref, noise, k1)
         evaluations = 1
-        observe(loop, obs, acc, 0, x, k1)
-        if record:
-            record_sample(trace, 0, nx, x, k1)
+        if observing:
+            observe(loop, obs, acc, 0, x, k1)
+            if record:
+                record_sample(trace, 0, nx, x, k1)
         if not _finite(k1[:nx]):
-            return 0, _BOUND, 0.0, math.nan, 0, evaluations
+            return 0, _BOUND, 0.0, 0, evaluations
         last = 0
         interval = 0  # the noise interval [t_j, t_j+1) in force
         t = 0.0
         h = initial_step(loop, nx, x, k1, ref, noise, rtol, atol, dt if noisy else duration, y,
-                         k2, breaks, local)
+                         k2, breaks, local, 0.0)
         evaluations += 1
         sigma = k1[nx]
-        estimate = 0.0
         steps = 0
         attempts = 0
         rejected = False
-        while last < n:
+        while t < duration:
             if attempts >= max_steps:
-                return last, _MAX_STEPS, t, estimate, steps, evaluations
+                return last, _MAX_STEPS, t, steps, evaluations
             attempts += 1
             stop = (interval + 1) * dt if noisy else duration
             if h >= stop - t or stop - t - h < 1e-10 * (stop - t):
@@ -365,31 +455,43 @@ def make_trial_integrators(
             rhs(loop, xn, ref, noise, k7)
             evaluations += 6
             norm = 0.0
-            angles = 0.0
             for i in range(nx):
                 err = h * (_E1 * k1[i] + _E3 * k3[i] + _E4 * k4[i] + _E5 * k5[i]
                            + _E6 * k6[i] + _E7 * k7[i])
                 norm += (err / (atol + rtol * max(abs(x[i]), abs(xn[i])))) ** 2
-                if i < n_angles:
-                    angles += err * err
             norm = math.sqrt(norm / nx)
-            if norm <= 1.0:  # accepted (a nan norm is not)
-                after = k7[nx]
-                stage = _first_flip(sigma, k2[nx], k3[nx], k4[nx], k5[nx], k6[nx])
-                if _flipped(sigma, after) or stage >= 0.0:
-                    # the step went across the singular set: stop where the margin vanishes
-                    if (sigma > 0.0) != (after > 0.0):
-                        fraction = sigma / (sigma - after)
-                    else:
-                        fraction = stage if stage >= 0.0 else 1.0
-                    return (last, _CROSSED, t + min(max(fraction, 0.0), 1.0) * h, estimate,
-                            steps, evaluations)
+            after = k7[nx]
+            stage = _first_flip(sigma, k2[nx], k3[nx], k4[nx], k5[nx], k6[nx])
+            crossed = _flipped(sigma, after) or stage >= 0.0
+            passing = False
+            if crossed:
+                # where the margin changes sign: interpolated between the step's start and
+                # the first stage (or its end) on the other side
+                if stage >= 0.0:
+                    fraction = stage * _fraction(sigma, _stage_margin(stage, k2, k3, k4, k5,
+                                                                      k6, nx))
+                else:
+                    fraction = _fraction(sigma, after)
+                if not bounded:
+                    if norm <= 1.0:  # accepted: the trial met the singular set
+                        if observing:
+                            observe_crossing(acc, t + fraction * h)
+                        return last, _CROSSED, t + fraction * h, steps, evaluations
+                elif h > cross_floor:  # close in: take the step again, short of it
+                    h = max(0.9 * fraction * h, cross_floor)
+                    rejected = True
+                    continue
+                else:  # a step of at most the floor across: passed
+                    passing = True
+                    if observing:
+                        observe_crossing(acc, t + fraction * h)
+            if norm <= 1.0 or passing:  # accepted (a nan norm is not)
                 beyond = _out_of_bounds(xn[:nx], bound) or not _finite(k7[:nx])
                 # output samples inside (t, t_new), from the dense output, up to the first
                 # beyond the bound (when the step ends beyond it)
                 dense = False  # the step's dense-output polynomial, made at its first sample
                 q0, q1, q2, q3 = work[_Q0], work[_Q1], work[_Q2], work[_Q3]
-                while last < n and (last + 1) * dt < t_new * (1.0 - 1e-14):
+                while observing and last < n and (last + 1) * dt < t_new * (1.0 - 1e-14):
                     j = last + 1
                     theta = ((j * dt) - t) / h
                     if not dense:
@@ -411,19 +513,18 @@ def make_trial_integrators(
                         xs[i] = x[i] + h * theta * (q0[i] + theta * (q1[i] + theta * (
                             q2[i] + theta * q3[i])))
                     if beyond and _out_of_bounds(xs[:nx], bound):
-                        return last, _BOUND, j * dt, estimate, steps, evaluations
+                        return last, _BOUND, j * dt, steps, evaluations
                     fs = work[_FS]
                     rhs(loop, xs, samples_ref[2 * j], noise, fs)
                     evaluations += 1
                     if beyond and not _finite(fs[:nx]):
-                        return last, _BOUND, j * dt, estimate, steps, evaluations
+                        return last, _BOUND, j * dt, steps, evaluations
                     observe(loop, obs, acc, j, xs, fs)
                     if record:
                         record_sample(trace, j, nx, xs, fs)
                     last = j
                 if beyond:
-                    return last, _BOUND, t_new, estimate, steps, evaluations
-                estimate += math.sqrt(angles)
+                    return last, _BOUND, t_new, steps, evaluations
                 steps += 1
                 t = t_new
                 for i in range(x.shape[0]):  # (element by element: no runtime needed)
@@ -433,24 +534,34 @@ def make_trial_integrators(
                 if noisy and interval + 1 < n and t >= (interval + 1) * dt * (1.0 - 1e-14):
                     # a new noise interval: the measured angles jump, the rates with them
                     interval += 1
-                    load_noise(interval, table, gen, std, noise)
+                    load_noise(interval, table, noise)
                     plan_flag(breaks, local, t, ref)
                     rhs(loop, x, ref, noise, k1)
                     evaluations += 1
                     if not _finite(k1[:nx]):
-                        return last, _BOUND, t, estimate, steps, evaluations
+                        return last, _BOUND, t, steps, evaluations
                     sigma_new = k1[nx]
                     if _flipped(sigma, sigma_new):
-                        return last, _CROSSED, t, estimate, steps, evaluations
+                        if observing:
+                            observe_crossing(acc, t)
+                        if not bounded:
+                            return last, _CROSSED, t, steps, evaluations
                     sigma = sigma_new
                 # the output sample at the step's end, if there is one (exactly)
-                if last < n and (last + 1) * dt <= t * (1.0 + 1e-14):
+                if observing and last < n and (last + 1) * dt <= t * (1.0 + 1e-14):
                     last += 1
                     observe(loop, obs, acc, last, x, k1)
                     if record:
                         record_sample(trace, last, nx, x, k1)
-                if last >= n:
+                if (observing and last >= n) or t >= duration * (1.0 - 1e-14):
                     break
+                if passing:  # on the far side the right-hand side is another: start afresh
+                    stop = (interval + 1) * dt if noisy else duration
+                    h = initial_step(loop, nx, x, k1, ref, noise, rtol, atol, stop - t, y, k2,
+                                     breaks, local, t)
+                    evaluations += 1
+                    rejected = False
+                    continue
                 grow = 10.0 if norm == 0.0 else min(10.0, 0.9 * norm ** -0.2)
                 h = h * (min(1.0, grow) if rejected else grow)
                 rejected = False
@@ -460,7 +571,7 @@ def make_trial_integrators(
                 rejected = True
             if h < floor:
                 event = _STALLED if abs(sigma) < STALL_MARGIN else _STEP_FLOOR
-                return last, event, t, estimate, steps, evaluations
-        return last, _NONE, math.nan, estimate, steps, evaluations
+                return last, event, t, steps, evaluations
+        return n if observing else last, _NONE, math.nan, steps, evaluations
 
     return rk4_trial, adaptive_trial

@@ -69,6 +69,8 @@ class Metric(IntEnum):
     TORQUE_SATURATED = 14
     STEPS = 15
     RHS_EVALUATIONS = 16
+    CROSSINGS = 17
+    FIRST_CROSSING_TIME = 18
 
 
 # the metric columns as plain ints, for the kernels
@@ -89,12 +91,14 @@ _M_PEAK_TORQUE = int(Metric.PEAK_TORQUE)
 _M_TORQUE_SATURATED = int(Metric.TORQUE_SATURATED)
 _M_STEPS = int(Metric.STEPS)
 _M_RHS_EVALUATIONS = int(Metric.RHS_EVALUATIONS)
+_M_CROSSINGS = int(Metric.CROSSINGS)
+_M_FIRST_CROSSING_TIME = int(Metric.FIRST_CROSSING_TIME)
 
 METRIC_NAMES: tuple[str, ...] = tuple(m.name.lower() for m in Metric)
 N_METRICS = len(METRIC_NAMES)
 #: Metrics that count things (integers in the tables).
 COUNT_METRICS: tuple[str, ...] = ("singular_hits", "torque_saturated", "steps",
-                                  "rhs_evaluations")
+                                  "rhs_evaluations", "crossings")
 
 
 class Status(IntEnum):
@@ -147,8 +151,8 @@ class Event(IntEnum):
 #: Accumulator layout (``new_accumulator``): running sums and extremes over the samples.
 _SUM_ET2, _MAX_ET2, _SUM_EY2, _MAX_EY2, _LAST_ET2, _LAST_EY2 = 0, 1, 2, 3, 4, 5
 _HITS, _FIRST, _MIN_MARGIN, _DRIFT, _PEAK_RATE, _COUNT = 6, 7, 8, 9, 10, 11
-_PEAK_TORQUE, _SATURATED = 12, 13
-ACCUMULATOR_SIZE = 14
+_PEAK_TORQUE, _SATURATED, _CROSSINGS, _FIRST_CROSSING = 12, 13, 14, 15
+ACCUMULATOR_SIZE = 16
 
 
 @jitable
@@ -159,6 +163,23 @@ def reset_accumulator(acc: Array) -> None:
     acc[_MIN_MARGIN] = math.inf
     acc[_PEAK_TORQUE] = math.nan
     acc[_SATURATED] = math.nan
+    acc[_FIRST_CROSSING] = math.nan
+
+
+@jitable
+def observe_crossing(acc: Array, t: float) -> None:
+    """The controller's margin changed sign at time t [s] (between output samples: the
+    integrator located it, and went through because the actuators bound the plant's rates
+    there): a crossing, counted among the singular hits with margin 0."""
+    acc[_CROSSINGS] += 1.0
+    if math.isnan(acc[_FIRST_CROSSING]):
+        acc[_FIRST_CROSSING] = t
+
+
+@jitable
+def crossings_of(acc: Array) -> int:
+    """The crossings of the singular set recorded so far."""
+    return int(acc[_CROSSINGS])
 
 
 @jitable
@@ -250,20 +271,26 @@ def plan_momentum_residual(
 def finish_metrics(
     out: Array, acc: Array, complete: bool, dt: float, residual: float, err_estimate: float,
     steps: int, evaluations: int,
-) -> int:
-    """Write the metrics row ``out`` (N_METRICS,) from the running metrics; return the first
-    hit's sample index (-1 if none). ``complete``: the trial reached the end."""
+) -> float:
+    """Write the metrics row ``out`` (N_METRICS,) from the running metrics; return the time
+    of the first singular hit (a sample below the threshold, or a crossing) [s], nan if none.
+    ``complete``: the trial reached the end. A crossing counts as a hit with margin 0."""
     count = acc[_COUNT]
     first = int(acc[_FIRST])
+    crossings = acc[_CROSSINGS]
+    first_hit = first * dt if first >= 0 else math.nan
+    crossed_at = acc[_FIRST_CROSSING]
+    if crossings > 0 and not crossed_at >= first_hit:  # (nan first_hit included)
+        first_hit = crossed_at
     out[_M_ERR_THETA_RMS] = math.sqrt(acc[_SUM_ET2] / count) if count else math.nan
     out[_M_ERR_THETA_MAX] = math.sqrt(acc[_MAX_ET2]) if count else math.nan
     out[_M_ERR_THETA_FINAL] = math.sqrt(acc[_LAST_ET2]) if complete else math.nan
     out[_M_ERR_Y_RMS] = math.sqrt(acc[_SUM_EY2] / count) if count else math.nan
     out[_M_ERR_Y_MAX] = math.sqrt(acc[_MAX_EY2]) if count else math.nan
     out[_M_ERR_Y_FINAL] = math.sqrt(acc[_LAST_EY2]) if complete else math.nan
-    out[_M_SINGULAR_HITS] = acc[_HITS]
-    out[_M_FIRST_HIT_TIME] = first * dt if first >= 0 else math.nan
-    out[_M_MIN_MARGIN] = acc[_MIN_MARGIN] if count else math.nan
+    out[_M_SINGULAR_HITS] = acc[_HITS] + crossings
+    out[_M_FIRST_HIT_TIME] = first_hit
+    out[_M_MIN_MARGIN] = (0.0 if crossings > 0 else acc[_MIN_MARGIN]) if count else math.nan
     out[_M_MOMENTUM_DRIFT] = acc[_DRIFT] if count else math.nan
     out[_M_PLAN_MOMENTUM_RESIDUAL] = residual
     out[_M_ERR_ESTIMATE] = err_estimate
@@ -272,11 +299,19 @@ def finish_metrics(
     out[_M_TORQUE_SATURATED] = acc[_SATURATED]
     out[_M_STEPS] = steps
     out[_M_RHS_EVALUATIONS] = evaluations
-    return first
+    out[_M_CROSSINGS] = crossings
+    out[_M_FIRST_CROSSING_TIME] = crossed_at if crossings > 0 else math.nan
+    return first_hit
+
+
+def _count(value: float) -> int:
+    """A count metric as an int (0 where it is not recorded: nan)."""
+    return int(value) if math.isfinite(value) else 0
 
 
 def describe_status(
-    code: int, event: int, event_time: float, metrics: Array, threshold: float, bound: float
+    code: int, event: int, event_time: float, metrics: Array, threshold: float, bound: float,
+    unverified: str = "",
 ) -> tuple[str, str]:
     """Status name and a one-line reason for a trial.
 
@@ -287,20 +322,32 @@ def describe_status(
     event_time : when it stopped [s] (ignored otherwise)
     metrics : (N_METRICS,) as written by ``finish_metrics``
     threshold : singularity threshold [rad/s]; bound : divergence bound
+    unverified : why a resolved trial's accuracy is not verified ("" if it is:
+        ``simulate.Outcome.unverified``), added to its reason
     """
+    name, reason = _describe(code, event, event_time, metrics, threshold, bound)
+    if name in RESOLVED and unverified:
+        reason = f"{reason}; {unverified}" if reason else unverified
+    return name, reason
+
+
+def _describe(
+    code: int, event: int, event_time: float, metrics: Array, threshold: float, bound: float
+) -> tuple[str, str]:
     status = Status(code)
     at = f"t = {event_time:.6g} s"
     if status is Status.DIVERGED:
         why = Event(event)
         if why is Event.CROSSED:
             return "diverged", (
-                f"crossed the singular set at {at}: the margin sin th1 * u1 changed sign, "
-                "where the feedback is unbounded"
+                f"crossed the singular set at {at}: the controller's margin changed sign, where "
+                "the feedback is unbounded and nothing limits the joint it drives (no finite "
+                "track.rate_limit or plant.torque_limit)"
             )
         if why is Event.STALLED:
             return "diverged", (
-                f"met the singular set at {at}: the step size collapsed where the margin "
-                "sin th1 * u1 vanishes and the feedback is unbounded"
+                f"met the singular set at {at}: the step size collapsed where the controller's "
+                "margin vanishes and the feedback is unbounded"
             )
         return "diverged", f"state non-finite or beyond {bound:g} at {at}"
     if status is Status.UNRESOLVED:
@@ -314,10 +361,20 @@ def describe_status(
             "could not be met there"
         )
     if status is Status.SINGULAR:
-        hits = int(metrics[Metric.SINGULAR_HITS])
+        hits = _count(metrics[Metric.SINGULAR_HITS])
+        crossings = _count(metrics[Metric.CROSSINGS])
+        samples = hits - crossings
+        parts = []
+        if crossings:
+            parts.append(
+                f"crossed the singular set {crossings} time{'s' if crossings > 1 else ''}, first "
+                f"at t = {metrics[Metric.FIRST_CROSSING_TIME]:.6g} s, where the actuators' limits "
+                "kept the plant's rates bounded")
+        if samples:
+            parts.append(f"margin below {threshold:g} rad/s at {samples} samples")
         return "singular", (
-            f"margin |sin th1 * u1| below {threshold:g} rad/s at {hits} samples, first at "
-            f"t = {metrics[Metric.FIRST_HIT_TIME]:.6g} s, min {metrics[Metric.MIN_MARGIN]:.3g}"
+            f"{'; '.join(parts)}; first hit at t = {metrics[Metric.FIRST_HIT_TIME]:.6g} s, min "
+            f"margin {metrics[Metric.MIN_MARGIN]:.3g}"
         )
     if status is Status.ERROR:
         return "error", ""
@@ -334,8 +391,10 @@ __all__ = [
     "Event",
     "Metric",
     "Status",
+    "crossings_of",
     "describe_status",
     "finish_metrics",
+    "observe_crossing",
     "observe_sample",
     "observe_torque",
     "plan_momentum_residual",
@@ -372,12 +431,12 @@ _STATUS_DIVERGED, _STATUS_UNRESOLVED = int(Status.DIVERGED), int(Status.UNRESOLV
 
 
 @jitable
-def status_of(event: int, first: int) -> int:
-    """A trial's ``Status`` from its integrator's ``Event`` and the index of its first sample
-    below the singular threshold (-1: none)."""
+def status_of(event: int, first_hit: float) -> int:
+    """A trial's ``Status`` from its integrator's ``Event`` and the time of its first
+    singular hit (nan: none)."""
     if event != _EVENT_NONE:
         return _STATUS_UNRESOLVED if event >= _EVENT_FIRST_UNRESOLVED else _STATUS_DIVERGED
-    return _STATUS_SINGULAR if first >= 0 else _STATUS_OK
+    return _STATUS_OK if math.isnan(first_hit) else _STATUS_SINGULAR
 
 
 @jitable
@@ -389,15 +448,10 @@ def conclude_trial(
     """Trial i of a batch concluded: its metrics (``finish_metrics``, with the plan's momentum
     ``residual``), status, event and event time [s] (the event's, else the first singular
     sample's, else nan); its trace ``tr`` (n + 1 samples) blanked after the last valid one."""
-    first = finish_metrics(metrics[i], acc, ev == _EVENT_NONE, dt, residual, estimate, steps,
-                           evaluations)
-    status[i] = status_of(ev, first)
+    first_hit = finish_metrics(metrics[i], acc, ev == _EVENT_NONE, dt, residual, estimate,
+                               steps, evaluations)
+    status[i] = status_of(ev, first_hit)
     event[i] = ev
-    if ev != _EVENT_NONE:
-        event_time[i] = t_ev
-    elif first >= 0:
-        event_time[i] = first * dt
-    else:
-        event_time[i] = math.nan
+    event_time[i] = t_ev if ev != _EVENT_NONE else first_hit
     if record and last < n:
         tr[last + 1:, :] = math.nan

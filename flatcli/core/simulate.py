@@ -34,7 +34,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -53,7 +53,7 @@ from flatcli.core.kernels import (
     paper_plant,
 )
 from flatcli.core.lqr import LqrWeights, tracked
-from flatcli.core.metrics import N_METRICS
+from flatcli.core.metrics import N_METRICS, Metric, Status
 from flatcli.core.model import FlatcliError
 from flatcli.core.pieces import PiecewiseCurves
 from flatcli.core.planning import Plan
@@ -74,6 +74,11 @@ INTEGRATORS: tuple[Integrator, ...] = ("adaptive", "rk4", "dop853")
 #: (``lqr``, ``asbuiltloop``).
 Controller = Literal["flat", "asbuilt"]
 CONTROLLERS: tuple[Controller, ...] = ("flat", "asbuilt")
+#: How an adaptive trial's error is estimated (``track.error_estimate``): by a twin at a
+#: hundredth of its tolerances (``Scenario.twin``), or not at all.
+ERROR_ESTIMATES: tuple[str, ...] = ("twin", "none")
+#: The integrators that control their error (``Outcome.verified``).
+ERROR_CONTROLLED: tuple[Integrator, ...] = ("adaptive", "dop853")
 
 #: Columns of a trace: the kinematic plant's state, then the joint rates it applies.
 TRACE_COLUMNS: tuple[str, ...] = (
@@ -112,6 +117,14 @@ def chain_dynamic_trace_columns(n: int) -> tuple[str, ...]:
 DEFAULT_RTOL = 5e-8
 DEFAULT_ATOL = 1e-10
 DEFAULT_MAX_STEPS = 100_000
+#: The largest err_estimate of a verified trial [rad] (``Scenario.accuracy``).
+DEFAULT_ACCURACY = 1e-6
+#: The factor on the tolerances of the twin that estimates a trial's error (``Scenario.twin``).
+TWIN_FACTOR = 0.01
+#: The twin's relative tolerance is not set below this (100 x float64's epsilon, as scipy's
+#: solve_ivp); where that leaves it above TWIN_USEFUL x the trial's, there is no estimate.
+TWIN_RTOL_FLOOR = 100 * float(np.finfo(float).eps)
+TWIN_USEFUL = 0.5
 #: Most output intervals (duration / dt) a scenario may have: its reference tables take
 #: 112 bytes per interval, and every trial observes every sample.
 MAX_STEPS_PER_TRIAL = 10_000_000
@@ -152,6 +165,10 @@ class Scenario:
     lqr : the as-built law's weights (``lqr.LqrWeights``)
     servo_bandwidth : the dynamic plant's nominal servo bandwidth [rad/s], the lag the
         as-built law is designed for there
+    twin : the adaptive integrator's error estimate: each trial reaching T is integrated a
+        second time at its tolerances times this factor in (0, 1) (``kernels.make_batch``;
+        not below ``TWIN_RTOL_FLOOR``); 0 for no estimate (``err_estimate`` null)
+    accuracy : the largest err_estimate of a verified trial [rad] (``Outcome.verified``)
     """
 
     plan: Plan
@@ -169,6 +186,8 @@ class Scenario:
     controller: Controller = "flat"
     lqr: LqrWeights = field(default_factory=LqrWeights)
     servo_bandwidth: float = DEFAULT_SERVO_BANDWIDTH
+    twin: float = TWIN_FACTOR
+    accuracy: float = DEFAULT_ACCURACY
     n_steps: int = field(init=False)
 
     def __post_init__(self) -> None:
@@ -198,6 +217,11 @@ class Scenario:
             raise FlatcliError(f"track.atol: must be a finite number > 0, got {self.atol}")
         if not self.max_steps >= 1:
             raise FlatcliError(f"track.max_steps: must be >= 1, got {self.max_steps}")
+        if not self.accuracy > 0:
+            raise FlatcliError(f"track.accuracy: must be > 0 rad, got {self.accuracy}")
+        if not (self.twin == 0 or 0 < self.twin < 1):
+            raise FlatcliError(f"track.error_estimate: the twin's factor must be 0 (none) or "
+                               f"in (0, 1), got {self.twin}")
         if self.plant not in PLANT_MODELS:
             raise FlatcliError(
                 f"plant.model: expected one of {list(PLANT_MODELS)}, got {self.plant!r}")
@@ -386,6 +410,10 @@ class Outcome:
         torques and command, ``DYNAMIC_TRACE_COLUMNS``), nan after the last valid sample,
         if recorded
     columns : names of the trace's columns
+    integrator : the integrator that ran them (``INTEGRATORS``)
+    estimated : whether each trial reaching T had its error estimated (the adaptive
+        integrator with a twin, ``Scenario.twin``); accuracy : the largest err_estimate of a
+        verified trial [rad] (``Scenario.accuracy``)
     """
 
     metrics: Array
@@ -394,6 +422,40 @@ class Outcome:
     event_time: Array
     trace: Array | None
     columns: tuple[str, ...] = TRACE_COLUMNS
+    integrator: Integrator = "adaptive"
+    estimated: bool = False
+    accuracy: float = math.inf
+
+    @cached_property
+    def verified(self) -> NDArray[np.bool_]:
+        """(N,) whether each trial's accuracy was verified: it was resolved to the end
+        (``ok`` or ``singular``) by an integrator that controls its error
+        (``ERROR_CONTROLLED``: every accepted step of the adaptive one met track.rtol and
+        track.atol; DOP853 is the reference) and, where its error was estimated, its
+        err_estimate is at most ``accuracy`` (a twin that failed leaves it unverified).
+        Fixed-step RK4 has no tolerance: its trials are never verified, whatever their
+        status."""
+        resolved = (self.status == int(Status.OK)) | (self.status == int(Status.SINGULAR))
+        if self.estimated:
+            with np.errstate(invalid="ignore"):
+                resolved &= self.metrics[:, Metric.ERR_ESTIMATE] <= self.accuracy
+        return np.asarray(resolved & (self.integrator in ERROR_CONTROLLED), dtype=bool)
+
+    def unverified(self, i: int) -> str:
+        """Why resolved trial i is not verified, in one clause ("" if it is, or if it is not
+        resolved: its status says what happened)."""
+        resolved = int(self.status[i]) in (int(Status.OK), int(Status.SINGULAR))
+        if not resolved or self.verified[i]:
+            return ""
+        if self.integrator not in ERROR_CONTROLLED:
+            return (f"not verified: fixed-step {self.integrator} has no error control and no "
+                    "err_estimate")
+        estimate = float(self.metrics[i, Metric.ERR_ESTIMATE])
+        if math.isnan(estimate):
+            return ("not verified: its error could not be estimated (the twin at a hundredth "
+                    "of the tolerances did not reach T)")
+        return (f"not verified: err_estimate {estimate:.3g} rad exceeds track.accuracy "
+                f"{self.accuracy:g} rad")
 
 
 def plant_coefficients(links: Array) -> Array:
@@ -437,7 +499,8 @@ def kernel_inputs(scenario: Scenario, trials: Trials) -> tuple[
                 plan_theta_dot)
     settings = Settings(float(scenario.dt), float(scenario.divergence_bound),
                         float(scenario.singular_threshold), float(scenario.rtol),
-                        float(scenario.atol), int(scenario.max_steps), False)
+                        float(scenario.atol), int(scenario.max_steps), False,
+                        twin_factor(scenario))
     shared = kernels.shared(plan.model, scenario.gains, scenario.rate_limit,
                             scenario.servo_model == "plant", plan.robot)
     if scenario.controller == "asbuilt" and scenario.plant == "dynamic":
@@ -463,6 +526,27 @@ def closed_loop_rhs(scenario: Scenario, trials: Trials, i: int = 0) -> Callable[
         return out[:nx].copy()
 
     return rhs
+
+
+def twin_factor(scenario: Scenario) -> float:
+    """The factor on the tolerances of a trial's twin (``Scenario.twin``), raised to keep the
+    twin's rtol at ``TWIN_RTOL_FLOOR`` or more; 0 (no twin) where that would leave it above
+    ``TWIN_USEFUL``."""
+    if scenario.twin == 0:
+        return 0.0
+    factor = max(float(scenario.twin), TWIN_RTOL_FLOOR / float(scenario.rtol))
+    return factor if factor <= TWIN_USEFUL else 0.0
+
+
+def closed_loop_start(scenario: Scenario, trials: Trials, i: int = 0) -> Array:
+    """The plant's state at t = 0 of trial i, as ``closed_loop_rhs`` integrates it (nx,): the
+    kinematic plant's th, u1; the dynamic plant's th, th' (th1'(0) = u1(0), th2'(0) = the
+    controller's first command) and u1."""
+    kernels, shared, arrays, grid, _ = kernel_inputs(scenario, trials)
+    joints = scenario.n_joints
+    out = np.empty(kernels.ops.state(joints))
+    kernels.single[0](shared, arrays, i, grid, kernels.buffers(joints, 3 * joints), out)
+    return out
 
 
 def simulate(
@@ -511,31 +595,65 @@ def simulate(
         method = RK4 if integrator == "rk4" else ADAPTIVE
         buffers = kernels.buffers(joints, grid.ref.shape[1])
 
-        def run(rows: slice, tables: Array, gen: np.random.Generator, std: float) -> None:
+        def run(rows: slice, tables: Array) -> None:
             part = TrialArrays(*(a[rows] for a in arrays))
             trace = results.trace[rows] if record else results.trace
             out = Results(results.metrics[rows], results.status[rows], results.event[rows],
                           results.event_time[rows], trace)
-            kernels.batch(method, shared, part, grid, settings, tables, gen, std, buffers,
-                          out)
+            kernels.batch(method, shared, part, grid, settings, tables, buffers, out)
 
-        _run_with_noise(run, trials, angles)
+        _run_with_noise(run, trials, n, angles)
     return Outcome(results.metrics, results.status, results.event, results.event_time,
-                   results.trace if record else None, columns)
+                   results.trace if record else None, columns, integrator,
+                   integrator == "adaptive" and settings.twin > 0, float(scenario.accuracy))
 
 
-def _run_with_noise(run: Callable[[slice, Array, np.random.Generator, float], None],
-                    trials: Trials, angles: int) -> None:
+class ReferenceCheck(NamedTuple):
+    """Trials run again by the reference integrator and compared (``check_against_reference``).
+
+    difference : (N,) max over the output samples both runs reached (t = 0 at least) of the
+        Euclidean norm of the difference of their angles th0..thN [rad]
+    status : (N,) the reference's ``metrics.Status`` codes
+    """
+
+    difference: Array
+    status: NDArray[np.int64]
+
+
+#: Trials run at once by ``check_against_reference`` (each keeps two traces).
+CHECK_BATCH = 16
+
+
+def check_against_reference(scenario: Scenario, trials: Trials, integrator: Integrator
+                            ) -> ReferenceCheck:
+    """Run trials with ``integrator`` and with DOP853 (``reference.REFERENCE_RTOL``), both
+    recording their traces (recording does not change a run: the same arithmetic, bit for
+    bit), and compare the angles sample by sample; ``CHECK_BATCH`` trials at a time."""
+    angles = scenario.n_joints + 1
+    difference = np.full(trials.count, math.nan)
+    status = np.zeros(trials.count, dtype=np.int64)
+    for start in range(0, trials.count, CHECK_BATCH):
+        rows = slice(start, min(start + CHECK_BATCH, trials.count))
+        part = trials.subset(rows)
+        ours = simulate(scenario, part, integrator, record=True)
+        theirs = simulate(scenario, part, "dop853", record=True)
+        assert ours.trace is not None and theirs.trace is not None
+        gap = np.linalg.norm(ours.trace[:, :, :angles] - theirs.trace[:, :, :angles], axis=2)
+        difference[rows] = np.nanmax(gap, axis=1)  # sample 0 is in both
+        status[rows] = theirs.status
+    return ReferenceCheck(difference, status)
+
+
+def _run_with_noise(run: Callable[[slice, Array], None], trials: Trials, n: int,
+                    angles: int) -> None:
     """Call a kernel over the trials with their noise: streamed noise one trial at a time
-    (each has its own generator), a table or none all at once."""
-    quiet = np.random.default_rng(0)  # drawn from only when std > 0 and no table is given
+    (its table drawn from its own generator, ``Trials.noise_table``: the trial and its twin
+    see the same noise), a table or none all at once."""
     noise = trials.noise
     if isinstance(noise, NoiseStreams) and noise.std > 0:
-        none = np.zeros((1, 0, angles))
         for i in range(trials.count):
-            run(slice(i, i + 1), none, noise_generator(noise.seed, int(noise.trial_ids[i])),
-                float(noise.std))
+            run(slice(i, i + 1), np.ascontiguousarray(trials.noise_table(i, n)[None]))
     else:
         tables = np.ascontiguousarray(noise, dtype=float) if isinstance(noise, np.ndarray) \
             else np.zeros((trials.count, 0, angles))
-        run(slice(0, trials.count), tables, quiet, 0.0)
+        run(slice(0, trials.count), tables)

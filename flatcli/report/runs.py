@@ -13,7 +13,7 @@ from flatcli.report.tables import fmt, table
 
 
 def plan_summary(plan: Plan, samples: PlanSamples) -> dict[str, float]:
-    """The headline numbers of a plan (see the README for definitions): ``max_abs_theta{i}``
+    """The headline numbers of a plan (see docs/outputs.md for definitions): ``max_abs_theta{i}``
     and ``peak_rate{i}`` for every angle th0..thN."""
     t_min = float(samples.t[int(np.argmin(samples.margin))])
     links = samples.theta.shape[1]

@@ -2,7 +2,10 @@
 
 Statistics of a trial's numbers (errors, margin, drift, peak rate, error estimate) are taken
 over the trials resolved to the end (``RESOLVED``: ok, singular) only: a diverged or unresolved
-trial's numbers stop at an arbitrary time and an error trial has none. What is left out is
+trial's numbers stop at an arbitrary time and an error trial has none. Of those, the verified
+trials (``verified``: an integrator that controls its error) and the unverified ones (fixed-step
+RK4) are never averaged together: a cell's statistics are over its verified trials if it has
+any, else over its unverified ones, and ``statistics_of`` says which. What is left out is
 counted instead: per status, and as fractions of the cell's trials with a 95 % Wilson score
 interval (``wilson_interval``), so a reader sees how much each statistic leaves out.
 """
@@ -16,29 +19,34 @@ from typing import Any
 import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
-from scipy.special import ndtri
+from scipy.stats import binomtest
 
-from flatcli.core.metrics import RESOLVED, STATUS_NAMES
+from flatcli.core.metrics import METRIC_NAMES, RESOLVED, STATUS_NAMES
 from flatcli.report.tables import fmt, table
 
 Array = NDArray[np.float64]
 
 #: Trials whose numbers enter the statistics: those resolved to the end (``RESOLVED``).
 COMPLETED = RESOLVED
+#: The columns of trials.parquet that ``summarize_trials`` reads (those after the metrics
+#: may be missing: a directory written before flatcli recorded them).
+SUMMARY_INPUTS: tuple[str, ...] = tuple(dict.fromkeys((
+    "cell", "status", "singular_hits", *METRIC_NAMES, "verified", "reference_difference",
+    "reference_status")))
 ERROR_METRICS = ("err_theta_rms", "err_theta_final", "err_y_rms", "err_y_final")
 #: Statuses of trials that did not run to the end, reported as fractions of a cell's trials.
 FAILURES = ("diverged", "unresolved", "error")
-#: The standard normal quantile of a two-sided 95 % interval, Phi^-1(0.975) = 1.95996...
-Z95 = float(ndtri(0.975))
 
 
-def wilson_interval(successes: Any, trials: Any, z: float = Z95) -> tuple[Array, Array]:
-    """Wilson score interval of a binomial proportion (95 % by default).
+def wilson_interval(successes: Any, trials: Any, confidence: float = 0.95
+                    ) -> tuple[Array, Array]:
+    """Wilson score interval of a binomial proportion (95 % by default), scipy's
+    (``scipy.stats.binomtest(k, n).proportion_ci(confidence, method="wilson")``).
 
-    With p = k / n: (p + z^2 / 2n -+ z sqrt(p (1 - p) / n + z^2 / 4n^2)) / (1 + z^2 / n)
-    (Wilson 1927; Brown, Cai, DasGupta, Statist. Sci. 16, 2001). Unlike p -+ z sqrt(p (1 - p) /
-    n) it stays inside [0, 1] and is not empty at k = 0 or k = n, which is where a sweep's
-    failure counts usually are.
+    With p = k / n and z = Phi^-1((1 + confidence) / 2): (p + z^2 / 2n -+ z sqrt(p (1 - p) /
+    n + z^2 / 4n^2)) / (1 + z^2 / n) (Wilson 1927; Brown, Cai, DasGupta, Statist. Sci. 16,
+    2001). Unlike p -+ z sqrt(p (1 - p) / n) it stays inside [0, 1] and is not empty at
+    k = 0 or k = n, which is where a sweep's failure counts usually are.
 
     Parameters
     ----------
@@ -49,23 +57,19 @@ def wilson_interval(successes: Any, trials: Any, z: float = Z95) -> tuple[Array,
     -------
     low, high : arrays of k's shape
     """
-    k = np.asarray(successes, dtype=np.float64)
-    n = np.asarray(trials, dtype=np.float64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        p = k / n
-        z2n = z * z / n
-        centre = (p + z2n / 2) / (1 + z2n)
-        half = z * np.sqrt(p * (1 - p) / n + z2n / (4 * n)) / (1 + z2n)
-    # exact ends: the interval of k = 0 starts at 0, that of k = n ends at 1 (the formula's
-    # centre - half and centre + half, there, differ from them by rounding only)
-    low = np.where(k == 0, 0.0, np.clip(centre - half, 0.0, 1.0))
-    high = np.where(k == n, 1.0, np.clip(centre + half, 0.0, 1.0))
-    return np.where(n > 0, low, np.nan), np.where(n > 0, high, np.nan)
+    k, n = np.broadcast_arrays(np.asarray(successes), np.asarray(trials))
+    low = np.full(k.shape, np.nan)
+    high = np.full(k.shape, np.nan)
+    for i in np.ndindex(k.shape):
+        if n[i] > 0:
+            ci = binomtest(int(k[i]), int(n[i])).proportion_ci(confidence, method="wilson")
+            low[i], high[i] = float(ci.low), float(ci.high)
+    return low, high
 
 
 def summarize_trials(frame: pd.DataFrame, cells: Mapping[int, Mapping[str, Any]]
                      ) -> pd.DataFrame:
-    """Per-cell statistics of a sweep's trials (definitions in the README, *Sweep output*).
+    """Per-cell statistics of a sweep's trials (definitions in docs/outputs.md, *Sweep output*).
 
     Parameters
     ----------
@@ -87,7 +91,10 @@ def summarize_trials(frame: pd.DataFrame, cells: Mapping[int, Mapping[str, Any]]
     for cell, values in cells.items():
         group = frame[frame["cell"] == cell]
         status = group["status"]
-        done = group[status.isin(RESOLVED)]
+        resolved = group[status.isin(RESOLVED)]
+        sure = _flag(resolved, "verified")
+        kind = "verified" if sure.any() else "unverified" if len(resolved) else None
+        done = resolved[sure] if sure.any() else resolved
         simulated = group[status != "error"]
         row: dict[str, Any] = {"cell": cell, **values, "trials": len(group)}
         for name in STATUS_NAMES:
@@ -115,8 +122,35 @@ def summarize_trials(frame: pd.DataFrame, cells: Mapping[int, Mapping[str, Any]]
             values_ = _present(done[metric])
             row[f"{metric}_median"] = _stat(np.median, values_)
             row[f"{metric}_max"] = _stat(np.max, values_)
+        row["verified_trials"] = int(sure.sum())
+        row["unverified_trials"] = len(resolved) - row["verified_trials"]
+        row["statistics_of"] = kind
+        _reference(row, group)
         rows.append(row)
     return pd.DataFrame(rows)
+
+
+def _flag(frame: pd.DataFrame, column: str) -> Array:
+    """A boolean column as a numpy mask (False where it is missing or null: a directory
+    written before flatcli recorded it has no verified trials)."""
+    if column not in frame:
+        return np.zeros(len(frame), dtype=bool)
+    return np.asarray(frame[column].fillna(False).astype(bool).to_numpy(), dtype=bool)
+
+
+def _reference(row: dict[str, Any], group: pd.DataFrame) -> None:
+    """The cell's trials checked against the reference integrator (``sweep.verify``): how
+    many, how far they were from it (median, max) and how many ended with another status."""
+    if "reference_status" in group:
+        checked = group[group["reference_status"].notna()]
+    else:
+        checked = group.iloc[:0]
+    row["reference_checked"] = len(checked)
+    gap = _present(checked["reference_difference"]) if len(checked) else np.zeros(0)
+    row["reference_difference_median"] = _stat(np.median, gap)
+    row["reference_difference_max"] = _stat(np.max, gap)
+    row["reference_status_mismatches"] = int(
+        (checked["reference_status"] != checked["status"]).sum()) if len(checked) else 0
 
 
 def _present(column: pd.Series) -> Array:
@@ -157,6 +191,14 @@ def summary_markdown(summary: pd.DataFrame, grid_keys: Sequence[str]) -> str:
         return [[int(r["cell"]), *(cell_text(r[c]) for c in cols)]
                 for _, r in summary.iterrows()]
 
+    def marked(lines: list[list[object]]) -> list[list[object]]:
+        """Rows whose statistics are over unverified trials: the cell marked *."""
+        kinds = summary.get("statistics_of")
+        if kinds is None:
+            return lines
+        return [[f"{line[0]}*" if kind == "unverified" else line[0], *line[1:]]
+                for line, kind in zip(lines, kinds, strict=True)]
+
     def shares(names: Sequence[str]) -> list[list[object]]:
         return [[int(r["cell"]), *(with_interval(r[f"{n}_fraction"], r[f"{n}_fraction_low"],
                                                  r[f"{n}_fraction_high"]) for n in names)]
@@ -170,6 +212,13 @@ def summary_markdown(summary: pd.DataFrame, grid_keys: Sequence[str]) -> str:
         "### Trials by status\n",
         table(["cell", "trials", *STATUS_NAMES, "resolved"],
               rows(["trials", *STATUS_NAMES, "resolved"])),
+        "\n### Accuracy of the resolved trials\n",
+        table(["cell", "resolved", "verified", "unverified", "statistics of"],
+              rows(["resolved", "verified_trials", "unverified_trials", "statistics_of"])),
+        "\nverified: resolved by an integrator that controls its error (adaptive, dop853),\n"
+        "err_estimate (where estimated) within track.accuracy. A cell's statistics below\n"
+        "are over its verified trials, or over its unverified ones (rk4, or estimates too\n"
+        "large) if it has none: such cells are marked * and never averaged with others.",
         "\n### Failures and singular hits [% of trials, 95 % interval]\n",
         table(["cell", "diverged", "unresolved", "error", "singular hit"],
               shares([*FAILURES, "singular"])),
@@ -183,7 +232,7 @@ def summary_markdown(summary: pd.DataFrame, grid_keys: Sequence[str]) -> str:
         parts += [
             f"\n### Tracking error of {name} [rad] (resolved trials: ok, singular)\n",
             table(["cell", "rms med", "rms p95", "rms max", "final med", "final p95",
-                   "final max"], rows(cols), 3),
+                   "final max"], marked(rows(cols)), 3),
         ]
     parts += [
         "\n### Singularity, momentum and integration (resolved trials)\n",
@@ -193,8 +242,19 @@ def summary_markdown(summary: pd.DataFrame, grid_keys: Sequence[str]) -> str:
                     "plan_momentum_residual_max", "err_estimate_max"]), 3),
         "\nmargin med: median of min_margin [rad/s]; peak rate [rad/s]; drift and plan\n"
         "res(idual) of H [kg m^2/s]; err est: the adaptive integrator's estimate of its\n"
-        "global error in theta at the end [rad] (- for rk4 and dop853).",
+        "global error in theta at the end [rad] (- for rk4, dop853 and\n"
+        "track.error_estimate = \"none\").",
     ]
+    if "reference_checked" in summary and (summary["reference_checked"] > 0).any():
+        parts += [
+            "\n### Checked against the reference (sweep.verify)\n",
+            table(["cell", "checked", "diff med", "diff max", "other status"],
+                  rows(["reference_checked", "reference_difference_median",
+                        "reference_difference_max", "reference_status_mismatches"]), 3),
+            "\nchecked: trials re-run with DOP853 at rtol 1e-10; diff: max over the samples\n"
+            "of the norm of the angles' difference [rad]; other status: checked trials whose\n"
+            "reference ended with another status.",
+        ]
     return "\n".join(parts)
 
 

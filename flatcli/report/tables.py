@@ -1,5 +1,6 @@
-"""Markdown tables: aligned columns that read well on a terminal and render in REPORT.md and
-summary.md alike."""
+"""Markdown tables, the one helper every table of flatcli goes through: aligned columns that
+read well on a terminal and render in REPORT.md and summary.md alike, or compact rows for
+documents whose cells are long (the spec tables of docs/spec.md)."""
 
 from __future__ import annotations
 
@@ -31,14 +32,22 @@ def fmt(value: object, digits: int = 4) -> str:
     return str(value)
 
 
-def table(headers: Sequence[str], rows: Sequence[Sequence[object]], digits: int = 4) -> str:
-    """An aligned Markdown table; numbers right-aligned."""
-    cells = [[fmt(v, digits) for v in row] for row in rows]
-    widths = [
-        max(len(h), *(len(r[i]) for r in cells)) if cells else len(h) for i, h in enumerate(headers)
-    ]
+def table(headers: Sequence[str], rows: Sequence[Sequence[object]], digits: int = 4,
+          align: bool = True) -> str:
+    """A Markdown table; numbers right-aligned. ``align``: columns padded to one width (for
+    a terminal), else each row as short as it can be (for a document with long cells). A
+    ``|`` in a cell is escaped, so no cell can split its row."""
+    cells = [[fmt(v, digits).replace("|", "\\|") for v in row] for row in rows]
     numeric = [
         all(_is_number(row[i]) for row in rows) if rows else False for i in range(len(headers))
+    ]
+    if not align:
+        rule = "|" + "|".join("---:" if num else "---" for num in numeric) + "|"
+        return "\n".join(["| " + " | ".join(items) + " |"
+                          for items in [list(headers)]] + [rule] +
+                         ["| " + " | ".join(r) + " |" for r in cells])
+    widths = [
+        max(len(h), *(len(r[i]) for r in cells)) if cells else len(h) for i, h in enumerate(headers)
     ]
 
     def line(items: Sequence[str]) -> str:

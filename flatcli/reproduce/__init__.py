@@ -17,6 +17,7 @@ from importlib import resources
 from pathlib import Path
 
 from flatcli import __version__
+from flatcli.report.figures import FigureFile
 from flatcli.reproduce import actuators, asbuilt, chains, montecarlo, optimized, paper
 from flatcli.reproduce.sections import Context, Result, Section, Steps, compute_or_reuse
 from flatcli.reproduce.sections import stored_result as _stored
@@ -91,19 +92,22 @@ def report_text(results: list[Result], missing: list[Section], command: str | No
 def reproduce(out: Path, montecarlo: Path | None, quiet: bool = False,
               workers: int | None = None, sets: tuple[str, ...] = (),
               command: str | None = None, only: tuple[str, ...] = (),
-              force: bool = False) -> tuple[Path, list[Result]]:
+              force: bool = False, figures: FigureFile | None = None
+              ) -> tuple[Path, list[Result]]:
     """Run everything ``make reproduce`` promises into ``out``; return REPORT.md's path and
     the sections' results (their headlines, whether each was reused).
 
     ``only``: compute these sections (reused if unchanged, unless ``force``) and keep the
     others' last valid results in the report; ``force``: compute again every section run.
-    ``command``: the command line, recorded at the end of REPORT.md.
+    ``command``: the command line, recorded at the end of REPORT.md; ``figures``: the format
+    and resolution of every figure (default png, 150 dots per inch).
     """
     started = time.perf_counter()
     check_inputs(out, montecarlo, workers, sets, only)
     steps = Steps(quiet)
     with directory_lock(out):
-        context = Context(out, resolve({}), montecarlo, sets, workers, steps)
+        context = Context(out, resolve({}), montecarlo, sets, workers, steps,
+                          figures or FigureFile())
         wanted = [s for s in SECTIONS if s.wanted(context)]
         run = [s for s in wanted if not only or s.name in only]
         results: list[Result] = []

@@ -20,13 +20,23 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-from scipy.stats import binomtest
 
 from flatcli.core.dynamics import make_chain
 from flatcli.core.metrics import STATUS_NAMES
 from flatcli.core.plant import DEFAULT_SERVO_BANDWIDTH
 from flatcli.experiment import flat_plan_from, robot_from, run_track
-from flatcli.report import COMPLETED, Progress, fmt, new_figure, save_figure, table
+from flatcli.report import (
+    COMPLETED,
+    FigureFile,
+    Progress,
+    fmt,
+    new_figure,
+    save_figure,
+    styled,
+    table,
+)
+from flatcli.report.figures import PAGE_WIDTH
+from flatcli.report.summary import wilson_interval
 from flatcli.reproduce.findings import OPTIMIZED_PLANS
 from flatcli.reproduce.sections import Context, Outcome, Section, Steps
 from flatcli.spec import Spec, load_spec
@@ -34,7 +44,7 @@ from flatcli.storage import run_record, write_parquet
 
 #: The study's spec, shipped with flatcli (package data; configs/ links to it).
 STUDY = Path(str(resources.files("flatcli") / "data" / "actuators_montecarlo.toml"))
-#: The feedback of this section: the gains swapped (README, "The gains").
+#: The feedback of this section: the gains swapped (docs/physics.md, "The gains").
 SWAPPED = {"track.kp": [100.0, 110.0], "track.kv": [10.0, 13.0]}
 #: A cell is trackable when no trial is lost (every one resolved to the end) and the 95th
 #: percentile of the final angle error is at most this [rad].
@@ -195,18 +205,19 @@ def limit_text(limit: float) -> str:
 
 def lost_interval(lost: float, trials: int) -> tuple[float, float]:
     """95 % Wilson interval of a fraction of trials lost."""
-    ci = binomtest(round(lost * trials), trials).proportion_ci(0.95, method="wilson")
-    return float(ci.low), float(ci.high)
+    low, high = wilson_interval(round(lost * trials), trials)
+    return float(low), float(high)
 
 
+@styled
 def plot_study(cells: pd.DataFrame, kinematic: Mapping[str, tuple[float, float]],
-               path: Path) -> None:
+               path: Path, figures: FigureFile | None = None) -> None:
     """Final angle error (95th percentile, resolved trials) and the fraction of trials lost
     (with its 95 % Wilson interval) against servo bandwidth, one panel per maneuver, one line
     per torque limit."""
     maneuvers = list(dict.fromkeys(cells[MANEUVER]))
     limits = list(dict.fromkeys(cells[LIMIT]))
-    fig = new_figure(4.2 * len(maneuvers), 7.5)
+    fig = new_figure(max(PAGE_WIDTH, 2.6 * len(maneuvers)), 5.2)
     ax = fig.subplots(2, len(maneuvers), sharex=True, squeeze=False)
     for j, maneuver in enumerate(maneuvers):
         sel = cells[cells[MANEUVER] == maneuver]
@@ -215,29 +226,31 @@ def plot_study(cells: pd.DataFrame, kinematic: Mapping[str, tuple[float, float]]
             label = ("no torque limit" if math.isinf(limit)
                      else f"torque limit {limit_text(limit)} N m")
             ax[0, j].loglog(line[BANDWIDTH], line["err_final_p95"], "o-", color=f"C{k}",
-                            label=label, ms=7 - k, lw=2.5 - 0.4 * k)
+                            label=label, ms=5 - 0.6 * k, lw=1.8 - 0.3 * k)
             bounds = np.array([lost_interval(r["lost"], r["trials"])
                                for _, r in line.iterrows()])
             spread = np.abs(bounds.T - line["lost"].to_numpy())
             ax[1, j].errorbar(line[BANDWIDTH] * 1.04 ** (k - 2), line["lost"], yerr=spread,
-                              fmt="o-", color=f"C{k}", label=label, ms=4, capsize=2)
+                              fmt="o-", color=f"C{k}", label=label, ms=4, capsize=2,
+                              clip_on=False)
             ax[1, j].set_xscale("log")
         level, lost = kinematic[maneuver]
         ax[0, j].axhline(level, color="k", ls=":", label="kinematic plant")
         ax[0, j].axhline(TRACKABLE_ERROR, color="0.5", ls="--", label="trackable")
         ax[1, j].axhline(lost, color="k", ls=":", label="kinematic plant")
-        ax[0, j].set_title(textwrap.fill(maneuver, 40), fontsize=10)
-        ax[1, j].set_xlabel("servo bandwidth [rad/s]")
-        ax[1, j].set_ylim(-0.03, 1.03)
+        ax[0, j].set_title(textwrap.fill(maneuver, 40))
+        ax[1, j].set_xlabel("servo bandwidth $b$ [rad/s]")
+        ax[1, j].set_ylim(0.0, 1.03)  # a fraction is never below 0
         for a in ax[:, j]:
-            a.grid(alpha=0.3, which="both")
-    ax[0, 0].set_ylabel("final angle error, 95th percentile [rad]")
-    ax[1, 0].set_ylabel("fraction of trials lost (95 % Wilson interval)")
-    ax[0, -1].legend(fontsize=7)
+            a.grid(which="both")
+    ax[0, 0].set_ylabel("final angle error,\n95th percentile [rad]")
+    ax[1, 0].set_ylabel("fraction of trials lost\n(95 % Wilson interval)")
+    ax[0, -1].legend()
     fig.suptitle("The maneuver on the robot with inertia: tracking against servo bandwidth "
-                 "and torque limit (gains swapped, th(0) errors of std 2 mrad)")
+                 "and torque limit\n(dynamic plant, gains swapped, $\\theta(0)$ errors of std "
+                 "2 mrad, no sensor noise)")
     fig.tight_layout()
-    save_figure(fig, path)
+    save_figure(fig, path, figures)
 
 
 def _bandwidths(values: pd.Series) -> str:
@@ -305,7 +318,8 @@ def run(context: Context) -> Outcome:
         "## What the maneuver asks of the actuators",
         "",
         "On the robot with inertia (`plant.model = \"dynamic\"`: free-floating multibody "
-        "dynamics driven by joint torques from rate servos; README, *The dynamic plant*). "
+        "dynamics driven by joint torques from rate servos; flatcli's docs/physics.md, "
+        "*The dynamic plant*). "
         "*Plan*: the joint torques M q'' + C q' that follow the plan exactly (inverse "
         f"dynamics on {PLAN_SAMPLES} samples, accelerations by complex step) and its peak "
         f"joint rate. *Closed loop*: the feedback with the gains swapped, servo bandwidth "
@@ -329,7 +343,7 @@ def run(context: Context) -> Outcome:
                                                      context.sets)
     cells = cell_table(trials)
     kinematic = kinematic_levels(kinematic_trials)
-    plot_study(cells, kinematic, out / "fig_actuators.png")
+    plot_study(cells, kinematic, out / context.figures.name("fig_actuators"), context.figures)
     write_parquet(out / "actuators" / "cells.parquet", cells,
                   run_record("reproduce", spec.tree, study=STUDY.name))
     record_cells(out / "actuators")
@@ -367,7 +381,7 @@ def run(context: Context) -> Outcome:
         "the actuators are the only difference from the kinematic plant). The same trials on "
         f"the kinematic plant: 95th percentile of the final angle error {levels}. Files: "
         "`actuators/` (trials.parquet, summary.md, cells.parquet; `kinematic/`), figure "
-        "`fig_actuators.png`.",
+        f"`{context.figures.name('fig_actuators')}`.",
         "",
         finding(cells, by_label),
         "",
@@ -390,7 +404,7 @@ def run(context: Context) -> Outcome:
 
 
 #: The files this section writes (globs under the output directory).
-FILES = ("actuators/**/*", "fig_actuators.png")
+FILES = ("actuators/**/*", "fig_actuators.*")
 
 
 def inputs(context: Context) -> dict[str, Any]:

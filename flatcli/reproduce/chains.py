@@ -24,7 +24,8 @@ from flatcli.core.model import RobotParams, flatness_check
 from flatcli.core.planning import Plan
 from flatcli.experiment import TrackRun, plan_from, robot_from, run_track
 from flatcli.outputs import plan_frame, track_frame
-from flatcli.report import Progress, fmt, new_figure, save_figure, table
+from flatcli.report import FigureFile, Progress, fmt, new_figure, save_figure, styled, table
+from flatcli.report.figures import PAGE_WIDTH
 from flatcli.reproduce.sections import Context, Outcome, Section
 from flatcli.spec import Spec, load_spec
 from flatcli.storage import run_record, write_parquet
@@ -119,10 +120,12 @@ def closed_loop_rows(spec: Spec) -> tuple[list[list[Any]], dict[str, TrackRun]]:
     return rows, runs
 
 
-def plot_chains(runs: dict[str, tuple[Plan, TrackRun]], path: Path) -> None:
+@styled
+def plot_chains(runs: dict[str, tuple[Plan, TrackRun]], path: Path,
+                figures: FigureFile | None = None) -> None:
     """Per robot: the planned angles (solid) and the closed loop's from the perturbed start
     on the dynamic plant (dashed), and the closed loop's flat-output errors (log scale)."""
-    fig = new_figure(11, 4.2 * len(runs))
+    fig = new_figure(PAGE_WIDTH, 2.6 * len(runs))
     axes = fig.subplots(len(runs), 2, squeeze=False)
     for row, (name, (plan, run)) in enumerate(runs.items()):
         n = plan.robot.n_joints
@@ -130,25 +133,26 @@ def plot_chains(runs: dict[str, tuple[Plan, TrackRun]], path: Path) -> None:
         t = cols["t"]
         ax = axes[row, 0]
         for i in range(n + 1):
-            ax.plot(t, cols[f"theta{i}_ref"], color=f"C{i}", label=f"th{i}")
+            ax.plot(t, cols[f"theta{i}_ref"], color=f"C{i}", label=f"$\\theta_{i}$")
             ax.plot(t, cols[f"theta{i}"], "--", color=f"C{i}")
-        ax.set_title(f"{name}: angles, planned (solid) and tracked (dashed)", fontsize=10)
-        ax.set_xlabel("t [s]")
-        ax.set_ylabel("[rad]")
-        ax.grid(alpha=0.3)
-        ax.legend(ncol=3, fontsize=8)
+        ax.plot([], [], "--", color="0.4", label="tracked")
+        ax.set_title(f"{name}: angles, planned (solid) and tracked (dashed)")
+        ax.set_xlabel("$t$ [s]")
+        ax.set_ylabel("$\\theta_i$ [rad]")
+        ax.legend(ncol=3)
         ax = axes[row, 1]
         for j in range(1, n + 1):
             err = np.abs(cols[f"y{j}"] - cols[f"y{j}_ref"])
-            ax.semilogy(t, np.maximum(err, 1e-16), color=f"C{j}", label=f"abs(y{j} - y{j}d)")
-        ax.set_title(f"{name}: flat-output errors (dynamic plant)", fontsize=10)
-        ax.set_xlabel("t [s]")
-        ax.set_ylabel("[rad]")
-        ax.grid(alpha=0.3, which="both")
-        ax.legend(ncol=2, fontsize=8)
+            ax.semilogy(t, np.maximum(err, 1e-16), color=f"C{j}",
+                        label=f"$|y_{j} - y_{{{j}d}}|$")
+        ax.set_title(f"{name}: flat-output errors (dynamic plant)")
+        ax.set_xlabel("$t$ [s]")
+        ax.set_ylabel("$|y_j - y_{jd}|$ [rad]")
+        ax.grid(which="both")
+        ax.legend(ncol=2)
     fig.suptitle("Beyond three links: flatness-based plans and feedback for N = 3 and 5 joints")
     fig.tight_layout()
-    save_figure(fig, path)
+    save_figure(fig, path, figures)
 
 
 def run_study(spec: Spec, plan: Plan, directory: Path, quiet: bool, workers: int | None,
@@ -250,14 +254,14 @@ def run(context: Context) -> Outcome:
             cells = int(trials["cell"].nunique()) if "cell" in trials else 1
             studies += ["", f"#### {spec.name}: {len(trials)} trials in {wall:.1f} s "
                         f"({cells} cells)", "", demoted(text)]
-    plot_chains(figures, out / "fig_chains.png")
+    plot_chains(figures, out / context.figures.name("fig_chains"), context.figures)
     lines = [
         "",
         "## Beyond three links",
         "",
         "The paper closes by stating, without a derivation, that its result extends to an "
         "n-link planar robot whose last link has its centre of mass on the preceding joint. "
-        "flatcli derives it (README, *Robots of N links*): with d_N = 0 no link position "
+        "flatcli derives it (flatcli's docs/chains.md): with d_N = 0 no link position "
         "depends on th_N, so H = h_0(q) th0' + sum_j<N h_j(q) th_j' + I_N th_N' with h_0, h_j "
         "functions of q = (th_1..th_N-1) only; y_j = th_j (j < N) and y_N = th0 + I_N th_N / "
         "h_0(q) are flat outputs, singular where dh_0/dt = 0. The robots below are "
@@ -298,8 +302,8 @@ def run(context: Context) -> Outcome:
                "max angle error [rad]", "peak rate [rad/s]", "peak torque [N m]",
                "momentum drift [kg m^2/s]", "min margin [rad/s]"], loop_rows, 3),
         "",
-        "Figure `fig_chains.png`; files in `chains/` (plan.parquet, track_kinematic.parquet, "
-        "track_dynamic.parquet per robot).",
+        f"Figure `{context.figures.name('fig_chains')}`; files in `chains/` (plan.parquet, "
+        "track_kinematic.parquet, track_dynamic.parquet per robot).",
         "",
         "### What changes with N: the singular set, and a drift that depends on the path",
         "",
@@ -340,7 +344,7 @@ def run(context: Context) -> Outcome:
     headline = [f"robots of N = 3 and 5 joints plan with max abs(H) {fmt(worst_h, 2)} "
                 "kg m^2/s and track on both plants; the base's natural drift depends on the "
                 f"joints' path ({', '.join(fmt(float(r[3]), 3) for r in drifts)} rad)"]
-    return Outcome(lines, headline, ("chains/**/*", "fig_chains.png"))
+    return Outcome(lines, headline, ("chains/**/*", "fig_chains.*"))
 
 
 def inputs(context: Context) -> dict[str, Any]:

@@ -26,7 +26,7 @@ def run(context: Context) -> Outcome:
     result = run_sweep(spec, directory, "local", context.workers, None, force=True,
                        progress=Progress(spec.name, context.quiet))
     context.steps.step("its figures")
-    plot_sweep(directory)
+    plot_sweep(directory, context.figures)
     summary = pd.read_parquet(directory / "summary.parquet")
     trials = int(summary["trials"].sum())
     lines = [
@@ -41,7 +41,7 @@ def run(context: Context) -> Outcome:
         f"the controller's model is wrong). {trials} trials in {result.wall_seconds:.1f} s on "
         "the adaptive integrator; only trials resolved to the end enter the error "
         "statistics. Files: `montecarlo/` (trials.parquet, summary.md) and "
-        "`montecarlo/sweep_*.png`.",
+        f"`montecarlo/sweep_*.{context.figures.format}`.",
         "",
         *study_findings(summary, directory / "trials.parquet"),
         "",

@@ -5,12 +5,14 @@ cubic; each tracked with both gain readings; the least margin the swapped gains 
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 from flatcli.core.optimize import required_fold
 from flatcli.core.planning import Plan, PlanSamples
 from flatcli.experiment import flat_plan_from, plan_and_optimization
-from flatcli.report import finish_grid, fmt, new_figure, plan_summary, table
+from flatcli.report import FigureFile, finish_grid, fmt, new_figure, plan_summary, styled, table
+from flatcli.report.figures import PAGE_WIDTH
 from flatcli.reproduce.findings import (
     OPTIMIZED_PLANS,
     margin_ladder,
@@ -24,7 +26,7 @@ FINE = 4001
 
 
 def run(context: Context) -> Outcome:
-    """The optimised plans beside the paper's cubic: a figure and tables (README,
+    """The optimised plans beside the paper's cubic: a figure and tables (docs/spec.md,
     ``[plan.optimize]``)."""
     base, out, steps = context.base, context.out, context.steps
     rows: list[list[Any]] = []
@@ -48,26 +50,8 @@ def run(context: Context) -> Outcome:
     ]))
     steps.step("the least margin the swapped gains track (a ladder of optimised plans)")
     ladder_table, ladder_sentence = margin_ladder(base)
-    fig = new_figure(11, 7)
-    ax = fig.subplots(2, 2, sharex=True)
-    for i, (label, samples) in enumerate(curves[:2]):
-        style = "--" if i == 0 else "-"
-        for j in range(3):
-            ax[0, 0].plot(samples.t, samples.theta[:, j], style, color=f"C{j}",
-                          label=f"th{j} ({label.split(',')[0]})")
-        ax[0, 1].plot(samples.t, samples.theta_dot[:, 2], style, color="C2",
-                      label=f"th2' ({label.split(',')[0]})")
-        ax[1, 0].plot(samples.t, samples.theta_dot[:, 1], style, color="C1",
-                      label=f"th1' ({label.split(',')[0]})")
-        ax[1, 1].semilogy(samples.t, samples.margin, style, color="C3",
-                          label=f"margin ({label.split(',')[0]})")
-    ax[0, 0].set_ylabel("angles [rad]")
-    ax[0, 1].set_ylabel("th2' [rad/s]")
-    ax[0, 1].set_yscale("symlog", linthresh=5)
-    ax[1, 0].set_ylabel("th1' [rad/s]")
-    ax[1, 1].set_ylabel("margin abs(sin th1 th1') [rad/s]")
-    finish_grid(fig, ax, "The paper's cubic (dashed) and the least-energy flat plan (solid)",
-                out / "fig_optimized_plan.png", legend_size=7)
+    plot_optimized(curves[:2], out / context.figures.name("fig_optimized_plan"),
+                   context.figures)
     lines = [
         "",
         "## Optimised plans",
@@ -90,7 +74,7 @@ def run(context: Context) -> Outcome:
         "loops back (crossing th1' = 0, which the flat map cannot do in one plan) can fold "
         "link 2 far less (0.71 rad was found in review).",
         "",
-        "Figure: `fig_optimized_plan.png`.",
+        f"Figure: `{context.figures.name('fig_optimized_plan')}`.",
         "",
         "### The optimised plans in closed loop",
         "",
@@ -108,8 +92,36 @@ def run(context: Context) -> Outcome:
     headline = [f"the least-energy flat plan needs {fmt(energy, 4)} rad^2/s against the "
                 f"paper's cubic's {fmt(rows[0][1], 4)}; th2 must fold at least {fold:.3f} rad "
                 "on any plan with monotone th1"]
-    return Outcome(lines, headline, ("fig_optimized_plan.png",))
+    return Outcome(lines, headline, ("fig_optimized_plan.*",))
 
 
 SECTION = Section("optimized", "optimised plans beside the paper's cubic, in closed loop",
                   lambda context: {"spec": context.base.tree}, run)
+
+
+@styled
+def plot_optimized(curves: list[tuple[str, PlanSamples]], path: Path, figures: FigureFile
+                   ) -> None:
+    """The paper's cubic (dashed) beside the least-energy flat plan (solid): angles, the
+    rates of joints 2 and 1, and the singularity margin."""
+    fig = new_figure(PAGE_WIDTH, 4.6)
+    ax = fig.subplots(2, 2, sharex=True)
+    for i, (label, samples) in enumerate(curves):
+        style = "--" if i == 0 else "-"
+        name = label.split(",")[0]
+        for j in range(3):
+            ax[0, 0].plot(samples.t, samples.theta[:, j], style, color=f"C{j}",
+                          label=f"$\\theta_{j}$ ({name})")
+        ax[0, 1].plot(samples.t, samples.theta_dot[:, 2], style, color="C2",
+                      label=f"$\\theta_2'$ ({name})")
+        ax[1, 0].plot(samples.t, samples.theta_dot[:, 1], style, color="C1",
+                      label=f"$\\theta_1'$ ({name})")
+        ax[1, 1].semilogy(samples.t, samples.margin, style, color="C3",
+                          label=f"margin ({name})")
+    ax[0, 0].set_ylabel("$\\theta_i$ [rad]")
+    ax[0, 1].set_ylabel("$\\theta_2'$ [rad/s]")
+    ax[0, 1].set_yscale("symlog", linthresh=5)
+    ax[1, 0].set_ylabel("$\\theta_1'$ [rad/s]")
+    ax[1, 1].set_ylabel("margin $|\\sin\\theta_1\\,\\theta_1'|$ [rad/s]")
+    finish_grid(fig, ax, "The paper's cubic (dashed) and the least-energy flat plan (solid)",
+                path, file=figures)

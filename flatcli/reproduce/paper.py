@@ -18,7 +18,18 @@ from flatcli.core.model import constraint_coefficients
 from flatcli.core.planning import Plan, PlanSamples
 from flatcli.experiment import TrackRun, plan_from, run_track
 from flatcli.outputs import plan_frame, track_frame, track_limits
-from flatcli.report import fmt, new_figure, plan_summary, plot_track, save_figure, table
+from flatcli.report import (
+    FigureFile,
+    fmt,
+    new_figure,
+    plan_summary,
+    plot_track,
+    save_figure,
+    styled,
+    table,
+    track_title,
+)
+from flatcli.report.figures import PAGE_WIDTH
 from flatcli.reproduce.findings import GAIN_READINGS, gains_verdict
 from flatcli.reproduce.sections import Context, Outcome, Section
 from flatcli.storage import run_record, write_parquet
@@ -30,39 +41,40 @@ REPORT_TIMES = (0.5, 1.0, 2.0)
 #: The constraint coefficients REPORT.md compares: as printed, and as derived (``robot.model``).
 COMPARED_MODELS = ("paper", "derived")
 #: The files this section writes (globs under the output directory).
-FILES = ("plan_*.parquet", "track_*.parquet", "fig2_flat_outputs.png", "fig3_angles.png",
-         "fig4_feedback_*.png")
+FILES = ("plan_*.parquet", "track_*.parquet", "fig2_flat_outputs.*", "fig3_angles.*",
+         "fig4_feedback_*.*")
 
 
-def plan_figures(plans: dict[str, tuple[Plan, PlanSamples]], out: Path) -> None:
+@styled
+def plan_figures(plans: dict[str, tuple[Plan, PlanSamples]], out: Path,
+                 figures: FigureFile) -> None:
     """Fig. 2 (flat outputs) and Fig. 3 (angles) for both coefficient sets."""
     styles = {"derived": "-", "paper": "--"}
-    fig = new_figure(8, 4.5)
+    fig = new_figure(PAGE_WIDTH / 2, 2.8)
     ax = fig.subplots()
     for model, (_, s) in plans.items():
-        ax.plot(s.t, s.y[:, 0], styles[model], color="C0", label=f"y1d ({model})")
-        ax.plot(s.t, s.y[:, 1], styles[model], color="C1", label=f"y2d ({model})")
-    ax.set_xlabel("t [s]")
-    ax.set_ylabel("flat outputs [rad]")
-    ax.grid(alpha=0.3)
+        ax.plot(s.t, s.y[:, 0], styles[model], color="C0", label=f"$y_{{1d}}$ ({model})")
+        ax.plot(s.t, s.y[:, 1], styles[model], color="C1", label=f"$y_{{2d}}$ ({model})")
+    ax.set_xlabel("$t$ [s]")
+    ax.set_ylabel("flat outputs $y_d$ [rad]")
     ax.legend()
-    fig.suptitle("Fig. 2: planned flat outputs (cubic, th1'(0) = 0.1, th1'(2) = 0.5)")
+    fig.suptitle("Fig. 2: planned flat outputs\n(cubic, $\\theta_1'(0)$ = 0.1, "
+                 "$\\theta_1'(2)$ = 0.5 rad/s)")
     fig.tight_layout()
-    save_figure(fig, out / "fig2_flat_outputs.png")
+    save_figure(fig, out / figures.name("fig2_flat_outputs"), figures)
 
-    fig = new_figure(8, 4.5)
+    fig = new_figure(PAGE_WIDTH / 2, 2.8)
     ax = fig.subplots()
     for model, (_, s) in plans.items():
         for i in range(3):
             ax.plot(s.t, s.theta[:, i], styles[model], color=f"C{i}",
-                    label=f"th{i}d ({model})")
-    ax.set_xlabel("t [s]")
-    ax.set_ylabel("angles [rad]")
-    ax.grid(alpha=0.3)
-    ax.legend(ncol=2, fontsize=8)
-    fig.suptitle("Fig. 3: planned angles (dashed: the paper's printed coefficients)")
+                    label=f"$\\theta_{{{i}d}}$ ({model})")
+    ax.set_xlabel("$t$ [s]")
+    ax.set_ylabel("angles $\\theta_d$ [rad]")
+    ax.legend(ncol=2)
+    fig.suptitle("Fig. 3: planned angles\n(dashed: the paper's printed coefficients)")
     fig.tight_layout()
-    save_figure(fig, out / "fig3_angles.png")
+    save_figure(fig, out / figures.name("fig3_angles"), figures)
 
 
 def errors_at(run: TrackRun, times: tuple[float, ...]) -> list[tuple[float, float, float]]:
@@ -116,7 +128,8 @@ def run(context: Context) -> Outcome:
         plans[model] = (plan, samples)
         write_parquet(out / f"plan_{model}.parquet", plan_frame(samples),
                       run_record("reproduce", spec.tree))
-    plan_figures(plans, out)
+    figures = context.figures
+    plan_figures(plans, out, figures)
     tracks: dict[tuple[str, str], TrackRun] = {}
     for model, reading in steps.each("closed loop", [(m, r) for m in COMPARED_MODELS
                                                     for r in GAIN_READINGS]):
@@ -127,10 +140,10 @@ def run(context: Context) -> Outcome:
         write_parquet(out / f"track_{model}_{reading}.parquet", track_frame(run_),
                       run_record("reproduce", spec.tree, metrics=run_.metrics))
         if model == "derived":
-            plot_track(run_.columns, out / f"fig4_feedback_{reading}.png",
-                       f"Fig. 4: feedback from th(0) = (1.96, 0.8, -0.1), gains {reading}: "
-                       f"kp = {gains['track.kp']}, kv = {gains['track.kv']}",
-                       track_limits(run_))
+            plot_track(run_.columns, out / figures.name(f"fig4_feedback_{reading}"),
+                       "Fig. 4: feedback from $\\theta(0)$ = (1.96, 0.8, -0.1), gains "
+                       f"{reading}\n" + track_title(spec, run_.metrics),
+                       track_limits(run_), figures)
     plan, samples = plans["derived"]
     summary = plan_summary(plan, samples)
     k_paper = constraint_coefficients(plan.robot.links, "paper")
@@ -168,8 +181,9 @@ def run(context: Context) -> Outcome:
             ["input energy (integral of th1'^2 + th2'^2)", summary["input_energy"], "rad^2/s"],
         ]),
         "",
-        "Figures: `fig2_flat_outputs.png`, `fig3_angles.png`, `fig4_feedback_printed.png`, "
-        "`fig4_feedback_swapped.png`.",
+        f"Figures: `{figures.name('fig2_flat_outputs')}`, `{figures.name('fig3_angles')}`, "
+        f"`{figures.name('fig4_feedback_printed')}`, "
+        f"`{figures.name('fig4_feedback_swapped')}`.",
     ]
     s_paper = plans["paper"][1]
     printed = tracks[("derived", "printed")].metrics

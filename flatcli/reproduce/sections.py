@@ -33,6 +33,7 @@ from functools import cache
 from pathlib import Path
 from typing import Any, TextIO, TypeGuard
 
+from flatcli.report.figures import FigureFile
 from flatcli.spec import Spec
 from flatcli.storage import to_jsonable, write_json
 
@@ -52,6 +53,8 @@ class Context:
         sections then run without their studies)
     sets : ``--set`` items for the studies' specs; workers : worker processes (None: all)
     steps : where a section reports its progress
+    figures : the format and resolution every figure is written in (``--format``,
+        ``--dpi``)
     """
 
     out: Path
@@ -60,6 +63,7 @@ class Context:
     sets: tuple[str, ...]
     workers: int | None
     steps: Steps
+    figures: FigureFile = field(default_factory=FigureFile)
 
     @property
     def quiet(self) -> bool:
@@ -151,7 +155,8 @@ def code_fingerprint() -> str:
 
 def section_key(section: Section, context: Context) -> str:
     """The SHA-256 that must match for ``section`` to be reused (module docstring)."""
-    inputs = json.dumps(to_jsonable(dict(section.inputs(context))), sort_keys=True,
+    figures = {"figures": [context.figures.format, context.figures.dpi]}
+    inputs = json.dumps(to_jsonable({**section.inputs(context), **figures}), sort_keys=True,
                         separators=(",", ":"))
     text = f"{RECORD_VERSION}\n{section.name}\n{inputs}\n{code_fingerprint()}"
     return hashlib.sha256(text.encode()).hexdigest()

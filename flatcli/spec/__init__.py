@@ -8,7 +8,8 @@ example), so an empty spec is the paper.
 * ``schema``: the section records (one line per key) and the ``Spec`` that holds them;
 * ``sweeps``: the rules of ``[sweep.perturb]`` and ``[sweep.grid]``;
 * ``build``: TOML and ``--set`` items to a validated ``Spec``;
-* ``toml``: a spec back as TOML; ``markdown``: the README's spec tables.
+* ``toml``: a spec back as TOML; ``markdown``: the spec tables of docs/spec.md;
+  ``compose``: robot files and includes.
 """
 
 from flatcli.spec.build import build, flatten, load_spec, parse_set, read_toml, resolve

@@ -1,5 +1,5 @@
 """``python -m flatcli.spec --markdown`` prints the spec tables; ``--update-readme PATH``
-rewrites them in a README."""
+rewrites them in a document (docs/spec.md)."""
 
 from __future__ import annotations
 
@@ -14,7 +14,8 @@ def main(argv: list[str] | None = None) -> None:
     group = parser.add_mutually_exclusive_group(required=True)
     group.add_argument("--markdown", action="store_true", help="print every spec table")
     group.add_argument("--update-readme", type=Path, metavar="PATH",
-                       help="regenerate the spec-table blocks of a README in place")
+                       help="regenerate the spec-table blocks of a document (docs/spec.md) "
+                            "in place")
     args = parser.parse_args(argv)
     if args.markdown:
         print(markdown())

@@ -17,6 +17,7 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
+from flatcli.spec.compose import compose
 from flatcli.spec.keys import MAX_INT, SpecError
 from flatcli.spec.limits import MAX_SPEC_BYTES, check_joints, check_limits
 from flatcli.spec.schema import SCHEMA, Spec, check_value, fit_sizes, from_values, lookup
@@ -55,8 +56,16 @@ def build(values: Mapping[str, Any]) -> Spec:
     validate_sweep(spec.sweep, spec.joints, spec.plant.torque_limit)
     check_grid_shapes(spec.sweep.grid)
     check_derived(spec)
+    check_verify(spec.sweep.verify)
     check_limits(spec)
     return spec
+
+
+def check_verify(verify: float) -> None:
+    """``sweep.verify`` is a fraction (below 1) or a whole count of trials."""
+    if verify >= 1 and (not math.isfinite(verify) or verify != int(verify)):
+        raise SpecError(f"sweep.verify: a fraction below 1 or a whole count of trials, got "
+                        f"{verify:g}")
 
 
 def _scan(where: str, value: Any, depth: int) -> None:
@@ -175,23 +184,37 @@ def check_derived(spec: Spec) -> None:
                             "inertia, length, com); use physical magnitudes")
 
 
-def resolve(user: Mapping[str, Any], overrides: Mapping[str, Any] | None = None) -> Spec:
-    """Validate a user's nested dict (a parsed TOML file) plus dotted overrides."""
-    flat = flatten(user)
-    flat.update(overrides or {})
+def resolve(user: Mapping[str, Any], overrides: Mapping[str, Any] | None = None, *,
+            base: Path | None = None, source: Path | None = None) -> Spec:
+    """Validate a user's nested dict (a parsed TOML file) plus dotted overrides.
+
+    The spec's robot file and includes are merged first (``flatcli.spec.compose``; relative
+    names from ``base``, the directory of ``source``, the file ``user`` was read from); a
+    ``robot`` override that names a robot file replaces the spec's choice (``--robot``).
+    """
+    extra = dict(overrides or {})
+    if "include" in extra:
+        raise SpecError("include: spec files are included by a spec file (include = "
+                        "[\"my_robot.toml\"]), not by --set")
+    robot = extra.pop("robot") if "robot" in extra and not isinstance(
+        extra["robot"], Mapping) else None
+    flat = compose(user, base, robot, source)
+    flat.update(extra)
     return build(flat)
 
 
 def load_spec(path: Path | None, sets: Iterable[str] = ()) -> Spec:
-    """Defaults, then the file (if any), then ``--set`` items; validated.
+    """Defaults, then the file (if any, composed: its robot file and includes first), then
+    ``--set`` items; validated.
 
     Parameters
     ----------
     path : a TOML spec file, or None for the embedded paper example
-    sets : ``KEY=VALUE`` strings, applied in order
+    sets : ``KEY=VALUE`` strings, applied in order (``robot=NAME`` picks a robot file)
     """
-    user = read_toml(path) if path is not None else {}
-    return resolve(user, parse_set(sets))
+    if path is None:
+        return resolve({}, parse_set(sets))
+    return resolve(read_toml(path), parse_set(sets), base=path.parent, source=path)
 
 
 def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:

@@ -46,15 +46,16 @@ class Key:
     ----------
     kind : "float", "int", "bool", "str", "choice", "vector" (``length`` floats) or "table"
     default : the paper's value, already normalised (floats, tuples); None where ``nullable``
-    doc : one line for the README's spec tables
+    doc : one line for the spec tables (docs/spec.md)
     unit : SI unit, '' for none
     low : lower bound of a number or of every item of a vector (None: unbounded)
     low_open : True: the value must be > low; False: >= low
+    high : upper bound of a number (None: unbounded), inclusive
     choices : the allowed words of a "choice"
     nullable : None is allowed (it means "see doc")
     allow_inf : inf is a meaningful value (no limit)
     length : how many numbers a "vector" holds (0: as many as ``size`` says)
-    default_doc : the README's default column when the default is not a plain value
+    default_doc : the spec tables' default column when the default is not a plain value
     size : what a vector's length follows on a robot of N joints (``SIZES``): "links"
         (N + 1), "joints" (N) or "inner" (N - 1, the joints before the last); a "numbers"
         key is one number (for every item) or such a list. The length is checked against
@@ -67,6 +68,7 @@ class Key:
     unit: str = ""
     low: float | None = None
     low_open: bool = False
+    high: float | None = None
     choices: tuple[str, ...] = ()
     nullable: bool = False
     allow_inf: bool = False
@@ -88,13 +90,15 @@ class Key:
         return self._number(f"{where}[{index}]", value)
 
     def bounds_text(self) -> str:
-        """What values are allowed, for the README ('> 0', '>= 1', 'true, false', ...)."""
+        """What values are allowed, for the spec tables ('> 0', '>= 1', 'true, false', ...)."""
         if self.kind == "choice":
             text = ", ".join(f'"{c}"' for c in self.choices)
         elif self.kind == "bool":
             text = "true, false"
         elif self.low is None:
             text = ""
+        elif self.high is not None:
+            text = f"{self.low:g} to {self.high:g}"
         else:
             text = f"{'>' if self.low_open else '>='} {self.low:g}"
         if self.allow_inf:
@@ -124,9 +128,11 @@ class Key:
         return x
 
     def _check_low(self, where: str, x: float) -> None:
+        unit = f" {self.unit}" if self.unit else ""
+        if self.high is not None and not x <= self.high:
+            raise SpecError(f"{where}: must be at most {self.high:g}{unit}, got {x:g}")
         if self.low is None:
             return
-        unit = f" {self.unit}" if self.unit else ""
         if self.low_open and not x > self.low:
             raise SpecError(f"{where}: must be > {self.low:g}{unit}, got {x:g}")
         if not self.low_open and not x >= self.low:
@@ -283,10 +289,11 @@ def number(default: float | None, doc: str, unit: str = "", *, gt: float | None 
                         default_doc=default_doc, **_low(gt, ge)))
 
 
-def integer(default: int | None, doc: str, *, ge: int | None = None, nullable: bool = False,
-            default_doc: str = "") -> Any:
-    """An int key, bounded below by ``ge``."""
-    return _declare(Key("int", default, doc, low=ge, nullable=nullable, default_doc=default_doc))
+def integer(default: int | None, doc: str, unit: str = "", *, ge: int | None = None,
+            le: int | None = None, nullable: bool = False, default_doc: str = "") -> Any:
+    """An int key, bounded below by ``ge`` (and above by ``le``)."""
+    return _declare(Key("int", default, doc, unit, low=ge, high=le, nullable=nullable,
+                        default_doc=default_doc))
 
 
 def vector(length: int | str, default: tuple[float, ...] | None, doc: str, unit: str = "",

@@ -2,7 +2,7 @@
 
 A request whose estimate exceeds the budget is refused before any work, with one line naming
 the estimate, the budget and the key to change. The estimates are rates measured on this
-project's machine (README, *Failures*) rounded in the request's favour: memory per plan
+project's machine (docs/failures.md) rounded in the request's favour: memory per plan
 sample, per output step, per trial; time per output step of a trial at the fastest any
 integrator ran. So a refused request would not have fitted, and a request that fits is never
 refused for being large.
@@ -49,7 +49,7 @@ BYTES_PER_CHUNK_TRIAL = 500
 #: A worker process, before its first chunk [bytes] (measured 130 MiB).
 BYTES_PER_WORKER = 100 * 2**20
 #: A trial's output step at best [s] (measured 1.8e-7 to 1.1e-6 on one core of this
-#: project's machine, see README, *Performance*), and a trial's fixed cost at best [s].
+#: project's machine, see docs/performance.md), and a trial's fixed cost at best [s].
 SECONDS_PER_STEP = 5e-8
 SECONDS_PER_TRIAL = 1e-5
 
@@ -70,7 +70,7 @@ SECONDS_PER_CHAIN_SAMPLE = 5e-9
 SECONDS_PER_CHAIN_CHECK = 2.7e-7
 #: The most joints a robot may have: beyond it checking one spec (every sweep cell is one)
 #: takes seconds, planning at least minutes and a track run hours (the N-link maps cost
-#: O(N^3) to check and O(N^4) per point; README, *Failures*).
+#: O(N^3) to check and O(N^4) per point; docs/failures.md).
 MAX_JOINTS = 100
 #: Estimates above this print a note before a plan or track run starts [s].
 NOTICE_SECONDS = 5.0

@@ -1,9 +1,9 @@
-"""The README's spec tables, generated from the schema.
+"""The spec tables of docs/spec.md, generated from the schema.
 
-Each table sits in README.md between ``<!-- spec-table: SECTION -->`` and
+Each table sits in docs/spec.md between ``<!-- spec-table: SECTION -->`` and
 ``<!-- end spec-table -->``; ``sync_readme`` rewrites those blocks and the test of this module
-fails when README.md differs from what it would write. Regenerate with
-``python -m flatcli.spec --update-readme README.md``.
+fails when docs/spec.md differs from what it would write. Regenerate with
+``python -m flatcli.spec --update-readme docs/spec.md``.
 """
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ import math
 import re
 from typing import Any
 
+from flatcli.report.tables import table
 from flatcli.spec.keys import Key
 from flatcli.spec.schema import SCHEMA, SECTIONS
 
@@ -22,7 +23,7 @@ _BLOCK = re.compile(r"<!-- spec-table: (?P<section>[\w.]*) -->\n.*?<!-- end spec
 
 
 def show_default(key: Key) -> str:
-    """A key's default as the README shows it."""
+    """A key's default as the spec tables show it."""
     if key.default_doc:
         return key.default_doc
     return _show(key.default)
@@ -50,15 +51,13 @@ def heading(section: str) -> str:
 
 def section_table(section: str) -> str:
     """The Markdown table of one section's keys."""
-    rows = ["| key | default | unit | allowed | meaning |", "|---|---|---|---|---|"]
-    for name, key in SCHEMA[section].items():
-        cells = [f"`{name}`", show_default(key), key.unit, key.bounds_text(), key.doc]
-        rows.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")
-    return "\n".join(rows)
+    rows = [[f"`{name}`", show_default(key), key.unit, key.bounds_text(), key.doc]
+            for name, key in SCHEMA[section].items()]
+    return table(["key", "default", "unit", "allowed", "meaning"], rows, align=False)
 
 
 def block(section: str) -> str:
-    """A README block: markers around the heading and the table of one section."""
+    """A document's block: markers around the heading and the table of one section."""
     return "\n".join([BEGIN.format(section), heading(section), "", section_table(section), END])
 
 
@@ -68,10 +67,10 @@ def markdown() -> str:
 
 
 def sync_readme(text: str) -> str:
-    """README text with every spec-table block regenerated from the schema."""
+    """A document's text with every spec-table block regenerated from the schema."""
     return _BLOCK.sub(lambda m: block(m.group("section")), text)
 
 
 def readme_sections(text: str) -> list[str]:
-    """The sections whose blocks a README holds, in order."""
+    """The sections whose blocks a document holds, in order."""
     return [m.group("section") for m in _BLOCK.finditer(text)]

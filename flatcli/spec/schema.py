@@ -1,12 +1,13 @@
 """The spec's schema: one frozen record per TOML table, each field one key.
 
-A record's docstring starts with the one line the README's heading of its table shows.
+A record's docstring starts with the one line the heading of its table in docs/spec.md
+shows.
 
 ``[robot]``, ``[plan]``, ``[plan.optimize]``, ``[track]``, ``[plant]`` and ``[sweep]`` are the
 records below; ``Spec`` holds them and the top-level ``name``. A key is one line: its type,
 its helper (``number``, ``integer``, ``vector``, ``choice``, ``flag``, ``text``, ``table``
 from ``flatcli.spec.keys``) with default, doc, unit and bounds. ``SCHEMA`` is derived from
-these records, and so are the README's spec tables (``python -m flatcli.spec --markdown``).
+these records, and so are docs/spec.md's tables (``python -m flatcli.spec --markdown``).
 Choices come from their one home: the core's ``MODELS``, ``OBJECTIVES`` and ``INTEGRATORS``.
 A vector's length is a value of its key, checked like its bounds; the per-link, per-joint
 and per-output keys follow the robot (``Key.size``): ``robot.mass`` sets the number N of
@@ -34,9 +35,11 @@ from flatcli.core.optimize import OBJECTIVES
 from flatcli.core.plant import DEFAULT_SERVO_BANDWIDTH, PLANT_MODELS, SERVO_MODELS
 from flatcli.core.simulate import (
     CONTROLLERS,
+    DEFAULT_ACCURACY,
     DEFAULT_ATOL,
     DEFAULT_MAX_STEPS,
     DEFAULT_RTOL,
+    ERROR_ESTIMATES,
     INTEGRATORS,
 )
 from flatcli.spec.keys import (
@@ -63,6 +66,11 @@ LINKS = 3
 GAINS = 2
 #: Flat-output bases of ``plan.basis``; "auto" picks one (see ``flatcli.experiment``).
 BASES = ("auto", "poly", "bspline")
+#: File formats of ``figures.format`` (``--format``): one raster, two vector.
+FIGURE_FORMATS = ("png", "pdf", "svg")
+#: Sections that say how results are shown, not what is computed: they enter no digest, so
+#: a sweep resumes and a run is "the same run" whatever figures it draws.
+PRESENTATION = ("figures",)
 INF = math.inf
 
 Vector = tuple[float, ...]
@@ -162,6 +170,12 @@ class TrackSpec:
                          "rad, rad/s", gt=0)
     max_steps: int = integer(DEFAULT_MAX_STEPS, "attempted steps the adaptive integrator may "
                              "take per trial before the trial is unresolved", ge=1)
+    error_estimate: str = choice(ERROR_ESTIMATES, "twin", "the adaptive integrator's "
+                                 "err_estimate: \"twin\" (each trial that reaches T integrated "
+                                 "again at a hundredth of rtol and atol: about half the "
+                                 "trials/s) or \"none\" (err_estimate null)")
+    accuracy: float = number(DEFAULT_ACCURACY, "a resolved trial whose err_estimate exceeds it "
+                             "is not verified (its numbers are reported apart)", "rad", gt=0)
     singular_threshold: float = number(1e-2, "a sample whose margin abs(sin th1 * u1) is below "
                                        "it is a singular hit", "rad/s", ge=0)
     sensor_noise: float = number(0.0, "std of the noise on the measured angles, drawn per "
@@ -207,7 +221,7 @@ class PlantSpec:
                              "kg m^2/s")
     model: str = choice(PLANT_MODELS, "kinematic", "\"kinematic\" (the joints turn at the "
                         "commanded rates) or \"dynamic\" (a robot with inertia: joint torques "
-                        "from rate servos; README, *The dynamic plant*)")
+                        "from rate servos; docs/physics.md, *The dynamic plant*)")
     servo_bandwidth: float = number(DEFAULT_SERVO_BANDWIDTH, "dynamic plant: each joint rate "
                                     "follows its command as a first-order lag of this bandwidth "
                                     "(exactly, while the servo's model is right and no torque "
@@ -230,8 +244,22 @@ class SweepSpec:
         None, "trials per task; from the spec alone, so a resume finds the same chunks "
         "whatever --workers", ge=1, nullable=True,
         default_doc="about 1/16 of all trials, within 250..1000 (and <= trials)")
+    verify: float = number(0.0, "trials of each cell re-run with the reference integrator "
+                           "(DOP853, rtol 1e-10) and compared (reference_difference): a "
+                           "fraction if below 1 (0.01: the first 1 % of each cell's trials, at "
+                           "least one), else a whole count", ge=0)
     perturb: Mapping[str, Any] = table("random perturbations (below)")
     grid: Mapping[str, Any] = table("spec keys and their lists of values (below)")
+
+
+@dataclass(frozen=True)
+class FiguresSpec:
+    """the files figures are written as (`--format`, `--dpi`; not part of the experiment)"""
+
+    format: str = choice(FIGURE_FORMATS, "png", "file format of every figure a command writes: "
+                         "\"png\" (raster), \"pdf\" or \"svg\" (vector, for print)")
+    dpi: int = integer(150, "resolution of raster figures (png); pdf and svg are vector, their "
+                       "embedded images only use it", "dots/in", ge=50, le=1200)
 
 
 @dataclass(frozen=True)
@@ -250,6 +278,7 @@ class Spec:
     track: TrackSpec = field(default_factory=TrackSpec)
     plant: PlantSpec = field(default_factory=PlantSpec)
     sweep: SweepSpec = field(default_factory=SweepSpec)
+    figures: FiguresSpec = field(default_factory=FiguresSpec)
 
     @property
     def joints(self) -> int:
@@ -265,12 +294,20 @@ class Spec:
         """{dotted key: value} of every key."""
         return dict(_values(self, ""))
 
+    def experiment_tree(self) -> dict[str, Any]:
+        """``tree`` without the sections that only say how results are shown
+        (``PRESENTATION``): what the experiment is."""
+        return experiment(self.tree)
+
     def to_json(self) -> str:
-        """Canonical JSON (sorted keys, no spaces; inf written as the string "inf")."""
-        return json.dumps(to_jsonable(self.tree), sort_keys=True, separators=(",", ":"))
+        """Canonical JSON of the experiment (``experiment_tree``; sorted keys, no spaces; inf
+        written as the string "inf")."""
+        return json.dumps(to_jsonable(self.experiment_tree()), sort_keys=True,
+                          separators=(",", ":"))
 
     def digest(self) -> str:
-        """SHA-256 of the canonical JSON: what makes two sweeps the same experiment."""
+        """SHA-256 of the canonical JSON: what makes two sweeps the same experiment (the
+        figures' format is not part of it)."""
         return hashlib.sha256(self.to_json().encode()).hexdigest()
 
     def with_overrides(self, overrides: Mapping[str, Any]) -> Spec:
@@ -278,6 +315,12 @@ class Spec:
         from flatcli.spec.build import build  # build validates with the sweep's rules
 
         return build({**self.values(), **overrides})
+
+
+def experiment(tree: Mapping[str, Any]) -> dict[str, Any]:
+    """A spec tree (a Spec's, or one read from a run's record) without its ``PRESENTATION``
+    sections."""
+    return {k: v for k, v in tree.items() if k not in PRESENTATION}
 
 
 def _is_section(f: Field[Any]) -> bool:
@@ -320,7 +363,7 @@ def _sections(record_type: type, prefix: str) -> Iterator[tuple[str, type]]:
             yield from _sections(_section_type(f), f"{prefix}.{f.name}" if prefix else f.name)
 
 
-#: Section name ('' for the top level) -> its record type, in the order of the README.
+#: Section name ('' for the top level) -> its record type, in the order of docs/spec.md.
 SECTIONS: dict[str, type] = dict(_sections(Spec, ""))
 
 #: Section name -> {key name: Key}: the single list of keys, types, units and defaults.

@@ -243,8 +243,26 @@ def _validate_grid_value(perturb: Mapping[str, Any], where: str, dotted: str,
         return
     if dotted.startswith("sweep.") or dotted == "name":
         raise SpecError(f"{where}: cannot grid over {dotted!r}")
+    if dotted.startswith("figures."):
+        raise SpecError(f"{where}: cannot grid over {dotted!r}: figures are how a sweep is "
+                        "drawn, once for all its cells")
     try:
         lookup(dotted)
     except SpecError:
         raise SpecError(f"{where}: not a spec key{suggest(dotted, all_keys())}") from None
     check_size(dotted, check_value(dotted, value), joints)
+
+
+def identical_trials(spec: Any) -> str | None:
+    """Why the trials of a sweep's cells would all be the same (no ``[sweep.perturb]``, and
+    no sensor noise in the spec nor from its grid), or None when they differ."""
+    sweep = spec.sweep
+    if sweep.perturb:
+        return None
+    grid = sweep.grid
+    noisy = spec.track.sensor_noise > 0 or "track.sensor_noise" in grid or any(
+        isinstance(v, dict) and "track.sensor_noise" in v
+        for values in grid.values() if isinstance(values, list) for v in values)
+    if noisy:
+        return None
+    return "no [sweep.perturb] and no track.sensor_noise"

@@ -1,44 +1,78 @@
-"""A spec written back as TOML (what ``flatcli sweep --rerun N --print-spec`` prints)."""
+"""A spec written back as TOML: what ``flatcli plan --cfg``, ``track --cfg``, ``check`` and
+``sweep --rerun N --print-spec`` print, and what reads back as the same spec.
+
+Every key, string and number is written by tomli-w (its escapes are TOML's, for any text);
+the layout is flatcli's: one line per key, lists and tables inline, as a person writes a spec.
+"""
 
 from __future__ import annotations
 
-import json
-import math
+import re
 from collections.abc import Mapping
 from typing import Any
 
+import tomli_w
+
 from flatcli.spec.schema import Spec
+
+_BARE = re.compile(r"[A-Za-z0-9_-]+")
+
+
+def toml_key(key: str) -> str:
+    """A key as TOML: bare when it may be, else quoted (``"plant.com"``)."""
+    if _BARE.fullmatch(key):
+        return key
+    return tomli_w.dumps({key: 0}).rpartition(" = ")[0]
 
 
 def toml_value(v: Any) -> str:
-    """One value as TOML (floats in repr, so every value round-trips exactly)."""
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, float):
-        return "inf" if v == math.inf else ("-inf" if v == -math.inf else repr(v))
+    """One value as TOML on one line: lists as ``[a, b]``, tables as ``{ k = v }``, floats
+    in repr (every value round-trips exactly), inf as ``inf``."""
+    if isinstance(v, Mapping):
+        if not v:
+            return "{}"
+        return "{ " + ", ".join(f"{toml_key(str(k))} = {toml_value(x)}"
+                                for k, x in v.items()) + " }"
     if isinstance(v, list | tuple):
         return "[" + ", ".join(toml_value(x) for x in v) + "]"
-    if isinstance(v, str):
-        return json.dumps(v)
-    return str(v)
+    return tomli_w.dumps({"v": v}).removeprefix("v = ").rstrip("\n")
 
 
-def spec_toml(spec: Spec) -> str:
-    """A spec's keys as TOML, without its ``[sweep]`` table and keys left unset (None)."""
+def _lines(prefix: str, table: Mapping[str, Any], out: list[str],
+           notes: Mapping[str, str]) -> None:
+    scalars = [(k, v) for k, v in table.items() if not _is_table(prefix, k, v) and v is not None]
+    if prefix and scalars:
+        out.append(f"\n[{prefix}]")
+    for k, v in scalars:
+        dotted = f"{prefix}.{k}" if prefix else k
+        note = notes.get(dotted)
+        out.append(f"{toml_key(k)} = {toml_value(v)}" + (f"  # {note}" if note else ""))
+    for k, v in table.items():
+        if _is_table(prefix, k, v):
+            _lines(f"{prefix}.{toml_key(k)}" if prefix else toml_key(k), v, out, notes)
+
+
+def _is_table(prefix: str, key: str, value: Any) -> bool:
+    """Whether a value is written as a ``[table]`` of its own: a spec section, or the
+    sweep's tables (their entries inline)."""
+    return isinstance(value, Mapping) and (prefix in ("", "plan") or
+                                           f"{prefix}.{key}" in ("sweep.perturb", "sweep.grid"))
+
+
+def spec_toml(spec: Spec, *, sweep: bool = False, values: Mapping[str, Any] | None = None,
+              notes: Mapping[str, str] | None = None) -> str:
+    """A spec's keys as TOML (keys left unset, None, are left out), without its ``[sweep]``
+    table unless ``sweep``; ``values`` replace dotted keys' values as written (a chunk size as
+    resolved), ``notes`` add a comment to a key's line."""
     tree = spec.tree
-    lines = [f"{k} = {toml_value(v)}" for k, v in tree.items()
-             if not isinstance(v, dict) and v is not None]
-
-    def emit(prefix: str, table: Mapping[str, Any]) -> None:
-        scalars = [(k, v) for k, v in table.items() if not isinstance(v, dict) and v is not None]
-        if scalars:
-            lines.append(f"\n[{prefix}]")
-            lines.extend(f"{k} = {toml_value(v)}" for k, v in scalars)
-        for k, v in table.items():
-            if isinstance(v, dict):
-                emit(f"{prefix}.{k}", v)
-
-    for k, v in tree.items():
-        if isinstance(v, dict) and k != "sweep":
-            emit(k, v)
-    return "\n".join(lines) + "\n"
+    if not sweep:
+        tree.pop("sweep", None)
+    for dotted, value in (values or {}).items():
+        node = tree
+        *parents, last = dotted.split(".")
+        for part in parents:
+            node = node[part]
+        node[last] = value
+    out: list[str] = []
+    _lines("", tree, out, notes or {})
+    return "\n".join(out).lstrip("\n") + "\n"

@@ -6,6 +6,7 @@
 from __future__ import annotations
 
 import json
+import math
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -14,8 +15,14 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from flatcli.core.metrics import COUNT_METRICS, METRIC_NAMES, Status, describe_status
-from flatcli.core.simulate import NoiseStreams, Trials
+from flatcli.core.metrics import (
+    COUNT_METRICS,
+    METRIC_NAMES,
+    STATUS_NAMES,
+    Status,
+    describe_status,
+)
+from flatcli.core.simulate import NoiseStreams, Trials, check_against_reference
 from flatcli.experiment import checked, plant_from
 from flatcli.spec import PERTURB_TARGETS, Spec, lookup, perturbations
 from flatcli.storage import null_where_nan, with_units
@@ -79,6 +86,10 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
     status = np.full(len(ids), int(Status.ERROR), dtype=np.int64)
     event = np.zeros(len(ids), dtype=np.int64)
     event_time = np.full(len(ids), np.nan)
+    verified = np.zeros(len(ids), dtype=bool)
+    why_not: list[str] = [""] * len(ids)
+    difference = np.full(len(ids), np.nan)
+    reference_status: list[str | None] = [None] * len(ids)
     if valid.any():
         noise = NoiseStreams(spec.track.sensor_noise, seed, ids[valid].astype(np.int64))
         trials = Trials(np.ascontiguousarray(links[valid]), np.ascontiguousarray(momentum[valid]),
@@ -90,6 +101,18 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
         status[valid] = outcome.status
         event[valid] = outcome.event
         event_time[valid] = outcome.event_time
+        verified[valid] = outcome.verified
+        rows = np.flatnonzero(valid)
+        for k, row in enumerate(rows):
+            why_not[row] = outcome.unverified(k)
+        chosen = ids[rows] - cell.first_trial < verify_count(spec.sweep.verify,
+                                                              spec.sweep.trials)
+        if chosen.any():
+            check = check_against_reference(scenario, trials.subset(np.flatnonzero(chosen)),
+                                            checked(spec.track.integrator))
+            difference[rows[chosen]] = check.difference
+            for row, code in zip(rows[chosen], check.status, strict=True):
+                reference_status[row] = STATUS_NAMES[int(code)]
     status_names = []
     reason_texts = []
     for i in range(len(ids)):
@@ -99,7 +122,7 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
             continue
         name, reason = describe_status(int(status[i]), int(event[i]), float(event_time[i]),
                                        metrics[i], scenario.singular_threshold,
-                                       scenario.divergence_bound)
+                                       scenario.divergence_bound, why_not[i])
         status_names.append(name)
         reason_texts.append(reason)
     columns: dict[str, Any] = {"trial": ids.astype(np.int64),
@@ -119,8 +142,22 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
     columns["status"] = pa.array(status_names, type=pa.string())
     columns["reason"] = pa.array(reason_texts, type=pa.string())
     columns["event_time"] = null_where_nan(event_time)
+    columns["verified"] = pa.array(verified, type=pa.bool_())
+    columns["reference_difference"] = null_where_nan(difference)
+    columns["reference_status"] = pa.array(reference_status, type=pa.string())
     table = with_units(pa.table(columns), units_of(columns, spec))
     return ChunkResult(table, time.perf_counter() - started)
+
+
+def verify_count(verify: float, trials: int) -> int:
+    """Trials of each cell that ``sweep.verify`` re-runs with the reference integrator (the
+    first ones of the cell): a fraction below 1 of ``trials`` (rounded up: at least one), a
+    whole count from 1 on (at most ``trials``); 0 for none."""
+    if verify <= 0:
+        return 0
+    if verify < 1:
+        return min(trials, max(1, math.ceil(verify * trials)))
+    return min(trials, int(verify))
 
 
 def grid_cell_text(value: Any) -> Any:

@@ -33,7 +33,6 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from flatcli.core.metrics import METRIC_NAMES
 from flatcli.files import (
     MAX_MANIFEST_BYTES,
     UnreadableFileError,
@@ -45,8 +44,10 @@ from flatcli.files import (
     real_directory,
 )
 from flatcli.report import summarize_trials, summary_markdown
+from flatcli.report.summary import SUMMARY_INPUTS
 from flatcli.spec import SpecError
 from flatcli.spec.limits import ID_STRIDE
+from flatcli.spec.schema import experiment
 from flatcli.storage import (
     LOCK_NAME,
     PARQUET_META_KEY,
@@ -72,14 +73,15 @@ FORMAT = 2
 FINAL_FILES = (MANIFEST, "trials.parquet", "summary.parquet", "summary.md", "run.json")
 #: The sweep's figures (``flatcli.report.plot_sweep``, also run by ``make reproduce``),
 #: flatcli's wherever they were recorded or not.
-FIGURES = re.compile(r"sweep_[a-z_]+\.png")
+FIGURES = re.compile(r"sweep_[a-z_]+\.(?:png|pdf|svg)")
 _CHUNK = re.compile(r"chunk-[0-9]{10}-[0-9]{9}\.parquet")
 _LEGACY_CHUNK = re.compile(r"chunk-[0-9]{12}\.parquet")
 #: The CSV copies ``flatcli export DIR --csv`` writes of a sweep's tables (recorded in the
 #: manifest, so --force may remove them).
 EXPORTS = ("trials.csv", "summary.csv", "cells.csv")
 #: The files ``flatcli sweep --rerun TRIAL`` writes into DIR/rerun-TRIAL/ (and its export).
-RERUN_FILES = ("track.parquet", "metrics.json", "run.json", "track.png", "track.csv")
+RERUN_FILES = ("track.parquet", "metrics.json", "run.json", "track.png", "track.pdf",
+               "track.svg", "track.csv")
 #: The directory ``flatcli sweep --rerun TRIAL`` writes into.
 RERUN_DIR = re.compile(r"rerun-[0-9]{1,19}")
 #: A directory of a nested sweep: the kinematic twin of reproduce's actuators study.
@@ -138,6 +140,7 @@ class Previous:
     cells: dict[str, dict[str, Any]] = field(default_factory=dict)
     files: set[str] = field(default_factory=set)
     others: list[dict[str, Any]] = field(default_factory=list)  # more specs, no manifest
+    tags: list[str] = field(default_factory=list)  # the sweep's labels (--tag)
 
     def owned(self, directory: Path | None = None) -> set[str]:
         """Relative paths flatcli wrote (or would write) here (with ``directory``: also the
@@ -196,6 +199,8 @@ def manifest_problem(data: Any) -> str | None:
     files = data.get("files", [])
     if not _strings(files):
         return "its files are not a list of names"
+    if not _strings(data.get("tags", [])):
+        return "its tags are not a list of text"
     for name in files:
         if not RECORDED.fullmatch(name):
             return f"it lists {name[:80]!r}, not a file flatcli writes in a sweep's directory"
@@ -253,7 +258,8 @@ def survey(directory: Path) -> Previous:
             return Previous(manifest["spec"], manifest["digest"], True, {}, legacy)
         cells = {str(k): v for k, v in dict(manifest.get("cells", {})).items()}
         files = {str(f) for f in manifest.get("files", [])}
-        return Previous(manifest["spec"], manifest["digest"], False, cells, files)
+        tags = [str(t) for t in manifest.get("tags", [])]
+        return Previous(manifest["spec"], manifest["digest"], False, cells, files, tags=tags)
     found = Previous()
     for path in sorted(_entries(trials)):
         if not (_CHUNK.fullmatch(path.name) or _LEGACY_CHUNK.fullmatch(path.name)):
@@ -322,9 +328,10 @@ def spec_differences(old: Mapping[str, Any], new: Mapping[str, Any]
                      ) -> tuple[list[str], list[str]]:
     """The keys whose values differ between two spec trees, as ``key (old -> new)``; and,
     separately, the grid keys whose lists of values differ (the grid's keys being the same).
-    A change of the grid's keys is a key difference of ``sweep.grid``."""
-    a = _flat(to_jsonable(old))
-    b = _flat(to_jsonable(new))
+    A change of the grid's keys is a key difference of ``sweep.grid``; how figures are drawn
+    (``PRESENTATION``) is not compared."""
+    a = _flat(to_jsonable(experiment(old)))
+    b = _flat(to_jsonable(experiment(new)))
     keys: list[str] = []
     grid: list[str] = []
     for dotted in [*a, *(k for k in b if k not in a)]:
@@ -477,11 +484,15 @@ def clear(directory: Path, previous: Previous) -> None:
                 parent.rmdir()
 
 
-def write_manifest(directory: Path, lay: Layout, previous: Previous | None = None) -> None:
+def write_manifest(directory: Path, lay: Layout, previous: Previous | None = None,
+                   tags: list[str] | None = None) -> list[str]:
     """sweep.json: this spec, every cell and file this directory holds of flatcli's (the
-    previous ones kept when the sweep extends the directory's study), and the keys of this
-    spec's cells in the grid's order (``grid_cells``)."""
+    previous ones kept when the sweep extends the directory's study), the keys of this
+    spec's cells in the grid's order (``grid_cells``) and the sweep's tags (those given, or
+    the ones the directory's sweep had); the tags written."""
     spec = lay.spec
+    if not tags:
+        tags = list(previous.tags) if previous is not None else []
     cells = dict(previous.cells) if previous is not None else {}
     for cell in lay.cells:
         cells[str(cell.key)] = {"digest": cell.digest, "values": to_jsonable(cell.values),
@@ -492,8 +503,9 @@ def write_manifest(directory: Path, lay: Layout, previous: Previous | None = Non
         "cells": dict(sorted(cells.items())),
         "grid_cells": [str(cell.key) for cell in lay.cells],
         "trials_per_cell": lay.trials_per_cell,
-        "chunk": lay.chunk_size, "files": files,
+        "chunk": lay.chunk_size, "files": files, **({"tags": tags} if tags else {}),
     })
+    return tags
 
 
 def record_outputs(directory: Path, paths: Iterable[Path]) -> None:
@@ -629,7 +641,7 @@ def assemble_trials(directory: Path, lay: Layout, provenance: Mapping[str, Any])
 
 
 def finish_sweep(directory: Path, lay: Layout, provenance: Mapping[str, Any], started: float,
-                 timing: Mapping[str, Any]) -> str:
+                 timing: Mapping[str, Any], tags: list[str] | None = None) -> str:
     """trials.parquet, summary.parquet, summary.md and run.json from the chunk files.
 
     ``timing`` gains the end-to-end figures: ``wall_seconds`` from ``started`` (a
@@ -639,8 +651,7 @@ def finish_sweep(directory: Path, lay: Layout, provenance: Mapping[str, Any], st
     """
     finishing = time.perf_counter()
     trials_path = assemble_trials(directory, lay, provenance)
-    columns = list(dict.fromkeys(["cell", "status", *METRIC_NAMES]))  # each column once
-    frame = pq.read_table(trials_path, columns=columns).to_pandas()
+    frame = pq.read_table(trials_path, columns=list(SUMMARY_INPUTS)).to_pandas()
     cells = {c.index: {k: v for k, (_, v) in grid_columns(c.values, c.spec).items()}
              for c in lay.cells}
     summary = summarize_trials(frame, cells)
@@ -660,6 +671,7 @@ def finish_sweep(directory: Path, lay: Layout, provenance: Mapping[str, Any], st
     write_json(directory / "run.json", run_record(
         "sweep", lay.spec.tree, digest=lay.spec.digest(), cells=len(lay.cells),
         trials=lay.total, chunk=lay.chunk_size, status_counts=counts, timing=timing,
+        **({"tags": tags} if tags else {}),
     ))
     return text
 

@@ -96,8 +96,8 @@ def cell_keys(cells: list[dict[str, Any]]) -> list[int]:
 
 def cell_digest(spec: Spec, key: int) -> str:
     """What makes two cells the same computation: the cell's spec (its grid values applied)
-    without ``name`` and ``sweep.grid``, its key, and ``CHUNK_FORMAT``."""
-    tree = spec.tree
+    without ``name``, ``sweep.grid`` and the figures' format, its key, and ``CHUNK_FORMAT``."""
+    tree = spec.experiment_tree()
     tree.pop("name", None)
     tree["sweep"].pop("grid", None)
     text = json.dumps(to_jsonable({"spec": tree, "key": key, "format": CHUNK_FORMAT}),

@@ -19,7 +19,7 @@ from flatcli.core.model import FlatcliError
 from flatcli.experiment import run_track
 from flatcli.files import kind, not_regular
 from flatcli.outputs import write_track
-from flatcli.report import table
+from flatcli.report import table, track_title
 from flatcli.spec import PERTURB_TARGETS, Spec, build
 from flatcli.storage import run_record
 from flatcli.sweep.directory import RERUN_FILES, recorded_digest
@@ -87,6 +87,7 @@ class Rerun:
     target: Path
     rows: list[list[Any]]  # metric, in trials.parquet, re-run, "yes"/"NO"
     modified: bool  # the spec given differs from the sweep's (--set): differences expected
+    files: tuple[str, ...] = ("track.parquet", "metrics.json")  # what it wrote
 
     @property
     def reproduced(self) -> bool:
@@ -100,7 +101,7 @@ class Rerun:
         return "\n".join([
             head,
             table(["metric", "in trials.parquet", "re-run", "identical"], self.rows, 6),
-            f"wrote {self.target}/track.parquet, metrics.json, track.png",
+            f"wrote {self.target}/{', '.join(self.files)}",
         ])
 
 
@@ -124,7 +125,9 @@ def rerun_and_compare(spec: Spec, directory: Path, trial: int) -> Rerun:
     run = run_track(track_spec)
     metrics = run.metrics
     record = run_record("sweep --rerun", track_spec.tree, metrics=metrics, trial=trial)
-    write_track(target, run, record, f"{spec.name}: trial {trial}")
+    names = write_track(target, run, record, f"trial {trial} of the sweep; "
+                        + track_title(track_spec, metrics))
     rows = [[k, row[k], v, "yes" if same(row[k], v) else "NO"]
             for k, v in metrics.items() if k != "reason"]
-    return Rerun(trial, target, rows, recorded_digest(directory) != spec.digest())
+    return Rerun(trial, target, rows, recorded_digest(directory) != spec.digest(),
+                 tuple(names))

@@ -57,13 +57,16 @@ def run_sweep(
     fail_fast: bool = False,
     progress: Progress | None = None,
     oversubscribe: bool = False,
+    tags: list[str] | None = None,
 ) -> SweepResult:
     """Run (or resume, or extend) a sweep into ``directory``; write trials, summary and run
     record.
 
     Everything that can be refused is checked before anything is written: the spec and
     every grid cell, the resources they need, the directory (another run writing there,
-    another spec there, files flatcli did not write), the executor.
+    another spec there, files flatcli did not write), the executor. ``tags``: the sweep's
+    labels (``--tag``), kept in its manifest and run.json (a resume without tags keeps
+    those the directory had).
     """
     started = time.perf_counter()
     if executor_kind == "local" or scheduler == "local":
@@ -79,7 +82,7 @@ def run_sweep(
                 note(plan.note)
             digest = spec.digest()
             keep = plan.previous if plan.mode in ("resume", "extend") else None
-            write_manifest(directory, lay, keep)
+            tags = write_manifest(directory, lay, keep, tags)
             done, problems = verified_chunks(directory, lay)
             for line in problems[:SHOWN]:
                 note(f"note: {line}; computing it again")
@@ -128,7 +131,7 @@ def run_sweep(
             "compute_seconds": compute,
             "workers": executor.workers,
             "executor": executor.description,
-        })
+        }, tags)
     return SweepResult(directory, lay, simulated, time.perf_counter() - started, summary_text)
 
 

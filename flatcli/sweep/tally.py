@@ -82,6 +82,9 @@ def simulate_counted(scenario: Scenario, trials: Trials, integrator: Integrator)
         np.concatenate([p.event for p in parts]),
         np.concatenate([p.event_time for p in parts]),
         None,
+        integrator=integrator,
+        estimated=parts[0].estimated if parts else False,
+        accuracy=parts[0].accuracy if parts else float("inf"),
     )
 
 

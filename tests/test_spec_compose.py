@@ -1,0 +1,96 @@
+"""Specs that compose (flatcli/spec/compose.py): robot files picked by name or path, files
+included relative to the file that includes them, and the order they merge in."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from flatcli.spec import SpecError, load_spec, resolve
+from flatcli.spec.compose import MAX_FILES, ROBOTS, robot_names
+
+#: flatcli/data/robots/chain4.toml's robot (base + 3 links), as written there.
+CHAIN4_MASS = (2.0, 1.0, 1.0, 0.5)
+
+
+def write(path: Path, text: str) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
+    return path
+
+
+def test_the_shipped_robots_are_package_data() -> None:
+    assert robot_names() == ["chain4", "chain6", "paper"]
+    assert all((ROBOTS / f"{n}.toml").is_file() for n in robot_names())
+    assert resolve({"robot": "paper"}).digest() == resolve({}).digest()  # the defaults
+
+
+def test_a_robot_name_picks_its_file_and_the_spec_overrides_it(tmp_path: Path) -> None:
+    spec = load_spec(write(tmp_path / "s.toml", 'robot = "chain4"\n[plan]\nduration = 3.0\n'))
+    assert spec.joints == 3 and spec.robot.mass == CHAIN4_MASS
+    assert spec.plan.duration == 3.0  # the spec's own key wins
+    assert spec.track.kp == (25.0, 25.0, 25.0)  # the robot file's gains for its N
+    # --robot (a robot override) replaces the file's choice
+    assert load_spec(tmp_path / "s.toml", ["robot=chain6"]).joints == 5
+    # a [robot] table of the spec still overrides the chosen file key by key
+    spec = load_spec(write(tmp_path / "t.toml", "[robot]\nmodel = \"derived\"\n"
+                                                "inertia = [0.1, 0.05, 0.05, 0.2]\n"),
+                     ["robot=chain4"])
+    assert spec.robot.inertia == (0.1, 0.05, 0.05, 0.2) and spec.robot.mass == CHAIN4_MASS
+
+
+def test_a_users_robot_file_is_relative_to_the_spec(tmp_path: Path) -> None:
+    write(tmp_path / "robots" / "mine.toml", "[robot]\nmass = [2.0, 1.0, 1.0]\n")
+    spec = load_spec(write(tmp_path / "study" / "s.toml", 'robot = "../robots/mine.toml"\n'))
+    assert spec.robot.mass == (2.0, 1.0, 1.0)
+    assert resolve({"robot": str(tmp_path / "robots" / "mine.toml")}).robot.mass[0] == 2.0
+
+
+def test_includes_merge_in_order_below_the_files_own_keys(tmp_path: Path) -> None:
+    write(tmp_path / "parts" / "robot.toml", 'include = ["gains.toml"]\n'
+          "[robot]\nmass = [2.0, 1.0, 1.0]\n[track]\nkp = [1.0, 2.0]\n")
+    write(tmp_path / "parts" / "gains.toml", "[track]\nkp = [3.0, 4.0]\nkv = [5.0, 6.0]\n")
+    write(tmp_path / "parts" / "noise.toml", "[track]\nsensor_noise = 0.001\nkv = [7.0, 8.0]\n")
+    spec = load_spec(write(tmp_path / "s.toml", 'include = ["parts/robot.toml", '
+                                                '"parts/noise.toml"]\n[track]\ndt = 0.002\n'),
+                     ["track.kv=[9,10]"])
+    assert spec.robot.mass == (2.0, 1.0, 1.0)
+    assert spec.track.kp == (1.0, 2.0)  # robot.toml's own key above the file it includes
+    assert spec.track.sensor_noise == 0.001 and spec.track.dt == 0.002
+    assert spec.track.kv == (9.0, 10.0)  # --set last
+    assert load_spec(tmp_path / "s.toml").track.kv == (7.0, 8.0)  # the later include wins
+
+
+@pytest.mark.parametrize(("files", "message"), [
+    ({"a.toml": 'include = ["b.toml"]', "b.toml": 'include = ["a.toml"]'},
+     r"b\.toml: include 'a\.toml': include cycle .*a\.toml -> .*b\.toml -> .*a\.toml"),
+    ({"a.toml": 'include = ["a.toml"]'}, r"include cycle .*a\.toml -> .*a\.toml"),
+    ({"a.toml": 'include = ["missing.toml"]'},
+     r"a\.toml: include 'missing\.toml': spec file not found: .*missing\.toml"),
+    ({"a.toml": 'include = "b.toml"'}, r"a\.toml: include: expected a list of spec files"),
+    ({"a.toml": 'robot = "chian4"'}, r"robot: unknown robot 'chian4'; shipped: chain4, "
+                                     r"chain6, paper.*\(did you mean 'chain4'\?\)"),
+    ({"a.toml": 'robot = "nowhere.toml"'}, r"robot 'nowhere\.toml': spec file not found"),
+    ({"a.toml": 'include = ["b.toml"]', "b.toml": "[plan]\nduration = -1\n"},
+     r"plan\.duration: must be > 0 s, got -1"),
+])
+def test_bad_compositions_are_one_line_naming_the_file(tmp_path: Path, files: dict[str, str],
+                                                       message: str) -> None:
+    for name, text in files.items():
+        write(tmp_path / name, text + "\n")
+    with pytest.raises(SpecError, match=message) as info:
+        load_spec(tmp_path / "a.toml")
+    assert "\n" not in str(info.value)
+
+
+def test_the_number_of_files_is_bounded(tmp_path: Path) -> None:
+    for i in range(MAX_FILES + 1):
+        write(tmp_path / f"f{i}.toml", f'include = ["f{i + 1}.toml"]\n' if i < MAX_FILES else "")
+    with pytest.raises(SpecError, match=f"more than {MAX_FILES} spec files"):
+        load_spec(tmp_path / "f0.toml")
+
+
+def test_include_is_for_files_not_for_set() -> None:
+    with pytest.raises(SpecError, match="include: spec files are included by a spec file"):
+        resolve({}, {"include": ["x.toml"]})
