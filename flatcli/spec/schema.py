@@ -92,7 +92,7 @@ class RobotSpec:
                          "(flat: d_N = 0)", "m")
     com_across: float = number(0.0, "e_N, how far the last link's centre of mass lies across "
                                "the link (perpendicular to it, towards increasing th_N; flat: "
-                               "0; README, *Robots as built*)", "m")
+                               "0; docs/asbuilt.md)", "m")
     model: str = choice(MODELS, "derived", "constraint coefficients: \"derived\" (correct) or "
                         "\"paper\" (the appendix as printed)")
 
@@ -140,7 +140,7 @@ class PlanSpec:
     method: str = choice(METHODS, "auto", "how to plan: \"flat\" (the closed-form flat "
                          "outputs; a design without them is refused), \"exact\" (joint paths "
                          "in the basis, the base from the momentum constraint: any "
-                         "controllable design; README, *Robots as built*) or \"auto\" (flat "
+                         "controllable design; docs/asbuilt.md) or \"auto\" (flat "
                          "where the closed form applies, exact elsewhere)")
     optimize: OptimizeSpec = field(default_factory=OptimizeSpec)
 
@@ -188,7 +188,7 @@ class TrackSpec:
     controller: str = choice(CONTROLLERS, "flat", "the feedback: \"flat\" (the paper's "
                              "linearising feedback on the flat outputs, gains kp, kv) or "
                              "\"asbuilt\" (time-varying LQR of the robot as built about the "
-                             "plan, weights lqr_*; README, *Robots as built*)")
+                             "plan, weights lqr_*; docs/asbuilt.md)")
     lqr_bandwidth: float = number(DEFAULT_BANDWIDTH, "asbuilt: b, the joint-rate weight R = "
                                   "I / b^2 of the LQR", "rad/s", gt=0)
     lqr_base: float = number(DEFAULT_BASE, "asbuilt: weight of the base angle's error "
