@@ -93,9 +93,10 @@ class PiecewiseCurves(FlatTrajectory):
 
     basis: PiecewiseBasis
 
-    @property
+    @functools.cached_property
     def local(self) -> Array:
-        """(m, degree + 1, outputs) the local coefficients."""
+        """(m, degree + 1, outputs) the local coefficients (computed once: the Riccati
+        equation's right-hand side evaluates the curves thousands of times)."""
         return self.basis.piecewise(self.coefficients)[1]
 
     def derivative(self, t: Array, order: int) -> Array:
