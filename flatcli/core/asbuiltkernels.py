@@ -19,14 +19,12 @@ from flatcli.core.asbuiltloop import (
     dynamic_rhs,
     kinematic_initial,
     kinematic_rhs,
-    margin_scale,
     observe_dynamic,
     observe_kinematic,
     plan_residual,
     record_dynamic,
     record_kinematic,
 )
-from flatcli.core.chain import inertia_scale
 from flatcli.core.control import Gains
 from flatcli.core.exact import constraint_of
 from flatcli.core.kernels import (
@@ -163,16 +161,13 @@ def asbuilt_dynamic_trace(states: Array, rates: Array, last: int, trace: Array) 
 def asbuilt_shared(model: Any, gains: Gains, rate_limit: float, servo_is_plant: bool,
                    robot: RobotParams) -> AsbuiltShared:
     """What every trial shares: the controller's robot (``exact.Constraint`` of ``robot``,
-    writable copies), the rate limit, the servo's model, the margin's scale (``gains`` and
-    ``model`` are the flat law's: the as-built law's gains are in the tracked flag)."""
+    writable copies), the rate limit, the servo's model (``gains`` and ``model`` are the
+    flat law's: the as-built law's gains are in the tracked flag)."""
     constraint = constraint_of(robot)
-    equivalent, _ = robot.placement
-    scale = inertia_scale(*(np.asarray(v, dtype=float) for v in (
-        equivalent.mass, equivalent.inertia, equivalent.length, equivalent.com)))
-    K = np.array(constraint.K, dtype=float)
-    return AsbuiltShared(K, np.array(constraint.inertia, dtype=float),
+    return AsbuiltShared(np.array(constraint.K, dtype=float),
+                         np.array(constraint.inertia, dtype=float),
                          float(np.cos(constraint.offset)), float(np.sin(constraint.offset)),
-                         float(rate_limit), servo_is_plant, margin_scale(K, scale))
+                         float(rate_limit), servo_is_plant)
 
 
 #: The as-built kernels, by (model kind, plant model).

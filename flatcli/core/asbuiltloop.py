@@ -22,16 +22,17 @@ equivalent placement, ``model.RobotParams.placement``):
   the robot's own offset).
 
 Each right-hand side writes the state's derivative, then 1.0 where the integrators look for
-the controller's signed margin (the law has no singular set, so no trial stops on it), then
-the plant's aux values (the dynamic plant's torques, saturation flag and every rate command).
-The metrics (``metrics.observe_errors``) count no singular hits (the threshold is not
-applied) and report as margin the paper's |sin th1 * th1'| of the plant's motion (for N
-joints |dh_0/dt| / (2 |K_10|) of the controller's model, the flat pipeline's margin), for
-comparison only; err_y is the error of the joint angles th_1..th_N.
+the controller's signed margin (the law has no singular set: the margin never changes sign,
+so no trial meets a crossing, ``crossings`` is 0), then the plant's aux values (the dynamic
+plant's torques, saturation flag and every rate command). The metrics
+(``metrics.observe_errors``) observe an infinite margin: no singular hits, ``min_margin``
+null (no status ``singular``); err_y is the error of the joint angles th_1..th_N (the
+"outputs" of an exact plan).
 """
 
 from __future__ import annotations
 
+import math
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -39,7 +40,6 @@ from numpy.typing import NDArray
 
 from flatcli.core._jit import jitable
 from flatcli.core.chain import (
-    base_inertia_slopes_given,
     chain_momentum_given,
     link_trig,
     momentum_weights_given,
@@ -75,20 +75,22 @@ from flatcli.core.metrics import observe_errors, observe_torque
 
 Array = NDArray[np.float64]
 
-#: The threshold the metrics compare the margin with: none (below any margin).
+#: The threshold the metrics compare the margin with: none (below any margin), and the
+#: margin they observe: the law has no singular set.
 NO_THRESHOLD = -1.0
+NO_MARGIN = math.inf
 #: Rows of ``AsbuiltScratch.rows`` (each N + 1 long): measured angles, rate commands,
-#: h, grad h_0 (N), the plant's cos, sin; the servo model's turned trigonometry (3 rows).
-_MEAS, _CMD, _H, _GRAD, _CS, _SN = range(6)
-ROWS = 6
+#: h, the plant's cos, sin.
+_MEAS, _CMD, _H, _CS, _SN = range(5)
+ROWS = 5
 
 
 class AsbuiltShared(NamedTuple):
     """What every trial shares: the controller's robot (its equivalent placement's K and
     inertias, for the dynamic plant's servo model), cos and sin of its offset, the joint-rate
-    limit [rad/s], whether the servo knows the plant, the margin's scale 1 / (2 |K_10|)
-    [1/kg m^2] of the controller's model, and (the dynamic plant) the lead 1 / b_s [s] of the
-    servo the law was designed for and whether the gains act on the joint rates too."""
+    limit [rad/s], whether the servo knows the plant, and (the dynamic plant) the lead
+    1 / b_s [s] of the servo the law was designed for and whether the gains act on the joint
+    rates too."""
 
     Kc: Array
     Ic: Array
@@ -96,18 +98,16 @@ class AsbuiltShared(NamedTuple):
     sin_c: float
     rate_limit: float
     servo_is_plant: bool
-    margin_scale: float
     lead: float = 0.0
     lagged: bool = False
 
 
 class AsbuiltScratch(NamedTuple):
-    """A loop's buffers: rows (ROWS, N + 1), a Hessian (N, N), the servo model's trig
-    (TRIG_ROWS, N + 1), the dynamic plant's (``chaindynamic.make_scratch``) and a flat-map
-    scratch its record carries (unused)."""
+    """A loop's buffers: rows (ROWS, N + 1), the servo model's trig (TRIG_ROWS, N + 1),
+    the dynamic plant's (``chaindynamic.make_scratch``) and a flat-map scratch its record
+    carries (unused)."""
 
     rows: Array
-    hess: Array
     servo_trig: Array
     dynamic_rows: Array
     trig: Array
@@ -117,8 +117,8 @@ class AsbuiltScratch(NamedTuple):
 
 def asbuilt_scratch(n: int) -> AsbuiltScratch:
     nb = n + 1
-    return AsbuiltScratch(np.zeros((ROWS, nb)), np.zeros((n, n)), np.zeros((3, nb)),
-                          *make_scratch(n), scratch(n))
+    return AsbuiltScratch(np.zeros((ROWS, nb)), np.zeros((3, nb)), *make_scratch(n),
+                          scratch(n))
 
 
 class AsbuiltLoop(NamedTuple):
@@ -134,7 +134,6 @@ class AsbuiltLoop(NamedTuple):
     h0: float
     shared: AsbuiltShared
     rows: Array
-    hess: Array
     servo_trig: Array
     dyn: ChainDynamicLoop
 
@@ -155,8 +154,8 @@ def asbuilt_loop(shared: AsbuiltShared, Kq: Array, params: Array, offset: float,
     dyn = ChainDynamicLoop(shared.Kc, shared.Ic, shared.Ic, shared.Ic, plant, servo, same,
                            params, h0, shared.rate_limit, bandwidth, torque_limit,
                            work.dynamic_rows, work.trig, work.matrices, work.maps, 1.0, 0.0)
-    return AsbuiltLoop(Kq, Iq, params, cos_p, sin_p, h0, shared, work.rows, work.hess,
-                       work.servo_trig, dyn)
+    return AsbuiltLoop(Kq, Iq, params, cos_p, sin_p, h0, shared, work.rows, work.servo_trig,
+                       dyn)
 
 
 @jitable
@@ -220,19 +219,6 @@ def kinematic_rhs(loop: AsbuiltLoop, x: Array, ref: Array, noise: Array, out: Ar
 
 
 @jitable
-def _margin(loop: AsbuiltLoop, rates: Array) -> float:
-    """|dh_0/dt| / (2 |K_10|) of the plant's motion with the controller's scale, at the
-    plant's trigonometry in rows[_CS], rows[_SN] (for comparison with the flat pipeline)."""
-    nb = loop.Iq.shape[0]
-    grad = loop.rows[_GRAD, : nb - 1]
-    base_inertia_slopes_given(loop.Kq, loop.Iq, loop.rows[_CS], loop.rows[_SN], grad, loop.hess)
-    d = 0.0
-    for k in range(nb - 1):
-        d += grad[k] * rates[k + 1]
-    return abs(d) * loop.shared.margin_scale
-
-
-@jitable
 def observe_kinematic(loop: AsbuiltLoop, obs: Any, acc: Array, j: int, x: Array, f: Array
                       ) -> None:
     """Metrics of the kinematic plant at output sample j (module docstring)."""
@@ -251,7 +237,7 @@ def observe_kinematic(loop: AsbuiltLoop, obs: Any, acc: Array, j: int, x: Array,
     for i in range(1, nb):
         peak = max(peak, abs(f[i]))
     h = chain_momentum_given(loop.params, loop.rows[_CS], loop.rows[_SN], f[:nb])
-    observe_errors(acc, j, et2, ey2, _margin(loop, f), h, loop.h0, peak, NO_THRESHOLD)
+    observe_errors(acc, j, et2, ey2, NO_MARGIN, h, loop.h0, peak, NO_THRESHOLD)
 
 
 @jitable
@@ -395,7 +381,7 @@ def observe_dynamic(loop: AsbuiltLoop, obs: Any, acc: Array, j: int, x: Array, f
         peak = max(peak, abs(rates[i + 1]))
         torque = max(torque, abs(f[nx + 1 + i]))
     h = chain_momentum_given(loop.params, loop.rows[_CS], loop.rows[_SN], rates)
-    observe_errors(acc, j, et2, ey2, _margin(loop, rates), h, loop.h0, peak, NO_THRESHOLD)
+    observe_errors(acc, j, et2, ey2, NO_MARGIN, h, loop.h0, peak, NO_THRESHOLD)
     observe_torque(acc, torque, 0.0, f[nx + 1 + n])
 
 
@@ -425,13 +411,7 @@ def plan_residual(loop: AsbuiltLoop, plan_theta: Array, plan_theta_dot: Array) -
     return residual
 
 
-def margin_scale(K: Array, scale: float) -> float:
-    """1 / (2 |K_10|) of a controller's K, or 1 / (2 J) (``scale``) when K_10 = 0."""
-    k10 = abs(float(K[1, 0]))
-    return 0.5 / (k10 if k10 > 0 else scale)
-
-
 __all__ = ["AsbuiltLoop", "AsbuiltScratch", "AsbuiltShared", "asbuilt_loop",
            "asbuilt_scratch", "dynamic_aux", "dynamic_initial", "dynamic_rhs",
-           "kinematic_initial", "kinematic_rhs", "margin_scale", "observe_dynamic",
+           "kinematic_initial", "kinematic_rhs", "observe_dynamic",
            "observe_kinematic", "plan_residual", "record_dynamic", "record_kinematic"]

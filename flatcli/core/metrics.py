@@ -290,7 +290,9 @@ def finish_metrics(
     out[_M_ERR_Y_FINAL] = math.sqrt(acc[_LAST_EY2]) if complete else math.nan
     out[_M_SINGULAR_HITS] = acc[_HITS] + crossings
     out[_M_FIRST_HIT_TIME] = first_hit
-    out[_M_MIN_MARGIN] = (0.0 if crossings > 0 else acc[_MIN_MARGIN]) if count else math.nan
+    # a controller without a singular set observes an infinite margin: min_margin null
+    least = acc[_MIN_MARGIN] if math.isfinite(acc[_MIN_MARGIN]) else math.nan
+    out[_M_MIN_MARGIN] = (0.0 if crossings > 0 else least) if count else math.nan
     out[_M_MOMENTUM_DRIFT] = acc[_DRIFT] if count else math.nan
     out[_M_PLAN_MOMENTUM_RESIDUAL] = residual
     out[_M_ERR_ESTIMATE] = err_estimate

@@ -222,7 +222,7 @@ def plant_text(spec: Spec) -> str:
 
 def track_title(spec: Spec, metrics: Mapping[str, Any] | None = None) -> str:
     """A closed-loop run's title: the run, the plant, the sensor noise, the rate and torque
-    limits, the gains and the status."""
+    limits, the gains (the as-built law's weights) and the status."""
     track, plant = spec.track, spec.plant
     torque = limit_text(plant.torque_limit, "N m") if plant.model == "dynamic" else \
         "n/a (no torques)"
@@ -231,10 +231,14 @@ def track_title(spec: Spec, metrics: Mapping[str, Any] | None = None) -> str:
         status = f"; status {metrics['status']}"
         if metrics.get("event_time") is not None and metrics["status"] != "singular":
             status += f" at $t$ = {float(metrics['event_time']):.4g} s"
+    law = (f"$k_p$ = {_numbers(track.kp)}, $k_v$ = {_numbers(track.kv)}"
+           if track.controller != "asbuilt" else
+           f"as-built LQR: $b$ = {track.lqr_bandwidth:g} rad/s, lqr_base = "
+           f"{track.lqr_base:g}, lqr_terminal = {track.lqr_terminal:g} s")
     return (f"track {spec.name!r}: {plant_text(spec)}\n"
             f"sensor noise {limit_text(track.sensor_noise, 'rad')}, rate limit "
             f"{limit_text(track.rate_limit, 'rad/s')}, torque limit {torque}\n"
-            f"$k_p$ = {_numbers(track.kp)}, $k_v$ = {_numbers(track.kv)}{status}")
+            f"{law}{status}")
 
 
 def _numbers(values: Sequence[float]) -> str:
@@ -385,8 +389,14 @@ def track_figure(frame: Any, limits: Limits | None = None, title: str = "") -> F
     eth = np.sqrt(sum((cols[f"theta{i}"] - cols[f"theta{i}_ref"]) ** 2 for i in range(n + 1)))
     ax[1, 0].semilogy(t, ey, color="C0", label=r"$\|y - y_\mathrm{ref}\|$")
     ax[1, 0].semilogy(t, eth, color="C1", label=r"$\|\theta - \theta_\mathrm{ref}\|$")
-    ax[1, 1].semilogy(t, cols["margin"], color="C6", label=margin_label(n, "u_1"))
-    limit_line(ax[1, 1], lim.singular_threshold, "singular_threshold", "rad/s")
+    margined = bool(np.any(np.isfinite(cols["margin"])))
+    if margined:
+        ax[1, 1].semilogy(t, cols["margin"], color="C6", label=margin_label(n, "u_1"))
+        limit_line(ax[1, 1], lim.singular_threshold, "singular_threshold", "rad/s")
+    else:  # the as-built law: no singular set, no margin recorded
+        ax[1, 1].text(0.5, 0.5, "no singular set\n(as-built law)", ha="center", va="center",
+                      transform=ax[1, 1].transAxes)
+        ax[1, 1].set_yticks([])
     if "momentum" in cols:
         ax[1, 2].plot(t, cols["momentum"], color="C4", label="$H$ (full link kinematics)")
     ax[0, 0].set_ylabel(quantity("y_j", "rad"))
@@ -397,7 +407,8 @@ def track_figure(frame: Any, limits: Limits | None = None, title: str = "") -> F
     ax[1, 2].set_ylabel(quantity("H", unit_text("kg m^2/s")))
     if dynamic:
         _actuator_row(ax[2], cols, n, lim)
-    ax[1, 1].set_ylim(top=30 * float(np.nanmax(cols["margin"], initial=1.0)))  # legend room
+    if margined:
+        ax[1, 1].set_ylim(top=30 * float(np.nanmax(cols["margin"], initial=1.0)))  # legend
     valid = t[np.isfinite(cols["theta0"])]
     if len(valid) and valid[-1] < t[-1]:  # the trial stopped early: mark where, once
         for a in ax.flat:
