@@ -29,14 +29,22 @@ def _load_libraries() -> None:
     import scipy.linalg  # noqa: F401
 
 
+@functools.cache
+def _controller() -> Any:
+    """threadpoolctl's controller of the libraries numpy and scipy load, found once (finding
+    them costs about 5 ms, a fifth of planning a maneuver through the API); each limit reads
+    their thread counts afresh, so what it restores is what they ran before it."""
+    from threadpoolctl import ThreadpoolController
+
+    _load_libraries()
+    return ThreadpoolController()
+
+
 @contextlib.contextmanager
 def one_thread() -> Iterator[None]:
     """Within: every loaded BLAS and OpenMP pool runs one thread; afterwards, what it ran
     before."""
-    from threadpoolctl import threadpool_limits
-
-    _load_libraries()
-    with threadpool_limits(limits=1):
+    with _controller().limit(limits=1):
         yield
 
 

@@ -249,21 +249,29 @@ def plan_pieces(basis: Basis) -> Array:
     return np.append(np.concatenate(fine), edges[-1])
 
 
+@functools.lru_cache(maxsize=64)
 def _gram(basis: Basis, order: int) -> Array:
     """(size, size): integral over [0, T] of phi^(order) phi^(order)^T (Gauss, exact for
     the basis's polynomials)."""
-    nodes, weights = _quadrature(basis)
+    nodes, weights = _quadrature(basis)  # type: ignore[arg-type]  # frozen
     d = basis.matrix(nodes, order)
-    return (d * weights[:, None]).T @ d
+    gram: Array = (d * weights[:, None]).T @ d
+    gram.setflags(write=False)
+    return gram
 
 
+@functools.lru_cache(maxsize=64)
 def _quadrature(basis: Basis) -> tuple[Array, Array]:
-    """Gauss-Legendre nodes and weights on the plan's pieces (``plan_pieces``) [s]."""
+    """Gauss-Legendre nodes and weights on the plan's pieces (``plan_pieces``) [s]
+    (read-only; computed once per basis)."""
     edges = plan_pieces(basis)
     x, w = np.polynomial.legendre.leggauss(QUAD_ORDER)
     lo, hi = edges[:-1, None], edges[1:, None]
     half = 0.5 * (hi - lo)
-    return (half * (x + 1.0) + lo).ravel(), (half * w).ravel()
+    nodes, weights = (half * (x + 1.0) + lo).ravel(), (half * w).ravel()
+    for a in (nodes, weights):
+        a.setflags(write=False)
+    return nodes, weights
 
 
 @dataclass(frozen=True)
@@ -357,9 +365,9 @@ def problem(constraint: Constraint, basis: Basis, start: Array, goal: Array,
     n = constraint.n_joints
     inner = boundary_system(basis)  # type: ignore[arg-type]  # bases are frozen dataclasses
     last_p, last_null = _ends_system(basis)  # type: ignore[arg-type]  # frozen dataclasses
-    nodes, weights = _quadrature(basis)
+    nodes, weights = _quadrature(basis)  # type: ignore[arg-type]  # frozen dataclasses
     phi0, phi1 = basis.matrix(nodes, 0), basis.matrix(nodes, 1)
-    gram = _gram(basis, order)
+    gram = _gram(basis, order)  # type: ignore[arg-type]
     particular, null = [], []
     for j in range(1, n + 1):
         if j < n:
