@@ -29,6 +29,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from benchmarks.asbuilt import HEADERS as ASBUILT_HEADERS
+from benchmarks.asbuilt import run_all as run_asbuilt
 from benchmarks.baselines import (
     PAPER_MANEUVER,
     PAPER_TRACKING,
@@ -393,6 +395,7 @@ HEADERS = {
     "Scaling: 2 workers": ["sweep", "trials/s", "warm trials/s", "wall", "peak memory (RSS)"],
     **INTEGRATOR_HEADERS,
     **CHAIN_HEADERS,
+    **ASBUILT_HEADERS,
     "Optimised plans: least energy, abs(th2) <= 3, rates <= 20, margin >= 0.05":
         ["plan", "energy [rad^2/s]", "limit violation", "max abs(H)", "time", "note"],
     LADDER: ["limit", "value", "energy [rad^2/s]", "time", "note"],
@@ -435,6 +438,7 @@ def main(argv: list[str] | None = None) -> None:
     sweeps(bench, args.million)
     run_integrators(bench, sweep)
     run_chains(bench)
+    run_asbuilt(bench, sweep)
     optimised(bench)
     optimised_ladder(bench)
     text = report(bench)
