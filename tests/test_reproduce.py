@@ -11,7 +11,7 @@ import pytest
 from click.testing import CliRunner
 
 from flatcli.cli import REPRODUCE_SECTIONS, main
-from flatcli.reproduce import SECTION_NAMES, STUDY_SPEC
+from flatcli.reproduce import SECTION_NAMES, STUDY_SPEC, asbuilt
 from flatcli.reproduce.actuators import STUDY
 from flatcli.reproduce.chains import CHAIN_SPECS
 
@@ -21,6 +21,11 @@ ROOT = Path(__file__).resolve().parents[1]
 def test_reproduce_writes_figures_tables_and_report(tmp_path: Path,
                                                     monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.chdir(tmp_path)  # any directory: the study's spec comes with the package
+    # the as-built section's tolerance maps on a few placements and masses (its 37 cells per
+    # pipeline, each designing its LQR, are make reproduce's; the wiring is the same)
+    monkeypatch.setattr(asbuilt, "ALONG_MM", (0.0, 3.0))
+    monkeypatch.setattr(asbuilt, "ACROSS_MM", (0.0, 1.0))
+    monkeypatch.setattr(asbuilt, "MASS_PERCENT", (-5.0, 0.0))
     result = CliRunner().invoke(main, ["reproduce", "--out", "paper", "--set",
                                        "sweep.trials=8", "-q"])
     assert result.exit_code == 0, result.output
@@ -54,6 +59,17 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path,
     for name in ("fig_chains.png", "chains/chain4/plan.parquet",
                  "chains/chain6/track_dynamic.parquet", "chains/chain6/montecarlo/trials.parquet"):
         assert (out / name).exists(), name
+    # robots as built: the goal's table (Fig. 4's start and the three cells, the same trials
+    # in both pipelines), the maps, the figure, the exact plans' momentum
+    assert "## Robots as built" in report
+    assert "| Fig. 4's start (1.96, 0.8, -0.1) | 1 / 1 |" in report
+    assert "th(0) errors of std 0.05 rad | " in report and "0 crossings in 24 trials" in report
+    assert "of 4 counterweight placements" in report and "| -5 | " in report
+    assert "**Counterweight designer**" in report and "| least inertia | 0.15 |" in report
+    for name in ("fig_asbuilt.png", "asbuilt/goal_asbuilt/trials.parquet",
+                 "asbuilt/goal_ideal/trials.parquet", "asbuilt/placement_asbuilt/trials.parquet",
+                 "asbuilt/mass_ideal/trials.parquet"):
+        assert (out / name).exists(), name
     assert "Made with `flatcli reproduce --out paper --set sweep.trials=8 -q`" in report
     assert "## Headlines" in report
 
@@ -61,8 +77,8 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path,
     # are the same
     again = CliRunner().invoke(main, ["reproduce", "--out", "paper", "--set", "sweep.trials=8"])
     assert again.exit_code == 0, again.output
-    assert "5 sections (0 computed, 5 reused)" in again.output
-    assert again.output.count("reused: unchanged since") == 5
+    assert "6 sections (0 computed, 6 reused)" in again.output
+    assert again.output.count("reused: unchanged since") == 6
     assert "- paper: the printed b1 is wrong" in again.output  # the headlines, not the report
     assert len(again.output.splitlines()) < 40
     body = report.split("## How this report was made")[0]
@@ -72,7 +88,7 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path,
     (out / "fig2_flat_outputs.png").unlink()
     third = CliRunner().invoke(main, ["reproduce", "--out", "paper", "--set", "sweep.trials=8"])
     assert third.exit_code == 0, third.output
-    assert "5 sections (1 computed, 4 reused)" in third.output
+    assert "6 sections (1 computed, 5 reused)" in third.output
     assert "fig2_flat_outputs.png changed or is missing" in third.output
     assert (out / "fig2_flat_outputs.png").exists()
 
@@ -81,7 +97,7 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path,
     only = CliRunner().invoke(main, ["reproduce", "--out", "paper", "--set", "sweep.trials=8",
                                      "--only", "optimized", "--force"])
     assert only.exit_code == 0, only.output
-    assert "5 sections (1 computed, 4 reused)" in only.output and "(--force)" in only.output
+    assert "6 sections (1 computed, 5 reused)" in only.output and "(--force)" in only.output
     other = CliRunner().invoke(main, ["reproduce", "--out", "paper", "--set", "sweep.trials=9",
                                       "--only", "paper"])
     assert other.exit_code == 0, other.output
@@ -101,6 +117,7 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path,
         (["--montecarlo", "missing.toml"], "spec file not found: missing.toml"),
         (["--only", "figures"], "Invalid value for '--only'"),
         (["--no-montecarlo", "--only", "montecarlo"], "skipped by --no-montecarlo"),
+        (["--no-montecarlo", "--only", "asbuilt"], "--only asbuilt: the study is skipped"),
     ],
 )
 def test_bad_input_is_refused_before_anything_is_written(
@@ -113,7 +130,7 @@ def test_bad_input_is_refused_before_anything_is_written(
     assert list(tmp_path.iterdir()) == []
 
 
-@pytest.mark.parametrize("spec", [STUDY_SPEC, STUDY, *CHAIN_SPECS])
+@pytest.mark.parametrize("spec", [STUDY_SPEC, STUDY, *CHAIN_SPECS, asbuilt.GOAL_SPEC])
 def test_the_study_specs_ship_as_package_data(spec: Path) -> None:
     assert spec.is_file() and spec.parent.name == "data"
     assert spec.parent.parent == ROOT / "flatcli"

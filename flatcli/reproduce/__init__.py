@@ -53,8 +53,9 @@ def check_inputs(out: Path, montecarlo: Path | None, workers: int | None,
         if name not in SECTION_NAMES:
             raise FlatcliError(f"--only: expected one of {', '.join(SECTION_NAMES)}, "
                                f"got {name!r}")
-    if montecarlo is None and any(n in only for n in ("montecarlo",)):
-        raise FlatcliError("--only montecarlo: the study is skipped by --no-montecarlo")
+    for name in ("montecarlo", "asbuilt"):  # the sections that are studies
+        if montecarlo is None and name in only:
+            raise FlatcliError(f"--only {name}: the study is skipped by --no-montecarlo")
     check_output_dir(out)
     if workers is not None and workers < 1:
         raise FlatcliError(f"--workers: must be >= 1, got {workers}")
