@@ -232,14 +232,31 @@ def riccati_gains(constraint: Constraint, reference: PiecewiseCurves,
     return fit(edges, CURVE_DEGREE, L.reshape(*times.shape, n * size))
 
 
+#: The last designs (``tracked``), by (the plan object, weights, servo): a sweep's cells that
+#: share a plan (``sweep.layout`` plans each robot and maneuver once) share its design, whose
+#: Riccati integration costs 0.5-0.8 s; each entry keeps its plan, so an id is never reused.
+_DESIGNS: dict[tuple[int, LqrWeights, float | None], tuple[Plan, PiecewiseCurves]] = {}
+DESIGN_CACHE = 16
+
+
 def tracked(plan: Plan, weights: LqrWeights = LqrWeights(), servo: float | None = None
             ) -> PiecewiseCurves:
     """The channels the as-built loop tracks (``TrackedLayout``): the plan's angles and the
     gains designed on the plan's robot (the controller's model), with the servo's lag of
-    bandwidth ``servo`` [rad/s] for the dynamic plant (None: the kinematic plant)."""
+    bandwidth ``servo`` [rad/s] for the dynamic plant (None: the kinematic plant); designed
+    once per plan object, weights and servo (``_DESIGNS``)."""
+    key = (id(plan), weights, servo)
+    hit = _DESIGNS.get(key)
+    if hit is not None and hit[0] is plan:
+        return hit[1]
     reference = reference_channels(plan)
     gains = riccati_gains(constraint_of(plan.robot), reference, weights, servo)
-    return joined([reference, gains])
+    curves = joined([reference, gains])
+    curves.coefficients.setflags(write=False)  # shared between the cells that use it
+    if len(_DESIGNS) >= DESIGN_CACHE:
+        del _DESIGNS[next(iter(_DESIGNS))]  # the oldest
+    _DESIGNS[key] = (plan, curves)
+    return curves
 
 
 __all__ = ["DEFAULT_BANDWIDTH", "DEFAULT_BASE", "DEFAULT_JOINT", "DEFAULT_RATE",

@@ -480,8 +480,8 @@ def run(context: Context) -> Outcome:
         table(["mass error [%]", "ideal: median [rad]", "as built: median [rad]",
                "lost (ideal / as built)", "unverified (ideal / as built)"],
               [[f"{p:+g}", ideal["median"], asb["median"],
-                f"{ideal['lost']} / {asb['lost']}",
-                f"{ideal['unverified']} / {asb['unverified']}"]
+                f"{int(ideal['lost'])} / {int(asb['lost'])}",
+                f"{int(ideal['unverified'])} / {int(asb['unverified'])}"]
                for p, (_, ideal), (_, asb) in zip(MASS_PERCENT, found["mass_ideal"].iterrows(),
                                                   found["mass_asbuilt"].iterrows(),
                                                   strict=True)], 3, align=False),
