@@ -209,11 +209,14 @@ def cell_table(trials: pd.DataFrame) -> pd.DataFrame:
 
 
 def kinematic_levels(trials: pd.DataFrame) -> dict[str, tuple[float, float]]:
-    """Per maneuver, the kinematic plant's median and 95th-percentile final angle error
-    (resolved trials) and the fraction lost."""
+    """Per maneuver, the kinematic plant's 95th-percentile final angle error (verified
+    resolved trials; the unverified ones where none is verified) and the fraction lost."""
     out = {}
     for label, group in trials.groupby(MANEUVER, sort=False):
-        done = group[group["status"].isin(COMPLETED)]["err_theta_final"].to_numpy(dtype=float)
+        resolved = group[group["status"].isin(COMPLETED)]
+        sure = _column(resolved, "verified", False).fillna(False).astype(bool)
+        done = (resolved[sure] if sure.any() else resolved)["err_theta_final"].to_numpy(
+            dtype=float)
         out[str(label)] = (float(np.quantile(done, 0.95)) if len(done) else math.nan,
                            float(group["status"].isin(LOST).mean()))
     return out
