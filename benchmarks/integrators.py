@@ -5,7 +5,9 @@
 * steps and right-hand-side evaluations per trial (median, 95th percentile) by cell;
 * accuracy against cost: adaptive rtol 1e-4 .. 1e-10 and RK4 dt 4 .. 0.25 ms, against
   scipy's DOP853 at rtol 1e-12 on the same right-hand side (every output sample);
-* the error estimate ``err_estimate`` against the true final error on a few hundred trials.
+* the error estimate ``err_estimate`` against the true final error on a few hundred trials;
+* the default settings' largest error by gains, plant and robot (nominal, perturbed with
+  d2 != 0, residual momentum H0 = 0.2).
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from flatcli.core.simulate import (
     Scenario,
     Trials,
     closed_loop_rhs,
+    closed_loop_start,
     simulate,
 )
 
@@ -41,24 +44,49 @@ SWEEPS = "Integrators: adaptive (default) against RK4, 2 workers"
 CELLS = "Integrators: steps and right-hand sides per trial, paper study, by cell"
 ACCURACY = "Accuracy against cost (every output sample against DOP853 at rtol 1e-12)"
 ESTIMATE = "err_estimate against the true final error (DOP853 at rtol 1e-12)"
+CASES = "Accuracy by gains, plant and robot (every output sample against DOP853 at rtol 1e-12)"
 HEADERS = {
     SWEEPS: ["sweep", "adaptive", "rk4", "ratio", "note"],
     CELLS: ["cell", "grid values", "steps median", "steps p95", "rhs median", "rhs p95",
             "statuses (adaptive)", "statuses (rk4)"],
     ACCURACY: ["integrator", "setting", "max error printed [rad]", "max error swapped [rad]",
                "max error perturbed [rad]", "rhs per trial", "trials/s (1 core)"],
-    ESTIMATE: ["gains", "trials", "bounded", "median estimate / true", "smallest ratio"],
+    ESTIMATE: ["gains", "plant", "trials", "within 10x", "smallest ratio", "median ratio",
+               "largest ratio"],
+    CASES: ["gains", "plant", "robot", "trials", "adaptive max error [rad]",
+            "rk4 1 ms max error [rad]"],
 }
+
+
+#: Right-hand sides a reference solution may take (about a minute of scipy): a trial that
+#: passes close to the singular set can make DOP853 at rtol 1e-12 crawl without failing.
+REFERENCE_BUDGET = 3_000_000
+
+
+class _OverBudgetError(Exception):
+    """The reference took more than ``REFERENCE_BUDGET`` right-hand sides."""
 
 
 def reference(scenario: Scenario, trials: Trials, i: int, times: Array) -> Array | None:
     """Trial i by scipy's DOP853 at rtol 1e-12 on the kernel's right-hand side: the angles
-    at ``times`` (None if it cannot finish: a diverging trial has no accuracy to compare)."""
+    at ``times`` (None if it cannot finish, or not within ``REFERENCE_BUDGET`` right-hand
+    sides: a diverging trial has no accuracy to compare)."""
     rhs = closed_loop_rhs(scenario, trials, i)
+    calls = [0]
+
+    def counted(t: float, x: Array) -> Array:
+        calls[0] += 1
+        if calls[0] > REFERENCE_BUDGET:
+            raise _OverBudgetError
+        return rhs(t, x)
+
     with np.errstate(all="ignore"):
-        sol = solve_ivp(lambda t, x: rhs(t, x),
-                        (0.0, float(times[-1])), trials.initial[i], method="DOP853",
-                        t_eval=times, rtol=1e-12, atol=1e-14)
+        try:
+            sol = solve_ivp(counted, (0.0, float(times[-1])),
+                            closed_loop_start(scenario, trials, i), method="DOP853",
+                            t_eval=times, rtol=1e-12, atol=1e-14)
+        except _OverBudgetError:
+            return None
     return np.asarray(sol.y[:3].T) if sol.status == 0 else None
 
 
@@ -109,29 +137,74 @@ def accuracy_curve(bench: Any) -> None:
 
 
 def error_estimate(bench: Any) -> None:
-    """Fraction of resolved perturbed trials whose true final error err_estimate bounds."""
+    """err_estimate (the twin at a hundredth of the tolerances) against the true final error
+    of resolved perturbed trials: the share within 10x and the smallest ratio (the band the
+    tests ask for: within 10x on 90 %, never below by more than 3x)."""
     plan = PAPER_MANEUVER.cubic()
     raw = []
-    for name, gains, seed in (("printed", PRINTED, 11), ("swapped", SWAPPED, 12)):
-        trials = paper_trials(40 if bench.quick else 150, seed=seed)
-        scenario = Scenario(plan, gains, 1e-3)
+    readings = (("printed", PRINTED, "kinematic", 11), ("swapped", SWAPPED, "kinematic", 12),
+                ("printed", PRINTED, "dynamic", 13), ("swapped", SWAPPED, "dynamic", 14))
+    for name, gains, plant, seed in readings:
+        trials = paper_trials(40 if bench.quick else 150, seed=seed, angle_spread=0.05)
+        scenario = Scenario(plan, gains, 1e-3, plant=plant)  # type: ignore[arg-type]
         out = simulate(scenario, trials, record=True)
         assert out.trace is not None
         ratios = []
         end = np.array([0.0, plan.duration])
-        for i in np.flatnonzero(out.status == Status.OK):
-            ref = bench.measure(ESTIMATE, f"{name} trial {i}",
+        resolved = (out.status == Status.OK) | (out.status == Status.SINGULAR)
+        for i in np.flatnonzero(resolved):
+            ref = bench.measure(ESTIMATE, f"{name} {plant} trial {i}",
                                 partial(reference, scenario, trials, int(i), end))
             if ref is None:
                 continue
             true = float(np.linalg.norm(out.trace[i, -1, :3] - ref[-1]))
             ratios.append(out.metrics[i, Metric.ERR_ESTIMATE] / max(true, 1e-300))
         r = np.asarray(ratios)
-        bench.row(ESTIMATE, name, len(r), f"{np.mean(r >= 1):.1%}", f"{np.median(r):.3g}",
-                  f"{np.min(r):.3g}")
-        raw.append({"gains": name, "trials": len(r), "bounded": float(np.mean(r >= 1)),
-                    "median_ratio": float(np.median(r)), "smallest_ratio": float(np.min(r))})
+        within = float(np.mean((r <= 10) & (r >= 0.1)))
+        bench.row(ESTIMATE, name, plant, len(r), f"{within:.1%}", f"{np.min(r):.3g}",
+                  f"{np.median(r):.3g}", f"{np.max(r):.3g}")
+        raw.append({"gains": name, "plant": plant, "trials": len(r), "within_10x": within,
+                    "smallest_ratio": float(np.min(r)), "median_ratio": float(np.median(r)),
+                    "largest_ratio": float(np.max(r))})
     bench.raw["error_estimate"] = raw
+
+
+def accuracy_by_case(bench: Any) -> None:
+    """The default settings (adaptive at rtol 5e-8, and RK4 at dt = 1 ms) on the paper's
+    maneuver: the largest error of any output sample of any resolved trial against DOP853 at
+    rtol 1e-12, by gains, plant and robot: the paper's robot from Fig. 4's start; perturbed
+    robots (parameters +-2 %, d2 within +-2 mm, H0 within +-1e-4, start within 0.02 rad);
+    the same with H0 = 0.2 kg m^2/s of residual momentum."""
+    plan = PAPER_MANEUVER.cubic()
+    count = 4 if bench.quick else 12
+    fig4 = Trials(PAPER_MANEUVER.robot.as_array()[None], np.zeros(1),
+                  np.array([[1.96, 0.8, -0.1, 0.1]]))
+    perturbed = paper_trials(count, seed=5)
+    spinning = Trials(perturbed.links, np.full(count, 0.2), perturbed.initial)
+    raw = []
+    for gname, gains in (("printed", PRINTED), ("swapped", SWAPPED)):
+        for plant in ("kinematic", "dynamic"):
+            for rname, trials in (("paper, Fig. 4 start", fig4), ("perturbed", perturbed),
+                                  ("perturbed, H0 = 0.2", spinning)):
+                scenario = Scenario(plan, gains, 1e-3, plant=plant)
+                errors = {}
+                refs = [reference(scenario, trials, i, scenario.times)
+                        for i in range(trials.count)]
+                for integrator in ("adaptive", "rk4"):
+                    out = simulate(scenario, trials, integrator,
+                                   record=True)
+                    assert out.trace is not None
+                    worst = 0.0
+                    for i, ref in enumerate(refs):
+                        if ref is not None and out.status[i] in (Status.OK, Status.SINGULAR):
+                            worst = max(worst, float(np.max(np.abs(out.trace[i, :, :3] - ref))))
+                    errors[integrator] = worst
+                resolved = sum(ref is not None for ref in refs)
+                bench.row(CASES, gname, plant, rname, resolved, f"{errors['adaptive']:.1e}",
+                          f"{errors['rk4']:.1e}")
+                raw.append({"gains": gname, "plant": plant, "robot": rname,
+                            "trials": resolved, **errors})
+    bench.raw["accuracy_by_case"] = raw
 
 
 def integrator_sweeps(bench: Any, sweep: Any) -> None:
@@ -203,4 +276,5 @@ def run_all(bench: Any, sweep: Any) -> None:
     integrator_sweeps(bench, sweep)
     accuracy_curve(bench)
     error_estimate(bench)
+    accuracy_by_case(bench)
     bench.raw["integrators_seconds"] = time.perf_counter() - started

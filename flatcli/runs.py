@@ -544,10 +544,11 @@ def run_info(directory: Path) -> RunInfo | None:
 
 
 def _numbers(values: Mapping[str, Any]) -> dict[str, Any]:
-    """The numbers of a record's table (a metric that does not apply, null, as nan)."""
-    out = {}
+    """The numbers and flags of a record's table (a metric that does not apply, null, as nan;
+    a yes/no metric such as ``verified`` kept as a bool)."""
+    out: dict[str, Any] = {}
     for key, value in values.items():
-        number = _number(value)
+        number = value if isinstance(value, bool) else _number(value)
         if number is not None:
             out[str(key)] = number
     return out

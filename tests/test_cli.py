@@ -736,3 +736,27 @@ def test_sweeps_and_plan_track_runs_are_kept_apart(tmp_path: Path,
     assert code == 0 and "[track]" in out and f"trial = {trial}" in out
     code, out = run("rerun", str(loaded.directory), "0")
     assert code == 2 and out.startswith("error: ") and "not a sweep" in out
+
+
+def test_a_four_link_robot_plans_tracks_and_sweeps_with_only_robot_and_plan(
+        tmp_path: Path) -> None:
+    """Sized defaults end to end: no [track] table, so the plant starts on the plan (the
+    plan itself is then the closed loop's exact solution: the error stays at the integrator's
+    tolerance) with a double pole at -5 rad/s per output."""
+    spec = tmp_path / "four.toml"
+    spec.write_text(
+        "[robot]\nmass = [2.0, 1.0, 1.0, 0.5]\ninertia = [0.1, 0.0533, 0.0533, 0.15]\n"
+        "length = [0.3, 0.2, 0.2, 0.2]\ncom = [0.1, 0.1, 0.1, 0.0]\n"
+        "[plan]\nstart = [0.0, 1.0, 0.3, 0.0]\ngoal = [-0.75, 2.0, 0.6, 0.0]\n"
+        "start_rate = 0.3\n")
+    for command in ("plan", "track"):
+        code, out = run(command, str(spec), "--out", str(tmp_path / command))
+        assert code == 0, out
+    metrics = json.loads((tmp_path / "track" / "metrics.json").read_text())
+    assert metrics["status"] == "ok" and metrics["err_theta_final"] < 1e-6
+    spec.write_text(spec.read_text() + "[sweep]\ntrials = 3\n[sweep.perturb]\n"
+                    "initial = { dist = \"normal\", std = 0.001 }\n")
+    code, out = run("sweep", str(spec), "--out", str(tmp_path / "sweep"), "-q")
+    assert code == 0, out
+    trials = pd.read_parquet(tmp_path / "sweep" / "trials.parquet")
+    assert len(trials) == 3 and set(trials["status"]) <= {"ok", "singular"}

@@ -21,7 +21,9 @@ from flatcli.reproduce.actuators import (
     LIMIT,
     MANEUVER,
     TRACKABLE_ERROR,
+    bandwidth_law,
     cell_table,
+    crossing_accounting,
     finding,
     limit_text,
     lost_interval,
@@ -31,7 +33,9 @@ from flatcli.spec import resolve
 
 
 def trials_frame() -> pd.DataFrame:
-    """Two maneuvers x two bandwidths x two limits, 4 trials each, with known outcomes."""
+    """Two maneuvers x two bandwidths x two limits, 4 trials each, with known outcomes; under
+    maneuver a's torque limit at 10 rad/s, trial 3 crossed the singular set and tumbled (final
+    error 50 rad, not verified)."""
     rows = []
     rng = np.random.default_rng(1)
     for maneuver in ("a", "b"):
@@ -39,7 +43,8 @@ def trials_frame() -> pd.DataFrame:
             for limit in (math.inf, 5.0):
                 for i in range(4):
                     lost = maneuver == "b" and limit == 5.0 and i == 0
-                    error = 0.1 / bandwidth * (1 + rng.uniform())
+                    tumbled = maneuver == "a" and limit == 5.0 and bandwidth == 10.0 and i == 3
+                    error = 50.0 if tumbled else 0.1 / bandwidth * (1 + rng.uniform())
                     rows.append({
                         MANEUVER: maneuver, BANDWIDTH: bandwidth, LIMIT: limit,
                         "status": "diverged" if lost else ("singular" if i == 1 else "ok"),
@@ -47,6 +52,10 @@ def trials_frame() -> pd.DataFrame:
                         "peak_torque": 3.0 + i if math.isinf(limit) else min(3.0 + i, limit),
                         "torque_saturated": 0 if math.isinf(limit) or i < 2 else 7,
                         "momentum_drift": 1e-10 * (i + 1),
+                        "crossings": 2 if tumbled else 0,
+                        "first_crossing_time": 0.05 if tumbled else math.nan,
+                        "err_estimate": 3e-3 if tumbled else 1e-9,
+                        "verified": not (lost or tumbled),
                     })
     return pd.DataFrame(rows)
 
@@ -58,8 +67,13 @@ def test_cell_statistics_are_over_the_right_trials() -> None:
     for _, cell in cells.iterrows():
         group = frame[(frame[MANEUVER] == cell[MANEUVER]) & (frame[BANDWIDTH] == cell[BANDWIDTH])
                       & (frame[LIMIT] == cell[LIMIT])]
-        done = group[group["status"].isin(["ok", "singular"])]
+        done = group[group["status"].isin(["ok", "singular"]) & group["verified"]]
+        crossed = group["crossings"] > 0
         assert cell["trials"] == 4
+        assert cell["crossed"] == crossed.mean()
+        assert cell["tumbled"] == (crossed & (group["err_theta_final"] > TRACKABLE_ERROR)).mean()
+        resolved = group[group["status"].isin(["ok", "singular"])]
+        assert cell["unverified"] == 1 - resolved["verified"].mean()
         assert cell["lost"] == cell["diverged"] == (group["status"] == "diverged").mean()
         assert cell["unresolved"] == 0
         final = done["err_theta_final"].to_numpy()
@@ -68,8 +82,32 @@ def test_cell_statistics_are_over_the_right_trials() -> None:
         assert cell["peak_torque_median"] == np.median(done["peak_torque"])
         assert cell["saturated"] == (group["torque_saturated"] > 0).mean()
         assert cell["drift_max"] == done["momentum_drift"].max()
-        assert cell["trackable"] == (cell["lost"] == 0
+        assert cell["trackable"] == (cell["lost"] == 0 and cell["unverified"] == 0
                                      and cell["err_final_p95"] <= TRACKABLE_ERROR)
+    tumbling = cells[cells["tumbled"] > 0]
+    assert len(tumbling) == 1 and tumbling.iloc[0]["err_final_p95"] < 1  # 50 rad left out
+
+
+def test_bandwidth_law_range_and_crossing_accounting() -> None:
+    """error = c / b (closed form: the product error x b is c) from 20 rad/s up, ten times
+    that below: the law's range starts at 20 rad/s; the accounting counts the tumbled trial
+    of ``trials_frame`` and the diverged ones."""
+    rows = []
+    for b in (5.0, 10.0, 20.0, 50.0, 100.0):
+        error = 0.6 / b * (1 if b >= 20 else 10)
+        rows.append({MANEUVER: "m", BANDWIDTH: b, LIMIT: math.inf, "status": "ok",
+                     "err_theta_final": error, "peak_torque": 1.0, "torque_saturated": 0,
+                     "momentum_drift": 0.0, "crossings": 0, "verified": True})
+    law = bandwidth_law(cell_table(pd.DataFrame(rows)))
+    low, product, below = law["m"]
+    assert low == 20.0 and product == pytest.approx(0.6) and below == pytest.approx(6.0)
+    counts = crossing_accounting(trials_frame())
+    assert counts["crossed"] == 1 and counts["recovered"] == 0 and counts["verified"] == 0
+    assert counts["final_min"] == counts["final_max"] == 50.0 and counts["limits"] == [5.0]
+    assert counts["diverged"] == 2 and counts["diverged_limits"] == [5.0]
+    text = finding(cell_table(trials_frame()), {}, counts)
+    assert "1 trials crossed the controller's singular set" in text
+    assert "0 ended within 0.01 rad of the plan" in text
 
 
 def test_finding_names_the_least_bandwidth_and_torque_that_track() -> None:

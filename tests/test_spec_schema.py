@@ -6,6 +6,7 @@ import math
 import re
 from dataclasses import fields
 
+import numpy as np
 import pytest
 
 from flatcli.core.model import MODELS
@@ -106,10 +107,27 @@ def test_a_key_of_the_wrong_length_is_refused_naming_it(overrides: dict[str, obj
 
 
 def test_a_default_of_the_papers_robot_must_be_set_for_another() -> None:
-    user = {"robot": FOUR_LINKS["robot"], "plan": FOUR_LINKS["plan"]}
-    with pytest.raises(SpecError, match=r"^track.initial: expected 4 numbers .* got 3 \(the "
+    user = {"robot": FOUR_LINKS["robot"]}
+    with pytest.raises(SpecError, match=r"^plan.start: expected 4 numbers .* got 3 \(the "
                                         r"default is the paper's robot's: set it\)$"):
         resolve(user)
+
+
+def test_a_robot_of_other_n_tracks_with_only_its_robot_and_plan() -> None:
+    """Sized defaults: the plant starts on the plan and every flat output gets kp = p^2,
+    kv = 2 p, the closed form of a double pole at -p of y'' = -kv y' - kp y (p = 5 rad/s);
+    the paper's robot keeps Fig. 4's start and the gains as printed."""
+    user = {"robot": FOUR_LINKS["robot"], "plan": FOUR_LINKS["plan"]}
+    spec = resolve(user)
+    assert spec.track.initial == tuple(float(v) for v in FOUR_LINKS["plan"]["start"])
+    poles = np.roots([1.0, spec.track.kv[0], spec.track.kp[0]])
+    assert np.allclose(poles, [-5.0, -5.0], atol=1e-6)
+    assert spec.track.kp == (25.0,) * 3 and spec.track.kv == (10.0,) * 3
+    set_gains = resolve(user, {"track.kp": [1, 2, 3]})
+    assert set_gains.track.kp == (1.0, 2.0, 3.0) and set_gains.track.kv == (10.0,) * 3
+    paper = resolve({})
+    assert paper.track.initial == (1.96, 0.8, -0.1)  # Fig. 4 of the paper
+    assert paper.track.kp == (10.0, 13.0) and paper.track.kv == (100.0, 110.0)
 
 
 def test_tree_mirrors_the_records_and_values_the_keys() -> None:

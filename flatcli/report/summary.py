@@ -140,13 +140,17 @@ def _flag(frame: pd.DataFrame, column: str) -> Array:
 
 def _reference(row: dict[str, Any], group: pd.DataFrame) -> None:
     """The cell's trials checked against the reference integrator (``sweep.verify``): how
-    many, how far they were from it (median, max) and how many ended with another status."""
+    many, how far the ones that both integrators resolved to the end were from it (median,
+    max: a trial stopped at a crossing has no accuracy to compare) and how many ended with
+    another status."""
     if "reference_status" in group:
         checked = group[group["reference_status"].notna()]
     else:
         checked = group.iloc[:0]
     row["reference_checked"] = len(checked)
-    gap = _present(checked["reference_difference"]) if len(checked) else np.zeros(0)
+    both = (checked[checked["status"].isin(RESOLVED)
+                    & checked["reference_status"].isin(RESOLVED)] if len(checked) else checked)
+    gap = _present(both["reference_difference"]) if len(both) else np.zeros(0)
     row["reference_difference_median"] = _stat(np.median, gap)
     row["reference_difference_max"] = _stat(np.max, gap)
     row["reference_status_mismatches"] = int(

@@ -157,21 +157,41 @@ def record_cells(directory: Path) -> None:
         record_outputs(directory, [directory / "cells.parquet"])
 
 
+def _column(frame: pd.DataFrame, name: str, missing: Any) -> pd.Series:
+    """A column of a trials table, or ``missing`` for every row of a table without it."""
+    if name in frame:
+        return frame[name]
+    return pd.Series([missing] * len(frame), index=frame.index)
+
+
 def cell_table(trials: pd.DataFrame) -> pd.DataFrame:
     """Per cell (maneuver, bandwidth, torque limit): trials, the fraction lost (diverged,
-    unresolved, error), the median and 95th percentile of the final angle error and the
-    median peak torque over trials resolved to the end, the fraction of simulated trials
-    whose torque saturated, the median and max momentum drift (resolved trials)."""
+    unresolved, error), the fraction of simulated trials that crossed the singular set (and
+    went on: the actuators bound the plant there) and of those that then ended beyond
+    ``TRACKABLE_ERROR`` from the plan (``tumbled``), the fraction of resolved trials not
+    verified; the median and 95th percentile of the final angle error and the median peak
+    torque over the verified resolved trials (over the unverified ones where a cell has no
+    verified one), the fraction of simulated trials whose torque saturated, the median and max
+    momentum drift. A cell is trackable when no trial is lost or unverified and the 95th
+    percentile of the final error is at most ``TRACKABLE_ERROR``."""
     rows = []
     keys = [MANEUVER, BANDWIDTH, LIMIT]
     for values, group in trials.groupby(keys, sort=False):
-        done = group[group["status"].isin(COMPLETED)]
+        resolved = group[group["status"].isin(COMPLETED)]
+        sure = _column(resolved, "verified", False).fillna(False).astype(bool)
+        done = resolved[sure] if sure.any() else resolved
         simulated = group[group["status"] != "error"]
         row: dict[str, Any] = dict(zip(keys, values, strict=True))
         row["trials"] = len(group)
         for status in LOST:
             row[status] = float((group["status"] == status).mean())
         row["lost"] = float(group["status"].isin(LOST).mean())
+        crossings = _column(simulated, "crossings", 0).fillna(0).to_numpy(dtype=float)
+        row["crossed"] = float((crossings > 0).mean()) if len(simulated) else math.nan
+        final_all = simulated["err_theta_final"].to_numpy(dtype=float)
+        row["tumbled"] = (float(((crossings > 0) & ~(final_all <= TRACKABLE_ERROR)).mean())
+                          if len(simulated) else math.nan)
+        row["unverified"] = float(1 - sure.mean()) if len(resolved) else math.nan
         final = done["err_theta_final"].to_numpy(dtype=float)
         row["err_final_median"] = float(np.median(final)) if len(final) else math.nan
         row["err_final_p95"] = float(np.quantile(final, 0.95)) if len(final) else math.nan
@@ -182,17 +202,21 @@ def cell_table(trials: pd.DataFrame) -> pd.DataFrame:
         drift = done["momentum_drift"].to_numpy(dtype=float)
         row["drift_median"] = float(np.median(drift)) if len(drift) else math.nan
         row["drift_max"] = float(drift.max()) if len(drift) else math.nan
-        row["trackable"] = bool(row["lost"] == 0 and row["err_final_p95"] <= TRACKABLE_ERROR)
+        row["trackable"] = bool(row["lost"] == 0 and row["unverified"] == 0
+                                and row["err_final_p95"] <= TRACKABLE_ERROR)
         rows.append(row)
     return pd.DataFrame(rows)
 
 
 def kinematic_levels(trials: pd.DataFrame) -> dict[str, tuple[float, float]]:
-    """Per maneuver, the kinematic plant's median and 95th-percentile final angle error
-    (resolved trials) and the fraction lost."""
+    """Per maneuver, the kinematic plant's 95th-percentile final angle error (verified
+    resolved trials; the unverified ones where none is verified) and the fraction lost."""
     out = {}
     for label, group in trials.groupby(MANEUVER, sort=False):
-        done = group[group["status"].isin(COMPLETED)]["err_theta_final"].to_numpy(dtype=float)
+        resolved = group[group["status"].isin(COMPLETED)]
+        sure = _column(resolved, "verified", False).fillna(False).astype(bool)
+        done = (resolved[sure] if sure.any() else resolved)["err_theta_final"].to_numpy(
+            dtype=float)
         out[str(label)] = (float(np.quantile(done, 0.95)) if len(done) else math.nan,
                            float(group["status"].isin(LOST).mean()))
     return out
@@ -212,8 +236,9 @@ def lost_interval(lost: float, trials: int) -> tuple[float, float]:
 @styled
 def plot_study(cells: pd.DataFrame, kinematic: Mapping[str, tuple[float, float]],
                path: Path, figures: FigureFile | None = None) -> None:
-    """Final angle error (95th percentile, resolved trials) and the fraction of trials lost
-    (with its 95 % Wilson interval) against servo bandwidth, one panel per maneuver, one line
+    """Final angle error (95th percentile, verified resolved trials) and the fraction of
+    trials lost or tumbled (crossed the singular set and ended beyond ``TRACKABLE_ERROR``),
+    with its 95 % Wilson interval, against servo bandwidth, one panel per maneuver, one line
     per torque limit."""
     maneuvers = list(dict.fromkeys(cells[MANEUVER]))
     limits = list(dict.fromkeys(cells[LIMIT]))
@@ -227,10 +252,11 @@ def plot_study(cells: pd.DataFrame, kinematic: Mapping[str, tuple[float, float]]
                      else f"torque limit {limit_text(limit)} N m")
             ax[0, j].loglog(line[BANDWIDTH], line["err_final_p95"], "o-", color=f"C{k}",
                             label=label, ms=5 - 0.6 * k, lw=1.8 - 0.3 * k)
-            bounds = np.array([lost_interval(r["lost"], r["trials"])
-                               for _, r in line.iterrows()])
-            spread = np.abs(bounds.T - line["lost"].to_numpy())
-            ax[1, j].errorbar(line[BANDWIDTH] * 1.04 ** (k - 2), line["lost"], yerr=spread,
+            failed = (line["lost"] + line["tumbled"]).to_numpy()
+            bounds = np.array([lost_interval(f, r["trials"])
+                               for f, (_, r) in zip(failed, line.iterrows(), strict=True)])
+            spread = np.abs(bounds.T - failed)
+            ax[1, j].errorbar(line[BANDWIDTH] * 1.04 ** (k - 2), failed, yerr=spread,
                               fmt="o-", color=f"C{k}", label=label, ms=4, capsize=2,
                               clip_on=False)
             ax[1, j].set_xscale("log")
@@ -244,7 +270,7 @@ def plot_study(cells: pd.DataFrame, kinematic: Mapping[str, tuple[float, float]]
         for a in ax[:, j]:
             a.grid(which="both")
     ax[0, 0].set_ylabel("final angle error,\n95th percentile [rad]")
-    ax[1, 0].set_ylabel("fraction of trials lost\n(95 % Wilson interval)")
+    ax[1, 0].set_ylabel("fraction lost or tumbled\n(95 % Wilson interval)")
     ax[0, -1].legend()
     fig.suptitle("The maneuver on the robot with inertia: tracking against servo bandwidth "
                  "and torque limit\n(dynamic plant, gains swapped, $\\theta(0)$ errors of std "
@@ -253,13 +279,81 @@ def plot_study(cells: pd.DataFrame, kinematic: Mapping[str, tuple[float, float]]
     save_figure(fig, path, figures)
 
 
+def matrix_entry(cell: Mapping[str, Any]) -> str:
+    """A cell of REPORT's bandwidth x torque-limit matrix: the 95th percentile of the final
+    error (``*`` where the cell has no verified trial), and the shares lost and crossed."""
+    text = fmt(cell["err_final_p95"], 2) + ("*" if cell["unverified"] == 1 else "")
+    notes = [f"{cell['lost']:.0%} lost" if cell["lost"] else "",
+             f"{cell['crossed']:.0%} crossed" if cell["crossed"] else ""]
+    notes = [n for n in notes if n]
+    return text + (f" ({', '.join(notes)})" if notes else "")
+
+
 def _bandwidths(values: pd.Series) -> str:
     return ", ".join(fmt(v) for v in values)
 
 
-def finding(cells: pd.DataFrame, demands: Mapping[str, list[Any]]) -> str:
+#: The law "final error x bandwidth is constant" holds over a range of bandwidths where the
+#: product stays within this factor of its value at the study's largest bandwidth.
+LAW_FACTOR = 1.5
+
+
+def bandwidth_law(cells: pd.DataFrame) -> dict[str, tuple[float, float, float]]:
+    """Per maneuver, with unlimited torque: the least bandwidth b_min [rad/s] from which up
+    to the study's largest every cell has 95th-percentile final error x bandwidth within
+    ``LAW_FACTOR`` of the largest bandwidth's (the error falls as 1 / bandwidth there), that
+    constant [rad^2/s], and the product at the next bandwidth below b_min (nan
+    where there is none or it has no verified trial)."""
+    out = {}
+    free = cells[np.isinf(cells[LIMIT].astype(float))]
+    for maneuver, group in free.groupby(MANEUVER, sort=False):
+        line = group.sort_values(BANDWIDTH, ascending=False)
+        product = (line["err_final_p95"] * line[BANDWIDTH]).to_numpy(dtype=float)
+        bandwidths = line[BANDWIDTH].to_numpy(dtype=float)
+        reference = product[0]
+        k = 0
+        while (k + 1 < len(product) and math.isfinite(product[k + 1])
+               and abs(math.log(product[k + 1] / reference)) <= math.log(LAW_FACTOR)):
+            k += 1
+        below = product[k + 1] if k + 1 < len(product) else math.nan
+        out[str(maneuver)] = (float(bandwidths[k]), float(reference), float(below))
+    return out
+
+
+def crossing_accounting(trials: pd.DataFrame) -> dict[str, Any]:
+    """What the trials that crossed the controller's singular set became: how many crossed,
+    under which torque limits, when they first crossed, how many ended within
+    ``TRACKABLE_ERROR`` of the plan, the range of the others' final errors and error
+    estimates, how many were verified; and the real divergences (the state unbounded:
+    where no torque limit bounds the servo at the crossing) by torque limit and bandwidth."""
+    crossed = trials[_column(trials, "crossings", 0).fillna(0) > 0]
+    final = crossed["err_theta_final"].to_numpy(dtype=float)
+    diverged = trials[trials["status"] == "diverged"]
+    return {
+        "crossed": len(crossed),
+        "limits": sorted({float(v) for v in crossed[LIMIT]}),
+        "first_median": float(crossed["first_crossing_time"].median()) if len(crossed)
+        else math.nan,
+        "recovered": int((final <= TRACKABLE_ERROR).sum()),
+        "final_min": float(final.min()) if len(final) else math.nan,
+        "final_median": float(np.median(final)) if len(final) else math.nan,
+        "final_max": float(final.max()) if len(final) else math.nan,
+        "estimate_median": float(crossed["err_estimate"].median()) if len(crossed)
+        else math.nan,
+        "verified": int(_column(crossed, "verified", False).fillna(False).astype(bool).sum()),
+        "diverged": len(diverged),
+        "diverged_limits": sorted({float(v) for v in diverged[LIMIT]}),
+        "diverged_bandwidth_max": float(diverged[BANDWIDTH].max()) if len(diverged)
+        else math.nan,
+    }
+
+
+def finding(cells: pd.DataFrame, demands: Mapping[str, list[Any]],
+            accounting: Mapping[str, Any] | None = None) -> str:
     """One paragraph: per maneuver, the least bandwidth that tracks with unlimited torque,
-    the torque its joints then use, and the least torque limit that still tracks."""
+    the torque its joints then use, and the least torque limit that still tracks; the range
+    of bandwidths where the error falls as 1 / bandwidth; and (with ``accounting``, from
+    ``crossing_accounting``) what the trials that crossed the singular set became."""
     parts = []
     for maneuver in dict.fromkeys(cells[MANEUVER]):
         sel = cells[(cells[MANEUVER] == maneuver) & cells["trackable"]]
@@ -291,18 +385,46 @@ def finding(cells: pd.DataFrame, demands: Mapping[str, list[Any]]) -> str:
             text += (f"; the least torque limit that still tracks is {fmt(least)} N m "
                      f"(at {_bandwidths(where)} rad/s)")
         parts.append(text)
-    sentences = "; ".join(parts)
-    return (
-        f"**Finding.** A cell counts as trackable when no trial is lost and 95 % of the final "
-        f"angle errors are below {TRACKABLE_ERROR:g} rad. With the gains swapped and start "
-        f"errors of 2 mrad, {sentences}. Below that, the joints lag their commands by about "
-        "th'' / bandwidth and the error grows as 1 / bandwidth; a torque limit under what the "
-        "closed loop's first milliseconds ask (it corrects the start error at once, with "
-        "torques far above the plan's own) lets the joints fall behind commands that the "
-        "linearising feedback, which believes its rates are applied, keeps raising, until the "
-        "margin sin th1 * u1 reaches zero (every trial lost in the study ends so): on this "
-        "robot saturation is not a gentle degradation but a loss of the maneuver."
-    )
+    law = bandwidth_law(cells)
+    ranges = "; ".join(
+        f"{name}: from {fmt(low)} rad/s up (error x bandwidth {fmt(product, 2)} rad^2/s"
+        + (f", against {fmt(below, 2)} one step below" if math.isfinite(below) else "")
+        + ")" for name, (low, product, below) in law.items())
+    text = (
+        f"**Finding.** A cell counts as trackable when no trial is lost, every resolved trial "
+        f"is verified, and 95 % of the final angle errors are below {TRACKABLE_ERROR:g} rad. "
+        f"With the gains swapped and start errors of 2 mrad, {'; '.join(parts)}. With "
+        "unlimited torque the joints lag their commands by about th'' / bandwidth and the "
+        "final error falls as 1 / bandwidth, but only over a range of bandwidths (the product "
+        f"within a factor {LAW_FACTOR:g} of its value at the largest bandwidth): {ranges}.")
+    if accounting is None or not accounting["crossed"]:
+        return text
+    a = accounting
+    limits = ", ".join(limit_text(v) for v in a["limits"])
+    text += (
+        f" {a['crossed']} trials crossed the controller's singular set (the margin "
+        "sin th1 * u1 changed sign), all of them under a torque limit "
+        f"({limits} N m), first at a median t = {fmt(a['first_median'], 2)} s: the servo "
+        "saturates while the closed loop corrects the start error with torques far above the "
+        "plan's own, the joints fall behind commands that the linearising feedback, which "
+        "believes its rates are applied, keeps raising, and the margin reaches zero. Earlier "
+        "versions of flatcli stopped every such trial there and called it diverged; the "
+        "torque limit bounds the plant at the crossing, so flatcli now simulates on. Of them "
+        f"{a['recovered']} ended within {TRACKABLE_ERROR:g} rad of the plan; the others ended "
+        f"{fmt(a['final_min'], 2)} to {fmt(a['final_max'], 3)} rad from it (median "
+        f"{fmt(a['final_median'], 3)} rad): the robot tumbles, a real loss of the maneuver, "
+        "not the stopping rule's. Their final states are not verified (the twin solution's "
+        f"estimate of their error has median {fmt(a['estimate_median'], 2)} rad against "
+        f"track.accuracy; {a['verified']} of them meet it), so the tables leave them out of "
+        "the error statistics and count them in the *crossed* column.")
+    if a["diverged"]:
+        limits = ", ".join(limit_text(v) for v in a["diverged_limits"])
+        text += (
+            f" The {a['diverged']} trials lost as diverged are real divergences: torque limit "
+            f"{limits}, bandwidths up to {fmt(a['diverged_bandwidth_max'])} rad/s, where "
+            "nothing bounds the servo's torque at the crossing and the state grows without "
+            "bound.")
+    return text
 
 
 def run(context: Context) -> Outcome:
@@ -354,15 +476,15 @@ def run(context: Context) -> Outcome:
             sel = cells[(cells[MANEUVER] == maneuver) & (cells[LIMIT] == limit)]
             sel = sel.sort_values(BANDWIDTH)
             matrix.append([maneuver, limit_text(limit), *(
-                f"{fmt(r['err_final_p95'], 2)}{'' if r['lost'] == 0 else f' ({r.lost:.0%})'}"
-                for _, r in sel.iterrows())])
+                matrix_entry(r) for _, r in sel.iterrows())])
     bandwidths = sorted(cells[BANDWIDTH].unique())
     order = {name: i for i, name in enumerate(dict.fromkeys(cells[MANEUVER]))}
     ordered = cells.assign(_m=cells[MANEUVER].map(order), _l=-cells[LIMIT].astype(float))
     ordered = ordered.sort_values(["_m", "_l", BANDWIDTH])
     full = [[r[MANEUVER], r[BANDWIDTH], limit_text(r[LIMIT]), r["trials"], r["lost"],
-             r["diverged"], r["unresolved"], r["err_final_median"], r["err_final_p95"],
-             r["peak_torque_median"], r["saturated"], r["drift_median"], r["drift_max"]]
+             r["diverged"], r["unresolved"], r["crossed"], r["tumbled"], r["unverified"],
+             r["err_final_median"], r["err_final_p95"], r["peak_torque_median"],
+             r["saturated"], r["drift_median"], r["drift_max"]]
             for _, r in ordered.iterrows()]
     levels = ", ".join(f"{name} {fmt(p95, 2)} rad ({lost:.0%} lost)"
                        for name, (p95, lost) in kinematic.items())
@@ -385,21 +507,26 @@ def run(context: Context) -> Outcome:
         "",
         finding(cells, by_label),
         "",
-        "95th percentile of the final angle error [rad] over trials resolved to the end, and "
-        "in brackets the share of trials lost (diverged, unresolved or error), by servo "
-        "bandwidth [rad/s]:",
+        "95th percentile of the final angle error [rad] over the verified trials resolved to "
+        "the end (marked * where a cell has none and the unverified ones are shown), and in "
+        "brackets the share of trials lost (diverged, unresolved or error) and the share that "
+        "crossed the singular set, by servo bandwidth [rad/s]:",
         "",
         table(["maneuver", "torque limit [N m]", *(fmt(b) for b in bandwidths)], matrix, 2),
         "",
-        "Every cell: fractions of trials lost (all, diverged, unresolved), median and 95th "
-        "percentile of the final angle error [rad] and median peak torque [N m] (resolved "
-        "trials), share of simulated trials whose servo hit the torque limit, median and max "
-        "momentum drift max abs(H - H0) [kg m^2/s] (resolved trials; H from the full link "
-        "kinematics, conserved by the dynamics alone: the integration's error).",
+        "Every cell: fractions of trials lost (all, diverged, unresolved), that crossed the "
+        "singular set, that crossed and ended beyond "
+        f"{TRACKABLE_ERROR:g} rad (tumbled), and of the resolved trials not verified; median "
+        "and 95th percentile of the final angle error [rad] and median peak torque [N m] "
+        "(verified resolved trials), share of simulated trials whose servo hit the torque "
+        "limit, median and max momentum drift max abs(H - H0) [kg m^2/s] (resolved trials; "
+        "H from the full link kinematics, conserved by the dynamics alone: the "
+        "integration's error).",
         "",
         table(["maneuver", "bandwidth", "torque limit", "trials", "lost", "diverged",
-               "unresolved", "final error median", "final error p95", "peak torque median",
-               "saturated", "drift median", "drift max"], full, 3),
+               "unresolved", "crossed", "tumbled", "unverified", "final error median",
+               "final error p95", "peak torque median", "saturated", "drift median",
+               "drift max"], full, 3),
     ], headline, FILES)
 
 

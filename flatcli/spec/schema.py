@@ -149,15 +149,20 @@ class PlanSpec:
 class TrackSpec:
     """the closed loop"""
 
-    initial: Vector = vector("links", (1.96, 0.8, -0.1), "th(0) of the plant (Fig. 4)", "rad")
+    initial: Vector = vector("links", (1.96, 0.8, -0.1), "th(0) of the plant (Fig. 4)", "rad",
+                             default_doc="(1.96, 0.8, -0.1), Fig. 4's; for a robot of N != 2 "
+                             "joints the plan's start (plan.start)")
     initial_rate: float | Vector | None = numbers(
         "inner", None, "u1(0) = th1'(0) (u_j(0) = th_j'(0), j < N) of the plant and the "
         "controller", "rad/s", nullable=True,
         default_doc="the plan's th1'(0) (plan.start_rate, or the optimised plan's own)")
     kp: Vector = vector("joints", (10.0, 13.0), "kp1, kp2 (kp1..kpN): feedback gains, as printed "
-                        "in the paper", "1/s^2")
+                        "in the paper", "1/s^2", default_doc="(10, 13), as printed; for a "
+                        "robot of N != 2 joints 25 per output (a double pole at -5 rad/s)")
     kv: Vector = vector("joints", (100.0, 110.0), "kv1, kv2 (kv1..kvN): feedback gains, as "
-                        "printed in the paper", "1/s")
+                        "printed in the paper", "1/s", default_doc="(100, 110), as printed; "
+                        "for a robot of N != 2 joints 10 per output (a double pole at -5 "
+                        "rad/s)")
     dt: float = number(1e-3, "output sampling step: trace, metrics, track.parquet (and RK4's "
                        "step); must divide the duration", "s", gt=0)
     integrator: str = choice(INTEGRATORS, "adaptive", "\"adaptive\" (compiled Dormand-Prince "
@@ -414,13 +419,32 @@ def _record(record_type: type, prefix: str, values: Mapping[str, Any]) -> object
     return record_type(**kwargs)
 
 
+#: The feedback's pole [rad/s] of every flat output for a robot of N != 2 joints whose spec
+#: sets no gains: y_j'' = v_j with kp = p^2, kv = 2 p puts a double pole at -p (the shipped
+#: robot files' choice); the paper's robot keeps the gains as printed.
+SIZED_POLE = 5.0
+
+
+def sized_defaults(spec: Spec) -> dict[str, tuple[float, ...]]:
+    """The defaults of robot-sized keys that follow from the robot and its plan for a robot
+    of N != 2 joints (the paper's robot's own defaults do not fit it): the plant starts on
+    the plan (``track.initial = plan.start``) and every flat output gets a double pole at
+    ``-SIZED_POLE``."""
+    joints = spec.joints
+    return {"track.initial": tuple(spec.plan.start),
+            "track.kp": (SIZED_POLE ** 2,) * joints,
+            "track.kv": (2 * SIZED_POLE,) * joints}
+
+
 def fit_sizes(spec: Spec, given: Collection[str]) -> Spec:
     """The spec with every robot-sized key checked against N = ``spec.joints``.
 
     A list must have the length its key's size gives for N (``Key.size``); a "numbers" key's
     single number stands for every item. A key the user did not set (not in ``given``)
     whose default holds one value for every item (``plan.optimize.angle_limit``: inf) takes
-    N's length; any other default is the paper's robot's, so a robot of other N must set it.
+    N's length; ``track.initial``, ``track.kp`` and ``track.kv`` follow ``sized_defaults``;
+    any other default is the paper's robot's, so a robot of other N must set it
+    (``plan.start``, ``plan.goal``, the robot's own parameters).
 
     Raises
     ------
@@ -428,6 +452,7 @@ def fit_sizes(spec: Spec, given: Collection[str]) -> Spec:
     """
     joints = spec.joints
     replaced: dict[str, Any] = {}
+    derived: dict[str, tuple[float, ...]] | None = None
     for section, keys in SCHEMA.items():
         for name, key in keys.items():
             if not key.size:
@@ -440,9 +465,19 @@ def fit_sizes(spec: Spec, given: Collection[str]) -> Spec:
             if len(value) != want and dotted not in given and len(set(value)) == 1:
                 replaced[dotted] = (value[0],) * want
                 continue
+            if len(value) != want and dotted not in given and dotted in SIZED_KEYS:
+                if derived is None:
+                    derived = sized_defaults(_replaced(spec, replaced) if replaced else spec)
+                if len(derived[dotted]) == want:  # plan.start of the wrong size: said below
+                    replaced[dotted] = derived[dotted]
+                    continue
             hint = "" if dotted in given else " (the default is the paper's robot's: set it)"
             check_size(dotted, value, joints, hint)
     return _replaced(spec, replaced) if replaced else spec
+
+
+#: The keys ``sized_defaults`` gives.
+SIZED_KEYS = frozenset({"track.initial", "track.kp", "track.kv"})
 
 
 def check_size(dotted: str, value: Any, joints: int, hint: str = "") -> None:
