@@ -24,8 +24,9 @@ torque limit may differ per trial (``Trials.servo``).
 
 Every trial is integrated alone by the same compiled code, so its result does not depend on
 which other trials share the batch, the order, the worker or the executor (bit for bit).
-The compiled batch kernels are those of ``paperloop`` (the paper's robot), ``chainloop`` and
-``chaindynamic`` (N-link chains); this module holds the public API and chooses among them.
+The compiled batch kernels are made by ``kernels`` (the paper's robot's closed forms from
+``plant``; N-link chains from ``chainloop`` and ``chaindynamic``); this module holds the
+public API and chooses among them.
 """
 
 from __future__ import annotations
