@@ -156,9 +156,10 @@ def _bounds(plan: PlanLike, local: Array, width: Array, s_lo: Array, s_hi: Array
     rest = getattr(plan, "start", None) is not None and deg >= 1
     if rest:
         # y1_s' = 6 dth1 (s - s^2) divides y2_s' exactly: r is a polynomial in s
-        qc = _rest_quotient(c1, c2, deg)
-        r = bound(qc)
-        r_dot = bound(deriv(qc, 1)) / width
+        pc, qc = _rest_quotient(c1, c2, deg)
+        p_, q_ = bound(pc), bound(qc)
+        r = q_ / p_
+        r_dot = (bound(deriv(qc, 1)) * p_ - q_ * bound(deriv(pc, 1))) / (p_.square() * width)
     else:
         dd1 = bound(deriv(c1, 2)) / (width * width)
         dd2 = bound(deriv(c2, 2)) / (width * width)
@@ -183,21 +184,25 @@ def _bounds(plan: PlanLike, local: Array, width: Array, s_lo: Array, s_hi: Array
 PlanLike = Plan
 
 
-def _rest_quotient(c1: Array, c2: Array, deg: int) -> Array:
-    """(n, degree + 1) coefficients in s of r = y2_s' / y1_s' on rest pieces (y1_s' divides
-    y2_s': both vanish at s = 0 and 1), zero-padded; the same for every row of one plan,
-    so it is divided once per distinct row."""
-    out = np.zeros((len(c1), deg + 1))
-    cache: dict[bytes, Array] = {}
+def _rest_quotient(c1: Array, c2: Array, deg: int) -> tuple[Array, Array]:
+    """(n, degree + 1) each: y1_s' / (s - s^2) and y2_s' / (s - s^2) on rest pieces (both
+    vanish at s = 0 and 1), zero-padded, so r = y2' / y1' is their ratio, finite at the ends;
+    divided once per distinct row."""
+    out1 = np.zeros((len(c1), deg + 1))
+    out2 = np.zeros((len(c1), deg + 1))
+    cache: dict[bytes, tuple[Array, Array]] = {}
+    factor = np.array([0.0, 1.0, -1.0])
     for i in range(len(c1)):
         key = c1[i].tobytes() + c2[i].tobytes()
         if key not in cache:
-            d1 = np.trim_zeros(c1[i, 1:] * np.arange(1, deg + 1), "b")
-            d2 = c2[i, 1:] * np.arange(1, deg + 1)
-            q = np.atleast_1d(np.polynomial.polynomial.polydiv(d2, d1)[0])
-            cache[key] = np.pad(q, (0, deg + 1 - q.shape[0]))
-        out[i] = cache[key]
-    return out
+            pair = []
+            for c in (c1[i], c2[i]):
+                d = c[1:] * np.arange(1, deg + 1)
+                q = np.atleast_1d(np.polynomial.polynomial.polydiv(d, factor)[0])
+                pair.append(np.pad(q, (0, deg + 1 - q.shape[0])))
+            cache[key] = (pair[0], pair[1])
+        out1[i], out2[i] = cache[key]
+    return out1, out2
 
 
 def _link_boxes(plan: Plan, theta: list[Interval]) -> list[tuple[Interval, Interval]]:

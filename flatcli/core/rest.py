@@ -77,39 +77,45 @@ def _hermite7(near: tuple[float, float, float, float], far: tuple[float, float, 
     return c
 
 
-def rest_coefficients(model: FlatModel, start: Array, goal: Array, about_goal: bool = False
-                      ) -> Array:
+def rest_coefficients(model: FlatModel, start: Array, goal: Array, about_goal: bool = False,
+                      skew: float = 0.0) -> Array:
     """(N, 8) coefficients in s = t / T of the rest plan's flat outputs (module docstring);
     independent of T. ``about_goal``: in x = s - 1 instead. Each representation takes the
     conditions of its own end exactly (y' = 0 there is an exact zero coefficient), so that
     near either end y_N' / y_j' is not off by the rounding of the coefficients' sums
-    (eps |c| / (1 - s) near s = 1 in the monomials of s)."""
+    (eps |c| / (1 - s) near s = 1 in the monomials of s). ``skew`` beta in (-1, 1) shifts
+    the inner joints' motion: q_j = q_j(0) + dq_j (3 s^2 - 2 s^3 - 3 beta s^2 (1 - s)^2),
+    whose rate 6 dq_j s (1 - s) (1 + beta (2 s - 1)) keeps its sign."""
     n = model.n_joints
     y0, slope0 = model.end_map(start)
     yT, slopeT = model.end_map(goal)
     dq = np.asarray(goal[1:n] - start[1:n], dtype=float)  # (N - 1,)
     out = np.zeros((n, REST_DEGREE + 1))
-    for j in range(n - 1):  # the smooth step 3 s^2 - 2 s^3, or -3 x^2 - 2 x^3 about s = 1
+    b = float(skew)
+    for j in range(n - 1):  # the smooth step, in s or in x = s - 1 (s^2 (1-s)^2 = x^2 (1+x)^2)
+        d = dq[j]
         if about_goal:
-            out[j, :4] = (goal[1 + j], 0.0, -3.0 * dq[j], -2.0 * dq[j])
+            out[j, :5] = (goal[1 + j], 0.0, -3.0 * d * (1 + b), -2.0 * d * (1 + 3 * b), -3 * b * d)
         else:
-            out[j, :4] = (start[1 + j], 0.0, 3.0 * dq[j], -2.0 * dq[j])
+            out[j, :5] = (start[1 + j], 0.0, 3.0 * d * (1 - b), -2.0 * d * (1 - 3 * b), -3 * b * d)
     s0 = float(slope0[n - 1] @ dq)
     sT = float(slopeT[n - 1] @ dq)
-    at_start = (float(y0[n - 1]), 0.0, 6.0 * s0, -12.0 * s0)
-    at_goal = (float(yT[n - 1]), 0.0, -6.0 * sT, -12.0 * sT)
+    at_start = (float(y0[n - 1]), 0.0, 6.0 * (1 - b) * s0, (-12.0 + 36.0 * b) * s0)
+    at_goal = (float(yT[n - 1]), 0.0, -6.0 * (1 + b) * sT, (-12.0 - 36.0 * b) * sT)
     out[n - 1] = (_hermite7(at_goal, at_start, -1.0) if about_goal
                   else _hermite7(at_start, at_goal, 1.0))
     return out
 
 
 def reduced_margin(model: FlatModel, robot: RobotParams, start: Array, goal: Array,
-                   s: Array) -> Array:
-    """(n,) the signed margin of the rest plan divided by 6 s (1 - s) / T at s (n,) in [0, 1]
-    [rad]: its sign is the margin's inside (0, T), and it is finite at the ends."""
+                   s: Array, skew: float = 0.0) -> Array:
+    """(n,) the signed margin of the rest plan divided by 6 s (1 - s) (1 + beta (2 s - 1)) / T
+    at s (n,) in [0, 1] [rad]: its sign is the margin's inside (0, T), and it is finite at the
+    ends."""
     n = model.n_joints
     dq = np.asarray(goal[1:n] - start[1:n], dtype=float)
-    q = start[1:n][None, :] + np.outer(3.0 * s**2 - 2.0 * s**3, dq)
+    step = 3.0 * s**2 - 2.0 * s**3 - 3.0 * skew * s**2 * (1.0 - s) ** 2
+    q = start[1:n][None, :] + np.outer(step, dq)
     if n == 2 and not isinstance(model, ChainModel):
         return np.asarray(np.sin(q[:, 0]) * dq[0], dtype=float)
     chain = model if isinstance(model, ChainModel) else ChainModel.of(robot)
@@ -124,7 +130,8 @@ def reduced_margin(model: FlatModel, robot: RobotParams, start: Array, goal: Arr
     return out
 
 
-def check_rest_margin(model: FlatModel, robot: RobotParams, start: Array, goal: Array) -> None:
+def check_rest_margin(model: FlatModel, robot: RobotParams, start: Array, goal: Array,
+                      skew: float = 0.0) -> None:
     """FlatcliError naming task.rest unless the rest plan's margin keeps one sign strictly
     inside (0, T) and is non-zero to first order at the ends."""
     n = model.n_joints
@@ -142,7 +149,7 @@ def check_rest_margin(model: FlatModel, robot: RobotParams, start: Array, goal: 
                                "would cross the singular set")
         return
     s = np.linspace(0.0, 1.0, REST_SCAN)
-    m = reduced_margin(model, robot, start, goal, s)
+    m = reduced_margin(model, robot, start, goal, s, skew)
     if not (np.all(m > 0) or np.all(m < 0)):
         where = float(s[int(np.argmax(np.sign(m) != np.sign(m[0])))]) if m[0] != 0 else 0.0
         raise FlatcliError(f"task.rest: the rest plan's margin changes sign near t/T = "
@@ -158,6 +165,7 @@ class RestPlan(Plan):
     start: Array = None  # type: ignore[assignment]
     goal: Array = None  # type: ignore[assignment]
     tail: Array = None  # type: ignore[assignment]  # (N, 8) the same curves in s - 1
+    skew: float = 0.0
 
     def derivative(self, t: Array, order: int) -> Array:
         """(n, N) d^order y / dt^order at t (n,): from the coefficients in s on the first
@@ -187,7 +195,7 @@ class RestPlan(Plan):
         n = self.n_joints
         dq = self.goal[1:n] - self.start[1:n]
         a = 6.0 * dq / self.duration**2
-        return a, -a
+        return a * (1.0 - self.skew), -a * (1.0 + self.skew)
 
     def sample(self, t: Array) -> PlanSamples:
         t = np.asarray(t, dtype=float)
@@ -237,15 +245,16 @@ class RestPlan(Plan):
     def margin_zeros(self) -> Array:
         """Times strictly inside (0, T) where the margin is zero [s] (the ends are rest)."""
         s = np.linspace(0.0, 1.0, REST_SCAN)
-        m = reduced_margin(self.model, self.robot, self.start, self.goal, s)
+        m = reduced_margin(self.model, self.robot, self.start, self.goal, s, self.skew)
         change = np.flatnonzero(np.sign(m[1:]) != np.sign(m[:-1]))
         return np.asarray(s[change] * self.duration, dtype=float)
 
 
 def plan_rest_to_rest(robot: RobotParams, start: ArrayLike, goal: ArrayLike, duration: float,
-                      model: Model | FlatModel = "derived") -> RestPlan:
+                      model: Model | FlatModel = "derived", skew: float = 0.0) -> RestPlan:
     """The rest-to-rest plan from ``start`` to ``goal`` (N + 1,) [rad] in ``duration`` [s]
-    (module docstring).
+    (module docstring); ``skew`` in (-1, 1) shifts the inner joints' motion earlier (< 0) or
+    later (``rest_coefficients``).
 
     Raises
     ------
@@ -258,14 +267,16 @@ def plan_rest_to_rest(robot: RobotParams, start: ArrayLike, goal: ArrayLike, dur
     flat = model if isinstance(model, FlatModel) else flat_model(robot, model)
     a = np.asarray(start, dtype=float)
     b = np.asarray(goal, dtype=float)
-    check_rest_margin(flat, robot, a, b)
+    if not -1.0 < skew < 1.0:
+        raise FlatcliError(f"rest plan: skew must lie in (-1, 1), got {skew}")
+    check_rest_margin(flat, robot, a, b, skew)
     basis = PolynomialBasis(REST_DEGREE, float(duration))
-    coefficients = rest_coefficients(flat, a, b)
-    tail = rest_coefficients(flat, a, b, about_goal=True)
+    coefficients = rest_coefficients(flat, a, b, skew=skew)
+    tail = rest_coefficients(flat, a, b, about_goal=True, skew=skew)
     for arr in (a, b, tail):
         arr.setflags(write=False)
     return RestPlan(robot, flat, FlatTrajectory(basis, coefficients), float(duration), a, b,
-                    tail)
+                    tail, float(skew))
 
 
 __all__ = [
