@@ -30,6 +30,7 @@ from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
+import numpy as np
 import pandas as pd
 
 from flatcli.core.model import FlatcliError
@@ -287,8 +288,38 @@ class PlanResult(Run):
             if plot:
                 save_figure(self.plot(), directory / file.name("plan"), file)
                 self.files.append(file.name("plan"))
+                if _has_task(spec):
+                    save_figure(self.filmstrip(), directory / file.name("filmstrip"), file)
+                    self.files.append(file.name("filmstrip"))
         self.directory, self.record = directory, record
         return directory
+
+    def filmstrip(self) -> Figure:
+        """The robot at a few instants among the task's obstacles, with the end effector's
+        path and target (``report.task_figures.filmstrip_figure``)."""
+        from flatcli.experiment import robot_from
+        from flatcli.report.task_figures import filmstrip_figure
+
+        s = self.spec
+        theta = self.frame[[f"theta{i}" for i in range(s.joints + 1)]].to_numpy()
+        fig: Figure = filmstrip_figure(robot_from(s), self.frame["t"].to_numpy(), theta,
+                                       s.task.obstacles, s.task.clearance, s.task.end_effector,
+                                       plan_title(s, self.optimization))
+        return fig
+
+    def animate(self, path: str | os.PathLike[str]) -> Path:
+        """The maneuver as a GIF at ``path`` (matplotlib's Pillow writer): the links, the
+        obstacles, the end effector's path."""
+        from flatcli.experiment import robot_from
+        from flatcli.report.task_figures import animate
+
+        s = self.spec
+        times = self.frame["t"].to_numpy()
+        fine = np.linspace(0.0, float(times[-1]), max(len(times), int(25 * times[-1]) + 1))
+        plan_ = self.plan if self.plan is not None else plan_and_optimization(s)[0]
+        theta = plan_.sample(fine).theta
+        return animate(robot_from(s), fine, theta, Path(path), s.task.obstacles,
+                       s.task.clearance, s.task.end_effector)
 
 
 class TrackResult(Run):
@@ -459,6 +490,12 @@ class SweepResult(Run):
         return paths
 
 
+def _has_task(spec: Spec) -> bool:
+    t = spec.task
+    return t.end_effector is not None or t.rest or bool(t.obstacles) or (
+        t.start_end_effector is not None)
+
+
 def _tags(tags: Iterable[str]) -> dict[str, Any]:
     """The ``tags`` of a run record (none: no key, as before tags existed)."""
     from flatcli.runs import check_tags
@@ -496,16 +533,26 @@ def plan(spec: SpecLike = None, overrides: Overrides = None) -> PlanResult:
     Returns a PlanResult (``.frame``, ``.metrics``, ``.optimization``); nothing is written
     until ``.save()``.
     """
+    from flatcli.experiment import planned as plan_of
+    from flatcli.experiment import task_metrics
     from flatcli.spec.limits import require_finite_plan
 
     s = load_spec(spec, overrides)
-    planned, optimization = plan_and_optimization(s)
-    samples = planned.sample(planned.grid(s.plan.samples))
+    made, optimization, task = plan_of(s)
+    samples = made.sample(made.grid(s.plan.samples))
     require_finite_plan({"theta": samples.theta, "theta_dot": samples.theta_dot,
                          "u_dot": samples.u_dot, "y": samples.y})
     opt = None if optimization is None else _optimization(optimization, s)
-    return PlanResult(s, plan_frame(samples), plan_summary(planned, samples), opt, planned,
-                      samples)
+    metrics: dict[str, Any] = dict(plan_summary(made, samples))
+    if task is not None:
+        metrics.update({k: v for k, v in task_metrics(s, samples.theta).items()
+                        if k != "ee_error_max"})
+        if task.certificate is not None:
+            metrics["clearance_bound"] = (None if not np.isfinite(task.certificate.lower_bound)
+                                          else task.certificate.lower_bound)
+            metrics["certified_intervals"] = task.certificate.intervals
+        metrics["task_candidates"] = task.candidates
+    return PlanResult(s, plan_frame(samples, made.robot), metrics, opt, made, samples)
 
 
 def _optimization(result: OptimizeResult, spec: Spec) -> dict[str, Any]:

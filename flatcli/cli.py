@@ -398,7 +398,7 @@ def run_options(fn: F) -> F:
 def run_one(command: str, spec: Path | None, robot: str | None, sets: tuple[str, ...],
             name: str | None, tags: tuple[str, ...], objective: str | None, out: Path | None,
             force: bool, plot: bool, fmt: str | None, dpi: int | None, cfg: bool,
-            quiet: bool) -> None:
+            quiet: bool, animate: bool = False) -> None:
     """``flatcli plan`` and ``flatcli track``: everything checked before any work (the spec,
     the tags, ``--out``), then the run, then its files."""
     from flatcli import api
@@ -422,19 +422,26 @@ def run_one(command: str, spec: Path | None, robot: str | None, sets: tuple[str,
                 api.plan(s) if command == "plan" else api.track(s, quiet=quiet))
             result.tags = chosen
             directory = result.save(target, plot=plot)
+            if animate and isinstance(result, api.PlanResult):
+                result.animate(directory / "plan.gif")
+                result.files.append("plan.gif")
     say(quiet, result.text())
     say(quiet, f"wrote {directory}/" + ", ".join(result.files))
 
 
 @main.command(short_help="Plan a maneuver through the flat outputs.")
 @run_options
+@click.option("--animate", is_flag=True,
+              help="Also write the maneuver as plan.gif (the links, obstacles and the end "
+                   "effector's path; matplotlib's Pillow writer).")
 def plan(spec: Path | None, robot: str | None, sets: tuple[str, ...], name: str | None,
          tags: tuple[str, ...], objective: str | None, out: Path | None, force: bool,
-         plot: bool, fmt: str | None, dpi: int | None, cfg: bool, quiet: bool) -> None:
+         plot: bool, fmt: str | None, dpi: int | None, cfg: bool, quiet: bool,
+         animate: bool) -> None:
     """Plan a point-to-point maneuver through the flat outputs; write plan.parquet and
-    run.json (and with --plot the figure)."""
+    run.json (and with --plot the figure, with a [task] its filmstrip; --animate a GIF)."""
     run_one("plan", spec, robot, sets, name, tags, objective, out, force, plot, fmt, dpi, cfg,
-            quiet)
+            quiet, animate)
 
 
 @main.command(short_help="Plan, then track the plan in closed loop.")
@@ -810,7 +817,8 @@ def export(directory: Path, as_csv: bool, out: Path | None) -> None:
 
 #: The sections of ``flatcli reproduce`` (``flatcli.reproduce.SECTION_NAMES``; the CLI does
 #: not import the numerical libraries to list them).
-REPRODUCE_SECTIONS = ("paper", "optimized", "montecarlo", "actuators", "chains", "asbuilt")
+REPRODUCE_SECTIONS = ("paper", "optimized", "montecarlo", "actuators", "chains", "capture",
+                      "asbuilt")
 
 
 @main.command(short_help="The paper's figures and numbers, and the studies.")

@@ -29,6 +29,7 @@ from flatcli.core.simulate import (
     Trials,
     simulate,
 )
+from flatcli.core.task import Task, TaskPlan, plan_task, task_ends
 from flatcli.spec import Spec, SpecError
 from flatcli.spec.limits import check_track
 
@@ -88,15 +89,60 @@ def joint_rates(value: float | tuple[float, ...], joints: int) -> Array:
     return np.broadcast_to(np.asarray(value, dtype=float), (joints - 1,)).copy()
 
 
+def task_from(spec: Spec) -> Task:
+    """The spec's ``[task]`` as the core's ``Task``."""
+    t = spec.task
+    return Task(end_effector=checked(t.end_effector), base_attitude=t.base_attitude,
+                start_end_effector=checked(t.start_end_effector), rest=t.rest,
+                obstacles=t.obstacles, clearance=t.clearance, elbow=checked(t.elbow),
+                budget=t.budget)
+
+
+def _is_default(dotted: str, value: object) -> bool:
+    from flatcli.spec import lookup
+
+    return bool(value == lookup(dotted).default)
+
+
 def plan_and_optimization(spec: Spec) -> tuple[Plan, OptimizeResult | None]:
     """The reference plan of a spec, and the optimiser's report when it optimised one.
 
-    One planner for every N (``planning.plan_point_to_point``, or the optimiser).
+    One planner for every N (``planning.plan_point_to_point``, or the optimiser); a spec
+    with an active ``[task]`` plans through ``core.task`` (``planned``).
     """
+    plan, result, _ = planned(spec)
+    return plan, result
+
+
+def planned(spec: Spec) -> tuple[Plan, OptimizeResult | None, TaskPlan | None]:
+    """``plan_and_optimization`` and, for an active ``[task]``, its ``TaskPlan`` (the ends
+    derived from the task, the certificate of its obstacles and limits)."""
     robot = robot_from(spec)
     p, opt = spec.plan, spec.plan.optimize
     start = np.asarray(p.start)
     goal = np.asarray(p.goal)
+    task = task_from(spec)
+    if task.active:
+        if method_for(robot, p.method) == "exact":
+            raise SpecError("plan.method: a [task] is planned through the closed-form flat "
+                            "outputs; the exact planner (plan.method \"exact\", or \"auto\" "
+                            "on a design without them) does not plan tasks")
+        if spec.joints > 2 and spec.robot.model != "derived":
+            raise SpecError("robot.model: \"paper\" applies to the paper's robot only")
+        starts, goals = task_ends(robot, task, start, goal, _is_default("plan.start", p.start),
+                                  _is_default("plan.goal", p.goal))
+        if opt.objective is None:
+            angle = np.asarray(opt.angle_limit, dtype=float)
+            rate = np.broadcast_to(np.asarray(opt.rate_limit, dtype=float), (spec.joints,))
+            done = plan_task(robot, task, starts, goals, p.duration,
+                             joint_rates(p.start_rate, spec.joints),
+                             joint_rates(p.goal_rate, spec.joints), checked(spec.robot.model),
+                             None if task.rest else basis_from(spec), angle, rate)
+            return done.plan, None, done
+        if task.rest:
+            raise SpecError("task.rest: not with plan.optimize.objective (the optimiser plans "
+                            "with free, non-zero end rates)")
+        start, goal = starts[0], goals[0]
     model = checked(spec.robot.model)
     joints = spec.joints
     if joints > 2 and model != "derived":
@@ -106,10 +152,10 @@ def plan_and_optimization(spec: Spec) -> tuple[Plan, OptimizeResult | None]:
     start_rate = joint_rates(p.start_rate, joints)
     goal_rate = joint_rates(p.goal_rate, joints)
     if method_for(robot, p.method) == "exact":
-        return exact_plan_from(spec, robot, start, goal, start_rate, goal_rate), None
+        return exact_plan_from(spec, robot, start, goal, start_rate, goal_rate), None, None
     if opt.objective is None:
         return plan_point_to_point(robot, start, goal, start_rate, goal_rate, p.duration, model,
-                                   basis_from(spec)), None
+                                   basis_from(spec)), None, None
     result = optimize_plan(
         robot, start, goal, p.duration,
         model=model,
@@ -126,7 +172,25 @@ def plan_and_optimization(spec: Spec) -> tuple[Plan, OptimizeResult | None]:
         constraint_samples=opt.constraint_samples,
         max_iter=opt.max_iter,
     )
-    return result.plan, result
+    if task.active:
+        return result.plan, result, _task_certified(result.plan, task, start, goal)
+    return result.plan, result, None
+
+
+def _task_certified(plan: Plan, task: Task, start: Array, goal: Array) -> TaskPlan:
+    """An optimised plan of a task, its obstacles proven clear (FlatcliError if not: the
+    optimiser does not know them)."""
+    from flatcli.core.clearance import Constraints, certify
+
+    cert = None
+    if task.obstacles:
+        cert = certify(plan, Constraints(np.asarray(task.obstacles, dtype=float),
+                                         task.clearance))
+        if not cert.ok:
+            raise SpecError(f"task.obstacles: the optimised plan is not clear: {cert.reason} "
+                            "(the optimiser does not see obstacles; plan without --optimize "
+                            "to search for a clear plan)")
+    return TaskPlan(plan, start, goal, cert, 1)
 
 
 def exact_plan_from(spec: Spec, robot: RobotParams, start: Array, goal: Array,
@@ -238,6 +302,12 @@ class TrackRun:
             self.scenario.divergence_bound,
             self.outcome.unverified(0),
         )
+        if self.spec.task.end_effector is not None or self.spec.task.obstacles:
+            cols = self.columns
+            n = self.spec.joints
+            theta = np.column_stack([cols[f"theta{i}"] for i in range(n + 1)])
+            ref = np.column_stack([cols[f"theta{i}_ref"] for i in range(n + 1)])
+            out.update(task_metrics(self.spec, theta, ref, plant_from(self.spec)))
         out["status"] = status
         out["reason"] = reason
         out["verified"] = bool(self.outcome.verified[0])
@@ -288,6 +358,7 @@ class TrackRun:
         cols["momentum"] = H
         for j in range(1, n + 1):
             cols[f"tau{j}"] = named.get(f"tau{j}", nan)
+        cols.update(_positions(plant_from(self.spec), theta))
         return cols
 
     def _outputs(self, theta: Array, rates: Array, u: Array) -> tuple[Array, Array, Array]:
@@ -301,15 +372,112 @@ class TrackRun:
         return y, np.abs(sigma), np.asarray(H)
 
 
+def _positions(robot: RobotParams, theta: Array) -> dict[str, Array]:
+    """ee_x, ee_y, base_x, base_y [m] at angles theta (n, N + 1) (``core.kinematics``; nan
+    where the angles are)."""
+    from flatcli.core.kinematics import base_position, end_effector
+
+    ee = end_effector(robot, theta)
+    base = base_position(robot, theta)
+    return {"ee_x": ee[:, 0], "ee_y": ee[:, 1], "base_x": base[:, 0], "base_y": base[:, 1]}
+
+
+def task_metrics(spec: Spec, theta: Array, reference: Array | None = None,
+                 plant: RobotParams | None = None) -> dict[str, float | None]:
+    """The task's metrics along angles theta (n, N + 1) on the output grid: the end
+    effector's distance from the target at the end (``ee_error_final`` [m]), its largest
+    distance from the plan's end effector (``ee_error_max`` [m], with the plan's angles
+    ``reference``; null for a plan), the base attitude's error at the end
+    (``base_attitude_error_final`` [rad]) and the least distance of any link from any
+    obstacle's surface (``min_clearance`` [m]); null where the task does not ask."""
+    from flatcli.core.clearance import segment_distance
+    from flatcli.core.kinematics import end_effector, joint_positions
+
+    task = spec.task
+    robot = plant or robot_from(spec)
+    ee = end_effector(robot, theta)
+
+    def num(x: float) -> float | None:
+        return None if not np.isfinite(x) else float(x)
+
+    out: dict[str, float | None] = {
+        "ee_error_final": None, "ee_error_max": None, "base_attitude_error_final": None,
+        "min_clearance": None}
+    if task.end_effector is not None:
+        out["ee_error_final"] = num(float(np.hypot(*(ee[-1] - np.asarray(task.end_effector)))))
+    if reference is not None:
+        planned_ee = end_effector(robot_from(spec), reference)
+        out["ee_error_max"] = num(float(np.max(np.hypot(*(ee - planned_ee).T))))
+    if task.base_attitude is not None:
+        out["base_attitude_error_final"] = num(abs(float(theta[-1, 0]) - task.base_attitude))
+    if task.obstacles:
+        obs = np.asarray(task.obstacles, dtype=float)
+        gaps = segment_distance(joint_positions(robot, theta), obs[:, :2]) - obs[:, 2]
+        out["min_clearance"] = num(float(np.min(gaps)))
+    return out
+
+
 def run_track(spec: Spec, before_simulating: Callable[[], object] | None = None) -> TrackRun:
     """Plan, then simulate the closed loop of a spec, recording the trace (SpecError, before
     any work, if that could not end within the time budget: ``check_track``);
     ``before_simulating`` is called once the plan and scenario are made and valid."""
     check_track(spec)
     plan = plan_from(spec)
+    if spec.task.rest:
+        return run_rest_track(spec, plan)
     scenario = scenario_from(spec, plan)
     trials = nominal_trials(spec, plan)
     if before_simulating is not None:
         before_simulating()
     outcome = simulate(scenario, trials, checked(spec.track.integrator), record=True)
+    return TrackRun(spec, plan, scenario, outcome)
+
+
+def run_rest_track(spec: Spec, plan: Plan) -> TrackRun:
+    """The closed loop of a rest-to-rest task (``core.restloop``: feedforward at the ends,
+    feedback faded in between), recorded as a ``TrackRun`` of the reference integrator
+    (DOP853): the trace on the output grid and the metrics that apply (the others null)."""
+    from flatcli.core.metrics import N_METRICS, Event, Metric, Status
+    from flatcli.core.rest import RestPlan
+    from flatcli.core.restloop import track_rest
+    from flatcli.core.simulate import chain_trace_columns
+
+    assert isinstance(plan, RestPlan)
+    if spec.track.integrator != "dop853" and spec.track.integrator != "adaptive":
+        raise SpecError("track.integrator: a rest-to-rest task is tracked by DOP853 "
+                        "(\"adaptive\" or \"dop853\"), not fixed-step \"rk4\"")
+    scenario = scenario_from(spec, plan)
+    plant = plant_from(spec)
+    times = scenario.times
+    trace = track_rest(plan, Gains(spec.track.kp, spec.track.kv), plant,
+                       np.asarray(spec.track.initial), times, spec.task.fade,
+                       spec.plant.momentum)
+    ref = plan.sample(times)
+    u = trace.u1[:, None]
+    with np.errstate(all="ignore"):
+        y, _, sigma = plan.model.outputs(trace.theta, u)
+        H = plan.model.momentum(plant, trace.theta, trace.theta_dot)
+    e_theta = np.linalg.norm(trace.theta - ref.theta, axis=1)
+    e_y = np.linalg.norm(y - ref.y, axis=1)
+    metrics = np.full((1, N_METRICS), np.nan)
+    row = metrics[0]
+    finite = np.isfinite(e_theta).all()
+    row[Metric.ERR_THETA_RMS] = float(np.sqrt(np.mean(e_theta**2)))
+    row[Metric.ERR_THETA_MAX] = float(np.max(e_theta))
+    row[Metric.ERR_THETA_FINAL] = float(e_theta[-1])
+    row[Metric.ERR_Y_RMS] = float(np.sqrt(np.nanmean(e_y**2)))
+    row[Metric.ERR_Y_MAX] = float(np.nanmax(e_y))
+    row[Metric.ERR_Y_FINAL] = float(e_y[-1])
+    row[Metric.SINGULAR_HITS] = 0.0
+    row[Metric.MIN_MARGIN] = float(np.nanmin(np.abs(sigma)))
+    row[Metric.MOMENTUM_DRIFT] = float(np.nanmax(np.abs(H - spec.plant.momentum)))
+    row[Metric.PEAK_RATE] = float(np.nanmax(np.abs(trace.theta_dot[:, 1:])))
+    ok = trace.finished and finite
+    columns = chain_trace_columns(2)
+    record = np.column_stack([trace.theta, trace.u1, trace.theta_dot])[None, :, :]
+    outcome = Outcome(metrics=metrics,
+                      status=np.array([int(Status.OK if ok else Status.DIVERGED)]),
+                      event=np.array([int(Event.NONE if ok else Event.BOUND)]),
+                      event_time=np.array([np.nan]), trace=record, columns=columns,
+                      integrator="dop853")
     return TrackRun(spec, plan, scenario, outcome)

@@ -15,6 +15,8 @@ from typing import Any
 
 import pandas as pd
 
+from flatcli.core.kinematics import base_position, end_effector
+from flatcli.core.model import RobotParams
 from flatcli.core.planning import PlanSamples
 from flatcli.experiment import TrackRun
 from flatcli.report import FigureFile, Limits, plot_track
@@ -22,9 +24,19 @@ from flatcli.storage import write_json, write_parquet
 from flatcli.units import units_of
 
 
-def plan_frame(samples: PlanSamples) -> pd.DataFrame:
+def positions(robot: RobotParams, theta: Any) -> dict[str, Any]:
+    """The end effector's and the base's positions (``ee_x``, ``ee_y``, ``base_x``,
+    ``base_y`` [m]) at angles theta (n, N + 1), the system's centre of mass at the origin
+    (``core.kinematics``)."""
+    ee = end_effector(robot, theta)
+    base = base_position(robot, theta)
+    return {"ee_x": ee[:, 0], "ee_y": ee[:, 1], "base_x": base[:, 0], "base_y": base[:, 1]}
+
+
+def plan_frame(samples: PlanSamples, robot: RobotParams | None = None) -> pd.DataFrame:
     """plan.parquet's rows: angles, rates, inputs, flat outputs, margin and H per sample
-    (th0..thN, u1'..u(N-1)' and uN = thN', y1..yN on a robot of N joints)."""
+    (th0..thN, u1'..u(N-1)' and uN = thN', y1..yN on a robot of N joints), and with the
+    ``robot`` the end effector's and base's positions (``positions``)."""
     n = samples.theta.shape[-1] - 1  # N joints
     columns: dict[str, Any] = {"t": samples.t}
     for i in range(n + 1):
@@ -39,6 +51,8 @@ def plan_frame(samples: PlanSamples) -> pd.DataFrame:
             columns[f"y{j + 1}{name}"] = arr[:, j]
     columns["margin"] = samples.margin
     columns["momentum"] = samples.momentum
+    if robot is not None:
+        columns.update(positions(robot, samples.theta))
     frame = pd.DataFrame(columns)  # built at once: one block, no fragmentation warnings
     frame.attrs["units"] = units_of(frame.columns)
     return frame

@@ -104,7 +104,7 @@ class Trajectory:
 
         times = np.atleast_1d(np.asarray(t, dtype=np.float64))
         self.eval(times)  # the same checks
-        return plan_frame(self.plan.sample(times))
+        return plan_frame(self.plan.sample(times), self.plan.robot)
 
     def __repr__(self) -> str:
         return f"<flatcli Trajectory: {self.joints} joints, T = {self.duration:g} s>"

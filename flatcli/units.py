@@ -44,6 +44,12 @@ UNITS: dict[str, str] = {
     "margin": _RATE,
     "momentum": _MOMENTUM,  # H along a plan or a run; in trials.parquet the plant's H0
     "tau1": _TORQUE, "tau2": _TORQUE,  # the dynamic plant's joint torques
+    # positions with the system's centre of mass at the origin (flatcli.core.kinematics)
+    "ee_x": "m", "ee_y": "m", "base_x": "m", "base_y": "m",
+    # a task's metrics (metrics.json of a track run, run.json's summary of a plan)
+    "ee_error_final": "m", "ee_error_max": "m", "base_attitude_error_final": _ANGLE,
+    "min_clearance": "m", "clearance_bound": "m", "certified_intervals": DIMENSIONLESS,
+    "task_candidates": DIMENSIONLESS,
     # trials.parquet: the metrics of flatcli.core.metrics (definitions in docs/outputs.md)
     "err_theta_rms": _ANGLE, "err_theta_max": _ANGLE, "err_theta_final": _ANGLE,
     "err_y_rms": _ANGLE, "err_y_max": _ANGLE, "err_y_final": _ANGLE,

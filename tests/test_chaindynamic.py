@@ -53,6 +53,7 @@ from flatcli.core.simulate import (
     Scenario,
     Trials,
     chain_dynamic_trace_columns,
+    noise_generator,
     simulate,
 )
 
@@ -594,3 +595,30 @@ def test_dop853_runs_every_chain_and_agrees_with_the_adaptive_integrator(n: int)
     assert gap <= AGREE_WITH_DOP853, gap
     steps = reference.metrics[0, Metric.STEPS]
     assert steps > 10 and reference.metrics[0, Metric.RHS_EVALUATIONS] > 12 * steps
+
+
+def test_sensor_noise_covers_every_angle_of_a_chain() -> None:
+    """The noise table of a robot of N joints holds one column per angle th0..thN (the
+    kernels read N + 1): its variates are noise_generator's own standard normals, and noise
+    on th_N alone (an explicit table) changes the closed loop, which a table too narrow for
+    the kernels could not express. Run twice, a noisy trial is the same bit for bit."""
+    n = 3
+    plan, robot, start = chain_plan(n)
+    links = robot.as_array()[None]
+    initial = np.r_[start, 0.3, 0.3][None]
+    streams = Trials(links, np.zeros(1), initial, NoiseStreams(1e-4, 7, np.array([11])))
+    table = streams.noise_table(0, 5)
+    expected = 1e-4 * noise_generator(7, 11).standard_normal((5, n + 1))  # the stream itself
+    np.testing.assert_array_equal(table, expected)
+    scenario = Scenario(plan, gains(n), 1e-3, plant="dynamic")
+    first, again = run(scenario, streams), run(scenario, streams)
+    np.testing.assert_array_equal(first.metrics, again.metrics)
+    steps = scenario.n_steps
+    quiet = np.zeros((1, steps, n + 1))
+    last_only = quiet.copy()
+    last_only[0, :, n] = 1e-3
+    a = run(scenario, Trials(links, np.zeros(1), initial, quiet))
+    b = run(scenario, Trials(links, np.zeros(1), initial, last_only))
+    assert a.metrics[0, Metric.ERR_THETA_FINAL] != b.metrics[0, Metric.ERR_THETA_FINAL]
+    with pytest.raises(ValueError, match="noise"):
+        Trials(links, np.zeros(1), initial, np.zeros((1, steps, n)))

@@ -25,7 +25,8 @@ PLAN_COLUMNS = ["t", "theta0", "theta1", "theta2", "theta0_dot", "theta1_dot", "
                 "momentum"]
 TRACK_COLUMNS = ["t", "theta0", "theta1", "theta2", "theta0_dot", "theta1_dot", "theta2_dot",
                  "theta0_ref", "theta1_ref", "theta2_ref", "u1", "u2", "y1", "y2", "y1_ref",
-                 "y2_ref", "margin", "momentum", "tau1", "tau2"]
+                 "y2_ref", "margin", "momentum", "tau1", "tau2", "ee_x", "ee_y", "base_x",
+                 "base_y"]
 
 
 def test_plan_frame_columns_and_values() -> None:
@@ -135,7 +136,7 @@ def test_a_robot_of_three_joints_has_a_column_per_link_and_output(tmp_path: Path
         "t", "theta0", "theta1", "theta2", "theta3", "theta0_dot", "theta1_dot", "theta2_dot",
         "theta3_dot", "theta0_ref", "theta1_ref", "theta2_ref", "theta3_ref", "u1", "u2", "u3",
         "y1", "y2", "y3", "y1_ref", "y2_ref", "y3_ref", "margin", "momentum", "tau1", "tau2",
-        "tau3"]
+        "tau3", "ee_x", "ee_y", "base_x", "base_y"]
     units = column_units(tmp_path / "track.parquet")
     assert set(units) == set(track.columns)
     assert units["theta3"] == "rad" and units["u2"] == "rad/s" and units["tau3"] == "N m"

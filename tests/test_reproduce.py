@@ -59,6 +59,9 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path,
     for name in ("fig_chains.png", "chains/chain4/plan.parquet",
                  "chains/chain6/track_dynamic.parquet", "chains/chain6/montecarlo/trials.parquet"):
         assert (out / name).exists(), name
+    # the capture maneuver among obstacles (docs/tasks.md): its table and filmstrip
+    assert "every link 0.01 m clear of three discs, proven over all of [0, T]" in report
+    assert (out / "fig_capture.png").exists() and (out / "capture/plan/plan.parquet").exists()
     # robots as built: the goal's table (Fig. 4's start and the three cells, the same trials
     # in both pipelines), the maps, the figure, the exact plans' momentum
     assert "## Robots as built" in report
@@ -77,8 +80,8 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path,
     # are the same
     again = CliRunner().invoke(main, ["reproduce", "--out", "paper", "--set", "sweep.trials=8"])
     assert again.exit_code == 0, again.output
-    assert "6 sections (0 computed, 6 reused)" in again.output
-    assert again.output.count("reused: unchanged since") == 6
+    assert "7 sections (0 computed, 7 reused)" in again.output
+    assert again.output.count("reused: unchanged since") == 7
     assert "- paper: the printed b1 is wrong" in again.output  # the headlines, not the report
     assert len(again.output.splitlines()) < 40
     body = report.split("## How this report was made")[0]
@@ -88,7 +91,7 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path,
     (out / "fig2_flat_outputs.png").unlink()
     third = CliRunner().invoke(main, ["reproduce", "--out", "paper", "--set", "sweep.trials=8"])
     assert third.exit_code == 0, third.output
-    assert "6 sections (1 computed, 5 reused)" in third.output
+    assert "7 sections (1 computed, 6 reused)" in third.output
     assert "fig2_flat_outputs.png changed or is missing" in third.output
     assert (out / "fig2_flat_outputs.png").exists()
 
@@ -97,11 +100,11 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path,
     only = CliRunner().invoke(main, ["reproduce", "--out", "paper", "--set", "sweep.trials=8",
                                      "--only", "optimized", "--force"])
     assert only.exit_code == 0, only.output
-    assert "6 sections (1 computed, 5 reused)" in only.output and "(--force)" in only.output
+    assert "7 sections (1 computed, 6 reused)" in only.output and "(--force)" in only.output
     other = CliRunner().invoke(main, ["reproduce", "--out", "paper", "--set", "sweep.trials=9",
                                       "--only", "paper"])
     assert other.exit_code == 0, other.output
-    assert "2 sections (0 computed, 2 reused)" in other.output  # paper and optimized
+    assert "3 sections (0 computed, 3 reused)" in other.output  # paper, optimized, capture
     assert "flatcli reproduce --only montecarlo" in (out / "REPORT.md").read_text()
 
 

@@ -16,8 +16,8 @@ from flatcli.spec import GAINS, LINKS, SCHEMA, SECTIONS, Spec, SpecError, all_ke
 
 
 def test_sections_are_the_toml_tables() -> None:
-    assert list(SECTIONS) == ["", "robot", "plan", "plan.optimize", "track", "plant", "sweep",
-                              "figures"]
+    assert list(SECTIONS) == ["", "robot", "plan", "plan.optimize", "task", "track", "plant",
+                              "sweep", "figures"]
     assert list(SCHEMA) == list(SECTIONS)
 
 

@@ -172,15 +172,21 @@ def test_summary_matches_pandas_on_trials_parquet(tmp_path: Path) -> None:
         for status in ("ok", "singular", "diverged", "error"):
             assert row[status] == (group["status"] == status).sum()
         done = group[group["status"].isin(["ok", "singular"])]
+        # the errors over the verified resolved trials where the cell has any
+        counted = done[done["verified"]] if done["verified"].any() else done
+        assert row["statistics_of"] == ("verified" if done["verified"].any() else "unverified")
         for metric in ("err_theta_rms", "err_theta_final", "err_y_rms", "err_y_final"):
-            assert row[f"{metric}_median"] == pytest.approx(done[metric].median(), rel=1e-12)
-            assert row[f"{metric}_p95"] == pytest.approx(done[metric].quantile(0.95), rel=1e-12)
-            assert row[f"{metric}_max"] == done[metric].max()
+            assert row[f"{metric}_median"] == pytest.approx(counted[metric].median(), rel=1e-12)
+            assert row[f"{metric}_p95"] == pytest.approx(counted[metric].quantile(0.95),
+                                                         rel=1e-12)
+            assert row[f"{metric}_max"] == counted[metric].max()
         simulated = group[group["status"] != "error"]
         assert row["singular_fraction"] == pytest.approx((simulated["singular_hits"] > 0).mean())
-        assert row["min_margin_median"] == pytest.approx(done["min_margin"].median())
-        assert row["momentum_drift_median"] == pytest.approx(done["momentum_drift"].median())
-        assert row["momentum_drift_max"] == done["momentum_drift"].max()
+        assert row["min_margin_median"] == pytest.approx(counted["min_margin"].median())
+        assert row["momentum_drift_median"] == pytest.approx(counted["momentum_drift"].median())
+        assert row["momentum_drift_max"] == counted["momentum_drift"].max()
+        assert row["resolved"] == len(done)
+        assert row["verified_trials"] + row["unverified_trials"] == len(done)
     assert summary["ok"].min() > 0  # every cell has statistics to check
     assert (tmp_path / "d" / "summary.md").read_text().count("| cell |") >= 4
 

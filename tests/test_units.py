@@ -45,7 +45,7 @@ def test_grid_columns_take_the_units_of_their_spec_keys() -> None:
 
 def _readme_units() -> dict[str, str]:
     """{column: unit} of every row of docs/outputs.md's column tables (``| column | unit |
-    ...``; "" where the unit cell is blank)."""
+    ...``; an empty unit for a column of words or labels)."""
     text = (Path(__file__).resolve().parents[1] / "docs" / "outputs.md").read_text()
     units: dict[str, str] = {}
     in_table = False
@@ -56,7 +56,7 @@ def _readme_units() -> dict[str, str]:
             continue
         if not line.strip().startswith("|"):
             in_table = False
-        if in_table and not set(cells[0]) <= {"-"}:
+        if in_table and len(cells) > 1 and not set(cells[0]) <= {"-"}:
             for name in re.findall(r"`([^`]+)`", cells[0]):
                 units[name] = cells[1]
     return units
@@ -64,8 +64,8 @@ def _readme_units() -> dict[str, str]:
 
 def test_the_docs_column_tables_say_what_the_files_hold() -> None:
     readme = _readme_units()
-    for name, unit in readme.items():  # a blank unit: a column of text or flags, no unit
-        assert (unit_of(name) or "") == unit, name
+    for name, unit in readme.items():
+        assert unit_of(name) == (unit or None), name
     plan = plan_from(resolve({}))
     documented = [*plan_frame(plan.sample(plan.grid(3))).columns, *METRIC_NAMES, "event_time",
                   *TRACK_ONLY]

@@ -2,7 +2,7 @@
 
 The formulas of the core are written once, as plain functions of floats that also broadcast
 over numpy arrays. ``jitable`` marks such a function so that numba can inline it into the
-compiled closed-loop kernel (``paperloop``), while Python callers keep calling it on arrays.
+compiled closed-loop kernel (``kernels``), while Python callers keep calling it on arrays.
 
 numba caches compiled kernels on disk, but only checks the file that holds the kernel for
 changes, not the files of the functions it inlined. So the cache directory is keyed by a

@@ -315,7 +315,7 @@ def make_single(ops: Ops) -> tuple[Callable[..., None], Callable[..., None],
 
 
 # --------------------------------------------------------------------------------------
-# The paper's robot (N = 2): the closed forms of ``plant`` and ``paperloop``
+# The paper's robot (N = 2): the closed forms of ``plant`` (its right-hand sides)
 
 
 class PaperShared(NamedTuple):

@@ -24,8 +24,9 @@ torque limit may differ per trial (``Trials.servo``).
 
 Every trial is integrated alone by the same compiled code, so its result does not depend on
 which other trials share the batch, the order, the worker or the executor (bit for bit).
-The compiled batch kernels are those of ``paperloop`` (the paper's robot), ``chainloop`` and
-``chaindynamic`` (N-link chains); this module holds the public API and chooses among them.
+The compiled batch kernels are made by ``kernels`` (the paper's robot's closed forms from
+``plant``; N-link chains from ``chainloop`` and ``chaindynamic``); this module holds the
+public API and chooses among them.
 """
 
 from __future__ import annotations
@@ -296,7 +297,8 @@ class Scenario:
 @dataclass(frozen=True)
 class NoiseStreams:
     """Sensor noise drawn per trial as the integrator goes: std [rad] times the normal
-    variates of ``noise_generator(seed, trial)``, three per output interval, in order."""
+    variates of ``noise_generator(seed, trial)``, one per angle th0..thJ per output
+    interval, in order."""
 
     std: float
     seed: int
@@ -312,7 +314,7 @@ class Trials:
     links : (N, 12) plant mass, inertia, length, com (see ``Links``)
     momentum : (N,) plant angular momentum H0 [kg m^2/s]
     initial : (N, 4) th0, th1, th2 [rad], u1 [rad/s] at t = 0
-    noise : sensor noise on the three angles: an (N, n, 3) table [rad] (row j held over
+    noise : sensor noise on the angles th0..thJ: an (N, n, J + 1) table [rad] (row j held over
         [t_j, t_j+1)), ``NoiseStreams``, or None for none
     servo : (N, 2) the dynamic plant's servo bandwidth [rad/s] (> 0) and torque limit [N m]
         (>= 0, inf for none) per trial, or None for the defaults (``DEFAULT_SERVO``); the
@@ -344,8 +346,9 @@ class Trials:
                 raise ValueError("Trials: noise streams need one trial id per trial")
             if not (self.noise.std >= 0 and math.isfinite(self.noise.std)):
                 raise FlatcliError(f"track.sensor_noise: must be >= 0 rad, got {self.noise.std}")
-        elif self.noise is not None and (self.noise.ndim != 3 or self.noise.shape[0] != n):
-            raise ValueError("Trials: noise (N, n, 3) expected")
+        elif self.noise is not None and (self.noise.ndim != 3 or self.noise.shape[0] != n
+                                         or self.noise.shape[2] != joints + 1):
+            raise ValueError("Trials: noise (N, n, J + 1) expected")
         if self.across is not None and (self.across.shape != (n,)
                                         or not np.all(np.isfinite(self.across))):
             raise ValueError("Trials: across (N,) finite values expected")
@@ -382,15 +385,23 @@ class Trials:
             return np.tile(np.array(DEFAULT_SERVO, dtype=float), (self.count, 1))
         return np.ascontiguousarray(self.servo, dtype=float)
 
+    @property
+    def angles(self) -> int:
+        """Angles th0..thJ of the robot (J + 1 for J joints): a noise table's width."""
+        return int(self.links.shape[1]) // 4
+
     def noise_table(self, index: int, n: int) -> Array:
-        """(n, 3) the noise trial ``index`` sees [rad] (zeros without noise)."""
+        """(n, J + 1) the noise trial ``index`` sees on th0..thJ [rad] (zeros without
+        noise): ``angles`` wide, as the kernels read it (a narrower table made them read
+        past each row, a robot of three joints or more one angle beyond it)."""
+        angles = self.angles
         if isinstance(self.noise, NoiseStreams):
             if self.noise.std == 0:
-                return np.zeros((n, 3))
+                return np.zeros((n, angles))
             gen = noise_generator(self.noise.seed, int(self.noise.trial_ids[index]))
-            return self.noise.std * gen.standard_normal((n, 3))
+            return self.noise.std * gen.standard_normal((n, angles))
         if self.noise is None:
-            return np.zeros((n, 3))
+            return np.zeros((n, angles))
         return np.asarray(self.noise[index], dtype=float)
 
 

@@ -82,7 +82,8 @@ def summarize_trials(frame: pd.DataFrame, cells: Mapping[int, Mapping[str, Any]]
     One row per cell: cell, the grid columns, trials, the count of each status, resolved
     (ok + singular) and simulated (all but error) counts; median, p95 and max of each of
     ``ERROR_METRICS`` and median/max of min_margin, momentum_drift, peak_rate and
-    err_estimate over resolved trials; the max plan_momentum_residual over simulated trials;
+    err_estimate over the counted trials (resolved; of those the verified ones where the cell
+    has any, ``statistics_of``); the max plan_momentum_residual over simulated trials;
     ``singular_fraction`` (simulated trials with a singular hit) and each of ``FAILURES`` as
     a fraction of the cell's trials, each with its 95 % Wilson interval (``_low``, ``_high``).
     Statistics over no trials are nan (null in summary.parquet).
@@ -113,7 +114,7 @@ def summarize_trials(frame: pd.DataFrame, cells: Mapping[int, Mapping[str, Any]]
         row["plan_momentum_residual_max"] = _stat(
             np.max, _present(simulated["plan_momentum_residual"]))
         # added after the columns above, which keep their names and places
-        row["resolved"] = len(done)
+        row["resolved"] = len(resolved)
         row["simulated"] = len(simulated)
         _fraction(row, "singular", int(np.sum(hits > 0)), len(hits))
         for name in FAILURES:

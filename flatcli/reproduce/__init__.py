@@ -18,7 +18,7 @@ from pathlib import Path
 
 from flatcli import __version__
 from flatcli.report.figures import FigureFile
-from flatcli.reproduce import actuators, asbuilt, chains, montecarlo, optimized, paper
+from flatcli.reproduce import actuators, asbuilt, capture, chains, montecarlo, optimized, paper
 from flatcli.reproduce.sections import Context, Result, Section, Steps, compute_or_reuse
 from flatcli.reproduce.sections import stored_result as _stored
 from flatcli.spec import load_spec, resolve
@@ -29,7 +29,8 @@ STUDY_SPEC = Path(str(resources.files("flatcli") / "data" / "paper_montecarlo.to
 
 #: The report's sections, in its order.
 SECTIONS: tuple[Section, ...] = (paper.SECTION, optimized.SECTION, montecarlo.SECTION,
-                                 actuators.SECTION, chains.SECTION, asbuilt.SECTION)
+                                 actuators.SECTION, chains.SECTION, capture.SECTION,
+                                 asbuilt.SECTION)
 SECTION_NAMES: tuple[str, ...] = tuple(s.name for s in SECTIONS)
 
 INTRO = (

@@ -44,7 +44,8 @@ class Key:
 
     Attributes
     ----------
-    kind : "float", "int", "bool", "str", "choice", "vector" (``length`` floats) or "table"
+    kind : "float", "int", "bool", "str", "choice", "vector" (``length`` floats), "discs"
+        (a list of [x, y, radius]) or "table"
     default : the paper's value, already normalised (floats, tuples); None where ``nullable``
     doc : one line for the spec tables (docs/spec.md)
     unit : SI unit, '' for none
@@ -91,6 +92,8 @@ class Key:
 
     def bounds_text(self) -> str:
         """What values are allowed, for the spec tables ('> 0', '>= 1', 'true, false', ...)."""
+        if self.kind == "discs":
+            return "a list of [x, y, radius], radius > 0"
         if self.kind == "choice":
             text = ", ".join(f'"{c}"' for c in self.choices)
         elif self.kind == "bool":
@@ -225,6 +228,21 @@ def _check_numbers(key: Key, where: str, value: Any) -> float | tuple[float, ...
     return key._number(where, value)
 
 
+def _check_discs(key: Key, where: str, value: Any) -> tuple[tuple[float, float, float], ...]:
+    """A list of discs [x, y, radius] [m]: finite, radius > 0."""
+    if not isinstance(value, list | tuple):
+        raise SpecError(f"{where}: expected a list of [x, y, radius] discs [m], got {value!r}")
+    out = []
+    for i, disc in enumerate(value):
+        if not isinstance(disc, list | tuple) or len(disc) != 3:
+            raise SpecError(f"{where}[{i}]: expected [x, y, radius] [m], got {disc!r}")
+        x, y, r = (key._number(f"{where}[{i}]", v) for v in disc)
+        if not r > 0:
+            raise SpecError(f"{where}[{i}]: the radius must be > 0 m, got {r:g}")
+        out.append((x, y, r))
+    return tuple(out)
+
+
 def _check_table(key: Key, where: str, value: Any) -> dict[str, Any]:
     if not isinstance(value, dict):
         raise SpecError(f"{where}: expected a table, got {value!r}")
@@ -240,6 +258,7 @@ _CHECKS = {
     "vector": _check_vector,
     "numbers": _check_numbers,
     "table": _check_table,
+    "discs": _check_discs,
 }
 
 
@@ -282,10 +301,11 @@ def _low(gt: float | None, ge: float | None) -> dict[str, Any]:
 
 
 def number(default: float | None, doc: str, unit: str = "", *, gt: float | None = None,
-           ge: float | None = None, inf: bool = False, nullable: bool = False,
-           default_doc: str = "") -> Any:
-    """A float key; ``gt``/``ge`` bound it below; ``inf``: inf means no limit."""
-    return _declare(Key("float", default, doc, unit, allow_inf=inf, nullable=nullable,
+           ge: float | None = None, le: float | None = None, inf: bool = False,
+           nullable: bool = False, default_doc: str = "") -> Any:
+    """A float key; ``gt``/``ge`` bound it below, ``le`` above; ``inf``: inf means no
+    limit."""
+    return _declare(Key("float", default, doc, unit, high=le, allow_inf=inf, nullable=nullable,
                         default_doc=default_doc, **_low(gt, ge)))
 
 
@@ -328,6 +348,11 @@ def flag(default: bool, doc: str) -> Any:
 def text(default: str, doc: str) -> Any:
     """A non-empty string usable as a directory name."""
     return _declare(Key("str", default, doc))
+
+
+def discs(doc: str, unit: str = "m") -> Any:
+    """A list of discs [x, y, radius] (default: none)."""
+    return _declare(Key("discs", (), doc, unit))
 
 
 def table(doc: str, default_doc: str = "{}") -> Any:

@@ -29,6 +29,7 @@ from dataclasses import Field, dataclass, field, fields, is_dataclass
 from typing import Any
 
 from flatcli.core.exact import METHODS
+from flatcli.core.inverse import ELBOWS
 from flatcli.core.lqr import DEFAULT_BANDWIDTH, DEFAULT_BASE, DEFAULT_TERMINAL
 from flatcli.core.model import MODELS
 from flatcli.core.optimize import OBJECTIVES
@@ -47,6 +48,7 @@ from flatcli.spec.keys import (
     Key,
     SpecError,
     choice,
+    discs,
     flag,
     integer,
     number,
@@ -143,6 +145,38 @@ class PlanSpec:
                          "controllable design; docs/asbuilt.md) or \"auto\" (flat "
                          "where the closed form applies, exact elsewhere)")
     optimize: OptimizeSpec = field(default_factory=OptimizeSpec)
+
+
+@dataclass(frozen=True)
+class TaskSpec:
+    """an end-effector task (off unless `end_effector` is set; docs/tasks.md)"""
+
+    end_effector: Vector | None = vector(2, None, "where the end effector must be at t = T, "
+                                         "in the inertial frame whose origin is the system's "
+                                         "centre of mass (sets plan.goal)", "m", nullable=True)
+    base_attitude: float | None = number(None, "the base's th0 at t = T (none: free, chosen "
+                                         "with the joints by least joint motion)", "rad",
+                                         nullable=True)
+    start_end_effector: Vector | None = vector(2, None, "where the end effector is at t = 0 "
+                                               "(sets plan.start, at its th0; none: "
+                                               "plan.start as it is)", "m", nullable=True)
+    rest: bool = flag(False, "start and stop at rest (every rate 0 at t = 0 and T); "
+                      "otherwise plan.start_rate and plan.goal_rate are magnitudes whose sign "
+                      "follows th1's motion")
+    obstacles: tuple[tuple[float, float, float], ...] = discs(
+        "discs [x, y, radius] every link (the base as its segment) must clear for all t in "
+        "[0, T], proven by interval arithmetic (paper's robot)")
+    clearance: float = number(0.0, "least distance of every link from every obstacle's "
+                              "surface", "m", ge=0)
+    elbow: str = choice(ELBOWS, "auto", "inverse-kinematics branch of the two-joint robot: "
+                        "\"up\" (sin th2 > 0), \"down\", or \"auto\" (the one nearer "
+                        "plan.start, or the first that clears the obstacles)")
+    fade: float = number(0.2, "track with rest: the feedback fades in over the first and out "
+                         "over the last fade x T (feedforward alone where the margin "
+                         "vanishes)", gt=0, le=0.5)
+    budget: int = integer(64, "obstacle search: most candidate plans tried (elbow branches, "
+                          "the rest plan's skew or the end rates' magnitudes) before saying "
+                          "none is proven clear", ge=1)
 
 
 @dataclass(frozen=True)
@@ -280,6 +314,7 @@ class Spec:
     name: str = text("paper_example", "run name; default output directory `runs/<name>/`")
     robot: RobotSpec = field(default_factory=RobotSpec)
     plan: PlanSpec = field(default_factory=PlanSpec)
+    task: TaskSpec = field(default_factory=TaskSpec)
     track: TrackSpec = field(default_factory=TrackSpec)
     plant: PlantSpec = field(default_factory=PlantSpec)
     sweep: SweepSpec = field(default_factory=SweepSpec)

@@ -14,9 +14,9 @@ The steps (each a function or method below):
 5. ``_keep_start``: never return a plan worse than a feasible starting guess.
 6. ``_result``: the plan and its ``OptimizeResult``.
 
-The paper's robot (N = 2) is planned through its reduced constraint (``planning``, a
-``FlatPlan``); a chain of N >= 3 joints through ``chainflat`` (a ``chainplan.ChainPlan``).
-The steps are the same for both.
+Every robot is planned through its flat model (``flatmodel.FlatModel``: the paper's closed
+form for N = 2, the chain for N >= 3) into one ``planning.Plan``; the steps are the same for
+every N.
 """
 
 from __future__ import annotations
@@ -62,9 +62,8 @@ class OptimizeResult:
 
     Attributes
     ----------
-    plan : the optimised plan (same robot and model, the chosen basis): a ``FlatPlan`` for
-        the paper's robot (N = 2), a ``chainplan.ChainPlan`` for a chain of N >= 3 joints
-        (narrow with isinstance)
+    plan : the optimised plan (same robot and model, the chosen basis): a
+        ``planning.Plan`` for any N
     success : the solver converged and the plan meets every limit on the check grid
     objective : final value of the objective (units of the objective, see ``objectives``)
     initial_objective : its value at the starting guess
@@ -161,7 +160,7 @@ def optimize_plan(
     OptimizeResult; its objective is never worse than the starting guess's when that is
     feasible (the starting guess is returned if the solver does not improve on it). A
     chain's plan is checked for zeros of its margin between the check grid's samples
-    (``ChainPlan.margin_zeros``) like ``chainplan.plan_chain``'s.
+    (``Plan.margin_zeros``) as ``planning.plan_point_to_point`` does.
 
     Raises
     ------

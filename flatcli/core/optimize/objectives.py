@@ -1,7 +1,7 @@
 """The names of what the optimiser can minimise (all over the plan's [0, T]).
 
 * ``"energy"``: integral of th1'^2 + th2'^2 [rad^2/s], on the composite Gauss-Legendre rule
-  of ``FlatPlan.input_energy``.
+  of ``planning.Plan.input_energy``.
 * ``"effort"``: T times the energy [rad^2]: invariant under time scaling (stretching a plan
   by a factor c divides the energy by c and multiplies T by c). At fixed T a constant
   multiple of the energy: same optimum.

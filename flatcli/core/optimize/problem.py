@@ -3,7 +3,7 @@
 A ``Problem`` is one goal (an objective, or the phase-1 violation) under one set of limits
 on one maneuver: the rows of ``limits`` imposed at the times of a constraint grid (grown by
 the exchange rounds of ``solver``), the energy on the composite Gauss-Legendre rule of
-``FlatPlan.input_energy``, and a finer check grid on which ``assessment`` measures the
+``planning.Plan.input_energy``, and a finer check grid on which ``assessment`` measures the
 result. Values and gradients come from the flat flag, affine in x (``affine``), through the
 pointwise quantities (``quantities``), so they are exact; they are cached per decision
 vector, and gradients are formed only for the quantities in use.

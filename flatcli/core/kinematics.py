@@ -1,0 +1,118 @@
+"""Where the links are: positions from the angles alone, with the system's centre of mass
+fixed at the origin (Vafa and Dubowsky's virtual manipulator).
+
+With no external force the system's centre of mass is inertially fixed; flatcli puts it at
+the origin of the inertial frame. Joint O_k (k = 0..N+1: O_0 the base's proximal end, O_k+1
+the far end of link k, O_N+1 the end effector) sits at
+
+    O_k = O_0 + sum_{a<k} l_a e(psi_a),      psi_a = th0 + th1 + ... + th_a,
+
+and the centre of mass, sum_i m_i (O_i + d_i e(psi_i)) / M = 0, fixes the base's position:
+
+    O_0 = -sum_a (F_a / M) e(psi_a),     F_a = sum_i m_i L_ia = m_a d_a + (m_a+1 + ... + m_N) l_a
+
+(L_ia of ``chain.lever_arms``). So every joint is a sum of constant "virtual link" vectors
+along the absolute angles; the end effector is
+
+    r_E = sum_a v_a e(psi_a),            v_a = l_a - F_a / M       (``virtual_links``),
+
+a fixed-base manipulator of link lengths v_0..v_N rooted at the origin (v_N = l_N: the last
+link carries no mass beyond it). The base's position reported (``base_x``, ``base_y``) is its
+centre of mass C_0 = O_0 + d_0 e(th0). The base drawn and checked against obstacles is its
+segment O_0 O_1, link k the segment O_k O_k+1.
+
+Functions take angles theta (..., N + 1) [rad] of any batch shape and return positions in
+the inertial frame [m]; they are plain numpy (no I/O).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from flatcli.core.model import RobotParams
+
+Array = NDArray[np.float64]
+
+
+def mass_moments(robot: RobotParams) -> Array:
+    """(N + 1,) F_a = sum_i m_i L_ia [kg m]: how far link a's axis carries the system's mass
+    (m_a d_a + (m_a+1 + ... + m_N) l_a)."""
+    mass = np.asarray(robot.mass, dtype=float)
+    length = np.asarray(robot.length, dtype=float)
+    com = np.asarray(robot.com, dtype=float)
+    beyond = np.concatenate([np.cumsum(mass[::-1])[::-1][1:], [0.0]])  # m_a+1 + ... + m_N
+    return np.asarray(mass * com + beyond * length, dtype=float)
+
+
+def virtual_links(robot: RobotParams) -> Array:
+    """(N + 1,) v_a = l_a - F_a / M [m]: the end effector's virtual manipulator (module
+    docstring); signed (v_a < 0 points backwards along link a)."""
+    return np.asarray(np.asarray(robot.length, dtype=float)
+                      - mass_moments(robot) / robot.total_mass, dtype=float)
+
+
+def absolute_angles(theta: ArrayLike) -> Array:
+    """(..., N + 1) psi_a = th0 + ... + th_a [rad] from the relative angles (..., N + 1)."""
+    return np.asarray(np.cumsum(np.asarray(theta, dtype=float), axis=-1), dtype=float)
+
+
+def joint_positions(robot: RobotParams, theta: ArrayLike) -> Array:
+    """(..., N + 2, 2) O_0 .. O_N+1 [m] (O_0 the base's proximal end, O_N+1 the end
+    effector), with the system's centre of mass at the origin."""
+    psi = absolute_angles(theta)
+    e = np.stack([np.cos(psi), np.sin(psi)], axis=-1)  # (..., N + 1, 2)
+    moments = mass_moments(robot) / robot.total_mass
+    origin = -np.einsum("a,...ak->...k", moments, e)
+    steps = np.asarray(robot.length, dtype=float)[:, None] * e
+    along = np.cumsum(steps, axis=-2)
+    return np.concatenate([origin[..., None, :], origin[..., None, :] + along], axis=-2)
+
+
+def end_effector(robot: RobotParams, theta: ArrayLike) -> Array:
+    """(..., 2) r_E = sum_a v_a e(psi_a) [m], the far end of link N."""
+    psi = absolute_angles(theta)
+    v = virtual_links(robot)
+    return np.stack([np.cos(psi) @ v, np.sin(psi) @ v], axis=-1)
+
+
+def base_position(robot: RobotParams, theta: ArrayLike) -> Array:
+    """(..., 2) the base's centre of mass C_0 = O_0 + d_0 e(th0) [m]."""
+    points = joint_positions(robot, theta)
+    th0 = np.asarray(theta, dtype=float)[..., 0]
+    d0 = float(robot.com[0])
+    return np.asarray(points[..., 0, :] + d0 * np.stack([np.cos(th0), np.sin(th0)], axis=-1),
+                      dtype=float)
+
+
+def system_com(robot: RobotParams, theta: ArrayLike) -> Array:
+    """(..., 2) the system's centre of mass from ``joint_positions`` [m] (0 up to rounding:
+    a check of the construction)."""
+    points = joint_positions(robot, theta)
+    psi = absolute_angles(theta)
+    e = np.stack([np.cos(psi), np.sin(psi)], axis=-1)
+    com = np.asarray(robot.com, dtype=float)[:, None] * e
+    centres = points[..., :-1, :] + com
+    mass = np.asarray(robot.mass, dtype=float)
+    return np.asarray(np.einsum("i,...ik->...k", mass, centres) / robot.total_mass, dtype=float)
+
+
+def reach(robot: RobotParams) -> tuple[float, float]:
+    """The annulus the end effector can reach for some angles [m]: (inner, outer) radii of
+    the virtual manipulator (every base attitude)."""
+    v = np.abs(virtual_links(robot))
+    outer = float(v.sum())
+    inner = float(max(0.0, 2.0 * v.max() - outer))
+    return inner, outer
+
+
+__all__ = [
+    "absolute_angles",
+    "base_position",
+    "end_effector",
+    "joint_positions",
+    "mass_moments",
+    "reach",
+    "system_com",
+    "virtual_links",
+]

@@ -1,0 +1,212 @@
+"""End-effector tasks: from "put the end effector there, the base at that attitude, at rest,
+clear of these obstacles" to a flat plan (docs/tasks.md).
+
+``Task`` is the validated request; ``task_ends`` turns it into start and goal configurations
+(``inverse``), agreeing with the configurations the caller already has or refusing them;
+``plan_task`` plans (``planning`` or ``rest``), proves the obstacles and limits over all of
+[0, T] (``clearance``) and, when a candidate fails, searches within ``Task.budget``
+candidates: the other elbow branch (when the goal is derived), the rest plan's skew
+(``rest.plan_rest_to_rest``) or the free end rates' magnitudes of a plan that does not rest.
+It says so when none within the budget is proven.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from flatcli.core.basis import Basis
+from flatcli.core.clearance import Certificate, Constraints, certify
+from flatcli.core.inverse import Elbow, task_configuration, two_link_task
+from flatcli.core.kinematics import end_effector
+from flatcli.core.model import FlatcliError, Model, RobotParams
+from flatcli.core.planning import Plan, plan_point_to_point
+from flatcli.core.rest import plan_rest_to_rest
+
+Array = NDArray[np.float64]
+
+#: A configuration meets a task's end-effector target within this [m].
+TARGET_TOL = 1e-9
+#: ... and its base attitude within this [rad].
+ATTITUDE_TOL = 1e-12
+#: Skews of a rest plan tried in turn, and factors on the end rates of one that does not rest.
+SKEWS = (0.0, 0.3, -0.3, 0.6, -0.6, 0.85, -0.85, 0.15, -0.15, 0.45, -0.45, 0.75, -0.75)
+RATE_FACTORS = (1.0, 0.5, 2.0, 0.25, 4.0, 0.7, 1.4, 0.35, 2.8, 8.0, 0.125)
+
+
+@dataclass(frozen=True)
+class Task:
+    """A validated end-effector task.
+
+    Attributes
+    ----------
+    end_effector : (2,) target at t = T [m], or None (the goal configuration as given)
+    base_attitude : th0 at T [rad], or None (free)
+    start_end_effector : (2,) where it is at t = 0 [m], or None (the start as given)
+    rest : start and stop at rest
+    obstacles : (K, 3) discs x, y, radius [m]
+    clearance : least distance of every link from every obstacle [m]
+    elbow : branch of the N = 2 inverse kinematics
+    budget : most candidate plans the obstacle search tries
+    """
+
+    end_effector: tuple[float, float] | None = None
+    base_attitude: float | None = None
+    start_end_effector: tuple[float, float] | None = None
+    rest: bool = False
+    obstacles: tuple[tuple[float, float, float], ...] = ()
+    clearance: float = 0.0
+    elbow: Elbow = "auto"
+    budget: int = 64
+
+    @property
+    def active(self) -> bool:
+        """Whether anything is asked beyond a plain plan."""
+        return (self.end_effector is not None or self.start_end_effector is not None
+                or self.rest or bool(self.obstacles))
+
+
+@dataclass(frozen=True)
+class TaskPlan:
+    """A planned task: the plan, its ends, the certificate of its constraints (None: no
+    obstacles or limits to prove), and how many candidates the search tried."""
+
+    plan: Plan
+    start: Array
+    goal: Array
+    certificate: Certificate | None
+    candidates: int
+
+
+def _meets(robot: RobotParams, q: Array, target: tuple[float, float] | None,
+           th0: float | None) -> tuple[float, float]:
+    """(distance from the target [m], attitude error [rad]) of configuration q."""
+    dist = 0.0 if target is None else float(np.hypot(*(end_effector(robot, q) - target)))
+    att = 0.0 if th0 is None else abs(float(q[0]) - th0)
+    return dist, att
+
+
+def _end(robot: RobotParams, given: Array, is_default: bool, target: tuple[float, float] | None,
+         th0: float | None, reference: Array, elbow: Elbow, side: str) -> list[Array]:
+    """The candidate configurations of one end: ``given`` if it meets the task, else (when
+    it is the schema's default) the inverse kinematics' branches; FlatcliError naming both
+    keys when a configuration the user set contradicts the task."""
+    if target is None:
+        return [given]
+    dist, att = _meets(robot, given, target, th0)
+    if dist <= TARGET_TOL and att <= ATTITUDE_TOL:
+        return [given]
+    key = "task.end_effector" if side == "goal" else "task.start_end_effector"
+    if not is_default:
+        extra = f" and th0 = {given[0]:g} rad, not task.base_attitude = {th0:g}" if (
+            att > ATTITUDE_TOL and th0 is not None) else ""
+        raise FlatcliError(f"plan.{side}: puts the end effector {dist:.3g} m from {key}{extra}; "
+                           f"set {key} or plan.{side}, not both (or make them agree)")
+    if robot.n_joints == 2 and elbow == "auto":
+        out = []
+        for branch in ("up", "down"):
+            try:
+                out.append(two_link_task(robot, target, th0, reference, branch, key))
+            except FlatcliError as exc:
+                if "across the singular set" not in str(exc):
+                    raise
+        if out:
+            out.sort(key=lambda q: float(np.sum((q - reference) ** 2)))
+            return out
+    return [task_configuration(robot, target, th0, reference, elbow, key)]
+
+
+def task_ends(robot: RobotParams, task: Task, start: ArrayLike, goal: ArrayLike,
+              start_is_default: bool, goal_is_default: bool) -> tuple[list[Array], list[Array]]:
+    """Candidate start and goal configurations (N + 1,) [rad] of a task, best first.
+
+    The start keeps its th0 (``plan.start[0]``) when ``start_end_effector`` moves it; the
+    goal's reference for "nearest" is the start.
+    """
+    s = np.asarray(start, dtype=float)
+    g = np.asarray(goal, dtype=float)
+    starts = _end(robot, s, start_is_default, task.start_end_effector, float(s[0]), s, "auto",
+                  "start")
+    goals = _end(robot, g, goal_is_default, task.end_effector, task.base_attitude, starts[0],
+                 task.elbow, "goal")
+    return starts, goals
+
+
+def _oriented(rate: ArrayLike, start: Array, goal: Array, n: int) -> Array:
+    """End rates whose signs follow the inner joints' motion (magnitudes as given)."""
+    r = np.broadcast_to(np.abs(np.asarray(rate, dtype=float)), (n - 1,)).copy()
+    step = goal[1:n] - start[1:n]
+    return np.asarray(np.where(step < 0, -r, r), dtype=float)
+
+
+def plan_task(robot: RobotParams, task: Task, starts: list[Array], goals: list[Array],
+              duration: float, start_rate: ArrayLike, goal_rate: ArrayLike,
+              model: Model = "derived", basis: Basis | None = None,
+              angle_limit: Array | None = None, rate_limit: Array | None = None
+              ) -> TaskPlan:
+    """The task's plan (module docstring): the first candidate whose constraints are proven
+    over [0, T].
+
+    Raises
+    ------
+    FlatcliError naming the key: no candidate plans (the last reason), or none within
+    ``task.budget`` is proven clear (the best one's reason).
+    """
+    n = robot.n_joints
+    limits = (angle_limit is not None and np.isfinite(angle_limit).any()) or (
+        rate_limit is not None and np.isfinite(rate_limit).any())
+    constraints = Constraints(np.asarray(task.obstacles, dtype=float).reshape(-1, 3),
+                              task.clearance, angle_limit, rate_limit) \
+        if (task.obstacles or limits) else None
+    tried = 0
+    last_error: FlatcliError | None = None
+    best: tuple[float, Certificate] | None = None
+    shapes: tuple[float, ...] = SKEWS if task.rest else RATE_FACTORS
+    if constraints is None:
+        shapes = shapes[:1]
+    for start in starts:
+        for goal in goals:
+            for shape in shapes:
+                if tried >= task.budget:
+                    break
+                tried += 1
+                try:
+                    if task.rest:
+                        plan: Plan = plan_rest_to_rest(robot, start, goal, duration, model,
+                                                       skew=shape)
+                    else:
+                        plan = plan_point_to_point(
+                            robot, start, goal, _oriented(start_rate, start, goal, n) * shape,
+                            _oriented(goal_rate, start, goal, n) * shape, duration, model, basis)
+                except FlatcliError as exc:
+                    last_error = exc
+                    continue
+                if constraints is None:
+                    return TaskPlan(plan, start, goal, None, tried)
+                cert = certify(plan, constraints)
+                if cert.ok:
+                    return TaskPlan(plan, start, goal, cert, tried)
+                if best is None or cert.lower_bound > best[0]:
+                    best = (cert.lower_bound, cert)
+    if best is None:
+        assert last_error is not None
+        raise last_error
+    what = "task.obstacles" if task.obstacles else "plan.optimize.angle_limit / rate_limit"
+    raise FlatcliError(f"{what}: no plan among the {tried} candidates tried (task.budget = "
+                       f"{task.budget}) is proven clear over [0, T]; the best: "
+                       f"{best[1].reason}")
+
+
+def task_errors(robot: RobotParams, task: Task, theta: Array) -> dict[str, float]:
+    """The task's errors at the final configuration theta (N + 1,): ``ee_error_final`` [m]
+    (nan without a target) and ``base_attitude_error_final`` [rad] (nan without one)."""
+    dist, att = _meets(robot, np.asarray(theta, dtype=float), task.end_effector,
+                       task.base_attitude)
+    return {"ee_error_final": dist if task.end_effector is not None else math.nan,
+            "base_attitude_error_final": att if task.base_attitude is not None else math.nan}
+
+
+__all__ = ["TARGET_TOL", "Task", "TaskPlan", "plan_task", "task_ends", "task_errors"]

@@ -1,0 +1,113 @@
+"""Tests of the [task] section through the API and the command line (issue 21).
+
+Referees: the links placed in the complex plane with the centre of mass solved for
+(tests/task_referees.py), which shares nothing with flatcli.core.kinematics; sympy's H of the
+three-link robot (tests/referees.py::link_momentum); a grid 100x finer than the plan's own.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import sympy as sp
+from click.testing import CliRunner
+
+from flatcli import api
+from flatcli.cli import main
+from flatcli.core.model import PAPER_ROBOT, FlatcliError
+from tests import task_referees as ref
+from tests.referees import link_momentum
+
+#: The plan's final end effector from the task's inverse kinematics, against the referee:
+#: the issue's bound on plans.
+TARGET_TOL = 1e-9
+#: H along a plan from sympy's link kinematics.
+MOMENTUM_BOUND = 1e-13
+CAPTURE = {"task.end_effector": [-0.25, 0.05], "task.base_attitude": 1.0, "task.rest": True,
+           "task.obstacles": [[0.2, 0.2, 0.05], [-0.25, -0.25, 0.04], [0.0, 0.3, 0.03]],
+           "task.clearance": 0.01}
+
+
+def _theta(frame: pd.DataFrame) -> np.ndarray:
+    return frame[["theta0", "theta1", "theta2"]].to_numpy()
+
+
+def test_a_capture_plan_reaches_the_target_at_rest_and_clears() -> None:
+    p = api.plan(overrides=CAPTURE)
+    theta = _theta(p.frame)
+    end = ref.end_effector(PAPER_ROBOT, theta[-1])
+    assert abs(end - complex(-0.25, 0.05)) < TARGET_TOL
+    assert theta[-1, 0] == pytest.approx(1.0, abs=1e-12)
+    assert np.all(p.frame[["theta0_dot", "theta1_dot", "theta2_dot"]].to_numpy()[[0, -1]] == 0)
+    z = ref.end_effector(PAPER_ROBOT, theta)
+    assert np.max(np.abs(p.frame["ee_x"] + 1j * p.frame["ee_y"] - z)) < 1e-15 * 8
+    h, th, w = link_momentum(PAPER_ROBOT)
+    H = sp.lambdify((*th, *w), h, "numpy")
+    rates = p.frame[["theta0_dot", "theta1_dot", "theta2_dot"]].to_numpy()
+    assert np.max(np.abs(H(*theta.T, *rates.T))) < MOMENTUM_BOUND
+    # clearance re-checked on a grid 100x finer than the plan's own, by the referee
+    assert p.plan is not None
+    fine = p.plan.sample(np.linspace(0.0, p.plan.duration, 100 * 200 + 1)).theta
+    gaps = ref.link_clearance(PAPER_ROBOT, fine, np.array(CAPTURE["task.obstacles"]))
+    assert gaps.min() >= 0.01
+    assert p.metrics["clearance_bound"] <= gaps.min()
+    assert p.metrics["ee_error_final"] < TARGET_TOL
+    assert p.metrics["base_attitude_error_final"] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_a_task_without_rest_orients_the_end_rates() -> None:
+    # th1 must decrease to reach this target: the default rates 0.1, 0.5 would cross
+    target = ref.end_effector(PAPER_ROBOT, np.array([1.5, 0.6, 0.4]))
+    p = api.plan(overrides={"task.end_effector": [float(target.real), float(target.imag)],
+                            "task.base_attitude": 1.5})
+    theta = _theta(p.frame)
+    assert abs(ref.end_effector(PAPER_ROBOT, theta[-1]) - target) < TARGET_TOL
+    assert np.all(p.frame["theta1_dot"] < 0)
+
+
+def test_track_of_a_rest_task_is_exact_from_the_plans_start() -> None:
+    t = api.track(overrides={**CAPTURE, "track.initial": [1.8, 1.0, 0.0], "track.kp": [100, 110],
+                             "track.kv": [10, 13], "track.dt": 0.01})
+    assert t.metrics["status"] == "ok"
+    theta = _theta(t.frame)
+    assert abs(ref.end_effector(PAPER_ROBOT, theta[-1]) - complex(-0.25, 0.05)) < 1e-9
+    assert t.metrics["ee_error_max"] < 1e-9
+    assert t.metrics["min_clearance"] > 0.01
+
+
+def test_a_goal_that_contradicts_the_task_is_refused() -> None:
+    with pytest.raises(FlatcliError, match=r"plan\.goal: puts the end effector .* from "
+                       r"task\.end_effector; set task\.end_effector or plan\.goal, not both"):
+        api.plan(overrides={"task.end_effector": [-0.25, 0.05], "plan.goal": [1.0, 2.5, 0.1]})
+
+
+def test_a_goal_that_meets_the_task_is_kept() -> None:
+    goal = np.array([1.2, 2.0, 0.3])
+    z = ref.end_effector(PAPER_ROBOT, goal)
+    p = api.plan(overrides={"task.end_effector": [float(z.real), float(z.imag)],
+                            "plan.goal": goal.tolist()})
+    assert np.max(np.abs(_theta(p.frame)[-1] - goal)) < 1e-12  # the flat map's rounding
+
+
+@pytest.mark.parametrize(("sets", "words"), [
+    (["task.end_effector=[0.5, 0.0]"], "task.end_effector: [0.5, 0] m is unreachable"),
+    (["task.obstacles=[[0.1, 0.2]]"], "task.obstacles[0]: expected [x, y, radius]"),
+    (["task.elbow=left"], "task.elbow: expected one of ['auto', 'up', 'down']"),
+    (["task.clearance=-1"], "task.clearance: must be >= 0 m"),
+    (["task.rest=true", "plan.optimize.objective=energy"], "task.rest: not with"),
+    (["task.end_effector=[-0.25, 0.05]", "task.rest=true",
+      "task.obstacles=[[-0.25, 0.05, 0.02]]"], "task.obstacles: no plan among the"),
+])
+def test_bad_tasks_are_one_line_naming_the_key(tmp_path: Path, sets: list[str],
+                                               words: str) -> None:
+    args = ["plan", "--out", str(tmp_path / "out")]
+    for item in sets:
+        args += ["--set", item]
+    result = CliRunner().invoke(main, args)
+    assert result.exit_code == 2
+    lines = result.output.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and words in lines[0]
+    assert "Traceback" not in result.output
