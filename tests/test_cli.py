@@ -256,6 +256,8 @@ def test_design_of_the_audits_chain4_is_not_flat_and_the_plant_gets_its_own_verd
         (["plan", "--set", "robot.com=[0.1,0.1,0.003]", "--set",
           "plan.optimize.rate_limit=3"], "plan.optimize.rate_limit: limits apply to flat plans "
                                          "only"),
+        (["plan", "--set", "robot.com=[0.1,0.1,0.003]", "--set", "task.end_effector=[0.3,0.1]"],
+         "plan.method: a [task] is planned through the closed-form flat outputs"),
         (["design", "--counterweight"], "--counterweight and --positions X1 Y1 X2 Y2 go "
                                         "together"),
         (["design", "--counterweight", "--positions", "0.1", "0", "0.2", "0", "--set",
