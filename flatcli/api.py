@@ -30,14 +30,11 @@ from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
-import pandas as pd
-
 from flatcli.core.model import FlatcliError
 from flatcli.core.optimize import OptimizeResult
 from flatcli.core.planning import Plan, PlanSamples
 from flatcli.experiment import TrackRun, plan_and_optimization, run_track
 from flatcli.files import is_regular, kind, read_text
-from flatcli.outputs import plan_frame, write_track
 from flatcli.report import (
     FigureFile,
     Limits,
@@ -75,12 +72,13 @@ from flatcli.storage import (
     write_parquet,
 )
 from flatcli.threads import computes
-from flatcli.trajectory import Trajectory
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # pandas loads with the first DataFrame, never in a sweep's processes
+    import pandas as pd
     from matplotlib.figure import Figure
 
     from flatcli.preflight import CheckReport
+    from flatcli.trajectory import Trajectory
 
 SpecLike = str | os.PathLike[str] | Mapping[str, Any] | Spec | None
 Overrides = Mapping[str, Any] | Iterable[str] | None
@@ -214,6 +212,8 @@ class Run:
             raise FlatcliError(f"this {self.command or 'run'} is not saved; call .save() first")
         if not _table(self.directory, f"{name}.parquet"):
             raise FlatcliError(f"{self.directory / f'{name}.parquet'} not found")
+        import pandas as pd
+
         return pd.read_parquet(self.directory / f"{name}.parquet")
 
     def __repr__(self) -> str:
@@ -251,6 +251,8 @@ class PlanResult(Run):
         ``p.trajectory(t)`` gives its states, rates, inputs and flat outputs at any t in
         [0, T]; a loaded plan is planned again from its spec (the same plan: planning is
         deterministic)."""
+        from flatcli.trajectory import Trajectory
+
         return Trajectory(self.plan if self.plan is not None else
                           plan_and_optimization(self.spec)[0])
 
@@ -313,6 +315,8 @@ class TrackResult(Run):
     @cached_property
     def trajectory(self) -> Trajectory:
         """The reference the run tracked, as a function of time (``PlanResult.trajectory``)."""
+        from flatcli.trajectory import Trajectory
+
         return Trajectory(self.run.plan if self.run is not None else
                           plan_and_optimization(self.spec)[0])
 
@@ -340,6 +344,8 @@ class TrackResult(Run):
         record = run_record("track", spec.tree, digest=spec.digest(), metrics=self.metrics,
                             **_tags(self.tags))
         title = track_title(spec, self.metrics)
+        from flatcli.outputs import write_track
+
         with _saving(out, "track", spec, force, root) as directory:
             self.files = write_track(directory, self.run, record, title if plot else None)
         self.directory, self.record = directory, record
@@ -378,6 +384,8 @@ class SweepResult(Run):
         if self.complete:
             return self.table("trials")
         if not self.state.chunk_files:
+            import pandas as pd
+
             return pd.DataFrame()
         frame: pd.DataFrame = chunk_frames(self.state)
         return frame
@@ -426,7 +434,7 @@ class SweepResult(Run):
         """The summary figures of a finished sweep, by name ("errors", "singular",
         "margin", "momentum": ``sweep_<name>`` files), as matplotlib Figures; ``x`` and
         ``hue``: the grid keys of sweep_singular's x axis and colours (``plot``)."""
-        from flatcli.report import sweep_figures
+        from flatcli.report.sweep_figures import sweep_figures
 
         return sweep_figures(self._finished(), x=x, hue=hue)
 
@@ -496,6 +504,7 @@ def plan(spec: SpecLike = None, overrides: Overrides = None) -> PlanResult:
     Returns a PlanResult (``.frame``, ``.metrics``, ``.optimization``); nothing is written
     until ``.save()``.
     """
+    from flatcli.outputs import plan_frame
     from flatcli.spec.limits import require_finite_plan
 
     s = load_spec(spec, overrides)
@@ -600,6 +609,8 @@ def load(directory: str | os.PathLike[str]) -> Run:
     A directory of runs of one name (``runs/<name>``) loads its ``latest`` plan or track run,
     or, if it has none, its sweep (``runs/<name>/sweep``).
     """
+    import pandas as pd
+
     from flatcli.sweep.directory import read_manifest
 
     path = Path(directory)

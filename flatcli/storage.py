@@ -28,16 +28,18 @@ import time
 from collections.abc import Iterator, Mapping
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
 import flatcli
 from flatcli.core.model import FlatcliError
 from flatcli.files import kind
+
+if TYPE_CHECKING:  # pandas loads with the first DataFrame: a sweep writes Arrow tables only
+    import pandas as pd
 
 #: Key of the Parquet schema metadata holding flatcli's provenance (JSON).
 PARQUET_META_KEY = b"flatcli"
@@ -162,19 +164,18 @@ def table_checksum(table: pa.Table) -> str:
     a table and for that table written to Parquet and read back, and differs when any
     value, null or name differs.
     """
+    from flatcli.arrow import null_mask, to_numpy  # (pyarrow's own to_numpy loads pandas)
+
     digest = hashlib.sha256()
     for name, column in zip(table.column_names, table.columns, strict=True):
         array = column.combine_chunks() if column.num_chunks != 1 else column.chunk(0)
         digest.update(f"{name}\0{_type_text(array.type)}\0{len(array)}\0{array.null_count}\0"
                       .encode())
         if array.null_count:
-            digest.update(np.asarray(array.is_null().to_numpy(zero_copy_only=False)).tobytes())
+            digest.update(null_mask(array).tobytes())
         if pa.types.is_integer(array.type) or pa.types.is_floating(array.type) \
                 or pa.types.is_boolean(array.type):
-            if array.null_count:
-                array = array.fill_null(pa.scalar(
-                    False if pa.types.is_boolean(array.type) else 0, array.type))
-            digest.update(np.ascontiguousarray(array.to_numpy(zero_copy_only=False)).tobytes())
+            digest.update(np.ascontiguousarray(to_numpy(array)).tobytes())  # nulls as 0
         else:
             digest.update(json.dumps(array.to_pylist(), default=str).encode())
     return digest.hexdigest()
@@ -213,18 +214,32 @@ def git_state() -> dict[str, Any]:
 
 
 def versions() -> dict[str, str]:
+    """The versions of Python and of the libraries flatcli runs on; scipy's and pandas' from
+    their installed metadata, so that a sweep need not load them to say which it has."""
     import numba
-    import scipy
 
     return {
         "flatcli": flatcli.__version__,
         "python": platform.python_version(),
         "numpy": np.__version__,
-        "scipy": scipy.__version__,
+        "scipy": _installed("scipy"),
         "numba": numba.__version__,
-        "pandas": pd.__version__,
+        "pandas": _installed("pandas"),
         "pyarrow": pa.__version__,
     }
+
+
+def _installed(name: str) -> str:
+    """A library's version: its module's if it is loaded, else its installed metadata's."""
+    module = sys.modules.get(name)
+    if module is not None:
+        return str(module.__version__)
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version(name)
+    except PackageNotFoundError:  # pragma: no cover - a broken installation
+        return "not installed"
 
 
 def run_record(command: str, spec_tree: Mapping[str, Any], **extra: Any) -> dict[str, Any]:
@@ -258,7 +273,9 @@ def arrow_table(frame: pd.DataFrame) -> pa.Table:
 
 def null_where_nan(values: Any) -> pa.Array:
     """A float column as Arrow, nan (not applicable) as null."""
-    return pa.array(np.asarray(values, dtype=np.float64), from_pandas=True)
+    from flatcli.arrow import numbers
+
+    return numbers(values)
 
 
 def with_units(table: pa.Table, units: Mapping[str, str]) -> pa.Table:

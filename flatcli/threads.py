@@ -24,8 +24,15 @@ THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"
 
 def _load_libraries() -> None:
     """Load the BLAS of numpy and of scipy, so that a limit reaches both (threadpoolctl
-    limits the libraries loaded when it is set)."""
+    limits the libraries loaded when it is set). Where every thread variable already says 1
+    (flatcli's command line and its workers), a BLAS loaded later starts with one thread, so
+    scipy is not loaded for it (a sweep never needs scipy's BLAS)."""
+    import os
+
     import numpy  # noqa: F401
+
+    if all(os.environ.get(name) == "1" for name in THREAD_VARIABLES):
+        return
     import scipy.linalg  # noqa: F401
 
 

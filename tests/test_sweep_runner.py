@@ -4,6 +4,7 @@ per directory, no orphans, changed chunks recomputed, grid values added without 
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -362,3 +363,60 @@ def test_a_list_valued_grid_key_out_of_alphabetical_order_is_extended_too(
     assert code == 0, out
     assert "2 of the 3 cells were computed there before" in out, out
     assert "(60 simulated now)" in out and "checksum" not in out, out
+
+
+#: Libraries a sweep's processes never load unless a spec asks for them (normal draws load
+#: scipy.special, an optimised plan scipy.optimize, a figure matplotlib).
+UNASKED = ("pandas", "matplotlib", "scipy")
+
+#: A sweep script: records, in the main process and in every worker after each chunk, which
+#: of UNASKED's modules are loaded (workers fork from the main process).
+_WATCHED_SWEEP = """
+import json, os, sys
+from pathlib import Path
+
+import flatcli.sweep.runner as runner
+
+out = Path(sys.argv[1])
+def loaded():
+    return sorted(m for m in sys.modules if m.split(".")[0] in {unasked!r})
+real = runner.run_chunk
+def watched(cell, chunk):
+    result = real(cell, chunk)
+    (out / f"modules-{{os.getpid()}}.json").write_text(json.dumps(loaded()))
+    return result
+runner.run_chunk = watched
+from flatcli.cli import main
+try:
+    main(["sweep", sys.argv[2], "--out", str(out / "d"), "-q", "--workers", "2",
+          "--oversubscribe"])
+except SystemExit as exc:
+    assert not exc.code, exc.code
+(out / "modules-main.json").write_text(json.dumps(loaded()))
+"""
+
+
+def test_a_sweep_loads_neither_pandas_nor_matplotlib_nor_scipy_unless_asked(
+        tmp_path: Path) -> None:
+    """The light sweep path: the main process and its workers, through the command line, load
+    no pandas, no matplotlib and none of scipy's modules but those numba itself loads when
+    it loads a compiled function (its BLAS check): the referee is a process that only
+    compiles and calls a function with numba."""
+    text = SPEC.replace('initial = { dist = "normal", std = 0.02 }',
+                        'initial = { dist = "uniform", low = -0.02, high = 0.02 }')
+    assert text != SPEC
+    spec = write_spec(tmp_path, text)
+    subprocess.run([sys.executable, "-c", _WATCHED_SWEEP.format(unasked=UNASKED),
+                    str(tmp_path), str(spec)], check=True, timeout=600)
+    numba_alone = subprocess.run(
+        [sys.executable, "-c", "import json, sys, numba\nnumba.njit(lambda x: x + 1)(1)\n"
+         f"print(json.dumps([m for m in sys.modules if m.split('.')[0] in {UNASKED!r}]))"],
+        capture_output=True, text=True, check=True).stdout
+    allowed = set(json.loads(numba_alone))
+    assert not {m for m in allowed if not m.startswith("scipy")}
+    records = sorted(tmp_path.glob("modules-*.json"))
+    assert len(records) >= 3  # the main process (its warm-up and its end) and a worker
+    for record in records:
+        loaded = set(json.loads(record.read_text()))
+        assert loaded <= allowed, (record.name, sorted(loaded - allowed))
+    assert trials(tmp_path / "d")["status"].isin(["ok", "singular"]).all()

@@ -33,6 +33,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from flatcli.arrow import read_parquet, repeated, to_numpy
 from flatcli.files import (
     MAX_MANIFEST_BYTES,
     UnreadableFileError,
@@ -43,8 +44,13 @@ from flatcli.files import (
     read_bounded,
     real_directory,
 )
-from flatcli.report import summarize_trials, summary_markdown
-from flatcli.report.summary import SUMMARY_INPUTS
+from flatcli.report.summary import (
+    SUMMARY_INPUTS,
+    summary_markdown,
+    summary_rows,
+    summary_table,
+    table_columns,
+)
 from flatcli.spec import SpecError
 from flatcli.spec.limits import ID_STRIDE
 from flatcli.spec.schema import experiment
@@ -58,7 +64,7 @@ from flatcli.storage import (
     table_checksum,
     to_jsonable,
     write_json,
-    write_parquet,
+    write_table,
     write_text,
 )
 from flatcli.sweep.chunks import grid_columns
@@ -564,7 +570,7 @@ def chunk_problem(path: Path, cell: Cell, chunk: Chunk) -> str | None:
     except (OSError, ValueError, pa.ArrowException) as exc:
         return f"unreadable data ({(str(exc).splitlines() or [''])[0][:80]})"
     if table.num_rows != chunk.size or "trial" not in table.column_names or not np.array_equal(
-            table.column("trial").to_numpy(), np.arange(chunk.start, chunk.stop)):
+            to_numpy(table.column("trial")), np.arange(chunk.start, chunk.stop)):
         return "its trial ids are not those of its name"
     if table_checksum(table) != meta.get("checksum"):
         return "its content does not match its checksum (the file was changed)"
@@ -620,10 +626,9 @@ def assemble_trials(directory: Path, lay: Layout, provenance: Mapping[str, Any])
     with atomic_path(target) as tmp:
         try:
             for chunk in lay.chunks():
-                table = pq.read_table(directory / TRIALS_DIR / chunk.name)
+                table = read_parquet(directory / TRIALS_DIR / chunk.name)
                 table = table.set_column(table.schema.get_field_index("cell"), "cell",
-                                         pa.array(np.full(table.num_rows, chunk.cell,
-                                                          dtype=np.int64)))
+                                         repeated(chunk.cell, pa.int64(), table.num_rows))
                 table = table.replace_schema_metadata(meta)
                 if writer is None:
                     writer = pq.ParquetWriter(tmp, table.schema)
@@ -651,15 +656,17 @@ def finish_sweep(directory: Path, lay: Layout, provenance: Mapping[str, Any], st
     """
     finishing = time.perf_counter()
     trials_path = assemble_trials(directory, lay, provenance)
-    frame = pq.read_table(trials_path, columns=list(SUMMARY_INPUTS)).to_pandas()
+    columns = table_columns(read_parquet(trials_path, SUMMARY_INPUTS))
     cells = {c.index: {k: v for k, (_, v) in grid_columns(c.values, c.spec).items()}
              for c in lay.cells}
-    summary = summarize_trials(frame, cells)
-    summary.attrs["units"] = units_of(summary.columns, lay.spec)
-    write_parquet(directory / "summary.parquet", summary, provenance)
-    text = summary_markdown(summary, list(cells[lay.cells[0].index]))
+    rows = summary_rows(columns, cells)
+    names = list(rows[0]) if rows else []
+    write_table(directory / "summary.parquet", summary_table(rows, units_of(names, lay.spec)),
+                provenance)
+    text = summary_markdown(rows, list(cells[lay.cells[0].index]))
     write_text(directory / "summary.md", text + "\n")
-    counts = frame["status"].value_counts().to_dict()
+    statuses, tally = np.unique(np.asarray(columns["status"], dtype=str), return_counts=True)
+    counts = {str(s): int(c) for s, c in zip(statuses, tally, strict=True)}
     now = time.perf_counter()
     wall = now - started
     simulated = timing["simulated_trials"]

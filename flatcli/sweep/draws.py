@@ -20,7 +20,6 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.special import ndtri
 
 from flatcli.core.planning import Plan
 from flatcli.experiment import STREAM_PERTURB, initial_rates, plant_from, trial_stream
@@ -100,6 +99,8 @@ def draw_perturbations(
         else:
             std = np.asarray(p.std, dtype=float)
             mean = np.asarray(p.mean, dtype=float)
+            from scipy.special import ndtri  # loaded when a normal perturbation asks for it
+
             sample = mean + std * ndtri(draws)
         base = nominal[name]
         out[name] = base * (1.0 + sample) if p.relative else base + sample

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from flatcli.executors import default_workers, make_executor
-from flatcli.report import Progress
+from flatcli.progress import Progress
 from flatcli.spec import Spec
 from flatcli.spec.limits import check_workers
 from flatcli.storage import directory_lock, versions, write_table
