@@ -36,14 +36,30 @@ def _load_libraries() -> None:
     import scipy.linalg  # noqa: F401
 
 
+#: threadpoolctl's controller (it lists the thread pools of the loaded libraries, a scan of
+#: the process's shared objects that costs milliseconds) and len(sys.modules) when it was
+#: made: made again only when a module has been loaded since, which is how a library with a
+#: pool of its own arrives.
+_CONTROLLER: list[Any] = [None, -1]
+
+
+def _controller() -> Any:
+    import sys
+
+    from threadpoolctl import ThreadpoolController
+
+    loaded = len(sys.modules)
+    if _CONTROLLER[0] is None or _CONTROLLER[1] != loaded:
+        _CONTROLLER[:] = [ThreadpoolController(), loaded]
+    return _CONTROLLER[0]
+
+
 @contextlib.contextmanager
 def one_thread() -> Iterator[None]:
     """Within: every loaded BLAS and OpenMP pool runs one thread; afterwards, what it ran
     before."""
-    from threadpoolctl import threadpool_limits
-
     _load_libraries()
-    with threadpool_limits(limits=1):
+    with _controller().limit(limits=1):
         yield
 
 
