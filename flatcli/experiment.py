@@ -152,6 +152,7 @@ def scenario_from(spec: Spec, plan: Plan) -> Scenario:
         servo_model=checked(spec.plant.servo_model),
         twin=TWIN_FACTOR if track.error_estimate == "twin" else 0.0,
         accuracy=track.accuracy,
+        observe_every=track.observe_every,
     )
 
 
