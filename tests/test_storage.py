@@ -24,6 +24,7 @@ from flatcli.storage import (
     LOCK_NAME,
     UNIT_KEY,
     DirectoryBusyError,
+    Syncer,
     atomic_path,
     check_output_dir,
     column_units,
@@ -36,6 +37,7 @@ from flatcli.storage import (
     with_units,
     write_json,
     write_parquet,
+    write_table,
     write_text,
 )
 
@@ -336,3 +338,28 @@ def test_a_run_leaves_no_lock_file_behind(tmp_path: Path) -> None:
     with directory_lock(tmp_path):
         pass
     assert sorted(p.name for p in tmp_path.iterdir()) == [LOCK_NAME, "mine.txt"]
+
+
+def test_a_syncer_flushes_what_it_was_given_and_reports_a_failed_flush(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    table = pa.table({"a": [1.0, 2.0]})
+    syncer = Syncer()
+    for i in range(3):
+        write_table(tmp_path / f"t{i}.parquet", table, {"i": i}, syncer)
+        assert pq.read_table(tmp_path / f"t{i}.parquet").equals(table)  # whole at once
+    syncer.close()
+    assert syncer.synced == 3
+    real = os.fsync
+
+    def failing(fd: int) -> None:
+        if os.readlink(f"/proc/self/fd/{fd}").endswith("bad.parquet"):
+            raise OSError(errno.EIO, "Input/output error")
+        real(fd)
+
+    monkeypatch.setattr(os, "fsync", failing)
+    syncer = Syncer()
+    write_table(tmp_path / "bad.parquet", table, {}, syncer)
+    with pytest.raises(OSError) as caught:
+        syncer.close()
+    assert caught.value.filename == str(tmp_path / "bad.parquet")
+    assert caught.value.errno == errno.EIO

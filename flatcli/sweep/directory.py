@@ -58,6 +58,7 @@ from flatcli.storage import (
     LOCK_NAME,
     PARQUET_META_KEY,
     atomic_path,
+    parquet_options,
     provenance_metadata,
     read_provenance,
     run_record,
@@ -631,7 +632,7 @@ def assemble_trials(directory: Path, lay: Layout, provenance: Mapping[str, Any])
                                          repeated(chunk.cell, pa.int64(), table.num_rows))
                 table = table.replace_schema_metadata(meta)
                 if writer is None:
-                    writer = pq.ParquetWriter(tmp, table.schema)
+                    writer = pq.ParquetWriter(tmp, table.schema, **parquet_options(table.schema))
                 try:
                     writer.write_table(table.cast(writer.schema))
                 except (ValueError, pa.ArrowException) as exc:
