@@ -344,6 +344,26 @@ def _installed(name: str) -> str:
         return "not installed"
 
 
+def peak_memory_mib() -> float:
+    """This process's own peak resident memory [MiB]: VmHWM of /proc/self/status (Linux),
+    the peak of this process's address space since it started (or was forked).
+
+    Not ``getrusage``'s ru_maxrss: Linux keeps that across exec, so a process started by a
+    large one (``make bench`` starting ``flatcli sweep``) reports at least its parent's peak.
+    Elsewhere ru_maxrss is all there is. A forked worker's VmHWM counts the pages it shares
+    with its parent since the fork, as its resident memory does."""
+    try:
+        with open("/proc/self/status", encoding="ascii", errors="replace") as fh:
+            for line in fh:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024
+    except (OSError, ValueError, IndexError):  # pragma: no cover - not Linux
+        pass
+    import resource  # pragma: no cover
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # pragma: no cover
+
+
 def run_record(command: str, spec_tree: Mapping[str, Any], **extra: Any) -> dict[str, Any]:
     """What a run directory's run.json holds: the resolved spec, versions, git, time, host."""
     return {

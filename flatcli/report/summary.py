@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -30,12 +31,15 @@ Array = NDArray[np.float64]
 
 #: Trials whose numbers enter the statistics: those resolved to the end (``RESOLVED``).
 COMPLETED = RESOLVED
-#: The columns of trials.parquet that ``summarize_trials`` reads (those after the metrics
-#: may be missing: a directory written before flatcli recorded them).
-SUMMARY_INPUTS: tuple[str, ...] = tuple(dict.fromkeys((
-    "cell", "status", "singular_hits", *METRIC_NAMES, "verified", "reference_difference",
-    "reference_status")))
 ERROR_METRICS = ("err_theta_rms", "err_theta_final", "err_y_rms", "err_y_final")
+#: The columns of trials.parquet that ``summarize_trials`` reads, and no others (those after
+#: the metrics may be missing: a directory written before flatcli recorded them).
+SUMMARY_INPUTS: tuple[str, ...] = (
+    "cell", "status", "singular_hits", *ERROR_METRICS, "min_margin", "momentum_drift",
+    "plan_momentum_residual", "peak_rate", "err_estimate", "verified", "reference_difference",
+    "reference_status")
+assert set(SUMMARY_INPUTS) <= {"cell", "status", "verified", "reference_difference",
+                               "reference_status", *METRIC_NAMES}
 #: Statuses of trials that did not run to the end, reported as fractions of a cell's trials.
 FAILURES = ("diverged", "unresolved", "error")
 
@@ -112,22 +116,33 @@ def frame_columns(frame: pd.DataFrame) -> dict[str, NDArray[Any]]:
     return out
 
 
-def table_columns(table: pa.Table) -> dict[str, NDArray[Any]]:
-    """An Arrow table's columns as ``summary_rows`` reads them (``Columns``; read through
-    ``flatcli.arrow``, which loads no pandas)."""
-    from flatcli.arrow import floats, to_numpy
+def file_columns(path: Path, names: Sequence[str]) -> dict[str, NDArray[Any]]:
+    """Columns of a Parquet file as ``summary_rows`` reads them (``Columns``), read one at a
+    time (a sweep of 10^6 trials holds numpy's arrays only, not the Arrow table besides) and
+    the text columns as one object per distinct word (not one string per row)."""
+    import pyarrow.compute as pc
+    import pyarrow.parquet as pq
+
+    from flatcli.arrow import floats, null_mask, to_numpy
 
     out: dict[str, NDArray[Any]] = {}
-    for name in table.column_names:
-        column = table.column(name)
-        if name in _TEXT:
-            out[name] = np.array(column.to_pylist(), dtype=object)
-        elif name in _FLAGS:
-            out[name] = np.asarray(to_numpy(column), dtype=bool)  # null: False
-        elif name == "cell":
-            out[name] = np.asarray(to_numpy(column), dtype=np.int64)
-        else:
-            out[name] = floats(column)
+    with pq.ParquetFile(path) as file:
+        present = set(file.schema_arrow.names)
+        for name in (n for n in names if n in present):  # older files lack some
+            column = file.read(columns=[name]).column(0)
+            if name in _TEXT:
+                encoded = pc.dictionary_encode(column).combine_chunks()
+                words = np.array([*encoded.dictionary.to_pylist(), None], dtype=object)
+                codes = np.asarray(to_numpy(encoded.indices), dtype=np.int64)
+                codes[null_mask(encoded.indices)] = len(words) - 1
+                out[name] = words[codes]
+            elif name in _FLAGS:
+                out[name] = np.asarray(to_numpy(column), dtype=bool)  # null: False
+            elif name == "cell":
+                out[name] = np.asarray(to_numpy(column), dtype=np.int64)
+            else:
+                out[name] = floats(column)
+            del column
     return out
 
 

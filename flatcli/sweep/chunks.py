@@ -26,7 +26,7 @@ from flatcli.core.metrics import (
 from flatcli.core.simulate import NoiseStreams, Trials, check_against_reference
 from flatcli.experiment import checked
 from flatcli.spec import PERTURB_TARGETS, Spec, lookup, perturbations
-from flatcli.storage import null_where_nan, with_units
+from flatcli.storage import null_where_nan, peak_memory_mib, with_units
 from flatcli.sweep.draws import (
     draw_perturbations,
     invalid_plants,
@@ -44,10 +44,12 @@ FAILURES = ("error", "diverged", "unresolved")
 
 @dataclass(frozen=True)
 class ChunkResult:
-    """A finished chunk: one row per trial (the columns of trials.parquet), and its time."""
+    """A finished chunk: one row per trial (the columns of trials.parquet), its time [s],
+    and the peak resident memory of the process that ran it [MiB] (``peak_memory_mib``)."""
 
     table: pa.Table
     seconds: float
+    peak_mib: float = math.nan
 
     def first_failure(self) -> tuple[int, str] | None:
         """The first trial whose status is one of ``FAILURES``, for --fail-fast."""
@@ -147,7 +149,7 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
     columns["reference_difference"] = null_where_nan(difference)
     columns["reference_status"] = texts(reference_status)
     table = with_units(pa.table(columns), units_of(columns, spec))
-    return ChunkResult(table, time.perf_counter() - started)
+    return ChunkResult(table, time.perf_counter() - started, peak_memory_mib())
 
 
 def verify_count(verify: float, trials: int) -> int:

@@ -20,7 +20,6 @@ import contextlib
 import json
 import os
 import re
-import resource
 import stat
 import sys
 import time
@@ -46,10 +45,10 @@ from flatcli.files import (
 )
 from flatcli.report.summary import (
     SUMMARY_INPUTS,
+    file_columns,
     summary_markdown,
     summary_rows,
     summary_table,
-    table_columns,
 )
 from flatcli.spec import SpecError
 from flatcli.spec.limits import ID_STRIDE
@@ -59,6 +58,7 @@ from flatcli.storage import (
     PARQUET_META_KEY,
     atomic_path,
     parquet_options,
+    peak_memory_mib,
     provenance_metadata,
     read_provenance,
     run_record,
@@ -610,11 +610,11 @@ def note(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
 
 
-def peak_rss_mib() -> dict[str, float]:
-    """Peak resident memory of this process and of its largest child process [MiB]."""
-    self_kib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    child_kib = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-    return {"main": self_kib / 1024, "largest_child": child_kib / 1024}
+def peak_rss_mib(largest_worker: float) -> dict[str, float]:
+    """Peak resident memory of this process, each as its own (``storage.peak_memory_mib``),
+    and the largest a process running chunks reported (``largest_worker``, with the pages a
+    forked worker shares with this process) [MiB]."""
+    return {"main": peak_memory_mib(), "largest_child": largest_worker}
 
 
 def assemble_trials(directory: Path, lay: Layout, provenance: Mapping[str, Any]) -> Path:
@@ -657,7 +657,7 @@ def finish_sweep(directory: Path, lay: Layout, provenance: Mapping[str, Any], st
     """
     finishing = time.perf_counter()
     trials_path = assemble_trials(directory, lay, provenance)
-    columns = table_columns(read_parquet(trials_path, SUMMARY_INPUTS))
+    columns = file_columns(trials_path, SUMMARY_INPUTS)
     cells = {c.index: {k: v for k, (_, v) in grid_columns(c.values, c.spec).items()}
              for c in lay.cells}
     rows = summary_rows(columns, cells)
@@ -675,7 +675,7 @@ def finish_sweep(directory: Path, lay: Layout, provenance: Mapping[str, Any], st
     timing = {**timing, "finish_seconds": now - finishing, "wall_seconds": wall,
               "trials_per_second": simulated / wall,
               "steady_trials_per_second": simulated / warm if warm > 0 else None,
-              "peak_rss_mib": peak_rss_mib()}
+              "peak_rss_mib": peak_rss_mib(float(timing.get("worker_peak_mib", 0.0)))}
     write_json(directory / "run.json", run_record(
         "sweep", lay.spec.tree, digest=lay.spec.digest(), cells=len(lay.cells),
         trials=lay.total, chunk=lay.chunk_size, status_counts=counts, timing=timing,

@@ -101,12 +101,14 @@ def run_sweep(
             setup = time.perf_counter() - started
             tasks = ((c, (lay.cells[c.cell], c)) for c in todo)
             compute = writing = 0.0
+            worker_peak = 0.0  # the largest peak a chunk's process reported [MiB]
             watcher = watch(progress) if executor_kind == "local" else None  # per-trial counts
             syncer = Syncer()  # chunk files flushed to disk in groups, off this thread
             try:
                 for chunk, result in executor.run(run_chunk, tasks):
                     began = time.thread_time()  # this thread's processor time
                     compute += result.seconds
+                    worker_peak = max(worker_peak, result.peak_mib)
                     cell = lay.cells[chunk.cell]
                     write_table(directory / TRIALS_DIR / chunk.name, result.table,
                                 chunk_provenance(provenance, cell, chunk, result.table), syncer)
@@ -141,6 +143,7 @@ def run_sweep(
             "write_cpu_seconds": writing,
             "sync_seconds": syncer.seconds,
             "workers": executor.workers,
+            "worker_peak_mib": worker_peak,
             "executor": executor.description,
         }, tags)
     return SweepResult(directory, lay, simulated, time.perf_counter() - started, summary_text)
