@@ -129,6 +129,12 @@ def test_same_work_kernel_does_flatclis_work(cubic: Plan, gains: Gains, spread: 
         else:
             np.testing.assert_allclose(got[:, k], theirs, rtol=SAME_DOPRI_TOL,
                                        atol=SAME_DOPRI_TOL, err_msg=name)
+    every = simulate(Scenario(cubic, gains, tracking.dt, twin=0.0, observe_every=7), trials)
+    sparse = b.dopri_metrics(cubic, trials, tracking, threads=1, every=7)
+    for name in ("err_theta_rms", "err_y_max", "peak_rate", "rhs_evaluations", "steps"):
+        k = b.DOPRI_METRICS.index(name)
+        np.testing.assert_allclose(sparse[:, k], every.metrics[:, column[name]],
+                                   rtol=SAME_DOPRI_TOL, atol=SAME_DOPRI_TOL, err_msg=name)
 
 
 def test_solve_ivp_agrees_with_rk4(cubic: Plan) -> None:

@@ -137,8 +137,9 @@ def _dopri_kernel(poly: Array, duration: float, theta_ref: Array, y_ref: Array,
                   plan_theta: Array, plan_theta_dot: Array, controller: Array, gains: Array,
                   plant: Array, links: Array, total_mass: Array, h0: Array, initial: Array,
                   dt: float, n: int, lim: float, rtol: float, atol: float, threshold: float,
-                  out: Array) -> None:
-    """Every trial integrated alone (module docstring); its metrics into out[i]."""
+                  every: int, out: Array) -> None:
+    """Every trial integrated alone (module docstring); its metrics into out[i], over the
+    output samples 0, every, 2 every, ... and n (``every`` = 1: all of them)."""
     for i in prange(initial.shape[0]):
         p = plant[i]
         q = links[i]
@@ -266,6 +267,9 @@ def _dopri_kernel(poly: Array, duration: float, theta_ref: Array, y_ref: Array,
                 q20 = q21 = q22 = q23 = q30 = q31 = q32 = q33 = 0.0
                 while last < n and (last + 1) * dt < t_new * (1.0 - 1e-14):
                     j = last + 1
+                    if every > 1 and j % every != 0 and j != n:
+                        last = j  # not observed: nothing to evaluate
+                        continue
                     th = (j * dt - t) / h
                     if not dense:
                         q00 = (k10 * P[0, 0] + k30 * P[2, 0] + k40 * P[3, 0] + k50 * P[4, 0]
@@ -336,29 +340,30 @@ def _dopri_kernel(poly: Array, duration: float, theta_ref: Array, y_ref: Array,
                 t = t_new
                 x0, x1, x2, x3 = n0, n1, n2, n3
                 f0, f1, f2, f3, sig = k70, k71, k72, k73, m7
-                if last < n and (last + 1) * dt <= t * (1.0 + 1e-14):  # a sample at the end
-                    last += 1
-                    d0, d1, d2 = (x0 - theta_ref[last, 0], x1 - theta_ref[last, 1],
-                                  x2 - theta_ref[last, 2])
-                    et2 = d0 * d0 + d1 * d1 + d2 * d2
-                    e2 = x0 - controller[4] * x2 / (controller[0] + controller[1] * e_c1) \
-                        - y_ref[last, 1]
-                    ey2 = (x1 - y_ref[last, 0]) ** 2 + e2 * e2
-                    sum_et2 += et2
-                    sum_ey2 += ey2
-                    max_et2 = max(max_et2, et2)
-                    max_ey2 = max(max_ey2, ey2)
-                    last_et2, last_ey2 = et2, ey2
-                    margin = abs(sig)
-                    if margin < threshold:
-                        hits += 1
-                        if first_hit < 0:
-                            first_hit = last
-                    min_margin = min(min_margin, margin)
-                    hm = _momentum(q, e_c1, e_s1, e_c12, math.sin(x1 + x2), f0, f1, f2)
-                    drift = max(drift, abs(hm - h0[i]))
-                    peak = max(peak, abs(f1), abs(f2))
-                    count += 1
+                if last < n and (last + 1) * dt <= t * (1.0 + 1e-14):
+                    last += 1  # a sample at the step's end
+                    if every == 1 or last % every == 0 or last == n:
+                        d0, d1, d2 = (x0 - theta_ref[last, 0], x1 - theta_ref[last, 1],
+                                      x2 - theta_ref[last, 2])
+                        et2 = d0 * d0 + d1 * d1 + d2 * d2
+                        e2 = x0 - controller[4] * x2 / (controller[0] + controller[1] * e_c1) \
+                            - y_ref[last, 1]
+                        ey2 = (x1 - y_ref[last, 0]) ** 2 + e2 * e2
+                        sum_et2 += et2
+                        sum_ey2 += ey2
+                        max_et2 = max(max_et2, et2)
+                        max_ey2 = max(max_ey2, ey2)
+                        last_et2, last_ey2 = et2, ey2
+                        margin = abs(sig)
+                        if margin < threshold:
+                            hits += 1
+                            if first_hit < 0:
+                                first_hit = last
+                        min_margin = min(min_margin, margin)
+                        hm = _momentum(q, e_c1, e_s1, e_c12, math.sin(x1 + x2), f0, f1, f2)
+                        drift = max(drift, abs(hm - h0[i]))
+                        peak = max(peak, abs(f1), abs(f2))
+                        count += 1
                 if last >= n:
                     break
                 grow = 10.0 if norm == 0.0 else min(10.0, 0.9 * norm ** -0.2)
@@ -431,9 +436,11 @@ def dopri_inputs(plan: Plan, trials: Trials, tracking: Tracking = PAPER_TRACKING
 
 
 def dopri_metrics(plan: Plan, trials: Trials, tracking: Tracking = PAPER_TRACKING,
-                  threads: int | None = None, inputs: DopriInputs | None = None) -> Array:
+                  threads: int | None = None, inputs: DopriInputs | None = None,
+                  every: int = 1) -> Array:
     """(N, len(METRICS)) the metrics of N closed-loop trials by the same-work kernel
-    (columns ``METRICS``; ``crossed`` 1.0 where a trial met the singular set and stopped)."""
+    (columns ``METRICS``; ``crossed`` 1.0 where a trial met the singular set and stopped),
+    over every ``every``-th output sample and the last (flatcli's ``track.observe_every``)."""
     di = inputs if inputs is not None else dopri_inputs(plan, trials, tracking)
     li = di.loop
     out = np.empty((li.initial.shape[0], len(METRICS)))
@@ -444,15 +451,15 @@ def dopri_metrics(plan: Plan, trials: Trials, tracking: Tracking = PAPER_TRACKIN
         _dopri_kernel(li.poly, li.duration, di.theta_ref, di.y_ref, di.plan_theta,
                       di.plan_theta_dot, li.controller, li.gains, li.plant, di.links,
                       li.total_mass, li.h0, li.initial, li.dt, li.steps, li.rate_limit,
-                      di.rtol, di.atol, di.threshold, out)
+                      di.rtol, di.atol, di.threshold, every, out)
     finally:
         numba.set_num_threads(previous)
     return out
 
 
 def dopri_trials_per_second(plan: Plan, trials: Trials, tracking: Tracking = PAPER_TRACKING,
-                            threads: int = 2, repeat: int = 3) -> Throughput:
+                            threads: int = 2, repeat: int = 3, every: int = 1) -> Throughput:
     """Throughput of ``dopri_metrics`` after a warm-up (compilation, thread pool)."""
     di = dopri_inputs(plan, trials, tracking)
-    return throughput(lambda: dopri_metrics(plan, trials, tracking, threads, di),
+    return throughput(lambda: dopri_metrics(plan, trials, tracking, threads, di, every),
                       trials.count, threads, repeat)
