@@ -54,13 +54,13 @@ def flags(values: Any) -> pa.Array:
                                  null_count=0)
 
 
-def texts(values: Sequence[str | None]) -> pa.Array:
-    """A string column of ``values`` (None: null)."""
+def texts(values: Sequence[str | None], large: bool = False) -> pa.Array:
+    """A string column of ``values`` (None: null); ``large``: large_string (int64 offsets)."""
     encoded = [b"" if v is None else v.encode() for v in values]
-    offsets = np.zeros(len(encoded) + 1, dtype=np.int32)
+    offsets = np.zeros(len(encoded) + 1, dtype=np.int64 if large else np.int32)
     np.cumsum([len(e) for e in encoded], out=offsets[1:])
     bitmap, nulls = _validity(np.array([v is not None for v in values], dtype=bool))
-    return pa.Array.from_buffers(pa.string(), len(encoded),
+    return pa.Array.from_buffers(pa.large_string() if large else pa.string(), len(encoded),
                                  [bitmap, pa.py_buffer(offsets), pa.py_buffer(b"".join(encoded))],
                                  null_count=nulls)
 

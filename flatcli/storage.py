@@ -408,7 +408,10 @@ def with_units(table: pa.Table, units: Mapping[str, str]) -> pa.Table:
         if f.name in units:
             f = f.with_metadata({**(f.metadata or {}), UNIT_KEY: units[f.name].encode()})
         fields.append(f)
-    return table.cast(pa.schema(fields, metadata=table.schema.metadata))
+    # the same columns under a schema that differs in metadata only (Table.cast would load
+    # pyarrow.compute, which a sweep has no other use for)
+    return pa.Table.from_arrays(table.columns, schema=pa.schema(fields,
+                                                                metadata=table.schema.metadata))
 
 
 def column_units(path: Path) -> dict[str, str]:

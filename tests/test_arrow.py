@@ -37,6 +37,7 @@ def test_built_columns_are_those_pyarrow_makes_of_the_same_values() -> None:
     assert flags(bits).equals(pa.array(bits))
     words = ["ok", None, "singular", "", "é ü"]
     assert texts(words).equals(pa.array(words, pa.string()))
+    assert texts(words, large=True).equals(pa.array(words, pa.large_string()))
     lists = [[0.1, 0.2], None, [], [3.0]]
     assert number_lists(lists).equals(pa.array(lists, pa.list_(pa.float64())))
     for value, kind in ((2.5, pa.float64()), (4, pa.int64()), (True, pa.bool_()),

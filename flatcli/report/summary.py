@@ -120,18 +120,17 @@ def file_columns(path: Path, names: Sequence[str]) -> dict[str, NDArray[Any]]:
     """Columns of a Parquet file as ``summary_rows`` reads them (``Columns``), read one at a
     time (a sweep of 10^6 trials holds numpy's arrays only, not the Arrow table besides) and
     the text columns as one object per distinct word (not one string per row)."""
-    import pyarrow.compute as pc
     import pyarrow.parquet as pq
 
     from flatcli.arrow import floats, null_mask, to_numpy
 
     out: dict[str, NDArray[Any]] = {}
-    with pq.ParquetFile(path) as file:
+    with pq.ParquetFile(path, read_dictionary=list(_TEXT)) as file:
         present = set(file.schema_arrow.names)
         for name in (n for n in names if n in present):  # older files lack some
             column = file.read(columns=[name]).column(0)
-            if name in _TEXT:
-                encoded = pc.dictionary_encode(column).combine_chunks()
+            if name in _TEXT:  # read as a dictionary: its words, and an index per row
+                encoded = column.unify_dictionaries().combine_chunks()
                 words = np.array([*encoded.dictionary.to_pylist(), None], dtype=object)
                 codes = np.asarray(to_numpy(encoded.indices), dtype=np.int64)
                 codes[null_mask(encoded.indices)] = len(words) - 1
@@ -284,7 +283,7 @@ def _arrow_column(values: list[Any]) -> pa.Array:
     if all(v is None for v in values):
         return pa.nulls(len(values))
     if all(v is None or isinstance(v, str) for v in values):
-        return texts(values).cast(pa.large_string())
+        return texts(values, large=True)
     if all(v is None or (isinstance(v, list | tuple | np.ndarray) and all(number(x) for x in v))
            for v in values):
         return number_lists(values)

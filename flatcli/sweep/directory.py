@@ -633,8 +633,9 @@ def assemble_trials(directory: Path, lay: Layout, provenance: Mapping[str, Any])
                 table = table.replace_schema_metadata(meta)
                 if writer is None:
                     writer = pq.ParquetWriter(tmp, table.schema, **parquet_options(table.schema))
-                try:
-                    writer.write_table(table.cast(writer.schema))
+                try:  # (cast only where the types differ: pyarrow.compute loads for it)
+                    same = table.schema.equals(writer.schema, check_metadata=False)
+                    writer.write_table(table if same else table.cast(writer.schema))
                 except (ValueError, pa.ArrowException) as exc:
                     raise SpecError(
                         f"{TRIALS_DIR}/{chunk.name} has other columns than the chunks before it "
