@@ -120,9 +120,9 @@ class Syncer:
                 raise RuntimeError("Syncer: closed")
             self._pending.append(path)
             if self._thread is None:  # started with the first file: after the workers forked
-                self._thread = threading.Thread(target=self._run, name="flatcli-sync",
-                                                daemon=True)
-                self._thread.start()
+                thread = threading.Thread(target=self._run, name="flatcli-sync", daemon=True)
+                thread.start()
+                self._thread = thread  # (not before: Ctrl-C may end start() early)
             self._changed.notify_all()
 
     def _run(self) -> None:
@@ -161,7 +161,7 @@ class Syncer:
             self._closed = True
             self._changed.notify_all()
             thread = self._thread
-        if thread is not None:
+        if thread is not None and thread.ident is not None:
             thread.join()
         if self._error is not None:
             raise self._error

@@ -363,3 +363,27 @@ def test_a_syncer_flushes_what_it_was_given_and_reports_a_failed_flush(
         syncer.close()
     assert caught.value.filename == str(tmp_path / "bad.parquet")
     assert caught.value.errno == errno.EIO
+
+
+@pytest.mark.parametrize("started", [True, False])
+def test_a_syncer_whose_thread_start_was_interrupted_still_closes(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, started: bool) -> None:
+    """Ctrl-C or SIGTERM (a KeyboardInterrupt) may end Thread.start() early, before or after
+    the thread runs: the interrupted sweep then closes its syncer without an error of its
+    own (it once raised RuntimeError: cannot join thread before it is started)."""
+    import threading
+
+    real = threading.Thread.start
+
+    def interrupted(self: threading.Thread) -> None:
+        if started:
+            real(self)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(threading.Thread, "start", interrupted)
+    syncer = Syncer()
+    with pytest.raises(KeyboardInterrupt):
+        write_table(tmp_path / "t.parquet", pa.table({"a": [1.0]}), {}, syncer)
+    monkeypatch.undo()
+    syncer.close()
+    assert pq.read_table(tmp_path / "t.parquet").num_rows == 1
