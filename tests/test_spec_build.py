@@ -160,12 +160,13 @@ PAPER_CANONICAL = {
               "torque_limit": "inf"},
     "robot": {"com": [0.1, 0.1, 0.0], "inertia": [0.0533, 0.0533, 0.0533],
               "length": [0.2, 0.2, 0.2], "mass": [1.0, 1.0, 1.0], "model": "derived"},
-    "sweep": {"chunk": None, "grid": {}, "perturb": {}, "seed": 0, "trials": 1000},
-    "track": {"atol": 1e-10, "divergence_bound": 10000.0, "dt": 0.001,
-              "initial": [1.96, 0.8, -0.1], "initial_rate": None, "integrator": "adaptive",
-              "kp": [10.0, 13.0], "kv": [100.0, 110.0], "max_steps": 100000,
-              "rate_limit": "inf", "rtol": 5e-08, "seed": 0, "sensor_noise": 0.0,
-              "singular_threshold": 0.01, "trial": 0},
+    "sweep": {"chunk": None, "grid": {}, "perturb": {}, "seed": 0, "trials": 1000,
+              "verify": 0.0},
+    "track": {"accuracy": 1e-06, "atol": 1e-10, "divergence_bound": 10000.0, "dt": 0.001,
+              "error_estimate": "twin", "initial": [1.96, 0.8, -0.1], "initial_rate": None,
+              "integrator": "adaptive", "kp": [10.0, 13.0], "kv": [100.0, 110.0],
+              "max_steps": 100000, "observe_every": 1, "rate_limit": "inf", "rtol": 5e-08,
+              "seed": 0, "sensor_noise": 0.0, "singular_threshold": 0.01, "trial": 0},
 }
 
 
