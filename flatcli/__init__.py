@@ -5,6 +5,7 @@ The Python API (``flatcli.api``; each command of the CLI is a thin wrapper over 
 
     import flatcli
     p = flatcli.plan(overrides={"plan.duration": 3.0})    # p.frame, p.metrics, p.save()
+    b = flatcli.plan_many(start=starts, goal=goals)       # M maneuvers at once: b[i], b.metrics
     t = flatcli.track("my.toml")                          # t.frame, t.metrics
     s = flatcli.sweep("study.toml", "runs/study", workers=2)  # s.trials, s.summary
     r = flatcli.load("runs/paper_example/latest")
@@ -38,6 +39,7 @@ except (ImportError, MemoryError) as _exc:  # pragma: no cover - a memory limit
 
 if TYPE_CHECKING:
     from flatcli.api import (
+        PlanBatch,
         PlanResult,
         Run,
         SweepResult,
@@ -46,6 +48,7 @@ if TYPE_CHECKING:
         load,
         load_spec,
         plan,
+        plan_many,
         runs,
         sweep,
         track,
@@ -56,6 +59,7 @@ if TYPE_CHECKING:
 #: Public names and the module each one lives in (loaded on first use).
 _LAZY = {
     "plan": "flatcli.api",
+    "plan_many": "flatcli.api",
     "track": "flatcli.api",
     "sweep": "flatcli.api",
     "check": "flatcli.api",
@@ -64,6 +68,7 @@ _LAZY = {
     "runs": "flatcli.api",
     "Run": "flatcli.api",
     "PlanResult": "flatcli.api",
+    "PlanBatch": "flatcli.api",
     "TrackResult": "flatcli.api",
     "SweepResult": "flatcli.api",
     "FlatcliError": "flatcli.core.model",
@@ -73,6 +78,7 @@ _LAZY = {
 
 __all__ = [
     "FlatcliError",
+    "PlanBatch",
     "PlanResult",
     "Run",
     "Spec",
@@ -84,6 +90,7 @@ __all__ = [
     "load",
     "load_spec",
     "plan",
+    "plan_many",
     "runs",
     "sweep",
     "track",

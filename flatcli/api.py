@@ -23,6 +23,7 @@ raises ``flatcli.FlatcliError`` (``SpecError``) with the same one line the CLI p
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import sys
 from collections.abc import Iterable, Iterator, Mapping
@@ -30,15 +31,11 @@ from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
-import numpy as np
-import pandas as pd
-
 from flatcli.core.model import FlatcliError
 from flatcli.core.optimize import OptimizeResult
 from flatcli.core.planning import Plan, PlanSamples
 from flatcli.experiment import TrackRun, plan_and_optimization, run_track
 from flatcli.files import is_regular, kind, read_text
-from flatcli.outputs import plan_frame, write_track
 from flatcli.report import (
     FigureFile,
     Limits,
@@ -76,12 +73,13 @@ from flatcli.storage import (
     write_parquet,
 )
 from flatcli.threads import computes
-from flatcli.trajectory import Trajectory
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # pandas loads with the first DataFrame, never in a sweep's processes
+    import pandas as pd
     from matplotlib.figure import Figure
 
     from flatcli.preflight import CheckReport
+    from flatcli.trajectory import Trajectory
 
 SpecLike = str | os.PathLike[str] | Mapping[str, Any] | Spec | None
 Overrides = Mapping[str, Any] | Iterable[str] | None
@@ -101,15 +99,52 @@ def load_spec(spec: SpecLike = None, overrides: Overrides = None) -> Spec:
     else:
         extra = parse_set(overrides)
     if spec is None:
-        return resolve({}, extra)
+        return _resolved({}, extra)
     if isinstance(spec, Spec):
         return spec.with_overrides(extra) if extra else spec
     if isinstance(spec, Mapping):
-        return resolve(spec, extra)
+        return _resolved(spec, extra)
     if isinstance(spec, str | os.PathLike):
         path = Path(spec)
         return resolve(read_toml(path), extra, base=path.parent, source=path)
     raise TypeError(f"spec: expected a path, a dict, a Spec or None, got {type(spec).__name__}")
+
+
+#: Specs validated from dicts (and overrides), by their content: a Spec is immutable, so one
+#: validated once is the same when asked for again (``_resolved``).
+_RESOLVED: dict[Any, Spec] = {}
+RESOLVED_CACHE_SIZE = 256
+
+
+def _resolved(user: Mapping[str, Any], extra: dict[str, Any]) -> Spec:
+    """``resolve(user, extra)``, remembered for dicts of plain values (str, int, float, bool,
+    None, lists, tuples and dicts of them): validating a spec costs more than planning the
+    paper's maneuver. Anything else (a file's robot, an array) is validated every time."""
+    try:
+        key = (_frozen(user), _frozen(extra))
+    except TypeError:
+        return resolve(user, extra)
+    found = _RESOLVED.get(key)
+    if found is None:
+        found = resolve(user, extra)  # a bad spec raises: nothing is remembered
+        if len(_RESOLVED) >= RESOLVED_CACHE_SIZE:
+            _RESOLVED.pop(next(iter(_RESOLVED)))
+        _RESOLVED[key] = found
+    return found
+
+
+def _frozen(value: Any) -> Any:
+    """A hashable copy of a spec's plain values that keeps their types apart (1, 1.0, True
+    and [1] are four keys); TypeError for anything else."""
+    if isinstance(value, Mapping):
+        if not all(isinstance(k, str) for k in value):
+            raise TypeError("a spec's keys are strings")
+        return ("dict", tuple(sorted((k, _frozen(v)) for k, v in value.items())))
+    if isinstance(value, list | tuple):
+        return (type(value).__name__, tuple(_frozen(v) for v in value))
+    if value is None or type(value) in (str, int, float, bool):
+        return (type(value).__name__, value)
+    raise TypeError(f"not a plain value: {type(value).__name__}")
 
 
 def kernel_cached() -> bool:
@@ -215,6 +250,8 @@ class Run:
             raise FlatcliError(f"this {self.command or 'run'} is not saved; call .save() first")
         if not _table(self.directory, f"{name}.parquet"):
             raise FlatcliError(f"{self.directory / f'{name}.parquet'} not found")
+        import pandas as pd
+
         return pd.read_parquet(self.directory / f"{name}.parquet")
 
     def __repr__(self) -> str:
@@ -230,17 +267,39 @@ class PlanResult(Run):
 
     command = "plan"
 
-    def __init__(self, spec: Spec | None, frame: pd.DataFrame, metrics: Mapping[str, Any],
+    def __init__(self, spec: Spec | None, frame: pd.DataFrame | None,
+                 metrics: Mapping[str, Any] | None,
                  optimization: Mapping[str, Any] | None = None, plan: Plan | None = None,
                  samples: PlanSamples | None = None, directory: Path | None = None,
                  record: Mapping[str, Any] | None = None) -> None:
         super().__init__(directory, record)
+        if (frame is None or metrics is None) and (plan is None or samples is None):
+            raise ValueError("PlanResult: a frame and metrics, or the plan and its samples")
         self._spec = spec
-        self.frame = frame
-        self.metrics = dict(metrics)
+        self._frame = frame
+        self._metrics = None if metrics is None else dict(metrics)
         self.optimization = None if optimization is None else dict(optimization)
         self.plan = plan
         self.samples = samples
+
+    @property
+    def frame(self) -> pd.DataFrame:
+        """plan.parquet's rows (a DataFrame, made from the samples on first use)."""
+        if self._frame is None:
+            from flatcli.outputs import plan_frame
+
+            assert self.samples is not None
+            self._frame = plan_frame(self.samples,
+                                     None if self.plan is None else self.plan.robot)
+        return self._frame
+
+    @property
+    def metrics(self) -> dict[str, Any]:
+        """The plan's headline numbers (``report.plan_summary``, made on first use)."""
+        if self._metrics is None:
+            assert self.plan is not None and self.samples is not None
+            self._metrics = plan_summary(self.plan, self.samples)
+        return self._metrics
 
     @cached_property
     def spec(self) -> Spec:
@@ -252,6 +311,8 @@ class PlanResult(Run):
         ``p.trajectory(t)`` gives its states, rates, inputs and flat outputs at any t in
         [0, T]; a loaded plan is planned again from its spec (the same plan: planning is
         deterministic)."""
+        from flatcli.trajectory import Trajectory
+
         return Trajectory(self.plan if self.plan is not None else
                           plan_and_optimization(self.spec)[0])
 
@@ -310,6 +371,8 @@ class PlanResult(Run):
     def animate(self, path: str | os.PathLike[str]) -> Path:
         """The maneuver as a GIF at ``path`` (matplotlib's Pillow writer): the links, the
         obstacles, the end effector's path."""
+        import numpy as np
+
         from flatcli.experiment import robot_from
         from flatcli.report.task_figures import animate
 
@@ -344,6 +407,8 @@ class TrackResult(Run):
     @cached_property
     def trajectory(self) -> Trajectory:
         """The reference the run tracked, as a function of time (``PlanResult.trajectory``)."""
+        from flatcli.trajectory import Trajectory
+
         return Trajectory(self.run.plan if self.run is not None else
                           plan_and_optimization(self.spec)[0])
 
@@ -371,6 +436,8 @@ class TrackResult(Run):
         record = run_record("track", spec.tree, digest=spec.digest(), metrics=self.metrics,
                             **_tags(self.tags))
         title = track_title(spec, self.metrics)
+        from flatcli.outputs import write_track
+
         with _saving(out, "track", spec, force, root) as directory:
             self.files = write_track(directory, self.run, record, title if plot else None)
         self.directory, self.record = directory, record
@@ -409,6 +476,8 @@ class SweepResult(Run):
         if self.complete:
             return self.table("trials")
         if not self.state.chunk_files:
+            import pandas as pd
+
             return pd.DataFrame()
         frame: pd.DataFrame = chunk_frames(self.state)
         return frame
@@ -457,7 +526,7 @@ class SweepResult(Run):
         """The summary figures of a finished sweep, by name ("errors", "singular",
         "margin", "momentum": ``sweep_<name>`` files), as matplotlib Figures; ``x`` and
         ``hue``: the grid keys of sweep_singular's x axis and colours (``plot``)."""
-        from flatcli.report import sweep_figures
+        from flatcli.report.sweep_figures import sweep_figures
 
         return sweep_figures(self._finished(), x=x, hue=hue)
 
@@ -543,16 +612,235 @@ def plan(spec: SpecLike = None, overrides: Overrides = None) -> PlanResult:
     require_finite_plan({"theta": samples.theta, "theta_dot": samples.theta_dot,
                          "u_dot": samples.u_dot, "y": samples.y})
     opt = None if optimization is None else _optimization(optimization, s)
+    if task is None:
+        return PlanResult(s, None, None, opt, made, samples)  # frame and metrics on first use
     metrics: dict[str, Any] = dict(plan_summary(made, samples))
-    if task is not None:
-        metrics.update({k: v for k, v in task_metrics(s, samples.theta).items()
-                        if k != "ee_error_max"})
-        if task.certificate is not None:
-            metrics["clearance_bound"] = (None if not np.isfinite(task.certificate.lower_bound)
-                                          else task.certificate.lower_bound)
-            metrics["certified_intervals"] = task.certificate.intervals
-        metrics["task_candidates"] = task.candidates
-    return PlanResult(s, plan_frame(samples, made.robot), metrics, opt, made, samples)
+    metrics.update({k: v for k, v in task_metrics(s, samples.theta).items()
+                    if k != "ee_error_max"})
+    if task.certificate is not None:
+        bound = float(task.certificate.lower_bound)
+        metrics["clearance_bound"] = bound if math.isfinite(bound) else None
+        metrics["certified_intervals"] = task.certificate.intervals
+    metrics["task_candidates"] = task.candidates
+    return PlanResult(s, None, metrics, opt, made, samples)  # the frame on first use
+
+
+class PlanBatch:
+    """M maneuvers of one robot planned at once (``plan_many``): ``.plan`` (the core's
+    ``Plan``, its coefficients (M, N, size)), ``len()``, ``[i]`` (maneuver i as a
+    ``PlanResult``: the same plan, samples, frame and metrics to the bit as ``flatcli.plan``
+    makes of the spec with maneuver i's start, goal and end rates, which is its ``.spec``),
+    and, computed on first use, ``.samples`` (on the spec's ``plan.samples`` grid, arrays
+    (M, n, ...); FlatcliError naming a maneuver whose samples are not finite) and
+    ``.metrics`` (``PlanResult.metrics`` of every maneuver, each an (M,) array)."""
+
+    #: Maneuvers sampled at a time (the arrays of a block stay in the processor's caches).
+    BLOCK = 64
+
+    def __init__(self, spec: Spec, plan: Plan, ends: dict[str, Any]) -> None:
+        self.spec = spec
+        self.plan = plan
+        self._ends = ends
+
+    def __len__(self) -> int:
+        return int(self.plan.trajectory.coefficients.shape[0])
+
+    def _part(self, index: int | slice) -> Plan:
+        """Maneuver ``index`` (or a block of them) as a core ``Plan``."""
+        import numpy as np
+
+        from flatcli.core.basis import FlatTrajectory
+        from flatcli.core.planning import Plan as CorePlan
+
+        plan = self.plan
+        coefficients = np.ascontiguousarray(plan.trajectory.coefficients[index])
+        return CorePlan(plan.robot, plan.model, FlatTrajectory(plan.trajectory.basis,
+                                                               coefficients), plan.duration)
+
+    def __getitem__(self, i: int) -> PlanResult:
+        from flatcli.spec.limits import require_finite_plan
+
+        if not -len(self) <= i < len(self):
+            raise IndexError(f"maneuver {i} of {len(self)}")
+        i %= len(self)
+        one = self._part(i)
+        samples = one.sample(one.grid(self.spec.plan.samples))
+        require_finite_plan(_finite_columns(samples))
+        overrides = {f"plan.{name}": _plain(values[i]) for name, values in self._ends.items()}
+        return PlanResult(self.spec.with_overrides(overrides), None, None, None, one, samples)
+
+    @cached_property
+    def samples(self) -> PlanSamples:
+        """Every maneuver on the spec's ``plan.samples`` grid (``PlanSamples``, arrays
+        (M, n, ...)), sampled ``BLOCK`` maneuvers at a time."""
+        import dataclasses
+
+        import numpy as np
+
+        from flatcli.spec.limits import require_finite_plan
+
+        parts = []
+        for first in range(0, len(self), self.BLOCK):
+            block = self._part(slice(first, first + self.BLOCK))
+            part = block.sample(block.grid(self.spec.plan.samples))
+            try:
+                require_finite_plan(_finite_columns(part))
+            except FlatcliError:
+                columns = _finite_columns(part)
+                bad = min(int(np.flatnonzero(~np.isfinite(v).reshape(len(v), -1).all(axis=1))[0])
+                          for v in columns.values() if not np.isfinite(v).all())
+                raise FlatcliError(f"plan_many: maneuver {first + bad}: its samples are not "
+                                   "finite (the spec's magnitudes overflow the flat map)"
+                                   ) from None
+            parts.append(part)
+        fields = [f.name for f in dataclasses.fields(PlanSamples)]
+        return PlanSamples(**{f: parts[0].t if f == "t" else
+                              np.concatenate([getattr(p, f) for p in parts]) for f in fields})
+
+    @cached_property
+    def metrics(self) -> dict[str, Any]:
+        """Per maneuver (arrays (M,)): max_abs_momentum, min_margin, min_margin_time,
+        max_abs_theta{i}, peak_rate{i} and input_energy, as ``PlanResult.metrics``
+        (``report.plan_summary``) computes them one maneuver at a time."""
+        import numpy as np
+
+        from flatcli.core.basis import composite_gauss_legendre
+        from flatcli.core.planning import ENERGY_ORDER, ENERGY_PIECES
+
+        s = self.samples
+        out: dict[str, Any] = {
+            "max_abs_momentum": np.max(np.abs(s.momentum), axis=-1),
+            "min_margin": np.min(s.margin, axis=-1),
+            "min_margin_time": s.t[np.argmin(s.margin, axis=-1)],
+        }
+        for i in range(s.theta.shape[-1]):
+            out[f"max_abs_theta{i}"] = np.max(np.abs(s.theta[..., i]), axis=-1)
+        for i in range(s.theta.shape[-1]):
+            out[f"peak_rate{i}"] = np.max(np.abs(s.theta_dot[..., i]), axis=-1)
+        t, weights = composite_gauss_legendre(self.plan.duration, ENERGY_PIECES, ENERGY_ORDER)
+        energy = np.empty(len(self))
+        for first in range(0, len(self), self.BLOCK):
+            rates = self._part(slice(first, first + self.BLOCK)).sample(t).theta_dot
+            squares = np.sum(rates[..., 1:] ** 2, axis=-1)
+            for k, row in enumerate(squares):  # one dot product each, as Plan.input_energy
+                energy[first + k] = float(weights @ row)
+        out["input_energy"] = energy
+        return out
+
+    def __repr__(self) -> str:
+        return f"<flatcli plans: {len(self)} maneuvers of {self.spec.name!r}>"
+
+
+def _finite_columns(samples: PlanSamples) -> dict[str, Any]:
+    """The sampled values a plan must have finite (``spec.limits.require_finite_plan``)."""
+    return {"theta": samples.theta, "theta_dot": samples.theta_dot, "u_dot": samples.u_dot,
+            "y": samples.y}
+
+
+def _plain(value: Any) -> Any:
+    """A numpy value of a batch as the plain value a spec holds."""
+    return value.tolist() if hasattr(value, "tolist") else value
+
+
+#: The spec keys ``plan_many`` takes as arrays (one row per maneuver) and their widths for a
+#: robot of N joints.
+MANY_KEYS = ("start", "goal", "start_rate", "goal_rate")
+
+
+@computes
+def plan_many(spec: SpecLike = None, overrides: Overrides = None, *, start: Any = None,
+              goal: Any = None, start_rate: Any = None, goal_rate: Any = None) -> PlanBatch:
+    """Plan M maneuvers of the spec's robot at once: ``start``, ``goal`` (M, N + 1) [rad] and
+    ``start_rate``, ``goal_rate`` (M,) or (M, N - 1) [rad/s] (each None: the spec's, for
+    every maneuver; one row or one number: the same for all). Everything else (the robot,
+    ``plan.duration``, the model and basis, ``plan.samples``) is the spec's.
+
+    Maneuver i is the plan ``flatcli.plan`` makes of the spec with those four keys set to
+    row i, to the bit (``PlanBatch[i]``), at a small part of the cost: one vectorised solve
+    for all M; their samples and metrics are computed when first asked for (``.samples``,
+    ``.metrics``). Bad input raises FlatcliError naming the argument (and the maneuver, for
+    one that meets the singular set); optimised plans (``plan.optimize.objective``) and
+    robots of more than 2 joints plan one at a time (``flatcli.plan``).
+    """
+    import numpy as np
+
+    from flatcli.core.planning import plan_point_to_point
+    from flatcli.experiment import robot_from
+
+    s = load_spec(spec, overrides)
+    if s.plan.optimize.objective is not None:
+        raise FlatcliError("plan_many: plan.optimize.objective is set: optimised plans are "
+                           "planned one at a time (flatcli.plan)")
+    if s.joints != 2:
+        raise FlatcliError(f"plan_many: the robot has {s.joints} joints; batches are planned "
+                           "for the paper's robot (2 joints), others one at a time "
+                           "(flatcli.plan)")
+    given = {"start": start, "goal": goal, "start_rate": start_rate, "goal_rate": goal_rate}
+    ends: dict[str, Any] = {}
+    counts: dict[str, int] = {}
+    for name in MANY_KEYS:
+        value = given[name] if given[name] is not None else getattr(s.plan, name)
+        try:
+            array = np.array(value, dtype=float)
+        except (TypeError, ValueError):
+            raise FlatcliError(f"plan_many: {name}: expected numbers, got "
+                               f"{type(value).__name__}") from None
+        width = 3 if name in ("start", "goal") else 1
+        batch_ndim = 2 if width > 1 else 1  # the dimensions of one row per maneuver
+        if width == 1 and array.ndim == 2 and array.shape[1] == 1:
+            array = array[:, 0]
+        if array.ndim > batch_ndim or (width > 1 and array.shape[-1:] != (3,)):
+            shape = "(M, 3) or (3,)" if width > 1 else "(M,), (M, 1) or one number"
+            raise FlatcliError(f"plan_many: {name}: expected shape {shape} for a robot of 2 "
+                               f"joints, got {array.shape}")
+        bad = np.flatnonzero(~np.isfinite(array.reshape(-1, width)).all(axis=1))
+        if bad.size:
+            where = f" (maneuver {int(bad[0])})" if array.ndim == batch_ndim else ""
+            raise FlatcliError(f"plan_many: {name}: not finite{where}")
+        if array.ndim == batch_ndim:
+            counts[name] = array.shape[0]
+        ends[name] = array
+    if len(set(counts.values())) > 1:
+        raise FlatcliError("plan_many: start, goal, start_rate and goal_rate: different numbers "
+                           f"of maneuvers ({', '.join(f'{k} {v}' for k, v in counts.items())})")
+    count = next(iter(counts.values()), 1)
+    if count < 1:
+        raise FlatcliError("plan_many: no maneuvers (M = 0)")
+    ends = {name: np.ascontiguousarray(np.broadcast_to(
+        a, (count, 3) if name in ("start", "goal") else (count,))) for name, a in ends.items()}
+    robot = robot_from(s)
+    model = checked_model(s)
+    basis = basis_of(s)
+
+    def planned(index: Any) -> Plan:
+        return plan_point_to_point(robot, ends["start"][index], ends["goal"][index],
+                                   ends["start_rate"][index], ends["goal_rate"][index],
+                                   s.plan.duration, model, basis)
+
+    try:
+        batch = planned(slice(None))
+    except FlatcliError:  # which maneuver: each alone, until one says
+        for i in range(count):
+            try:
+                planned(i)
+            except FlatcliError as exc:
+                raise FlatcliError(f"plan_many: maneuver {i}: {exc}") from None
+        raise
+    return PlanBatch(s, batch, ends)
+
+
+def checked_model(spec: Spec) -> Any:
+    """The planning model a spec names (``robot.model``)."""
+    from flatcli.experiment import checked
+
+    return checked(spec.robot.model)
+
+
+def basis_of(spec: Spec) -> Any:
+    """The flat-output basis a spec names (``experiment.basis_from``)."""
+    from flatcli.experiment import basis_from
+
+    return basis_from(spec)
 
 
 def _optimization(result: OptimizeResult, spec: Spec) -> dict[str, Any]:
@@ -646,6 +934,8 @@ def load(directory: str | os.PathLike[str]) -> Run:
     A directory of runs of one name (``runs/<name>``) loads its ``latest`` plan or track run,
     or, if it has none, its sweep (``runs/<name>/sweep``).
     """
+    import pandas as pd
+
     from flatcli.sweep.directory import read_manifest
 
     path = Path(directory)

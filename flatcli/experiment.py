@@ -242,6 +242,7 @@ def scenario_from(spec: Spec, plan: Plan) -> Scenario:
         servo_bandwidth=spec.plant.servo_bandwidth,
         twin=TWIN_FACTOR if track.error_estimate == "twin" else 0.0,
         accuracy=track.accuracy,
+        observe_every=track.observe_every,
     )
 
 

@@ -26,7 +26,6 @@ import json
 import math
 import multiprocessing
 import os
-import resource
 import time
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
@@ -41,6 +40,7 @@ from flatcli.core.metrics import METRIC_NAMES, STATUS_NAMES
 from flatcli.executors import default_workers
 from flatcli.report import fmt, short_key, summarize_trials, table
 from flatcli.spec import Spec, spec_toml
+from flatcli.storage import peak_memory_mib
 from flatcli.sweep import Chunk, Layout, grid_cell_text, grid_label, layout, run_chunk
 
 #: Trials the calibration runs in all (at least one per cell).
@@ -257,8 +257,9 @@ def check_spec(spec: Spec, workers: int | None = None, executor: str = "local",
 
 
 def _rss_mib() -> float:
-    """Peak resident memory of this process so far [MiB]."""
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    """Peak resident memory of this process so far, its own (``storage.peak_memory_mib``:
+    not that of the process that started it) [MiB]."""
+    return peak_memory_mib()
 
 
 def _calibration_runs(lay: Layout, k: int) -> tuple[list[pa.Table], float, float]:
@@ -287,11 +288,14 @@ def _in_a_worker(lay: Layout, k: int) -> tuple[list[pa.Table], float, float, flo
         context = multiprocessing.get_context("fork")
     except ValueError:  # pragma: no cover - not POSIX
         return (*_calibration_runs(lay, k), None)
-    before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
     with ProcessPoolExecutor(1, mp_context=context) as pool:
-        tables, first_seconds, all_seconds = pool.submit(_calibration_runs, lay, k).result()
-    after = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-    return tables, first_seconds, all_seconds, (after / 1024 if after > before else None)
+        tables, first_seconds, all_seconds, peak = pool.submit(_measured_runs, lay, k).result()
+    return tables, first_seconds, all_seconds, peak
+
+
+def _measured_runs(lay: Layout, k: int) -> tuple[list[pa.Table], float, float, float]:
+    """``_calibration_runs`` in a worker, and the worker's own peak memory [MiB]."""
+    return (*_calibration_runs(lay, k), peak_memory_mib())
 
 
 def _calibrate(lay: Layout, compiled: bool) -> Calibration:

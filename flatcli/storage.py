@@ -28,16 +28,18 @@ import time
 from collections.abc import Iterator, Mapping
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
 import flatcli
 from flatcli.core.model import FlatcliError
 from flatcli.files import kind
+
+if TYPE_CHECKING:  # pandas loads with the first DataFrame: a sweep writes Arrow tables only
+    import pandas as pd
 
 #: Key of the Parquet schema metadata holding flatcli's provenance (JSON).
 PARQUET_META_KEY = b"flatcli"
@@ -53,10 +55,15 @@ _UMASK = _read_umask()
 
 
 @contextlib.contextmanager
-def atomic_path(path: Path) -> Iterator[Path]:
+def atomic_path(path: Path, syncer: Syncer | None = None) -> Iterator[Path]:
     """Yield a temporary path beside ``path`` (in its directory, so the rename is atomic);
     on success flush it to disk and rename it over ``path``. An OS error on the way names
-    ``path`` (not the temporary file, and never no file at all)."""
+    ``path`` (not the temporary file, and never no file at all).
+
+    With a ``syncer`` the file is renamed at once and flushed to disk later, with others, by
+    the syncer's thread (``Syncer``): the file is whole whenever its name exists (the rename
+    follows the last write), but until the syncer has flushed it a crash of the machine (not
+    of the process: the kernel keeps what was written) may lose it."""
     with _naming(path):
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp",
@@ -66,13 +73,98 @@ def atomic_path(path: Path) -> Iterator[Path]:
     try:
         with _naming(path, tmp):
             yield tmp
-            with tmp.open("rb+") as fh:
-                os.fsync(fh.fileno())
+            if syncer is None:
+                with tmp.open("rb+") as fh:
+                    os.fsync(fh.fileno())
             tmp.chmod(0o666 & ~_UMASK)  # mkstemp makes 0600; give the file the usual mode
             os.replace(tmp, path)
-        _fsync_directory(path.parent)
+        if syncer is None:
+            _fsync_directory(path.parent)
+        else:
+            syncer.add(path)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+class Syncer:
+    """Flushes files to disk in a thread of its own, in groups: ``add`` a renamed file
+    (``atomic_path(path, syncer)``); the thread fsyncs every file added while it was busy,
+    then their directories, once each (a group commit: one directory flush for many files,
+    and none on the caller's time). ``close`` waits until every file added is on disk and
+    raises the first OS error the thread met (naming the file).
+
+    Chunk files of a sweep go through one (``sweep.runner``): a process killed at any
+    moment loses nothing it wrote (the kernel has it), a machine that crashes may lose the
+    chunks not yet flushed, or leave them damaged, and a resume's checks compute those again
+    (``sweep.directory.verified_chunks``); the final tables and the manifest are flushed
+    before they count (``atomic_path`` without a syncer)."""
+
+    def __init__(self) -> None:
+        import threading
+
+        self._pending: list[Path] = []
+        self._busy = False
+        self._closed = False
+        self._error: OSError | None = None
+        self._changed = threading.Condition()
+        self._thread: threading.Thread | None = None
+        #: Files flushed, and seconds the thread spent flushing them.
+        self.synced = 0
+        self.seconds = 0.0
+
+    def add(self, path: Path) -> None:
+        import threading
+
+        with self._changed:
+            if self._closed:
+                raise RuntimeError("Syncer: closed")
+            self._pending.append(path)
+            if self._thread is None:  # started with the first file: after the workers forked
+                thread = threading.Thread(target=self._run, name="flatcli-sync", daemon=True)
+                thread.start()
+                self._thread = thread  # (not before: Ctrl-C may end start() early)
+            self._changed.notify_all()
+
+    def _run(self) -> None:
+        while True:
+            with self._changed:
+                while not self._pending and not self._closed:
+                    self._changed.wait()
+                if not self._pending:
+                    return
+                group, self._pending = self._pending, []
+                self._busy = True
+            started = time.perf_counter()
+            try:
+                for path in group:
+                    with _naming(path):
+                        fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
+                        try:
+                            os.fsync(fd)
+                        finally:
+                            os.close(fd)
+                for directory in dict.fromkeys(p.parent for p in group):
+                    _fsync_directory(directory)
+            except OSError as exc:
+                with self._changed:
+                    if self._error is None:
+                        self._error = exc
+            with self._changed:
+                self.synced += len(group)
+                self.seconds += time.perf_counter() - started
+                self._busy = False
+                self._changed.notify_all()
+
+    def close(self) -> None:
+        """Wait until every file added is flushed; raise the first OS error met."""
+        with self._changed:
+            self._closed = True
+            self._changed.notify_all()
+            thread = self._thread
+        if thread is not None and thread.ident is not None:
+            thread.join()
+        if self._error is not None:
+            raise self._error
 
 
 @contextlib.contextmanager
@@ -142,12 +234,24 @@ def write_parquet(path: Path, frame: pd.DataFrame, provenance: Mapping[str, Any]
     write_table(path, arrow_table(frame), provenance)
 
 
-def write_table(path: Path, table: pa.Table, provenance: Mapping[str, Any]) -> None:
-    """Write an Arrow table as Parquet, with ``provenance`` as JSON in the schema metadata."""
+def write_table(path: Path, table: pa.Table, provenance: Mapping[str, Any],
+                syncer: Syncer | None = None) -> None:
+    """Write an Arrow table as Parquet, with ``provenance`` as JSON in the schema metadata
+    (``atomic_path``; flushed to disk now, or by ``syncer``). Dictionary encoding only for
+    text columns (``parquet_options``)."""
     table = table.replace_schema_metadata({**(table.schema.metadata or {}),
                                            **provenance_metadata(provenance)})
-    with atomic_path(path) as tmp:
-        pq.write_table(table, tmp)
+    with atomic_path(path, syncer) as tmp:
+        pq.write_table(table, tmp, **parquet_options(table.schema))
+
+
+def parquet_options(schema: pa.Schema) -> dict[str, Any]:
+    """How flatcli writes Parquet: dictionary-encoded text columns only. A dictionary of a
+    float column (distinct values, nearly all of them) costs 5x the encoding time and makes
+    the file larger; a text column (statuses, reasons) repeats a few values."""
+    text = [f.name for f in schema if pa.types.is_string(f.type) or pa.types.is_large_string(
+        f.type)]
+    return {"use_dictionary": text}
 
 
 def provenance_metadata(provenance: Mapping[str, Any]) -> dict[bytes, bytes]:
@@ -162,19 +266,18 @@ def table_checksum(table: pa.Table) -> str:
     a table and for that table written to Parquet and read back, and differs when any
     value, null or name differs.
     """
+    from flatcli.arrow import null_mask, to_numpy  # (pyarrow's own to_numpy loads pandas)
+
     digest = hashlib.sha256()
     for name, column in zip(table.column_names, table.columns, strict=True):
         array = column.combine_chunks() if column.num_chunks != 1 else column.chunk(0)
         digest.update(f"{name}\0{_type_text(array.type)}\0{len(array)}\0{array.null_count}\0"
                       .encode())
         if array.null_count:
-            digest.update(np.asarray(array.is_null().to_numpy(zero_copy_only=False)).tobytes())
+            digest.update(null_mask(array).tobytes())
         if pa.types.is_integer(array.type) or pa.types.is_floating(array.type) \
                 or pa.types.is_boolean(array.type):
-            if array.null_count:
-                array = array.fill_null(pa.scalar(
-                    False if pa.types.is_boolean(array.type) else 0, array.type))
-            digest.update(np.ascontiguousarray(array.to_numpy(zero_copy_only=False)).tobytes())
+            digest.update(np.ascontiguousarray(to_numpy(array)).tobytes())  # nulls as 0
         else:
             digest.update(json.dumps(array.to_pylist(), default=str).encode())
     return digest.hexdigest()
@@ -213,18 +316,52 @@ def git_state() -> dict[str, Any]:
 
 
 def versions() -> dict[str, str]:
+    """The versions of Python and of the libraries flatcli runs on; scipy's and pandas' from
+    their installed metadata, so that a sweep need not load them to say which it has."""
     import numba
-    import scipy
 
     return {
         "flatcli": flatcli.__version__,
         "python": platform.python_version(),
         "numpy": np.__version__,
-        "scipy": scipy.__version__,
+        "scipy": _installed("scipy"),
         "numba": numba.__version__,
-        "pandas": pd.__version__,
+        "pandas": _installed("pandas"),
         "pyarrow": pa.__version__,
     }
+
+
+def _installed(name: str) -> str:
+    """A library's version: its module's if it is loaded, else its installed metadata's."""
+    module = sys.modules.get(name)
+    if module is not None:
+        return str(module.__version__)
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version(name)
+    except PackageNotFoundError:  # pragma: no cover - a broken installation
+        return "not installed"
+
+
+def peak_memory_mib() -> float:
+    """This process's own peak resident memory [MiB]: VmHWM of /proc/self/status (Linux),
+    the peak of this process's address space since it started (or was forked).
+
+    Not ``getrusage``'s ru_maxrss: Linux keeps that across exec, so a process started by a
+    large one (``make bench`` starting ``flatcli sweep``) reports at least its parent's peak.
+    Elsewhere ru_maxrss is all there is. A forked worker's VmHWM counts the pages it shares
+    with its parent since the fork, as its resident memory does."""
+    try:
+        with open("/proc/self/status", encoding="ascii", errors="replace") as fh:
+            for line in fh:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024
+    except (OSError, ValueError, IndexError):  # pragma: no cover - not Linux
+        pass
+    import resource  # pragma: no cover
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # pragma: no cover
 
 
 def run_record(command: str, spec_tree: Mapping[str, Any], **extra: Any) -> dict[str, Any]:
@@ -258,7 +395,9 @@ def arrow_table(frame: pd.DataFrame) -> pa.Table:
 
 def null_where_nan(values: Any) -> pa.Array:
     """A float column as Arrow, nan (not applicable) as null."""
-    return pa.array(np.asarray(values, dtype=np.float64), from_pandas=True)
+    from flatcli.arrow import numbers
+
+    return numbers(values)
 
 
 def with_units(table: pa.Table, units: Mapping[str, str]) -> pa.Table:
@@ -269,7 +408,10 @@ def with_units(table: pa.Table, units: Mapping[str, str]) -> pa.Table:
         if f.name in units:
             f = f.with_metadata({**(f.metadata or {}), UNIT_KEY: units[f.name].encode()})
         fields.append(f)
-    return table.cast(pa.schema(fields, metadata=table.schema.metadata))
+    # the same columns under a schema that differs in metadata only (Table.cast would load
+    # pyarrow.compute, which a sweep has no other use for)
+    return pa.Table.from_arrays(table.columns, schema=pa.schema(fields,
+                                                                metadata=table.schema.metadata))
 
 
 def column_units(path: Path) -> dict[str, str]:

@@ -24,26 +24,41 @@ THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"
 
 def _load_libraries() -> None:
     """Load the BLAS of numpy and of scipy, so that a limit reaches both (threadpoolctl
-    limits the libraries loaded when it is set)."""
+    limits the libraries loaded when it is set). Where every thread variable already says 1
+    (flatcli's command line and its workers), a BLAS loaded later starts with one thread, so
+    scipy is not loaded for it (a sweep never needs scipy's BLAS)."""
+    import os
+
     import numpy  # noqa: F401
+
+    if all(os.environ.get(name) == "1" for name in THREAD_VARIABLES):
+        return
     import scipy.linalg  # noqa: F401
 
 
-@functools.cache
+#: threadpoolctl's controller (it lists the thread pools of the loaded libraries, a scan of
+#: the process's shared objects that costs milliseconds) and len(sys.modules) when it was
+#: made: made again only when a module has been loaded since, which is how a library with a
+#: pool of its own arrives.
+_CONTROLLER: list[Any] = [None, -1]
+
+
 def _controller() -> Any:
-    """threadpoolctl's controller of the libraries numpy and scipy load, found once (finding
-    them costs about 5 ms, a fifth of planning a maneuver through the API); each limit reads
-    their thread counts afresh, so what it restores is what they ran before it."""
+    import sys
+
     from threadpoolctl import ThreadpoolController
 
-    _load_libraries()
-    return ThreadpoolController()
+    loaded = len(sys.modules)
+    if _CONTROLLER[0] is None or _CONTROLLER[1] != loaded:
+        _CONTROLLER[:] = [ThreadpoolController(), loaded]
+    return _CONTROLLER[0]
 
 
 @contextlib.contextmanager
 def one_thread() -> Iterator[None]:
     """Within: every loaded BLAS and OpenMP pool runs one thread; afterwards, what it ran
     before."""
+    _load_libraries()
     with _controller().limit(limits=1):
         yield
 

@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 from click.testing import CliRunner
@@ -183,3 +184,64 @@ def test_calling_the_sweep_package_runs_the_api_function(tmp_path: Path) -> None
     spec = write_spec(tmp_path, SPEC.replace("trials = 60", "trials = 3"))
     result = package(spec, tmp_path / "d", workers=1, quiet=True)
     assert isinstance(result, api.SweepResult) and result.metrics["finished"] == 6
+
+
+#: Maneuvers around the paper's (Sec. VI: th(0) = (1.8, 1, 0), th(2) = (1.2, 2, 0),
+#: th1'(0) = 0.1, th1'(2) = 0.5), each with its own ends and end rates.
+MANY_START = [[1.8, 1.0, 0.0], [1.7, 1.1, 0.05], [1.9, 0.9, -0.1], [1.8, 1.2, 0.0]]
+MANY_GOAL = [[1.2, 2.0, 0.0], [1.25, 1.9, 0.1], [1.1, 2.1, 0.0], [1.3, 2.0, -0.05]]
+MANY_START_RATE = [0.1, 0.12, 0.08, 0.1]
+MANY_GOAL_RATE = [0.5, 0.45, 0.55, 0.5]
+
+
+def test_plan_many_gives_the_plans_flatcli_plan_gives_one_at_a_time() -> None:
+    """Within one process, to the bit: the batch's coefficients, samples (the batch's arrays
+    and each maneuver's own), frame, metrics and spec against flatcli.plan of each."""
+    batch = flatcli.plan_many(start=MANY_START, goal=MANY_GOAL, start_rate=MANY_START_RATE,
+                              goal_rate=MANY_GOAL_RATE)
+    assert len(batch) == 4
+    fields = ("theta", "theta_dot", "u_dot", "y", "y_dot", "y_ddot", "margin", "momentum")
+    for i in range(len(batch)):
+        one = flatcli.plan(overrides={"plan.start": MANY_START[i], "plan.goal": MANY_GOAL[i],
+                                      "plan.start_rate": MANY_START_RATE[i],
+                                      "plan.goal_rate": MANY_GOAL_RATE[i]})
+        assert one.plan is not None and one.samples is not None
+        mine = batch[i]
+        assert mine.spec == one.spec
+        assert (mine.plan.trajectory.coefficients == one.plan.trajectory.coefficients).all()
+        assert (batch.plan.trajectory.coefficients[i] == one.plan.trajectory.coefficients).all()
+        for name in fields:
+            assert (getattr(batch.samples, name)[i] == getattr(one.samples, name)).all(), name
+        pd.testing.assert_frame_equal(mine.frame, one.frame, check_exact=True)
+        assert mine.metrics == one.metrics
+        assert {k: v[i] for k, v in batch.metrics.items()} == one.metrics
+    same = flatcli.plan_many(start=MANY_START[1], goal=MANY_GOAL)  # one start for all
+    repeated = flatcli.plan_many(start=[MANY_START[1]] * 4, goal=MANY_GOAL)
+    assert len(same) == 4
+    assert (same.plan.trajectory.coefficients == repeated.plan.trajectory.coefficients).all()
+
+
+@pytest.mark.parametrize(("kwargs", "message"), [
+    ({"start": [[1.8, 1.0]]}, "plan_many: start: expected shape (M, 3) or (3,) for a robot of "
+                              "2 joints, got (1, 2)"),
+    ({"start": MANY_START, "goal": MANY_GOAL[:3]},
+     "plan_many: start, goal, start_rate and goal_rate: different numbers of maneuvers "
+     "(start 4, goal 3)"),
+    ({"goal_rate": [0.5, float("nan")]}, "plan_many: goal_rate: not finite (maneuver 1)"),
+    ({"start_rate": [0.1, 0.0]}, "plan_many: maneuver 1: plan.start_rate: must be != 0"),
+    ({"start": [[1.8, 1.0, 0.0], [1.8, 0.0, 0.0]]}, "plan_many: maneuver 1: plan.start[1] = 0"),
+    ({"start": "north"}, "plan_many: start: expected numbers, got str"),
+    ({"start": np.zeros((0, 3))}, "plan_many: no maneuvers (M = 0)"),
+])
+def test_plan_many_refuses_bad_input_naming_the_argument(kwargs: dict[str, object],
+                                                         message: str) -> None:
+    with pytest.raises(flatcli.FlatcliError) as caught:
+        flatcli.plan_many(**kwargs)  # type: ignore[arg-type]
+    assert str(caught.value).startswith(message) and "\n" not in str(caught.value)
+
+
+def test_plan_many_plans_the_papers_robot_and_no_optimised_plans() -> None:
+    with pytest.raises(flatcli.FlatcliError, match=r"plan_many: plan\.optimize\.objective is set"):
+        flatcli.plan_many(overrides={"plan.optimize.objective": "energy"})
+    with pytest.raises(flatcli.FlatcliError, match="plan_many: the robot has 3 joints"):
+        flatcli.plan_many(overrides={"robot": "chain4"})

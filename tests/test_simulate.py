@@ -710,6 +710,8 @@ def test_plant_mismatch_shows_in_the_plan_residual_not_the_drift(
         ({"rtol": 1.0}, "track.rtol"),
         ({"atol": float("inf")}, "track.atol"),
         ({"max_steps": 0}, "track.max_steps"),
+        ({"observe_every": 0}, "track.observe_every: must be an integer >= 1, got 0"),
+        ({"observe_every": 2.5}, "track.observe_every: must be an integer >= 1, got 2.5"),
     ],
 )
 def test_scenario_rejects_bad_settings(
@@ -731,3 +733,74 @@ def test_trials_and_integrator_are_validated(
                                    short))
     with pytest.raises(FlatcliError, match=r"track\.integrator"):
         run(paper_scenario, trials_factory(fig4_initial), "euler")
+
+
+# --------------------------------------------------------------------------------------
+# Observing every k-th sample (track.observe_every)
+# --------------------------------------------------------------------------------------
+
+#: A k that does not divide the paper's n = 2,000 output intervals: the last sample is not one
+#: of 0, k, 2k, ... and must be observed all the same.
+EVERY = 7
+#: The metrics docs/outputs.md says observe_every leaves unchanged.
+UNCHANGED = ("err_theta_final", "err_y_final", "plan_momentum_residual", "err_estimate",
+             "steps", "crossings", "first_crossing_time")
+
+
+def observed_samples(n: int, every: int) -> Array:
+    """j = 0, k, 2k, ... and n: written out here, not taken from the kernels."""
+    return np.unique(np.r_[np.arange(0, n + 1, every), n])
+
+
+@pytest.mark.parametrize("integrator", ["adaptive", "rk4", "dop853"])
+def test_observing_every_kth_sample_keeps_the_final_errors_and_the_integration(
+    paper_plan: Plan, integrator: str
+) -> None:
+    """k = 1 is the default to the bit; k = 7 leaves the integration and the final errors as
+    they were, and its other metrics are those of the full trace's observed samples (the
+    referee: numpy over the trace k = 1 recorded)."""
+    trials = perturbed_trials(1 if integrator == "dop853" else 6, seed=11)
+    base = Scenario(paper_plan, PRINTED, 1e-3, singular_threshold=0.08)
+    default = run(base, trials, integrator)
+    one = run(Scenario(paper_plan, PRINTED, 1e-3, singular_threshold=0.08, observe_every=1),
+              trials, integrator)
+    every = run(Scenario(paper_plan, PRINTED, 1e-3, singular_threshold=0.08,
+                         observe_every=EVERY), trials, integrator, record=False)
+    np.testing.assert_array_equal(one.metrics, default.metrics)
+    np.testing.assert_array_equal(one.status, default.status)
+    assert default.trace is not None
+    assert (default.status == Status.OK).any() or (default.status == Status.SINGULAR).any()
+    for name in UNCHANGED:
+        np.testing.assert_array_equal(every.metrics[:, Metric[name.upper()]],
+                                      default.metrics[:, Metric[name.upper()]], err_msg=name)
+    resolved = (default.status == Status.OK) | (default.status == Status.SINGULAR)
+    picked = observed_samples(base.n_steps, EVERY)
+    for i in np.flatnonzero(resolved):
+        trace = default.trace[i, picked]
+        error = np.linalg.norm(trace[:, :3] - base.theta_reference[picked], axis=1)
+        margin = np.abs(np.sin(trace[:, 1]) * trace[:, 3])
+        expected = {"err_theta_rms": np.sqrt(np.mean(error**2)), "err_theta_max": error.max(),
+                    "peak_rate": np.abs(trace[:, 5:7]).max(), "min_margin": margin.min(),
+                    "singular_hits": np.sum(margin < base.singular_threshold)}
+        for name, value in expected.items():
+            assert metric(every, name, i) == pytest.approx(value, rel=1e-12, abs=0), name
+    if integrator == "adaptive":  # rk4 steps, and the reference samples, on every sample
+        assert (every.metrics[:, Metric.RHS_EVALUATIONS]
+                < default.metrics[:, Metric.RHS_EVALUATIONS]).all()
+
+
+def test_the_docs_say_what_observe_every_changes() -> None:
+    """docs/outputs.md's table of observe_every names every metric once: UNCHANGED in its
+    unchanged rows, the rest in the others."""
+    from pathlib import Path
+
+    from flatcli.core.metrics import METRIC_NAMES
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "outputs.md").read_text()
+    section = text.split("### Observing every k-th sample", 1)[1].split("\n#", 1)[0]
+    rows = [line for line in section.splitlines() if line.startswith("| `")]
+    named = {name: row for row in rows for name in row.split("|")[1].replace("`", "")
+             .replace(",", " ").split()}
+    assert sorted(named) == sorted(METRIC_NAMES)
+    for name, row in named.items():
+        assert ("unchanged" in row.split("|")[2]) == (name in UNCHANGED), name

@@ -172,8 +172,8 @@ PAPER_CANONICAL = {
               "initial": [1.96, 0.8, -0.1], "initial_rate": None, "integrator": "adaptive",
               "kp": [10.0, 13.0], "kv": [100.0, 110.0], "lqr_bandwidth": 5.0, "lqr_base": 10.0,
               "lqr_terminal": 1000000.0, "max_steps": 100000,
-              "rate_limit": "inf", "rtol": 5e-08, "seed": 0, "sensor_noise": 0.0,
-              "singular_threshold": 0.01, "trial": 0},
+              "observe_every": 1, "rate_limit": "inf", "rtol": 5e-08, "seed": 0,
+              "sensor_noise": 0.0, "singular_threshold": 0.01, "trial": 0},
 }
 
 

@@ -24,6 +24,7 @@ from flatcli.storage import (
     LOCK_NAME,
     UNIT_KEY,
     DirectoryBusyError,
+    Syncer,
     atomic_path,
     check_output_dir,
     column_units,
@@ -36,6 +37,7 @@ from flatcli.storage import (
     with_units,
     write_json,
     write_parquet,
+    write_table,
     write_text,
 )
 
@@ -336,3 +338,52 @@ def test_a_run_leaves_no_lock_file_behind(tmp_path: Path) -> None:
     with directory_lock(tmp_path):
         pass
     assert sorted(p.name for p in tmp_path.iterdir()) == [LOCK_NAME, "mine.txt"]
+
+
+def test_a_syncer_flushes_what_it_was_given_and_reports_a_failed_flush(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    table = pa.table({"a": [1.0, 2.0]})
+    syncer = Syncer()
+    for i in range(3):
+        write_table(tmp_path / f"t{i}.parquet", table, {"i": i}, syncer)
+        assert pq.read_table(tmp_path / f"t{i}.parquet").equals(table)  # whole at once
+    syncer.close()
+    assert syncer.synced == 3
+    real = os.fsync
+
+    def failing(fd: int) -> None:
+        if os.readlink(f"/proc/self/fd/{fd}").endswith("bad.parquet"):
+            raise OSError(errno.EIO, "Input/output error")
+        real(fd)
+
+    monkeypatch.setattr(os, "fsync", failing)
+    syncer = Syncer()
+    write_table(tmp_path / "bad.parquet", table, {}, syncer)
+    with pytest.raises(OSError) as caught:
+        syncer.close()
+    assert caught.value.filename == str(tmp_path / "bad.parquet")
+    assert caught.value.errno == errno.EIO
+
+
+@pytest.mark.parametrize("started", [True, False])
+def test_a_syncer_whose_thread_start_was_interrupted_still_closes(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, started: bool) -> None:
+    """Ctrl-C or SIGTERM (a KeyboardInterrupt) may end Thread.start() early, before or after
+    the thread runs: the interrupted sweep then closes its syncer without an error of its
+    own (it once raised RuntimeError: cannot join thread before it is started)."""
+    import threading
+
+    real = threading.Thread.start
+
+    def interrupted(self: threading.Thread) -> None:
+        if started:
+            real(self)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(threading.Thread, "start", interrupted)
+    syncer = Syncer()
+    with pytest.raises(KeyboardInterrupt):
+        write_table(tmp_path / "t.parquet", pa.table({"a": [1.0]}), {}, syncer)
+    monkeypatch.undo()
+    syncer.close()
+    assert pq.read_table(tmp_path / "t.parquet").num_rows == 1

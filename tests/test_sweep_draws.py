@@ -203,3 +203,20 @@ def test_a_zero_std_is_accepted_and_draws_the_nominal_values() -> None:
     assert (frame[["mass_0", "mass_1", "mass_2"]].to_numpy() == 1.0).all()
     assert (frame["status"] != "error").all()
     assert frame["err_y_rms"].nunique() == 1  # identical trials
+
+
+@pytest.mark.parametrize("seed", [0, 2003, 2**32 + 5, 2**70 + 3])
+def test_a_chunks_variates_are_numpys_streams_bit_for_bit(seed: int) -> None:
+    """flatcli.sweep.streams against the referee it replaces: numpy's own
+    default_rng(SeedSequence(seed, spawn_key=(trial, slot))).random(count), one trial at a
+    time; trial ids of one and of two 32-bit words, both slots, any count."""
+    from flatcli.experiment import trial_stream
+    from flatcli.sweep.streams import uniform_variates
+
+    trials = [0, 1, 2, 99, 2**32 - 1, 2**33 + 7, 12_345_678_901_234, 2**63 - 1]
+    for slot, count in ((0, 21), (1, 3), (0, 1)):
+        ours = uniform_variates(seed, trials, slot, count)
+        theirs = np.array([trial_stream(seed, t, slot).random(count) for t in trials])
+        assert ours.shape == (len(trials), count)
+        assert np.array_equal(ours, theirs), (slot, count)
+    assert uniform_variates(seed, [], 0, 5).shape == (0, 5)

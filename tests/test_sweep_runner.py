@@ -4,6 +4,7 @@ per directory, no orphans, changed chunks recomputed, grid values added without 
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -368,3 +369,106 @@ def test_a_list_valued_grid_key_out_of_alphabetical_order_is_extended_too(
     assert code == 0, out
     assert "2 of the 3 cells were computed there before" in out, out
     assert "(60 simulated now)" in out and "checksum" not in out, out
+
+
+#: Libraries a sweep's processes never load unless a spec asks for them (normal draws load
+#: scipy.special, an optimised plan scipy.optimize, a figure matplotlib).
+UNASKED = ("pandas", "matplotlib", "scipy")
+
+#: A sweep script: records, in the main process and in every worker after each chunk, which
+#: of UNASKED's modules are loaded (workers fork from the main process).
+_WATCHED_SWEEP = """
+import json, os, sys
+from pathlib import Path
+
+import flatcli.sweep.runner as runner
+
+out = Path(sys.argv[1])
+def loaded():
+    return sorted(m for m in sys.modules if m.split(".")[0] in {unasked!r})
+real = runner.run_chunk
+def watched(cell, chunk):
+    result = real(cell, chunk)
+    (out / f"modules-{{os.getpid()}}.json").write_text(json.dumps(loaded()))
+    return result
+runner.run_chunk = watched
+from flatcli.cli import main
+try:
+    main(["sweep", sys.argv[2], "--out", str(out / "d"), "-q", "--workers", "2",
+          "--oversubscribe"])
+except SystemExit as exc:
+    assert not exc.code, exc.code
+(out / "modules-main.json").write_text(json.dumps(loaded()))
+"""
+
+
+def test_a_sweep_loads_neither_pandas_nor_matplotlib_nor_scipy_unless_asked(
+        tmp_path: Path) -> None:
+    """The light sweep path: the main process and its workers, through the command line, load
+    no pandas, no matplotlib and none of scipy's modules but those numba itself loads when
+    it loads a compiled function (its BLAS check): the referee is a process that only
+    compiles and calls a function with numba."""
+    text = SPEC.replace('initial = { dist = "normal", std = 0.02 }',
+                        'initial = { dist = "uniform", low = -0.02, high = 0.02 }')
+    assert text != SPEC
+    spec = write_spec(tmp_path, text)
+    subprocess.run([sys.executable, "-c", _WATCHED_SWEEP.format(unasked=UNASKED),
+                    str(tmp_path), str(spec)], check=True, timeout=600)
+    numba_alone = subprocess.run(
+        [sys.executable, "-c", "import json, sys, numba\nnumba.njit(lambda x: x + 1)(1)\n"
+         f"print(json.dumps([m for m in sys.modules if m.split('.')[0] in {UNASKED!r}]))"],
+        capture_output=True, text=True, check=True).stdout
+    allowed = set(json.loads(numba_alone))
+    assert not {m for m in allowed if not m.startswith("scipy")}
+    records = sorted(tmp_path.glob("modules-*.json"))
+    assert len(records) >= 3  # the main process (its warm-up and its end) and a worker
+    for record in records:
+        loaded = set(json.loads(record.read_text()))
+        assert loaded <= allowed, (record.name, sorted(loaded - allowed))
+    assert trials(tmp_path / "d")["status"].isin(["ok", "singular"]).all()
+
+
+def test_every_chunk_file_is_on_disk_before_the_final_tables(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Chunk files are flushed in groups by a thread of their own (storage.Syncer): every one
+    is fsynced, and its directory after it, before the first final table is (the referee:
+    the operating system's own fsync calls, recorded as they are made)."""
+    flushed: list[str] = []
+    real = os.fsync
+
+    def recorded(fd: int) -> None:
+        flushed.append(os.readlink(f"/proc/self/fd/{fd}"))
+        real(fd)
+
+    monkeypatch.setattr(os, "fsync", recorded)
+    spec = write_spec(tmp_path)
+    assert sweep(str(spec), "--out", str(tmp_path / "d"), "-q", "--workers", "1")[0] == 0
+    trials_dir = str((tmp_path / "d" / "trials").resolve())
+    chunks = sorted(str(p.resolve()) for p in (tmp_path / "d" / "trials").glob("chunk-*"))
+    assert len(chunks) == 6  # two cells of 60 trials, chunks of 25
+    final = min(i for i, p in enumerate(flushed) if Path(p).name.startswith(".trials.parquet"))
+    for chunk in chunks:
+        assert chunk in flushed[:final], chunk
+    last_chunk = max(flushed.index(c) for c in chunks)
+    assert trials_dir in flushed[last_chunk:final]
+
+
+@pytest.mark.parametrize("damage", ["empty", "cut"])
+def test_a_chunk_a_machine_crash_left_unflushed_is_computed_again(tmp_path: Path,
+                                                                  damage: str) -> None:
+    """The window flushing in groups opens: a machine that crashes before a chunk file is
+    flushed may leave it empty or cut short (the name renamed, its data not on disk); the
+    resume computes it again and the result is the uninterrupted one."""
+    spec = write_spec(tmp_path)
+    out_dir = tmp_path / "d"
+    assert sweep(str(spec), "--out", str(out_dir), "-q")[0] == 0
+    whole = trials(out_dir)
+    for name in ("trials.parquet", "summary.parquet", "summary.md", "run.json"):
+        (out_dir / name).unlink()  # the crash came before the final tables
+    chunk = sorted((out_dir / "trials").glob("chunk-*.parquet"))[1]
+    data = chunk.read_bytes()
+    chunk.write_bytes(b"" if damage == "empty" else data[: len(data) // 2])
+    code, out = sweep(str(spec), "--out", str(out_dir), "-q")
+    assert code == 0, out
+    assert f"trials/{chunk.name}: not a readable chunk file; computing it again" in out
+    pd.testing.assert_frame_equal(trials(out_dir), whole, check_exact=True)

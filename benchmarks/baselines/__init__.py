@@ -12,13 +12,15 @@ something:
 * the closed loop of the paper (linearising feedback of the nominal d2 = 0 model, plant
   obeying the general reduced constraint), integrated with classical RK4 at a fixed step:
   ``compiled_closed_loop`` (a hand-written numba kernel, ``prange`` over trials),
+  ``dopri_metrics`` (the same work as flatcli's default: adaptive Dormand-Prince with
+  dense output and every metric at every output sample, hand-written in numba),
   ``numpy_batch_rk4`` (vectorised over trials) and ``solve_ivp_trials_per_second`` (one trial at a
   time, RK45);
 * ``timed`` and ``machine_info`` for the table.
 
 One module per baseline: ``problem`` (the shared maneuver and trials), ``timing``,
 ``pcflatsys``, ``quality``, ``shooting``, ``loop`` (the closed loop's shared inputs),
-``compiled``, ``numpy_batch``, ``ivp``; their public names are re-exported here.
+``compiled``, ``dopri``, ``numpy_batch``, ``ivp``; their public names are re-exported here.
 
 Nothing here prints; every function returns its results. The closed-loop baselines share no
 code with ``flatcli.core.simulate``: the formulas are written out again below, so that
@@ -26,6 +28,13 @@ agreeing with flatcli to rounding is a check of both.
 """
 
 from benchmarks.baselines.compiled import compiled_closed_loop, compiled_trials_per_second
+from benchmarks.baselines.dopri import METRICS as DOPRI_METRICS
+from benchmarks.baselines.dopri import (
+    DopriInputs,
+    dopri_inputs,
+    dopri_metrics,
+    dopri_trials_per_second,
+)
 from benchmarks.baselines.ivp import IvpRun, solve_ivp_trials_per_second
 from benchmarks.baselines.loop import LoopInputs, loop_inputs, plant_coefficients
 from benchmarks.baselines.numpy_batch import numpy_batch_rk4, numpy_trials_per_second
@@ -52,10 +61,12 @@ from benchmarks.baselines.shooting import ShootingPlan, shooting_plan
 from benchmarks.baselines.timing import Throughput, Timing, machine_info, timed
 
 __all__ = [
+    "DOPRI_METRICS",
     "PAPER_MANEUVER",
     "PAPER_TRACKING",
     "PRINTED_GAINS",
     "SWAPPED_GAINS",
+    "DopriInputs",
     "IvpRun",
     "LoopInputs",
     "Maneuver",
@@ -68,6 +79,9 @@ __all__ = [
     "Tracking",
     "compiled_closed_loop",
     "compiled_trials_per_second",
+    "dopri_inputs",
+    "dopri_metrics",
+    "dopri_trials_per_second",
     "flat_plan_quality",
     "loop_inputs",
     "machine_info",

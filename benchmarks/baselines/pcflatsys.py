@@ -17,41 +17,64 @@ from scipy.optimize import NonlinearConstraint
 from benchmarks.baselines.problem import PAPER_MANEUVER, Maneuver
 from benchmarks.baselines.quality import PlanQuality, flat_plan_quality, limits_violation
 from flatcli.core.flatmodel import state_and_rates
-from flatcli.core.flatness import flat_accelerations, flat_inputs, flat_outputs, flat_state
-from flatcli.core.model import (
-    Coefficients,
-    base_rate,
-)
+from flatcli.core.flatness import flat_inputs
+from flatcli.core.model import Coefficients
 from flatcli.core.planning import Plan
 
 Array = NDArray[np.float64]
 
 def robot_flat_system(k: Coefficients) -> fs.FlatSystem:
-    """The prolonged robot as a python-control ``FlatSystem``.
+    """The prolonged robot as a python-control ``FlatSystem``, its maps written out here.
 
     State x = (th0, th1, th2, u1) [rad, rad/s], inputs u = (u1', u2 = th2') [rad/s^2, rad/s],
-    flat outputs y1 = th1, y2 = th0 - c0 th2 / (a0 + a1 cos th1), each with the flag
-    (y, y', y''). ``forward`` and ``reverse`` call flatcli's flat maps; ``updfcn`` is the
-    reduced constraint, so the system can also be simulated.
+    flat outputs y1 = th1, y2 = th0 - c0 th2 / A, each with the flag (y, y', y''), for a
+    d2 = 0 model with A = a0 + a1 cos th1, B = b0 + b1 cos th1 (the paper's eqs. 34-41,
+    derived again below, not flatcli's functions: the ratio in the bench is then python-control
+    against flatcli, not python-control running flatcli's maps):
+
+        g = B / A,  h = c0 a1 sin th1 / A^2,  g' = (g a1 - b1) sin th1 / A,
+        h' = c0 a1 (cos th1 + 2 a1 sin^2 th1 / A) / A^2        (d/dth1)
+        y1' = u1,  y2' = (g - h th2) u1                         (th0' = g u1 + c0 u2 / A)
+        y1'' = u1',  y2'' = (g - h th2) u1' + (g' - h' th2) u1^2 - h u1 u2
+
+    ``reverse`` solves them for the state and the inputs; ``updfcn`` is the reduced
+    constraint with H0 = 0, so the system can also be simulated.
 
     Parameters
     ----------
     k : Coefficients of a d2 = 0 model
     """
+    a0, a1, b0, b1, c0 = float(k.a0), float(k.a1), float(k.b0), float(k.b1), float(k.c0)
+
+    def chart(th1: float) -> tuple[float, float, float, float, float]:
+        c1, s1 = math.cos(th1), math.sin(th1)
+        big_a = a0 + a1 * c1
+        g = (b0 + b1 * c1) / big_a
+        h = c0 * a1 * s1 / big_a**2
+        g_prime = (g * a1 - b1) * s1 / big_a
+        h_prime = c0 * a1 * (c1 + 2.0 * a1 * s1 * s1 / big_a) / big_a**2
+        return big_a, g, h, g_prime, h_prime
 
     def forward(x: Array, u: Array, params: dict[str, Any] | None = None) -> list[Array]:
-        y1, y2, y1_dot, y2_dot = flat_outputs(k, x[0], x[1], x[2], x[3])
-        y1_ddot, y2_ddot = flat_accelerations(k, x[1], x[2], x[3], u[0], u[1])
-        return [np.array([y1, y1_dot, y1_ddot]), np.array([y2, y2_dot, y2_ddot])]
+        th0, th1, th2, u1 = (float(v) for v in x)
+        big_a, g, h, g_prime, h_prime = chart(th1)
+        alpha = g - h * th2
+        y2_ddot = alpha * u[0] + (g_prime - h_prime * th2) * u1 * u1 - h * u1 * u[1]
+        return [np.array([th1, u1, u[0]]),
+                np.array([th0 - c0 * th2 / big_a, alpha * u1, y2_ddot])]
 
     def reverse(zflag: list[Array], params: dict[str, Any] | None = None) -> tuple[Array, Array]:
-        th0, th1, th2, u1 = flat_state(k, zflag[0][0], zflag[1][0], zflag[0][1], zflag[1][1])
-        u1_dot, u2 = flat_inputs(k, th1, th2, u1, zflag[0][2], zflag[1][2])
-        return np.array([th0, th1, th2, u1]), np.array([u1_dot, u2])
+        (y1, y1_dot, y1_ddot), (y2, y2_dot, y2_ddot) = zflag
+        big_a, g, h, g_prime, h_prime = chart(float(y1))
+        th2 = (g - y2_dot / y1_dot) / h
+        th0 = y2 + c0 * th2 / big_a
+        u2 = ((g - h * th2) * y1_ddot + (g_prime - h_prime * th2) * y1_dot**2 - y2_ddot) \
+            / (h * y1_dot)
+        return np.array([th0, y1, th2, y1_dot]), np.array([y1_ddot, u2])
 
     def updfcn(t: float, x: Array, u: Array, params: dict[str, Any] | None = None) -> Array:
-        th0_dot = base_rate(k, 1.0, 0.0, x[1], x[2], x[3], u[1])  # H0 = 0: M drops out
-        return np.array([th0_dot, x[3], u[1], u[0]])
+        big_a, g, _, _, _ = chart(float(x[1]))
+        return np.array([g * x[3] + c0 * u[1] / big_a, x[3], u[1], u[0]])
 
     return fs.flatsys(
         forward,

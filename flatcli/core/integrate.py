@@ -195,6 +195,14 @@ def _first_flip(sigma: float, m2: float, m3: float, m4: float, m5: float, m6: fl
 
 
 @jitable
+def observed(j: int, n: int, every: int) -> bool:
+    """Whether output sample j of 0..n enters the metrics when they observe every
+    ``every``-th sample (``track.observe_every``): j = 0, 1k, 2k, ... and always the last, n,
+    whose state gives the final errors."""
+    return every == 1 or j % every == 0 or j == n
+
+
+@jitable
 def record_rates(trace: Array, j: int, nx: int, x: Array, f: Array) -> None:
     """Trace row j: the state x (nx,), then the first ``width - nx`` rates f the plant applies
     (th0', th1', ...; the default ``record`` of ``make_trial_integrators``)."""
@@ -257,8 +265,10 @@ def make_trial_integrators(
         loop: Any, obs: Any, x0: Array, ref: Array, breaks: Array, local: Array,
         flag_mid: Array, flag_end: Array, dt: float, n: int, bound: float, bounded: bool,
         table: Array, record: bool, trace: Array, acc: Array, work: Array, noise: Array,
+        every: int,
     ) -> tuple[int, int, float, int]:
-        """Classical RK4 on the output grid; ``ref`` (2 n + 1, 3 N) the plan at half steps.
+        """Classical RK4 on the output grid; ``ref`` (2 n + 1, 3 N) the plan at half steps;
+        the metrics observe the samples ``observed(j, n, every)`` says.
         Where a step meets the singular set and the actuators bound the plant there, the
         output interval is integrated in sub-steps that close in on the crossing (each a
         tenth of the way, from where the margin's interpolation puts it), pass it in a step
@@ -289,7 +299,8 @@ def make_trial_integrators(
                     observe_crossing(acc, t_cross)
                     return s - 1, _CROSSED, t_cross, evaluations
                 observe_crossing(acc, s * dt)
-            observe(loop, obs, acc, s, x, k1)
+            if observed(s, n, every):
+                observe(loop, obs, acc, s, x, k1)
             if record:
                 record_sample(trace, s, nx, x, k1)
             if s == n:
@@ -370,7 +381,7 @@ def make_trial_integrators(
         loop: Any, obs: Any, x0: Array, breaks: Array, local: Array, dt: float, n: int,
         bound: float, rtol: float, atol: float, max_steps: int, table: Array, record: bool,
         trace: Array, acc: Array, work: Array, noise: Array, ref: Array, samples_ref: Array,
-        bounded: bool, observing: bool,
+        bounded: bool, observing: bool, every: int,
     ) -> tuple[int, int, float, int, int]:
         """Dormand-Prince 5(4) with step control and dense output (see the module docstring);
         ``breaks``, ``local`` the plan's pieces (``plan_flag``), ``samples_ref`` (2 n + 1, 3 N)
@@ -382,7 +393,10 @@ def make_trial_integrators(
         stages puts it), until a step of at most ``CROSS_STEP`` T passes it; the crossing is
         counted (``metrics.observe_crossing``) and the integration restarts on the far side
         with a fresh first stage. Without ``observing`` nothing is observed or recorded and
-        the steps need not meet the output times (a twin solution, ``err_estimate``).
+        the steps need not meet the output times (a twin solution, ``err_estimate``). The
+        metrics observe the samples ``observed(j, n, every)`` says; the others are passed
+        without evaluating anything (unless a trace is recorded, or the step ends beyond the
+        divergence bound: then every sample is evaluated, and only the metrics skip them).
 
         Returns (last sample observed, Event, event time [s], accepted steps,
         right-hand-side evaluations); the final state is left in ``work[_X]``.
@@ -493,6 +507,10 @@ def make_trial_integrators(
                 q0, q1, q2, q3 = work[_Q0], work[_Q1], work[_Q2], work[_Q3]
                 while observing and last < n and (last + 1) * dt < t_new * (1.0 - 1e-14):
                     j = last + 1
+                    wanted = observed(j, n, every)
+                    if not (wanted or record or beyond):
+                        last = j  # a sample the metrics do not observe: nothing to evaluate
+                        continue
                     theta = ((j * dt) - t) / h
                     if not dense:
                         for i in range(nx):
@@ -519,7 +537,8 @@ def make_trial_integrators(
                     evaluations += 1
                     if beyond and not _finite(fs[:nx]):
                         return last, _BOUND, j * dt, steps, evaluations
-                    observe(loop, obs, acc, j, xs, fs)
+                    if wanted:
+                        observe(loop, obs, acc, j, xs, fs)
                     if record:
                         record_sample(trace, j, nx, xs, fs)
                     last = j
@@ -550,7 +569,8 @@ def make_trial_integrators(
                 # the output sample at the step's end, if there is one (exactly)
                 if observing and last < n and (last + 1) * dt <= t * (1.0 + 1e-14):
                     last += 1
-                    observe(loop, obs, acc, last, x, k1)
+                    if observed(last, n, every):
+                        observe(loop, obs, acc, last, x, k1)
                     if record:
                         record_sample(trace, last, nx, x, k1)
                 if (observing and last >= n) or t >= duration * (1.0 - 1e-14):

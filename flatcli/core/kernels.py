@@ -54,7 +54,13 @@ from flatcli.core.chainflat import Scratch, scratch
 from flatcli.core.chainloop import ChainLoop, chain_rhs, observe_chain, plan_residual
 from flatcli.core.control import Gains
 from flatcli.core.dynamics import ThreeBody
-from flatcli.core.integrate import WORK_ROWS, make_trial_integrators, plan_flag, record_rates
+from flatcli.core.integrate import (
+    WORK_ROWS,
+    make_trial_integrators,
+    observed,
+    plan_flag,
+    record_rates,
+)
 from flatcli.core.metrics import (
     ACCUMULATOR_SIZE,
     Event,
@@ -111,8 +117,9 @@ class Grid(NamedTuple):
 
 class Settings(NamedTuple):
     """dt [s], the divergence bound, the singular threshold [rad/s], rtol, atol, the step
-    budget, whether traces are kept, and the twin's tolerance factor (0: no twin; see
-    ``make_batch``)."""
+    budget, whether traces are kept, the twin's tolerance factor (0: no twin; see
+    ``make_batch``), and which output samples the metrics observe: every ``every``-th one
+    and the last (1: all; ``integrate.observed``)."""
 
     dt: float
     bound: float
@@ -122,6 +129,7 @@ class Settings(NamedTuple):
     max_steps: int
     record: bool
     twin: float
+    every: int = 1
 
 
 class TrialArrays(NamedTuple):
@@ -228,14 +236,14 @@ def make_batch(ops: Ops) -> Callable[..., None]:
                 last, ev, t_ev, evaluations = rk4_trial(
                     loop, obs, x0, grid.ref, grid.breaks, grid.local, buffers.flag,
                     buffers.flag_end, settings.dt, n, settings.bound, passes, tables[i],
-                    settings.record, tr, acc, work, buffers.noise)
+                    settings.record, tr, acc, work, buffers.noise, settings.every)
                 steps = last
             else:
                 last, ev, t_ev, steps, evaluations = adaptive_trial(
                     loop, obs, x0, grid.breaks, grid.local, settings.dt, n, settings.bound,
                     settings.rtol, settings.atol, settings.max_steps, tables[i],
                     settings.record, tr, acc, work, buffers.noise, buffers.flag, grid.ref,
-                    passes, True)
+                    passes, True, settings.every)
                 if ev == EVENT_NONE and settings.twin > 0.0:
                     final = buffers.final
                     for k in range(angles):
@@ -246,7 +254,7 @@ def make_batch(ops: Ops) -> Callable[..., None]:
                         settings.bound, settings.rtol * settings.twin,
                         settings.atol * settings.twin, settings.max_steps, tables[i], False,
                         buffers.no_trace, buffers.twin_acc, work, buffers.noise, buffers.flag,
-                        grid.ref, passes, False)
+                        grid.ref, passes, False, 1)
                     evaluations += twin_evaluations
                     if twin_ev == EVENT_NONE:
                         gap = 0.0
@@ -297,8 +305,10 @@ def make_single(ops: Ops) -> tuple[Callable[..., None], Callable[..., None],
         acc = buffers.acc
         reset_accumulator(acc)
         obs = (grid.theta_ref, grid.ref, settings.threshold)
+        n = grid.theta_ref.shape[0] - 1
         for j in range(last + 1):
-            observe(loop, obs, acc, j, states[j], rates[j])
+            if observed(j, n, settings.every):
+                observe(loop, obs, acc, j, states[j], rates[j])
         for t in crossings:
             observe_crossing(acc, t)
         return finish_metrics(out, acc, complete, settings.dt,

@@ -91,8 +91,6 @@ def boundary_system(basis: Basis) -> BoundarySystem:  # bases are frozen datacla
     ------
     FlatcliError if the basis is too small or cannot meet arbitrary boundary values.
     """
-    from scipy.linalg import null_space
-
     ends = np.array([0.0, basis.duration])
     E = np.vstack(
         [
@@ -107,7 +105,12 @@ def boundary_system(basis: Basis) -> BoundarySystem:  # bases are frozen datacla
     P: Array = np.linalg.pinv(E).astype(float)
     if not np.allclose(E @ P, np.eye(E.shape[0]), atol=1e-9):
         raise FlatcliError("plan basis: cannot meet the boundary conditions")
-    N = np.ascontiguousarray(null_space(E))
+    if basis.size == E.shape[0]:  # a cubic: E is square and regular, nothing is left free
+        N = np.zeros((basis.size, 0))
+    else:
+        from scipy.linalg import null_space  # a richer basis only: a cubic's sweep needs none
+
+        N = np.ascontiguousarray(null_space(E))
     for a in (E, P, N):
         a.setflags(write=False)
     return BoundarySystem(E, P, N)

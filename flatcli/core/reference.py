@@ -11,7 +11,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.integrate import solve_ivp
 
 from flatcli.core.integrate import CROSS_STEP, STALL_MARGIN
 from flatcli.core.kernels import Grid, Kernels, Results, Settings, TrialArrays
@@ -36,6 +35,8 @@ def reference_trial(scenario: Any, trials: Any, kernels: Kernels, shared: Any,
     the compiled integrators do); its metrics from the same observer as the kernels,
     written into row i of ``results`` (``scenario``, ``trials``: ``simulate.Scenario`` and
     ``simulate.Trials``)."""
+    from scipy.integrate import solve_ivp  # loaded for the reference only: a sweep needs none
+
     initial_of, rhs_at, observe_trace, record_trace = kernels.single
     n_joints = scenario.n_joints
     n = scenario.n_steps

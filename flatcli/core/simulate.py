@@ -170,6 +170,8 @@ class Scenario:
         second time at its tolerances times this factor in (0, 1) (``kernels.make_batch``;
         not below ``TWIN_RTOL_FLOOR``); 0 for no estimate (``err_estimate`` null)
     accuracy : the largest err_estimate of a verified trial [rad] (``Outcome.verified``)
+    observe_every : the metrics observe every k-th output sample and the last (1: every one;
+        ``integrate.observed``); the trace, when recorded, keeps every sample
     """
 
     plan: Plan
@@ -189,6 +191,7 @@ class Scenario:
     servo_bandwidth: float = DEFAULT_SERVO_BANDWIDTH
     twin: float = TWIN_FACTOR
     accuracy: float = DEFAULT_ACCURACY
+    observe_every: int = 1
     n_steps: int = field(init=False)
 
     def __post_init__(self) -> None:
@@ -220,6 +223,10 @@ class Scenario:
             raise FlatcliError(f"track.max_steps: must be >= 1, got {self.max_steps}")
         if not self.accuracy > 0:
             raise FlatcliError(f"track.accuracy: must be > 0 rad, got {self.accuracy}")
+        every = self.observe_every
+        if isinstance(every, bool) or not isinstance(every, int | np.integer) or every < 1:
+            raise FlatcliError(f"track.observe_every: must be an integer >= 1, got "
+                               f"{self.observe_every!r}")
         if not (self.twin == 0 or 0 < self.twin < 1):
             raise FlatcliError(f"track.error_estimate: the twin's factor must be 0 (none) or "
                                f"in (0, 1), got {self.twin}")
@@ -511,7 +518,7 @@ def kernel_inputs(scenario: Scenario, trials: Trials) -> tuple[
     settings = Settings(float(scenario.dt), float(scenario.divergence_bound),
                         float(scenario.singular_threshold), float(scenario.rtol),
                         float(scenario.atol), int(scenario.max_steps), False,
-                        twin_factor(scenario))
+                        twin_factor(scenario), int(scenario.observe_every))
     shared = kernels.shared(plan.model, scenario.gains, scenario.rate_limit,
                             scenario.servo_model == "plant", plan.robot)
     if scenario.controller == "asbuilt" and scenario.plant == "dynamic":

@@ -14,67 +14,159 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 from numpy.typing import NDArray
-from scipy.stats import binomtest
 
 from flatcli.core.metrics import METRIC_NAMES, RESOLVED, STATUS_NAMES
 from flatcli.report.tables import fmt, table
+
+if TYPE_CHECKING:  # the statistics are numpy's: a sweep writes them without pandas or scipy
+    import pandas as pd
+    import pyarrow as pa
 
 Array = NDArray[np.float64]
 
 #: Trials whose numbers enter the statistics: those resolved to the end (``RESOLVED``).
 COMPLETED = RESOLVED
-#: The columns of trials.parquet that ``summarize_trials`` reads (those after the metrics
-#: may be missing: a directory written before flatcli recorded them).
-SUMMARY_INPUTS: tuple[str, ...] = tuple(dict.fromkeys((
-    "cell", "status", "singular_hits", *METRIC_NAMES, "verified", "reference_difference",
-    "reference_status")))
 ERROR_METRICS = ("err_theta_rms", "err_theta_final", "err_y_rms", "err_y_final")
+#: The columns of trials.parquet that ``summarize_trials`` reads, and no others (those after
+#: the metrics may be missing: a directory written before flatcli recorded them).
+SUMMARY_INPUTS: tuple[str, ...] = (
+    "cell", "status", "singular_hits", *ERROR_METRICS, "min_margin", "momentum_drift",
+    "plan_momentum_residual", "peak_rate", "err_estimate", "verified", "reference_difference",
+    "reference_status")
+assert set(SUMMARY_INPUTS) <= {"cell", "status", "verified", "reference_difference",
+                               "reference_status", *METRIC_NAMES}
 #: Statuses of trials that did not run to the end, reported as fractions of a cell's trials.
 FAILURES = ("diverged", "unresolved", "error")
 
 
+#: Phi^-1(0.975) = sqrt(2) erfinv(0.95): the z of a 95 % interval (to 16 digits; e.g.
+#: scipy.stats.norm.ppf(0.975), which tests/test_report_summary.py compares).
+Z95 = 1.959963984540054
+
+
 def wilson_interval(successes: Any, trials: Any, confidence: float = 0.95
                     ) -> tuple[Array, Array]:
-    """Wilson score interval of a binomial proportion (95 % by default), scipy's
-    (``scipy.stats.binomtest(k, n).proportion_ci(confidence, method="wilson")``).
+    """Wilson score interval of a binomial proportion (95 % by default), as scipy's
+    ``scipy.stats.binomtest(k, n).proportion_ci(confidence, method="wilson")``.
 
     With p = k / n and z = Phi^-1((1 + confidence) / 2): (p + z^2 / 2n -+ z sqrt(p (1 - p) /
     n + z^2 / 4n^2)) / (1 + z^2 / n) (Wilson 1927; Brown, Cai, DasGupta, Statist. Sci. 16,
-    2001). Unlike p -+ z sqrt(p (1 - p) / n) it stays inside [0, 1] and is not empty at
-    k = 0 or k = n, which is where a sweep's failure counts usually are.
+    2001). Unlike p -+ z sqrt(p (1 - p) / n) it stays inside [0, 1] and is
+    not empty at k = 0 or k = n, which is where a sweep's failure counts usually are.
 
     Parameters
     ----------
     successes : k, counts (array-like of ints)
     trials : n, same shape (n = 0 gives nan bounds)
+    confidence : in (0, 1); other than 0.95 its z comes from scipy (loaded then only)
 
     Returns
     -------
     low, high : arrays of k's shape
     """
-    k, n = np.broadcast_arrays(np.asarray(successes), np.asarray(trials))
-    low = np.full(k.shape, np.nan)
-    high = np.full(k.shape, np.nan)
-    for i in np.ndindex(k.shape):
-        if n[i] > 0:
-            ci = binomtest(int(k[i]), int(n[i])).proportion_ci(confidence, method="wilson")
-            low[i], high[i] = float(ci.low), float(ci.high)
-    return low, high
+    k, n = np.broadcast_arrays(np.asarray(successes, dtype=float),
+                               np.asarray(trials, dtype=float))
+    z = Z95 if confidence == 0.95 else _normal_quantile((1.0 + confidence) / 2.0)
+    with np.errstate(invalid="ignore", divide="ignore"):  # n = 0: nan, set below
+        p = k / n
+        # in the arithmetic of Newcombe (Statist. Med. 17, 1998), as scipy writes it
+        denominator = 2.0 * (n + z * z)
+        centre = (2.0 * n * p + z * z) / denominator
+        delta = z / denominator * np.sqrt(4.0 * n * p * (1.0 - p) + z * z)
+        low = np.where(k == 0, 0.0, centre - delta)
+        high = np.where(k == n, 1.0, centre + delta)
+    low = np.where(n > 0, low, np.nan)
+    high = np.where(n > 0, high, np.nan)
+    return np.asarray(low, dtype=float), np.asarray(high, dtype=float)
+
+
+def _normal_quantile(q: float) -> float:
+    from scipy.special import ndtri
+
+    return float(ndtri(q))
+
+
+#: Columns of trials as ``summary_rows`` reads them: name -> a numpy array per trial (cell:
+#: ints; status and reference_status: objects, None for null; verified: booleans, False for
+#: null; the rest floats, nan for null).
+Columns = Mapping[str, NDArray[Any]]
+#: The columns ``summary_rows`` reads as text and as flags.
+_TEXT = ("status", "reference_status")
+_FLAGS = ("verified",)
+
+
+def frame_columns(frame: pd.DataFrame) -> dict[str, NDArray[Any]]:
+    """A DataFrame's columns as ``summary_rows`` reads them (``Columns``)."""
+    out: dict[str, NDArray[Any]] = {}
+    for name in frame.columns:
+        column = frame[name]
+        if name in _TEXT:
+            out[name] = np.array([None if _null(v) else str(v) for v in column], dtype=object)
+        elif name in _FLAGS:
+            out[name] = np.array([False if _null(v) else bool(v) for v in column], dtype=bool)
+        elif name == "cell":
+            out[name] = column.to_numpy(dtype=np.int64)
+        else:
+            out[name] = column.to_numpy(dtype=np.float64, na_value=np.nan)
+    return out
+
+
+def file_columns(path: Path, names: Sequence[str]) -> dict[str, NDArray[Any]]:
+    """Columns of a Parquet file as ``summary_rows`` reads them (``Columns``), read one at a
+    time (a sweep of 10^6 trials holds numpy's arrays only, not the Arrow table besides) and
+    the text columns as one object per distinct word (not one string per row)."""
+    import pyarrow.parquet as pq
+
+    from flatcli.arrow import floats, null_mask, to_numpy
+
+    out: dict[str, NDArray[Any]] = {}
+    with pq.ParquetFile(path, read_dictionary=list(_TEXT)) as file:
+        present = set(file.schema_arrow.names)
+        for name in (n for n in names if n in present):  # older files lack some
+            column = file.read(columns=[name]).column(0)
+            if name in _TEXT:  # read as a dictionary: its words, and an index per row
+                encoded = column.unify_dictionaries().combine_chunks()
+                words = np.array([*encoded.dictionary.to_pylist(), None], dtype=object)
+                codes = np.asarray(to_numpy(encoded.indices), dtype=np.int64)
+                codes[null_mask(encoded.indices)] = len(words) - 1
+                out[name] = words[codes]
+            elif name in _FLAGS:
+                out[name] = np.asarray(to_numpy(column), dtype=bool)  # null: False
+            elif name == "cell":
+                out[name] = np.asarray(to_numpy(column), dtype=np.int64)
+            else:
+                out[name] = floats(column)
+            del column
+    return out
+
+
+def _null(value: Any) -> bool:
+    return value is None or (isinstance(value, float) and math.isnan(value)) or \
+        type(value).__name__ in ("NAType", "NaTType")
 
 
 def summarize_trials(frame: pd.DataFrame, cells: Mapping[int, Mapping[str, Any]]
                      ) -> pd.DataFrame:
+    """Per-cell statistics of a sweep's trials as a DataFrame (``summary_rows`` of the
+    frame's columns)."""
+    import pandas as pd
+
+    return pd.DataFrame(summary_rows(frame_columns(frame), cells))
+
+
+def summary_rows(columns: Columns, cells: Mapping[int, Mapping[str, Any]]
+                 ) -> list[dict[str, Any]]:
     """Per-cell statistics of a sweep's trials (definitions in docs/outputs.md, *Sweep output*).
 
     Parameters
     ----------
-    frame : one row per trial with columns cell, status, singular_hits and the metrics (a
-        metric that does not apply is nan or null: it never enters a statistic)
+    columns : one value per trial in each of cell, status, singular_hits and the metrics
+        (``Columns``; a metric that does not apply is nan: it never enters a statistic)
     cells : cell index -> {grid column: the cell's value}
 
     Returns
@@ -89,79 +181,117 @@ def summarize_trials(frame: pd.DataFrame, cells: Mapping[int, Mapping[str, Any]]
     Statistics over no trials are nan (null in summary.parquet).
     """
     rows = []
+    all_status = np.asarray(columns["status"], dtype=object)
+    all_cells = np.asarray(columns["cell"])
+    count = len(all_status)
+    verified = columns.get("verified", np.zeros(count, dtype=bool))
     for cell, values in cells.items():
-        group = frame[frame["cell"] == cell]
-        status = group["status"]
-        resolved = group[status.isin(RESOLVED)]
-        sure = _flag(resolved, "verified")
-        kind = "verified" if sure.any() else "unverified" if len(resolved) else None
-        done = resolved[sure] if sure.any() else resolved
-        simulated = group[status != "error"]
-        row: dict[str, Any] = {"cell": cell, **values, "trials": len(group)}
+        in_cell = all_cells == cell
+        status = all_status[in_cell]
+        resolved = in_cell & np.isin(all_status, RESOLVED)
+        sure = resolved & verified
+        kind = "verified" if sure.any() else "unverified" if resolved.any() else None
+        done = sure if sure.any() else resolved
+        simulated = in_cell & (all_status != "error")
+
+        def present(name: str, where: NDArray[np.bool_]) -> Array:
+            values_: Array = np.asarray(columns[name], dtype=np.float64)[where]
+            return values_[~np.isnan(values_)]
+
+        row: dict[str, Any] = {"cell": cell, **values, "trials": int(in_cell.sum())}
         for name in STATUS_NAMES:
             row[name] = int((status == name).sum())
         for metric in ERROR_METRICS:
-            values_ = _present(done[metric])
+            values_ = present(metric, done)
             row[f"{metric}_median"] = _stat(np.median, values_)
             row[f"{metric}_p95"] = _stat(lambda v: np.percentile(v, 95), values_)
             row[f"{metric}_max"] = _stat(np.max, values_)
-        hits = _present(simulated["singular_hits"])
+        hits = present("singular_hits", simulated)
         row["singular_fraction"] = float(np.mean(hits > 0)) if len(hits) else math.nan
-        row["min_margin_median"] = _stat(np.median, _present(done["min_margin"]))
-        drift = _present(done["momentum_drift"])
+        row["min_margin_median"] = _stat(np.median, present("min_margin", done))
+        drift = present("momentum_drift", done)
         row["momentum_drift_median"] = _stat(np.median, drift)
         row["momentum_drift_max"] = _stat(np.max, drift)
         row["plan_momentum_residual_max"] = _stat(
-            np.max, _present(simulated["plan_momentum_residual"]))
+            np.max, present("plan_momentum_residual", simulated))
         # added after the columns above, which keep their names and places
-        row["resolved"] = len(resolved)
-        row["simulated"] = len(simulated)
+        row["resolved"] = int(resolved.sum())
+        row["simulated"] = int(simulated.sum())
         _fraction(row, "singular", int(np.sum(hits > 0)), len(hits))
         for name in FAILURES:
-            _fraction(row, name, row[name], len(group))
+            _fraction(row, name, row[name], row["trials"])
         for metric in ("peak_rate", "err_estimate"):
-            values_ = _present(done[metric])
+            values_ = present(metric, done)
             row[f"{metric}_median"] = _stat(np.median, values_)
             row[f"{metric}_max"] = _stat(np.max, values_)
         row["verified_trials"] = int(sure.sum())
-        row["unverified_trials"] = len(resolved) - row["verified_trials"]
+        row["unverified_trials"] = int(resolved.sum()) - row["verified_trials"]
         row["statistics_of"] = kind
-        _reference(row, group)
+        _reference(row, columns, in_cell, present)
         rows.append(row)
-    return pd.DataFrame(rows)
+    return rows
 
 
-def _flag(frame: pd.DataFrame, column: str) -> Array:
-    """A boolean column as a numpy mask (False where it is missing or null: a directory
-    written before flatcli recorded it has no verified trials)."""
-    if column not in frame:
-        return np.zeros(len(frame), dtype=bool)
-    return np.asarray(frame[column].fillna(False).astype(bool).to_numpy(), dtype=bool)
-
-
-def _reference(row: dict[str, Any], group: pd.DataFrame) -> None:
+def _reference(row: dict[str, Any], columns: Columns, in_cell: NDArray[np.bool_],
+               present: Callable[[str, NDArray[np.bool_]], Array]) -> None:
     """The cell's trials checked against the reference integrator (``sweep.verify``): how
     many, how far the ones that both integrators resolved to the end were from it (median,
     max: a trial stopped at a crossing has no accuracy to compare) and how many ended with
     another status."""
-    if "reference_status" in group:
-        checked = group[group["reference_status"].notna()]
+    status = np.asarray(columns["status"], dtype=object)
+    if "reference_status" in columns:
+        reference = np.asarray(columns["reference_status"], dtype=object)
+        checked = in_cell & np.array([v is not None for v in reference], dtype=bool)
     else:
-        checked = group.iloc[:0]
-    row["reference_checked"] = len(checked)
-    both = (checked[checked["status"].isin(RESOLVED)
-                    & checked["reference_status"].isin(RESOLVED)] if len(checked) else checked)
-    gap = _present(both["reference_difference"]) if len(both) else np.zeros(0)
+        reference = np.full(len(in_cell), None, dtype=object)
+        checked = np.zeros(len(in_cell), dtype=bool)
+    row["reference_checked"] = int(checked.sum())
+    both = checked & np.isin(status, RESOLVED) & np.isin(reference, RESOLVED)
+    gap = present("reference_difference", both) if both.any() else np.zeros(0)
     row["reference_difference_median"] = _stat(np.median, gap)
     row["reference_difference_max"] = _stat(np.max, gap)
-    row["reference_status_mismatches"] = int(
-        (checked["reference_status"] != checked["status"]).sum()) if len(checked) else 0
+    row["reference_status_mismatches"] = int(np.sum(reference[checked] != status[checked]))
 
 
-def _present(column: pd.Series) -> Array:
-    """A column's values that apply (nan and null dropped), as floats."""
-    values: Array = column.to_numpy(dtype=np.float64, na_value=np.nan)
-    return values[~np.isnan(values)]
+def summary_table(rows: Sequence[Mapping[str, Any]], units: Mapping[str, str]) -> pa.Table:
+    """summary.parquet's table of ``summary_rows``, typed as a DataFrame of them is written
+    (counts int64, statistics float64 with nan as null, text large_string), with units
+    (``storage.with_units``)."""
+    import pyarrow as pa
+
+    from flatcli.storage import with_units
+
+    names = list(dict.fromkeys(name for row in rows for name in row))
+    arrays = [_arrow_column([row.get(name) for row in rows]) for name in names]
+    return with_units(pa.table(arrays, names=names), units)
+
+
+def _arrow_column(values: list[Any]) -> pa.Array:
+    """One summary column as Arrow, typed as pandas would type it (built through
+    ``flatcli.arrow``, which loads no pandas, where it can be)."""
+    import pyarrow as pa
+
+    from flatcli.arrow import flags, number_lists, numbers, texts
+
+    def number(v: Any) -> bool:
+        return isinstance(v, int | float | np.integer | np.floating) and not isinstance(
+            v, bool | np.bool_)
+
+    if values and all(isinstance(v, bool | np.bool_) for v in values):
+        return flags(values)
+    if values and all(isinstance(v, int | np.integer) and not isinstance(v, bool | np.bool_)
+                      for v in values):
+        return numbers(values, pa.int64())
+    if values and all(number(v) for v in values):
+        return numbers(values)  # nan: null
+    if all(v is None for v in values):
+        return pa.nulls(len(values))
+    if all(v is None or isinstance(v, str) for v in values):
+        return texts(values, large=True)
+    if all(v is None or (isinstance(v, list | tuple | np.ndarray) and all(number(x) for x in v))
+           for v in values):
+        return number_lists(values)
+    return pa.array(values)  # mixed values: as pyarrow infers them
 
 
 def _stat(fn: Callable[[Array], Any], values: Array) -> float:
@@ -188,26 +318,31 @@ def with_interval(value: float, low: float, high: float) -> str:
     return f"{fmt(100 * value, 3)} ({fmt(100 * low, 2)}-{fmt(100 * high, 2)})"
 
 
-def summary_markdown(summary: pd.DataFrame, grid_keys: Sequence[str]) -> str:
+def summary_markdown(summary: pd.DataFrame | Sequence[Mapping[str, Any]],
+                     grid_keys: Sequence[str]) -> str:
     """The sweep's summary as Markdown tables, each readable on an 80-column terminal.
 
-    ``grid_keys``: the grid columns of ``summary`` to list in the *Cells* table."""
+    ``summary``: its rows (``summary_rows``) or a DataFrame of them; ``grid_keys``: the grid
+    columns to list in the *Cells* table."""
+    records: list[Mapping[str, Any]] = (
+        [{str(k): v for k, v in r.items()} for r in summary.to_dict("records")]
+        if hasattr(summary, "to_dict") else list(summary))
+
     def rows(cols: Sequence[str]) -> list[list[object]]:
-        return [[int(r["cell"]), *(cell_text(r[c]) for c in cols)]
-                for _, r in summary.iterrows()]
+        return [[int(r["cell"]), *(cell_text(r[c]) for c in cols)] for r in records]
 
     def marked(lines: list[list[object]]) -> list[list[object]]:
         """Rows whose statistics are over unverified trials: the cell marked *."""
-        kinds = summary.get("statistics_of")
-        if kinds is None:
+        if not records or "statistics_of" not in records[0]:
             return lines
+        kinds = [r["statistics_of"] for r in records]
         return [[f"{line[0]}*" if kind == "unverified" else line[0], *line[1:]]
                 for line, kind in zip(lines, kinds, strict=True)]
 
     def shares(names: Sequence[str]) -> list[list[object]]:
         return [[int(r["cell"]), *(with_interval(r[f"{n}_fraction"], r[f"{n}_fraction_low"],
                                                  r[f"{n}_fraction_high"]) for n in names)]
-                for _, r in summary.iterrows()]
+                for r in records]
 
     parts = []
     if grid_keys:
@@ -250,7 +385,7 @@ def summary_markdown(summary: pd.DataFrame, grid_keys: Sequence[str]) -> str:
         "global error in theta at the end [rad] (- for rk4, dop853 and\n"
         "track.error_estimate = \"none\").",
     ]
-    if "reference_checked" in summary and (summary["reference_checked"] > 0).any():
+    if any(r.get("reference_checked", 0) > 0 for r in records):
         parts += [
             "\n### Checked against the reference (sweep.verify)\n",
             table(["cell", "checked", "diff med", "diff max", "other status"],

@@ -215,6 +215,11 @@ class TrackSpec:
                                  "trials/s) or \"none\" (err_estimate null)")
     accuracy: float = number(DEFAULT_ACCURACY, "a resolved trial whose err_estimate exceeds it "
                              "is not verified (its numbers are reported apart)", "rad", gt=0)
+    observe_every: int = integer(1, "the metrics observe every k-th output sample (and the "
+                                 "last: the final errors are exact at T); k > 1 is faster, and "
+                                 "the rms, max, singular hits, margin, momentum drift and "
+                                 "peak metrics are then over those samples only (docs/outputs.md)",
+                                 ge=1)
     singular_threshold: float = number(1e-2, "a sample whose margin abs(sin th1 * u1) is below "
                                        "it is a singular hit", "rad/s", ge=0)
     sensor_noise: float = number(0.0, "std of the noise on the measured angles, drawn per "

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
+from flatcli.arrow import flags, numbers, repeated, texts
 from flatcli.core.metrics import (
     COUNT_METRICS,
     METRIC_NAMES,
@@ -25,7 +26,7 @@ from flatcli.core.metrics import (
 from flatcli.core.simulate import NoiseStreams, Trials, check_against_reference
 from flatcli.experiment import checked, plant_from
 from flatcli.spec import PERTURB_TARGETS, Spec, lookup, perturbations
-from flatcli.storage import null_where_nan, with_units
+from flatcli.storage import null_where_nan, peak_memory_mib, with_units
 from flatcli.sweep.draws import (
     draw_perturbations,
     invalid_plants,
@@ -43,10 +44,12 @@ FAILURES = ("error", "diverged", "unresolved")
 
 @dataclass(frozen=True)
 class ChunkResult:
-    """A finished chunk: one row per trial (the columns of trials.parquet), and its time."""
+    """A finished chunk: one row per trial (the columns of trials.parquet), its time [s],
+    and the peak resident memory of the process that ran it [MiB] (``peak_memory_mib``)."""
 
     table: pa.Table
     seconds: float
+    peak_mib: float = math.nan
 
     def first_failure(self) -> tuple[int, str] | None:
         """The first trial whose status is one of ``FAILURES``, for --fail-fast."""
@@ -125,28 +128,29 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
                                        scenario.divergence_bound, why_not[i])
         status_names.append(name)
         reason_texts.append(reason)
-    columns: dict[str, Any] = {"trial": ids.astype(np.int64),
-                               "cell": np.full(len(ids), chunk.cell, dtype=np.int64)}
+    # built from buffers (``flatcli.arrow``): pa.array would load pandas in every worker
+    columns: dict[str, Any] = {"trial": numbers(ids, pa.int64()),
+                               "cell": repeated(chunk.cell, pa.int64(), len(ids))}
     for key, (kind, v) in grid_columns(cell.values, spec).items():
-        columns[key] = pa.array([v] * len(ids), type=kind)
+        columns[key] = repeated(v, kind, len(ids))
     for name in PERTURB_TARGETS:
         if name in drawn:
             for j, col in enumerate(perturbation_columns(name, joints)):
-                columns[col] = np.ascontiguousarray(drawn[name][:, j])
+                columns[col] = numbers(drawn[name][:, j], null=np.zeros(len(ids), dtype=bool))
     for j, metric in enumerate(METRIC_NAMES):  # null where not applicable (nan in the core)
         columns[metric] = null_where_nan(metrics[:, j])
     for metric in COUNT_METRICS:  # counts as integers, null where not applicable
         values = metrics[:, METRIC_NAMES.index(metric)]
-        columns[metric] = pa.array(np.nan_to_num(values, nan=0).astype(np.int64),
-                                   mask=np.isnan(values), type=pa.int64())
-    columns["status"] = pa.array(status_names, type=pa.string())
-    columns["reason"] = pa.array(reason_texts, type=pa.string())
+        columns[metric] = numbers(np.nan_to_num(values, nan=0).astype(np.int64), pa.int64(),
+                                  np.isnan(values))
+    columns["status"] = texts(status_names)
+    columns["reason"] = texts(reason_texts)
     columns["event_time"] = null_where_nan(event_time)
-    columns["verified"] = pa.array(verified, type=pa.bool_())
+    columns["verified"] = flags(verified)
     columns["reference_difference"] = null_where_nan(difference)
-    columns["reference_status"] = pa.array(reference_status, type=pa.string())
+    columns["reference_status"] = texts(reference_status)
     table = with_units(pa.table(columns), units_of(columns, spec))
-    return ChunkResult(table, time.perf_counter() - started)
+    return ChunkResult(table, time.perf_counter() - started, peak_memory_mib())
 
 
 def verify_count(verify: float, trials: int) -> int:

@@ -20,7 +20,6 @@ import contextlib
 import json
 import os
 import re
-import resource
 import stat
 import sys
 import time
@@ -33,6 +32,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from flatcli.arrow import read_parquet, repeated, to_numpy
 from flatcli.files import (
     MAX_MANIFEST_BYTES,
     UnreadableFileError,
@@ -43,8 +43,13 @@ from flatcli.files import (
     read_bounded,
     real_directory,
 )
-from flatcli.report import summarize_trials, summary_markdown
-from flatcli.report.summary import SUMMARY_INPUTS
+from flatcli.report.summary import (
+    SUMMARY_INPUTS,
+    file_columns,
+    summary_markdown,
+    summary_rows,
+    summary_table,
+)
 from flatcli.spec import SpecError
 from flatcli.spec.limits import ID_STRIDE
 from flatcli.spec.schema import experiment
@@ -52,13 +57,15 @@ from flatcli.storage import (
     LOCK_NAME,
     PARQUET_META_KEY,
     atomic_path,
+    parquet_options,
+    peak_memory_mib,
     provenance_metadata,
     read_provenance,
     run_record,
     table_checksum,
     to_jsonable,
     write_json,
-    write_parquet,
+    write_table,
     write_text,
 )
 from flatcli.sweep.chunks import grid_columns
@@ -564,7 +571,7 @@ def chunk_problem(path: Path, cell: Cell, chunk: Chunk) -> str | None:
     except (OSError, ValueError, pa.ArrowException) as exc:
         return f"unreadable data ({(str(exc).splitlines() or [''])[0][:80]})"
     if table.num_rows != chunk.size or "trial" not in table.column_names or not np.array_equal(
-            table.column("trial").to_numpy(), np.arange(chunk.start, chunk.stop)):
+            to_numpy(table.column("trial")), np.arange(chunk.start, chunk.stop)):
         return "its trial ids are not those of its name"
     if table_checksum(table) != meta.get("checksum"):
         return "its content does not match its checksum (the file was changed)"
@@ -603,11 +610,11 @@ def note(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
 
 
-def peak_rss_mib() -> dict[str, float]:
-    """Peak resident memory of this process and of its largest child process [MiB]."""
-    self_kib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    child_kib = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-    return {"main": self_kib / 1024, "largest_child": child_kib / 1024}
+def peak_rss_mib(largest_worker: float) -> dict[str, float]:
+    """Peak resident memory of this process, each as its own (``storage.peak_memory_mib``),
+    and the largest a process running chunks reported (``largest_worker``, with the pages a
+    forked worker shares with this process) [MiB]."""
+    return {"main": peak_memory_mib(), "largest_child": largest_worker}
 
 
 def assemble_trials(directory: Path, lay: Layout, provenance: Mapping[str, Any]) -> Path:
@@ -620,15 +627,15 @@ def assemble_trials(directory: Path, lay: Layout, provenance: Mapping[str, Any])
     with atomic_path(target) as tmp:
         try:
             for chunk in lay.chunks():
-                table = pq.read_table(directory / TRIALS_DIR / chunk.name)
+                table = read_parquet(directory / TRIALS_DIR / chunk.name)
                 table = table.set_column(table.schema.get_field_index("cell"), "cell",
-                                         pa.array(np.full(table.num_rows, chunk.cell,
-                                                          dtype=np.int64)))
+                                         repeated(chunk.cell, pa.int64(), table.num_rows))
                 table = table.replace_schema_metadata(meta)
                 if writer is None:
-                    writer = pq.ParquetWriter(tmp, table.schema)
-                try:
-                    writer.write_table(table.cast(writer.schema))
+                    writer = pq.ParquetWriter(tmp, table.schema, **parquet_options(table.schema))
+                try:  # (cast only where the types differ: pyarrow.compute loads for it)
+                    same = table.schema.equals(writer.schema, check_metadata=False)
+                    writer.write_table(table if same else table.cast(writer.schema))
                 except (ValueError, pa.ArrowException) as exc:
                     raise SpecError(
                         f"{TRIALS_DIR}/{chunk.name} has other columns than the chunks before it "
@@ -651,15 +658,17 @@ def finish_sweep(directory: Path, lay: Layout, provenance: Mapping[str, Any], st
     """
     finishing = time.perf_counter()
     trials_path = assemble_trials(directory, lay, provenance)
-    frame = pq.read_table(trials_path, columns=list(SUMMARY_INPUTS)).to_pandas()
+    columns = file_columns(trials_path, SUMMARY_INPUTS)
     cells = {c.index: {k: v for k, (_, v) in grid_columns(c.values, c.spec).items()}
              for c in lay.cells}
-    summary = summarize_trials(frame, cells)
-    summary.attrs["units"] = units_of(summary.columns, lay.spec)
-    write_parquet(directory / "summary.parquet", summary, provenance)
-    text = summary_markdown(summary, list(cells[lay.cells[0].index]))
+    rows = summary_rows(columns, cells)
+    names = list(rows[0]) if rows else []
+    write_table(directory / "summary.parquet", summary_table(rows, units_of(names, lay.spec)),
+                provenance)
+    text = summary_markdown(rows, list(cells[lay.cells[0].index]))
     write_text(directory / "summary.md", text + "\n")
-    counts = frame["status"].value_counts().to_dict()
+    statuses, tally = np.unique(np.asarray(columns["status"], dtype=str), return_counts=True)
+    counts = {str(s): int(c) for s, c in zip(statuses, tally, strict=True)}
     now = time.perf_counter()
     wall = now - started
     simulated = timing["simulated_trials"]
@@ -667,7 +676,7 @@ def finish_sweep(directory: Path, lay: Layout, provenance: Mapping[str, Any], st
     timing = {**timing, "finish_seconds": now - finishing, "wall_seconds": wall,
               "trials_per_second": simulated / wall,
               "steady_trials_per_second": simulated / warm if warm > 0 else None,
-              "peak_rss_mib": peak_rss_mib()}
+              "peak_rss_mib": peak_rss_mib(float(timing.get("worker_peak_mib", 0.0)))}
     write_json(directory / "run.json", run_record(
         "sweep", lay.spec.tree, digest=lay.spec.digest(), cells=len(lay.cells),
         trials=lay.total, chunk=lay.chunk_size, status_counts=counts, timing=timing,

@@ -1,7 +1,8 @@
 """The random part of a trial: perturbed initial states and plants, drawn per trial.
 
 Every random number of trial ``i`` comes from its own stream
-``SeedSequence(sweep.seed, spawn_key=(i, slot))`` (``flatcli.experiment.trial_stream``), so a
+``SeedSequence(sweep.seed, spawn_key=(i, slot))`` (``flatcli.experiment.trial_stream``; drawn
+for a chunk at once by ``flatcli.sweep.streams``, the same numbers), so a
 trial's values do not depend on the chunk size, the number of workers, the executor, the
 order in which chunks finish, or a resume in between.
 
@@ -20,13 +21,13 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.special import ndtri
 
 from flatcli.core.planning import Plan
-from flatcli.experiment import STREAM_PERTURB, initial_rates, plant_from, trial_stream
+from flatcli.experiment import STREAM_PERTURB, initial_rates, plant_from
 from flatcli.spec import PERTURB_TARGETS, Perturbation, Spec, SpecError, lookup
 from flatcli.spec.keys import MIN_JOINTS
 from flatcli.spec.sweeps import size
+from flatcli.sweep.streams import uniform_variates
 
 Array = NDArray[np.float64]
 
@@ -84,9 +85,7 @@ def draw_perturbations(
     {name: (N, n)} realised values
     """
     count = variates(joints)
-    u = np.empty((len(trials), count))
-    for row, trial in enumerate(trials):
-        u[row] = trial_stream(seed, trial, STREAM_PERTURB).random(count)
+    u = uniform_variates(seed, trials, STREAM_PERTURB, count)  # trial_stream's, to the bit
     out: dict[str, Array] = {}
     for name, slots in perturb_slots(joints).items():
         if name not in perturb:
@@ -100,6 +99,8 @@ def draw_perturbations(
         else:
             std = np.asarray(p.std, dtype=float)
             mean = np.asarray(p.mean, dtype=float)
+            from scipy.special import ndtri  # loaded when a normal perturbation asks for it
+
             sample = mean + std * ndtri(draws)
         base = nominal[name]
         out[name] = base * (1.0 + sample) if p.relative else base + sample

@@ -13,12 +13,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import pandas as pd
-
 from flatcli.core.model import FlatcliError
 from flatcli.experiment import run_track
 from flatcli.files import kind, not_regular
-from flatcli.outputs import write_track
 from flatcli.report import table, track_title
 from flatcli.spec import PERTURB_TARGETS, Spec, build
 from flatcli.storage import run_record
@@ -42,6 +39,8 @@ def trials_table(directory: Path) -> Path:
 
 def trial_row(directory: Path, trial: int) -> dict[str, Any]:
     """A finished trial's row of trials.parquet; FlatcliError if there is none to re-run."""
+    import pandas as pd  # a re-run loads what a track run loads; a sweep does not
+
     trials_path = trials_table(directory)
     frame = pd.read_parquet(trials_path, filters=[("trial", "==", trial)])
     if frame.empty:
@@ -122,6 +121,8 @@ def rerun_and_compare(spec: Spec, directory: Path, trial: int) -> Rerun:
     if blocked:  # never written through: a link would lead out of the sweep's directory
         raise FlatcliError(f"--rerun: {directory} holds {', '.join(blocked)} where the re-run "
                            "writes its files; remove it yourself")
+    from flatcli.outputs import write_track
+
     run = run_track(track_spec)
     metrics = run.metrics
     record = run_record("sweep --rerun", track_spec.tree, metrics=metrics, trial=trial)

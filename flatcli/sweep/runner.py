@@ -7,15 +7,17 @@ byte is written.
 
 from __future__ import annotations
 
+import contextlib
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 from flatcli.executors import default_workers, make_executor
-from flatcli.report import Progress
+from flatcli.progress import Progress
 from flatcli.spec import Spec
 from flatcli.spec.limits import check_workers
-from flatcli.storage import directory_lock, versions, write_table
+from flatcli.storage import Syncer, directory_lock, versions, write_table
 from flatcli.sweep.chunks import run_chunk
 from flatcli.sweep.directory import (
     SHOWN,
@@ -98,14 +100,19 @@ def run_sweep(
                 warm_up(lay)  # load the kernel once here; forked workers inherit it
             setup = time.perf_counter() - started
             tasks = ((c, (lay.cells[c.cell], c)) for c in todo)
-            compute = 0.0
+            compute = writing = 0.0
+            worker_peak = 0.0  # the largest peak a chunk's process reported [MiB]
             watcher = watch(progress) if executor_kind == "local" else None  # per-trial counts
+            syncer = Syncer()  # chunk files flushed to disk in groups, off this thread
             try:
                 for chunk, result in executor.run(run_chunk, tasks):
+                    began = time.thread_time()  # this thread's processor time
                     compute += result.seconds
+                    worker_peak = max(worker_peak, result.peak_mib)
                     cell = lay.cells[chunk.cell]
                     write_table(directory / TRIALS_DIR / chunk.name, result.table,
-                                chunk_provenance(provenance, cell, chunk, result.table))
+                                chunk_provenance(provenance, cell, chunk, result.table), syncer)
+                    writing += time.thread_time() - began
                     if progress is not None:
                         progress.advance(chunk.size, status_counts(result.table))
                     failure = result.first_failure() if fail_fast else None
@@ -117,6 +124,10 @@ def run_sweep(
                     watcher.stop()
                 if progress is not None:
                     progress.close()
+                # every chunk written is on disk before anything else is written; when the
+                # loop failed, that failure is the one to report
+                with contextlib.suppress(*((OSError,) if sys.exc_info()[0] else ())):
+                    syncer.close()
             simulated = lay.total - resumed
             running = time.perf_counter() - started - setup
         except BaseException:
@@ -129,7 +140,10 @@ def run_sweep(
             "simulated_trials": simulated,
             "resumed_trials": resumed,
             "compute_seconds": compute,
+            "write_cpu_seconds": writing,
+            "sync_seconds": syncer.seconds,
             "workers": executor.workers,
+            "worker_peak_mib": worker_peak,
             "executor": executor.description,
         }, tags)
     return SweepResult(directory, lay, simulated, time.perf_counter() - started, summary_text)

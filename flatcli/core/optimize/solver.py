@@ -32,7 +32,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import minimize
 
 from flatcli.core.optimize.assessment import assess
 from flatcli.core.optimize.limits import PlanLimits
@@ -111,6 +110,8 @@ def solve(
     message = ""
     status = 0
     converged = False
+    from scipy.optimize import minimize  # loaded where a plan is optimised: a sweep needs none
+
     for _ in range(tuning.exchange_rounds):
         problem.prepare(x)
         track = _Tracker(problem, row_scale)
@@ -242,6 +243,8 @@ def _whitened(problem: Problem, origin: Array, m: Array) -> tuple[Array, bool, i
                         "jac": lambda z, row=row: row,
                     }
                 )
+    from scipy.optimize import minimize
+
     result = minimize(
         lambda z: problem.fun(at(z)),
         np.zeros(problem.nv),
