@@ -115,8 +115,9 @@ def test_runs_json_holds_every_metric_and_the_spec(tree: Path) -> None:
     assert run["spec"]["plant"]["model"] == "dynamic"
     assert run["metrics"]["peak_torque"] > 0 and "steps" in run["metrics"]
     recorded = json.loads((Path(run["path"]) / "metrics.json").read_text())
-    assert run["metrics"] == {k: v for k, v in recorded.items()
-                              if not isinstance(v, str | bool)}  # numbers only (not verified)
+    # numbers and flags (verified), not words (status, reason)
+    assert run["metrics"] == {k: v for k, v in recorded.items() if not isinstance(v, str)}
+    assert run["metrics"]["verified"] is recorded["verified"]
 
 
 def test_the_table_fits_the_terminal(tree: Path, monkeypatch: pytest.MonkeyPatch) -> None:
