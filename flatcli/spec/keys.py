@@ -169,7 +169,8 @@ UNPRINTABLE = ("Cc", "Cf", "Zl", "Zp")
 
 
 def unprintable(text: str) -> str | None:
-    """The first character of ``text`` no spec text may hold, as ``U+XXXX``, or None."""
+    """The first character of ``text`` no spec text may hold, as ``U+`` and its hex code
+    point (four digits or more), or None."""
     for c in text:
         if unicodedata.category(c) in UNPRINTABLE:
             return f"U+{ord(c):04X}"
