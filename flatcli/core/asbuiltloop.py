@@ -219,11 +219,12 @@ def kinematic_rhs(loop: AsbuiltLoop, x: Array, ref: Array, noise: Array, out: Ar
 
 
 @jitable
-def observe_kinematic(loop: AsbuiltLoop, obs: Any, acc: Array, j: int, x: Array, f: Array
-                      ) -> None:
-    """Metrics of the kinematic plant at output sample j (module docstring)."""
-    theta_ref, ref, _ = obs  # the singular threshold does not apply (module docstring)
-    nb = loop.Iq.shape[0]
+def squared_errors(obs: Any, j: int, x: Array, nb: int) -> tuple[float, float]:
+    """At output sample j, the squared norms of the angles' error from the plan (th0..thN)
+    and of the joint angles' error from the plan's y (th1..thN, the as-built law's
+    outputs); ``obs`` = (theta_ref, ref, threshold) as the kernels pass it (the singular
+    threshold does not apply: module docstring)."""
+    theta_ref, ref, _ = obs
     et2 = 0.0
     ey2 = 0.0
     for i in range(nb):
@@ -232,6 +233,15 @@ def observe_kinematic(loop: AsbuiltLoop, obs: Any, acc: Array, j: int, x: Array,
         if i > 0:
             e = x[i] - ref[2 * j, i - 1]
             ey2 += e * e
+    return et2, ey2
+
+
+@jitable
+def observe_kinematic(loop: AsbuiltLoop, obs: Any, acc: Array, j: int, x: Array, f: Array
+                      ) -> None:
+    """Metrics of the kinematic plant at output sample j (module docstring)."""
+    nb = loop.Iq.shape[0]
+    et2, ey2 = squared_errors(obs, j, x, nb)
     plant_trig(loop, x[:nb])
     peak = 0.0
     for i in range(1, nb):
@@ -361,18 +371,10 @@ def observe_dynamic(loop: AsbuiltLoop, obs: Any, acc: Array, j: int, x: Array, f
                     ) -> None:
     """Metrics of the dynamic plant at output sample j: errors, the margin of its motion,
     H from the full kinematics with its own rates, peak joint rate and torque, saturation."""
-    theta_ref, ref, _ = obs  # the singular threshold does not apply (module docstring)
     nb = loop.Iq.shape[0]
     n = nb - 1
     nx = 2 * nb
-    et2 = 0.0
-    ey2 = 0.0
-    for i in range(nb):
-        d = x[i] - theta_ref[j, i]
-        et2 += d * d
-        if i > 0:
-            e = x[i] - ref[2 * j, i - 1]
-            ey2 += e * e
+    et2, ey2 = squared_errors(obs, j, x, nb)
     plant_trig(loop, x[:nb])
     rates = x[nb:nx]
     peak = 0.0
