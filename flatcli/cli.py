@@ -32,6 +32,7 @@ try:  # too little memory to load even these (ulimit -v): one line, not a traceb
     import click
 
     from flatcli import STARTUP_ERROR, __version__
+    from flatcli.interrupts import last_signal, raise_interrupt
     from flatcli.startup import library_error_text, probe_libraries, while_importing
     from flatcli.threads import THREAD_VARIABLES
 
@@ -65,8 +66,6 @@ RESUME_HINT = "finished chunks are kept in {}/trials; run the same command again
 #: so that ``--help`` need not import the numerical core (tests/test_cli.py checks they agree).
 OBJECTIVES = ("energy", "peak_rate", "effort", "margin")
 EXECUTORS = ("local", "dask")
-#: The signal that interrupted the run (SIGINT: Ctrl-C, or SIGTERM).
-_INTERRUPT = {"signal": int(signal.SIGINT)}
 
 
 def fail(message: str) -> NoReturn:
@@ -76,13 +75,7 @@ def fail(message: str) -> NoReturn:
 
 def interrupted_status() -> int:
     """The exit status of an interrupted run: 128 + the signal's number."""
-    return 128 + _INTERRUPT["signal"]
-
-
-def _terminate(signum: int, frame: Any) -> None:
-    """SIGTERM: stop as Ctrl-C does (finished work kept, one line, no traceback)."""
-    _INTERRUPT["signal"] = signum
-    raise KeyboardInterrupt
+    return 128 + last_signal()
 
 
 def os_error_text(exc: OSError) -> str:
@@ -159,7 +152,7 @@ class Cli(click.Group):
         kwargs.setdefault("prog_name", "flatcli")
         previous = None
         if threading.current_thread() is threading.main_thread():
-            previous = signal.signal(signal.SIGTERM, _terminate)
+            previous = signal.signal(signal.SIGTERM, raise_interrupt)  # as Ctrl-C
         try:
             with warnings.catch_warnings():  # numpy's errstate: ``user_errors``
                 if not sys.warnoptions:

@@ -30,6 +30,7 @@ from typing import Any, Protocol, TypeVar
 import numpy as np
 
 from flatcli.core.model import FlatcliError
+from flatcli.interrupts import check, interruptible
 from flatcli.storage import forget_inherited_locks
 from flatcli.threads import limit_process, single_threaded
 
@@ -44,6 +45,9 @@ CONNECT_TIMEOUT = "10s"
 WORKER_TIMEOUT = 60.0
 #: How often the Dask executor looks at the cluster while it waits for results [s].
 POLL_SECONDS = 1.0
+#: How often a local sweep's main thread, waiting for its workers, looks for a Ctrl-C or
+#: SIGTERM recorded meanwhile (``flatcli.interrupts``) [s].
+INTERRUPT_POLL_SECONDS = 0.1
 _PR_SET_PDEATHSIG = 1
 
 
@@ -148,7 +152,9 @@ class LocalExecutor:
     ) -> Iterator[tuple[T, Any]]:
         if self._pool is None:
             for tag, args in tasks:
-                yield tag, fn(*args)
+                with interruptible():  # a kernel's run holds no lock: Ctrl-C ends it at once
+                    result = fn(*args)
+                yield tag, result
             return
         try:
             yield from self._run_pool(self._pool, fn, tasks)
@@ -173,7 +179,9 @@ class LocalExecutor:
                 pending[pool.submit(fn, *args)] = tag
             if not pending:
                 return
-            done, _ = wait(pending, return_when=FIRST_COMPLETED)
+            # a signal is raised here, not inside the pool's locks (flatcli.interrupts)
+            done, _ = wait(pending, timeout=INTERRUPT_POLL_SECONDS, return_when=FIRST_COMPLETED)
+            check()
             for future in done:
                 tag = pending.pop(future)
                 yield tag, future.result()
@@ -304,6 +312,7 @@ class DaskExecutor:
                 done, _ = dask_wait(list(pending), timeout=POLL_SECONDS,
                                     return_when="FIRST_COMPLETED")
             except TimeoutError:
+                check()
                 self._watch()
                 continue
             for future in done:
@@ -313,6 +322,7 @@ class DaskExecutor:
                         result = future.result(timeout=POLL_SECONDS)
                         break
                     except TimeoutError:
+                        check()
                         self._watch()
                     except KilledWorker as exc:
                         raise WorkerLostError(f"Dask workers kept dying on a chunk ({exc})"

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from flatcli.executors import default_workers, make_executor
+from flatcli.interrupts import check, deferred, interruptible
 from flatcli.progress import Progress
 from flatcli.spec import Spec
 from flatcli.spec.limits import check_workers
@@ -77,63 +78,68 @@ def run_sweep(
     with directory_lock(directory):
         plan = plan_directory(directory, lay, force)
         executor = make_executor(executor_kind, workers, scheduler)
-        try:
-            if plan.mode == "restart":
-                clear(directory, plan.previous)
-            if plan.note:
-                note(plan.note)
-            digest = spec.digest()
-            keep = plan.previous if plan.mode in ("resume", "extend") else None
-            tags = write_manifest(directory, lay, keep, tags)
-            done, problems = verified_chunks(directory, lay)
-            for line in problems[:SHOWN]:
-                note(f"note: {line}; computing it again")
-            if len(problems) > SHOWN:
-                note(f"note: {len(problems) - SHOWN} more chunk files failed their checks; "
-                     "computing them again")
-            todo = [c for c in lay.chunks() if c.name not in done]
-            resumed = lay.total - sum(c.size for c in todo)
-            provenance = {"digest": digest, "spec": spec.tree, "versions": versions()}
-            if progress is not None:
-                progress.start(lay.total, resumed, executor.description)
-            if todo and executor_kind == "local":
-                warm_up(lay)  # load the kernel once here; forked workers inherit it
-            setup = time.perf_counter() - started
-            tasks = ((c, (lay.cells[c.cell], c)) for c in todo)
-            compute = writing = 0.0
-            worker_peak = 0.0  # the largest peak a chunk's process reported [MiB]
-            watcher = watch(progress) if executor_kind == "local" else None  # per-trial counts
-            syncer = Syncer()  # chunk files flushed to disk in groups, off this thread
+        with deferred():  # Ctrl-C and SIGTERM raised where no lock is held
             try:
-                for chunk, result in executor.run(run_chunk, tasks):
-                    began = time.thread_time()  # this thread's processor time
-                    compute += result.seconds
-                    worker_peak = max(worker_peak, result.peak_mib)
-                    cell = lay.cells[chunk.cell]
-                    write_table(directory / TRIALS_DIR / chunk.name, result.table,
-                                chunk_provenance(provenance, cell, chunk, result.table), syncer)
-                    writing += time.thread_time() - began
-                    if progress is not None:
-                        progress.advance(chunk.size, status_counts(result.table))
-                    failure = result.first_failure() if fail_fast else None
-                    if failure is not None:
-                        raise FailFastError(f"--fail-fast: trial {failure[0]} {failure[1]} "
-                                            f"(finished chunks kept in {directory}/{TRIALS_DIR})")
-            finally:
-                if watcher is not None:
-                    watcher.stop()
+                if plan.mode == "restart":
+                    clear(directory, plan.previous)
+                if plan.note:
+                    note(plan.note)
+                digest = spec.digest()
+                keep = plan.previous if plan.mode in ("resume", "extend") else None
+                tags = write_manifest(directory, lay, keep, tags)
+                done, problems = verified_chunks(directory, lay)
+                for line in problems[:SHOWN]:
+                    note(f"note: {line}; computing it again")
+                if len(problems) > SHOWN:
+                    note(f"note: {len(problems) - SHOWN} more chunk files failed their checks; "
+                         "computing them again")
+                todo = [c for c in lay.chunks() if c.name not in done]
+                resumed = lay.total - sum(c.size for c in todo)
+                provenance = {"digest": digest, "spec": spec.tree, "versions": versions()}
                 if progress is not None:
-                    progress.close()
-                # every chunk written is on disk before anything else is written; when the
-                # loop failed, that failure is the one to report
-                with contextlib.suppress(*((OSError,) if sys.exc_info()[0] else ())):
-                    syncer.close()
-            simulated = lay.total - resumed
-            running = time.perf_counter() - started - setup
-        except BaseException:
-            executor.close(abort=True)
-            raise
-        executor.close()
+                    progress.start(lay.total, resumed, executor.description)
+                if todo and executor_kind == "local":
+                    with interruptible():
+                        warm_up(lay)  # load the kernel once here; forked workers inherit it
+                setup = time.perf_counter() - started
+                tasks = ((c, (lay.cells[c.cell], c)) for c in todo)
+                compute = writing = 0.0
+                worker_peak = 0.0  # the largest peak a chunk's process reported [MiB]
+                # per-trial counts
+                watcher = watch(progress) if executor_kind == "local" else None
+                syncer = Syncer()  # chunk files flushed to disk in groups, off this thread
+                try:
+                    for chunk, result in executor.run(run_chunk, tasks):
+                        began = time.thread_time()  # this thread's processor time
+                        compute += result.seconds
+                        worker_peak = max(worker_peak, result.peak_mib)
+                        cell = lay.cells[chunk.cell]
+                        write_table(directory / TRIALS_DIR / chunk.name, result.table,
+                                    chunk_provenance(provenance, cell, chunk, result.table), syncer)
+                        writing += time.thread_time() - began
+                        if progress is not None:
+                            progress.advance(chunk.size, status_counts(result.table))
+                        check()  # a Ctrl-C recorded meanwhile: this chunk is written, stop
+                        failure = result.first_failure() if fail_fast else None
+                        if failure is not None:
+                            raise FailFastError(
+                                f"--fail-fast: trial {failure[0]} {failure[1]} "
+                                f"(finished chunks kept in {directory}/{TRIALS_DIR})")
+                finally:
+                    if watcher is not None:
+                        watcher.stop()
+                    if progress is not None:
+                        progress.close()
+                    # every chunk written is on disk before anything else is written; when the
+                    # loop failed, that failure is the one to report
+                    with contextlib.suppress(*((OSError,) if sys.exc_info()[0] else ())):
+                        syncer.close()
+                simulated = lay.total - resumed
+                running = time.perf_counter() - started - setup
+            except BaseException:
+                executor.close(abort=True)
+                raise
+            executor.close()
         summary_text = finish_sweep(directory, lay, provenance, started, {
             "setup_seconds": setup,
             "simulate_seconds": running,

@@ -23,6 +23,7 @@ import pyarrow as pa
 
 from flatcli.core.metrics import STATUS_NAMES, Status
 from flatcli.core.simulate import Integrator, Outcome, Scenario, Trials, simulate
+from flatcli.interrupts import critical
 
 #: How often the parent reads the counters into the progress bar [s].
 POLL_SECONDS = 0.2
@@ -54,7 +55,7 @@ def add(status: np.ndarray) -> None:
     if counts is None or len(status) == 0:
         return
     tally = np.bincount(np.asarray(status, dtype=np.int64), minlength=len(STATUS_NAMES))
-    with counts.get_lock():
+    with critical(), counts.get_lock():  # no Ctrl-C inside the lock (flatcli.interrupts)
         for i, n in enumerate(tally.tolist()):
             counts[i] += n
 
