@@ -107,7 +107,7 @@ def __getattr__(name: str) -> Any:
     value = getattr(importlib.import_module(module), name)
     # cached here; importing the subpackage flatcli.sweep (or the module flatcli.runs) later
     # rebinds the name to it, and calling it runs the function too
-    # (flatcli/sweep/__init__.py, flatcli/runs.py)
+    # (flatcli/montecarlo/__init__.py, flatcli/rundirs.py)
     globals()[name] = value
     return value
 

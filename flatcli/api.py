@@ -29,13 +29,14 @@ import sys
 from collections.abc import Iterable, Iterator, Mapping
 from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TextIO
+from typing import TYPE_CHECKING, Any
 
 from flatcli.core.model import FlatcliError
 from flatcli.core.optimize import OptimizeResult
 from flatcli.core.planning import Plan, PlanSamples
 from flatcli.experiment import TrackRun, plan_and_optimization, run_track
 from flatcli.files import is_regular, kind, read_text
+from flatcli.progress import announce_compile
 from flatcli.report import (
     FigureFile,
     Limits,
@@ -50,7 +51,7 @@ from flatcli.report import (
     track_figure,
     track_title,
 )
-from flatcli.runs import (
+from flatcli.rundirs import (
     RECORD,
     ROOT,
     SWEEP_DIR,
@@ -83,10 +84,6 @@ if TYPE_CHECKING:  # pandas loads with the first DataFrame, never in a sweep's p
 
 SpecLike = str | os.PathLike[str] | Mapping[str, Any] | Spec | None
 Overrides = Mapping[str, Any] | Iterable[str] | None
-
-#: What the first simulation prints when numba's cache holds no compiled kernel yet.
-COMPILING = "compiling the simulation kernel (once, ~30 s)"
-
 
 def load_spec(spec: SpecLike = None, overrides: Overrides = None) -> Spec:
     """A validated spec from a file, a dict or a Spec, with overrides applied in order."""
@@ -145,25 +142,6 @@ def _frozen(value: Any) -> Any:
     if value is None or type(value) in (str, int, float, bool):
         return (type(value).__name__, value)
     raise TypeError(f"not a plain value: {type(value).__name__}")
-
-
-def kernel_cached() -> bool:
-    """Whether numba's on-disk cache (the directory ``flatcli.core._jit`` chose) holds an
-    index of the closed-loop kernel, so a simulation starts without compiling."""
-    import numba
-
-    import flatcli.core._jit  # noqa: F401  (sets numba's cache directory)
-
-    root = Path(getattr(numba.config, "CACHE_DIR", "") or "")
-    return root.is_dir() and any(root.glob("**/*kernels.*_batch-*.nbi"))
-
-
-def announce_compile(quiet: bool, stream: TextIO | None = None) -> bool:
-    """Print the one-line compile notice when the kernel's cache is cold; whether it was."""
-    cold = not kernel_cached()
-    if cold and not quiet:
-        print(COMPILING, file=stream or sys.stderr, flush=True)
-    return cold
 
 
 def _output(out: str | os.PathLike[str] | Target | None, command: str, spec: Spec,
@@ -547,8 +525,8 @@ class SweepResult(Run):
         """Write the summary figures (``sweep_<name>.png``, or ``fmt``; default the sweep
         spec's ``[figures]``) into the sweep's directory and record them in its manifest;
         their paths."""
+        from flatcli.montecarlo.directory import record_outputs
         from flatcli.report import plot_sweep
-        from flatcli.sweep.directory import record_outputs
 
         directory = self._finished()
         spec_file = FigureFile.of(self.spec)
@@ -567,7 +545,7 @@ def _has_task(spec: Spec) -> bool:
 
 def _tags(tags: Iterable[str]) -> dict[str, Any]:
     """The ``tags`` of a run record (none: no key, as before tags existed)."""
-    from flatcli.runs import check_tags
+    from flatcli.rundirs import check_tags
 
     chosen = check_tags(tags)
     return {"tags": chosen} if chosen else {}
@@ -886,10 +864,10 @@ def sweep(spec: SpecLike, out: str | os.PathLike[str] | None = None, *,
     Returns the SweepResult of the directory. One run writes into a directory at a time
     (FlatcliError naming the other run's pid).
     """
+    from flatcli.montecarlo import run_sweep
     from flatcli.report import Progress
-    from flatcli.runs import check_tags, sweep_directory
+    from flatcli.rundirs import check_tags, sweep_directory
     from flatcli.spec.sweeps import identical_trials
-    from flatcli.sweep import run_sweep
 
     s = load_spec(spec, overrides)
     chosen = check_tags(tags)
@@ -936,7 +914,7 @@ def load(directory: str | os.PathLike[str]) -> Run:
     """
     import pandas as pd
 
-    from flatcli.sweep.directory import read_manifest
+    from flatcli.montecarlo.directory import read_manifest
 
     path = Path(directory)
     if kind(path / SWEEP_MANIFEST) == "missing" and kind(path / RECORD) == "missing" and \

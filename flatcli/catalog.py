@@ -8,7 +8,7 @@ run's metrics, a plan's summary, a sweep's trials by status) and every key of it
 spec, dotted (``plant.model``, ``track.kp``). A filter is ``KEY OP VALUE`` with OP one of
 ``= != < <= > >= ~`` (``~``: contains); VALUE is read as a TOML value (a number, a list, a
 word); ``tag=x`` holds for a run tagged x. A run without the key matches no filter on it.
-Everything here reads run records and manifests only (``flatcli.runs``): quick for a
+Everything here reads run records and manifests only (``flatcli.rundirs``): quick for a
 thousand runs.
 """
 
@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from flatcli.report import table
-from flatcli.runs import (
+from flatcli.rundirs import (
     LATEST,
     RECORD,
     SWEEP_MANIFEST,
@@ -253,7 +253,7 @@ def _when(time: datetime | None, short: bool = False) -> str:
     return f"{time:%m-%d %H:%M}" if short else f"{time:%Y-%m-%d %H:%M:%S}"
 
 
-#: A run directory's stamp (``flatcli.runs.stamp``): shown by its id alone where the table
+#: A run directory's stamp (``flatcli.rundirs.stamp``): shown by its id alone where the table
 #: must be narrow (the time column has the rest).
 _STAMP = re.compile(r"\b[0-9]{8}-[0-9]{6}-([0-9a-f]{6})\b")
 

@@ -395,7 +395,7 @@ def run_one(command: str, spec: Path | None, robot: str | None, sets: tuple[str,
     """``flatcli plan`` and ``flatcli track``: everything checked before any work (the spec,
     the tags, ``--out``), then the run, then its files."""
     from flatcli import api
-    from flatcli.runs import check_tags
+    from flatcli.rundirs import check_tags
     from flatcli.spec import spec_toml
 
     require_stdout(quiet and not cfg)
@@ -586,9 +586,9 @@ def sweep(spec: Path, robot: str | None, sets: tuple[str, ...], name: str | None
     require_stdout(quiet)
     from flatcli import api
     from flatcli.executors import WorkerLostError
-    from flatcli.runs import check_tags, sweep_directory
+    from flatcli.montecarlo import FailFastError
+    from flatcli.rundirs import check_tags, sweep_directory
     from flatcli.storage import check_output_dir, directory_lock
-    from flatcli.sweep import FailFastError
 
     with user_errors():
         s = api.load_spec(spec, spec_overrides(sets, robot=robot, name=name, fmt=fmt,
@@ -636,11 +636,11 @@ def rerun_trial(s: Any, directory: Path, trial: int, print_spec: bool, quiet: bo
     """``sweep --rerun`` and ``rerun``: one finished trial of the sweep ``s`` in ``directory``
     re-run alone (``rerun-TRIAL/``) and compared with its row (exit status 2 if it does not
     reproduce), or with ``print_spec`` its track spec printed."""
+    from flatcli.montecarlo import rerun_and_compare, trial_spec
+    from flatcli.montecarlo.directory import record_outputs
+    from flatcli.montecarlo.rerun import trials_table
     from flatcli.spec import spec_toml
     from flatcli.storage import check_output_dir, directory_lock
-    from flatcli.sweep import rerun_and_compare, trial_spec
-    from flatcli.sweep.directory import record_outputs
-    from flatcli.sweep.rerun import trials_table
 
     check_output_dir(directory)
     if print_spec:
@@ -763,7 +763,7 @@ def runs(directories: tuple[Path, ...], filters: tuple[str, ...], sort: str | No
     import shutil
 
     from flatcli.catalog import Filter, compare_runs, rows_below, runs_json, runs_table, select
-    from flatcli.runs import RunDirectoryError
+    from flatcli.rundirs import RunDirectoryError
 
     with user_errors():
         if compare:

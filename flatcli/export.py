@@ -21,8 +21,8 @@ import pyarrow.parquet as pq
 
 from flatcli.core.model import FlatcliError
 from flatcli.files import kind, not_regular
+from flatcli.montecarlo.directory import MANIFEST, RERUN_DIR, record_outputs
 from flatcli.storage import atomic_path, check_output_dir, directory_lock
-from flatcli.sweep.directory import MANIFEST, RERUN_DIR, record_outputs
 
 
 def tables_in(directory: Path) -> list[Path]:

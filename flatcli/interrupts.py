@@ -5,7 +5,7 @@ thread is. A handler that raises (``KeyboardInterrupt``) can land inside a ``wit
 block in a way that leaves the lock held (CPython issue 74174, formerly bpo-29988); the
 thread that needs the lock next then waits forever. A sweep's main thread takes such locks
 all the time: its own file flusher's (``flatcli.storage.Syncer``), the process pool's, the
-live counters' (``flatcli.sweep.tally``). One SIGTERM in about 50, sent to a loaded machine,
+live counters' (``flatcli.montecarlo.tally``). One SIGTERM in about 50, sent to a loaded machine,
 left ``flatcli sweep`` hung for good.
 
 So while a sweep runs (``deferred``), a signal is only recorded. It becomes a

@@ -38,10 +38,10 @@ import pyarrow.parquet as pq
 
 from flatcli.core.metrics import METRIC_NAMES, STATUS_NAMES
 from flatcli.executors import default_workers
+from flatcli.montecarlo import Chunk, Layout, grid_cell_text, grid_label, layout, run_chunk
 from flatcli.report import fmt, short_key, summarize_trials, table
 from flatcli.spec import Spec, spec_toml
 from flatcli.storage import peak_memory_mib
-from flatcli.sweep import Chunk, Layout, grid_cell_text, grid_label, layout, run_chunk
 
 #: Trials the calibration runs in all (at least one per cell).
 CALIBRATION_TRIALS = 128
@@ -237,7 +237,7 @@ def resolved_toml(spec: Spec, chunk: int) -> str:
 def check_spec(spec: Spec, workers: int | None = None, executor: str = "local",
                calibrate: bool = True, quiet: bool = False) -> CheckReport:
     """Lay the sweep out, calibrate, estimate and warn (see the module docstring)."""
-    from flatcli.api import announce_compile
+    from flatcli.progress import announce_compile
 
     if workers is not None and workers < 1:
         from flatcli.core.model import FlatcliError

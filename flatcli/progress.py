@@ -1,4 +1,5 @@
-"""Progress of a running sweep: a bar on a terminal, plain periodic lines otherwise."""
+"""Progress of a running sweep: a bar on a terminal, plain periodic lines otherwise; and the
+one line that says the simulation kernel is being compiled (``announce_compile``)."""
 
 from __future__ import annotations
 
@@ -7,16 +8,39 @@ import sys
 import threading
 import time
 from collections.abc import Mapping
+from pathlib import Path
 from typing import Any, TextIO
 
 from flatcli.core.metrics import STATUS_NAMES
+
+#: What the first simulation prints when numba's cache holds no compiled kernel yet.
+COMPILING = "compiling the simulation kernel (once, ~30 s)"
+
+
+def kernel_cached() -> bool:
+    """Whether numba's on-disk cache (the directory ``flatcli.core._jit`` chose) holds an
+    index of the closed-loop kernel, so a simulation starts without compiling."""
+    import numba
+
+    import flatcli.core._jit  # noqa: F401  (sets numba's cache directory)
+
+    root = Path(getattr(numba.config, "CACHE_DIR", "") or "")
+    return root.is_dir() and any(root.glob("**/*kernels.*_batch-*.nbi"))
+
+
+def announce_compile(quiet: bool, stream: TextIO | None = None) -> bool:
+    """Print the one-line compile notice when the kernel's cache is cold; whether it was."""
+    cold = not kernel_cached()
+    if cold and not quiet:
+        print(COMPILING, file=stream or sys.stderr, flush=True)
+    return cold
 
 
 class Progress:
     """A progress bar on a terminal, plain periodic lines otherwise, nothing when quiet.
 
     Trials are counted as chunks finish (``advance``) and, while a local sweep runs, as
-    the workers finish them (``live``, a few times a second; ``flatcli.sweep.tally``): the
+    the workers finish them (``live``, a few times a second; ``flatcli.montecarlo.tally``): the
     bar shows whichever count is ahead, with the trials of each status so far.
     """
 

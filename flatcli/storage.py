@@ -93,10 +93,10 @@ class Syncer:
     and none on the caller's time). ``close`` waits until every file added is on disk and
     raises the first OS error the thread met (naming the file).
 
-    Chunk files of a sweep go through one (``sweep.runner``): a process killed at any
+    Chunk files of a sweep go through one (``montecarlo.runner``): a process killed at any
     moment loses nothing it wrote (the kernel has it), a machine that crashes may lose the
     chunks not yet flushed, or leave them damaged, and a resume's checks compute those again
-    (``sweep.directory.verified_chunks``); the final tables and the manifest are flushed
+    (``montecarlo.directory.verified_chunks``); the final tables and the manifest are flushed
     before they count (``atomic_path`` without a syncer)."""
 
     def __init__(self) -> None:

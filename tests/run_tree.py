@@ -9,7 +9,7 @@ from click.testing import CliRunner
 from small_sweep import write_spec
 
 from flatcli.cli import main
-from flatcli.runs import stamp
+from flatcli.rundirs import stamp
 
 #: A plan's run.json, as flatcli writes one (its values of the types it writes).
 GOOD_PLAN = {"command": "plan", "time": "2026-01-02T03:04:05+00:00", "digest": "d",

@@ -163,27 +163,27 @@ def test_load_of_an_interrupted_sweep(tmp_path: Path) -> None:
         partial.summary_text
 
 
-def test_import_flatcli_is_light_and_sweep_is_callable_however_it_was_imported() -> None:
+def test_import_flatcli_is_light_and_its_functions_stay_functions_whatever_is_imported() -> None:
+    """No submodule is named like a public function (the sweeps' package is
+    flatcli.montecarlo, the run directories' module flatcli.rundirs), so importing either, before
+    or after the API, never rebinds flatcli.sweep or flatcli.runs to a module."""
     code = (
-        "import sys, flatcli\n"
+        "import sys, types, flatcli\n"
         f"print(sorted(m for m in {HEAVY!r} if m in sys.modules))\n"
-        "import flatcli.sweep.layout\n"
-        "print(callable(flatcli.sweep), callable(flatcli.plan))\n"
+        "import flatcli.montecarlo.layout, flatcli.rundirs\n"
+        "names = ('sweep', 'runs', 'plan', 'check')\n"
+        "print([isinstance(getattr(flatcli, n), types.FunctionType) for n in names])\n"
         "flatcli.check({'sweep': {'trials': 2}}, calibrate=False)\n"
-        "print(callable(flatcli.check), callable(flatcli.sweep))\n"
+        "import flatcli.montecarlo.runner, flatcli.catalog\n"
+        "print([isinstance(getattr(flatcli, n), types.FunctionType) for n in names])\n"
+        "import flatcli.api as api\n"
+        "print(flatcli.sweep is api.sweep and flatcli.runs is api.runs)\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout.split("\n")
     assert out[0] == "[]"
-    assert out[1] == out[2] == "True True"
-
-
-def test_calling_the_sweep_package_runs_the_api_function(tmp_path: Path) -> None:
-    import flatcli.sweep as package
-
-    spec = write_spec(tmp_path, SPEC.replace("trials = 60", "trials = 3"))
-    result = package(spec, tmp_path / "d", workers=1, quiet=True)
-    assert isinstance(result, api.SweepResult) and result.metrics["finished"] == 6
+    assert out[1] == out[2] == "[True, True, True, True]"
+    assert out[3] == "True"
 
 
 #: Maneuvers around the paper's (Sec. VI: th(0) = (1.8, 1, 0), th(2) = (1.2, 2, 0),

@@ -14,7 +14,7 @@ from run_tree import GOOD_PLAN, cli, make_tree
 
 import flatcli
 from flatcli.catalog import Filter, compare_runs, flat_spec, rows_below, runs_table, select
-from flatcli.runs import link_latest, list_runs, stamp
+from flatcli.rundirs import link_latest, list_runs, stamp
 from flatcli.spec import SpecError
 
 

@@ -373,7 +373,7 @@ def test_compile_notice_only_on_a_cold_cache(tmp_path: Path,
 
     import numba
 
-    from flatcli.api import COMPILING, announce_compile
+    from flatcli.progress import COMPILING, announce_compile
 
     monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))
     stream = io.StringIO()

@@ -19,7 +19,7 @@ from dask.distributed import Client, LocalCluster, get_task_stream
 from small_sweep import SPEC, sweep, write_spec
 
 import flatcli.executors
-from flatcli.sweep.layout import ID_STRIDE
+from flatcli.montecarlo.layout import ID_STRIDE
 
 #: Long enough that a worker can be killed with most chunks still to run (seconds of work
 #: after the first chunk is written, against milliseconds to kill): 2 x 500 trials in 50

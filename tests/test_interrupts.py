@@ -3,7 +3,7 @@
 The hazard these guard against is CPython's: a handler that raises can leave a ``with
 lock:`` block without releasing the lock (https://github.com/python/cpython/issues/74174).
 A sweep hung for good that way in about 1 SIGTERM in 50 under load; the end-to-end check is
-tests/test_sweep_runner.py::test_sigterm_is_ctrl_c_and_leaves_no_worker_behind."""
+tests/test_montecarlo_runner.py::test_sigterm_is_ctrl_c_and_leaves_no_worker_behind."""
 
 from __future__ import annotations
 

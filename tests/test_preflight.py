@@ -13,11 +13,11 @@ from click.testing import CliRunner
 from small_sweep import SPEC, write_spec
 
 from flatcli import api
-from flatcli.api import COMPILING
 from flatcli.cli import main
+from flatcli.montecarlo import Chunk, layout, run_chunk
 from flatcli.preflight import CheckReport, _warnings, resolved_toml
+from flatcli.progress import COMPILING
 from flatcli.spec import resolve
-from flatcli.sweep import Chunk, layout, run_chunk
 
 
 def cli(*args: str) -> tuple[int, str]:

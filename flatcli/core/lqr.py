@@ -233,7 +233,7 @@ def riccati_gains(constraint: Constraint, reference: PiecewiseCurves,
 
 
 #: The last designs (``tracked``), by (the plan object, weights, servo): a sweep's cells that
-#: share a plan (``sweep.layout`` plans each robot and maneuver once) share its design, whose
+#: share a plan (``montecarlo.layout`` plans each robot and maneuver once) share its design, whose
 #: Riccati integration costs 0.5-0.8 s; each entry keeps its plan, so an id is never reused.
 _DESIGNS: dict[tuple[int, LqrWeights, float | None], tuple[Plan, PiecewiseCurves]] = {}
 DESIGN_CACHE = 16

@@ -47,8 +47,8 @@ def check_inputs(out: Path, montecarlo: Path | None, workers: int | None,
     directory, the study's spec with its --set items (every grid cell planned), --workers,
     --only."""
     from flatcli.core.model import FlatcliError
+    from flatcli.montecarlo import layout
     from flatcli.storage import check_output_dir
-    from flatcli.sweep import layout
 
     for name in only:
         if name not in SECTION_NAMES:

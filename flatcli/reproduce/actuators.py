@@ -96,9 +96,9 @@ def run_study(out: Path, quiet: bool, workers: int | None, sets: Sequence[str] =
     """The study (``study_path()`` with the ``--set`` items ``sets``) into out/actuators, and
     the same trials on the kinematic plant into out/actuators/kinematic (the limit of
     infinite bandwidth): its spec, both trial tables and the study's wall time [s]."""
+    from flatcli.montecarlo import run_sweep
+    from flatcli.montecarlo.directory import record_outputs
     from flatcli.storage import directory_lock
-    from flatcli.sweep import run_sweep
-    from flatcli.sweep.directory import record_outputs
 
     spec = load_spec(study_path(), sets)
     directory = out / "actuators"
@@ -125,8 +125,8 @@ def forget_study(directory: Path) -> None:
     would refuse as not its own: ``cells.parquet`` and the kinematic sweep under
     ``kinematic/`` (only files flatcli wrote, as ``--force`` removes them; anything else
     there stays, and the sweep then refuses, naming it)."""
+    from flatcli.montecarlo.directory import TRIALS_DIR, clear, foreign_entries, survey
     from flatcli.storage import LOCK_NAME, directory_lock, read_provenance
-    from flatcli.sweep.directory import TRIALS_DIR, clear, foreign_entries, survey
 
     cells = directory / "cells.parquet"
     with contextlib.suppress(OSError, ValueError):
@@ -150,8 +150,8 @@ def forget_study(directory: Path) -> None:
 def record_cells(directory: Path) -> None:
     """List cells.parquet in the study's sweep manifest (flatcli's file: ``--force`` may
     remove it)."""
+    from flatcli.montecarlo.directory import record_outputs
     from flatcli.storage import directory_lock
-    from flatcli.sweep.directory import record_outputs
 
     with directory_lock(directory):
         record_outputs(directory, [directory / "cells.parquet"])

@@ -99,7 +99,7 @@ def map_trials(spec: Spec) -> int:
 
 
 def _sweep(spec: Spec, directory: Path, context: Context) -> pd.DataFrame:
-    from flatcli.sweep import run_sweep
+    from flatcli.montecarlo import run_sweep
 
     run_sweep(spec, directory, "local", context.workers, None, force=True,
               progress=Progress(spec.name, context.quiet))

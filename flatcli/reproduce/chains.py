@@ -159,7 +159,7 @@ def run_study(spec: Spec, plan: Plan, directory: Path, quiet: bool, workers: int
               sets: Sequence[str]) -> tuple[str, pd.DataFrame, float]:
     """The spec's Monte Carlo study, started around the plan's start, into ``directory``:
     its summary text, trial table and wall time [s]."""
-    from flatcli.sweep import run_sweep
+    from flatcli.montecarlo import run_sweep
 
     study = study_spec(spec, sets)
     result = run_sweep(study, directory, "local", workers, None, force=True,

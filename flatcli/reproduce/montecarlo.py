@@ -21,7 +21,7 @@ DIRECTORY = "montecarlo"
 
 def run(context: Context) -> Outcome:
     """The study into OUT/montecarlo (its figures too) and the section's lines."""
-    from flatcli.sweep import run_sweep
+    from flatcli.montecarlo import run_sweep
 
     assert context.montecarlo is not None
     spec = load_spec(context.montecarlo, context.sets)

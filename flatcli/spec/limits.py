@@ -24,7 +24,7 @@ from flatcli.spec.keys import SpecError
 #: Largest spec file read [bytes].
 MAX_SPEC_BYTES = 1 << 20
 #: Trials per grid cell at most: a trial's id is ``cell key * ID_STRIDE + i`` with
-#: ``i < sweep.trials`` (``flatcli.sweep.layout``).
+#: ``i < sweep.trials`` (``flatcli.montecarlo.layout``).
 ID_STRIDE = 10**9
 
 #: ``flatcli plan``: the samples, their table and Parquet file [bytes per sample] (measured

@@ -28,7 +28,7 @@ PERTURB_TARGETS: dict[str, str] = {
     "com": "plant.com",
     "momentum": "plant.momentum",
     # added after the first seven: their variates come after those of the others, so no
-    # existing perturbation draws different numbers (``flatcli.sweep.draws``)
+    # existing perturbation draws different numbers (``flatcli.montecarlo.draws``)
     "servo_bandwidth": "plant.servo_bandwidth",
     "torque_limit": "plant.torque_limit",
 }

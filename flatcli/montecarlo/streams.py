@@ -7,7 +7,7 @@ as the rest of a chunk's bookkeeping; ``uniform_variates`` computes the same num
 whole chunk in one compiled loop: the SeedSequence's entropy mixing and state (O'Neill's
 seed_seq hash, as numpy's ``bit_generator.SeedSequence``), PCG64's seeding and its XSL-RR
 output (``pcg64_set_seed``, ``pcg64_next64``), and ``Generator.random``'s doubles
-((next64 >> 11) 2^-53). tests/test_sweep_draws.py compares them with numpy's bit for bit.
+((next64 >> 11) 2^-53). tests/test_montecarlo_draws.py compares them with numpy's bit for bit.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Run directories (flatcli/runs.py): where runs go, what a run directory holds, records
+"""Run directories (flatcli/rundirs.py): where runs go, what a run directory holds, records
 that are not trusted, and interrupted sweeps."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from click.testing import CliRunner
 from run_tree import GOOD_PLAN, make_tree
 
 from flatcli.cli import main
-from flatcli.runs import (
+from flatcli.rundirs import (
     LATEST,
     RunDirectoryError,
     claim,

@@ -1,4 +1,4 @@
-"""Running sweeps (flatcli/sweep/runner.py, end to end through the CLI): reproducible across
+"""Running sweeps (flatcli/montecarlo/runner.py, end to end through the CLI): reproducible across
 workers and chunkings, resumable after kill -9, failures kept, bad specs refused, one writer
 per directory, no orphans, changed chunks recomputed, grid values added without recomputing."""
 
@@ -19,8 +19,8 @@ import pyarrow.parquet as pq
 import pytest
 from small_sweep import SPEC, sweep, write_spec
 
+from flatcli.montecarlo.layout import ID_STRIDE
 from flatcli.storage import read_provenance
-from flatcli.sweep.layout import ID_STRIDE
 
 
 def trials(directory: Path) -> pd.DataFrame:
@@ -381,7 +381,7 @@ _WATCHED_SWEEP = """
 import json, os, sys
 from pathlib import Path
 
-import flatcli.sweep.runner as runner
+import flatcli.montecarlo.runner as runner
 
 out = Path(sys.argv[1])
 def loaded():

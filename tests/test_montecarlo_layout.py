@@ -1,4 +1,4 @@
-"""A sweep's layout from its spec (flatcli/sweep/layout.py)."""
+"""A sweep's layout from its spec (flatcli/montecarlo/layout.py)."""
 
 from __future__ import annotations
 
@@ -8,9 +8,8 @@ import math
 
 import pytest
 
-from flatcli.spec import SpecError, resolve
-from flatcli.sweep import cell_spec, grid_label, layout
-from flatcli.sweep.layout import (
+from flatcli.montecarlo import cell_spec, grid_label, layout
+from flatcli.montecarlo.layout import (
     CHUNK_MAX,
     CHUNK_MIN,
     CHUNKS_PER_CELL,
@@ -18,6 +17,7 @@ from flatcli.sweep.layout import (
     cell_keys,
     default_chunk,
 )
+from flatcli.spec import SpecError, resolve
 
 GRID = {"track.dt": [0.001, 0.002], "gains": [{"label": "a", "track.kp": [1, 2]},
                                               {"label": "b", "track.kp": [3, 4]}]}

@@ -25,17 +25,17 @@ from flatcli.core.metrics import (
 )
 from flatcli.core.simulate import NoiseStreams, Trials, check_against_reference
 from flatcli.experiment import checked, plant_from
-from flatcli.spec import PERTURB_TARGETS, Spec, lookup, perturbations
-from flatcli.storage import null_where_nan, peak_memory_mib, with_units
-from flatcli.sweep.draws import (
+from flatcli.montecarlo.draws import (
     draw_perturbations,
     invalid_plants,
     invalid_servos,
     nominal_values,
     perturbation_columns,
 )
-from flatcli.sweep.layout import Cell, Chunk
-from flatcli.sweep.tally import simulate_counted
+from flatcli.montecarlo.layout import Cell, Chunk
+from flatcli.montecarlo.tally import simulate_counted
+from flatcli.spec import PERTURB_TARGETS, Spec, lookup, perturbations
+from flatcli.storage import null_where_nan, peak_memory_mib, with_units
 from flatcli.units import units_of
 
 #: Statuses ``--fail-fast`` stops at: trials that did not run, or not to the end.

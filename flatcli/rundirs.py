@@ -21,8 +21,6 @@ import json
 import math
 import os
 import secrets
-import sys
-import types as _types
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from datetime import datetime
@@ -280,9 +278,9 @@ def sweep_state(directory: Path) -> SweepState | None:
     import pyarrow as pa
     import pyarrow.parquet as pq
 
+    from flatcli.montecarlo.directory import read_manifest
     from flatcli.spec import SpecError
     from flatcli.storage import read_provenance
-    from flatcli.sweep.directory import read_manifest
 
     try:
         manifest = read_manifest(directory)  # every name and count in it checked
@@ -592,16 +590,3 @@ def _resolved(path: Path) -> Path | None:
     except (OSError, RuntimeError):  # RuntimeError: a symlink loop (Python < 3.13)
         return None
 
-
-class _CallableModule(_types.ModuleType):
-    """``flatcli.runs`` names both this module and the API function ``flatcli.api.runs``
-    (``flatcli.runs("runs")``: a DataFrame of the runs); once the module is imported its name
-    is bound to it, so calling the module runs the function (as ``flatcli.sweep``)."""
-
-    def __call__(self, *args: Any, **kwargs: Any) -> Any:
-        from flatcli.api import runs
-
-        return runs(*args, **kwargs)
-
-
-sys.modules[__name__].__class__ = _CallableModule

@@ -1,4 +1,4 @@
-"""A sweep's directory (flatcli/sweep/directory.py): the manifest, verified chunks, what a
+"""A sweep's directory (flatcli/montecarlo/directory.py): the manifest, verified chunks, what a
 resume keeps, what --force may remove, and the refusals."""
 
 from __future__ import annotations
@@ -18,11 +18,8 @@ import pytest
 from scipy.stats import binomtest
 
 from flatcli.files import MAX_MANIFEST_BYTES
-from flatcli.runs import sweep_state
-from flatcli.spec import Spec, SpecError, resolve
-from flatcli.storage import LOCK_NAME, column_units, read_provenance, to_jsonable, write_table
-from flatcli.sweep import MANIFEST, TRIALS_DIR, layout, recorded_digest, run_chunk, run_sweep
-from flatcli.sweep.directory import (
+from flatcli.montecarlo import MANIFEST, TRIALS_DIR, layout, recorded_digest, run_chunk, run_sweep
+from flatcli.montecarlo.directory import (
     FINAL_FILES,
     RERUN_FILES,
     Previous,
@@ -38,7 +35,10 @@ from flatcli.sweep.directory import (
     verified_chunks,
     write_manifest,
 )
-from flatcli.sweep.layout import Layout
+from flatcli.montecarlo.layout import Layout
+from flatcli.rundirs import sweep_state
+from flatcli.spec import Spec, SpecError, resolve
+from flatcli.storage import LOCK_NAME, column_units, read_provenance, to_jsonable, write_table
 
 
 def small_spec(**sweep: object) -> Spec:

@@ -1,4 +1,4 @@
-"""Re-running one trial of a sweep alone (flatcli/sweep/rerun.py)."""
+"""Re-running one trial of a sweep alone (flatcli/montecarlo/rerun.py)."""
 
 from __future__ import annotations
 
@@ -12,9 +12,9 @@ import pytest
 from small_sweep import SPEC, sweep, write_spec
 
 from flatcli.core.model import FlatcliError
+from flatcli.montecarlo import layout, rerun_spec
+from flatcli.montecarlo.rerun import rerun_and_compare, same, trial_row
 from flatcli.spec import resolve
-from flatcli.sweep import layout, rerun_spec
-from flatcli.sweep.rerun import rerun_and_compare, same, trial_row
 
 
 def test_rerun_reproduces_a_trial_exactly(tmp_path: Path) -> None:

@@ -1,4 +1,4 @@
-"""Per-trial random draws (flatcli/sweep/draws.py)."""
+"""Per-trial random draws (flatcli/montecarlo/draws.py)."""
 
 from __future__ import annotations
 
@@ -10,8 +10,7 @@ from numpy.typing import NDArray
 from scipy.special import ndtri
 
 from flatcli.experiment import plan_from
-from flatcli.spec import perturbations, resolve
-from flatcli.sweep import (
+from flatcli.montecarlo import (
     N_VARIATES,
     PERTURB_SLOTS,
     draw_perturbations,
@@ -19,13 +18,14 @@ from flatcli.sweep import (
     nominal_values,
     run_chunk,
 )
-from flatcli.sweep.draws import (
+from flatcli.montecarlo.draws import (
     invalid_plants,
     invalid_servos,
     perturb_slots,
     perturbation_columns,
     variates,
 )
+from flatcli.spec import perturbations, resolve
 
 
 def test_perturbation_draws_are_independent_of_each_other_and_well_distributed() -> None:
@@ -207,11 +207,11 @@ def test_a_zero_std_is_accepted_and_draws_the_nominal_values() -> None:
 
 @pytest.mark.parametrize("seed", [0, 2003, 2**32 + 5, 2**70 + 3])
 def test_a_chunks_variates_are_numpys_streams_bit_for_bit(seed: int) -> None:
-    """flatcli.sweep.streams against the referee it replaces: numpy's own
+    """flatcli.montecarlo.streams against the referee it replaces: numpy's own
     default_rng(SeedSequence(seed, spawn_key=(trial, slot))).random(count), one trial at a
     time; trial ids of one and of two 32-bit words, both slots, any count."""
     from flatcli.experiment import trial_stream
-    from flatcli.sweep.streams import uniform_variates
+    from flatcli.montecarlo.streams import uniform_variates
 
     trials = [0, 1, 2, 99, 2**32 - 1, 2**33 + 7, 12_345_678_901_234, 2**63 - 1]
     for slot, count in ((0, 21), (1, 3), (0, 1)):

@@ -1,4 +1,5 @@
-"""Monte Carlo sweeps: grid cells x random perturbations -> chunks of trials -> results.
+"""Monte Carlo sweeps, the work of ``flatcli.sweep`` and ``flatcli sweep``: grid cells x
+random perturbations -> chunks of trials -> results.
 
 * ``layout``: cells, their plans, chunks, from the spec alone;
 * ``draws``: each trial's perturbations from its own random stream;
@@ -11,13 +12,9 @@ A trial's result depends on its spec, its cell and its id only: not on the chunk
 number of workers, the executor, the order in which chunks finish, or a resume in between.
 """
 
-import sys
-import types
-from typing import Any
-
-from flatcli.sweep.chunks import ChunkResult, grid_cell_text, run_chunk
-from flatcli.sweep.directory import MANIFEST, TRIALS_DIR, finish_sweep, recorded_digest
-from flatcli.sweep.draws import (
+from flatcli.montecarlo.chunks import ChunkResult, grid_cell_text, run_chunk
+from flatcli.montecarlo.directory import MANIFEST, TRIALS_DIR, finish_sweep, recorded_digest
+from flatcli.montecarlo.draws import (
     N_VARIATES,
     PERTURB_SLOTS,
     draw_perturbations,
@@ -25,9 +22,9 @@ from flatcli.sweep.draws import (
     nominal_values,
     perturbation_columns,
 )
-from flatcli.sweep.layout import Cell, Chunk, Layout, cell_spec, grid_label, layout
-from flatcli.sweep.rerun import Rerun, rerun_and_compare, rerun_spec, trial_spec
-from flatcli.sweep.runner import FailFastError, SweepResult, run_sweep
+from flatcli.montecarlo.layout import Cell, Chunk, Layout, cell_spec, grid_label, layout
+from flatcli.montecarlo.rerun import Rerun, rerun_and_compare, rerun_spec, trial_spec
+from flatcli.montecarlo.runner import FailFastError, SweepResult, run_sweep
 
 __all__ = [
     "MANIFEST",
@@ -58,16 +55,3 @@ __all__ = [
     "trial_spec",
 ]
 
-
-class _CallablePackage(types.ModuleType):
-    """``flatcli.sweep`` names both this package and the API function ``flatcli.api.sweep``
-    (``flatcli.sweep(spec, out, workers=...)``); once the package is imported its name is
-    bound to it, so calling the package runs a sweep."""
-
-    def __call__(self, *args: Any, **kwargs: Any) -> Any:
-        from flatcli.api import sweep
-
-        return sweep(*args, **kwargs)
-
-
-sys.modules[__name__].__class__ = _CallablePackage

@@ -16,12 +16,12 @@ from typing import Any
 from flatcli.core.model import FlatcliError
 from flatcli.experiment import run_track
 from flatcli.files import kind, not_regular
+from flatcli.montecarlo.directory import RERUN_FILES, recorded_digest
+from flatcli.montecarlo.draws import perturbation_columns
+from flatcli.montecarlo.layout import Layout, layout
 from flatcli.report import table, track_title
 from flatcli.spec import PERTURB_TARGETS, Spec, build
 from flatcli.storage import run_record
-from flatcli.sweep.directory import RERUN_FILES, recorded_digest
-from flatcli.sweep.draws import perturbation_columns
-from flatcli.sweep.layout import Layout, layout
 
 
 def trials_table(directory: Path) -> Path:

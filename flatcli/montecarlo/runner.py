@@ -15,12 +15,8 @@ from pathlib import Path
 
 from flatcli.executors import default_workers, make_executor
 from flatcli.interrupts import check, deferred, interruptible
-from flatcli.progress import Progress
-from flatcli.spec import Spec
-from flatcli.spec.limits import check_workers
-from flatcli.storage import Syncer, directory_lock, versions, write_table
-from flatcli.sweep.chunks import run_chunk
-from flatcli.sweep.directory import (
+from flatcli.montecarlo.chunks import run_chunk
+from flatcli.montecarlo.directory import (
     SHOWN,
     TRIALS_DIR,
     chunk_provenance,
@@ -31,8 +27,12 @@ from flatcli.sweep.directory import (
     verified_chunks,
     write_manifest,
 )
-from flatcli.sweep.layout import Chunk, Layout, layout
-from flatcli.sweep.tally import status_counts, watch
+from flatcli.montecarlo.layout import Chunk, Layout, layout
+from flatcli.montecarlo.tally import status_counts, watch
+from flatcli.progress import Progress
+from flatcli.spec import Spec
+from flatcli.spec.limits import check_workers
+from flatcli.storage import Syncer, directory_lock, versions, write_table
 
 
 class FailFastError(RuntimeError):

@@ -1,4 +1,4 @@
-"""Live trial counts (flatcli/sweep/tally.py): batches change nothing, forked workers'
+"""Live trial counts (flatcli/montecarlo/tally.py): batches change nothing, forked workers'
 counts reach the parent's progress bar, by status."""
 
 from __future__ import annotations
@@ -13,9 +13,9 @@ import pytest
 from small_sweep import SPEC, write_spec
 
 from flatcli.core.simulate import NoiseStreams, Trials, simulate
+from flatcli.montecarlo import layout, run_sweep, tally
 from flatcli.report import Progress
 from flatcli.spec import load_spec
-from flatcli.sweep import layout, run_sweep, tally
 
 
 class Recorder(Progress):

@@ -43,6 +43,8 @@ from flatcli.files import (
     read_bounded,
     real_directory,
 )
+from flatcli.montecarlo.chunks import grid_columns
+from flatcli.montecarlo.layout import KEY_SPACE, Cell, Chunk, Layout
 from flatcli.report.summary import (
     SUMMARY_INPUTS,
     file_columns,
@@ -68,8 +70,6 @@ from flatcli.storage import (
     write_table,
     write_text,
 )
-from flatcli.sweep.chunks import grid_columns
-from flatcli.sweep.layout import KEY_SPACE, Cell, Chunk, Layout
 from flatcli.units import units_of
 
 MANIFEST = "sweep.json"

@@ -2,7 +2,7 @@
 
 Every random number of trial ``i`` comes from its own stream
 ``SeedSequence(sweep.seed, spawn_key=(i, slot))`` (``flatcli.experiment.trial_stream``; drawn
-for a chunk at once by ``flatcli.sweep.streams``, the same numbers), so a
+for a chunk at once by ``flatcli.montecarlo.streams``, the same numbers), so a
 trial's values do not depend on the chunk size, the number of workers, the executor, the
 order in which chunks finish, or a resume in between.
 
@@ -24,10 +24,10 @@ from numpy.typing import NDArray
 
 from flatcli.core.planning import Plan
 from flatcli.experiment import STREAM_PERTURB, initial_rates, plant_from
+from flatcli.montecarlo.streams import uniform_variates
 from flatcli.spec import PERTURB_TARGETS, Perturbation, Spec, SpecError, lookup
 from flatcli.spec.keys import MIN_JOINTS
 from flatcli.spec.sweeps import size
-from flatcli.sweep.streams import uniform_variates
 
 Array = NDArray[np.float64]
 

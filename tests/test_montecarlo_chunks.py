@@ -1,4 +1,4 @@
-"""One chunk of trials (flatcli/sweep/chunks.py): its rows, and what --fail-fast reads."""
+"""One chunk of trials (flatcli/montecarlo/chunks.py): its rows, and what --fail-fast reads."""
 
 from __future__ import annotations
 
@@ -7,10 +7,10 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from flatcli.core.metrics import METRIC_NAMES
+from flatcli.montecarlo import Chunk, ChunkResult, grid_cell_text, layout, run_chunk
+from flatcli.montecarlo.chunks import grid_columns, verify_count
 from flatcli.spec import resolve
 from flatcli.storage import UNIT_KEY
-from flatcli.sweep import Chunk, ChunkResult, grid_cell_text, layout, run_chunk
-from flatcli.sweep.chunks import grid_columns, verify_count
 
 
 def test_a_chunk_has_one_row_per_trial_with_draws_and_metrics_by_name() -> None:
