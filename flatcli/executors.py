@@ -31,6 +31,7 @@ import numpy as np
 
 from flatcli.core.model import FlatcliError
 from flatcli.interrupts import check, interruptible
+from flatcli.machine import cores
 from flatcli.storage import forget_inherited_locks
 from flatcli.threads import limit_process, single_threaded
 
@@ -120,11 +121,8 @@ def _alive(process: Any) -> bool:
 
 
 def default_workers() -> int:
-    """One worker per core this process may use."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # pragma: no cover - not Linux
-        return os.cpu_count() or 1
+    """One worker per core this process may use (``flatcli.machine.cores``)."""
+    return cores()
 
 
 class LocalExecutor:

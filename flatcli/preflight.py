@@ -38,6 +38,7 @@ import pyarrow.parquet as pq
 
 from flatcli.core.metrics import METRIC_NAMES, STATUS_NAMES
 from flatcli.executors import default_workers
+from flatcli.machine import physical_memory
 from flatcli.montecarlo import Chunk, Layout, grid_cell_text, grid_label, layout, run_chunk
 from flatcli.report import fmt, short_key, summarize_trials, table
 from flatcli.spec import Spec, spec_toml
@@ -417,7 +418,9 @@ def _warnings(report: CheckReport) -> list[str]:
 
 
 def _physical_mib() -> float | None:
+    """The memory a sweep here may have [MiB]: the machine's, or its container's limit if
+    lower (``flatcli.machine``, as the spec's limits read it)."""
     try:
-        return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE") / MIB
+        return physical_memory() / MIB
     except (ValueError, OSError, AttributeError):  # pragma: no cover - not POSIX
         return None

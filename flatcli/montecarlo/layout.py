@@ -28,11 +28,11 @@ from flatcli.core.model import FlatcliError
 from flatcli.core.planning import Plan
 from flatcli.core.simulate import Scenario
 from flatcli.experiment import plan_from, plant_from, scenario_from
+from flatcli.machine import cores
 from flatcli.spec import PERTURB_TARGETS, Spec, SpecError, grid_overrides
 from flatcli.spec.limits import (
     ID_STRIDE,
     check_sweep,
-    cores,
     output_steps,
     require_finite_plan,
 )

@@ -19,6 +19,7 @@ import os
 from collections.abc import Mapping
 from typing import Any
 
+from flatcli.machine import cores, physical_memory
 from flatcli.spec.keys import SpecError
 
 #: Largest spec file read [bytes].
@@ -102,20 +103,6 @@ def _parse(text: str, units: Mapping[str, float], variable: str) -> float:
     return value
 
 
-def physical_memory() -> float:
-    """This machine's memory, or the container's limit if lower [bytes]."""
-    total = float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
-    for path in ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"):
-        try:
-            with open(path) as fh:
-                limit = fh.read().strip()
-        except OSError:
-            continue
-        if limit.isdigit():
-            total = min(total, float(limit))
-    return total
-
-
 def memory_budget() -> float:
     """Memory a run may plan to use [bytes]."""
     text = os.environ.get("FLATCLI_MEMORY_BUDGET")
@@ -132,14 +119,6 @@ def time_budget() -> float:
         return _parse(text, {"S": 1.0, "M": 60.0, "H": 3600.0, "D": 86400.0},
                       "FLATCLI_TIME_BUDGET")
     return DEFAULT_TIME_BUDGET
-
-
-def cores() -> int:
-    """Cores this process may use."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # pragma: no cover - not Linux
-        return os.cpu_count() or 1
 
 
 def size_text(n: float) -> str:
