@@ -11,6 +11,7 @@ The Python API (``flatcli.api``; each command of the CLI is a thin wrapper over 
     r = flatcli.load("runs/paper_example/latest")
     flatcli.check("study.toml").text()                    # what a sweep would do
     df = flatcli.runs(filters=["plant.model=dynamic"])    # the runs as a DataFrame
+    w = flatcli.workspace(attitude=(1.0, 1.4))            # where the end effector can go
 
 ``import flatcli`` stays light (no numpy, numba, scipy or pandas): the API loads on first
 use (PEP 562 module ``__getattr__``).
@@ -44,6 +45,7 @@ if TYPE_CHECKING:
         Run,
         SweepResult,
         TrackResult,
+        WorkspaceResult,
         check,
         load,
         load_spec,
@@ -52,6 +54,7 @@ if TYPE_CHECKING:
         runs,
         sweep,
         track,
+        workspace,
     )
     from flatcli.core.model import FlatcliError
     from flatcli.spec import Spec, SpecError
@@ -61,6 +64,7 @@ _LAZY = {
     "plan": "flatcli.api",
     "plan_many": "flatcli.api",
     "track": "flatcli.api",
+    "workspace": "flatcli.api",
     "sweep": "flatcli.api",
     "check": "flatcli.api",
     "load": "flatcli.api",
@@ -70,6 +74,7 @@ _LAZY = {
     "PlanResult": "flatcli.api",
     "PlanBatch": "flatcli.api",
     "TrackResult": "flatcli.api",
+    "WorkspaceResult": "flatcli.api",
     "SweepResult": "flatcli.api",
     "FlatcliError": "flatcli.core.model",
     "Spec": "flatcli.spec",
@@ -85,6 +90,7 @@ __all__ = [
     "SpecError",
     "SweepResult",
     "TrackResult",
+    "WorkspaceResult",
     "__version__",
     "check",
     "load",
@@ -94,6 +100,7 @@ __all__ = [
     "runs",
     "sweep",
     "track",
+    "workspace",
 ]
 
 

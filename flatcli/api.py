@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING, Any
 from flatcli.core.model import FlatcliError
 from flatcli.core.optimize import OptimizeResult
 from flatcli.core.planning import Plan, PlanSamples
+from flatcli.core.workspace import BRANCHES, DEFAULT_ATTITUDES, WorkspaceMap
 from flatcli.experiment import TrackRun, plan_and_optimization, run_track
 from flatcli.files import is_regular, kind, read_text
 from flatcli.progress import announce_compile
@@ -83,6 +84,8 @@ if TYPE_CHECKING:  # pandas loads with the first DataFrame, never in a sweep's p
     from flatcli.trajectory import Trajectory
 
 SpecLike = str | os.PathLike[str] | Mapping[str, Any] | Spec | None
+#: The most targets per axis of ``workspace`` (memory: about 130 bytes per target).
+MAX_WORKSPACE_POINTS = 1001
 Overrides = Mapping[str, Any] | Iterable[str] | None
 
 def load_spec(spec: SpecLike = None, overrides: Overrides = None) -> Spec:
@@ -418,6 +421,86 @@ class TrackResult(Run):
 
         with _saving(out, "track", spec, force, root) as directory:
             self.files = write_track(directory, self.run, record, title if plot else None)
+        self.directory, self.record = directory, record
+        return directory
+
+
+class WorkspaceResult(Run):
+    """Where an N = 2 robot can put its end effector at the end of a maneuver
+    (``flatcli.workspace``): ``.frame`` (workspace.parquet's rows, one per target of the grid),
+    ``.metrics`` (areas [m^2] by elbow branch, the attitude window, the threshold ``thin``),
+    ``.spec``; ``.map`` (the core's ``WorkspaceMap``) when computed here."""
+
+    command = "workspace"
+
+    def __init__(self, spec: Spec, frame: pd.DataFrame, metrics: Mapping[str, Any],
+                 found: WorkspaceMap | None = None, directory: Path | None = None,
+                 record: Mapping[str, Any] | None = None) -> None:
+        super().__init__(directory, record)
+        self.spec = spec
+        self.frame = frame
+        self.metrics = dict(metrics)
+        self.map = found
+
+    def text(self) -> str:
+        """What ``flatcli workspace`` prints: the window and the areas."""
+        from flatcli.report import table
+
+        m = self.metrics
+        rows = [[name.replace("_", " "), m[f"area_{name}"], m[f"area_{name}"] / m["area_grid"]]
+                for name in ("reachable", "both", "up_only", "down_only", "thin")]
+        lo, hi = m["attitude_low"], m["attitude_high"]
+        window = f"th0(T) = {lo:g} rad" if lo == hi else f"th0(T) in [{lo:g}, {hi:g}] rad " \
+            f"({m['attitudes']} attitudes)"
+        return (f"workspace of {self.spec.name!r} from th(0) = "
+                f"({', '.join(f'{v:g}' for v in m['start'])}) rad, {window}, "
+                f"{m['points']} x {m['points']} targets; thin: |sin th1| < {m['thin']:g}\n"
+                + table(["region", "area [m^2]", "fraction of the grid"], rows, 4))
+
+    def plot(self) -> Figure:
+        """The map (``report.task_figures.workspace_figure``): targets coloured by the branches
+        that reach them, the thin region hatched, the robot at its start."""
+        import numpy as np
+
+        from flatcli.core.workspace import WorkspaceMap
+        from flatcli.experiment import robot_from
+        from flatcli.report.task_figures import workspace_figure
+
+        found = self.map
+        if found is None:  # loaded: the map from its table
+            f = self.frame
+            xs, ys = np.unique(f["target_x"].to_numpy()), np.unique(f["target_y"].to_numpy())
+            shape = (len(ys), len(xs))
+            margin = np.stack([f[f"abs_sin_th1_{b}"].to_numpy(dtype=float).reshape(shape)
+                               for b in BRANCHES])
+            theta = np.stack([np.stack([f[f"theta{i}_{b}"].to_numpy(dtype=float).reshape(shape)
+                                        for i in range(3)], axis=-1) for b in BRANCHES])
+            found = WorkspaceMap(xs, ys, np.linspace(self.metrics["attitude_low"],
+                                                     self.metrics["attitude_high"],
+                                                     int(self.metrics["attitudes"])),
+                                 margin, theta)
+        m = self.metrics
+        fig: Figure = workspace_figure(found, robot_from(self.spec), np.asarray(m["start"]),
+                                       float(m["thin"]), f"{self.spec.name}: where the end "
+                                       "effector can be put")
+        return fig
+
+    def save(self, out: str | os.PathLike[str] | Target | None = None, *, force: bool = False,
+             plot: bool = True, root: str | os.PathLike[str] = ROOT) -> Path:
+        """Write workspace.parquet and run.json (and with ``plot`` the figure, workspace.png or
+        the format of the spec's ``[figures]``) into ``out``, or a new directory
+        ``root/<name>/<stamp>/``; return the directory."""
+        spec = self.spec
+        record = run_record("workspace", spec.tree, digest=spec.digest(), metrics=self.metrics,
+                            **_tags(self.tags))
+        file = FigureFile.of(spec)
+        with _saving(out, "workspace", spec, force, root) as directory:
+            write_parquet(directory / "workspace.parquet", self.frame, record)
+            write_json(directory / RECORD, record)
+            self.files = ["workspace.parquet", RECORD]
+            if plot:
+                save_figure(self.plot(), directory / file.name("workspace"), file)
+                self.files.append(file.name("workspace"))
         self.directory, self.record = directory, record
         return directory
 
@@ -905,6 +988,77 @@ def check(spec: SpecLike, overrides: Overrides = None, *, workers: int | None = 
     return check_spec(s, workers=workers, executor=executor, calibrate=calibrate, quiet=quiet)
 
 
+def workspace(spec: SpecLike = None, overrides: Overrides = None, *,
+              attitude: tuple[float, float] | None = None, attitudes: int = DEFAULT_ATTITUDES,
+              points: int = 201, extent: float | None = None, thin: float = 0.1
+              ) -> WorkspaceResult:
+    """Map where the spec's N = 2 robot can put its end effector at the end of a maneuver
+    from its start (``plan.start``, or ``task.start_end_effector``), for final base attitudes
+    in ``attitude`` = (lo, hi) [rad] (default: ``task.base_attitude`` if set, else free:
+    th0(0) +- pi) sampled at ``attitudes`` values, on a ``points`` x ``points`` grid of
+    targets over [-extent, extent]^2 [m] (default: 5 % beyond the arm's reach).
+
+    Columns: ``target_x``, ``target_y`` [m]; ``up``, ``down``, ``reachable`` (usable on that
+    branch, either); ``abs_sin_th1_up``/``_down`` (the largest |sin th1| over the window,
+    nan where not usable) and ``abs_sin_th1`` (the larger); ``theta0_up`` .. ``theta2_down``
+    [rad], the configuration of that largest margin. Nothing is written until ``.save()``.
+    """
+    import math
+    from dataclasses import replace
+
+    import numpy as np
+    import pandas as pd
+
+    from flatcli.core.kinematics import reach
+    from flatcli.core.task import task_ends
+    from flatcli.core.workspace import workspace_areas, workspace_map
+    from flatcli.experiment import robot_from, task_from
+    from flatcli.units import units_of
+
+    s = load_spec(spec, overrides)
+    robot = robot_from(s)
+    if robot.n_joints != 2:
+        raise FlatcliError(f"workspace: maps the N = 2 robot's elbow branches; this robot has "
+                           f"N = {robot.n_joints} joints")
+    if not 2 <= points <= MAX_WORKSPACE_POINTS:
+        raise FlatcliError(f"--points: expected 2 to {MAX_WORKSPACE_POINTS}, got {points}")
+    if not (math.isfinite(thin) and thin >= 0):
+        raise FlatcliError(f"--thin: expected a number >= 0, got {thin:g}")
+    task = task_from(s)
+    start = np.asarray(s.plan.start, dtype=float)
+    if task.start_end_effector is not None:
+        plain = replace(task, end_effector=None, rest=False, obstacles=())
+        start = task_ends(robot, plain, start, s.plan.goal, False, True)[0][0]
+    if attitude is None:
+        a = task.base_attitude
+        attitude = (a, a) if a is not None else (start[0] - math.pi, start[0] + math.pi)
+    span = 1.05 * reach(robot)[1] if extent is None else float(extent)
+    if not (math.isfinite(span) and span > 0):
+        raise FlatcliError(f"--extent: expected a positive length [m], got {span:g}")
+    grid = np.linspace(-span, span, points)
+    found = workspace_map(robot, start, attitude, grid, grid, attitudes)
+    areas = workspace_areas(found, thin)
+    columns: dict[str, Any] = {"target_x": np.tile(grid, points),
+                               "target_y": np.repeat(grid, points)}
+    usable = found.usable
+    for b, name in enumerate(BRANCHES):
+        columns[name] = usable[b].ravel()
+    columns["reachable"] = usable.any(axis=0).ravel()
+    columns["abs_sin_th1"] = found.best_margin.ravel()
+    for b, name in enumerate(BRANCHES):
+        columns[f"abs_sin_th1_{name}"] = found.margin[b].ravel()
+        for i in range(3):
+            columns[f"theta{i}_{name}"] = found.theta[b, ..., i].ravel()
+    frame = pd.DataFrame(columns)
+    frame.attrs["units"] = units_of(frame.columns)
+    metrics: dict[str, Any] = {f"area_{k}": v for k, v in areas.items()}
+    metrics.update(area_grid=found.cell_area * points**2, start=[float(v) for v in start],
+                   attitude_low=float(found.attitudes[0]),
+                   attitude_high=float(found.attitudes[-1]),
+                   attitudes=len(found.attitudes), points=points, extent=span, thin=thin)
+    return WorkspaceResult(s, frame, metrics, found)
+
+
 def load(directory: str | os.PathLike[str]) -> Run:
     """The run a directory holds: a PlanResult, TrackResult (also ``sweep --rerun``) or
     SweepResult (finished or not); other runs (``reproduce``) as a plain Run.
@@ -948,9 +1102,30 @@ def load(directory: str | os.PathLike[str]) -> Run:
             recorded if isinstance(recorded, dict) else {})
         return TrackResult(None, pd.read_parquet(path / "track.parquet"), metrics,
                            directory=path, record=record)
+    if _table(path, "workspace.parquet") and command == "workspace":
+        return WorkspaceResult(spec_of(record), pd.read_parquet(path / "workspace.parquet"),
+                               _workspace_metrics(record, path), directory=path, record=record)
     run = Run(path, record)
     run.command = command
     return run
+
+
+#: What a workspace run's record holds beside its areas (``WorkspaceResult.metrics``).
+_WORKSPACE_NUMBERS = ("attitude_low", "attitude_high", "attitudes", "points", "extent", "thin")
+
+
+def _workspace_metrics(record: Mapping[str, Any], path: Path) -> dict[str, Any]:
+    """A workspace run's recorded metrics, checked (a record on disk is not trusted)."""
+    metrics = record.get("metrics")
+    start = metrics.get("start") if isinstance(metrics, dict) else None
+    ok = isinstance(metrics, dict) and isinstance(start, list) and len(start) == 3 and all(
+        isinstance(v, int | float) and not isinstance(v, bool) for v in start) and all(
+        isinstance(metrics.get(k), int | float) and not isinstance(metrics.get(k), bool)
+        for k in _WORKSPACE_NUMBERS)
+    if not ok:
+        raise FlatcliError(f"{path / RECORD}: not a workspace run's record (its metrics need "
+                           f"start (3 numbers) and {', '.join(_WORKSPACE_NUMBERS)})")
+    return dict(metrics)  # type: ignore[arg-type]
 
 
 def sweep_dir_of(directory: str | os.PathLike[str]) -> Path:

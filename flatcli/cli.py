@@ -448,6 +448,54 @@ def track(spec: Path | None, robot: str | None, sets: tuple[str, ...], name: str
             cfg, quiet)
 
 
+@main.command(short_help="Map where the end effector can be put (N = 2).")
+@spec_argument()
+@robot_option
+@set_option()
+@name_option
+@tag_option
+@click.option("--attitude", nargs=2, type=float, metavar="LO HI",
+              help="Window of the final base attitude th0(T) [rad] [default: task.base_attitude "
+                   "if set, else free: th0(0) +- pi].")
+@click.option("--attitudes", type=int, default=181, show_default=True, metavar="K",
+              help="Attitudes sampled over the window (both ends included).")
+@click.option("--points", type=int, default=201, show_default=True, metavar="N",
+              help="Targets per axis of the square grid (2 to 1001).")
+@click.option("--extent", type=float, metavar="M",
+              help="Half width of the grid [m] [default: 5 % beyond the arm's reach].")
+@click.option("--thin", type=float, default=0.1, show_default=True, metavar="S",
+              help="Mark targets whose best |sin th1| is under S (near the flat map's "
+                   "singular set).")
+@out_option()
+@force_option("Write into an --out directory that holds another run (its files are replaced).")
+@figure_options
+@quiet_option
+def workspace(spec: Path | None, robot: str | None, sets: tuple[str, ...], name: str | None,
+              tags: tuple[str, ...], attitude: tuple[float, float] | None, attitudes: int,
+              points: int, extent: float | None, thin: float, out: Path | None, force: bool,
+              fmt: str | None, dpi: int | None, quiet: bool) -> None:
+    """Map, for an N = 2 robot starting at plan.start, where its end effector can be put at
+    the end of a maneuver: each target of a grid by the elbow branches that reach it with th1
+    on the start's side of sin th1 = 0, for final base attitudes in a window, and how far from
+    that singular set (|sin th1|). Writes workspace.parquet, run.json and the figure
+    (workspace.png, or --format)."""
+    from flatcli import api
+    from flatcli.rundirs import check_tags
+
+    require_stdout(quiet)
+    with user_errors():
+        s = api.load_spec(spec, spec_overrides(sets, robot=robot, name=name, fmt=fmt, dpi=dpi))
+        chosen = check_tags(tags)
+        with api.output_lock(out):
+            target = api.output_target("workspace", s, out, force)  # refused before any work
+            result = api.workspace(s, attitude=attitude, attitudes=attitudes, points=points,
+                                   extent=extent, thin=thin)
+            result.tags = chosen
+            directory = result.save(target)
+    say(quiet, result.text())
+    say(quiet, f"wrote {directory}/" + ", ".join(result.files))
+
+
 @main.command(short_help="Is the design flat? Its verdict and reasons.")
 @spec_argument()
 @robot_option

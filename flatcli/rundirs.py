@@ -45,10 +45,12 @@ SWEEP_MANIFEST = "sweep.json"
 SWEEP_TRIALS = "trials"
 #: Name of the link to the newest run of a name.
 LATEST = "latest"
-#: The files a plan or track run writes (and ``flatcli export --csv`` beside them);
+#: The files a plan, track or workspace run writes (and ``flatcli export --csv`` beside them);
 #: ``--force`` removes these (and only these, if they are regular files) first.
 RUN_FILES = ("run.json", "plan.parquet", "plan.png", "plan.pdf", "plan.svg", "track.parquet",
-             "track.png", "track.pdf", "track.svg", "metrics.json", "plan.csv", "track.csv")
+             "track.png", "track.pdf", "track.svg", "metrics.json", "plan.csv", "track.csv",
+             "filmstrip.png", "filmstrip.pdf", "filmstrip.svg", "plan.gif",
+             "workspace.parquet", "workspace.png", "workspace.pdf", "workspace.svg")
 #: Default root of run directories.
 ROOT = Path("runs")
 #: A sweep's default directory within ``runs/<name>/``, beside the name's plan and track runs
@@ -437,6 +439,7 @@ def _number(value: Any) -> float | int | None:
 #: The metrics ``flatcli runs`` shows per command (all of them are in the run's files).
 PLAN_KEYS = ("input_energy", "min_margin", "max_abs_momentum")
 TRACK_KEYS = ("err_y_final", "err_theta_rms", "min_margin", "momentum_drift")
+WORKSPACE_KEYS = ("area_reachable", "area_both", "area_thin")
 #: The status of a run whose record cannot be read (or holds values of the wrong types).
 UNREADABLE = "unreadable"
 
@@ -528,7 +531,7 @@ def run_info(directory: Path) -> RunInfo | None:
             status = "ok"
     elif record is not None and isinstance(record.get("metrics"), Mapping):
         values = record["metrics"]
-        found = _metrics(values, TRACK_KEYS)
+        found = _metrics(values, WORKSPACE_KEYS if command == "workspace" else TRACK_KEYS)
         if found is None or not isinstance(values.get("status", "done"), str):
             return _unreadable(directory, command, spec)
         status, metrics = str(values.get("status", "done")), found

@@ -1,11 +1,12 @@
 """The unit of every column flatcli writes: the one table of units.
 
-plan.parquet, track.parquet, trials.parquet and summary.parquet carry these as Arrow field
-metadata (key ``unit``, ``flatcli.storage.UNIT_KEY``) on every numeric column, so a reader
-(pyarrow, polars, DuckDB) finds them beside the numbers; docs/outputs.md's column tables say the
-same (a test compares them). Units are SI, written as in docs/outputs.md; ``DIMENSIONLESS`` ("1")
-marks a pure number: a count, a fraction, a relative tolerance. Columns without a unit are
-identifiers (``trial``, ``cell``) and text (``status``, ``reason``, a group's label).
+plan.parquet, track.parquet, workspace.parquet, trials.parquet and summary.parquet carry
+these as Arrow field metadata (key ``unit``, ``flatcli.storage.UNIT_KEY``) on every numeric
+column, so a reader (pyarrow, polars, DuckDB) finds them beside the numbers; docs/outputs.md's
+column tables say the same (a test compares them). Units are SI, written as in
+docs/outputs.md; ``DIMENSIONLESS`` ("1") marks a pure number: a count, a fraction, a relative
+tolerance. Columns without a unit are identifiers (``trial``, ``cell``), text (``status``,
+``reason``, a group's label) and flags (workspace.parquet's ``up``).
 
 Columns named after spec keys (a sweep's grid keys) take the spec key's unit; a perturbation
 parameter (``sweep.perturb.NAME.PARAM``) takes the unit of the quantity it perturbs, or "1"
@@ -50,6 +51,10 @@ UNITS: dict[str, str] = {
     "ee_error_final": "m", "ee_error_max": "m", "base_attitude_error_final": _ANGLE,
     "min_clearance": "m", "clearance_bound": "m", "certified_intervals": DIMENSIONLESS,
     "task_candidates": DIMENSIONLESS,
+    # workspace.parquet: one row per target (flatcli.core.workspace)
+    "target_x": "m", "target_y": "m",
+    "abs_sin_th1": DIMENSIONLESS, "abs_sin_th1_up": DIMENSIONLESS,
+    "abs_sin_th1_down": DIMENSIONLESS,
     # trials.parquet: the metrics of flatcli.core.metrics (definitions in docs/outputs.md)
     "err_theta_rms": _ANGLE, "err_theta_max": _ANGLE, "err_theta_final": _ANGLE,
     "err_y_rms": _ANGLE, "err_y_max": _ANGLE, "err_y_final": _ANGLE,
@@ -92,6 +97,7 @@ UNITS: dict[str, str] = {
 #: written ``#`` (theta3, u2_dot, y4_ref, tau5, mass_6, initial_rate_2, ...).
 INDEXED_UNITS: dict[str, str] = {
     "theta#": _ANGLE, "theta#_dot": _RATE, "theta#_ref": _ANGLE,
+    "theta#_up": _ANGLE, "theta#_down": _ANGLE,  # workspace.parquet's branches
     "u#": _RATE, "u#_dot": _ACCEL,
     "y#": _ANGLE, "y#_dot": _RATE, "y#_ddot": _ACCEL, "y#_ref": _ANGLE,
     "tau#": _TORQUE,

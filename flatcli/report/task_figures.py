@@ -1,4 +1,5 @@
-"""Figures of a task: a filmstrip of the robot among the obstacles, and its animation.
+"""Figures of a task: a filmstrip of the robot among the obstacles, its animation, and the
+map of where the end effector can be put (``workspace_figure``).
 
 The links are drawn as segments between their joints (``core.kinematics.joint_positions``,
 the system's centre of mass at the origin, marked +), the base thicker; obstacles as discs
@@ -16,6 +17,7 @@ from numpy.typing import NDArray
 
 from flatcli.core.kinematics import joint_positions
 from flatcli.core.model import RobotParams
+from flatcli.core.workspace import WorkspaceMap
 from flatcli.report.figures import PAGE_WIDTH, new_figure, style, styled
 
 Array = NDArray[np.float64]
@@ -104,4 +106,48 @@ def animate(robot: RobotParams, t: Array, theta: Array, path: Path,
     return path
 
 
-__all__ = ["animate", "filmstrip_figure"]
+#: Colours of a workspace map's regions: not reachable, "up" only, "down" only, both branches.
+REGIONS = (("not reachable", "white"), ("elbow up only", "#9ecae1"),
+           ("elbow down only", "#fdae6b"), ("both branches", "#a1d99b"))
+
+
+@styled
+def workspace_figure(found: WorkspaceMap, robot: RobotParams, start: Array, thin: float,
+                     title: str = "") -> Any:
+    """Where the end effector can be put: each target coloured by the elbow branches that
+    reach it from ``start`` (3,) [rad], the region where the best |sin th1| is under ``thin``
+    hatched, the robot drawn at its start, the system's centre of mass marked +."""
+    from matplotlib.colors import ListedColormap
+    from matplotlib.patches import Patch
+
+    up, down = found.usable
+    region = up.astype(int) + 2 * down.astype(int)  # 0 none, 1 up, 2 down, 3 both
+    fig = new_figure(PAGE_WIDTH / 2, PAGE_WIDTH / 2 + 0.7)
+    ax = fig.subplots()
+    dx = float(found.x[1] - found.x[0])
+    dy = float(found.y[1] - found.y[0])
+    extent = (found.x[0] - dx / 2, found.x[-1] + dx / 2, found.y[0] - dy / 2, found.y[-1] + dy / 2)
+    ax.imshow(region, origin="lower", extent=extent, interpolation="nearest",
+              cmap=ListedColormap([c for _, c in REGIONS]), vmin=-0.5, vmax=3.5)
+    best = np.nan_to_num(found.best_margin, nan=np.inf)
+    low = ((up | down) & (best < thin)).astype(float)
+    if low.any():
+        ax.contourf(found.x, found.y, low, levels=[0.5, 1.5], colors="none", hatches=["////"])
+    _links(ax, joint_positions(robot, start), 1.0, "start")
+    ax.plot([0.0], [0.0], "+", color="k", ms=6)
+    handles = [Patch(facecolor=c, edgecolor="0.5", lw=0.4, label=name) for name, c in REGIONS]
+    handles.append(Patch(facecolor="none", edgecolor="0.3", hatch="////",
+                         label=f"|sin th1| < {thin:g}"))
+    ax.legend(handles=handles, fontsize=5, loc="upper center", bbox_to_anchor=(0.5, -0.14),
+              ncol=3, frameon=False)
+    ax.grid(False)
+    ax.set_aspect("equal")
+    ax.set_xlabel("$x$ [m]")
+    ax.set_ylabel("$y$ [m]")
+    if title:
+        ax.set_title(title, fontsize=7)
+    fig.tight_layout()
+    return fig
+
+
+__all__ = ["animate", "filmstrip_figure", "workspace_figure"]
