@@ -5,11 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
+import pytest
 
 from flatcli.core.metrics import METRIC_NAMES
 from flatcli.montecarlo import Chunk, ChunkResult, grid_cell_text, layout, run_chunk
 from flatcli.montecarlo.chunks import grid_columns, verify_count
-from flatcli.spec import resolve
+from flatcli.spec import SpecError, resolve
 from flatcli.storage import UNIT_KEY
 
 
@@ -241,3 +242,57 @@ def test_sweep_verify_re_runs_the_first_trials_of_each_cell_with_dop853() -> Non
             assert max(difference[:3]) > 1e-6  # RK4 at dt = 10 ms, which nothing verifies
         for t in tables:
             assert t.schema.field("reference_difference").metadata[UNIT_KEY] == b"rad"
+
+
+#: A capture box (docs/tasks.md, "Task sweeps"): three targets near the paper's robot's
+#: (-0.25, 0.05) m with the base at 1 rad at T, plants perturbed in their start and masses.
+TASK_SWEEP = {
+    "plan": {"duration": 2.0, "start": [1.8, 1.0, 0.0], "start_rate": 0.2, "goal_rate": 0.2},
+    "task": {"end_effector": [-0.25, 0.05], "base_attitude": 1.0},
+    "track": {"initial": [1.8, 1.0, 0.0], "kp": [100.0, 110.0], "kv": [10.0, 13.0]},
+    "sweep": {"trials": 4, "seed": 4,
+              "grid": {"task.end_effector": [[-0.26, 0.04], [-0.26, 0.06], [-0.25, 0.05]]},
+              "perturb": {"initial": {"dist": "normal", "std": 0.002},
+                          "mass": {"dist": "normal", "std": 0.0005}}},
+}
+
+
+def test_a_task_sweep_plans_every_target_and_bounds_the_end_effectors_final_error() -> None:
+    """Referees: the links placed in the complex plane (tests/task_referees.py) for the
+    plans' ends and for each trial re-run alone (flatcli track of its exact spec, the plant
+    with the trial's masses): the true final distance from the target is within the bound."""
+    from flatcli.api import track
+    from flatcli.experiment import plant_from, robot_from
+    from flatcli.montecarlo.rerun import rerun_spec
+    from tests import task_referees as ref
+
+    spec = resolve(TASK_SWEEP)
+    lay = layout(spec)
+    robot = robot_from(spec)
+    for cell in lay.cells:  # each cell plans to its own target (they once shared cell 0's)
+        plan = cell.scenario.plan
+        end = plan.sample(np.array([plan.duration])).theta[-1]
+        target = complex(*cell.spec.task.end_effector)
+        assert abs(ref.end_effector(robot, end) - target) < 1e-9
+        assert abs(end[0] - 1.0) < 1e-9
+    checked_trials = 0
+    for cell in lay.cells:
+        rows = run_chunk(cell, Chunk(cell.index, cell.first_trial, cell.first_trial + 4)
+                         ).table.to_pylist()
+        for row in rows:
+            assert row["status"] == "ok", row["reason"]
+            alone = rerun_spec(lay, row)
+            run = track(alone)
+            theta = run.frame[["theta0", "theta1", "theta2"]].to_numpy()[-1]
+            exact = abs(ref.end_effector(plant_from(alone), theta)
+                        - complex(*cell.spec.task.end_effector))
+            assert run.metrics["err_theta_final"] == row["err_theta_final"]
+            assert exact <= row["ee_error_bound"] <= 20 * exact + 1e-4, (exact, row)
+            assert row["ee_error_bound"] < 0.3  # the angle-error bound, not its 0.6 m cap
+            checked_trials += 1
+    assert checked_trials == 12
+
+
+def test_a_task_sweep_with_ends_at_rest_is_refused() -> None:
+    with pytest.raises(SpecError, match=r"task\.rest: a sweep.s closed loop has no fade"):
+        layout(resolve({**TASK_SWEEP, "task": {**TASK_SWEEP["task"], "rest": True}}))
