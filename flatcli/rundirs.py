@@ -355,6 +355,18 @@ def chunk_frames(state: SweepState, columns: list[str] | None = None) -> Any:
     return frame.sort_values(["cell", "trial"], ignore_index=True, kind="stable")
 
 
+def _reach_tolerance(manifest: Mapping[str, Any]) -> float | None:
+    """The manifest spec's ``summary.reach_tolerance`` [m], if it is a positive number (a
+    manifest is not trusted); None otherwise (the default applies)."""
+    spec = manifest.get("spec")
+    section = spec.get("summary") if isinstance(spec, Mapping) else None
+    value = section.get("reach_tolerance") if isinstance(section, Mapping) else None
+    if isinstance(value, int | float) and not isinstance(value, bool) and \
+            math.isfinite(value) and value > 0:
+        return float(value)
+    return None
+
+
 def partial_summary(state: SweepState) -> tuple[Any, str]:
     """Per-cell statistics of the finished trials of an unfinished sweep: the summary
     frame, and its Markdown headed by how much is missing."""
@@ -368,7 +380,7 @@ def partial_summary(state: SweepState) -> tuple[Any, str]:
     cells: dict[int, dict[str, Any]] = {}
     for values in frame.drop_duplicates("cell").sort_values("cell").to_dict("records"):
         cells[int(values["cell"])] = {k: values[k] for k in keys}
-    summary = summarize_trials(frame, cells)
+    summary = summarize_trials(frame, cells, _reach_tolerance(state.manifest))
     n_cells = state.cells
     per_cell = int(state.manifest["trials_per_cell"])
     counts = frame.groupby("cell").size().to_dict() if len(frame) else {}

@@ -51,6 +51,7 @@ UNITS: dict[str, str] = {
     "ee_error_final": "m", "ee_error_max": "m", "base_attitude_error_final": _ANGLE,
     "min_clearance": "m", "clearance_bound": "m", "certified_intervals": DIMENSIONLESS,
     "task_candidates": DIMENSIONLESS,
+    "ee_error_bound": "m",  # trials.parquet of a task sweep
     # workspace.parquet: one row per target (flatcli.core.workspace)
     "target_x": "m", "target_y": "m",
     "abs_sin_th1": DIMENSIONLESS, "abs_sin_th1_up": DIMENSIONLESS,

@@ -1,7 +1,8 @@
 """Referees of the task tests, written apart from flatcli.core.kinematics: the links placed
 in the complex plane from their definitions alone.
 
-Body i's centre of mass is z_i = O_0 + sum_{a<i} l_a e^{i psi_a} + d_i e^{i psi_i}; the system's
+Body i's centre of mass is z_i = O_0 + sum_{a<i} l_a e^{i psi_a} + d_i e^{i psi_i} (the last
+body's also + e_N i e^{i psi_N}, its offset across the link, ``com_across``); the system's
 centre of mass sum_i m_i z_i / M = 0 fixes O_0 (solved here, not taken from a formula); the
 joints are O_k = O_0 + sum_{a<k} l_a e^{i psi_a} and the end effector O_N+1. H is summed
 from each body's centre-of-mass velocity (the derivative of z_i along the rates, written out
@@ -35,6 +36,7 @@ def joints(robot: RobotParams, theta: Array) -> Complex:
     rel = np.concatenate([np.zeros((*psi.shape[:-1], 1)), np.cumsum(length * e, axis=-1)],
                          axis=-1)
     centres = rel[..., :n] + com * e
+    centres[..., -1] += robot.com_across * 1j * e[..., -1]
     origin = -np.sum(mass * centres, axis=-1) / mass.sum()  # so that the CoM is 0
     return rel + origin[..., None]
 
@@ -48,7 +50,9 @@ def centres(robot: RobotParams, theta: Array) -> Complex:
     """(..., N + 1) every body's centre of mass [m], complex."""
     z = joints(robot, theta)
     e = np.exp(1j * _psi(theta))
-    return z[..., :-1] + np.asarray(robot.com) * e
+    out = z[..., :-1] + np.asarray(robot.com) * e
+    out[..., -1] += robot.com_across * 1j * e[..., -1]
+    return out
 
 
 def momentum(robot: RobotParams, theta: Array, rates: Array) -> Array:

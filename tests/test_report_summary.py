@@ -144,3 +144,28 @@ def test_a_directory_without_the_accuracy_columns_has_no_verified_trials() -> No
     summary = summarize_trials(frame, {0: {}})
     assert summary.loc[0, "statistics_of"] == "unverified"
     assert summary.loc[0, "verified_trials"] == 0 and summary.loc[0, "reference_checked"] == 0
+
+
+def test_a_task_sweep_counts_trials_resolved_within_the_reach_tolerance() -> None:
+    """reached: resolved trials (ok, singular) whose ee_error_bound is within the tolerance,
+    over all of the cell's trials; its interval the Wilson score interval of that count
+    (closed form: scipy's binomtest(...).proportion_ci(method="wilson"))."""
+    frame = pd.DataFrame({
+        "cell": [0] * 5, "status": ["ok", "ok", "singular", "diverged", "ok"],
+        "ee_error_bound": [1e-4, 2e-3, 5e-4, math.nan, 1e-3],
+        **{m: [0.1] * 5 for m in ("err_theta_rms", "err_theta_final", "err_y_rms",
+                                  "err_y_final", "min_margin", "momentum_drift",
+                                  "plan_momentum_residual", "peak_rate", "err_estimate")},
+        "singular_hits": [0, 0, 1, 0, 0]})
+    row = summarize_trials(frame, {0: {}}, reach_tolerance=1e-3).iloc[0]
+    assert row["reached_fraction"] == 3 / 5  # 1e-4, 5e-4 and 1e-3 (at the tolerance)
+    ci = binomtest(3, 5).proportion_ci(confidence_level=0.95, method="wilson")
+    assert row["reached_fraction_low"] == pytest.approx(ci.low, rel=1e-12)
+    assert row["reached_fraction_high"] == pytest.approx(ci.high, rel=1e-12)
+    assert row["ee_error_bound_max"] == 2e-3 and row["ee_error_bound_median"] == 7.5e-4
+    assert "### The task's target" in summary_markdown(
+        summarize_trials(frame, {0: {}}, 1e-3), [])
+    tighter = summarize_trials(frame, {0: {}}, reach_tolerance=2e-4).iloc[0]
+    assert tighter["reached_fraction"] == 1 / 5
+    plain = summarize_trials(frame.drop(columns="ee_error_bound"), {0: {}}).iloc[0]
+    assert "reached_fraction" not in plain and "ee_error_bound_max" not in plain

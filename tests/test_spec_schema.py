@@ -17,7 +17,7 @@ from flatcli.spec import GAINS, LINKS, SCHEMA, SECTIONS, Spec, SpecError, all_ke
 
 def test_sections_are_the_toml_tables() -> None:
     assert list(SECTIONS) == ["", "robot", "plan", "plan.optimize", "task", "track", "plant",
-                              "sweep", "figures"]
+                              "sweep", "figures", "summary"]
     assert list(SCHEMA) == list(SECTIONS)
 
 
@@ -37,6 +37,20 @@ def test_figures_enter_no_digest_and_are_bounded() -> None:
     assert lookup("figures.dpi").bounds_text() == "50 to 1200"
     with pytest.raises(SpecError, match=r"cannot grid over 'figures\.format'"):
         resolve({"sweep": {"grid": {"figures.format": ["png", "pdf"]}}})
+
+
+def test_the_summary_section_is_presentation_too() -> None:
+    """summary.reach_tolerance judges a sweep's trials; it computes nothing, so it enters no
+    digest (a sweep resumes whatever it says) and cannot be gridded."""
+    plain = resolve({})
+    judged = resolve({"summary": {"reach_tolerance": 0.01}})
+    assert judged.summary.reach_tolerance == 0.01 and plain.summary.reach_tolerance == 1e-3
+    assert judged.digest() == plain.digest()
+    assert "summary" not in judged.experiment_tree()
+    with pytest.raises(SpecError, match=r"summary.reach_tolerance: must be > 0"):
+        resolve({"summary": {"reach_tolerance": 0.0}})
+    with pytest.raises(SpecError, match=r"cannot grid over 'summary\.reach_tolerance'"):
+        resolve({"sweep": {"grid": {"summary.reach_tolerance": [1e-3, 1e-2]}}})
 
 
 def test_every_key_has_a_default_value_in_the_built_spec() -> None:

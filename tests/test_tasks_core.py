@@ -48,7 +48,12 @@ START = np.array([1.8, 1.0, 0.0])  # the paper's maneuver, Sec. VI
 GOAL = np.array([1.2, 2.0, 0.0])
 
 
-@pytest.mark.parametrize("robot", [PAPER_ROBOT, CHAIN4])
+#: A paper robot as built: its last link's centre of mass 2 cm off the joint, 1 cm across.
+AS_BUILT = RobotParams(mass=(1.0, 1.0, 1.0), inertia=(0.0533, 0.0533, 0.0533),
+                       length=(0.2, 0.2, 0.2), com=(0.1, 0.1, 0.02), com_across=0.01)
+
+
+@pytest.mark.parametrize("robot", [PAPER_ROBOT, CHAIN4, AS_BUILT])
 def test_positions_equal_the_complex_kinematics(robot: RobotParams) -> None:
     rng = np.random.default_rng(1)
     theta = rng.uniform(-3, 3, (50, robot.n_joints + 1))

@@ -17,7 +17,11 @@ along the absolute angles; the end effector is
     r_E = sum_a v_a e(psi_a),            v_a = l_a - F_a / M       (``virtual_links``),
 
 a fixed-base manipulator of link lengths v_0..v_N rooted at the origin (v_N = l_N: the last
-link carries no mass beyond it). The base's position reported (``base_x``, ``base_y``) is its
+link carries no mass beyond it). A robot as built whose last link's centre of mass lies
+e_N across the link (``RobotParams.com_across``) adds - (m_N e_N / M) e_perp(psi_N) to O_0
+and so to every joint and the end effector (e_perp(psi) = (-sin psi, cos psi)).
+
+The base's position reported (``base_x``, ``base_y``) is its
 centre of mass C_0 = O_0 + d_0 e(th0). The base drawn and checked against obstacles is its
 segment O_0 O_1, link k the segment O_k O_k+1.
 
@@ -38,10 +42,15 @@ Array = NDArray[np.float64]
 def mass_moments(robot: RobotParams) -> Array:
     """(N + 1,) F_a = sum_i m_i L_ia [kg m]: how far link a's axis carries the system's mass
     (m_a d_a + (m_a+1 + ... + m_N) l_a)."""
-    mass = np.asarray(robot.mass, dtype=float)
-    length = np.asarray(robot.length, dtype=float)
-    com = np.asarray(robot.com, dtype=float)
-    beyond = np.concatenate([np.cumsum(mass[::-1])[::-1][1:], [0.0]])  # m_a+1 + ... + m_N
+    return moments_of(np.asarray(robot.mass, dtype=float), np.asarray(robot.length, dtype=float),
+                      np.asarray(robot.com, dtype=float))
+
+
+def moments_of(mass: Array, length: Array, com: Array) -> Array:
+    """``mass_moments`` of robots given by their links' masses [kg], lengths and centres [m],
+    each (..., N + 1) (a batch of robots at once)."""
+    beyond = np.concatenate([np.cumsum(mass[..., ::-1], axis=-1)[..., ::-1][..., 1:],
+                             np.zeros_like(mass[..., :1])], axis=-1)  # m_a+1 + ... + m_N
     return np.asarray(mass * com + beyond * length, dtype=float)
 
 
@@ -50,6 +59,12 @@ def virtual_links(robot: RobotParams) -> Array:
     docstring); signed (v_a < 0 points backwards along link a)."""
     return np.asarray(np.asarray(robot.length, dtype=float)
                       - mass_moments(robot) / robot.total_mass, dtype=float)
+
+
+def virtual_links_of(mass: Array, length: Array, com: Array) -> Array:
+    """``virtual_links`` of a batch of robots (..., N + 1) [kg], [m], [m] -> (..., N + 1) [m]."""
+    total = mass.sum(axis=-1, keepdims=True)
+    return np.asarray(length - moments_of(mass, length, com) / total, dtype=float)
 
 
 def absolute_angles(theta: ArrayLike) -> Array:
@@ -64,16 +79,34 @@ def joint_positions(robot: RobotParams, theta: ArrayLike) -> Array:
     e = np.stack([np.cos(psi), np.sin(psi)], axis=-1)  # (..., N + 1, 2)
     moments = mass_moments(robot) / robot.total_mass
     origin = -np.einsum("a,...ak->...k", moments, e)
+    if robot.com_across != 0.0:
+        origin = origin - across_shift(robot) * _perpendicular(e[..., -1, :])
     steps = np.asarray(robot.length, dtype=float)[:, None] * e
     along = np.cumsum(steps, axis=-2)
     return np.concatenate([origin[..., None, :], origin[..., None, :] + along], axis=-2)
 
 
 def end_effector(robot: RobotParams, theta: ArrayLike) -> Array:
-    """(..., 2) r_E = sum_a v_a e(psi_a) [m], the far end of link N."""
+    """(..., 2) r_E = sum_a v_a e(psi_a) [m] (minus ``across_shift`` e_perp(psi_N) for a last
+    link's centre of mass off its axis), the far end of link N."""
     psi = absolute_angles(theta)
     v = virtual_links(robot)
-    return np.stack([np.cos(psi) @ v, np.sin(psi) @ v], axis=-1)
+    out = np.stack([np.cos(psi) @ v, np.sin(psi) @ v], axis=-1)
+    if robot.com_across != 0.0:
+        last = psi[..., -1]
+        out = out - across_shift(robot) * np.stack([-np.sin(last), np.cos(last)], axis=-1)
+    return np.asarray(out, dtype=float)
+
+
+def across_shift(robot: RobotParams) -> float:
+    """m_N e_N / M [m]: how far the whole robot sits from its axis-only twin, along
+    -e_perp(psi_N), when the last link's centre of mass lies e_N across the link."""
+    return float(robot.mass[-1] * robot.com_across / robot.total_mass)
+
+
+def _perpendicular(e: Array) -> Array:
+    """(..., 2) e_perp = (-e_y, e_x) of unit vectors e (..., 2)."""
+    return np.stack([-e[..., 1], e[..., 0]], axis=-1)
 
 
 def base_position(robot: RobotParams, theta: ArrayLike) -> Array:
@@ -93,6 +126,8 @@ def system_com(robot: RobotParams, theta: ArrayLike) -> Array:
     e = np.stack([np.cos(psi), np.sin(psi)], axis=-1)
     com = np.asarray(robot.com, dtype=float)[:, None] * e
     centres = points[..., :-1, :] + com
+    if robot.com_across != 0.0:
+        centres[..., -1, :] += robot.com_across * _perpendicular(e[..., -1, :])
     mass = np.asarray(robot.mass, dtype=float)
     return np.asarray(np.einsum("i,...ik->...k", mass, centres) / robot.total_mass, dtype=float)
 
@@ -108,11 +143,14 @@ def reach(robot: RobotParams) -> tuple[float, float]:
 
 __all__ = [
     "absolute_angles",
+    "across_shift",
     "base_position",
     "end_effector",
     "joint_positions",
     "mass_moments",
+    "moments_of",
     "reach",
     "system_com",
     "virtual_links",
+    "virtual_links_of",
 ]

@@ -21,7 +21,7 @@ from numpy.typing import ArrayLike, NDArray
 from flatcli.core.basis import Basis
 from flatcli.core.clearance import Certificate, Constraints, certify
 from flatcli.core.inverse import Elbow, task_configuration, two_link_task
-from flatcli.core.kinematics import end_effector
+from flatcli.core.kinematics import end_effector, virtual_links, virtual_links_of
 from flatcli.core.model import FlatcliError, Model, RobotParams
 from flatcli.core.planning import Plan, plan_point_to_point
 from flatcli.core.rest import plan_rest_to_rest
@@ -209,4 +209,42 @@ def task_errors(robot: RobotParams, task: Task, theta: Array) -> dict[str, float
             "base_attitude_error_final": att if task.base_attitude is not None else math.nan}
 
 
-__all__ = ["TARGET_TOL", "Task", "TaskPlan", "plan_task", "task_ends", "task_errors"]
+def end_effector_error_bound(nominal: RobotParams, mass: Array, length: Array, com: Array,
+                             com_across: Array, err_theta_final: Array, planned: Array,
+                             target: ArrayLike) -> Array:
+    """(n,) An upper bound on each trial's final distance of the end effector from the target
+    [m], from its final angle error alone (a sweep's trials keep no states).
+
+    Trial k's plant (links mass, length, com (n, N + 1) [kg, m, m], ``com_across`` (n,) [m])
+    ends at th = th_ref(T) + d, ``err_theta_final`` (n,) = |d| [rad], where the plan on the
+    ``nominal`` robot ends at ``planned`` (N + 1,) [rad]. With r_E = sum_a v_a e(psi_a) +
+    w e_perp(psi_N) (``kinematics``; w = -m_N e_N / M) and |e(a) - e(b)| <= |a - b|:
+
+        |r_E^plant(th) - r*| <= |r_E^plant(th) - r_E^plant(th_ref)|       (the angle error)
+                              + |r_E^plant(th_ref) - r_E^nominal(th_ref)|  (the model error)
+                              + |r_E^nominal(th_ref) - r*|                 (the plan's error)
+                             <= |d| (sum_a |v_a| sqrt(a + 1) + |w| sqrt(N + 1))
+                              + sum_a |v_a - v_a^nominal| + |w - w^nominal|
+                              + |r_E^nominal(th_ref(T)) - r*|,
+
+    as |psi_a - psi_a'| = |d_0 + ... + d_a| <= sqrt(a + 1) |d|; and never more than
+    |r_E^plant| + |r*| <= sum_a |v_a| + |w| + |r*| (a large angle error wraps around). nan where
+    err_theta_final is (a trial that did not reach the end).
+    """
+    v = virtual_links_of(mass, length, com)  # (n, N + 1)
+    w = mass[:, -1] * com_across / mass.sum(axis=1)
+    v_nominal = virtual_links(nominal)
+    w_nominal = nominal.mass[-1] * nominal.com_across / nominal.total_mass
+    roots = np.sqrt(np.arange(1, v.shape[1] + 1, dtype=float))
+    lipschitz = np.abs(v) @ roots + np.abs(w) * roots[-1]
+    model = np.abs(v - v_nominal).sum(axis=1) + np.abs(w - w_nominal)
+    plan_error = float(np.hypot(*(end_effector(nominal, np.asarray(planned, dtype=float))
+                                  - np.asarray(target, dtype=float))))
+    bound = lipschitz * np.asarray(err_theta_final, dtype=float) + model + plan_error
+    farthest = np.abs(v).sum(axis=1) + np.abs(w) + float(np.hypot(*np.asarray(target, float)))
+    return np.asarray(np.where(np.isnan(bound), np.nan, np.minimum(bound, farthest)),
+                      dtype=float)
+
+
+__all__ = ["TARGET_TOL", "Task", "TaskPlan", "end_effector_error_bound", "plan_task", "task_ends",
+           "task_errors"]

@@ -23,8 +23,8 @@ from flatcli.core.metrics import (
     Status,
     describe_status,
 )
-from flatcli.core.simulate import NoiseStreams, Trials, check_against_reference
-from flatcli.experiment import checked, plant_from
+from flatcli.core.simulate import NoiseStreams, Scenario, Trials, check_against_reference
+from flatcli.experiment import checked, plant_from, robot_from
 from flatcli.montecarlo.draws import (
     draw_perturbations,
     invalid_plants,
@@ -149,8 +149,31 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
     columns["verified"] = flags(verified)
     columns["reference_difference"] = null_where_nan(difference)
     columns["reference_status"] = texts(reference_status)
+    if spec.task.end_effector is not None:  # a task sweep: how near the target, at most
+        columns["ee_error_bound"] = null_where_nan(
+            reach_bounds(spec, scenario, value, metrics, valid))
     table = with_units(pa.table(columns), units_of(columns, spec))
     return ChunkResult(table, time.perf_counter() - started, peak_memory_mib())
+
+
+def reach_bounds(spec: Spec, scenario: Scenario, value: dict[str, Any], metrics: Any,
+                 valid: Any) -> Any:
+    """(n,) ``ee_error_bound`` of a chunk's trials [m] (``core.task.end_effector_error_bound``
+    from each plant's links and its err_theta_final); nan for a trial that did not run or
+    did not reach the end."""
+    from flatcli.core.task import end_effector_error_bound
+
+    bound = np.full(len(valid), np.nan)
+    target = spec.task.end_effector
+    if valid.any() and target is not None:
+        plan = scenario.plan
+        planned = plan.sample(np.array([plan.duration])).theta[-1]
+        final = metrics[valid, METRIC_NAMES.index("err_theta_final")]
+        across = np.full(int(valid.sum()), plant_from(spec).com_across)
+        bound[valid] = end_effector_error_bound(
+            robot_from(spec), value["mass"][valid], value["length"][valid],
+            value["com"][valid], across, final, planned, target)
+    return bound
 
 
 def verify_count(verify: float, trials: int) -> int:

@@ -661,7 +661,7 @@ def finish_sweep(directory: Path, lay: Layout, provenance: Mapping[str, Any], st
     columns = file_columns(trials_path, SUMMARY_INPUTS)
     cells = {c.index: {k: v for k, (_, v) in grid_columns(c.values, c.spec).items()}
              for c in lay.cells}
-    rows = summary_rows(columns, cells)
+    rows = summary_rows(columns, cells, lay.spec.summary.reach_tolerance)
     names = list(rows[0]) if rows else []
     write_table(directory / "summary.parquet", summary_table(rows, units_of(names, lay.spec)),
                 provenance)

@@ -37,9 +37,11 @@ ERROR_METRICS = ("err_theta_rms", "err_theta_final", "err_y_rms", "err_y_final")
 SUMMARY_INPUTS: tuple[str, ...] = (
     "cell", "status", "singular_hits", *ERROR_METRICS, "min_margin", "momentum_drift",
     "plan_momentum_residual", "peak_rate", "err_estimate", "verified", "reference_difference",
-    "reference_status")
+    "reference_status", "ee_error_bound")
 assert set(SUMMARY_INPUTS) <= {"cell", "status", "verified", "reference_difference",
-                               "reference_status", *METRIC_NAMES}
+                               "reference_status", "ee_error_bound", *METRIC_NAMES}
+#: ``summary.reach_tolerance``'s default [m] (flatcli.spec.schema), for callers without a spec.
+REACH_TOLERANCE = 1e-3
 #: Statuses of trials that did not run to the end, reported as fractions of a cell's trials.
 FAILURES = ("diverged", "unresolved", "error")
 
@@ -150,17 +152,17 @@ def _null(value: Any) -> bool:
         type(value).__name__ in ("NAType", "NaTType")
 
 
-def summarize_trials(frame: pd.DataFrame, cells: Mapping[int, Mapping[str, Any]]
-                     ) -> pd.DataFrame:
+def summarize_trials(frame: pd.DataFrame, cells: Mapping[int, Mapping[str, Any]],
+                     reach_tolerance: float | None = None) -> pd.DataFrame:
     """Per-cell statistics of a sweep's trials as a DataFrame (``summary_rows`` of the
     frame's columns)."""
     import pandas as pd
 
-    return pd.DataFrame(summary_rows(frame_columns(frame), cells))
+    return pd.DataFrame(summary_rows(frame_columns(frame), cells, reach_tolerance))
 
 
-def summary_rows(columns: Columns, cells: Mapping[int, Mapping[str, Any]]
-                 ) -> list[dict[str, Any]]:
+def summary_rows(columns: Columns, cells: Mapping[int, Mapping[str, Any]],
+                 reach_tolerance: float | None = None) -> list[dict[str, Any]]:
     """Per-cell statistics of a sweep's trials (definitions in docs/outputs.md, *Sweep output*).
 
     Parameters
@@ -178,7 +180,10 @@ def summary_rows(columns: Columns, cells: Mapping[int, Mapping[str, Any]]
     has any, ``statistics_of``); the max plan_momentum_residual over simulated trials;
     ``singular_fraction`` (simulated trials with a singular hit) and each of ``FAILURES`` as
     a fraction of the cell's trials, each with its 95 % Wilson interval (``_low``, ``_high``).
-    Statistics over no trials are nan (null in summary.parquet).
+    A task sweep (an ``ee_error_bound`` column) adds that bound's median, p95 and max over the
+    counted trials and ``reached_fraction``: the cell's trials resolved to the end with a
+    bound of at most ``reach_tolerance`` [m] (every other trial counts as not reached), with
+    its Wilson interval. Statistics over no trials are nan (null in summary.parquet).
     """
     rows = []
     all_status = np.asarray(columns["status"], dtype=object)
@@ -228,6 +233,14 @@ def summary_rows(columns: Columns, cells: Mapping[int, Mapping[str, Any]]
         row["unverified_trials"] = int(resolved.sum()) - row["verified_trials"]
         row["statistics_of"] = kind
         _reference(row, columns, in_cell, present)
+        if "ee_error_bound" in columns:
+            bound = present("ee_error_bound", done)
+            row["ee_error_bound_median"] = _stat(np.median, bound)
+            row["ee_error_bound_p95"] = _stat(lambda v: np.percentile(v, 95), bound)
+            row["ee_error_bound_max"] = _stat(np.max, bound)
+            tolerance = REACH_TOLERANCE if reach_tolerance is None else reach_tolerance
+            within = np.asarray(columns["ee_error_bound"], dtype=np.float64)[resolved]
+            _fraction(row, "reached", int(np.sum(within <= tolerance)), row["trials"])
         rows.append(row)
     return rows
 
@@ -315,7 +328,10 @@ def with_interval(value: float, low: float, high: float) -> str:
     """A fraction and its interval as percentages: '26.5 (24.6-28.5)'; '-' if undefined."""
     if any(math.isnan(float(x)) for x in (value, low, high)):
         return "-"
-    return f"{fmt(100 * value, 3)} ({fmt(100 * low, 2)}-{fmt(100 * high, 2)})"
+    def bound(x: float) -> str:  # two digits, but 100 as 100 (not 1e+02)
+        return fmt(100 * x, 3 if 100 * x >= 99.5 else 2)
+
+    return f"{fmt(100 * value, 3)} ({bound(low)}-{bound(high)})"
 
 
 def summary_markdown(summary: pd.DataFrame | Sequence[Mapping[str, Any]],
@@ -394,6 +410,19 @@ def summary_markdown(summary: pd.DataFrame | Sequence[Mapping[str, Any]],
             "\nchecked: trials re-run with DOP853 at rtol 1e-10; diff: max over the samples\n"
             "of the norm of the angles' difference [rad]; other status: checked trials whose\n"
             "reference ended with another status.",
+        ]
+    if records and "reached_fraction" in records[0]:
+        parts += [
+            "\n### The task's target (resolved trials)\n",
+            table(["cell", "reached [%, 95 % interval]", "bound med", "bound p95", "bound max"],
+                  [[line[0], share[1], *line[1:]] for line, share in zip(
+                      marked(rows(["ee_error_bound_median", "ee_error_bound_p95",
+                                   "ee_error_bound_max"])), shares(["reached"]), strict=True)],
+                  3),
+            "\nbound: ee_error_bound, an upper bound on the end effector's final distance from\n"
+            "task.end_effector [m] (from err_theta_final and the plant's links). reached: share\n"
+            "of the cell's trials resolved to the end with a bound within\n"
+            "summary.reach_tolerance.",
         ]
     return "\n".join(parts)
 

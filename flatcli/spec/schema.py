@@ -72,7 +72,7 @@ BASES = ("auto", "poly", "bspline")
 FIGURE_FORMATS = ("png", "pdf", "svg")
 #: Sections that say how results are shown, not what is computed: they enter no digest, so
 #: a sweep resumes and a run is "the same run" whatever figures it draws.
-PRESENTATION = ("figures",)
+PRESENTATION = ("figures", "summary")
 INF = math.inf
 
 Vector = tuple[float, ...]
@@ -307,6 +307,16 @@ class FiguresSpec:
 
 
 @dataclass(frozen=True)
+class SummarySpec:
+    """how a sweep's summary judges its trials (`--set summary.*`; not part of the experiment)"""
+
+    reach_tolerance: float = number(1e-3, "a task sweep's trial counts as reaching its "
+                                    "target (`reached_fraction`) where `ee_error_bound`, an "
+                                    "upper bound on the end effector's final distance from "
+                                    "`task.end_effector`, is at most this", "m", gt=0)
+
+
+@dataclass(frozen=True)
 class Spec:
     """top level
 
@@ -324,6 +334,7 @@ class Spec:
     plant: PlantSpec = field(default_factory=PlantSpec)
     sweep: SweepSpec = field(default_factory=SweepSpec)
     figures: FiguresSpec = field(default_factory=FiguresSpec)
+    summary: SummarySpec = field(default_factory=SummarySpec)
 
     @property
     def joints(self) -> int:
