@@ -34,7 +34,7 @@ SET_KEYS = (
     "plant.momentum",
     "plant.model", "plant.servo_bandwidth", "plant.torque_limit", "plant.servo_model",
     "sweep.trials", "sweep.seed", "sweep.chunk", "sweep.verify", "sweep.perturb", "sweep.grid",
-    "figures.format", "figures.dpi",
+    "figures.format", "figures.dpi", "summary.reach_tolerance",
 )
 #: The words a key takes (its choices; true, false for a flag): completed after ``KEY=``.
 WORDS = {
