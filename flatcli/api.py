@@ -480,9 +480,10 @@ class WorkspaceResult(Run):
                                                      int(self.metrics["attitudes"])),
                                  margin, theta)
         m = self.metrics
+        task = self.spec.task
         fig: Figure = workspace_figure(found, robot_from(self.spec), np.asarray(m["start"]),
                                        float(m["thin"]), f"{self.spec.name}: where the end "
-                                       "effector can be put")
+                                       "effector can be put", task.end_effector, task.obstacles)
         return fig
 
     def save(self, out: str | os.PathLike[str] | Target | None = None, *, force: bool = False,

@@ -62,6 +62,8 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path,
     # the capture maneuver among obstacles (docs/tasks.md): its table and filmstrip
     assert "every link 0.01 m clear of three discs, proven over all of [0, T]" in report
     assert (out / "fig_capture.png").exists() and (out / "capture/plan/plan.parquet").exists()
+    assert (out / "fig_workspace.png").exists()
+    assert (out / "capture/workspace/workspace.parquet").exists()
     # robots as built: the goal's table (Fig. 4's start and the three cells, the same trials
     # in both pipelines), the maps, the figure, the exact plans' momentum
     assert "## Robots as built" in report

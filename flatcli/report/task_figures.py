@@ -113,12 +113,14 @@ REGIONS = (("not reachable", "white"), ("elbow up only", "#9ecae1"),
 
 @styled
 def workspace_figure(found: WorkspaceMap, robot: RobotParams, start: Array, thin: float,
-                     title: str = "") -> Any:
+                     title: str = "", target: Sequence[float] | None = None,
+                     obstacles: Sequence[Sequence[float]] = ()) -> Any:
     """Where the end effector can be put: each target coloured by the elbow branches that
     reach it from ``start`` (3,) [rad], the region where the best |sin th1| is under ``thin``
-    hatched, the robot drawn at its start, the system's centre of mass marked +."""
+    hatched, the robot drawn at its start, the system's centre of mass marked +, and a task's
+    ``target`` (x) and ``obstacles`` (discs x, y, radius [m]) if given."""
     from matplotlib.colors import ListedColormap
-    from matplotlib.patches import Patch
+    from matplotlib.patches import Circle, Patch
 
     up, down = found.usable
     region = up.astype(int) + 2 * down.astype(int)  # 0 none, 1 up, 2 down, 3 both
@@ -135,6 +137,10 @@ def workspace_figure(found: WorkspaceMap, robot: RobotParams, start: Array, thin
         ax.contourf(found.x, found.y, low, levels=[0.5, 1.5], colors="none", hatches=["////"])
     _links(ax, joint_positions(robot, start), 1.0, "start")
     ax.plot([0.0], [0.0], "+", color="k", ms=6)
+    for x, y, r in obstacles:
+        ax.add_patch(Circle((x, y), r, color="0.6", alpha=0.7, lw=0))
+    if target is not None:
+        ax.plot([target[0]], [target[1]], "x", color="C3", ms=6)
     handles = [Patch(facecolor=c, edgecolor="0.5", lw=0.4, label=name) for name, c in REGIONS]
     handles.append(Patch(facecolor="none", edgecolor="0.3", hatch="////",
                          label=f"|sin th1| < {thin:g}"))

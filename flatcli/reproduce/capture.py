@@ -1,7 +1,8 @@
 """REPORT.md's "A capture maneuver among obstacles": an end-effector task of the paper's robot
 (``flatcli/data/capture.toml``, docs/tasks.md), planned rest to rest with its obstacles
 proven clear over [0, T], tracked in closed loop from the plan's start and from a perturbed
-one; its filmstrip ``fig_capture``."""
+one; its filmstrip ``fig_capture``; and the map of where the end effector can be put from
+the same start (``flatcli workspace``), ``fig_workspace``."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from flatcli.api import load_spec, plan, track
+from flatcli.api import load_spec, plan, track, workspace
 from flatcli.report import fmt, save_figure, table
 from flatcli.report.task_figures import filmstrip_figure
 from flatcli.reproduce.sections import Context, Outcome, Section
@@ -19,6 +20,8 @@ from flatcli.storage import to_jsonable
 CAPTURE_SPEC = resources.files("flatcli") / "data" / "capture.toml"
 #: The perturbed start of the second closed-loop run [rad].
 PERTURBED = [1.82, 0.99, 0.01]
+#: The workspace map's window of final base attitudes: the task's +- this [rad].
+ATTITUDE_WINDOW = 0.2
 
 
 def _spec_path() -> str:
@@ -73,10 +76,31 @@ def run(context: Context) -> Outcome:
         "",
         f"![capture]({name})",
     ]
+    context.steps.step("capture: workspace")
+    a = float(s.task.base_attitude if s.task.base_attitude is not None
+              else p.frame["theta0"].iloc[-1])
+    window = (a - ATTITUDE_WINDOW, a + ATTITUDE_WINDOW)
+    w = workspace(_spec_path(), attitude=window)
+    w.save(out / "workspace", force=True)
+    wname = context.figures.name("fig_workspace")
+    save_figure(w.plot(), context.out / wname, context.figures)
+    wm = w.metrics
+    lines += [
+        "",
+        f"Where the end effector can be put from the same start with th0(T) in "
+        f"[{window[0]:g}, {window[1]:g}] rad (`flatcli workspace`, {wm['points']} x "
+        f"{wm['points']} targets, {wm['attitudes']} attitudes; docs/tasks.md):",
+        "",
+        table(["region", "area [m^2]"],
+              [[k.replace("_", " "), fmt(wm[f"area_{k}"])]
+               for k in ("reachable", "both", "up_only", "down_only", "thin")]),
+        "",
+        f"![workspace]({wname})",
+    ]
     headline = [f"capture: end effector within {fmt(m['ee_error_final'])} m of the target, "
                 f"clearance proven >= {fmt(m['clearance_bound'])} m; closed loop "
                 f"{fmt(exact.metrics['ee_error_final'])} m"]
-    return Outcome(lines, headline, ("capture/**/*", "fig_capture.*"))
+    return Outcome(lines, headline, ("capture/**/*", "fig_capture.*", "fig_workspace.*"))
 
 
 SECTION = Section("capture", "a capture maneuver among obstacles", inputs, run)
