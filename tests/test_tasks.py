@@ -111,3 +111,30 @@ def test_bad_tasks_are_one_line_naming_the_key(tmp_path: Path, sets: list[str],
     lines = result.output.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: ") and words in lines[0]
     assert "Traceback" not in result.output
+
+
+def test_candidates_refuted_at_samples_skip_the_proof_and_change_nothing(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """flatcli.core.task screens each candidate at SCREEN_SAMPLES points before proving it:
+    the plan, its certificate and the candidates tried are those of proving every one."""
+    from flatcli.core import task as core_task
+
+    proofs = {"n": 0}
+    certify = core_task.certify
+
+    def counted(*args: object, **kwargs: object) -> object:
+        proofs["n"] += 1
+        return certify(*args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(core_task, "certify", counted)
+    screened = api.plan(overrides=CAPTURE)
+    screened_proofs = proofs["n"]
+    proofs["n"] = 0
+    monkeypatch.setattr(core_task, "point_slack",
+                        lambda plan, constraints, t: (np.full(len(t), np.inf), [""] * len(t)))
+    proven = api.plan(overrides=CAPTURE)
+    assert screened.plan is not None and proven.plan is not None
+    np.testing.assert_array_equal(screened.plan.trajectory.coefficients,
+                                  proven.plan.trajectory.coefficients)
+    assert screened.metrics == proven.metrics  # the bound, intervals and candidates tried
+    assert screened_proofs == 1 < proofs["n"] == proven.metrics["task_candidates"]
