@@ -54,6 +54,8 @@ from benchmarks.chains import HEADERS as CHAIN_HEADERS
 from benchmarks.chains import run_all as run_chains
 from benchmarks.integrators import HEADERS as INTEGRATOR_HEADERS
 from benchmarks.integrators import run_all as run_integrators
+from benchmarks.tasks import HEADERS as TASK_HEADERS
+from benchmarks.tasks import run_all as run_tasks
 from flatcli.core.metrics import METRIC_NAMES
 from flatcli.core.model import PAPER_ROBOT
 from flatcli.core.optimize import PlanLimits, optimize_plan
@@ -74,7 +76,7 @@ SWEEPS = ("flatcli sweep through the command line: benchmarks/paper_sweep.toml, 
 SCALING = "Scaling: 2 workers, each process's own peak memory"
 #: The sections ``--sections`` may name, in the order they run.
 SECTIONS = ("planning", "closed_loop", "sweeps", "integrators", "chains", "asbuilt",
-            "optimised")
+            "optimised", "tasks")
 
 
 def load() -> list[float]:
@@ -536,6 +538,7 @@ HEADERS = {
     **INTEGRATOR_HEADERS,
     **CHAIN_HEADERS,
     **ASBUILT_HEADERS,
+    **TASK_HEADERS,
     "Optimised plans: least energy, abs(th2) <= 3, rates <= 20, margin >= 0.05":
         ["plan", "energy [rad^2/s]", "limit violation", "max abs(H)", "time", "note"],
     LADDER: ["limit", "value", "energy [rad^2/s]", "time", "note"],
@@ -592,6 +595,7 @@ def main(argv: list[str] | None = None) -> None:
         "chains": [partial(run_chains, bench)],
         "asbuilt": [partial(run_asbuilt, bench, sweep)],
         "optimised": [partial(optimised, bench), partial(optimised_ladder, bench)],
+        "tasks": [partial(run_tasks, bench)],
     }
     for name in SECTIONS:
         if name in chosen:
