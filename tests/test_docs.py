@@ -66,3 +66,89 @@ def test_the_reference_sections_are_where_the_links_say() -> None:
     for page, headings in where.items():
         found = anchors(ROOT / "docs" / page)
         assert {slug(h) for h in headings} <= found, page
+
+
+def layout_paths(text: str) -> set[str]:
+    """The paths docs/development.md's layout block names: a path at the line's start (a
+    directory ends in /), and under a directory the files and folders indented beneath it.
+    Continuation lines (a description's second line) name no path."""
+    block = text.split("```")[1]
+    paths: set[str] = set()
+    stack: list[tuple[int, str]] = []  # (indent, directory) of the open directories
+    for line in block.splitlines():
+        if not line.strip():
+            continue
+        indent = len(line) - len(line.lstrip())
+        token = line.split()[0]
+        if indent == 0:
+            paths.add(token)
+            stack = [(0, token)] if token.endswith("/") else []
+            continue
+        if not re.fullmatch(r"[\w.]+(\.py|/)", token):
+            continue
+        while stack and stack[-1][0] >= indent:
+            stack.pop()
+        if stack:
+            path = stack[-1][1] + token
+            paths.add(path)
+            if token.endswith("/"):
+                stack.append((indent, path))
+    return paths
+
+
+def test_the_layout_names_every_module_and_only_what_exists() -> None:
+    paths = layout_paths((ROOT / "docs" / "development.md").read_text())
+    for path in paths:
+        assert (ROOT / path).exists(), f"docs/development.md names {path}, which is not there"
+    modules = {str(p.relative_to(ROOT)) for p in (ROOT / "flatcli").rglob("*.py")
+               if p.name not in ("__init__.py", "__main__.py")}
+    packages = {f"{p.parent.relative_to(ROOT)}/" for p in (ROOT / "flatcli").rglob("__init__.py")
+                if p.parent != ROOT / "flatcli"}
+    assert sorted((modules | packages) - paths) == [], "modules the layout leaves out"
+
+
+def equation_map() -> list[tuple[str, list[tuple[str, str | None]], list[tuple[str, str]]]]:
+    """docs/development.md's equation map: per row its equation, the (file, function) pairs
+    it names (function None for a whole module) and the (test module, test) pairs."""
+    text = (ROOT / "docs" / "development.md").read_text()
+    table_ = text.split("## From the paper's equations to the code and its referee")[1]
+    rows = []
+    for line in table_.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) != 3 or cells[0] in ("equation", "---"):
+            continue
+        functions: list[tuple[str, str | None]] = []
+        current = None
+        for code in re.findall(r"`([^`]+)`", cells[1]):
+            if ".py" in code:
+                current, _, name = (part.strip() for part in code.partition(":"))
+                functions.append((current, name or None))
+            elif current is not None and re.fullmatch(r"[\w.]+", code):
+                functions.append((current, code))
+        tests: list[tuple[str, str]] = []
+        module = None
+        for code in re.findall(r"`([^`]+)`", cells[2]):
+            if code.startswith("test_") and ".py" in code:
+                module, _, name = code.partition("::")
+                tests.append((module, name))
+            elif code.startswith("::") and module is not None:
+                tests.append((module, code[2:]))
+        rows.append((cells[0], functions, tests))
+    return rows
+
+
+def test_the_equation_map_points_to_functions_and_tests_that_exist() -> None:
+    rows = equation_map()
+    assert len(rows) >= 20
+    for equation, functions, tests in rows:
+        assert functions and tests, equation
+        for file, name in functions:
+            source = (ROOT / "flatcli" / file).read_text()
+            if name is not None:
+                last = name.split(".")[-1]
+                assert re.search(rf"^\s*(def|class) {last}\b|^{last} = ", source, re.M), \
+                    f"{equation}: flatcli/{file} defines no {name}"
+        for module, name in tests:
+            source = (ROOT / "tests" / module).read_text()
+            if name:
+                assert re.search(rf"^def {name}\b", source, re.M), f"{equation}: {module}::{name}"
