@@ -31,7 +31,7 @@ from flatcli.rundirs import (
     SWEEP_MANIFEST,
     RunDirectoryError,
     RunInfo,
-    _resolved,
+    followed,
     list_runs,
     run_info,
     shown,
@@ -269,7 +269,7 @@ def runs_table(root: Path, rows: Sequence[Row] | None = None, width: int | None 
     rows = rows_below(root) if rows is None else list(rows)
     if not rows:
         return f"no runs in {root}"
-    latest = {r for p in root.rglob(LATEST) if p.is_symlink() and (r := _resolved(p))}
+    latest = {r for p in root.rglob(LATEST) if p.is_symlink() and (r := followed(p))}
     tagged = any(r.info.tags for r in rows)
     redundant = all(r.where.split("/")[0] == r.info.name for r in rows)
 
@@ -281,7 +281,7 @@ def runs_table(root: Path, rows: Sequence[Row] | None = None, width: int | None 
             info = row.info
             where = _STAMP.sub(lambda m: "\u2026" + m.group(1), row.where) if short else \
                 row.where
-            where += " (latest)" if _resolved(info.path) in latest else ""
+            where += " (latest)" if followed(info.path) in latest else ""
             cells = [where, info.command, *([info.name] if name else []),
                      _when(info.time, short), info.status]
             if tags:

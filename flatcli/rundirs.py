@@ -598,7 +598,7 @@ def shown(text: str) -> str:
     return text if text.isprintable() else ascii(text)[1:-1]
 
 
-def _resolved(path: Path) -> Path | None:
+def followed(path: Path) -> Path | None:
     """A path with its links followed (None for a loop of links)."""
     try:
         return path.resolve()

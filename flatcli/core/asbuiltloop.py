@@ -58,8 +58,8 @@ from flatcli.core.chaindynamic import (
     _RHS,
     _TAU,
     ChainDynamicLoop,
-    _same_chain,
     make_scratch,
+    same_chain,
     servo_demand,
 )
 from flatcli.core.chainflat import Scratch, scratch
@@ -147,7 +147,7 @@ def asbuilt_loop(shared: AsbuiltShared, Kq: Array, params: Array, offset: float,
     cos_p, sin_p = np.cos(offset), np.sin(offset)
     plant = Chain(Kq, Iq)
     servo = plant if shared.servo_is_plant else Chain(shared.Kc, shared.Ic)
-    same = shared.servo_is_plant or (_same_chain(plant, servo) and cos_p == shared.cos_c
+    same = shared.servo_is_plant or (same_chain(plant, servo) and cos_p == shared.cos_c
                                      and sin_p == shared.sin_c)
     # the flat law's fields of the record (its gains, its maps) are not used here, nor its
     # turn (``_servo_terms`` turns the plant's and the servo model's trigonometry itself)

@@ -129,7 +129,7 @@ class ChainDynamicLoop(NamedTuple):
 
 
 @jitable
-def _same_chain(a: Chain, b: Chain) -> bool:
+def same_chain(a: Chain, b: Chain) -> bool:
     """Whether two chains hold the same numbers."""
     n = a.inertia.shape[0]
     for i in range(n):
@@ -152,7 +152,7 @@ def chain_dynamic_loop(
     controller's nominal chain (Kc, Ic)."""
     plant = Chain(Kq, Iq)
     servo = plant if servo_is_plant else Chain(Kc, Ic)
-    same = servo_is_plant or _same_chain(plant, servo)
+    same = servo_is_plant or same_chain(plant, servo)
     return ChainDynamicLoop(Kc, Ic, kp, kv, plant, servo, same, params, h0, rate_limit,
                             bandwidth, torque_limit, buffers, trig, matrices, work,
                             np.cos(offset), np.sin(offset))

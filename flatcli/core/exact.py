@@ -314,7 +314,7 @@ class Problem:
         """Phi(z), its gradient (m,) and, if asked, its Hessian (m, m)."""
         q, w = self.paths(z)
         h, slopes = self.constraint.terms(q)
-        F, Fq, Fw, Fqw = _rate_terms(h, slopes, w)
+        F, Fq, Fw, Fqw = rate_terms(h, slopes, w)
         value = self.rise + float(self.weights @ F)
         m = self.H.shape[0]
         wt = self.weights[:, None]
@@ -336,12 +336,12 @@ class Problem:
             qc = q.astype(complex)
             qc[:, l_] += 1j * COMPLEX_STEP
             h, slopes = self.constraint.terms(qc)
-            _, Fq, _, _ = _rate_terms(h, slopes, w.astype(complex))
+            _, Fq, _, _ = rate_terms(h, slopes, w.astype(complex))
             out[:, :, l_] = Fq.imag / COMPLEX_STEP
         return out
 
 
-def _rate_terms(h: AnyArray, slopes: AnyArray, w: AnyArray
+def rate_terms(h: AnyArray, slopes: AnyArray, w: AnyArray
                 ) -> tuple[AnyArray, AnyArray, AnyArray, AnyArray]:
     """F = -(h . w) / h_0 (G,), dF/dq (G, N), dF/dw (G, N) and d^2F/dq dw (G, N, N) from the
     weights h (G, N + 1), their slopes (G, N + 1, N) and the rates w (G, N)."""

@@ -49,7 +49,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from flatcli.core.exact import CURVE_DEGREE, Constraint, _rate_terms, constraint_of, plan_pieces
+from flatcli.core.exact import CURVE_DEGREE, Constraint, constraint_of, plan_pieces, rate_terms
 from flatcli.core.model import FlatcliError
 from flatcli.core.pieces import PiecewiseCurves, fit, joined, node_times
 from flatcli.core.planning import Plan
@@ -127,7 +127,7 @@ def linearisation(constraint: Constraint, q: Array, w: Array, servo: float | Non
     first-order lag w_j' = servo (r_j - w_j) (the dynamic plant's servo, exactly when its
     model is right and no torque is clipped), the command r its input."""
     h, slopes = constraint.terms(q)
-    _, Fq, Fw, _ = _rate_terms(h, slopes, w)
+    _, Fq, Fw, _ = rate_terms(h, slopes, w)
     count, n = q.shape
     eye = np.eye(n)
     if servo is None:
