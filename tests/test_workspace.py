@@ -157,6 +157,8 @@ def test_the_window_defaults_to_the_tasks_base_attitude_else_free() -> None:
     (["--points", "1"], "--points"), (["--points", "5000"], "--points"),
     (["--attitude", "2", "1"], "--attitude"), (["--thin", "-1"], "--thin"),
     (["--extent", "0"], "--extent"), (["--robot", "chain4"], "this robot has N = 3 joints"),
+    (["--points", "1001", "--attitudes", "20000"], "--points and --attitudes"),
+    (["--attitude", "nan", "1"], "--attitude"),
 ])
 def test_bad_options_are_one_line_and_write_nothing(tmp_path: Path, args: list[str],
                                                     names: str) -> None:

@@ -34,6 +34,8 @@ BRANCHES = ("up", "down")
 #: Sampled attitudes of a window by default, and the most (memory is ny nx per sample).
 DEFAULT_ATTITUDES = 181
 MAX_ATTITUDES = 100_000
+#: The most (target, attitude) pairs one map solves: about 100 s on one core (250 ns each).
+MAX_PAIRS = 400_000_000
 
 
 @dataclass(frozen=True)
@@ -96,6 +98,11 @@ def workspace_map(robot: RobotParams, start: ArrayLike, window: tuple[float, flo
     xs, ys = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
     if xs.ndim != 1 or ys.ndim != 1 or len(xs) < 2 or len(ys) < 2:
         raise FlatcliError("workspace: the grid needs at least 2 points on each axis")
+    pairs = len(xs) * len(ys) * attitudes
+    if pairs > MAX_PAIRS:
+        raise FlatcliError(f"--points and --attitudes: {len(xs)} x {len(ys)} targets at "
+                           f"{attitudes} attitudes are {pairs:.3g} inverse kinematics, more "
+                           f"than {MAX_PAIRS:.0e} (about 100 s); lower --points or --attitudes")
     if float(virtual_links(robot)[1]) == 0.0:
         two_link(robot, np.zeros(2), 0.0)  # raises its one-line reason
     ref = np.asarray(start, dtype=float)
