@@ -1017,10 +1017,7 @@ def workspace(spec: SpecLike = None, overrides: Overrides = None, *,
     from flatcli.units import units_of
 
     s = load_spec(spec, overrides)
-    robot = robot_from(s)
-    if robot.n_joints != 2:
-        raise FlatcliError(f"workspace: maps the N = 2 robot's elbow branches; this robot has "
-                           f"N = {robot.n_joints} joints")
+    robot = robot_from(s)  # an N != 2 robot is refused by workspace_map
     if not 2 <= points <= MAX_WORKSPACE_POINTS:
         raise FlatcliError(f"--points: expected 2 to {MAX_WORKSPACE_POINTS}, got {points}")
     if not (math.isfinite(thin) and thin >= 0):

@@ -355,16 +355,18 @@ def chunk_frames(state: SweepState, columns: list[str] | None = None) -> Any:
     return frame.sort_values(["cell", "trial"], ignore_index=True, kind="stable")
 
 
-def _reach_tolerance(manifest: Mapping[str, Any]) -> float | None:
-    """The manifest spec's ``summary.reach_tolerance`` [m], if it is a positive number (a
-    manifest is not trusted); None otherwise (the default applies)."""
+def _reach_tolerance(manifest: Mapping[str, Any]) -> float:
+    """The manifest spec's ``summary.reach_tolerance`` [m] if it is a positive number (a
+    manifest is not trusted), else the key's default."""
+    from flatcli.spec.schema import SummarySpec
+
     spec = manifest.get("spec")
     section = spec.get("summary") if isinstance(spec, Mapping) else None
     value = section.get("reach_tolerance") if isinstance(section, Mapping) else None
     if isinstance(value, int | float) and not isinstance(value, bool) and \
             math.isfinite(value) and value > 0:
         return float(value)
-    return None
+    return SummarySpec().reach_tolerance
 
 
 def partial_summary(state: SweepState) -> tuple[Any, str]:

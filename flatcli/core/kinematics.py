@@ -57,13 +57,17 @@ def moments_of(mass: Array, length: Array, com: Array) -> Array:
 def virtual_links(robot: RobotParams) -> Array:
     """(N + 1,) v_a = l_a - F_a / M [m]: the end effector's virtual manipulator (module
     docstring); signed (v_a < 0 points backwards along link a)."""
-    return np.asarray(np.asarray(robot.length, dtype=float)
-                      - mass_moments(robot) / robot.total_mass, dtype=float)
+    return virtual_links_of(np.asarray(robot.mass, dtype=float),
+                            np.asarray(robot.length, dtype=float),
+                            np.asarray(robot.com, dtype=float), robot.total_mass)
 
 
-def virtual_links_of(mass: Array, length: Array, com: Array) -> Array:
-    """``virtual_links`` of a batch of robots (..., N + 1) [kg], [m], [m] -> (..., N + 1) [m]."""
-    total = mass.sum(axis=-1, keepdims=True)
+def virtual_links_of(mass: Array, length: Array, com: Array,
+                     total: float | Array | None = None) -> Array:
+    """``virtual_links`` of a batch of robots (..., N + 1) [kg], [m], [m] -> (..., N + 1) [m];
+    ``total`` their masses M [kg] (default: summed here)."""
+    if total is None:
+        total = mass.sum(axis=-1, keepdims=True)
     return np.asarray(length - moments_of(mass, length, com) / total, dtype=float)
 
 

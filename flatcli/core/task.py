@@ -21,7 +21,7 @@ from numpy.typing import ArrayLike, NDArray
 from flatcli.core.basis import Basis
 from flatcli.core.clearance import Certificate, Constraints, certify, point_slack
 from flatcli.core.inverse import Elbow, task_configuration, two_link_task
-from flatcli.core.kinematics import end_effector, virtual_links, virtual_links_of
+from flatcli.core.kinematics import across_shift, end_effector, virtual_links, virtual_links_of
 from flatcli.core.model import FlatcliError, Model, RobotParams
 from flatcli.core.planning import Plan, plan_point_to_point
 from flatcli.core.rest import plan_rest_to_rest
@@ -246,10 +246,11 @@ def end_effector_error_bound(nominal: RobotParams, mass: Array, length: Array, c
     |r_E^plant| + |r*| <= sum_a |v_a| + |w| + |r*| (a large angle error wraps around). nan where
     err_theta_final is (a trial that did not reach the end).
     """
-    v = virtual_links_of(mass, length, com)  # (n, N + 1)
-    w = mass[:, -1] * com_across / mass.sum(axis=1)
+    total = mass.sum(axis=1)
+    v = virtual_links_of(mass, length, com, total[:, None])  # (n, N + 1)
+    w = mass[:, -1] * com_across / total  # across_shift of each plant (its sign is no matter)
     v_nominal = virtual_links(nominal)
-    w_nominal = nominal.mass[-1] * nominal.com_across / nominal.total_mass
+    w_nominal = across_shift(nominal)
     roots = np.sqrt(np.arange(1, v.shape[1] + 1, dtype=float))
     lipschitz = np.abs(v) @ roots + np.abs(w) * roots[-1]
     model = np.abs(v - v_nominal).sum(axis=1) + np.abs(w - w_nominal)

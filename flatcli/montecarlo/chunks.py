@@ -24,7 +24,7 @@ from flatcli.core.metrics import (
     describe_status,
 )
 from flatcli.core.simulate import NoiseStreams, Scenario, Trials, check_against_reference
-from flatcli.experiment import checked, plant_from, robot_from
+from flatcli.experiment import checked, plant_from
 from flatcli.montecarlo.draws import (
     draw_perturbations,
     invalid_plants,
@@ -82,6 +82,7 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
     initial = np.hstack([value["initial"], value["initial_rate"]])
     momentum = value["momentum"][:, 0]
     servo = np.hstack([value["servo_bandwidth"], value["torque_limit"]])
+    across = plant_from(spec).com_across  # e_N of every trial's plant [m]
     reasons = [plant or servo_reason for plant, servo_reason
                in zip(invalid_plants(links), invalid_servos(servo), strict=True)]
     valid = np.array([not r for r in reasons], dtype=bool)
@@ -98,7 +99,7 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
         trials = Trials(np.ascontiguousarray(links[valid]), np.ascontiguousarray(momentum[valid]),
                         np.ascontiguousarray(initial[valid]), noise,
                         np.ascontiguousarray(servo[valid]),
-                        np.full(int(valid.sum()), plant_from(spec).com_across))
+                        np.full(int(valid.sum()), across))
         outcome = simulate_counted(scenario, trials, checked(spec.track.integrator))
         metrics[valid] = outcome.metrics
         status[valid] = outcome.status
@@ -151,13 +152,13 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
     columns["reference_status"] = texts(reference_status)
     if spec.task.end_effector is not None:  # a task sweep: how near the target, at most
         columns["ee_error_bound"] = null_where_nan(
-            reach_bounds(spec, scenario, value, metrics, valid))
+            reach_bounds(spec, scenario, value, metrics, valid, across))
     table = with_units(pa.table(columns), units_of(columns, spec))
     return ChunkResult(table, time.perf_counter() - started, peak_memory_mib())
 
 
 def reach_bounds(spec: Spec, scenario: Scenario, value: dict[str, Any], metrics: Any,
-                 valid: Any) -> Any:
+                 valid: Any, across: float) -> Any:
     """(n,) ``ee_error_bound`` of a chunk's trials [m] (``core.task.end_effector_error_bound``
     from each plant's links and its err_theta_final); nan for a trial that did not run or
     did not reach the end."""
@@ -169,10 +170,9 @@ def reach_bounds(spec: Spec, scenario: Scenario, value: dict[str, Any], metrics:
         plan = scenario.plan
         planned = plan.sample(np.array([plan.duration])).theta[-1]
         final = metrics[valid, METRIC_NAMES.index("err_theta_final")]
-        across = np.full(int(valid.sum()), plant_from(spec).com_across)
         bound[valid] = end_effector_error_bound(
-            robot_from(spec), value["mass"][valid], value["length"][valid],
-            value["com"][valid], across, final, planned, target)
+            plan.robot, value["mass"][valid], value["length"][valid], value["com"][valid],
+            np.full(int(valid.sum()), across), final, planned, target)
     return bound
 
 

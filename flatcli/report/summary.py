@@ -40,8 +40,6 @@ SUMMARY_INPUTS: tuple[str, ...] = (
     "reference_status", "ee_error_bound")
 assert set(SUMMARY_INPUTS) <= {"cell", "status", "verified", "reference_difference",
                                "reference_status", "ee_error_bound", *METRIC_NAMES}
-#: ``summary.reach_tolerance``'s default [m] (flatcli.spec.schema), for callers without a spec.
-REACH_TOLERANCE = 1e-3
 #: Statuses of trials that did not run to the end, reported as fractions of a cell's trials.
 FAILURES = ("diverged", "unresolved", "error")
 
@@ -181,9 +179,10 @@ def summary_rows(columns: Columns, cells: Mapping[int, Mapping[str, Any]],
     ``singular_fraction`` (simulated trials with a singular hit) and each of ``FAILURES`` as
     a fraction of the cell's trials, each with its 95 % Wilson interval (``_low``, ``_high``).
     A task sweep (an ``ee_error_bound`` column) adds that bound's median, p95 and max over the
-    counted trials and ``reached_fraction``: the cell's trials resolved to the end with a
-    bound of at most ``reach_tolerance`` [m] (every other trial counts as not reached), with
-    its Wilson interval. Statistics over no trials are nan (null in summary.parquet).
+    counted trials and, given ``reach_tolerance`` [m] (``summary.reach_tolerance``),
+    ``reached_fraction``: the cell's trials resolved to the end with a bound of at most it
+    (every other trial counts as not reached), with its Wilson interval. Statistics over no
+    trials are nan (null in summary.parquet).
     """
     rows = []
     all_status = np.asarray(columns["status"], dtype=object)
@@ -238,9 +237,10 @@ def summary_rows(columns: Columns, cells: Mapping[int, Mapping[str, Any]],
             row["ee_error_bound_median"] = _stat(np.median, bound)
             row["ee_error_bound_p95"] = _stat(lambda v: np.percentile(v, 95), bound)
             row["ee_error_bound_max"] = _stat(np.max, bound)
-            tolerance = REACH_TOLERANCE if reach_tolerance is None else reach_tolerance
-            within = np.asarray(columns["ee_error_bound"], dtype=np.float64)[resolved]
-            _fraction(row, "reached", int(np.sum(within <= tolerance)), row["trials"])
+            if reach_tolerance is not None:
+                within = np.asarray(columns["ee_error_bound"], dtype=np.float64)[resolved]
+                _fraction(row, "reached", int(np.sum(within <= reach_tolerance)),
+                          row["trials"])
         rows.append(row)
     return rows
 
