@@ -115,8 +115,9 @@ def test_bad_tasks_are_one_line_naming_the_key(tmp_path: Path, sets: list[str],
 
 def test_candidates_refuted_at_samples_skip_the_proof_and_change_nothing(
         monkeypatch: pytest.MonkeyPatch) -> None:
-    """flatcli.core.task screens each candidate at SCREEN_SAMPLES points before proving it:
-    the plan, its certificate and the candidates tried are those of proving every one."""
+    """flatcli.core.task screens the candidates at SCREEN_SAMPLES points, in batches, before
+    proving them: the plan, its certificate and the candidates tried are those of proving
+    every one in turn."""
     from flatcli.core import task as core_task
 
     proofs = {"n": 0}
@@ -130,8 +131,8 @@ def test_candidates_refuted_at_samples_skip_the_proof_and_change_nothing(
     screened = api.plan(overrides=CAPTURE)
     screened_proofs = proofs["n"]
     proofs["n"] = 0
-    monkeypatch.setattr(core_task, "point_slack",
-                        lambda plan, constraints, t: (np.full(len(t), np.inf), [""] * len(t)))
+    monkeypatch.setattr(core_task, "sampled_slack",
+                        lambda plans, constraints, samples: np.full(len(plans), np.inf))
     proven = api.plan(overrides=CAPTURE)
     assert screened.plan is not None and proven.plan is not None
     np.testing.assert_array_equal(screened.plan.trajectory.coefficients,

@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 from scipy.integrate import solve_ivp
 
 from flatcli.core import intervals as iv
-from flatcli.core.clearance import Constraints, certify
+from flatcli.core.clearance import Constraints, certify, sampled_slack
 from flatcli.core.intervals import Interval
 from flatcli.core.inverse import BOUNDARY_TOL, redundant_task, task_configuration, two_link
 from flatcli.core.kinematics import (
@@ -29,6 +29,7 @@ from flatcli.core.kinematics import (
     virtual_links,
 )
 from flatcli.core.model import PAPER_ROBOT, FlatcliError, RobotParams
+from flatcli.core.planning import plan_point_to_point
 from flatcli.core.rest import plan_rest_to_rest
 from tests import task_referees as ref
 from tests.referees import link_momentum
@@ -297,3 +298,38 @@ def test_limits_between_samples_are_proven_or_refuted() -> None:
     assert not cert.ok and "th2 beyond its angle limit" in cert.reason
     bad_rate = Constraints(np.zeros((0, 3)), 0.0, None, np.array([inf, rate * 0.999]))
     assert "th2' beyond its rate limit" in certify(plan, bad_rate).reason
+
+
+@pytest.mark.parametrize("rest", [True, False])
+def test_candidates_screened_together_have_each_plans_own_least_slack(rest: bool) -> None:
+    """clearance.sampled_slack evaluates several candidates at once; each one's least slack
+    over the samples is what the referee's complex-plane kinematics and each plan's own
+    samples give (the ends of a rest plan included)."""
+    if rest:
+        plans = [plan_rest_to_rest(PAPER_ROBOT, START, GOAL, 2.0, skew=b)
+                 for b in (0.0, 0.3, -0.6, 0.85)]
+    else:
+        plans = [plan_point_to_point(PAPER_ROBOT, START, GOAL, 0.1 * f, 0.5 * f, 2.0)
+                 for f in (1.0, 0.5, 2.0)]
+    obstacles = np.array([[0.25, 0.2, 0.05], [-0.3, -0.25, 0.05], [0.0, 0.3, 0.03]])
+    inf = math.inf
+    rate_limit = np.array([inf, 0.9])
+    constraints = Constraints(obstacles, 0.01, None, rate_limit)
+    got = sampled_slack(plans, constraints, 65)
+    for plan, least in zip(plans, got, strict=True):
+        s = plan.sample(np.linspace(0.0, 2.0, 65))
+        clear = ref.link_clearance(PAPER_ROBOT, s.theta, obstacles) - 0.01
+        rate = rate_limit[1] - np.abs(s.theta_dot[:, 2])
+        assert least == pytest.approx(min(clear.min(), rate.min()), abs=1e-12)
+    assert len(set(got.tolist())) == len(plans)  # four (three) different plans
+
+
+def test_products_with_infinite_bounds_contain_every_value() -> None:
+    """0 * inf among the corner products: [0, 2] x [1, inf] is [0, inf]; [-1, 0] x [1, inf]
+    is [-inf, 0] (closed forms)."""
+    up = Interval(np.array([1.0]), np.array([math.inf]))
+    with np.errstate(invalid="ignore"):  # the 0 * inf corner
+        p = Interval(np.array([0.0]), np.array([2.0])) * up
+        q = Interval(np.array([-1.0]), np.array([0.0])) * up
+    assert p.lo[0] <= 0.0 and p.hi[0] == math.inf
+    assert q.lo[0] == -math.inf and q.hi[0] >= 0.0

@@ -13,6 +13,7 @@ high enough).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -185,8 +186,17 @@ def quadrature(basis: Basis, count: int) -> tuple[Array, Array]:
     return _gauss_legendre(basis.breakpoints, count)
 
 
-def _gauss_legendre(edges: Array, order: int) -> tuple[Array, Array]:
+@functools.lru_cache(maxsize=16)
+def _legendre_nodes(order: int) -> tuple[Array, Array]:
+    """Gauss-Legendre nodes and weights of ``order`` points on [-1, 1] (read-only)."""
     x, w = np.polynomial.legendre.leggauss(order)
+    for arr in (x, w):
+        arr.setflags(write=False)
+    return x, w
+
+
+def _gauss_legendre(edges: Array, order: int) -> tuple[Array, Array]:
+    x, w = _legendre_nodes(order)
     lo, hi = edges[:-1, None], edges[1:, None]
     half = 0.5 * (hi - lo)
     return (half * (x + 1.0) + lo).ravel(), (half * w).ravel()

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -263,6 +264,29 @@ def _slack(plan: Plan, constraints: Constraints, theta: list[Interval],
     return worst, clear
 
 
+def _slacks(plan: Plan, constraints: Constraints, theta: Array, theta_dot: Array,
+            margin: Array) -> list[tuple[Array, str]]:
+    """Each constraint's slack at states theta, theta_dot (..., N + 1) and margin (...)
+    (negative: violated), with what it is (for messages): (values (...), text) pairs."""
+    out: list[tuple[Array, str]] = []
+    if len(constraints.obstacles):
+        c = clearances(plan, constraints.obstacles, theta) - constraints.clearance
+        for link in range(c.shape[-2]):
+            for o in range(c.shape[-1]):
+                out.append((c[..., link, o], f"link {link} within task.clearance of obstacle {o}"))
+    if constraints.angle_limit is not None:
+        for a in range(theta.shape[-1]):
+            out.append((float(constraints.angle_limit[a]) - np.abs(theta[..., a]),
+                        f"abs th{a} beyond its angle limit"))
+    if constraints.rate_limit is not None:
+        for j in range(1, theta.shape[-1]):
+            out.append((float(constraints.rate_limit[j - 1]) - np.abs(theta_dot[..., j]),
+                        f"abs th{j}' beyond its rate limit"))
+    if constraints.min_margin > 0:
+        out.append((margin - constraints.min_margin, "the margin below its minimum"))
+    return out
+
+
 def point_slack(plan: Plan, constraints: Constraints, t: Array) -> tuple[Array, list[str]]:
     """(n,) the least slack of every constraint at times t (n,) exactly (negative: violated)
     and, per time, what is most violated (for messages)."""
@@ -270,30 +294,25 @@ def point_slack(plan: Plan, constraints: Constraints, t: Array) -> tuple[Array, 
     n = len(s.t)
     worst = np.full(n, np.inf)
     what = [""] * n
-
-    def take(values: Array, text: str) -> None:
-        nonlocal worst
+    for values, text in _slacks(plan, constraints, s.theta, s.theta_dot, s.margin):
         for i in np.flatnonzero(values < worst):
             what[i] = text
         worst = np.minimum(worst, values)
-
-    if len(constraints.obstacles):
-        c = clearances(plan, constraints.obstacles, s.theta) - constraints.clearance
-        for link in range(c.shape[1]):
-            for o in range(c.shape[2]):
-                take(c[:, link, o], f"link {link} within task.clearance of obstacle {o}")
-    if constraints.angle_limit is not None:
-        for a in range(s.theta.shape[1]):
-            take(float(constraints.angle_limit[a]) - np.abs(s.theta[:, a]),
-                 f"abs th{a} beyond its angle limit")
-    if constraints.rate_limit is not None:
-        for j in range(1, s.theta.shape[1]):
-            take(float(constraints.rate_limit[j - 1]) - np.abs(s.theta_dot[:, j]),
-                 f"abs th{j}' beyond its rate limit")
-    if constraints.min_margin > 0:
-        take(s.margin - constraints.min_margin, "the margin below its minimum")
     worst = np.where(np.isnan(worst), -np.inf, worst)
     return worst, what
+
+
+def sampled_slack(plans: Sequence[Plan], constraints: Constraints, samples: int) -> Array:
+    """(P,) the least slack of every constraint over ``samples`` equally spaced times of
+    [0, T] for each of P candidate plans (one class, robot, model, basis and duration:
+    ``Plan.states_of``), in one evaluation; negative (or -inf for nan): a violation at a
+    sample, so ``certify`` cannot prove that plan."""
+    t = plans[0].grid(samples)
+    theta, theta_dot, margin = type(plans[0]).states_of(plans, t)
+    worst = np.full(len(plans), np.inf)
+    for values, _ in _slacks(plans[0], constraints, theta, theta_dot, margin):
+        worst = np.minimum(worst, values.reshape(len(plans), -1).min(axis=1))
+    return np.asarray(np.where(np.isnan(worst), -np.inf, worst), dtype=float)
 
 
 def certify(plan: Plan, constraints: Constraints, pieces: int = START_PIECES,
@@ -359,5 +378,6 @@ __all__ = [
     "certify",
     "clearances",
     "point_slack",
+    "sampled_slack",
     "segment_distance",
 ]

@@ -10,6 +10,7 @@ hold in floating point too. Division by an interval containing 0 gives (-inf, in
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -51,10 +52,14 @@ class Interval:
         return _as(other) - self
 
     def __mul__(self, other: Interval | float | Array) -> Interval:
+        # a 0 * inf among the four products is nan and fmin/fmax pass over it: the other
+        # products then hold the range (0 times the other factor's finite end is among them,
+        # or both its ends are infinite); all four nan stays nan, which no check proves
         o = _as(other)
-        p = np.stack([self.lo * o.lo, self.lo * o.hi, self.hi * o.lo, self.hi * o.hi])
-        p = np.where(np.isnan(p), 0.0, p)  # 0 * inf inside a product of bounds
-        return Interval(*_out(p.min(axis=0), p.max(axis=0)))
+        a, b = self.lo * o.lo, self.lo * o.hi
+        c, d = self.hi * o.lo, self.hi * o.hi
+        return Interval(*_out(np.fmin(np.fmin(a, b), np.fmin(c, d)),
+                              np.fmax(np.fmax(a, b), np.fmax(c, d))))
 
     __rmul__ = __mul__
 
@@ -117,32 +122,45 @@ def sin(x: Interval) -> Interval:
     return cos(x - math.pi / 2.0)
 
 
-def _horner(c: Array, x: Array) -> Array:
-    """sum_j c[..., j] x^j, rows of coefficients c (..., degree + 1) at x (...)."""
-    out = np.zeros_like(x)
-    for j in range(c.shape[-1] - 1, -1, -1):
-        out = out * x + c[..., j]
-    return out
+@functools.lru_cache(maxsize=32)
+def _taylor_operators(terms: int) -> tuple[Array, Array]:
+    """For polynomials of ``terms`` coefficients: the exponents e[j, k] = j - k (clipped at 0)
+    and the weights w[j, k] = binom(j, k) (0 where j < k), so that the k-th Taylor
+    coefficient at m is sum_j c_j w[j, k] m^e[j, k] (read-only)."""
+    j = np.arange(terms)[:, None]
+    k = np.arange(terms)[None, :]
+    exponent = np.maximum(j - k, 0)
+    weight = np.array([[math.comb(a, b) if a >= b else 0 for b in range(terms)]
+                       for a in range(terms)], dtype=float)
+    for arr in (exponent, weight):
+        arr.setflags(write=False)
+    return exponent, weight
 
 
 def poly(coefficients: Array, s_lo: Array, s_hi: Array) -> Interval:
     """Bounds of p(s) = sum_j c_j s^j over [s_lo, s_hi] (arrays (...)), coefficients
     (..., degree + 1) (one row per interval, or one for all): Taylor at the centre m,
-    p(m) +- sum_k |p^(k)(m) / k!| r^k, widened by the rounding of its terms."""
+    p(m) +- sum_k |p^(k)(m) / k!| r^k, widened by the rounding of its terms.
+
+    The Taylor coefficients t_k = p^(k)(m) / k! = sum_j c_j binom(j, k) m^(j - k) are sums of
+    degree + 1 products of at most degree + 2 rounded factors each, so each is within
+    (2 degree + 4) eps of sum_j |c_j| binom(j, k) |m|^(j - k); the pad, 8 (degree + 1) eps
+    times sum_k r^k of those sums, covers it with room."""
     c = np.broadcast_to(np.asarray(coefficients, dtype=float),
                         (*np.shape(s_lo), np.shape(coefficients)[-1]))
+    terms = c.shape[-1]
     m = 0.5 * (s_lo + s_hi)
     r = 0.5 * (s_hi - s_lo)
-    value = _horner(c, m)
-    spread = np.zeros_like(m)
-    scale = _horner(np.abs(c), np.abs(m))
-    current = c
-    for k in range(1, c.shape[-1]):
-        current = current[..., 1:] * np.arange(1, current.shape[-1])
-        taylor = _horner(current, m) / math.factorial(k)
-        spread = spread + np.abs(taylor) * r**k
-        scale = scale + _horner(np.abs(current), np.abs(m)) / math.factorial(k) * r**k
-    pad = 8.0 * c.shape[-1] * np.finfo(float).eps * scale  # rounding of the Taylor terms
+    exponent, weight = _taylor_operators(terms)
+    powers = np.asarray(m, dtype=float)[..., None] ** np.arange(terms)  # (..., terms)
+    lifted = powers[..., exponent] * weight  # (..., j, k): binom(j, k) m^(j - k)
+    taylor = np.einsum("...j,...jk->...k", c, lifted)  # (..., k)
+    size = np.einsum("...j,...jk->...k", np.abs(c), np.abs(lifted))
+    radius = np.asarray(r, dtype=float)[..., None] ** np.arange(terms)
+    value = taylor[..., 0]
+    spread = np.sum(np.abs(taylor[..., 1:]) * radius[..., 1:], axis=-1)
+    scale = np.sum(size * radius, axis=-1)
+    pad = 8.0 * terms * np.finfo(float).eps * scale  # rounding of the Taylor terms
     return Interval(*_out(value - spread - pad, value + spread + pad))
 
 

@@ -480,10 +480,17 @@ def flatness_check(params: RobotParams) -> FlatnessCheck:
     return FlatnessCheck(tuple(failures), controllable)
 
 
+@functools.lru_cache(maxsize=256)
+def _flatness_verdict(params: RobotParams) -> FlatnessCheck:
+    """``flatness_check``, remembered: both are immutable, and a task's search plans many
+    candidates for one robot."""
+    return flatness_check(params)
+
+
 def require_flat(params: RobotParams) -> None:
     """Raise FlatcliError naming the failing condition if the closed-form flat outputs do not
     apply to the design (flatcli plans with them only)."""
-    check = flatness_check(params)
+    check = _flatness_verdict(params)
     if not check.is_flat:
         what, tail = (
             ("robot is not differentially flat", "every h_j is constant: the momentum "

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -215,6 +216,29 @@ class Plan:
         """(..., n, 3 N) y, y', y'' at times t (n,) [s]."""
         return np.ascontiguousarray(np.concatenate(
             [self.trajectory.derivative(t, k) for k in range(3)], axis=-1))
+
+    @classmethod
+    def flags_of(cls, plans: Sequence[Plan], t: Array) -> Array:
+        """(P, n, 3 N) ``flags`` of P plans of this class that share their basis (and its
+        size), at times t (n,) [s], in one evaluation."""
+        stacked = FlatTrajectory(plans[0].trajectory.basis,
+                                 np.stack([p.trajectory.coefficients for p in plans]))
+        return np.ascontiguousarray(np.concatenate(
+            [stacked.derivative(t, k) for k in range(3)], axis=-1))
+
+    @classmethod
+    def states_of(cls, plans: Sequence[Plan], t: Array) -> tuple[Array, Array, Array]:
+        """The angles theta (P, n, N + 1) [rad], their rates theta_dot (P, n, N + 1) [rad/s]
+        and the margin (P, n) [rad/s] of P plans of this class sharing their robot, model,
+        basis and duration, at times t (n,) [s]: ``sample``'s fields for many candidate plans
+        in one evaluation (what screening them needs)."""
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        flags = cls.flags_of(plans, t)
+        rows = flags.reshape(-1, flags.shape[-1])
+        theta, theta_dot, _, sigma = plans[0].model.flags_to_states(rows)
+        shape = (len(plans), len(t))
+        return (theta.reshape(*shape, -1), theta_dot.reshape(*shape, -1),
+                np.abs(np.asarray(sigma)).reshape(shape))
 
     def sample(self, t: Array) -> PlanSamples:
         """Evaluate the plan at times t (n,) [s] within [0, duration]."""

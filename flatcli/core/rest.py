@@ -30,7 +30,9 @@ extrapolation from inside. Near them the rates lose about eps / t of absolute ac
 
 from __future__ import annotations
 
+import functools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -52,28 +54,27 @@ REST_SCAN = 4096
 END_STEP = 1e-4
 
 
+@functools.lru_cache(maxsize=8)
+def _hermite_operators(far_node: float) -> tuple[Array, Array]:
+    """For ``_hermite7``: the rows d^k/dx^k x^j at x = ``far_node``, k = 0..3, j = 0..7 (4, 8),
+    split into the known part (j < 4) and the inverse of the unknown one (j >= 4) (read-only)."""
+    terms = np.array([[math.prod(range(j - k + 1, j + 1)) * far_node ** (j - k) if j >= k
+                       else 0.0 for j in range(8)] for k in range(4)])
+    known, inverse = terms[:, :4].copy(), np.linalg.inv(terms[:, 4:])
+    for arr in (known, inverse):
+        arr.setflags(write=False)
+    return known, inverse
+
+
 def _hermite7(near: tuple[float, float, float, float], far: tuple[float, float, float, float],
               far_node: float) -> Array:
     """(8,) coefficients of x^0..x^7 of the polynomial whose value and first three
     x-derivatives are ``near`` at x = 0 (taken exactly: c_k = near_k / k!) and ``far`` at
     x = ``far_node`` (the other four coefficients solved for)."""
     c = np.zeros(8)
-    for k in range(4):
-        c[k] = near[k] / math.factorial(k)
-    rows = np.zeros((4, 4))
-    rhs = np.zeros(4)
-    for k in range(4):
-        known = 0.0
-        for j in range(8):
-            if j < k:
-                continue
-            term = math.prod(range(j - k + 1, j + 1)) * far_node ** (j - k)
-            if j < 4:
-                known += term * c[j]
-            else:
-                rows[k, j - 4] = term
-        rhs[k] = far[k] - known
-    c[4:] = np.linalg.solve(rows, rhs)
+    c[:4] = np.asarray(near, dtype=float) / np.array([1.0, 1.0, 2.0, 6.0])
+    known, inverse = _hermite_operators(float(far_node))
+    c[4:] = inverse @ (np.asarray(far, dtype=float) - known @ c[:4])
     return c
 
 
@@ -185,6 +186,41 @@ class RestPlan(Plan):
     def flags(self, t: Array) -> Array:
         return np.ascontiguousarray(np.concatenate(
             [self.derivative(np.asarray(t, dtype=float), k) for k in range(3)], axis=-1))
+
+    @classmethod
+    def flags_of(cls, plans: Sequence[Plan], t: Array) -> Array:
+        """``Plan.flags_of`` with each plan's tail on the second half (``derivative``)."""
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        flags = super().flags_of(plans, t)
+        duration = plans[0].duration
+        late = t > 0.5 * duration
+        if late.any():
+            x = t[late] / duration - 1.0
+            tails = [p.tail for p in plans if isinstance(p, RestPlan)]
+            if len(tails) != len(plans):
+                raise TypeError("RestPlan.flags_of: rest plans only")
+            c = np.swapaxes(np.stack(tails), -1, -2)  # (P, 8, N)
+            n = c.shape[-1]
+            powers = np.vander(x, c.shape[-2], increasing=True)
+            for k in range(3):
+                flags[:, late, k * n:(k + 1) * n] = (powers[:, :c.shape[-2]] @ c) / duration**k
+                c = c[:, 1:] * np.arange(1, c.shape[-2])[:, None]
+        return flags
+
+    @classmethod
+    def states_of(cls, plans: Sequence[Plan], t: Array) -> tuple[Array, Array, Array]:
+        """``Plan.states_of`` with the limits at the ends (``sample``)."""
+        duration = plans[0].duration
+        inner = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), 0.0, duration)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            theta, theta_dot, margin = super().states_of(plans, inner)
+        for rows, field in ((np.flatnonzero(inner <= 0.0), "start"),
+                            (np.flatnonzero(inner >= duration), "goal")):
+            if rows.size:
+                theta[:, rows] = np.stack([getattr(p, field) for p in plans])[:, None, :]
+                theta_dot[:, rows] = 0.0
+                margin[:, rows] = 0.0
+        return theta, theta_dot, margin
 
     def _end_rows(self, t: Array) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
         t = np.asarray(t, dtype=float)

@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from flatcli.core.basis import Basis
-from flatcli.core.clearance import Certificate, Constraints, certify, point_slack
+from flatcli.core.clearance import Certificate, Constraints, certify, sampled_slack
 from flatcli.core.inverse import Elbow, task_configuration, two_link_task
 from flatcli.core.kinematics import across_shift, end_effector, virtual_links, virtual_links_of
 from flatcli.core.model import FlatcliError, Model, RobotParams
@@ -143,9 +143,26 @@ def _oriented(rate: ArrayLike, start: Array, goal: Array, n: int) -> Array:
 
 
 #: Samples at which a candidate is checked before its proof is tried: a violation there
-#: rejects it at about a fifth of the proof's cost (the first candidate that is proven is
-#: the same either way).
+#: rejects it at a fraction of the proof's cost (the first candidate that is proven is the
+#: same either way).
 SCREEN_SAMPLES = 65
+#: Candidates planned and checked at the samples together (``clearance.sampled_slack``): one
+#: evaluation for several costs little more than for one; the first is checked alone, as
+#: most tasks need no second.
+SCREEN_BATCH = 4
+
+
+def _candidate(robot: RobotParams, task: Task, start: Array, goal: Array, shape: float,
+               duration: float, start_rate: ArrayLike, goal_rate: ArrayLike, model: Model,
+               basis: Basis | None) -> Plan:
+    """The candidate plan of one (start, goal, shape): a rest plan of that skew, or the
+    point-to-point plan with its end rates scaled by ``shape`` (FlatcliError if none)."""
+    n = robot.n_joints
+    if task.rest:
+        return plan_rest_to_rest(robot, start, goal, duration, model, skew=shape)
+    return plan_point_to_point(robot, start, goal, _oriented(start_rate, start, goal, n) * shape,
+                               _oriented(goal_rate, start, goal, n) * shape, duration, model,
+                               basis)
 
 
 def plan_task(robot: RobotParams, task: Task, starts: list[Array], goals: list[Array],
@@ -154,53 +171,56 @@ def plan_task(robot: RobotParams, task: Task, starts: list[Array], goals: list[A
               angle_limit: Array | None = None, rate_limit: Array | None = None
               ) -> TaskPlan:
     """The task's plan (module docstring): the first candidate whose constraints are proven
-    over [0, T].
+    over [0, T]. Candidates are taken in order (start, goal, then shape) up to
+    ``task.budget``; they are checked at ``SCREEN_SAMPLES`` samples in batches
+    (``SCREEN_BATCH``) and proven (``certify``) in order when they pass.
 
     Raises
     ------
     FlatcliError naming the key: no candidate plans (the last reason), or none within
     ``task.budget`` is proven clear (the best one's reason).
     """
-    n = robot.n_joints
     limits = (angle_limit is not None and np.isfinite(angle_limit).any()) or (
         rate_limit is not None and np.isfinite(rate_limit).any())
     constraints = Constraints(np.asarray(task.obstacles, dtype=float).reshape(-1, 3),
                               task.clearance, angle_limit, rate_limit) \
         if (task.obstacles or limits) else None
-    tried = 0
-    last_error: FlatcliError | None = None
-    best: tuple[float, Certificate] | None = None
-    refuted: list[Plan] = []  # failed at a sample: certify would refute them too
     shapes: tuple[float, ...] = SKEWS if task.rest else RATE_FACTORS
     if constraints is None:
         shapes = shapes[:1]
-    for start in starts:
-        for goal in goals:
-            for shape in shapes:
-                if tried >= task.budget:
-                    break
-                tried += 1
-                try:
-                    if task.rest:
-                        plan: Plan = plan_rest_to_rest(robot, start, goal, duration, model,
-                                                       skew=shape)
-                    else:
-                        plan = plan_point_to_point(
-                            robot, start, goal, _oriented(start_rate, start, goal, n) * shape,
-                            _oriented(goal_rate, start, goal, n) * shape, duration, model, basis)
-                except FlatcliError as exc:
-                    last_error = exc
-                    continue
-                if constraints is None:
-                    return TaskPlan(plan, start, goal, None, tried)
-                if point_slack(plan, constraints, plan.grid(SCREEN_SAMPLES))[0].min() < 0:
-                    refuted.append(plan)  # a violation at a sample is one: no proof needed
-                    continue
-                cert = certify(plan, constraints)
-                if cert.ok:
-                    return TaskPlan(plan, start, goal, cert, tried)
-                if best is None or cert.lower_bound > best[0]:
-                    best = (cert.lower_bound, cert)
+    candidates = [(start, goal, shape) for start in starts for goal in goals
+                  for shape in shapes][:task.budget]
+    last_error: FlatcliError | None = None
+    best: tuple[float, Certificate] | None = None
+    refuted: list[Plan] = []  # failed at a sample: certify would refute them too
+    first = 0
+    while first < len(candidates):
+        size = 1 if first == 0 else SCREEN_BATCH
+        batch: list[tuple[int, Array, Array, Plan]] = []
+        for index, (start, goal, shape) in enumerate(candidates[first:first + size], first + 1):
+            try:
+                plan = _candidate(robot, task, start, goal, shape, duration, start_rate,
+                                  goal_rate, model, basis)
+            except FlatcliError as exc:
+                last_error = exc
+                continue
+            if constraints is None:
+                return TaskPlan(plan, start, goal, None, index)
+            batch.append((index, start, goal, plan))
+        first += size
+        if not batch:
+            continue
+        assert constraints is not None
+        slack = sampled_slack([plan for *_, plan in batch], constraints, SCREEN_SAMPLES)
+        for (index, start, goal, plan), least in zip(batch, slack, strict=True):
+            if least < 0:
+                refuted.append(plan)  # a violation at a sample is one: no proof needed
+                continue
+            cert = certify(plan, constraints)
+            if cert.ok:
+                return TaskPlan(plan, start, goal, cert, index)
+            if best is None or cert.lower_bound > best[0]:
+                best = (cert.lower_bound, cert)
     if constraints is not None:
         for plan in refuted:  # the message names the best of all, as certify ranks them
             cert = certify(plan, constraints)
@@ -210,8 +230,8 @@ def plan_task(robot: RobotParams, task: Task, starts: list[Array], goals: list[A
         assert last_error is not None
         raise last_error
     what = "task.obstacles" if task.obstacles else "plan.optimize.angle_limit / rate_limit"
-    raise FlatcliError(f"{what}: no plan among the {tried} candidates tried (task.budget = "
-                       f"{task.budget}) is proven clear over [0, T]; the best: "
+    raise FlatcliError(f"{what}: no plan among the {len(candidates)} candidates tried "
+                       f"(task.budget = {task.budget}) is proven clear over [0, T]; the best: "
                        f"{best[1].reason}")
 
 

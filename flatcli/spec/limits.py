@@ -136,9 +136,11 @@ def time_text(seconds: float) -> str:
     return f"{seconds:.3g} s"
 
 
-def require_memory(what: str, estimate: float, change: str) -> None:
-    """SpecError if ``estimate`` [bytes] exceeds the memory budget."""
-    budget = memory_budget()
+def require_memory(what: str, estimate: float, change: str, budget: float | None = None
+                   ) -> None:
+    """SpecError if ``estimate`` [bytes] exceeds the memory budget (``budget`` [bytes] if
+    given: one reading of it for many checks)."""
+    budget = memory_budget() if budget is None else budget
     if estimate > budget:
         raise SpecError(f"{what} would need about {size_text(estimate)} of memory, more than "
                         f"the {size_text(budget)} budget (FLATCLI_MEMORY_BUDGET); {change}")
@@ -235,19 +237,24 @@ def sweep_seconds(trials: float, steps: float, workers: int) -> float:
 def check_limits(spec: Any) -> None:
     """Refuse a spec whose plan, trial or sweep would not fit in memory or time (SpecError
     naming the estimate, the budget and the key to change)."""
+    budget = memory_budget()  # read once (the machine's files), not per check
+
+    def memory(what: str, estimate: float, change: str) -> None:
+        require_memory(what, estimate, change, budget)
+
     plan, sweep, track = spec.plan, spec.sweep, spec.track
     joints = int(spec.joints)
     require_time(f"planning a robot of {joints} joints (the N-link flat maps cost O(N^4))",
                  plan_seconds(joints), "use fewer links (robot.mass and the other per-link "
                  "keys)")
-    require_memory(f"plan.samples = {plan.samples}",
-                   plan.samples * plan_sample_bytes(joints), "lower plan.samples")
+    memory(f"plan.samples = {plan.samples}",
+           plan.samples * plan_sample_bytes(joints), "lower plan.samples")
     steps = output_steps(spec)
-    require_memory(f"plan.duration / track.dt = {steps:.3g} output steps",
-                   steps * track_step_bytes(joints), "raise track.dt or lower plan.duration")
-    require_memory(f"plan.optimize.constraint_samples = {plan.optimize.constraint_samples}",
-                   plan.optimize.constraint_samples * plan_sample_bytes(joints),
-                   "lower plan.optimize.constraint_samples")
+    memory(f"plan.duration / track.dt = {steps:.3g} output steps",
+           steps * track_step_bytes(joints), "raise track.dt or lower plan.duration")
+    memory(f"plan.optimize.constraint_samples = {plan.optimize.constraint_samples}",
+           plan.optimize.constraint_samples * plan_sample_bytes(joints),
+           "lower plan.optimize.constraint_samples")
     if track.integrator == "adaptive":  # a trial that cannot meet its tolerance spends them
         require_time(f"track.max_steps = {track.max_steps:.3g} attempted steps (one trial "
                      "that cannot meet track.rtol spends them all)",
@@ -255,9 +262,9 @@ def check_limits(spec: Any) -> None:
     terms = plan.size if plan.basis == "bspline" or (
         plan.basis == "auto" and plan.optimize.objective is not None) else (plan.degree or 3) + 1
     points = plan.samples + plan.optimize.constraint_samples + 2 * steps + 1
-    require_memory(f"a flat-output basis of {terms} terms",
-                   8.0 * (3 * points * terms + 4 * float(terms) ** 2),
-                   "lower plan.size or plan.degree")
+    memory(f"a flat-output basis of {terms} terms",
+           8.0 * (3 * points * terms + 4 * float(terms) ** 2),
+           "lower plan.size or plan.degree")
     reach = abs(plan.goal[1] - plan.start[1]) + plan.duration * (_largest(plan.start_rate)
                                                                    + _largest(plan.goal_rate))
     if reach / math.pi > MAX_HALF_TURNS:
@@ -270,15 +277,15 @@ def check_limits(spec: Any) -> None:
         raise SpecError(f"sweep.trials: at most {ID_STRIDE:.0e} trials per cell (a trial's id "
                         f"is cell key * {ID_STRIDE:.0e} + i), got {sweep.trials}")
     cells = grid_cells(sweep.grid)
-    require_memory(f"sweep.grid of {cells:.3g} cells",
-                   cells * (BYTES_PER_CELL + steps * cell_step_bytes(joints)),
-                   "use fewer grid values")
+    memory(f"sweep.grid of {cells:.3g} cells",
+           cells * (BYTES_PER_CELL + steps * cell_step_bytes(joints)),
+           "use fewer grid values")
     total = float(cells) * sweep.trials
-    require_memory(f"{total:.3g} trials ({sweep.trials} x {cells} cells)",
-                   total * BYTES_PER_TRIAL, "lower sweep.trials or use fewer grid values")
+    memory(f"{total:.3g} trials ({sweep.trials} x {cells} cells)",
+           total * BYTES_PER_TRIAL, "lower sweep.trials or use fewer grid values")
     chunk = min(sweep.chunk or 0, sweep.trials)
-    require_memory(f"sweep.chunk = {chunk} trials on {cores()} workers",
-                   2 * cores() * chunk * chunk_trial_bytes(joints), "lower sweep.chunk")
+    memory(f"sweep.chunk = {chunk} trials on {cores()} workers",
+           2 * cores() * chunk * chunk_trial_bytes(joints), "lower sweep.chunk")
     require_time(f"{total:.3g} trials of {steps:.3g} output steps on {cores()} cores",
                  sweep_seconds(total, steps, cores()),
                  "lower sweep.trials, use fewer grid values or raise track.dt")
