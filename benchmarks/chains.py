@@ -5,12 +5,15 @@ counterweighted onto its joint with a large inertia, as tests/test_chainplan.py'
 plan through ``chainplan.plan_chain`` (the N-link path also for N = 2, so every N runs the
 same code), gains 100 / 20 per output, perturbed starts; one core, one batch per plant and
 integrator. Reported: trials/s, the median of steps and right-hand sides per trial, and the
-cost of one right-hand side, whose growth with N says where the time goes.
+cost of one right-hand side, whose growth with N says where the time goes; and the same work
+as when issue 19 set its goal (3x the trials/s of N = 3, 4, 6 on both plants): no twin
+(``track.error_estimate = "none"``), against that day's figures (``FILED``).
 """
 
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from typing import Any, Literal
 
 import numpy as np
@@ -23,8 +26,19 @@ from flatcli.core.simulate import Scenario, Trials, simulate
 
 JOINTS = (2, 3, 4, 6)
 SECTION = "Robots of N links: closed loop, adaptive integrator, one core"
+SAME_WORK = ("Robots of N links: the same work as when issue 19 set its goal (no twin), "
+             "against that day's trials/s")
 HEADERS = {SECTION: ["N joints", "plant", "trials/s (1 core)", "steps / trial", "rhs / trial",
-                     "us per rhs", "us per rhs / N^2"]}
+                     "us per rhs", "us per rhs / N^2"],
+           SAME_WORK: ["N joints", "plant", "trials/s (1 core)", "rhs / trial", "then",
+                       "then: rhs / trial", "ratio", "goal"]}
+#: trials/s and right-hand sides per trial of this section on this machine, idle, when issue
+#: 19 was filed (README.md of commit f6a3882, 2026-11-25, "Robots of N links"; no twin then).
+FILED: dict[tuple[int, str], tuple[float, float]] = {
+    (2, "kinematic"): (253, 2871), (3, "kinematic"): (194, 2967), (4, "kinematic"): (146, 2997),
+    (6, "kinematic"): (85, 3033), (2, "dynamic"): (130, 5229), (3, "dynamic"): (107, 5187),
+    (4, "dynamic"): (88, 5151), (6, "dynamic"): (55, 5061),
+}
 
 
 def robot(n: int) -> RobotParams:
@@ -48,8 +62,11 @@ def scenario_and_trials(n: int, count: int, plant: Literal["kinematic", "dynamic
     return sc, Trials(np.tile(r.as_array(), (count, 1)), np.zeros(count), initial)
 
 
-def measure(n: int, count: int, plant: Literal["kinematic", "dynamic"]) -> dict[str, Any]:
+def measure(n: int, count: int, plant: Literal["kinematic", "dynamic"], twin: bool = True
+            ) -> dict[str, Any]:
     sc, trials = scenario_and_trials(n, count, plant)
+    if not twin:
+        sc = replace(sc, twin=0.0)
     simulate(sc, trials.subset(slice(0, 2)))  # compile / load the kernel
     best = np.inf
     for _ in range(2):
@@ -77,4 +94,15 @@ def run_all(bench: Any) -> None:
             bench.row(section, n, plant, f"{r['trials_per_second']:.0f}", f"{r['steps']:.0f}",
                       f"{r['rhs']:.0f}", f"{r['us_per_rhs']:.2f}",
                       f"{r['us_per_rhs_over_n2']:.3f}")
-    bench.raw["chains"] = {"trials": count, "results": results}
+    same_work = []
+    for plant in plants:
+        for n in JOINTS:
+            r = bench.measure(SAME_WORK, f"N = {n}, {plant}, no twin", lambda n=n, plant=plant:
+                              measure(n, count, plant, twin=False))
+            then, then_rhs = FILED[(n, plant)]
+            ratio = r["trials_per_second"] / then
+            same_work.append({**r, "filed": then, "ratio": ratio})
+            goal = "" if n == 2 else ("met" if ratio >= 3.0 else "not met") + " (>= 3x)"
+            bench.row(SAME_WORK, n, plant, f"{r['trials_per_second']:.0f}", f"{r['rhs']:.0f}",
+                      f"{then:.0f}", f"{then_rhs:.0f}", f"{ratio:.2f}x", goal)
+    bench.raw["chains"] = {"trials": count, "results": results, "same_work": same_work}

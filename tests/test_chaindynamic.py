@@ -262,7 +262,8 @@ def test_rhs_solves_the_equations_of_motion_and_the_servo_law(n: int) -> None:
     functions), tau the computed torque of the servo's model (Mhat_s a + chat_s,
     a = bandwidth (r - qj')), r the controller's commands (u_j and its th_N', clipped), u'
     the controller's; with the servo's model exact each joint obeys qj'' = bandwidth
-    (r_j - qj')."""
+    (r_j - qj'), unless a torque limit clips tau (then the equations of motion still hold
+    with the clipped torques)."""
     rng = np.random.default_rng(n)
     plan, robot, start = chain_plan(n)
     nb = n + 1
@@ -271,12 +272,14 @@ def test_rhs_solves_the_equations_of_motion_and_the_servo_law(n: int) -> None:
     plant = robot.with_(mass=np.array(robot.mass) * rng.uniform(0.95, 1.05, nb), com=com)
     out = np.empty(chain_dynamic_state(n) + chain_dynamic_aux(n))
     ref = plan.flags(np.array([0.3]))[0]
-    for servo_is_plant in (True, False):
+    clipped = 0
+    for servo_is_plant, torque_limit in ((True, np.inf), (False, np.inf), (True, 0.05)):
         for _ in range(10):
             x = np.r_[start + rng.uniform(-0.3, 0.3, nb), rng.uniform(-3, 3, nb),
                       rng.uniform(0.1, 0.6, n - 1)]
             bandwidth = float(rng.uniform(5, 500))
-            loop = loop_for(plan, plant, servo_is_plant, rate_limit=4.0, bandwidth=bandwidth)
+            loop = loop_for(plan, plant, servo_is_plant, rate_limit=4.0, bandwidth=bandwidth,
+                            torque_limit=torque_limit)
             chain_dynamic_rhs(loop, x, ref, np.zeros(nb), out)  # type: ignore[arg-type]
             q, qd, qdd = x[:nb], x[nb:2 * nb], out[nb:2 * nb]
             nx = 3 * n + 1
@@ -299,12 +302,15 @@ def test_rhs_solves_the_equations_of_motion_and_the_servo_law(n: int) -> None:
             model = robot_chain(plant if servo_is_plant else robot)
             hat, chat = joint_space_np(mass_matrix(model, q), bias_forces(model, q, qd))
             a = bandwidth * (r - qd[1:])
-            np.testing.assert_allclose(tau, hat @ a + chat, rtol=RHS_EXACT,
-                                       atol=RHS_EXACT * scale)
-            assert out[nx + 1 + n] == 0.0  # no torque limit: never clipped
-            if servo_is_plant:
+            np.testing.assert_allclose(tau, np.clip(hat @ a + chat, -torque_limit, torque_limit),
+                                       rtol=RHS_EXACT, atol=RHS_EXACT * scale)
+            if np.isinf(torque_limit):
+                assert out[nx + 1 + n] == 0.0  # no torque limit: never clipped
+            clipped += int(out[nx + 1 + n] == 1.0)
+            if servo_is_plant and out[nx + 1 + n] == 0.0:
                 np.testing.assert_allclose(qdd[1:], a, rtol=RHS_EXACT,
                                            atol=RHS_EXACT * np.abs(a).max())
+    assert clipped >= 5  # the clipped branch was exercised
 
 
 def test_the_servo_is_a_first_order_lag() -> None:

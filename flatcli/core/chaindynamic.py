@@ -255,7 +255,16 @@ def chain_dynamic_rhs(loop: ChainDynamicLoop, x: Array, ref: Array, noise: Array
     saturated = servo_demand(loop, rates[1:])
     tau = buf[_TAU, :n]
     q_ddot = buf[_Q_DDOT]
-    if loop.same_model:  # the plant's Mhat and chat are the servo's: a copy for the solve
+    if loop.same_model and saturated == 0.0:
+        # the servo's model is the plant and no torque is clipped: Mhat q_j'' = tau - chat =
+        # Mhat a, so q_j'' = a (the first-order lag) without a solve; the base from row 0
+        a = buf[_A]
+        acc = c[0]
+        for j in range(n):
+            q_ddot[1 + j] = a[j]
+            acc += M[0, 1 + j] * a[j]
+        q_ddot[0] = -acc / M[0, 0]
+    elif loop.same_model:  # the plant's Mhat and chat are the servo's: a copy for the solve
         hat, chat, scratch_hat, rhs = mats[_MHAT_S], buf[_CHAT_S], mats[_MHAT], buf[_RHS]
         for j in range(n):
             rhs[j] = chat[j]
