@@ -83,6 +83,8 @@ UNITS: dict[str, str] = {
     **{f"com_{i}": "m" for i in range(3)},
     "servo_bandwidth": _RATE,
     "torque_limit": _TORQUE,
+    "end_effector_0": "m",
+    "end_effector_1": "m",
     # summary.parquet: counts per cell (the statistics take their metric's unit)
     "trials": DIMENSIONLESS,
     "resolved": DIMENSIONLESS,

@@ -296,3 +296,76 @@ def test_a_task_sweep_plans_every_target_and_bounds_the_end_effectors_final_erro
 def test_a_task_sweep_with_ends_at_rest_is_refused() -> None:
     with pytest.raises(SpecError, match=r"task\.rest: a sweep.s closed loop has no fade"):
         layout(resolve({**TASK_SWEEP, "task": {**TASK_SWEEP["task"], "rest": True}}))
+
+
+#: A box of capture points: each trial draws its own target within 2 cm of the nominal one
+#: (one corner out of reach: 0.3 m is the virtual manipulator's reach), and the start.
+BOX_SWEEP = {
+    **TASK_SWEEP,
+    "sweep": {"trials": 10, "seed": 5,
+              "perturb": {"initial": {"dist": "normal", "std": 0.002},
+                          "end_effector": {"dist": "uniform", "low": [-0.02, -0.02],
+                                           "high": [0.02, 0.02]}}},
+}
+
+
+def test_each_trial_of_a_box_sweep_plans_and_reaches_its_own_target() -> None:
+    """sweep.perturb.end_effector: every trial plans its own task to its drawn target.
+    Referees: the links placed in the complex plane (tests/task_referees.py) at each trial's
+    final angles from flatcli track of its exact spec (``rerun_spec``, which takes the drawn
+    target from the row): that re-run gives the same metrics to the bit, its true distance
+    from the trial's own target is within the row's bound, and the targets are the uniform
+    draws of the trial's stream (nominal + low + (high - low) u)."""
+    from flatcli.api import track
+    from flatcli.experiment import STREAM_PERTURB, plant_from
+    from flatcli.montecarlo.draws import perturb_slots
+    from flatcli.montecarlo.rerun import rerun_spec
+    from flatcli.montecarlo.streams import uniform_variates
+    from tests import task_referees as ref
+
+    spec = resolve(BOX_SWEEP)
+    lay = layout(spec)
+    (cell,) = lay.cells
+    rows = run_chunk(cell, Chunk(0, 0, 6)).table.to_pylist()
+    slots = list(perturb_slots(2)["end_effector"])
+    u = uniform_variates(5, list(range(6)), STREAM_PERTURB, len(
+        [s for v in perturb_slots(2).values() for s in v]))[:, slots]
+    nominal = np.array(TASK_SWEEP["task"]["end_effector"])
+    targets = set()
+    for row, draw in zip(rows, u, strict=True):
+        target = np.array([row["end_effector_0"], row["end_effector_1"]])
+        np.testing.assert_array_equal(target, nominal + (-0.02 + 0.04 * draw))
+        targets.add(tuple(target))
+        assert row["status"] == "ok", row["reason"]
+        alone = rerun_spec(lay, row)
+        assert list(alone.task.end_effector) == list(target)
+        run = track(alone)
+        for metric in ("err_theta_final", "err_theta_rms", "steps", "min_margin"):
+            assert run.metrics[metric] == row[metric], metric
+        theta = run.frame[["theta0", "theta1", "theta2"]].to_numpy()[-1]
+        exact = abs(ref.end_effector(plant_from(alone), theta) - complex(*target))
+        assert exact <= row["ee_error_bound"] <= 20 * exact + 1e-4, (exact, row)
+    assert len(targets) == len(rows)  # a target per trial, not the cell's
+
+
+def test_a_box_sweep_records_a_target_it_cannot_plan_and_goes_on() -> None:
+    """A drawn target out of reach is an error trial with the planner's one-line reason; the
+    others run. Reference: |target| > 0.3 m, the virtual manipulator's reach (sum |v_a| of
+    the paper's robot: 1/30 + 0.1 + 0.2 m)."""
+    far = {**BOX_SWEEP, "sweep": {**BOX_SWEEP["sweep"], "perturb": {
+        "end_effector": {"dist": "uniform", "low": [-0.15, -0.15], "high": [0.15, 0.15]}}}}
+    lay = layout(resolve(far))
+    rows = run_chunk(lay.cells[0], Chunk(0, 0, 10)).table.to_pylist()
+    out = [r for r in rows if np.hypot(r["end_effector_0"], r["end_effector_1"]) > 0.3 + 1e-9]
+    assert out and len(out) < len(rows)
+    for row in out:
+        assert row["status"] == "error"
+        assert row["reason"].startswith("task.end_effector: [") and "unreachable" in row["reason"]
+        assert row["ee_error_bound"] is None
+    assert any(r["status"] == "ok" for r in rows)
+
+
+def test_a_target_perturbation_needs_a_target() -> None:
+    spec = {k: v for k, v in BOX_SWEEP.items() if k != "task"}
+    with pytest.raises(SpecError, match=r"sweep\.perturb\.end_effector: needs task\.end_effector"):
+        resolve(spec)

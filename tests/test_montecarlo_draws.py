@@ -48,7 +48,7 @@ def test_perturbation_draws_are_independent_of_each_other_and_well_distributed()
     # the draw of a trial depends on its id only
     again = draw_perturbations(drawn, nominal, 5, [17, 3])
     np.testing.assert_array_equal(again["initial"], both["initial"][[17, 3]])
-    assert len(PERTURB_SLOTS) == 9
+    assert len(PERTURB_SLOTS) == 10
 
 
 def test_slots_are_fixed_positions_per_component() -> None:
@@ -56,8 +56,9 @@ def test_slots_are_fixed_positions_per_component() -> None:
     assert PERTURB_SLOTS == {"initial": (0, 1, 2), "initial_rate": (3,), "mass": (4, 5, 6),
                              "inertia": (7, 8, 9), "length": (10, 11, 12),
                              "com": (13, 14, 15), "momentum": (16,),
-                             "servo_bandwidth": (17,), "torque_limit": (18,)}
-    assert N_VARIATES == 19
+                             "servo_bandwidth": (17,), "torque_limit": (18,),
+                             "end_effector": (19, 20)}
+    assert N_VARIATES == 21
 
 
 def test_the_servo_slots_leave_every_earlier_draw_unchanged() -> None:
@@ -111,7 +112,8 @@ def test_a_robot_of_n_joints_lays_out_its_own_variates() -> None:
     assert slots["initial"] == (0, 1, 2, 3, 4) and slots["initial_rate"] == (5, 6, 7)
     assert slots["mass"] == (8, 9, 10, 11, 12) and slots["com"] == (23, 24, 25, 26, 27)
     assert slots["momentum"] == (28,) and slots["torque_limit"] == (30,)
-    assert variates(4) == 31 == 4 * 5 + 5 + 3 + 3
+    assert slots["end_effector"] == (31, 32)  # two coordinates whatever N
+    assert variates(4) == 33 == 4 * 5 + 5 + 3 + 3 + 2
     assert perturbation_columns("initial_rate", 4) == ["initial_rate_1", "initial_rate_2",
                                                        "initial_rate_3"]
     assert perturbation_columns("initial_rate") == ["initial_rate"]
@@ -119,10 +121,10 @@ def test_a_robot_of_n_joints_lays_out_its_own_variates() -> None:
 
 
 def numpy_uniforms(seed: int, trial: int) -> NDArray[np.float64]:
-    """The README's contract, computed here with numpy alone: trial ``trial``'s 19 uniform
+    """The README's contract, computed here with numpy alone: trial ``trial``'s 21 uniform
     variates (a robot of N = 2 joints) come from default_rng(SeedSequence(seed,
     spawn_key=(trial, 0)))."""
-    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(trial, 0))).random(19)
+    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(trial, 0))).random(21)
 
 
 def test_perturbation_draws_are_numpys_stream_of_each_trial() -> None:

@@ -23,8 +23,9 @@ from flatcli.core.metrics import (
     Status,
     describe_status,
 )
+from flatcli.core.model import FlatcliError
 from flatcli.core.simulate import NoiseStreams, Scenario, Trials, check_against_reference
-from flatcli.experiment import checked, plant_from
+from flatcli.experiment import checked, initial_rates, plan_from, plant_from, scenario_from
 from flatcli.montecarlo.draws import (
     draw_perturbations,
     invalid_plants,
@@ -65,7 +66,9 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
     """Simulate one chunk; return its columns.
 
     A trial whose perturbed plant is not a valid robot, or whose perturbed servo is not a
-    valid servo, is recorded as ``error`` with the reason; the others are simulated.
+    valid servo, is recorded as ``error`` with the reason; the others are simulated. With
+    ``[sweep.perturb] end_effector`` every trial plans its own task to its drawn target
+    (``trial_task``): one it cannot plan is an ``error`` with the planner's reason.
     """
     started = time.perf_counter()
     spec = cell.spec
@@ -76,15 +79,32 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
     nominal = nominal_values(spec, scenario.plan)
     drawn = draw_perturbations(perturbations(spec.sweep, joints), nominal, seed, ids.tolist(),
                                joints)
-    value = {name: np.broadcast_to(drawn.get(name, nominal[name]), (len(ids), nominal[name].size))
+    value = {name: np.array(np.broadcast_to(drawn.get(name, nominal[name]),
+                                            (len(ids), nominal[name].size)))
              for name in PERTURB_TARGETS}
-    links = np.hstack([value["mass"], value["inertia"], value["length"], value["com"]])
-    initial = np.hstack([value["initial"], value["initial_rate"]])
-    momentum = value["momentum"][:, 0]
     servo = np.hstack([value["servo_bandwidth"], value["torque_limit"]])
     across = plant_from(spec).com_across  # e_N of every trial's plant [m]
+    links = np.hstack([value["mass"], value["inertia"], value["length"], value["com"]])
     reasons = [plant or servo_reason for plant, servo_reason
                in zip(invalid_plants(links), invalid_servos(servo), strict=True)]
+    own: list[TrialTask | None] = [None] * len(ids)  # a trial's own task, if it has one
+    if "end_effector" in drawn:  # a plan per trial, to its own target
+        for i in range(len(ids)):
+            if reasons[i]:
+                continue
+            try:
+                task = own[i] = trial_task(spec, value["end_effector"][i])
+            except FlatcliError as exc:
+                reasons[i] = str(exc)
+                continue
+            # the plan's own start rates are the trial's nominal ones (as its re-run sees)
+            rates = initial_rates(task.spec_of_trial, task.scenario.plan)
+            value["initial_rate"][i] = rates + (value["initial_rate"][i]
+                                                - nominal["initial_rate"])
+            if "initial_rate" in drawn:
+                drawn["initial_rate"][i] = value["initial_rate"][i]
+    initial = np.hstack([value["initial"], value["initial_rate"]])
+    momentum = value["momentum"][:, 0]
     valid = np.array([not r for r in reasons], dtype=bool)
     metrics = np.full((len(ids), len(METRIC_NAMES)), np.nan)
     status = np.full(len(ids), int(Status.ERROR), dtype=np.int64)
@@ -100,23 +120,32 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
                         np.ascontiguousarray(initial[valid]), noise,
                         np.ascontiguousarray(servo[valid]),
                         np.full(int(valid.sum()), across))
-        outcome = simulate_counted(scenario, trials, checked(spec.track.integrator))
-        metrics[valid] = outcome.metrics
-        status[valid] = outcome.status
-        event[valid] = outcome.event
-        event_time[valid] = outcome.event_time
-        verified[valid] = outcome.verified
         rows = np.flatnonzero(valid)
-        for k, row in enumerate(rows):
-            why_not[row] = outcome.unverified(k)
         chosen = ids[rows] - cell.first_trial < verify_count(spec.sweep.verify,
                                                               spec.sweep.trials)
-        if chosen.any():
-            check = check_against_reference(scenario, trials.subset(np.flatnonzero(chosen)),
-                                            checked(spec.track.integrator))
-            difference[rows[chosen]] = check.difference
-            for row, code in zip(rows[chosen], check.status, strict=True):
-                reference_status[row] = STATUS_NAMES[int(code)]
+        # one batch for the cell's scenario; a trial with its own plan alone
+        batches = ([np.arange(len(rows))] if "end_effector" not in drawn
+                   else [np.array([k]) for k in range(len(rows))])
+        for batch in batches:
+            task = own[rows[batch[0]]]
+            sc = scenario if task is None else task.scenario
+            part = trials.subset(batch) if len(batches) > 1 else trials
+            outcome = simulate_counted(sc, part, checked(spec.track.integrator))
+            where = rows[batch]
+            metrics[where] = outcome.metrics
+            status[where] = outcome.status
+            event[where] = outcome.event
+            event_time[where] = outcome.event_time
+            verified[where] = outcome.verified
+            for k, row in enumerate(where):
+                why_not[row] = outcome.unverified(k)
+            pick = batch[chosen[batch]]
+            if pick.size:
+                check = check_against_reference(sc, trials.subset(pick),
+                                                checked(spec.track.integrator))
+                difference[rows[pick]] = check.difference
+                for row, code in zip(rows[pick], check.status, strict=True):
+                    reference_status[row] = STATUS_NAMES[int(code)]
     status_names = []
     reason_texts = []
     for i in range(len(ids)):
@@ -151,28 +180,51 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
     columns["reference_difference"] = null_where_nan(difference)
     columns["reference_status"] = texts(reference_status)
     if spec.task.end_effector is not None:  # a task sweep: how near the target, at most
+        plans = [scenario.plan if task is None else task.scenario.plan for task in own]
         columns["ee_error_bound"] = null_where_nan(
-            reach_bounds(spec, scenario, value, metrics, valid, across))
+            reach_bounds(spec, plans, value, metrics, valid, across))
     table = with_units(pa.table(columns), units_of(columns, spec))
     return ChunkResult(table, time.perf_counter() - started, peak_memory_mib())
 
 
-def reach_bounds(spec: Spec, scenario: Scenario, value: dict[str, Any], metrics: Any,
+@dataclass(frozen=True)
+class TrialTask:
+    """A trial's own task (``[sweep.perturb] end_effector``): its spec (the cell's with the
+    drawn target as task.end_effector, as ``sweep --rerun`` builds it) and its scenario."""
+
+    spec_of_trial: Spec
+    scenario: Scenario
+
+
+def trial_task(spec: Spec, target: Any) -> TrialTask:
+    """The task of one trial whose target is ``target`` (2,) [m]: planned and prepared as a
+    track run of the same spec would (FlatcliError: the planner's reason)."""
+    applied = spec.with_overrides({"task.end_effector": [float(v) for v in target]})
+    plan = plan_from(applied)
+    return TrialTask(applied, scenario_from(applied, plan).prepared())
+
+
+def reach_bounds(spec: Spec, plans: list[Any], value: dict[str, Any], metrics: Any,
                  valid: Any, across: float) -> Any:
     """(n,) ``ee_error_bound`` of a chunk's trials [m] (``core.task.end_effector_error_bound``
-    from each plant's links and its err_theta_final); nan for a trial that did not run or
-    did not reach the end."""
+    from each plant's links and its err_theta_final, against the plan each trial tracked and
+    its target: ``value["end_effector"]``); nan for a trial that did not run or did not reach
+    the end."""
     from flatcli.core.task import end_effector_error_bound
 
     bound = np.full(len(valid), np.nan)
-    target = spec.task.end_effector
-    if valid.any() and target is not None:
-        plan = scenario.plan
+    if spec.task.end_effector is None:
+        return bound
+    final = metrics[:, METRIC_NAMES.index("err_theta_final")]
+    groups: dict[int, list[int]] = {}  # the trials of each plan (the cell's, or their own)
+    for i in np.flatnonzero(valid):
+        groups.setdefault(id(plans[i]), []).append(int(i))
+    for rows in groups.values():
+        plan = plans[rows[0]]
         planned = plan.sample(np.array([plan.duration])).theta[-1]
-        final = metrics[valid, METRIC_NAMES.index("err_theta_final")]
-        bound[valid] = end_effector_error_bound(
-            plan.robot, value["mass"][valid], value["length"][valid], value["com"][valid],
-            np.full(int(valid.sum()), across), final, planned, target)
+        bound[rows] = end_effector_error_bound(
+            plan.robot, value["mass"][rows], value["length"][rows], value["com"][rows],
+            np.full(len(rows), across), final[rows], planned, value["end_effector"][rows[0]])
     return bound
 
 

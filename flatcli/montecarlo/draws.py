@@ -120,6 +120,8 @@ def nominal_values(spec: Spec, plan: Plan) -> dict[str, Array]:
         "momentum": np.array([spec.plant.momentum]),
         "servo_bandwidth": np.array([spec.plant.servo_bandwidth]),
         "torque_limit": np.array([spec.plant.torque_limit]),
+        "end_effector": np.asarray(spec.task.end_effector if spec.task.end_effector is not None
+                                   else (np.nan, np.nan), dtype=float),
     }
 
 

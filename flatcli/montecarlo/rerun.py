@@ -129,6 +129,11 @@ def rerun_and_compare(spec: Spec, directory: Path, trial: int) -> Rerun:
     names = write_track(target, run, record, f"trial {trial} of the sweep; "
                         + track_title(track_spec, metrics))
     rows = [[k, row[k], v, "yes" if same(row[k], v) else "NO"]
-            for k, v in metrics.items() if k != "reason"]
+            for k, v in metrics.items() if k != "reason" and k in row]
+    bound, final = row.get("ee_error_bound"), metrics.get("ee_error_final")
+    if bound is not None and final is not None and not same(bound, None):
+        # a task sweep keeps a bound on the distance from the target; the re-run measures it
+        rows.append(["ee_error_final <= ee_error_bound", bound, final,
+                     "yes" if final <= bound else "NO"])
     return Rerun(trial, target, rows, recorded_digest(directory) != spec.digest(),
                  tuple(names))

@@ -420,9 +420,10 @@ def summary_markdown(summary: pd.DataFrame | Sequence[Mapping[str, Any]],
                                    "ee_error_bound_max"])), shares(["reached"]), strict=True)],
                   3),
             "\nbound: ee_error_bound, an upper bound on the end effector's final distance from\n"
-            "task.end_effector [m] (from err_theta_final and the plant's links). reached: share\n"
-            "of the cell's trials resolved to the end with a bound within\n"
-            "summary.reach_tolerance.",
+            "the trial's target [m] (task.end_effector, or its own draw of\n"
+            "sweep.perturb.end_effector; from err_theta_final and the plant's links). reached:\n"
+            "share of the cell's trials (those whose target could not be planned included)\n"
+            "resolved to the end with a bound within summary.reach_tolerance.",
         ]
     return "\n".join(parts)
 

@@ -53,7 +53,8 @@ def build(values: Mapping[str, Any]) -> Spec:
         checked["sweep.perturb"] = perturb
     spec = fit_sizes(from_values(checked), checked)
     check_joints(spec.joints)  # before anything costs O(N^3)
-    validate_sweep(spec.sweep, spec.joints, spec.plant.torque_limit)
+    validate_sweep(spec.sweep, spec.joints, spec.plant.torque_limit,
+                   spec.task.end_effector is not None)
     check_grid_shapes(spec.sweep.grid)
     check_derived(spec)
     check_verify(spec.sweep.verify)

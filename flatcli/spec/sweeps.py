@@ -31,6 +31,9 @@ PERTURB_TARGETS: dict[str, str] = {
     # existing perturbation draws different numbers (``flatcli.montecarlo.draws``)
     "servo_bandwidth": "plant.servo_bandwidth",
     "torque_limit": "plant.torque_limit",
+    # the task's target: each trial plans its own task to its drawn target (a plan per
+    # trial, flatcli.montecarlo.chunks), a box of capture points sampled
+    "end_effector": "task.end_effector",
 }
 #: Quantities a perturbation may scale (``relative = true``) rather than shift.
 RELATIVE_TARGETS = ("mass", "inertia", "length", "com", "servo_bandwidth", "torque_limit")
@@ -142,15 +145,19 @@ def grid_overrides(key: str, value: Any) -> dict[str, Any]:
 
 
 def validate_sweep(sweep: SweepSpec, joints: int = MIN_JOINTS,
-                   torque_limit: float = math.inf) -> None:
+                   torque_limit: float = math.inf, has_target: bool = True) -> None:
     """Check every perturbation and every grid entry of a ``[sweep]`` (robot of ``joints``,
-    plant torque limit ``torque_limit`` [N m]): each on its own, then together (no spec key
-    varied by two grid entries; a torque-limit perturbation only on finite torque limits)."""
+    plant torque limit ``torque_limit`` [N m], ``has_target``: task.end_effector is set):
+    each on its own, then together (no spec key varied by two grid entries; a torque-limit
+    perturbation only on finite torque limits; a target perturbation only of a target)."""
     for name, table in sweep.perturb.items():
         perturbation(name, table, joints)
     for dotted, values in sweep.grid.items():
         validate_grid_entry(sweep.perturb, dotted, values, joints)
     setters = grid_setters(sweep.grid)
+    if "end_effector" in sweep.perturb and not has_target:
+        raise SpecError(f"{PERTURB_PREFIX}end_effector: needs task.end_effector, the nominal "
+                        "target its draws shift [m]; set task.end_effector")
     if "torque_limit" in sweep.perturb:
         entry = setters.get("plant.torque_limit")
         limits = [torque_limit] if entry is None else grid_values(sweep.grid, entry,
