@@ -79,6 +79,45 @@ def test_rerun_reproduces_a_dynamic_trial_with_a_drawn_servo(tmp_path: Path) -> 
     assert rerun["tau1"].abs().max() <= row["torque_limit"]
 
 
+BOX = """
+name = "small_box"
+[plan]
+start = [1.8, 1.0, 0.0]
+start_rate = 0.2
+goal_rate = 0.2
+[task]
+end_effector = [-0.25, 0.05]
+base_attitude = 1.0
+[track]
+initial = [1.8, 1.0, 0.0]
+kp = [100.0, 110.0]
+kv = [10.0, 13.0]
+[sweep]
+trials = 4
+seed = 3
+[sweep.perturb]
+end_effector = { dist = "uniform", low = [-0.02, -0.02], high = [0.02, 0.02] }
+"""
+
+
+def test_rerun_of_a_task_sweep_reproduces_its_own_target_and_checks_the_bound(
+        tmp_path: Path) -> None:
+    """A task sweep's re-run (a track run, which measures ee_error_final exactly by the
+    links' kinematics) reproduces the row's metrics and finds the distance within the row's
+    ee_error_bound; it once failed on the track run's task metrics, absent from the row."""
+    spec = write_spec(tmp_path, BOX)
+    out_dir = tmp_path / "d"
+    assert sweep(str(spec), "--out", str(out_dir), "-q")[0] == 0
+    code, out = sweep(str(spec), "--out", str(out_dir), "--rerun", "2")
+    assert code == 0, out
+    assert "NO" not in out and "Traceback" not in out
+    line = next(x for x in out.splitlines() if "ee_error_final <= ee_error_bound" in x)
+    assert line.rstrip(" |").endswith("yes")
+    code, text = sweep(str(spec), "--out", str(out_dir), "--rerun", "2", "--print-spec")
+    row = pd.read_parquet(out_dir / "trials.parquet").iloc[2]
+    assert repr(float(row["end_effector_0"])) in text and repr(float(row["end_effector_1"])) in text
+
+
 def test_a_trial_row_is_refused_before_the_sweep_ran(tmp_path: Path) -> None:
     with pytest.raises(FlatcliError, match=r"trials\.parquet not found; run the sweep first"):
         trial_row(tmp_path, 3)
