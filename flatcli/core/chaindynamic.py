@@ -3,7 +3,7 @@
 The robot with inertia (``dynamics``: the free-floating chain of N + 1 bodies, the plant's own
 masses, inertias, lengths and d_i, any d_N) driven by joint torques from a rate servo on every
 joint, under the chain's linearising feedback (``chainloop``, ``chainflat``). For N = 2 it is
-the paper's robot, whose own compiled plant (``plant.dynamic_rhs``, written out for three
+the paper's robot, whose own compiled plant (``paperloop.dynamic_rhs``, written out for three
 bodies) stays what ``simulate`` runs for a ``FlatPlan``; the tests check that both agree.
 
 The state is x = (th0 .. th_N, th0' .. th_N', u_1 .. u_N-1), 3 N + 1 numbers:

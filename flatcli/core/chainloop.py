@@ -9,7 +9,7 @@ the same conditional integration of u_j as ``plant``), and th0' from its own mom
 H0 = sum_j h_j th_j' with its own K (any d_N: an imperfect counterweight included).
 
 ``chain_rhs`` writes the state's derivative into out[:2N] and the controller's signed margin
-sigma into out[2N], like ``plant.kinematic_rhs``, so the same compiled integrators
+sigma into out[2N], like ``paperloop.kinematic_rhs``, so the same compiled integrators
 (``integrate``) run it; ``chain_kernel`` runs a batch of trials.
 """
 

@@ -77,7 +77,7 @@ from flatcli.core.model import (
     constraint_coefficients,
     momentum,
 )
-from flatcli.core.plant import (
+from flatcli.core.paperloop import (
     DYNAMIC_AUX,
     DYNAMIC_STATE,
     KINEMATIC_AUX,
@@ -406,7 +406,7 @@ def _paper_residual(loop: Any, trials: TrialArrays, i: int, plan_theta: Array,
     links = _links_row(trials.params, i)
     if offset == 0.0:
         return plan_momentum_residual(plan_theta, plan_theta_dot, links, trials.h0[i])
-    residual = 0.0  # the plant's link 2 turned (``plant.Loop.offset``)
+    residual = 0.0  # the plant's link 2 turned (``paperloop.Loop.offset``)
     for j in range(plan_theta.shape[0]):
         h = momentum(links, plan_theta[j, 0], plan_theta[j, 1], plan_theta[j, 2] + offset,
                      plan_theta_dot[j, 0], plan_theta_dot[j, 1], plan_theta_dot[j, 2])

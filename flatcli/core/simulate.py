@@ -17,7 +17,7 @@ Three integrators:
   the reference the compiled integrators are checked against, with the same stopping rules
   (events on the divergence bound and on the margin's sign; ``reference``).
 
-Two plants (``Scenario.plant``, ``plant.PLANT_MODELS``): the kinematic plant (joints follow
+Two plants (``Scenario.plant``, ``PLANT_MODELS``): the kinematic plant (joints follow
 their commanded rates) and the dynamic plant (a robot with inertia, joint torques from rate
 servos; ``plant``), through the same integrators. The dynamic plant's servo bandwidth and
 torque limit may differ per trial (``Trials.servo``).
@@ -58,16 +58,19 @@ from flatcli.core.metrics import N_METRICS, Metric, Status
 from flatcli.core.model import FlatcliError
 from flatcli.core.pieces import PiecewiseCurves
 from flatcli.core.planning import Plan
-from flatcli.core.plant import (
-    DEFAULT_SERVO_BANDWIDTH,
-    PLANT_MODELS,
-    SERVO_MODELS,
-    PlantModel,
-    ServoModel,
-)
 from flatcli.core.reference import reference_trial
 
 Array = NDArray[np.float64]
+#: The plant models (``plant.model``): joints that follow their commanded rates exactly, or a
+#: robot with inertia driven by joint torques through rate servos.
+PlantModel = Literal["kinematic", "dynamic"]
+PLANT_MODELS: tuple[PlantModel, ...] = ("kinematic", "dynamic")
+#: What the dynamic plant's servo believes (``plant.servo_model``): the nominal robot, or the
+#: plant itself.
+ServoModel = Literal["robot", "plant"]
+SERVO_MODELS: tuple[ServoModel, ...] = ("robot", "plant")
+#: Default servo bandwidth [rad/s] (``plant.servo_bandwidth``).
+DEFAULT_SERVO_BANDWIDTH = 100.0
 Integrator = Literal["adaptive", "rk4", "dop853"]
 INTEGRATORS: tuple[Integrator, ...] = ("adaptive", "rk4", "dop853")
 #: The feedback laws (``track.controller``): the paper's linearising feedback on the flat
@@ -158,7 +161,7 @@ class Scenario:
     plan_samples : size of the plan's own grid, on which ``plan_momentum_residual`` is taken
     rtol, atol : the adaptive integrator's relative and absolute tolerances
     max_steps : the adaptive integrator's budget of attempted steps per trial
-    plant : "kinematic" or "dynamic" (``plant.PLANT_MODELS``)
+    plant : "kinematic" or "dynamic" (``PLANT_MODELS``)
     servo_model : what the dynamic plant's servo believes: "robot" (the plan's robot, the
         nominal model) or "plant" (each trial's plant)
     controller : "flat" (the linearising feedback with ``gains``) or "asbuilt" (the LQR of

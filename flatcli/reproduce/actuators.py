@@ -23,7 +23,7 @@ import pandas as pd
 
 from flatcli.core.dynamics import make_chain
 from flatcli.core.metrics import STATUS_NAMES
-from flatcli.core.plant import DEFAULT_SERVO_BANDWIDTH
+from flatcli.core.simulate import DEFAULT_SERVO_BANDWIDTH
 from flatcli.experiment import flat_plan_from, robot_from, run_track
 from flatcli.report import (
     COMPLETED,

@@ -33,15 +33,17 @@ from flatcli.core.inverse import ELBOWS
 from flatcli.core.lqr import DEFAULT_BANDWIDTH, DEFAULT_BASE, DEFAULT_TERMINAL
 from flatcli.core.model import MODELS
 from flatcli.core.optimize import OBJECTIVES
-from flatcli.core.plant import DEFAULT_SERVO_BANDWIDTH, PLANT_MODELS, SERVO_MODELS
 from flatcli.core.simulate import (
     CONTROLLERS,
     DEFAULT_ACCURACY,
     DEFAULT_ATOL,
     DEFAULT_MAX_STEPS,
     DEFAULT_RTOL,
+    DEFAULT_SERVO_BANDWIDTH,
     ERROR_ESTIMATES,
     INTEGRATORS,
+    PLANT_MODELS,
+    SERVO_MODELS,
 )
 from flatcli.spec.keys import (
     SIZES,

@@ -1,4 +1,6 @@
-"""The closed loop's right-hand side: the controller driving a plant.
+"""The paper's robot (N = 2) in closed loop, in closed form: the right-hand sides of its
+kinematic and dynamic plants under the controller (``simulate`` runs them for a flat plan of
+three links; ``chainloop`` and ``chaindynamic`` are the same loops for any N).
 
 The controller (``control.feedback``) believes the nominal model; the plant always obeys the
 true physics (the derived constraint for its own parameters, d2 of any value, and its own
@@ -38,7 +40,7 @@ Every right-hand side here has the same signature and writes the state's derivat
 
 from __future__ import annotations
 
-from typing import Any, Literal, NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -62,17 +64,6 @@ KINEMATIC_STATE = 4
 #: cos th1, sin th1 and cos(th1 + th2) (shared with the metrics).
 KINEMATIC_AUX = 4
 
-
-#: The plant models (``plant.model``): joints that follow their commanded rates exactly, or a
-#: robot with inertia driven by joint torques through rate servos.
-PlantModel = Literal["kinematic", "dynamic"]
-PLANT_MODELS: tuple[PlantModel, ...] = ("kinematic", "dynamic")
-#: What the dynamic plant's servo believes (``plant.servo_model``): the nominal robot, or the
-#: plant itself.
-ServoModel = Literal["robot", "plant"]
-SERVO_MODELS: tuple[ServoModel, ...] = ("robot", "plant")
-#: Default servo bandwidth [rad/s] (``plant.servo_bandwidth``).
-DEFAULT_SERVO_BANDWIDTH = 100.0
 
 #: State size of the dynamic plant: th0, th1, th2 [rad], th0', th1', th2' [rad/s], u1 [rad/s].
 DYNAMIC_STATE = 7

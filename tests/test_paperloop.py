@@ -1,4 +1,4 @@
-"""Tests of flatcli.core.plant: the kinematic and the dynamic plant in closed loop.
+"""Tests of flatcli.core.paperloop: the kinematic and the dynamic plant in closed loop.
 
 References, none of them the code under test:
 
@@ -31,8 +31,7 @@ from flatcli.core.control import Gains, feedback
 from flatcli.core.dynamics import bias_forces, make_chain, mass_matrix
 from flatcli.core.metrics import METRIC_NAMES, Metric, Status
 from flatcli.core.model import PAPER_ROBOT, Coefficients, RobotParams, momentum
-from flatcli.core.planning import Plan
-from flatcli.core.plant import (
+from flatcli.core.paperloop import (
     AUX_R2,
     AUX_TAU1,
     AUX_TAU2,
@@ -41,6 +40,7 @@ from flatcli.core.plant import (
     dynamic_loop,
     dynamic_rhs,
 )
+from flatcli.core.planning import Plan
 from flatcli.core.simulate import (
     DYNAMIC_TRACE_COLUMNS,
     TRACE_COLUMNS,
