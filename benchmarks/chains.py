@@ -7,13 +7,21 @@ same code), gains 100 / 20 per output, perturbed starts; one core, one batch per
 integrator. Reported: trials/s, the median of steps and right-hand sides per trial, and the
 cost of one right-hand side, whose growth with N says where the time goes; and the same work
 as when issue 19 set its goal (3x the trials/s of N = 3, 4, 6 on both plants): no twin
-(``track.error_estimate = "none"``), against that day's figures (``FILED``).
+(``track.error_estimate = "none"``), side by side with that day's code (``FILED_COMMIT``,
+taken from git by ``git archive`` into the output folder and run in a subprocess with its own
+numba cache, right after each of today's measurements); without git, against that day's
+published figures (``FILED``).
 """
 
 from __future__ import annotations
 
+import json
+import os
+import subprocess
+import sys
 import time
 from dataclasses import replace
+from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
@@ -27,13 +35,15 @@ from flatcli.core.simulate import Scenario, Trials, simulate
 JOINTS = (2, 3, 4, 6)
 SECTION = "Robots of N links: closed loop, adaptive integrator, one core"
 SAME_WORK = ("Robots of N links: the same work as when issue 19 set its goal (no twin), "
-             "against that day's trials/s")
+             "side by side with that day's code (then: commit f6a3882)")
 HEADERS = {SECTION: ["N joints", "plant", "trials/s (1 core)", "steps / trial", "rhs / trial",
                      "us per rhs", "us per rhs / N^2"],
-           SAME_WORK: ["N joints", "plant", "trials/s (1 core)", "rhs / trial", "then",
-                       "then: rhs / trial", "ratio", "goal"]}
-#: trials/s and right-hand sides per trial of this section on this machine, idle, when issue
-#: 19 was filed (README.md of commit f6a3882, 2026-11-25, "Robots of N links"; no twin then).
+           SAME_WORK: ["N joints", "plant", "trials/s (1 core)", "rhs / trial",
+                       "then: trials/s", "then: rhs / trial", "ratio", "goal"]}
+#: The commit whose chain code issue 19's goal measured (README.md there, "Robots of N links").
+FILED_COMMIT = "f6a3882"
+#: trials/s and right-hand sides per trial of this section then (that README: an idle machine,
+#: perhaps another CPU; no twin then), for when that commit cannot be run.
 FILED: dict[tuple[int, str], tuple[float, float]] = {
     (2, "kinematic"): (253, 2871), (3, "kinematic"): (194, 2967), (4, "kinematic"): (146, 2997),
     (6, "kinematic"): (85, 3033), (2, "dynamic"): (130, 5229), (3, "dynamic"): (107, 5187),
@@ -95,14 +105,67 @@ def run_all(bench: Any) -> None:
                       f"{r['rhs']:.0f}", f"{r['us_per_rhs']:.2f}",
                       f"{r['us_per_rhs_over_n2']:.3f}")
     same_work = []
+    tree = filed_tree(bench.out)
+    rounds = 1 if bench.quick else 3
     for plant in plants:
         for n in JOINTS:
-            r = bench.measure(SAME_WORK, f"N = {n}, {plant}, no twin", lambda n=n, plant=plant:
-                              measure(n, count, plant, twin=False))
-            then, then_rhs = FILED[(n, plant)]
-            ratio = r["trials_per_second"] / then
-            same_work.append({**r, "filed": then, "ratio": ratio})
+            ours: list[dict[str, Any]] = []
+            theirs: list[dict[str, Any]] = []
+            for _ in range(rounds if tree is not None else 1):  # interleaved: A B A B ...
+                ours.append(bench.measure(SAME_WORK, f"N = {n}, {plant}, no twin",
+                                          lambda n=n, plant=plant:
+                                          measure(n, count, plant, twin=False)))
+                if tree is not None:
+                    theirs.append(bench.measure(
+                        SAME_WORK, f"N = {n}, {plant}, {FILED_COMMIT}", lambda n=n, plant=plant:
+                        measure_filed(tree, n, count, plant)))
+            r = max(ours, key=lambda m: m["trials_per_second"])
+            if theirs:
+                then = float(np.median([m["trials_per_second"] for m in theirs]))
+                then_rhs = theirs[0]["rhs"]
+                ratio = float(np.median([a["trials_per_second"] / b["trials_per_second"]
+                                         for a, b in zip(ours, theirs, strict=True)]))
+            else:
+                then, then_rhs = FILED[(n, plant)]
+                ratio = r["trials_per_second"] / then
+            same_work.append({**r, "filed": then, "filed_rhs": then_rhs, "ratio": ratio,
+                              "filed_measured_now": bool(theirs),
+                              "rounds": [(a["trials_per_second"], b["trials_per_second"])
+                                         for a, b in zip(ours, theirs, strict=True)]})
             goal = "" if n == 2 else ("met" if ratio >= 3.0 else "not met") + " (>= 3x)"
-            bench.row(SAME_WORK, n, plant, f"{r['trials_per_second']:.0f}", f"{r['rhs']:.0f}",
-                      f"{then:.0f}", f"{then_rhs:.0f}", f"{ratio:.2f}x", goal)
-    bench.raw["chains"] = {"trials": count, "results": results, "same_work": same_work}
+            now = float(np.median([m["trials_per_second"] for m in ours]))
+            bench.row(SAME_WORK, n, plant, f"{now:.0f}", f"{r['rhs']:.0f}",
+                      f"{then:.0f}" + ("" if theirs else " (published)"),
+                      f"{then_rhs:.0f}", f"{ratio:.2f}x", goal)
+    bench.raw["chains"] = {"trials": count, "results": results, "same_work": same_work,
+                           "filed_commit": FILED_COMMIT, "filed_run": tree is not None}
+
+
+def filed_tree(out: Path) -> Path | None:
+    """``FILED_COMMIT``'s tree under ``out`` (``git archive``), or None without git or the
+    commit (a tarball of the sources, say)."""
+    target = out / f"filed-{FILED_COMMIT}"
+    if (target / "benchmarks" / "chains.py").is_file():
+        return target
+    root = Path(__file__).resolve().parent.parent
+    target.mkdir(parents=True, exist_ok=True)
+    try:
+        archive = subprocess.run(["git", "-C", str(root), "archive", FILED_COMMIT],
+                                 capture_output=True, check=True, timeout=120).stdout
+        subprocess.run(["tar", "-x", "-C", str(target)], input=archive, check=True,
+                       timeout=120)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return target
+
+
+def measure_filed(tree: Path, n: int, count: int, plant: str) -> dict[str, Any]:
+    """``measure`` of the filing day's code (its benchmarks/chains.py, no twin then) in a
+    subprocess: that tree first on the path, its own numba cache."""
+    env = {**os.environ, "PYTHONPATH": str(tree), "NUMBA_CACHE_DIR": str(tree / ".numba")}
+    code = ("import json, sys; from benchmarks.chains import measure; "
+            f"print(json.dumps(measure({n}, {count}, {plant!r})))")
+    done = subprocess.run([sys.executable, "-c", code], cwd=tree, env=env, check=True,
+                          capture_output=True, text=True, timeout=1800)
+    result: dict[str, Any] = json.loads(done.stdout.strip().splitlines()[-1])
+    return result
