@@ -139,6 +139,63 @@ def run_all(bench: Any) -> None:
                       f"{then_rhs:.0f}", f"{ratio:.2f}x", goal)
     bench.raw["chains"] = {"trials": count, "results": results, "same_work": same_work,
                            "filed_commit": FILED_COMMIT, "filed_run": tree is not None}
+    paper_loop(bench)
+
+
+#: One script for both trees: the paper's closed loop (Fig. 4's gains, the cubic plan) on
+#: perturbed plants (benchmarks.baselines.paper_trials), adaptive integrator, no twin (the
+#: filing day had none), one core: trials/s, best of two.
+PAPER_LOOP = """
+import dataclasses, json, sys, time
+from benchmarks.baselines import PAPER_MANEUVER, PAPER_TRACKING, paper_trials
+from flatcli.core.simulate import Scenario, simulate
+n = int(sys.argv[1])
+trials = paper_trials(n, seed=1)
+sc = Scenario(PAPER_MANEUVER.cubic(), PAPER_TRACKING.gains, PAPER_TRACKING.dt).prepared()
+if hasattr(sc, "twin"):
+    sc = dataclasses.replace(sc, twin=0.0)
+simulate(sc, trials.subset(slice(0, 2)))
+best = float("inf")
+for _ in range(2):
+    began = time.perf_counter()
+    out = simulate(sc, trials)
+    best = min(best, time.perf_counter() - began)
+print(json.dumps({"trials_per_second": n / best}))
+"""
+PAPER = ("The paper's closed loop (issue 19: at least 0.95x the filing day's trials/s), side "
+         "by side with that day's code (then: commit f6a3882)")
+HEADERS[PAPER] = ["trials", "trials/s (1 core)", "then: trials/s", "ratio", "goal"]
+
+
+def paper_loop(bench: Any) -> None:
+    """The paper's loop today against ``FILED_COMMIT``'s (``PAPER_LOOP`` in a subprocess for
+    each, interleaved, median of the paired ratios)."""
+    tree = filed_tree(bench.out)
+    if tree is None:
+        return
+    count = 1000 if bench.quick else 4000
+    here = Path(__file__).resolve().parent.parent
+    pairs = []
+    for _ in range(1 if bench.quick else 3):
+        now = bench.measure(PAPER, "today", lambda: run_script(here, PAPER_LOOP, count))
+        then = bench.measure(PAPER, FILED_COMMIT, lambda: run_script(tree, PAPER_LOOP, count))
+        pairs.append((now["trials_per_second"], then["trials_per_second"]))
+    ratio = float(np.median([a / b for a, b in pairs]))
+    bench.row(PAPER, count, f"{np.median([a for a, _ in pairs]):.0f}",
+              f"{np.median([b for _, b in pairs]):.0f}", f"{ratio:.2f}x",
+              ("met" if ratio >= 0.95 else "not met") + " (>= 0.95x)")
+    bench.raw["paper_loop"] = {"trials": count, "pairs": pairs, "ratio": ratio,
+                               "filed_commit": FILED_COMMIT}
+
+
+def run_script(tree: Path, script: str, *args: Any) -> dict[str, Any]:
+    """Run ``script`` with ``tree`` first on the path and its own numba cache; its last line
+    of output as JSON."""
+    env = {**os.environ, "PYTHONPATH": str(tree), "NUMBA_CACHE_DIR": str(tree / ".numba")}
+    done = subprocess.run([sys.executable, "-c", script, *map(str, args)], cwd=tree, env=env,
+                          check=True, capture_output=True, text=True, timeout=1800)
+    result: dict[str, Any] = json.loads(done.stdout.strip().splitlines()[-1])
+    return result
 
 
 def filed_tree(out: Path) -> Path | None:
@@ -161,11 +218,6 @@ def filed_tree(out: Path) -> Path | None:
 
 def measure_filed(tree: Path, n: int, count: int, plant: str) -> dict[str, Any]:
     """``measure`` of the filing day's code (its benchmarks/chains.py, no twin then) in a
-    subprocess: that tree first on the path, its own numba cache."""
-    env = {**os.environ, "PYTHONPATH": str(tree), "NUMBA_CACHE_DIR": str(tree / ".numba")}
-    code = ("import json, sys; from benchmarks.chains import measure; "
-            f"print(json.dumps(measure({n}, {count}, {plant!r})))")
-    done = subprocess.run([sys.executable, "-c", code], cwd=tree, env=env, check=True,
-                          capture_output=True, text=True, timeout=1800)
-    result: dict[str, Any] = json.loads(done.stdout.strip().splitlines()[-1])
-    return result
+    subprocess (``run_script``)."""
+    return run_script(tree, "import json; from benchmarks.chains import measure; "
+                      f"print(json.dumps(measure({n}, {count}, {plant!r})))")

@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 
 from benchmarks import baselines as b
-from benchmarks.baselines import shooting
+from benchmarks.baselines import pcflatsys, shooting
+from benchmarks.baselines.links import PAPER, disc_gaps, link_clearance, link_joints
+from benchmarks.tasks import near_discs
 from flatcli.core.control import Gains
 from flatcli.core.metrics import METRIC_NAMES
 from flatcli.core.model import Links, constraint_coefficients
@@ -29,6 +31,9 @@ IVP_TOL = 1e-6
 SOLVER_TOL = 1e-8
 #: |H| of a flat plan from the full kinematics: rounding only.
 MOMENTUM_TOL = 1e-12
+#: Two evaluations of one python-control trajectory (its own ``eval``, the bench's flags and
+#: vectorised reverse map): rounding only [rad, m].
+SAME_TRAJECTORY_TOL = 1e-9
 
 
 @pytest.fixture(scope="module")
@@ -220,3 +225,65 @@ def test_plan_quality_of_the_cubic(cubic: Plan) -> None:
     assert quality.max_abs_rate[2] == pytest.approx(48.8, abs=0.1)
     assert quality.violation == pytest.approx(quality.max_abs_theta[2] - 3.0)
     assert quality.max_abs_momentum < MOMENTUM_TOL
+
+
+def test_bench_link_kinematics_closed_form() -> None:
+    # the paper's robot straight along x: link centres at 0.1, 0.3, 0.4 m from O_0, their
+    # mean 4/15 m, so the joints O_0..O_3 at (-4, -1, 2, 5) / 15 m; turned by th0 = pi/2,
+    # the same along y
+    theta = np.array([[0.0, 0.0, 0.0], [math.pi / 2, 0.0, 0.0]])
+    joints = link_joints(*PAPER, theta)
+    straight = np.array([-4.0, -1.0, 2.0, 5.0]) / 15.0
+    np.testing.assert_allclose(joints[:, 0], straight, atol=1e-15)
+    np.testing.assert_allclose(joints[:, 1], 1j * straight, atol=1e-15)
+    discs = np.array([[0.0, 0.1, 0.02], [0.5, 0.0, 0.01]])
+    gaps = disc_gaps(joints, discs)
+    assert gaps.shape == (2, 3, 2)
+    # disc 0's centre (0, 0.1) is 0.1 m above link 1 (x in [-1/15, 2/15]) of the straight
+    # robot and on it when turned; disc 1's (0.5, 0) is 0.5 - 1/3 m beyond link 2's end
+    assert gaps[0, 1, 0] == pytest.approx(0.1 - 0.02, abs=1e-15)
+    assert gaps[0, 1, 1] == pytest.approx(-0.02, abs=1e-15)
+    assert gaps[1, 2, 0] == pytest.approx(0.5 - 1.0 / 3.0 - 0.01, abs=1e-15)
+    np.testing.assert_allclose(link_clearance(*PAPER, theta, discs), gaps.min(axis=(0, 1)))
+
+
+def test_bench_near_discs_lie_in_their_band() -> None:
+    t = np.linspace(0.0, 1.0, 2001)
+    theta = np.column_stack([1.8 - 0.6 * t, 1.0 + t, 3.0 * np.sin(2.0 * t)])
+    joints = link_joints(*PAPER, theta)
+    discs = near_discs(np.random.default_rng(7), joints, 3, 0.013, 0.05)
+    assert discs is not None and discs.shape == (3, 3)
+    for disc in discs:  # decided on every sample, the screens notwithstanding
+        least = link_clearance(*PAPER, theta, disc[None]).min()
+        assert 0.013 <= least <= 0.05
+        assert 0.02 <= disc[2] <= 0.05 and np.all(np.abs(disc[:2]) <= 0.35)
+    assert near_discs(np.random.default_rng(7), joints, 3, 10.0, 11.0) is None  # no room
+
+
+def test_python_control_obstacle_task_meets_its_ends_and_points() -> None:
+    """One disc that python-control's optimum without it would cross (by 1.3 cm on 20,001
+    samples): the solution meets the ends and keeps the clearance at its own time points,
+    checked here on python-control's own ``eval`` with the bench's kinematics."""
+    disc = np.array([[-0.1, 0.1, 0.03]])
+    clearance = 0.01
+    result = b.pc_obstacle_task(b.PAPER_MANEUVER, disc, clearance, timepts=21)
+    assert result.success, result.message
+    grid = np.linspace(0.0, b.PAPER_MANEUVER.duration, 21)
+    x, u = result.trajectory.eval(grid)
+    np.testing.assert_allclose(x[:, 0], b.PAPER_MANEUVER.start_state, atol=1e-9)
+    np.testing.assert_allclose(x[:, -1], b.PAPER_MANEUVER.goal_state, atol=1e-9)
+    np.testing.assert_allclose(u[:, [0, -1]], 0.0, atol=1e-9)
+    assert result.end_error < SAME_TRAJECTORY_TOL
+    gaps = link_clearance(*PAPER, x[:3, 1:-1].T, disc)
+    assert gaps.min() >= clearance - pcflatsys.POINT_TOL
+    assert np.min(np.sin(x[1, 1:-1]) * x[3, 1:-1]) >= 0.02 - pcflatsys.POINT_TOL
+    assert result.held_at_points
+    assert result.points_clearance == pytest.approx(gaps.min(), abs=SAME_TRAJECTORY_TOL)
+    # the fine grid (20,001 samples, the time points among them) reports its least gap and
+    # when; python-control's own eval agrees there
+    assert math.isfinite(result.fine_clearance) and result.nonfinite == 0
+    assert result.fine_clearance <= result.points_clearance + SAME_TRAJECTORY_TOL
+    x_worst, _ = result.trajectory.eval(np.array([result.fine_time]))
+    assert link_clearance(*PAPER, x_worst[:3].T, disc)[0] == pytest.approx(
+        result.fine_clearance, abs=SAME_TRAJECTORY_TOL)
+    assert result.violated_between == (result.fine_clearance < clearance - pcflatsys.FINE_TOL)

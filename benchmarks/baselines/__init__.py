@@ -6,7 +6,8 @@ something:
 
 * planning with python-control's ``flatsys`` (a ``FlatSystem`` for this robot):
   ``pc_point_to_point`` (the paper's cubic maneuver, which must come out identical to
-  flatcli's) and ``pc_optimal`` (input energy with trajectory constraints);
+  flatcli's), ``pc_optimal`` (input energy with trajectory constraints) and
+  ``pc_obstacle_task`` (input energy among discs, the links' clearance at its time points);
 * planning without flatness: ``shooting_plan``, an SLSQP shooting NLP over piecewise-constant
   joint rates;
 * the closed loop of the paper (linearising feedback of the nominal d2 = 0 model, plant
@@ -39,10 +40,13 @@ from benchmarks.baselines.ivp import IvpRun, solve_ivp_trials_per_second
 from benchmarks.baselines.loop import LoopInputs, loop_inputs, plant_coefficients
 from benchmarks.baselines.numpy_batch import numpy_batch_rk4, numpy_trials_per_second
 from benchmarks.baselines.pcflatsys import (
+    PcObstacleTask,
     PcOptimal,
     PcPlan,
+    flat_states,
     matching_end_inputs,
     pc_flags,
+    pc_obstacle_task,
     pc_optimal,
     pc_point_to_point,
     robot_flat_system,
@@ -70,6 +74,7 @@ __all__ = [
     "IvpRun",
     "LoopInputs",
     "Maneuver",
+    "PcObstacleTask",
     "PcOptimal",
     "PcPlan",
     "PlanQuality",
@@ -83,6 +88,7 @@ __all__ = [
     "dopri_metrics",
     "dopri_trials_per_second",
     "flat_plan_quality",
+    "flat_states",
     "loop_inputs",
     "machine_info",
     "matching_end_inputs",
@@ -90,6 +96,7 @@ __all__ = [
     "numpy_trials_per_second",
     "paper_trials",
     "pc_flags",
+    "pc_obstacle_task",
     "pc_optimal",
     "pc_point_to_point",
     "plan_quality",

@@ -1,5 +1,6 @@
 """Planning with python-control's ``flatsys``: a ``FlatSystem`` for this robot, the paper's
-cubic maneuver (``pc_point_to_point``) and input energy with constraints (``pc_optimal``)."""
+cubic maneuver (``pc_point_to_point``), input energy with constraints (``pc_optimal``) and a
+task among discs with the links' clearance imposed at its time points (``pc_obstacle_task``)."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import NonlinearConstraint
 
+from benchmarks.baselines.links import FINE, disc_gaps, link_clearance, link_joints
 from benchmarks.baselines.problem import PAPER_MANEUVER, Maneuver
 from benchmarks.baselines.quality import PlanQuality, flat_plan_quality, limits_violation
 from flatcli.core.flatmodel import state_and_rates
@@ -335,4 +337,196 @@ def pc_optimal(
         ),
         objective_evaluations=calls // max(timepts - 2, 1),
         seconds=seconds,
+    )
+
+
+def flat_states(k: Coefficients, y: Array, y_dot: Array, y_ddot: Array) -> tuple[Array, Array]:
+    """``robot_flat_system``'s reverse map at many points at once (the same formulas, numpy).
+
+    Parameters
+    ----------
+    k : Coefficients of a d2 = 0 model
+    y, y_dot, y_ddot : (n, 2) flat outputs and their derivatives (``pc_flags``)
+
+    Returns
+    -------
+    state : (n, 4) th0, th1, th2 [rad], u1 [rad/s]
+    inputs : (n, 2) u1' [rad/s^2], u2 [rad/s]
+    """
+    a0, a1, b0, b1, c0 = float(k.a0), float(k.a1), float(k.b0), float(k.b1), float(k.c0)
+    y1, y1_dot, y1_ddot = y[:, 0], y_dot[:, 0], y_ddot[:, 0]
+    c1, s1 = np.cos(y1), np.sin(y1)
+    big_a = a0 + a1 * c1
+    g = (b0 + b1 * c1) / big_a
+    h = c0 * a1 * s1 / big_a**2
+    g_prime = (g * a1 - b1) * s1 / big_a
+    h_prime = c0 * a1 * (c1 + 2.0 * a1 * s1 * s1 / big_a) / big_a**2
+    th2 = (g - y_dot[:, 1] / y1_dot) / h
+    th0 = y[:, 1] + c0 * th2 / big_a
+    u2 = ((g - h * th2) * y1_ddot + (g_prime - h_prime * th2) * y1_dot**2 - y_ddot[:, 1]) \
+        / (h * y1_dot)
+    return np.column_stack([th0, y1, th2, y1_dot]), np.column_stack([y1_ddot, u2])
+
+
+#: A constraint "holds at python-control's points" within this [m or rad/s] (SLSQP's
+#: feasibility is not exact: 3e-6 m short observed on a solution it calls successful).
+POINT_TOL = 1e-5
+#: The clearance "is broken" on the fine grid below the bound less this [m].
+FINE_TOL = 1e-9
+
+
+@dataclass(frozen=True)
+class PcObstacleTask:
+    """python-control's ``point_to_point`` among discs, judged on a grid finer than its own.
+
+    Attributes
+    ----------
+    success, message : from scipy.optimize.minimize, as python-control reports them
+    clearance, min_margin : the bounds imposed [m], [rad/s]
+    points_clearance : least gap of any link from any disc at python-control's interior
+        time points, where it imposes the clearance [m]
+    points_margin : least signed margin s sin th1 th1' there (s the sign at t = 0) [rad/s]
+    fine_clearance : the least gap on the fine grid (over its finite samples) [m]
+    fine_time : when it is reached [s]
+    fine_margin : the least signed margin on the fine grid [rad/s]
+    nonfinite : fine samples whose state is not finite (the flat map singular there)
+    end_error : max |state - the maneuver's| at t = 0 and T, on the fine grid [rad, rad/s]
+    seconds : wall time of ``point_to_point`` [s]
+    trajectory : python-control's SystemTrajectory
+    """
+
+    success: bool
+    message: str
+    clearance: float
+    min_margin: float
+    points_clearance: float
+    points_margin: float
+    fine_clearance: float
+    fine_time: float
+    fine_margin: float
+    nonfinite: int
+    end_error: float
+    seconds: float
+    trajectory: fs.SystemTrajectory
+
+    @property
+    def held_at_points(self) -> bool:
+        """Clearance and margin hold at python-control's own time points (POINT_TOL)."""
+        return (self.points_clearance >= self.clearance - POINT_TOL
+                and self.points_margin >= self.min_margin - POINT_TOL)
+
+    @property
+    def violated_between(self) -> bool:
+        """The clearance holds at the time points and is broken between them (deeper than
+        at the points, by FINE_TOL), or the state is not finite somewhere."""
+        return self.held_at_points and (
+            self.fine_clearance < min(self.clearance, self.points_clearance) - FINE_TOL
+            or self.nonfinite > 0)
+
+    @property
+    def margin_lost_between(self) -> bool:
+        """The singularity margin holds at the time points and not between them."""
+        return self.held_at_points and not self.fine_margin >= self.min_margin - POINT_TOL
+
+
+def pc_obstacle_task(
+    maneuver: Maneuver,
+    obstacles: Array,
+    clearance: float,
+    basis_size: int = 12,
+    timepts: int = 21,
+    min_margin: float = 0.02,
+    fine: int = FINE,
+    max_iter: int | None = None,
+    system: fs.FlatSystem | None = None,
+) -> PcObstacleTask:
+    """Least input energy among discs, by ``control.flatsys.point_to_point``.
+
+    From ``maneuver.start_state`` to ``maneuver.goal_state`` (th1' at the ends the
+    maneuver's; zero end inputs, as ``pc_optimal``), basis ``PolyFamily(basis_size, T)``,
+    integral cost th1'^2 + th2'^2 and, at every interior point of ``timepts`` (python-control's
+    way), the gap of every link from every disc >= clearance (``benchmarks.tasks``'
+    complex-plane kinematics, not flatcli's) and the singularity margin s sin th1 th1' >=
+    min_margin, s the sign of sin th1 th1' at the start (th1 moves one way; pc_optimal's
+    margin with s = 1). SLSQP, python-control's default, from its default start. The solution
+    is then evaluated on ``fine`` points (``pc_flags``, ``flat_states``).
+
+    Parameters
+    ----------
+    maneuver : Maneuver (its robot must have d2 = 0 and no across offset; start_rate and
+        goal_rate non-zero)
+    obstacles : (K, 3) discs x, y, radius [m]
+    clearance : least gap of every link from every disc's surface [m]
+    basis_size : N of ``PolyFamily(N, T)``; > 6
+    timepts : points on [0, T] for cost and constraints
+    min_margin : lower bound on the signed margin [rad/s]
+    fine : points of the grid the solution is judged on
+    max_iter : SLSQP's iteration limit (None: scipy's default, 100)
+    system : a ``robot_flat_system`` to reuse
+
+    Returns
+    -------
+    PcObstacleTask
+    """
+    k = maneuver.coefficients
+    if system is None:
+        system = robot_flat_system(k)
+    robot = maneuver.robot
+    mass, length, com = (np.asarray(v, dtype=float) for v in (robot.mass, robot.length,
+                                                              robot.com))
+    discs = np.asarray(obstacles, dtype=float).reshape(-1, 3)
+    x0, xf = maneuver.start_state, maneuver.goal_state
+    sign = 1.0 if math.sin(x0[1]) * x0[3] >= 0 else -1.0
+    T = maneuver.duration
+    grid = np.linspace(0.0, T, timepts)
+
+    def cost(x: Array, u: Array) -> float:
+        return float(x[3] ** 2 + u[1] ** 2)
+
+    def constrained(x: Array, u: Array) -> Array:
+        gaps = disc_gaps(link_joints(mass, length, com, x[None, :3]), discs).ravel()
+        return np.append(gaps, sign * math.sin(x[1]) * x[3])
+
+    lower = np.append(np.full(discs.shape[0] * len(mass), clearance), min_margin)
+    constraints = [(NonlinearConstraint, constrained, lower, np.full(lower.size, np.inf))]
+    start = time.perf_counter()
+    with warnings.catch_warnings(), np.errstate(all="ignore"):
+        warnings.simplefilter("ignore")  # "unable to solve": reported through success
+        traj = fs.point_to_point(
+            system,
+            grid,
+            x0,
+            np.zeros(2),
+            xf,
+            np.zeros(2),
+            basis=fs.PolyFamily(basis_size, T),
+            integral_cost=cost,
+            trajectory_constraints=constraints,
+            minimize_options={} if max_iter is None else {"maxiter": max_iter},
+        )
+    seconds = time.perf_counter() - start
+
+    t = np.linspace(0.0, T, fine)
+    with np.errstate(all="ignore"):
+        points, _ = flat_states(k, *pc_flags(traj, grid[1:-1]))
+        state, _ = flat_states(k, *pc_flags(traj, t))
+        gaps = link_clearance(mass, length, com, state[:, :3], discs)
+        at_points = link_clearance(mass, length, com, points[:, :3], discs)
+    finite = np.isfinite(state).all(axis=1) & np.isfinite(gaps)
+    worst = int(np.argmin(np.where(finite, gaps, np.inf)))
+    margin = sign * np.sin(state[:, 1]) * state[:, 3]
+    return PcObstacleTask(
+        success=bool(traj.success),
+        message=str(traj.message),
+        clearance=clearance,
+        min_margin=min_margin,
+        points_clearance=float(np.min(at_points)),
+        points_margin=float(np.min(sign * np.sin(points[:, 1]) * points[:, 3])),
+        fine_clearance=float(gaps[worst]) if finite.any() else math.nan,
+        fine_time=float(t[worst]),
+        fine_margin=float(np.min(np.where(np.isfinite(margin), margin, -np.inf))),
+        nonfinite=int(np.sum(~finite)),
+        end_error=float(max(np.max(np.abs(state[0] - x0)), np.max(np.abs(state[-1] - xf)))),
+        seconds=seconds,
+        trajectory=traj,
     )
