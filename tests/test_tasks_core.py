@@ -333,3 +333,23 @@ def test_products_with_infinite_bounds_contain_every_value() -> None:
         q = Interval(np.array([-1.0]), np.array([0.0])) * up
     assert p.lo[0] <= 0.0 and p.hi[0] == math.inf
     assert q.lo[0] == -math.inf and q.hi[0] >= 0.0
+
+
+def test_a_disc_beside_a_slanted_link_inside_its_box_is_proven_clear() -> None:
+    """A disc 2 cm beside the base's segment at the start, its centre inside that segment's
+    bounding box (where the distance to the box is 0 however short the time interval), with
+    half the least distance the referee finds over the plan as its radius: certify proves
+    it (a box alone never could near t = 0), and its bound is below the referee's truth."""
+    plan = plan_rest_to_rest(PAPER_ROBOT, START, GOAL, 2.0)
+    z = ref.joints(PAPER_ROBOT, START[None, :])[0]
+    a, b = z[0], z[1]
+    centre = 0.5 * (a + b) - 0.02j * (b - a) / abs(b - a)
+    assert min(a.real, b.real) < centre.real < max(a.real, b.real)
+    assert min(a.imag, b.imag) < centre.imag < max(a.imag, b.imag)
+    fine = plan.sample(np.linspace(0.0, 2.0, 20001)).theta
+    point = np.array([[centre.real, centre.imag, 1e-12]])
+    radius = 0.5 * float(ref.link_clearance(PAPER_ROBOT, fine, point).min())
+    disc = np.array([[centre.real, centre.imag, radius]])
+    cert = certify(plan, Constraints(disc, 0.0))
+    assert cert.ok, cert.reason
+    assert 0.0 < cert.lower_bound <= float(ref.link_clearance(PAPER_ROBOT, fine, disc).min())

@@ -15,8 +15,11 @@ constraint for all t in [0, T], by interval arithmetic and bisection (``interval
    for a rest plan r is the polynomial y2' / y1' (y1' = 6 dth1 s (1 - s) / T divides y2'
    exactly, ``rest``), finite at the ends;
 2. the joints' positions follow in interval arithmetic; each link lies in the bounding box of
-   its two joints' boxes, so the distance from a disc's centre to that box bounds the link's
-   clearance from below; the angles', rates' and margin's intervals bound theirs;
+   its two joints' boxes, and within the larger of the boxes' reaches of the segment between
+   their centres, so the distance from a disc's centre to that box, and its distance to that
+   segment less the reach, bound the link's clearance from below (the larger of the two is
+   taken; the second tends to the true distance as the interval shrinks, the first does not
+   for a slanted link); the angles', rates' and margin's intervals bound theirs;
 3. an interval whose lower bounds all hold is proven; otherwise the constraints are evaluated
    exactly at its midpoint: a violation there is a counterexample (the plan is refused with
    its time); else the interval is halved. Intervals shorter than ``MIN_WIDTH`` T that are
@@ -206,8 +209,8 @@ def _rest_quotient(c1: Array, c2: Array, deg: int) -> tuple[Array, Array]:
     return out1, out2
 
 
-def _link_boxes(plan: Plan, theta: list[Interval]) -> list[tuple[Interval, Interval]]:
-    """Boxes (x, y) of each link's segment from interval angles (module docstring)."""
+def _joint_boxes(plan: Plan, theta: list[Interval]) -> list[tuple[Interval, Interval]]:
+    """Boxes (x, y) of each joint O_0 .. O_N+1 from interval angles (module docstring)."""
     robot = plan.robot
     psi = [theta[0]]
     for a in range(1, len(theta)):
@@ -224,8 +227,7 @@ def _link_boxes(plan: Plan, theta: list[Interval]) -> list[tuple[Interval, Inter
         ox = ox + float(robot.length[a]) * cx
         oy = oy + float(robot.length[a]) * sx
         joints.append((ox, oy))
-    return [(joints[i][0].hull(joints[i + 1][0]), joints[i][1].hull(joints[i + 1][1]))
-            for i in range(len(joints) - 1)]
+    return joints
 
 
 def _box_distance(box: tuple[Interval, Interval], centre: Array) -> Array:
@@ -233,6 +235,35 @@ def _box_distance(box: tuple[Interval, Interval], centre: Array) -> Array:
     dx = np.maximum(np.maximum(bx.lo - centre[0], centre[0] - bx.hi), 0.0)
     dy = np.maximum(np.maximum(by.lo - centre[1], centre[1] - by.hi), 0.0)
     return np.asarray(np.nextafter(np.hypot(dx, dy), -np.inf), dtype=float)
+
+
+def _centre_and_reach(box: tuple[Interval, Interval]) -> tuple[Array, Array, Array]:
+    """A box's centre (x, y) and the distance from it to the box's farthest corner [m]."""
+    bx, by = box
+    mx, my = 0.5 * (bx.lo + bx.hi), 0.5 * (by.lo + by.hi)
+    reach = np.hypot(np.maximum(bx.hi - mx, mx - bx.lo), np.maximum(by.hi - my, my - by.lo))
+    return mx, my, reach
+
+
+def _segment_distance_bound(a: tuple[Interval, Interval], b: tuple[Interval, Interval],
+                            centre: Array) -> Array:
+    """A lower bound of the distance from ``centre`` to every segment whose ends lie in the
+    boxes a and b [m]: the distance to the segment between the boxes' centres less the larger
+    of their reaches (each point (1 - u) p + u q of such a segment is within (1 - u) r_a +
+    u r_b of the centres' segment's), less a pad for rounding. It tends to the true distance
+    as the boxes shrink, where the distance to the segment's bounding box does not (a disc
+    beside a slanted link, inside its box)."""
+    ax, ay, ra = _centre_and_reach(a)
+    bx, by, rb = _centre_and_reach(b)
+    dx, dy = bx - ax, by - ay
+    length2 = dx * dx + dy * dy
+    u = np.clip(((centre[0] - ax) * dx + (centre[1] - ay) * dy)
+                / np.where(length2 > 0, length2, 1.0), 0.0, 1.0)
+    gap = np.hypot(centre[0] - (ax + u * dx), centre[1] - (ay + u * dy))
+    scale = 1.0 + abs(float(centre[0])) + abs(float(centre[1])) + np.maximum(
+        np.maximum(np.abs(ax), np.abs(ay)), np.maximum(np.abs(bx), np.abs(by)))
+    pad = 64.0 * np.finfo(float).eps * (scale + ra + rb)
+    return np.asarray(gap - np.maximum(ra, rb) - pad, dtype=float)
 
 
 def _slack(plan: Plan, constraints: Constraints, theta: list[Interval],
@@ -243,9 +274,13 @@ def _slack(plan: Plan, constraints: Constraints, theta: list[Interval],
     worst = np.full(n, np.inf)
     clear = np.full(n, np.inf)
     if len(constraints.obstacles):
-        for box in _link_boxes(plan, theta):
+        joints = _joint_boxes(plan, theta)
+        for near, far in itertools.pairwise(joints):
+            box = (near[0].hull(far[0]), near[1].hull(far[1]))  # the link lies in it
             for x, y, radius in constraints.obstacles:
-                d = _box_distance(box, np.array([x, y])) - radius
+                centre = np.array([x, y])
+                d = np.maximum(_box_distance(box, centre),
+                               _segment_distance_bound(near, far, centre)) - radius
                 clear = np.minimum(clear, d)
         worst = np.minimum(worst, clear - constraints.clearance)
     if constraints.angle_limit is not None:
