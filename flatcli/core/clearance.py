@@ -380,8 +380,11 @@ def certify(plan: Plan, constraints: Constraints, pieces: int = START_PIECES,
             t = float(breaks[piece[0]] + widths[piece[0]] * s_lo[0])
             return Certificate(False, f"not proven within {max_intervals} intervals (near "
                                f"t = {t:.4g} s)", t, lower, examined)
-        theta, rates, margin = _bounds(plan, local[piece], widths[piece], s_lo, s_hi)
-        slack, clear = _slack(plan, constraints, theta, rates, margin)
+        # an interval through a zero of a divisor is unbounded (inf, and nan from inf - inf
+        # or 0 * inf): never proven (_slack), so numpy's warnings about it are noise
+        with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+            theta, rates, margin = _bounds(plan, local[piece], widths[piece], s_lo, s_hi)
+            slack, clear = _slack(plan, constraints, theta, rates, margin)
         open_ = slack < 0
         if (~open_).any():
             lower = min(lower, float(np.min(clear[~open_])))
