@@ -3,6 +3,7 @@ configuration, never in the package's own directory."""
 
 from __future__ import annotations
 
+import json
 import shutil
 import subprocess
 import sys
@@ -62,3 +63,41 @@ def test_numba_uses_the_hash_keyed_directory_in_a_fresh_process(tmp_path: Path) 
                          env=env, timeout=300, check=True).stdout.split()
     assert out[1] == "True"
     assert out[0] == str(tmp_path / "n" / f"flatcli-{out[2]}")
+
+
+_BLAS_PROBE = """
+import json, sys
+import numpy as np
+{first}
+import flatcli.core._jit as jit
+import numba
+
+@numba.njit
+def products(a, b):
+    return np.dot(a, b), np.linalg.solve(a, b)
+
+rng = np.random.default_rng(7)
+a = rng.standard_normal((4, 4)) + 4 * np.eye(4)
+b = rng.standard_normal(4)
+dot, solved = products(a, b)
+print(json.dumps({{
+    "linalg_loaded": "scipy.linalg" in sys.modules,
+    "dot_error": float(np.max(np.abs(dot - a @ b))),
+    "residual": float(np.max(np.abs(a @ solved - b))),
+    "again": jit.load_numba_blas_alone(),
+}}))
+"""
+
+
+@pytest.mark.parametrize("first", ["", "import scipy.linalg"])
+def test_numba_finds_its_blas_without_scipy_linalg(first: str) -> None:
+    """numba's BLAS check is served by the two extension modules loaded alone: a compiled
+    np.dot and np.linalg.solve still run, against numpy's own product and the residual of
+    the solve (the referee), and scipy.linalg is not imported unless someone else did."""
+    out = subprocess.run([sys.executable, "-c", _BLAS_PROBE.format(first=first)],
+                         capture_output=True, text=True, check=True, timeout=300).stdout
+    probe = json.loads(out.splitlines()[-1])
+    assert probe["linalg_loaded"] == bool(first)
+    assert probe["dot_error"] < 1e-12
+    assert probe["residual"] < 1e-12
+    assert probe["again"] == []  # loaded once, or not at all where scipy.linalg was there

@@ -407,7 +407,8 @@ def test_a_sweep_loads_neither_pandas_nor_matplotlib_nor_scipy_unless_asked(
     """The light sweep path: the main process and its workers, through the command line, load
     no pandas, no matplotlib and none of scipy's modules but those numba itself loads when
     it loads a compiled function (its BLAS check): the referee is a process that only
-    compiles and calls a function with numba."""
+    compiles and calls a function with numba. Not even scipy.linalg, which that check
+    imports whole: its two extension modules are loaded alone (``_jit``)."""
     text = SPEC.replace('initial = { dist = "normal", std = 0.02 }',
                         'initial = { dist = "uniform", low = -0.02, high = 0.02 }')
     assert text != SPEC
@@ -425,6 +426,7 @@ def test_a_sweep_loads_neither_pandas_nor_matplotlib_nor_scipy_unless_asked(
     for record in records:
         loaded = set(json.loads(record.read_text()))
         assert loaded <= allowed, (record.name, sorted(loaded - allowed))
+        assert "scipy.linalg" not in loaded, record.name  # numba's BLAS check, served alone
     assert trials(tmp_path / "d")["status"].isin(["ok", "singular"]).all()
 
 

@@ -18,17 +18,71 @@ written, kernels are compiled in every process and not cached. Never in the pack
 from __future__ import annotations
 
 import hashlib
+import importlib.machinery
+import importlib.util
 import os
+import sys
 import tempfile
 import uuid
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar, cast
 
-import numba
-import numpy as np
-from numba.extending import register_jitable
-from numpy.typing import NDArray
+#: The two extension modules numba's BLAS and LAPACK check imports (``numba.np.linalg``).
+NUMBA_BLAS_MODULES = ("scipy.linalg.cython_blas", "scipy.linalg.cython_lapack")
+
+
+def load_numba_blas_alone() -> list[str]:
+    """Load scipy's ``cython_blas`` and ``cython_lapack`` without the rest of scipy.linalg.
+
+    When numba sets up its compiler (before the first compiled call, cached kernels
+    included) it checks that a BLAS exists with ``import scipy.linalg.cython_blas``, and
+    Python imports a submodule's package first: all of ``scipy.linalg``, 0.1-0.2 s of
+    every flatcli process for modules no kernel uses. The two extension modules are
+    self-contained (numba reads their ``__pyx_capi__`` tables); loaded here by file into
+    ``sys.modules``, numba's import finds them and scipy.linalg is not imported. Anything
+    unexpected (scipy absent or laid out otherwise, scipy.linalg already imported, a module
+    that fails to load) leaves the normal import to do its work. Returns the modules loaded.
+    """
+    if "scipy.linalg" in sys.modules:
+        return []
+    try:
+        spec = importlib.util.find_spec("scipy")
+    except (ImportError, ValueError):
+        return []
+    if spec is None or not spec.submodule_search_locations:
+        return []
+    linalg = Path(next(iter(spec.submodule_search_locations))) / "linalg"
+    loaded: list[str] = []
+    for name in NUMBA_BLAS_MODULES:
+        if name in sys.modules:
+            continue
+        stem = name.rsplit(".", 1)[1]
+        files = [linalg / (stem + suffix) for suffix in importlib.machinery.EXTENSION_SUFFIXES]
+        path = next((f for f in files if f.is_file()), None)
+        if path is None:
+            return loaded
+        loader = importlib.machinery.ExtensionFileLoader(name, str(path))
+        module_spec = importlib.util.spec_from_file_location(name, path, loader=loader)
+        if module_spec is None:
+            return loaded
+        try:
+            module = importlib.util.module_from_spec(module_spec)
+            sys.modules[name] = module
+            loader.exec_module(module)
+        except Exception:  # any failure: numba's own import then runs
+            sys.modules.pop(name, None)
+            return loaded
+        loaded.append(name)
+    return loaded
+
+
+load_numba_blas_alone()
+
+import numba  # noqa: E402 - after the BLAS modules above, so that numba finds them
+import numpy as np  # noqa: E402
+from numba.extending import register_jitable  # noqa: E402
+from numpy.typing import NDArray  # noqa: E402
 
 F = TypeVar("F", bound=Callable[..., Any])
 
