@@ -23,7 +23,6 @@ from flatcli.core.chain import chain_momentum
 from flatcli.core.design import (
     INTEGRABILITY_RTOL,
     VERDICTS,
-    _kinematic_momentum,
     constraint_form,
     design_verdict,
     form_slopes,
@@ -233,20 +232,23 @@ def test_every_component_equals_the_symbolic_derivation(name: str) -> None:
                                    atol=RTOL * J**2)
 
 
-def test_the_complex_safe_momentum_is_the_chains() -> None:
-    """At real angles ``_kinematic_momentum`` is ``chain.chain_momentum``; at th + i eps e_k
-    its imaginary part / eps is dH/dth_k (against a central difference, step 1e-6)."""
+def test_the_chains_momentum_takes_complex_steps() -> None:
+    """``form_slopes`` steps ``chain.chain_momentum`` into the complex plane: at real angles
+    held as complex numbers it is the real H, and at th + i eps e_k its imaginary part / eps
+    is dH/dth_k (against a central difference of the real H, step 1e-6)."""
     r = robot(*CONTROLLABLE["n3 chain4 d3 = 1 cm"][0])
     arrays = [np.asarray(v, dtype=float) for v in (r.mass, r.inertia, r.length, r.com)]
     rng = np.random.default_rng(11)
     theta, rates = rng.uniform(-3, 3, (8, 4)), rng.uniform(-2, 2, (8, 4))
-    ours = _kinematic_momentum(*arrays, theta.astype(complex), rates)
+    ours = chain_momentum(*arrays, theta.astype(complex), rates)
+    assert ours.dtype == complex
     np.testing.assert_allclose(ours.real, chain_momentum(*arrays, theta, rates), rtol=1e-13)
+    assert np.all(ours.imag == 0.0)
     step = 1e-6
     for k in range(4):
         shift = np.zeros(4)
         shift[k] = 1.0
-        slope = _kinematic_momentum(*arrays, theta + 1e-30j * shift, rates).imag / 1e-30
+        slope = chain_momentum(*arrays, theta + 1e-30j * shift, rates).imag / 1e-30
         central = (chain_momentum(*arrays, theta + step * shift, rates)
                    - chain_momentum(*arrays, theta - step * shift, rates)) / (2 * step)
         np.testing.assert_allclose(slope, central, rtol=0, atol=1e-9)

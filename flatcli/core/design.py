@@ -19,7 +19,7 @@ this analytic system) and, being driftless of codimension one, flat (Martin & Ro
 the design is flat whether or not its flat outputs are known in closed form.
 
 The derivatives dh_i/dth_k are taken by complex step (exact to rounding: no difference is
-formed) through ``_kinematic_momentum``, the same link kinematics written complex-safe.
+formed) through ``chain.chain_momentum``, the link kinematics, which takes complex angles.
 w ^ dw is evaluated at ``SAMPLES`` configurations drawn from a fixed seed (a trigonometric
 polynomial that is not identically zero vanishes on a set of measure zero) and normalised by
 J^2, J = ``chain.inertia_scale`` [kg m^2] (units of w ^ dw: kg^2 m^4 per rad^3).
@@ -132,35 +132,6 @@ def _arrays(robot: RobotParams) -> tuple[Array, Array, Array, Array]:
                            equivalent.com))
 
 
-def _kinematic_momentum(mass: Array, inertia: Array, length: Array, com: Array,
-                        theta: NDArray[np.complex128], theta_dot: Array
-                        ) -> NDArray[np.complex128]:
-    """``chain.chain_momentum`` written complex-safe: H [kg m^2/s] at theta (..., N + 1)
-    [rad] (real or complex) and rates theta_dot (..., N + 1) [rad/s], broadcast together.
-
-    r_i = sum_{a<i} l_a e(psi_a) + d_i e(psi_i), v_i its rate; H = sum_i I_i psi_i' +
-    sum_i m_i r_i x v_i - M r_c x v_c (about the fixed system centre of mass).
-    """
-    psi = np.cumsum(theta, axis=-1)
-    psi_dot = np.cumsum(theta_dot, axis=-1)
-    ex, ey = np.cos(psi), np.sin(psi)
-    n = mass.shape[0]
-    shape = np.broadcast_shapes(psi.shape, psi_dot.shape)
-    x = np.zeros(shape, dtype=complex)
-    y, vx, vy = np.zeros_like(x), np.zeros_like(x), np.zeros_like(x)
-    for i in range(n):
-        for a in range(i + 1):
-            arm = length[a] if a < i else com[i]
-            x[..., i] += arm * ex[..., a]
-            y[..., i] += arm * ey[..., a]
-            vx[..., i] -= arm * psi_dot[..., a] * ey[..., a]
-            vy[..., i] += arm * psi_dot[..., a] * ex[..., a]
-    total = float(np.sum(mass))
-    cx, cy, cvx, cvy = ((z @ mass) / total for z in (x, y, vx, vy))
-    orbital = (x * vy - y * vx) @ mass - total * (cx * cvy - cy * cvx)
-    return np.asarray(psi_dot @ inertia + orbital)
-
-
 def constraint_form(robot: RobotParams, theta: Array) -> Array:
     """The one-form's coefficients h_i = dH/dth_i' from the full link kinematics.
 
@@ -201,7 +172,7 @@ def form_slopes(robot: RobotParams, theta: Array) -> Array:
     eye = np.eye(n)
     # (..., k, i, N + 1): th + i step e_k, at the unit rates e_i
     shifted = theta[..., None, None, :] + 1j * COMPLEX_STEP * eye[:, None, :]
-    H = _kinematic_momentum(mass, inertia, length, com, shifted, eye[None, :, :])
+    H = chain_momentum(mass, inertia, length, com, shifted, eye[None, :, :])
     return np.swapaxes(H.imag / COMPLEX_STEP, -1, -2)
 
 

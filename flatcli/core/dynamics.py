@@ -38,8 +38,9 @@ space-robotics texts (Umetani & Yoshida 1989).
 The functions marked ``jitable`` hold these formulas for any n, written as loops over small
 arrays (``chain_terms``, ``joint_space``, ``free_floating_accelerations``); the batch
 functions at the end (``mass_matrix``, ``bias_forces``, ``inverse_dynamics``,
-``forward_dynamics``, ``kinetic_energy``, ``chain_momentum``) run them, compiled, over a
-batch of states. The compiled closed loop of the three-body robot (``plant``) evaluates the
+``forward_dynamics``, ``kinetic_energy``) run them, compiled, over a batch of states (H is
+``chain.chain_momentum``'s, from the link kinematics; the tests check it against (M q')_0).
+The compiled closed loop of the three-body robot (``paperloop``) evaluates the
 dynamics some 10^4 times per trial, where the loops over arrays cost six times more than the
 same sums written out with floats: ``three_body_terms`` and ``three_body_joint_space`` are
 those sums for n = 3. The tests check ``chain_terms`` and ``three_body_terms`` against each
@@ -389,21 +390,12 @@ def kinetic_energy(chain: Chain, q: ArrayLike, q_dot: ArrayLike) -> Array:
     return np.asarray(0.5 * np.einsum("...j,...jk,...k->...", qd, M, qd), dtype=float)
 
 
-def chain_momentum(chain: Chain, q: ArrayLike, q_dot: ArrayLike) -> Array:
-    """H = (M(q) q')_0 (...) [kg m^2/s]: the angular momentum about the system centre of
-    mass (for three bodies ``model.momentum`` computes it from the link kinematics)."""
-    M, _ = _batch(chain, q, q_dot)
-    return np.asarray(np.einsum("...k,...k->...", M[..., 0, :], np.asarray(q_dot, dtype=float)),
-                      dtype=float)
-
-
 __all__ = [
     "TRIG_ROWS",
     "Chain",
     "ThreeBody",
     "absolute_motion",
     "bias_forces",
-    "chain_momentum",
     "chain_terms",
     "coupling_matrix",
     "forward_dynamics",
