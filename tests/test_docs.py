@@ -107,42 +107,59 @@ def test_the_layout_names_every_module_and_only_what_exists() -> None:
     assert sorted((modules | packages) - paths) == [], "modules the layout leaves out"
 
 
-def equation_map() -> list[tuple[str, list[tuple[str, str | None]], list[tuple[str, str]]]]:
+Functions = list[tuple[str, str | None]]
+
+
+def code_names(cell: str) -> Functions:
+    """The (file, function) pairs a cell names (function None for a whole module)."""
+    functions: Functions = []
+    current = None
+    for code in re.findall(r"`([^`]+)`", cell):
+        if ".py" in code:
+            current, _, name = (part.strip() for part in code.partition(":"))
+            functions.append((current, name or None))
+        elif current is not None and re.fullmatch(r"[\w.]+", code):
+            functions.append((current, code))
+    return functions
+
+
+def equation_map() -> list[tuple[str, Functions, Functions, list[tuple[str, str]]]]:
     """docs/development.md's equation map: per row its equation, the (file, function) pairs
-    it names (function None for a whole module) and the (test module, test) pairs."""
+    of the general function (any N) and of the paper's closed form (N = 2), and the (test
+    module, test) pairs."""
     text = (ROOT / "docs" / "development.md").read_text()
     table_ = text.split("## From the paper's equations to the code and its referee")[1]
     rows = []
     for line in table_.splitlines():
         cells = [c.strip() for c in line.strip().strip("|").split("|")]
-        if len(cells) != 3 or cells[0] in ("equation", "---"):
+        if not line.startswith("|") or cells[0] in ("equation", "---"):
             continue
-        functions: list[tuple[str, str | None]] = []
-        current = None
-        for code in re.findall(r"`([^`]+)`", cells[1]):
-            if ".py" in code:
-                current, _, name = (part.strip() for part in code.partition(":"))
-                functions.append((current, name or None))
-            elif current is not None and re.fullmatch(r"[\w.]+", code):
-                functions.append((current, code))
+        assert len(cells) == 4, line
         tests: list[tuple[str, str]] = []
         module = None
-        for code in re.findall(r"`([^`]+)`", cells[2]):
+        for code in re.findall(r"`([^`]+)`", cells[3]):
             if code.startswith("test_") and ".py" in code:
                 module, _, name = code.partition("::")
                 tests.append((module, name))
             elif code.startswith("::") and module is not None:
                 tests.append((module, code[2:]))
-        rows.append((cells[0], functions, tests))
+        rows.append((cells[0], code_names(cells[1]), code_names(cells[2]), tests))
     return rows
 
 
 def test_the_equation_map_points_to_functions_and_tests_that_exist() -> None:
+    """Each row: one general function (any N), the paper's closed form beside it where there
+    is one, never the same function in both, and tests; every name exists in the tree. A
+    closed form beside a general function names at least two tests: its referee and its
+    comparison at N = 2."""
     rows = equation_map()
     assert len(rows) >= 20
-    for equation, functions, tests in rows:
-        assert functions and tests, equation
-        for file, name in functions:
+    for equation, general, closed, tests in rows:
+        assert (general or closed) and tests, equation
+        assert not set(general) & set(closed), equation
+        if general and closed:
+            assert len(tests) >= 2, equation
+        for file, name in general + closed:
             source = (ROOT / "flatcli" / file).read_text()
             if name is not None:
                 last = name.split(".")[-1]
@@ -152,3 +169,4 @@ def test_the_equation_map_points_to_functions_and_tests_that_exist() -> None:
             source = (ROOT / "tests" / module).read_text()
             if name:
                 assert re.search(rf"^def {name}\b", source, re.M), f"{equation}: {module}::{name}"
+
