@@ -1,5 +1,6 @@
-"""The machine flatcli runs on, as this process sees it: the cores it may use and the memory
-it may have (a container's limit where that is lower than the machine's).
+"""The machine flatcli runs on, as this process sees it: the cores it may use (a container's
+CPU quota where that is lower than its affinity) and the memory it may have (a container's
+limit where that is lower than the machine's).
 
 One place, read by the spec's limits (``flatcli.spec.limits``: what a sweep may plan to use),
 by ``flatcli check`` (``flatcli.preflight``: what it warns of) and by the local executor (its
@@ -12,18 +13,53 @@ import os
 
 #: Where a container's memory limit is written: cgroup v2, then cgroup v1 (a file that holds
 #: "max", or is missing, sets no limit).
+#: Where a container's CPU quota is written: cgroup v2 ("quota period"; "max period" sets none),
+#: then cgroup v1's quota and period [us] (a quota of -1 sets none).
+CGROUP_CPU_MAX = ("/sys/fs/cgroup/cpu.max",)
+CGROUP_V1_CPU_QUOTA = ("/sys/fs/cgroup/cpu/cpu.cfs_quota_us",
+                       "/sys/fs/cgroup/cpu/cpu.cfs_period_us")
 CGROUP_MEMORY_LIMITS = (
     "/sys/fs/cgroup/memory.max",
     "/sys/fs/cgroup/memory/memory.limit_in_bytes",
 )
 
 
-def cores() -> int:
-    """Cores this process may run on (its CPU affinity: ``taskset``, a container's cpuset)."""
+def cpu_quota() -> float | None:
+    """A container's CPU quota in cores (``docker run --cpus``, a Kubernetes CPU limit), or
+    None where none is set: cgroup v2's ``cpu.max`` ("quota period", or "max period"), then
+    cgroup v1's ``cpu.cfs_quota_us`` over ``cpu.cfs_period_us`` (a quota of -1 sets none)."""
+    for path in CGROUP_CPU_MAX:
+        try:
+            with open(path) as fh:
+                fields = fh.read().split()
+        except OSError:
+            continue
+        if len(fields) == 2 and fields[0].isdigit() and fields[1].isdigit() and int(fields[1]):
+            return int(fields[0]) / int(fields[1])
+        return None
+    quota_path, period_path = CGROUP_V1_CPU_QUOTA
     try:
-        return len(os.sched_getaffinity(0))
+        with open(quota_path) as fh:
+            quota = int(fh.read().strip())
+        with open(period_path) as fh:
+            period = int(fh.read().strip())
+    except (OSError, ValueError):
+        return None
+    return quota / period if quota > 0 and period > 0 else None
+
+
+def cores() -> int:
+    """Cores this process may use: its CPU affinity (``taskset``, a container's cpuset),
+    fewer where a container's CPU quota is lower (``cpu_quota``, rounded down, at least 1:
+    a worker per core of a quota of 1.5 cores would be throttled)."""
+    try:
+        available = len(os.sched_getaffinity(0))
     except AttributeError:  # pragma: no cover - not Linux
-        return os.cpu_count() or 1
+        available = os.cpu_count() or 1
+    quota = cpu_quota()
+    if quota is not None:
+        available = min(available, max(1, int(quota)))
+    return available
 
 
 def physical_memory() -> float:
