@@ -101,3 +101,23 @@ def test_numba_finds_its_blas_without_scipy_linalg(first: str) -> None:
     assert probe["dot_error"] < 1e-12
     assert probe["residual"] < 1e-12
     assert probe["again"] == []  # loaded once, or not at all where scipy.linalg was there
+
+
+def test_a_variant_is_named_by_its_tag() -> None:
+    """``jitable_variant`` appends the combination's tag to the qualified name numba reads;
+    the tag depends on the functions' modules and names only (the same for the same
+    combination, different for another)."""
+
+    def make(step: object) -> object:
+        @_jit.jitable_variant(_jit.variant_tag(step))  # type: ignore[arg-type]
+        def run(x: float) -> float:
+            return x
+
+        return run
+
+    first, again, other = make(_jit.writable), make(_jit.writable), make(_jit.cache_dir)
+    assert first.__qualname__ == again.__qualname__  # type: ignore[attr-defined]
+    assert first.__qualname__ != other.__qualname__  # type: ignore[attr-defined]
+    assert first.__qualname__.endswith(  # type: ignore[attr-defined]
+        "_" + _jit.variant_tag(_jit.writable))
+    assert len(_jit.variant_tag(_jit.writable)) == 12

@@ -153,6 +153,34 @@ def jitable(fn: F) -> F:
     return register_jitable(fn)
 
 
+def variant_tag(*functions: Callable[..., Any]) -> str:
+    """A name for one combination of functions that a factory closes over [12 hex digits]:
+    the same in every process (from their modules and qualified names, not their ids)."""
+    text = ";".join(f"{f.__module__}.{f.__qualname__}" for f in functions)
+    return hashlib.sha256(text.encode()).hexdigest()[:12]
+
+
+def jitable_variant(tag: str) -> Callable[[F], F]:
+    """``jitable`` for a closure a factory makes once per combination (``variant_tag``).
+
+    numba names a compiled function by its module, qualified name, argument types and a
+    counter of the process that compiled it, and a process that loads two cached kernels
+    links a name the two share to one definition. A factory's closures share the first
+    three (``make_batch.<locals>.run_batch`` of the as-built kinematic and dynamic loops
+    take the same types), so two kernels compiled by processes whose counters stood alike
+    (forked sweep workers, two fresh processes) carried one name for two functions, and a
+    process that loaded both ran one plant's batch loop for the other (found with the
+    as-built kernels: the second kernel loaded gave NaN states, ``unresolved``, from a
+    warm cache). The combination's tag in the qualified name makes the names differ.
+    """
+
+    def mark(fn: F) -> F:
+        fn.__qualname__ = f"{fn.__qualname__}_{tag}"
+        return jitable(fn)
+
+    return mark
+
+
 def kernel(fn: F) -> F:
     """Compile a kernel: no Python objects, IEEE semantics (no fastmath), cached on disk
     (``CACHING``), and without numba's runtime (no reference counting, no allocation).

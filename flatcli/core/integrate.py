@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from flatcli.core._jit import jitable
+from flatcli.core._jit import jitable, jitable_variant, variant_tag
 from flatcli.core.metrics import Event, observe_crossing
 
 Array = NDArray[np.float64]
@@ -230,8 +230,9 @@ def make_trial_integrators(
     ``record_sample`` writes per sample), ``acc`` (the observer's accumulator, where crossings
     are counted too) and ``work`` (WORK_ROWS, >= nx + 1: the right-hand side's outputs).
     """
+    variant = jitable_variant(variant_tag(rhs, observe, record_sample))
 
-    @jitable
+    @variant
     def rk4_step(loop: Any, nx: int, x: Array, k1: Array, h: float, ref_mid: Array,
                  ref_end: Array, noise: Array, k2: Array, k3: Array, k4: Array, y: Array,
                  out: Array) -> float:
@@ -260,7 +261,7 @@ def make_trial_integrators(
             return _fraction(sigma, k4[nx])
         return -1.0
 
-    @jitable
+    @variant
     def rk4_trial(
         loop: Any, obs: Any, x0: Array, ref: Array, breaks: Array, local: Array,
         flag_mid: Array, flag_end: Array, dt: float, n: int, bound: float, bounded: bool,
@@ -345,7 +346,7 @@ def make_trial_integrators(
                 return s, _BOUND, (s + 1) * dt, evaluations
         return n, _NONE, math.nan, evaluations
 
-    @jitable
+    @variant
     def initial_step(loop: Any, nx: int, x: Array, f: Array, ref: Array, noise: Array,
                      rtol: float, atol: float, limit: float, y: Array, f1: Array, breaks: Array,
                      local: Array, t: float) -> float:
@@ -376,7 +377,7 @@ def make_trial_integrators(
         h1 = max(1e-6, h0 * 1e-3) if quiet else (0.01 / max(d1, d2)) ** 0.2
         return min(100.0 * h0, h1, limit)
 
-    @jitable
+    @variant
     def adaptive_trial(
         loop: Any, obs: Any, x0: Array, breaks: Array, local: Array, dt: float, n: int,
         bound: float, rtol: float, atol: float, max_steps: int, table: Array, record: bool,

@@ -37,7 +37,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from flatcli.core._jit import jitable, kernel
+from flatcli.core._jit import jitable, jitable_variant, kernel, variant_tag
 from flatcli.core.chain import barycentric_matrices
 from flatcli.core.chaindynamic import (
     ChainDynamicLoop,
@@ -197,6 +197,12 @@ class Ops:
     scratch: Callable[[int], Any]
 
 
+def ops_tag(ops: Ops) -> str:
+    """``_jit.variant_tag`` of a combination's compiled functions."""
+    return variant_tag(ops.make_loop, ops.bounded, ops.initial_state, ops.rhs, ops.observe,
+                       ops.record, ops.residual)
+
+
 def make_batch(ops: Ops) -> Callable[..., None]:
     """The batch runner of a combination: every trial integrated alone, in order.
 
@@ -214,8 +220,9 @@ def make_batch(ops: Ops) -> Callable[..., None]:
     rk4_trial, adaptive_trial = make_trial_integrators(ops.rhs, ops.observe, ops.record)
     make_loop, bounded, initial_state, residual = (ops.make_loop, ops.bounded,
                                                    ops.initial_state, ops.residual)
+    variant = jitable_variant(ops_tag(ops))
 
-    @jitable
+    @variant
     def run_batch(method: int, shared: Any, trials: TrialArrays, grid: Grid,
                   settings: Settings, tables: Array, buffers: Buffers,
                   results: Results) -> None:
@@ -278,14 +285,15 @@ def make_single(ops: Ops) -> tuple[Callable[..., None], Callable[..., None],
     hit's time, nan if none); the trace rows of those samples."""
     make_loop, initial_state, rhs, observe, residual, record = (
         ops.make_loop, ops.initial_state, ops.rhs, ops.observe, ops.residual, ops.record)
+    variant = jitable_variant(ops_tag(ops))
 
-    @jitable
+    @variant
     def initial_of(shared: Any, trials: TrialArrays, i: int, grid: Grid, buffers: Buffers,
                    out: Array) -> None:
         loop = make_loop(shared, trials, i, buffers.scratch)
         initial_state(loop, trials.initial[i], grid.ref[0], out)
 
-    @jitable
+    @variant
     def rhs_at(shared: Any, trials: TrialArrays, i: int, grid: Grid, buffers: Buffers,
                t: float, x: Array, noise: Array, out: Array) -> None:
         """At time t, the plan's flag evaluated there (t < 0: row -t - 1 of grid.ref, the
@@ -297,7 +305,7 @@ def make_single(ops: Ops) -> tuple[Callable[..., None], Callable[..., None],
         plan_flag(grid.breaks, grid.local, t, buffers.flag)
         rhs(loop, x, buffers.flag, noise, out)
 
-    @jitable
+    @variant
     def observe_trace(shared: Any, trials: TrialArrays, i: int, grid: Grid,
                       settings: Settings, buffers: Buffers, states: Array, rates: Array,
                       last: int, complete: bool, crossings: Array, out: Array) -> float:
@@ -315,7 +323,7 @@ def make_single(ops: Ops) -> tuple[Callable[..., None], Callable[..., None],
                               residual(loop, trials, i, grid.plan_theta, grid.plan_theta_dot),
                               math.nan, 0, 0)
 
-    @jitable
+    @variant
     def record_trace(states: Array, rates: Array, last: int, trace: Array) -> None:
         nx = states.shape[1]
         for j in range(last + 1):

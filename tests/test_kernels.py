@@ -1,0 +1,63 @@
+"""The kernel factory (flatcli/core/kernels.py): every (model, plant) combination's compiled
+closures carry names of their own, the same in every process.
+
+numba links a name that two loaded kernels share to one definition (its own rule: "the
+mangled name *must* be unique, else the wrong function can be chosen at link time",
+numba/core/funcdesc.py). A name is the module, the qualified name, the argument types and a
+counter of the compiling process; a factory's closures share the first three, so two kernels
+cached by different processes could share a name for two functions: the as-built kinematic
+and dynamic batch loops did (``make_batch.<locals>.run_batch``, the same counter in both
+cache files), and the second loaded from a warm cache ran the first's loop and ended
+``unresolved``. The referee here is the names themselves, as numba reads them
+(``__qualname__``), in this process and in a fresh one.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+from flatcli.core import asbuiltkernels, kernels
+from flatcli.core.integrate import make_trial_integrators
+
+COMBINATIONS = {
+    "paper kinematic": kernels.PAPER_KINEMATIC, "paper dynamic": kernels.PAPER_DYNAMIC,
+    "chain kinematic": kernels.CHAIN_KINEMATIC, "chain dynamic": kernels.CHAIN_DYNAMIC,
+    "as-built kinematic": asbuiltkernels.ASBUILT_KINEMATIC,
+    "as-built dynamic": asbuiltkernels.ASBUILT_DYNAMIC,
+}
+
+
+def closure_names(ops: kernels.Ops) -> list[str]:
+    """The qualified names of every closure the factories make for ``ops``."""
+    functions = [kernels.make_batch(ops), *kernels.make_single(ops),
+                 *make_trial_integrators(ops.rhs, ops.observe, ops.record)]
+    return [f.__qualname__ for f in functions]
+
+
+def test_no_two_combinations_share_a_closure_name() -> None:
+    seen: dict[str, str] = {}
+    for label, ops in COMBINATIONS.items():
+        names = closure_names(ops)
+        assert len(set(names)) == len(names), label
+        batch_tag = kernels.ops_tag(ops)
+        integrator_tag = kernels.variant_tag(ops.rhs, ops.observe, ops.record)
+        assert all(name.endswith("_" + batch_tag) for name in names[:5]), names[:5]
+        assert all(name.endswith("_" + integrator_tag) for name in names[5:]), names[5:]
+        for name in names:
+            assert name not in seen, (label, seen.get(name), name)
+            seen[name] = label
+    # the same combination made again is the same code under the same names
+    assert closure_names(kernels.CHAIN_DYNAMIC) == closure_names(kernels.CHAIN_DYNAMIC)
+
+
+def test_the_names_are_the_same_in_a_fresh_process() -> None:
+    """A cached kernel is found again by a process that builds the same names: tags come
+    from the functions' modules and names, not from anything that changes between runs."""
+    code = ("import json; from tests.test_kernels import COMBINATIONS, closure_names; "
+            "print(json.dumps({k: closure_names(v) for k, v in COMBINATIONS.items()}))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, timeout=300).stdout
+    assert json.loads(out.splitlines()[-1]) == {k: closure_names(v)
+                                                for k, v in COMBINATIONS.items()}
