@@ -10,6 +10,14 @@ and dynamic batch loops did (``make_batch.<locals>.run_batch``, the same counter
 cache files), and the second loaded from a warm cache ran the first's loop and ended
 ``unresolved``. The referee here is the names themselves, as numba reads them
 (``__qualname__``), in this process and in a fresh one.
+
+Checked once by hand, too slow for the suite (each process compiles a kernel afresh): two
+processes with a fresh NUMBA_CACHE_DIR compile the as-built kinematic and the dynamic kernel,
+numba's counter set alike (``FunctionIdentity._unique_ids``) so that both batch loops get
+counter 100057; a third loads both. At aa61ed0 (names without tags) the kernel loaded second
+ended ``unresolved`` with NaN states and the process crashed at exit; with the tags
+(``run_batch_43fa272d960b``, ``run_batch_348688cd8449``) both trials ended ``ok`` with the
+errors the compiling processes got (2026-12-02).
 """
 
 from __future__ import annotations
