@@ -11,17 +11,26 @@ from __future__ import annotations
 
 import os
 
-#: Where a container's memory limit is written: cgroup v2, then cgroup v1 (a file that holds
-#: "max", or is missing, sets no limit).
 #: Where a container's CPU quota is written: cgroup v2 ("quota period"; "max period" sets none),
 #: then cgroup v1's quota and period [us] (a quota of -1 sets none).
 CGROUP_CPU_MAX = ("/sys/fs/cgroup/cpu.max",)
 CGROUP_V1_CPU_QUOTA = ("/sys/fs/cgroup/cpu/cpu.cfs_quota_us",
                        "/sys/fs/cgroup/cpu/cpu.cfs_period_us")
+#: Where a container's memory limit is written: cgroup v2, then cgroup v1 (a file that holds
+#: "max", or is missing, sets no limit).
 CGROUP_MEMORY_LIMITS = (
     "/sys/fs/cgroup/memory.max",
     "/sys/fs/cgroup/memory/memory.limit_in_bytes",
 )
+
+
+def _cgroup_fields(path: str) -> list[str] | None:
+    """The whitespace-separated fields of a cgroup file, or None if it cannot be read."""
+    try:
+        with open(path) as fh:
+            return fh.read().split()
+    except OSError:
+        return None
 
 
 def cpu_quota() -> float | None:
@@ -29,21 +38,16 @@ def cpu_quota() -> float | None:
     None where none is set: cgroup v2's ``cpu.max`` ("quota period", or "max period"), then
     cgroup v1's ``cpu.cfs_quota_us`` over ``cpu.cfs_period_us`` (a quota of -1 sets none)."""
     for path in CGROUP_CPU_MAX:
-        try:
-            with open(path) as fh:
-                fields = fh.read().split()
-        except OSError:
+        fields = _cgroup_fields(path)
+        if fields is None:
             continue
         if len(fields) == 2 and fields[0].isdigit() and fields[1].isdigit() and int(fields[1]):
             return int(fields[0]) / int(fields[1])
         return None
-    quota_path, period_path = CGROUP_V1_CPU_QUOTA
+    values = [_cgroup_fields(path) for path in CGROUP_V1_CPU_QUOTA]
     try:
-        with open(quota_path) as fh:
-            quota = int(fh.read().strip())
-        with open(period_path) as fh:
-            period = int(fh.read().strip())
-    except (OSError, ValueError):
+        quota, period = (int(v[0]) if v and len(v) == 1 else 0 for v in values)
+    except ValueError:
         return None
     return quota / period if quota > 0 and period > 0 else None
 
@@ -66,11 +70,7 @@ def physical_memory() -> float:
     """This machine's memory, or the container's limit if lower [bytes]."""
     total = float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
     for path in CGROUP_MEMORY_LIMITS:
-        try:
-            with open(path) as fh:
-                limit = fh.read().strip()
-        except OSError:
-            continue
-        if limit.isdigit():
-            total = min(total, float(limit))
+        fields = _cgroup_fields(path)
+        if fields and len(fields) == 1 and fields[0].isdigit():
+            total = min(total, float(fields[0]))
     return total
