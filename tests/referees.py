@@ -17,6 +17,9 @@ except while it is clipped and v1 pushes it further (no wind-up). Every slope is
 ``through_crossings`` integrates a right-hand side with ``solve_ivp`` and restarts it
 wherever the margin changes sign, so it passes the jump of the clipped rates there instead of
 stepping across it.
+
+``base_row_momentum`` is H by another route than the link kinematics: the base's row of the
+Lagrangian mass matrix times the rates, H = (M(q) q')_0.
 """
 
 from __future__ import annotations
@@ -28,9 +31,10 @@ from typing import Any
 
 import numpy as np
 import sympy as sp
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 from scipy.integrate import solve_ivp
 
+from flatcli.core.dynamics import Chain, mass_matrix
 from flatcli.core.model import RobotParams
 from flatcli.core.planning import Plan
 
@@ -180,3 +184,10 @@ def through_crossings(
         side = -side
         crossings.append(t)
     raise RuntimeError(f"referee: more than {limit} crossings")
+
+
+def base_row_momentum(chain: Chain, q: ArrayLike, q_dot: ArrayLike) -> NDArray[np.float64]:
+    """H = (M(q) q')_0 (...) [kg m^2/s]: the base's row of ``dynamics.mass_matrix`` (the
+    Lagrangian's mass matrix, checked against sympy in test_dynamics) times the rates."""
+    M = mass_matrix(chain, q)
+    return np.asarray(np.einsum("...k,...k->...", M[..., 0, :], np.asarray(q_dot, dtype=float)))

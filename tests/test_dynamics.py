@@ -36,15 +36,10 @@ from flatcli.core.dynamics import (
     three_body_terms,
 )
 from flatcli.core.model import PAPER_ROBOT, FlatcliError, Links, RobotParams, momentum
+from tests.referees import base_row_momentum
 
 Array = NDArray[np.float64]
 
-
-def base_row_momentum(chain: Chain, q: Array, q_dot: Array) -> Array:
-    """H = (M(q) q')_0: the base's row of the mass matrix times the rates [kg m^2/s] (the
-    momentum as the Lagrangian's base momentum, written here from ``mass_matrix``)."""
-    M = mass_matrix(chain, q)
-    return np.asarray(np.einsum("...k,...k->...", M[..., 0, :], np.asarray(q_dot, dtype=float)))
 
 #: Agreement with the symbolic derivation and between formulations (relative to the largest
 #: entry): rounding of sums of a few dozen terms.
