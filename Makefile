@@ -48,8 +48,10 @@ lint: $(DEV_STAMP)
 	$(BIN)/ruff check flatcli tests benchmarks
 	$(BIN)/mypy
 
+# The suite runs on every core the machine (or its container's CPU quota) gives, in
+# pytest-xdist workers: most of a cold run is numba compiling kernels, one core each.
 test: lint bytecode
-	$(BIN)/pytest -q
+	$(BIN)/pytest -q -n "$$($(BIN)/python -c 'from flatcli.machine import cores; print(cores())')"
 
 reproduce: $(RUN_STAMP) bytecode
 	$(BIN)/flatcli reproduce --out runs/paper

@@ -14,7 +14,7 @@ Sources of the values below:
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -80,6 +80,16 @@ def make_trials(
     links = np.stack([p.as_array() for p in plants])
     h0 = np.broadcast_to(np.asarray(momentum, dtype=float), (n,)).copy()
     return Trials(links=links, momentum=h0, initial=x, noise=noise)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _no_inherited_terminal_size() -> Iterator[None]:
+    """The commands see no COLUMNS or LINES from the shell or the runner (pytest-xdist sets
+    COLUMNS=80 in its workers): a test of a table's width sets its own width."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.delenv("COLUMNS", raising=False)
+        patch.delenv("LINES", raising=False)
+        yield
 
 
 @pytest.fixture(scope="session")
