@@ -29,6 +29,7 @@ from flatcli.core.chaindynamic import (
     chain_dynamic_aux,
     chain_dynamic_loop,
     chain_dynamic_rhs,
+    chain_dynamic_stage,
     chain_dynamic_state,
     make_scratch,
 )
@@ -311,6 +312,71 @@ def test_rhs_solves_the_equations_of_motion_and_the_servo_law(n: int) -> None:
                 np.testing.assert_allclose(qdd[1:], a, rtol=RHS_EXACT,
                                            atol=RHS_EXACT * np.abs(a).max())
     assert clipped >= 5  # the clipped branch was exercised
+
+
+@pytest.mark.parametrize("n", [3, 5])
+def test_a_stage_derivative_is_the_right_hand_sides_bit_for_bit(n: int) -> None:
+    """``chain_dynamic_stage`` (what the integrators' stages call) against the full
+    ``chain_dynamic_rhs`` (checked above against the numpy chain) at random states, sensor
+    noise and the three regimes: the state's derivative, sigma and r_N are the same bit for
+    bit; the torques and the saturation flag too where they enter the derivative (a torque
+    limit, or a servo that believes another robot), and nan, not stale numbers, where they
+    do not (the exact servo without a limit, where each joint is a first-order lag)."""
+    rng = np.random.default_rng(10 + n)
+    plan, robot, start = chain_plan(n)
+    nb = n + 1
+    nx = 3 * n + 1
+    com = np.array(robot.com)
+    com[-1] = 0.004
+    plant = robot.with_(mass=np.array(robot.mass) * rng.uniform(0.95, 1.05, nb), com=com)
+    ref = plan.flags(np.array([0.7]))[0]
+    full = np.empty(chain_dynamic_state(n) + chain_dynamic_aux(n))
+    stage = np.empty_like(full)
+    for servo_is_plant, torque_limit, exact in ((True, np.inf, True), (False, np.inf, False),
+                                                (True, 0.05, False)):
+        for trial in range(8):
+            x = np.r_[start + rng.uniform(-0.3, 0.3, nb), rng.uniform(-3, 3, nb),
+                      rng.uniform(0.1, 0.6, n - 1)]
+            noise = rng.normal(0.0, 1e-3, nb) if trial % 2 else np.zeros(nb)
+            args = (plan, plant, servo_is_plant)
+            kw = {"rate_limit": 4.0, "bandwidth": float(rng.uniform(5, 500)),
+                  "torque_limit": torque_limit}
+            chain_dynamic_rhs(loop_for(*args, **kw), x, ref, noise, full)  # type: ignore[arg-type]
+            stage[:] = 7.0  # what a stage row held before
+            chain_dynamic_stage(loop_for(*args, **kw), x, ref, noise, stage)  # type: ignore[arg-type]
+            np.testing.assert_array_equal(stage[:nx + 1], full[:nx + 1])
+            assert stage[nx + 2 + n] == full[nx + 2 + n]
+            if exact:
+                assert np.isnan(stage[nx + 1:nx + 2 + n]).all()
+            else:
+                np.testing.assert_array_equal(stage[nx + 1:nx + 2 + n], full[nx + 1:nx + 2 + n])
+
+
+def test_observed_torques_are_the_servos_where_every_sample_ends_a_step() -> None:
+    """With sensor noise the adaptive integrator ends a step at every output sample and
+    observes the right-hand side it evaluated there (its stages do not compute torques):
+    with the exact servo and no torque limit, every recorded torque is the servo law
+    recomputed from the recorded state with the numpy chain, and peak_torque is their
+    largest, on both integrators."""
+    n, bandwidth = 3, 100.0
+    plan, robot, start = chain_plan(n)
+    initial = np.r_[start + np.array([0.0, 0.02, -0.02, 0.01]), 0.3, 0.3]
+    scenario = Scenario(plan, gains(n), 1e-3, plant="dynamic", servo_model="plant")
+    trials = dynamic_trials(initial, robot, noise=NoiseStreams(1e-4, 3, np.array([0])))
+    for integrator in ("adaptive", "rk4"):
+        out = run(scenario, trials, integrator)
+        assert out.status[0] == Status.OK
+        tr = split(out, n)
+        q, qd = tr["q"], tr["qd"]
+        model = robot_chain(robot)
+        hat, chat = joint_space_np(mass_matrix(model, q), bias_forces(model, q, qd))
+        r = np.c_[tr["u"], tr["u_last"]]
+        demand = np.einsum("njk,nk->nj", hat, bandwidth * (r - qd[:, 1:])) + chat
+        assert np.isfinite(tr["tau"]).all()
+        np.testing.assert_allclose(tr["tau"], demand, rtol=1e-9,
+                                   atol=1e-9 * np.abs(demand).max())
+        assert out.metrics[0, Metric.PEAK_TORQUE] == np.abs(tr["tau"]).max()
+        assert out.metrics[0, Metric.TORQUE_SATURATED] == 0
 
 
 def test_the_servo_is_a_first_order_lag() -> None:

@@ -40,7 +40,7 @@ COMBINATIONS = {
 def closure_names(ops: kernels.Ops) -> list[str]:
     """The qualified names of every closure the factories make for ``ops``."""
     functions = [kernels.make_batch(ops), *kernels.make_single(ops),
-                 *make_trial_integrators(ops.rhs, ops.observe, ops.record)]
+                 *make_trial_integrators(ops.rhs, ops.observe, ops.record, ops.stage)]
     return [f.__qualname__ for f in functions]
 
 
@@ -50,7 +50,8 @@ def test_no_two_combinations_share_a_closure_name() -> None:
         names = closure_names(ops)
         assert len(set(names)) == len(names), label
         batch_tag = kernels.ops_tag(ops)
-        integrator_tag = kernels.variant_tag(ops.rhs, ops.observe, ops.record)
+        integrator_tag = kernels.variant_tag(ops.rhs, ops.observe, ops.record,
+                                              ops.stage or ops.rhs)
         assert all(name.endswith("_" + batch_tag) for name in names[:5]), names[:5]
         assert all(name.endswith("_" + integrator_tag) for name in names[5:]), names[5:]
         for name in names:

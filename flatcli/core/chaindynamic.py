@@ -36,6 +36,7 @@ th0'(0) such that H = (M q')_0 = H0 of the plant.
 
 from __future__ import annotations
 
+import math
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -222,6 +223,25 @@ def chain_dynamic_rhs(loop: ChainDynamicLoop, x: Array, ref: Array, noise: Array
         u' [rad/s^2]; then the controller's signed margin sigma [rad/s], tau_1..tau_N
         [N m], 1.0 if a torque was clipped (else 0.0), the rate command r_N [rad/s]
     """
+    _chain_dynamic_rates(loop, x, ref, noise, out, True)
+
+
+@jitable
+def chain_dynamic_stage(loop: ChainDynamicLoop, x: Array, ref: Array, noise: Array,
+                        out: Array) -> None:
+    """``chain_dynamic_rhs`` for an integrator's stage, whose torques nobody observes: the
+    same state's derivative and sigma, bit for bit, and the same r_N; but where the servo's
+    model is the plant and there is no torque limit, the torques do not enter the
+    derivative (each joint rate is the lag th_j'' = bandwidth (r_j - th_j')), so they are not
+    computed (the servo's Mhat_s and chat_s neither) and tau_1..tau_N and the saturation
+    flag are written as nan."""
+    _chain_dynamic_rates(loop, x, ref, noise, out, False)
+
+
+@jitable
+def _chain_dynamic_rates(loop: ChainDynamicLoop, x: Array, ref: Array, noise: Array,
+                         out: Array, torques: bool) -> None:
+    """``chain_dynamic_rhs`` (``torques``) or ``chain_dynamic_stage``."""
     n = loop.Ic.shape[0] - 1
     nb = n + 1
     nx = 3 * n + 1
@@ -247,12 +267,19 @@ def chain_dynamic_rhs(loop: ChainDynamicLoop, x: Array, ref: Array, noise: Array
     turn_last(loop.trig[0], loop.trig[1], loop.cos_p, loop.sin_p)
     M, c = mats[_M], buf[_C]
     chain_terms(loop.plant, loop.trig, M, c)
-    if loop.same_model:
-        joint_space(M, c, mats[_MHAT_S], buf[_CHAT_S])
+    lag_only = not torques and loop.same_model and loop.torque_limit == np.inf
+    if lag_only:  # what ``servo_demand`` asks, without its torques: never clipped
+        a = buf[_A]
+        for j in range(n):
+            a[j] = loop.bandwidth * (buf[_R, j] - rates[1 + j])
+        saturated = 0.0
     else:
-        chain_terms(loop.servo, loop.trig, mats[_M_S], buf[_C_S])
-        joint_space(mats[_M_S], buf[_C_S], mats[_MHAT_S], buf[_CHAT_S])
-    saturated = servo_demand(loop, rates[1:])
+        if loop.same_model:
+            joint_space(M, c, mats[_MHAT_S], buf[_CHAT_S])
+        else:
+            chain_terms(loop.servo, loop.trig, mats[_M_S], buf[_C_S])
+            joint_space(mats[_M_S], buf[_C_S], mats[_MHAT_S], buf[_CHAT_S])
+        saturated = servo_demand(loop, rates[1:])
     tau = buf[_TAU, :n]
     q_ddot = buf[_Q_DDOT]
     if loop.same_model and saturated == 0.0:
@@ -285,8 +312,8 @@ def chain_dynamic_rhs(loop: ChainDynamicLoop, x: Array, ref: Array, noise: Array
         out[2 * nb + j] = step
     out[nx] = sigma
     for j in range(n):
-        out[nx + 1 + j] = tau[j]
-    out[nx + 1 + n] = saturated
+        out[nx + 1 + j] = math.nan if lag_only else tau[j]
+    out[nx + 1 + n] = math.nan if lag_only else saturated
     out[nx + 2 + n] = buf[_R, n - 1]
 
 

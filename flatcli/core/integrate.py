@@ -195,6 +195,15 @@ def _first_flip(sigma: float, m2: float, m3: float, m4: float, m5: float, m6: fl
 
 
 @jitable
+def _on_sample(t: float, dt: float) -> bool:
+    """Whether time t [s] is an output time j dt, within the relative 1e-14 by which the
+    adaptive integrator's step's end meets one (a margin ten times as wide, so that no
+    sample the integrator observes at a step's end is missed)."""
+    j = math.floor(t / dt + 0.5)
+    return abs(j * dt - t) <= 1e-13 * t
+
+
+@jitable
 def observed(j: int, n: int, every: int) -> bool:
     """Whether output sample j of 0..n enters the metrics when they observe every
     ``every``-th sample (``track.observe_every``): j = 0, 1k, 2k, ... and always the last, n,
@@ -216,11 +225,16 @@ def make_trial_integrators(
     rhs: Callable[..., None],
     observe: Callable[..., None],
     record_sample: Callable[..., None] = record_rates,
+    stage: Callable[..., None] | None = None,
 ) -> tuple[Callable[..., Any], Callable[..., Any]]:
     """(rk4_trial, adaptive_trial): the two integrators of one trial for a plant, compiled
     inline with its right-hand side ``rhs`` (which writes the state's derivative into
     out[:nx] and the controller's signed margin into out[nx]), its ``observe``r, and
     ``record_sample(trace, j, nx, x, f)``, which writes trace row j (``record_rates``).
+    ``stage`` (default ``rhs``): the right-hand side where nothing after out[nx] is read,
+    which must write out[:nx + 1] exactly as ``rhs`` does (the stages of a step and the
+    first-step estimate; a step's end only where no output sample falls on it); ``observe``
+    and ``record_sample`` are only ever given ``rhs``'s values.
 
     Shared arguments (see the module docstring): ``loop`` (the plant's and controller's
     parameters), ``obs`` (the observer's tables), ``x0`` (nx,), ``dt`` [s], ``n`` output
@@ -230,7 +244,8 @@ def make_trial_integrators(
     ``record_sample`` writes per sample), ``acc`` (the observer's accumulator, where crossings
     are counted too) and ``work`` (WORK_ROWS, >= nx + 1: the right-hand side's outputs).
     """
-    variant = jitable_variant(variant_tag(rhs, observe, record_sample))
+    stage_rhs = rhs if stage is None else stage
+    variant = jitable_variant(variant_tag(rhs, observe, record_sample, stage_rhs))
 
     @variant
     def rk4_step(loop: Any, nx: int, x: Array, k1: Array, h: float, ref_mid: Array,
@@ -243,13 +258,13 @@ def make_trial_integrators(
         half = 0.5 * h
         for i in range(nx):
             y[i] = x[i] + half * k1[i]
-        rhs(loop, y, ref_mid, noise, k2)
+        stage_rhs(loop, y, ref_mid, noise, k2)
         for i in range(nx):
             y[i] = x[i] + half * k2[i]
-        rhs(loop, y, ref_mid, noise, k3)
+        stage_rhs(loop, y, ref_mid, noise, k3)
         for i in range(nx):
             y[i] = x[i] + h * k3[i]
-        rhs(loop, y, ref_end, noise, k4)
+        stage_rhs(loop, y, ref_end, noise, k4)
         sixth = h / 6.0
         for i in range(nx):
             out[i] = x[i] + sixth * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
@@ -326,7 +341,7 @@ def make_trial_integrators(
                     plan_flag(breaks, local, t + h, flag_end)
                     frac = rk4_step(loop, nx, x, k1, h, flag_mid, flag_end, noise, k2, k3, k4,
                                     y, xn)
-                    rhs(loop, xn, flag_end, noise, ke)
+                    stage_rhs(loop, xn, flag_end, noise, ke)  # its margin only
                     evaluations += 4
                     if frac < 0.0 and _flipped(k1[nx], ke[nx]):
                         frac = _fraction(k1[nx], ke[nx])
@@ -365,7 +380,7 @@ def make_trial_integrators(
         for i in range(nx):
             y[i] = x[i] + h0 * f[i]
         plan_flag(breaks, local, t + h0, ref)
-        rhs(loop, y, ref, noise, f1)
+        stage_rhs(loop, y, ref, noise, f1)
         d2 = 0.0
         for i in range(nx):
             scale = atol + rtol * abs(x[i])
@@ -446,28 +461,31 @@ def make_trial_integrators(
             for i in range(nx):
                 y[i] = x[i] + h * (_A21 * k1[i])
             plan_flag(breaks, local, t + _C2 * h, ref)
-            rhs(loop, y, ref, noise, k2)
+            stage_rhs(loop, y, ref, noise, k2)
             for i in range(nx):
                 y[i] = x[i] + h * (_A31 * k1[i] + _A32 * k2[i])
             plan_flag(breaks, local, t + _C3 * h, ref)
-            rhs(loop, y, ref, noise, k3)
+            stage_rhs(loop, y, ref, noise, k3)
             for i in range(nx):
                 y[i] = x[i] + h * (_A41 * k1[i] + _A42 * k2[i] + _A43 * k3[i])
             plan_flag(breaks, local, t + _C4 * h, ref)
-            rhs(loop, y, ref, noise, k4)
+            stage_rhs(loop, y, ref, noise, k4)
             for i in range(nx):
                 y[i] = x[i] + h * (_A51 * k1[i] + _A52 * k2[i] + _A53 * k3[i] + _A54 * k4[i])
             plan_flag(breaks, local, t + _C5 * h, ref)
-            rhs(loop, y, ref, noise, k5)
+            stage_rhs(loop, y, ref, noise, k5)
             for i in range(nx):
                 y[i] = x[i] + h * (_A61 * k1[i] + _A62 * k2[i] + _A63 * k3[i] + _A64 * k4[i]
                                    + _A65 * k5[i])
             plan_flag(breaks, local, t_new, ref)
-            rhs(loop, y, ref, noise, k6)
+            stage_rhs(loop, y, ref, noise, k6)
             for i in range(nx):
                 xn[i] = x[i] + h * (_B1 * k1[i] + _B3 * k3[i] + _B4 * k4[i] + _B5 * k5[i]
                                     + _B6 * k6[i])
-            rhs(loop, xn, ref, noise, k7)
+            if observing and _on_sample(t_new, dt):  # observed there if the step is taken
+                rhs(loop, xn, ref, noise, k7)
+            else:
+                stage_rhs(loop, xn, ref, noise, k7)
             evaluations += 6
             norm = 0.0
             for i in range(nx):

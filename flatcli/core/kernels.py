@@ -45,6 +45,7 @@ from flatcli.core.chaindynamic import (
     chain_dynamic_initial,
     chain_dynamic_loop,
     chain_dynamic_rhs,
+    chain_dynamic_stage,
     chain_dynamic_state,
     make_scratch,
     observe_chain_dynamic,
@@ -182,7 +183,8 @@ class Ops:
     """The functions of one (model, plant) combination (module docstring), and its sizes:
     ``state(n)`` and ``aux(n)`` (what its right-hand side writes after the state's
     derivative, the margin first), ``width(n)`` (a trace row), ``scratch(n)`` (its loop's
-    buffers)."""
+    buffers); ``stage`` (None: ``rhs``), the right-hand side of the integrators' stages,
+    whose outputs after the margin nobody reads (``integrate.make_trial_integrators``)."""
 
     make_loop: Callable[..., Any]
     bounded: Callable[..., bool]
@@ -195,12 +197,13 @@ class Ops:
     aux: Callable[[int], int]
     width: Callable[[int], int]
     scratch: Callable[[int], Any]
+    stage: Callable[..., None] | None = None
 
 
 def ops_tag(ops: Ops) -> str:
     """``_jit.variant_tag`` of a combination's compiled functions."""
     return variant_tag(ops.make_loop, ops.bounded, ops.initial_state, ops.rhs, ops.observe,
-                       ops.record, ops.residual)
+                       ops.record, ops.residual, ops.stage or ops.rhs)
 
 
 def make_batch(ops: Ops) -> Callable[..., None]:
@@ -217,7 +220,8 @@ def make_batch(ops: Ops) -> Callable[..., None]:
     one at a tenth, each fell below the true error by more than 3x on 1 in 200 perturbed
     trials; one at a hundredth stayed within 0.70-1.36 of it on 595).
     """
-    rk4_trial, adaptive_trial = make_trial_integrators(ops.rhs, ops.observe, ops.record)
+    rk4_trial, adaptive_trial = make_trial_integrators(ops.rhs, ops.observe, ops.record,
+                                                       ops.stage)
     make_loop, bounded, initial_state, residual = (ops.make_loop, ops.bounded,
                                                    ops.initial_state, ops.residual)
     variant = jitable_variant(ops_tag(ops))
@@ -505,7 +509,7 @@ CHAIN_KINEMATIC = Ops(
 CHAIN_DYNAMIC = Ops(
     _chain_dynamic_loop, _rates_or_torques_bounded, chain_dynamic_initial, chain_dynamic_rhs,
     observe_chain_dynamic, record_chain_dynamic, _chain_residual, chain_dynamic_state,
-    chain_dynamic_aux, lambda n: 4 * n + 2, _chain_scratch)
+    chain_dynamic_aux, lambda n: 4 * n + 2, _chain_scratch, chain_dynamic_stage)
 
 
 # --------------------------------------------------------------------------------------
