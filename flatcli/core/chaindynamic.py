@@ -183,6 +183,18 @@ def _commands(loop: ChainDynamicLoop, measured: Array, u: Array, ref: Array) -> 
 
 
 @jitable
+def servo_accelerations(loop: ChainDynamicLoop, rates: Array) -> None:
+    """What the servo asks of the joints, a = bandwidth (r - rates), into buffers[_A] (N,)
+    [rad/s^2], from the rate commands buffers[_R] and the joint rates ``rates`` (N,)
+    [rad/s]."""
+    n = loop.Ic.shape[0] - 1
+    buf = loop.buffers
+    r, a = buf[_R], buf[_A]
+    for j in range(n):
+        a[j] = loop.bandwidth * (r[j] - rates[j])
+
+
+@jitable
 def servo_demand(loop: ChainDynamicLoop, rates: Array) -> float:
     """The servo's torques into buffers[_TAU] (N,) [N m], clipped to the torque limit, from
     the rate commands buffers[_R] and the joint rates ``rates`` (N,) [rad/s], with the
@@ -190,11 +202,10 @@ def servo_demand(loop: ChainDynamicLoop, rates: Array) -> float:
     demand into buffers[_DEMAND]. Returns 1.0 if a torque was clipped, else 0.0."""
     n = loop.Ic.shape[0] - 1
     buf = loop.buffers
-    r, a, tau, chat = buf[_R], buf[_A], buf[_TAU], buf[_CHAT_S]
+    a, tau, chat = buf[_A], buf[_TAU], buf[_CHAT_S]
     demand = buf[_DEMAND]
     hat = loop.matrices[_MHAT_S]
-    for j in range(n):
-        a[j] = loop.bandwidth * (r[j] - rates[j])
+    servo_accelerations(loop, rates)
     limit = loop.torque_limit
     saturated = 0.0
     for j in range(n):
@@ -269,9 +280,7 @@ def _chain_dynamic_rates(loop: ChainDynamicLoop, x: Array, ref: Array, noise: Ar
     chain_terms(loop.plant, loop.trig, M, c)
     lag_only = not torques and loop.same_model and loop.torque_limit == np.inf
     if lag_only:  # what ``servo_demand`` asks, without its torques: never clipped
-        a = buf[_A]
-        for j in range(n):
-            a[j] = loop.bandwidth * (buf[_R, j] - rates[1 + j])
+        servo_accelerations(loop, rates[1:])
         saturated = 0.0
     else:
         if loop.same_model:
