@@ -1,5 +1,5 @@
 """``python -m flatcli`` is the ``flatcli`` command."""
 
-from flatcli.cli import main
+from flatcli.cli import run
 
-main()
+run()

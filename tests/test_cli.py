@@ -762,3 +762,41 @@ def test_a_four_link_robot_plans_tracks_and_sweeps_with_only_robot_and_plan(
     assert code == 0, out
     trials = pd.read_parquet(tmp_path / "sweep" / "trials.parquet")
     assert len(trials) == 3 and set(trials["status"]) <= {"ok", "singular"}
+
+
+@pytest.mark.parametrize("code", [None, 0, 3, 258, -1, True, "a message"])
+def test_the_program_exits_with_the_status_the_interpreter_gives_systemexit(code: object,
+                                                                              ) -> None:
+    """``flatcli.cli.run`` ends the process itself (``os._exit``, no teardown): its exit status
+    and stderr for ``SystemExit(code)`` are the interpreter's own (the referee: a plain
+    ``python -c 'raise SystemExit(code)'``)."""
+    python = subprocess.run([sys.executable, "-c", f"raise SystemExit({code!r})"],
+                            capture_output=True, text=True, timeout=60)
+    ours = subprocess.run([sys.executable, "-c", (
+        "import flatcli.cli as c\n"
+        "@c.main.command('end')\n"
+        f"def end():\n    raise SystemExit({code!r})\n"
+        "c.run()\n"), "end"], capture_output=True, text=True, timeout=300)
+    assert (ours.returncode, ours.stderr) == (python.returncode, python.stderr)
+
+
+def test_the_program_flushes_all_it_prints_and_waits_for_its_threads(tmp_path: Path) -> None:
+    """What a command prints (buffered, to a file) and what a non-daemon thread it started
+    writes after it returned are all there when ``run`` ends the process."""
+    out = tmp_path / "out.txt"
+    late = tmp_path / "late.txt"
+    with out.open("w") as stdout:
+        done = subprocess.run([sys.executable, "-c", (
+            "import sys, threading, time, click\n"
+            "import flatcli.cli as c\n"
+            "@c.main.command('talk')\n"
+            "def talk():\n"
+            "    def later():\n"
+            f"        time.sleep(0.5); open({str(late)!r}, 'w').write('late')\n"
+            "    threading.Thread(target=later).start()\n"
+            "    sys.stdout.write('x' * 100000)\n"
+            "c.run()\n"), "talk"], stdout=stdout, stderr=subprocess.PIPE, text=True,
+            timeout=300, env={**os.environ, "PYTHONUNBUFFERED": ""})
+    assert done.returncode == 0 and done.stderr == ""
+    assert out.read_text() == "x" * 100000
+    assert late.read_text() == "late"
