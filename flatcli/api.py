@@ -32,7 +32,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from flatcli.core.model import FlatcliError
-from flatcli.core.optimize import OptimizeResult
 from flatcli.core.planning import Plan, PlanSamples
 from flatcli.core.workspace import BRANCHES, DEFAULT_ATTITUDES, WorkspaceMap
 from flatcli.experiment import TrackRun, plan_and_optimization, run_track
@@ -80,6 +79,7 @@ if TYPE_CHECKING:  # pandas loads with the first DataFrame, never in a sweep's p
     import pandas as pd
     from matplotlib.figure import Figure
 
+    from flatcli.core.optimize import OptimizeResult
     from flatcli.preflight import CheckReport
     from flatcli.trajectory import Trajectory
 

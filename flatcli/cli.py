@@ -203,13 +203,17 @@ def run() -> NoReturn:
     multiprocessing, dask, logging) and then free every module and object, which with numba's
     compiler and a kernel loaded takes 0.3-0.4 s of each command here (``benchmarks.run``'s
     start-up figures). The first two are done here as the interpreter does them; the third
-    is skipped (``os._exit``). A bug's traceback ends the process the usual way.
+    is skipped (``os._exit``). A bug's traceback ends the process the usual way, and so does
+    every command under a profiler or a tracer (``python -m cProfile``, coverage), which
+    write their files at the teardown.
     """
     try:
         main.main()
         status = 0
     except SystemExit as exc:
         status = exit_status(exc.code)
+    if sys.getprofile() is not None or sys.gettrace() is not None:
+        sys.exit(status)
     for thread in threading.enumerate():
         if thread is not threading.current_thread() and not thread.daemon:
             thread.join()

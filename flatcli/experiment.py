@@ -8,7 +8,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -19,7 +19,6 @@ from flatcli.core.exact import method_for, plan_exact
 from flatcli.core.lqr import LqrWeights
 from flatcli.core.metrics import COUNT_METRICS, METRIC_NAMES, describe_status
 from flatcli.core.model import RobotParams
-from flatcli.core.optimize import DEFAULT_BSPLINE_DEGREE, OptimizeResult, PlanLimits, optimize_plan
 from flatcli.core.planning import Plan, plan_point_to_point
 from flatcli.core.simulate import (
     TWIN_FACTOR,
@@ -32,6 +31,9 @@ from flatcli.core.simulate import (
 from flatcli.core.task import Task, TaskPlan, plan_task, task_ends
 from flatcli.spec import Spec, SpecError
 from flatcli.spec.limits import check_track
+
+if TYPE_CHECKING:  # the optimiser (scipy's SLSQP) loads only for a spec that optimises
+    from flatcli.core.optimize import OptimizeResult
 
 Array = NDArray[np.float64]
 
@@ -80,6 +82,8 @@ def basis_from(spec: Spec, method: str = "flat") -> Basis:
         flat_cubic = plan.optimize.objective is None and method == "flat"
         kind = "poly" if flat_cubic else "bspline"
     if kind == "bspline":
+        from flatcli.core.optimize import DEFAULT_BSPLINE_DEGREE
+
         return BSplineBasis(plan.size, plan.duration, plan.degree or DEFAULT_BSPLINE_DEGREE)
     return PolynomialBasis(plan.degree or 3, plan.duration)
 
@@ -156,6 +160,8 @@ def planned(spec: Spec) -> tuple[Plan, OptimizeResult | None, TaskPlan | None]:
     if opt.objective is None:
         return plan_point_to_point(robot, start, goal, start_rate, goal_rate, p.duration, model,
                                    basis_from(spec)), None, None
+    from flatcli.core.optimize import PlanLimits, optimize_plan
+
     result = optimize_plan(
         robot, start, goal, p.duration,
         model=model,

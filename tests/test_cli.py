@@ -800,3 +800,13 @@ def test_the_program_flushes_all_it_prints_and_waits_for_its_threads(tmp_path: P
     assert done.returncode == 0 and done.stderr == ""
     assert out.read_text() == "x" * 100000
     assert late.read_text() == "late"
+
+
+def test_the_program_under_a_profiler_ends_the_usual_way_so_the_profile_is_written(
+        tmp_path: Path) -> None:
+    """cProfile writes its file at the interpreter's teardown, which ``run`` otherwise skips."""
+    profile = tmp_path / "version.prof"
+    done = subprocess.run([sys.executable, "-m", "cProfile", "-o", str(profile), "-m", "flatcli",
+                           "--version"], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0 and done.stdout.startswith("flatcli, version")
+    assert profile.stat().st_size > 0

@@ -380,3 +380,19 @@ def test_chain_rate_limit_below_the_least_peak() -> None:
                        r"met: the best plan found reaches \|th\d'\| = [\d.]+ rad/s") as info:
         optimize_chain(3, limits=PlanLimits(rate_limit=5.0), constraint_samples=41, max_iter=60)
     assert "\n" not in str(info.value)
+
+
+def test_the_package_names_each_of_its_contents_from_the_module_that_defines_it() -> None:
+    """The package loads its modules on first use (PEP 562): every name in ``__all__`` is
+    the very object its defining module holds (the referee: importlib, module by module, and
+    the source text that defines it), and a name it does not have is an AttributeError."""
+    import importlib
+    import inspect
+
+    for name in optimize.__all__:
+        value = getattr(optimize, name)
+        home = importlib.import_module(f"flatcli.core.optimize.{optimize._HOME[name]}")
+        assert getattr(home, name) is value, name
+        assert f"{name}" in inspect.getsource(home), name
+    with pytest.raises(AttributeError, match="no_such_name"):
+        optimize.no_such_name  # noqa: B018

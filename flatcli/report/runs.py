@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from flatcli.core.optimize import OptimizeResult
 from flatcli.core.planning import Plan, PlanSamples
 from flatcli.report.tables import fmt, table
+
+if TYPE_CHECKING:
+    from flatcli.core.optimize import OptimizeResult
 
 
 def plan_summary(plan: Plan, samples: PlanSamples) -> dict[str, float]:

@@ -26,18 +26,44 @@ One concept per module, each importing only those above it:
 Everything other code needs is importable from ``flatcli.core.optimize``.
 """
 
-from flatcli.core.optimize.api import (
-    DEFAULT_BSPLINE_DEGREE,
-    DEFAULT_BSPLINE_SIZE,
-    OptimizeResult,
-    default_basis,
-    optimize_plan,
-)
-from flatcli.core.optimize.feasibility import required_fold
-from flatcli.core.optimize.limits import PlanLimits
-from flatcli.core.optimize.objectives import OBJECTIVES, Objective
-from flatcli.core.optimize.quantities import flag_jacobian, flag_quantities
-from flatcli.core.optimize.tuning import TUNING, Tuning
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from flatcli.core.optimize.api import (
+        DEFAULT_BSPLINE_DEGREE,
+        DEFAULT_BSPLINE_SIZE,
+        OptimizeResult,
+        default_basis,
+        optimize_plan,
+    )
+    from flatcli.core.optimize.feasibility import required_fold
+    from flatcli.core.optimize.limits import PlanLimits
+    from flatcli.core.optimize.objectives import OBJECTIVES, Objective
+    from flatcli.core.optimize.quantities import flag_jacobian, flag_quantities
+    from flatcli.core.optimize.tuning import TUNING, Tuning
+
+#: Each public name and its module, loaded on first use (PEP 562): the spec's schema needs
+#: ``OBJECTIVES``, a sweep without an optimised plan nothing else (scipy's SLSQP and the
+#: nine modules above it stay unloaded).
+_HOME = {
+    "DEFAULT_BSPLINE_DEGREE": "api", "DEFAULT_BSPLINE_SIZE": "api", "OptimizeResult": "api",
+    "default_basis": "api", "optimize_plan": "api", "required_fold": "feasibility",
+    "PlanLimits": "limits", "OBJECTIVES": "objectives", "Objective": "objectives",
+    "flag_jacobian": "quantities", "flag_quantities": "quantities", "TUNING": "tuning",
+    "Tuning": "tuning",
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _HOME:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{_HOME[name]}"), name)
+    globals()[name] = value
+    return value
+
 
 __all__ = [
     "DEFAULT_BSPLINE_DEGREE",
