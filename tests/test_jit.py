@@ -121,3 +121,81 @@ def test_a_variant_is_named_by_its_tag() -> None:
     assert first.__qualname__.endswith(  # type: ignore[attr-defined]
         "_" + _jit.variant_tag(_jit.writable))
     assert len(_jit.variant_tag(_jit.writable)) == 12
+
+
+_LOAD_PROBE = """
+import hashlib, json, sys
+import flatcli
+import flatcli.core._jit as jit
+frame = flatcli.track(quiet=True).frame  # the paper's maneuver and feedback (a cached kernel)
+digest = hashlib.sha256(frame.to_numpy(dtype=float).tobytes()).hexdigest()
+refreshed = sorted(m for m in ("numba.typed.typedlist", "numba.experimental.jitclass.base",
+                               "numba.np.linalg") if m in sys.modules)
+import numba
+import numpy as np
+
+@numba.njit
+def compiled_after(n):  # a fresh compile: a typed list, a string and a linear solve
+    items = [float(i) for i in range(n)]
+    a = np.eye(3) * 2.0
+    return len(str(n)) + sum(items) + np.linalg.solve(a, np.ones(3))[0]
+
+print(json.dumps({"light": jit.LIGHT_LOAD, "digest": digest, "refreshed": refreshed,
+                  "compiled_after": compiled_after(4)}))
+"""
+
+
+def _probe(env: dict[str, str]) -> dict[str, object]:
+    import os
+
+    out = subprocess.run([sys.executable, "-c", _LOAD_PROBE], capture_output=True, text=True,
+                         check=True, timeout=600, env={**os.environ, **env}).stdout
+    return dict(json.loads(out.splitlines()[-1]))
+
+
+def test_a_cached_kernel_loads_without_numbas_compiler_and_computes_the_same_bits() -> None:
+    """The light load (``load_cached_kernels_lightly``) against numba's own load
+    (``FLATCLI_NUMBA_REFRESH=1``, the referee), each in a fresh process on this machine:
+    the same track of the paper's maneuver to the bit; numba's compiler registries (typed
+    lists, jitclass, linear algebra) not imported by the light load; and a function
+    compiled afterwards in the same process (a list, a string, a solve: registries the
+    light load skipped) still compiles and gives 1 + 6 + 0.5."""
+    _probe({})  # the kernel compiled into the cache, if it was not there yet
+    light, numba_own = _probe({}), _probe({"FLATCLI_NUMBA_REFRESH": "1"})
+    assert light["light"] is True and numba_own["light"] is False
+    assert light["digest"] == numba_own["digest"]
+    assert light["refreshed"] == []
+    assert numba_own["refreshed"] == ["numba.experimental.jitclass.base", "numba.np.linalg",
+                                      "numba.typed.typedlist"]
+    assert light["compiled_after"] == numba_own["compiled_after"] == 7.5
+
+
+def test_the_light_load_leaves_a_numba_it_was_not_read_against_alone(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Another numba release, or a ``Cache.load_overload`` that calls other names: numba's
+    own load stays in place."""
+    from numba.core import caching
+
+    def other_load_overload(self: object, sig: object, target_context: object) -> None:
+        target_context.refresh()  # type: ignore[attr-defined]
+        return self.load(sig)  # type: ignore[attr-defined, no-any-return]
+
+    monkeypatch.setattr(caching.Cache, "load_overload", other_load_overload)
+    assert _jit.load_cached_kernels_lightly() is False
+    assert caching.Cache.load_overload is other_load_overload
+
+    def as_read(self: object, sig: object, target_context: object) -> object:
+        target_context.refresh()  # type: ignore[attr-defined]
+        with self._guard_against_spurious_io_errors():  # type: ignore[attr-defined]
+            return self._load_overload(sig, target_context)  # type: ignore[attr-defined]
+
+    monkeypatch.setattr(caching.Cache, "load_overload", as_read)
+    monkeypatch.setattr(_jit.numba, "__version__", "0.70.0")
+    assert _jit.load_cached_kernels_lightly() is False
+    assert caching.Cache.load_overload is as_read
+    monkeypatch.setenv("FLATCLI_NUMBA_REFRESH", "1")
+    monkeypatch.setattr(_jit.numba, "__version__", "0.68.1")
+    assert _jit.load_cached_kernels_lightly() is False
+    monkeypatch.delenv("FLATCLI_NUMBA_REFRESH")
+    assert _jit.load_cached_kernels_lightly() is True  # the body as read: replaced
+    assert getattr(caching.Cache.load_overload, "_flatcli_light", False)

@@ -161,6 +161,75 @@ def _configure_cache() -> bool:
 CACHING = _configure_cache()
 
 
+#: The numba releases whose ``Cache.load_overload`` ``load_cached_kernels_lightly`` was
+#: read against (its body: ``target_context.refresh()``, then ``_load_overload`` under
+#: ``_guard_against_spurious_io_errors``).
+LIGHT_LOAD_NUMBA = ("0.68.",)
+_LOAD_OVERLOAD_NAMES = ("refresh", "_guard_against_spurious_io_errors", "_load_overload")
+
+
+def load_cached_kernels_lightly() -> bool:
+    """Load a kernel from numba's on-disk cache without first setting up numba's compiler.
+
+    Before it reads a cached kernel, numba 0.68 refreshes the CPU target
+    (``Cache.load_overload`` calls ``target_context.refresh()``): it imports and registers
+    the lowering of every feature numba compiles (numba.cpython.*, numba.np.linalg, arraymath,
+    the typed containers, jitclass, third-party extensions' entry points), 0.2-0.25 s of
+    the 0.26 s a sweep worker's first call of a cached kernel took. Loading machine code needs
+    none of it, only numba's runtime (``rtsys.initialize``, which the refresh also does), so
+    that is all this load does; a compile still refreshes the target first
+    (``CompilerBase.__init__``), and so does a lowering that finds no implementation
+    (``BaseContext.get_function``). The numbers are the same to the bit (the same machine
+    code runs).
+
+    This relies on numba's internals deliberately, and only where they are as read: a numba
+    release of ``LIGHT_LOAD_NUMBA`` whose ``Cache.load_overload`` calls exactly the three
+    names above, and a CPU target; anything else loads as numba does. ``FLATCLI_NUMBA_REFRESH=1``
+    turns it off. Returns whether the light load is in place.
+    """
+    if os.environ.get("FLATCLI_NUMBA_REFRESH") == "1":
+        return False
+    if not numba.__version__.startswith(LIGHT_LOAD_NUMBA):
+        return False
+    try:
+        from numba.core import caching, cpu
+        from numba.core.runtime.nrt import rtsys
+    except ImportError:
+        return False
+    found = getattr(caching.Cache, "load_overload", None)
+    if getattr(found, "_flatcli_light", False):
+        return True
+    code = getattr(found, "__code__", None)
+    if found is None or code is None:
+        return False
+    original: Callable[..., Any] = found
+    if code.co_names != _LOAD_OVERLOAD_NAMES or code.co_varnames[:3] != (
+        "self",
+        "sig",
+        "target_context",
+    ):
+        return False
+    if not callable(getattr(rtsys, "initialize", None)):
+        return False
+
+    def load_overload(self: Any, sig: Any, target_context: Any) -> Any:
+        if not isinstance(target_context, cpu.CPUContext):
+            return original(self, sig, target_context)
+        rtsys.initialize(target_context)
+        with self._guard_against_spurious_io_errors():
+            return self._load_overload(sig, target_context)
+        return None  # the guard swallowed an error: numba then compiles
+
+    load_overload._flatcli_light = True  # type: ignore[attr-defined]
+    load_overload.__doc__ = original.__doc__
+    setattr(caching.Cache, "load_overload", load_overload)  # noqa: B010
+    return True
+
+
+#: Whether cached kernels load without numba's compiler set up (``load_cached_kernels_lightly``).
+LIGHT_LOAD = CACHING and load_cached_kernels_lightly()
+
+
 def jitable(fn: F) -> F:
     """Mark a float/array function as callable from compiled kernels; behaviour is unchanged."""
     return register_jitable(fn)
