@@ -38,7 +38,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from flatcli.core._jit import jitable, jitable_variant, kernel, variant_tag
-from flatcli.core.chain import barycentric_matrices
+from flatcli.core.chain import barycentric_matrices, barycentric_matrix
 from flatcli.core.chaindynamic import (
     ChainDynamicLoop,
     chain_dynamic_aux,
@@ -688,8 +688,15 @@ def chain_dynamic_trace(states: Array, rates: Array, last: int, trace: Array) ->
 def paper_shared(model: Any, gains: Gains, rate_limit: float, servo_is_plant: bool,
                  robot: RobotParams) -> PaperShared:
     """What every trial shares in the paper's closed form: its coefficients, gains, the
-    rate limit, the nominal robot (the servo's model unless ``servo_is_plant``)."""
-    K = barycentric_matrices(robot.as_array()[None, :])[0]
+    rate limit, the nominal robot (the servo's model unless ``servo_is_plant``).
+
+    K of the one robot comes from ``barycentric_matrix`` run as Python (the same IEEE
+    operations in the same order as the compiled ``barycentric_matrices``, to the bit): the
+    compiled batch form would load a kernel with numba's runtime into every sweep, 30-50 ms
+    of its start-up, for a 3 x 3 matrix."""
+    p = robot.as_array()
+    nb = p.shape[0] // 4
+    K = barycentric_matrix(p[:nb], p[2 * nb: 3 * nb], p[3 * nb:])
     links = Links(*(float(v) for v in robot.links))
     return PaperShared(Coefficients(*(float(v) for v in model.coefficients)), gains.paper(),
                        float(rate_limit),
