@@ -199,3 +199,34 @@ def test_the_light_load_leaves_a_numba_it_was_not_read_against_alone(
     monkeypatch.delenv("FLATCLI_NUMBA_REFRESH")
     assert _jit.load_cached_kernels_lightly() is True  # the body as read: replaced
     assert getattr(caching.Cache.load_overload, "_flatcli_light", False)
+
+
+_USER_PROBE = """
+import json, sys
+sys.path.insert(0, sys.argv[1])
+import flatcli.core._jit as jit
+import userkern
+value = userkern.twice_plus_one(3.0)
+print(json.dumps({"light": jit.LIGHT_LOAD, "value": value,
+                  "refreshed": "numba.np.linalg" in sys.modules,
+                  "hits": sum(userkern.twice_plus_one.stats.cache_hits.values())}))
+"""
+
+
+def test_a_users_own_cached_function_loads_as_numba_loads_it(tmp_path: Path) -> None:
+    """The light load is for flatcli's kernels only: a cached numba function of the user's,
+    in a process that imported flatcli, is read from the cache by numba's own
+    ``load_overload`` (its compiler set up first: numba.np.linalg imported, which the light
+    load never imports), and gives 2 * 3 + 1."""
+    (tmp_path / "userkern.py").write_text(
+        "import numba\n\n@numba.njit(cache=True)\ndef twice_plus_one(x):\n    return 2 * x + 1\n")
+    import os
+
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    runs = [json.loads(subprocess.run(
+        [sys.executable, "-c", _USER_PROBE, str(tmp_path)], capture_output=True, text=True,
+        check=True, timeout=300, env=env).stdout.splitlines()[-1]) for _ in range(2)]
+    compiled, loaded = runs
+    assert compiled["hits"] == 0 and loaded["hits"] == 1  # the second read the cache
+    assert loaded["light"] is True and loaded["refreshed"] is True
+    assert compiled["value"] == loaded["value"] == 7.0

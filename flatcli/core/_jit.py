@@ -184,8 +184,9 @@ def load_cached_kernels_lightly() -> bool:
 
     This relies on numba's internals deliberately, and only where they are as read: a numba
     release of ``LIGHT_LOAD_NUMBA`` whose ``Cache.load_overload`` calls exactly the three
-    names above, and a CPU target; anything else loads as numba does. ``FLATCLI_NUMBA_REFRESH=1``
-    turns it off. Returns whether the light load is in place.
+    names above, a CPU target, and a function of flatcli's own (a notebook's cached numba
+    functions beside flatcli load as numba loads them); anything else loads as numba does.
+    ``FLATCLI_NUMBA_REFRESH=1`` turns it off. Returns whether the light load is in place.
     """
     if os.environ.get("FLATCLI_NUMBA_REFRESH") == "1":
         return False
@@ -213,7 +214,7 @@ def load_cached_kernels_lightly() -> bool:
         return False
 
     def load_overload(self: Any, sig: Any, target_context: Any) -> Any:
-        if not isinstance(target_context, cpu.CPUContext):
+        if not (isinstance(target_context, cpu.CPUContext) and _flatcli_function(self)):
             return original(self, sig, target_context)
         rtsys.initialize(target_context)
         with self._guard_against_spurious_io_errors():
@@ -224,6 +225,12 @@ def load_cached_kernels_lightly() -> bool:
     load_overload.__doc__ = original.__doc__
     setattr(caching.Cache, "load_overload", load_overload)  # noqa: B010
     return True
+
+
+def _flatcli_function(cache: Any) -> bool:
+    """Whether a numba cache object caches one of flatcli's own functions."""
+    module = getattr(getattr(cache, "_py_func", None), "__module__", None)
+    return isinstance(module, str) and module.startswith("flatcli.")
 
 
 #: Whether cached kernels load without numba's compiler set up (``load_cached_kernels_lightly``).
