@@ -19,7 +19,7 @@ import re
 from collections.abc import Iterable
 
 from flatcli.core.metrics import STATUS_NAMES
-from flatcli.spec import PERTURB_TARGETS, Spec, SpecError, lookup
+from flatcli.spec import PERTURB_TARGETS, Spec, find_key
 
 #: A pure number: a count, a fraction, a ratio.
 DIMENSIONLESS = "1"
@@ -146,9 +146,8 @@ def spec_key_unit(dotted: str, spec: Spec | None = None) -> str | None:
         if table.get("relative", False):
             return DIMENSIONLESS
         return spec_key_unit(PERTURB_TARGETS[parts[2]])
-    try:
-        key = lookup(dotted)
-    except SpecError:
+    key = find_key(dotted)
+    if key is None:
         return None
     if key.kind not in ("float", "int", "vector", "numbers"):
         return None

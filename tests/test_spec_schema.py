@@ -12,7 +12,18 @@ import pytest
 from flatcli.core.model import MODELS
 from flatcli.core.optimize import OBJECTIVES
 from flatcli.core.simulate import INTEGRATORS
-from flatcli.spec import GAINS, LINKS, SCHEMA, SECTIONS, Spec, SpecError, all_keys, lookup, resolve
+from flatcli.spec import (
+    GAINS,
+    LINKS,
+    SCHEMA,
+    SECTIONS,
+    Spec,
+    SpecError,
+    all_keys,
+    find_key,
+    lookup,
+    resolve,
+)
 
 
 def test_sections_are_the_toml_tables() -> None:
@@ -156,3 +167,14 @@ def test_unknown_keys_get_a_suggestion() -> None:
     expected = r"unknown key 'plan.optimise.objective' \(did you mean 'plan.optimize.objective'"
     with pytest.raises(SpecError, match=expected):
         lookup("plan.optimise.objective")
+
+
+def test_find_key_is_lookup_without_the_error() -> None:
+    """``find_key`` returns lookup's Key for every key of the schema and None where lookup
+    raises (a column name, a section, a near miss)."""
+    for dotted in all_keys():
+        assert find_key(dotted) is lookup(dotted)
+    for name in ("final_error", "track", "track.kpp", "sweep.perturb.mass.std", ""):
+        assert find_key(name) is None
+        with pytest.raises(SpecError):
+            lookup(name)

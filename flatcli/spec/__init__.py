@@ -28,6 +28,7 @@ from flatcli.spec.schema import (
     TrackSpec,
     all_keys,
     check_value,
+    find_key,
     lookup,
 )
 from flatcli.spec.sweeps import (
@@ -58,6 +59,7 @@ __all__ = [
     "all_keys",
     "build",
     "check_value",
+    "find_key",
     "flatten",
     "grid_overrides",
     "load_spec",

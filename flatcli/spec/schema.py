@@ -436,14 +436,21 @@ def all_keys() -> list[str]:
     return [f"{sec}.{k}" if sec else k for sec, keys in SCHEMA.items() for k in keys]
 
 
-def lookup(dotted: str) -> Key:
-    """The Key of a dotted name; SpecError with a close match if there is none."""
+def find_key(dotted: str) -> Key | None:
+    """The Key of a dotted name, or None (no error message made: a caller that only asks
+    whether a name is a key, e.g. for a column's unit, pays no close-match search)."""
     section, _, name = dotted.rpartition(".")
     keys = SCHEMA.get(section)
-    if keys is None or name not in keys:
+    return None if keys is None else keys.get(name)
+
+
+def lookup(dotted: str) -> Key:
+    """The Key of a dotted name; SpecError with a close match if there is none."""
+    key = find_key(dotted)
+    if key is None:
         known = all_keys() + [s for s in SCHEMA if s]
         raise SpecError(f"unknown key {dotted!r}{suggest(dotted, known)}")
-    return keys[name]
+    return key
 
 
 def check_value(dotted: str, value: Any) -> Any:
