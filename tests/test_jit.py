@@ -131,6 +131,7 @@ frame = flatcli.track(quiet=True).frame  # the paper's maneuver and feedback (a 
 digest = hashlib.sha256(frame.to_numpy(dtype=float).tobytes()).hexdigest()
 refreshed = sorted(m for m in ("numba.typed.typedlist", "numba.experimental.jitclass.base",
                                "numba.np.linalg") if m in sys.modules)
+pending = len(jit._PENDING)  # jitable functions not registered: nothing was compiled
 import numba
 import numpy as np
 
@@ -141,7 +142,8 @@ def compiled_after(n):  # a fresh compile: a typed list, a string and a linear s
     return len(str(n)) + sum(items) + np.linalg.solve(a, np.ones(3))[0]
 
 print(json.dumps({"light": jit.LIGHT_LOAD, "digest": digest, "refreshed": refreshed,
-                  "compiled_after": compiled_after(4)}))
+                  "compiled_after": compiled_after(4), "pending": pending,
+                  "pending_after_a_compile": len(jit._PENDING)}))
 """
 
 
@@ -168,6 +170,9 @@ def test_a_cached_kernel_loads_without_numbas_compiler_and_computes_the_same_bit
     assert numba_own["refreshed"] == ["numba.experimental.jitclass.base", "numba.np.linalg",
                                       "numba.typed.typedlist"]
     assert light["compiled_after"] == numba_own["compiled_after"] == 7.5
+    # the core's jitable functions: registered with numba at the first compile, not before
+    assert light["pending"] > 100 and light["pending_after_a_compile"] == 0
+    assert numba_own["pending"] == 0  # numba's own load: registered when marked
 
 
 def test_the_light_load_leaves_a_numba_it_was_not_read_against_alone(
@@ -230,3 +235,51 @@ def test_a_users_own_cached_function_loads_as_numba_loads_it(tmp_path: Path) -> 
     assert compiled["hits"] == 0 and loaded["hits"] == 1  # the second read the cache
     assert loaded["light"] is True and loaded["refreshed"] is True
     assert compiled["value"] == loaded["value"] == 7.0
+
+
+_COLD_PROBE = """
+import json, sys
+import numpy as np
+import flatcli.core._jit as jit
+from flatcli.core.chain import barycentric_matrices, barycentric_matrix
+rng = np.random.default_rng(5)
+params = rng.uniform(0.05, 2.0, (20, 16))  # 20 chains of N = 3: mass, inertia, length, com
+pending = sorted(f.__name__ for f in jit._PENDING)
+compiled = barycentric_matrices(params)
+same = all(barycentric_matrix(p[:4], p[8:12], p[12:]).tobytes() == compiled[i].tobytes()
+           for i, p in enumerate(params))
+print(json.dumps({"deferred": jit.DEFERRED, "pending": pending, "left": len(jit._PENDING),
+                  "same": same}))
+"""
+
+
+def test_a_kernel_compiles_from_a_cold_cache_with_its_functions_registered_late(
+        tmp_path: Path) -> None:
+    """With registration deferred (``defer_registration``) a cold cache still compiles: the
+    batch ``barycentric_matrices`` calls the jitable ``barycentric_matrix`` and
+    ``lever_arms``, which numba can type only if they were registered before its compile
+    began; its K is the Python function's to the bit (the referee), and nothing is left
+    pending after the compile."""
+    import os
+
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cold")}
+    out = subprocess.run([sys.executable, "-c", _COLD_PROBE], capture_output=True, text=True,
+                         check=True, timeout=600, env=env).stdout
+    probe = json.loads(out.splitlines()[-1])
+    assert probe["deferred"] is True
+    assert {"barycentric_matrix", "lever_arms"} <= set(probe["pending"])
+    assert probe["left"] == 0 and probe["same"] is True
+
+
+def test_registration_is_not_deferred_where_numbas_compiler_is_not_as_read(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A ``CompilerBase.__init__`` that does not refresh the typing context: functions
+    register when marked (``defer_registration`` declines and changes nothing)."""
+    from numba.core import compiler
+
+    def other_init(self: object, *args: object) -> None:
+        self.args = args  # type: ignore[attr-defined]
+
+    monkeypatch.setattr(compiler.CompilerBase, "__init__", other_init)
+    assert _jit.defer_registration() is False
+    assert compiler.CompilerBase.__init__ is other_init
