@@ -132,6 +132,8 @@ digest = hashlib.sha256(frame.to_numpy(dtype=float).tobytes()).hexdigest()
 refreshed = sorted(m for m in ("numba.typed.typedlist", "numba.experimental.jitclass.base",
                                "numba.np.linalg") if m in sys.modules)
 pending = len(jit._PENDING)  # jitable functions not registered: nothing was compiled
+from numba.core.runtime.nrt import rtsys
+runtime = rtsys._init  # the paper's kinematic loop never calls numba's runtime
 import numba
 import numpy as np
 
@@ -142,7 +144,7 @@ def compiled_after(n):  # a fresh compile: a typed list, a string and a linear s
     return len(str(n)) + sum(items) + np.linalg.solve(a, np.ones(3))[0]
 
 print(json.dumps({"light": jit.LIGHT_LOAD, "digest": digest, "refreshed": refreshed,
-                  "compiled_after": compiled_after(4), "pending": pending,
+                  "compiled_after": compiled_after(4), "pending": pending, "runtime": runtime,
                   "pending_after_a_compile": len(jit._PENDING)}))
 """
 
@@ -173,6 +175,7 @@ def test_a_cached_kernel_loads_without_numbas_compiler_and_computes_the_same_bit
     # the core's jitable functions: registered with numba at the first compile, not before
     assert light["pending"] > 100 and light["pending_after_a_compile"] == 0
     assert numba_own["pending"] == 0  # numba's own load: registered when marked
+    assert light["runtime"] is False and numba_own["runtime"] is True
 
 
 def test_the_light_load_leaves_a_numba_it_was_not_read_against_alone(
@@ -248,8 +251,10 @@ pending = sorted(f.__name__ for f in jit._PENDING)
 compiled = barycentric_matrices(params)
 same = all(barycentric_matrix(p[:4], p[8:12], p[12:]).tobytes() == compiled[i].tobytes()
            for i, p in enumerate(params))
+from numba.core.runtime.nrt import rtsys
 print(json.dumps({"deferred": jit.DEFERRED, "pending": pending, "left": len(jit._PENDING),
-                  "same": same}))
+                  "same": same, "runtime": rtsys._init, "hits": sum(
+                      barycentric_matrices.stats.cache_hits.values())}))
 """
 
 
@@ -263,12 +268,14 @@ def test_a_kernel_compiles_from_a_cold_cache_with_its_functions_registered_late(
     import os
 
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cold")}
-    out = subprocess.run([sys.executable, "-c", _COLD_PROBE], capture_output=True, text=True,
-                         check=True, timeout=600, env=env).stdout
-    probe = json.loads(out.splitlines()[-1])
-    assert probe["deferred"] is True
-    assert {"barycentric_matrix", "lever_arms"} <= set(probe["pending"])
-    assert probe["left"] == 0 and probe["same"] is True
+    cold, warm = (json.loads(subprocess.run(
+        [sys.executable, "-c", _COLD_PROBE], capture_output=True, text=True, check=True,
+        timeout=600, env=env).stdout.splitlines()[-1]) for _ in range(2))
+    assert cold["deferred"] is True and cold["hits"] == 0
+    assert {"barycentric_matrix", "lever_arms"} <= set(cold["pending"])
+    assert cold["left"] == 0 and cold["same"] is True
+    # loaded from the cache: an allocating kernel gets numba's runtime (without it, it crashes)
+    assert warm["hits"] == 1 and warm["runtime"] is True and warm["same"] is True
 
 
 def test_registration_is_not_deferred_where_numbas_compiler_is_not_as_read(
@@ -283,3 +290,33 @@ def test_registration_is_not_deferred_where_numbas_compiler_is_not_as_read(
     monkeypatch.setattr(compiler.CompilerBase, "__init__", other_init)
     assert _jit.defer_registration() is False
     assert compiler.CompilerBase.__init__ is other_init
+
+
+def test_a_kernel_needs_the_runtime_when_its_machine_code_names_it() -> None:
+    """``needs_runtime`` on numba's own cached data: the allocating ``barycentric_matrices``
+    (np.empty: numba's runtime) needs it, the plain ``streams._variates`` does not; data laid
+    out otherwise counts as needing it."""
+    import numpy as np
+
+    from flatcli.core.chain import barycentric_matrices
+    from flatcli.montecarlo.streams import _variates, uniform_variates
+
+    barycentric_matrices(np.ones((1, 12)))
+    uniform_variates(1, [0], 0, 2)
+
+    def cached(dispatcher: object) -> object:
+        cache = dispatcher._cache  # type: ignore[attr-defined]
+        sig = dispatcher.signatures[0]  # type: ignore[attr-defined]
+        codegen = dispatcher.targetctx.codegen()  # type: ignore[attr-defined]
+        data = cache._cache_file.load(cache._index_key(sig, codegen))
+        assert data is not None
+        return data
+
+    if not _jit.CACHING:
+        pytest.skip("no writable cache directory")
+    assert _jit.needs_runtime(cached(barycentric_matrices)) is True
+    assert _jit.needs_runtime(cached(_variates)) is False
+    assert _jit.needs_runtime((("k", "object", (b"call NRT_decref", b"")),)) is True
+    assert _jit.needs_runtime((("k", "object", (b"plain code", b"")),)) is False
+    assert _jit.needs_runtime((("k", "bitcode", b"plain code"),)) is True
+    assert _jit.needs_runtime(None) is True

@@ -167,6 +167,21 @@ CACHING = _configure_cache()
 #: ``_guard_against_spurious_io_errors``).
 LIGHT_LOAD_NUMBA = ("0.68.",)
 _LOAD_OVERLOAD_NAMES = ("refresh", "_guard_against_spurious_io_errors", "_load_overload")
+#: What numba 0.68's ``Cache._load_overload`` reads, in order: the index key from the
+#: codegen, the data from the cache file, the compile result rebuilt from it.
+_READ_NAMES = ("_enabled", "_index_key", "codegen", "_cache_file", "load", "_impl", "rebuild")
+
+
+def needs_runtime(data: Any) -> bool:
+    """Whether a kernel's cached data (numba 0.68's ``CompileResult._reduce``: library state
+    first, ``(name, "object", (object code, bitcode))``) may call numba's runtime: its object
+    code names one of the runtime's symbols (NRT_*, nrt_*, _nrt_*: how every call into the
+    runtime is linked). Anything not laid out so counts as needing it."""
+    try:
+        _name, kind, (object_code, _bitcode) = data[0]
+    except (TypeError, ValueError, IndexError):
+        return True
+    return kind != "object" or not isinstance(object_code, bytes) or b"nrt_" in object_code.lower()
 
 
 def load_cached_kernels_lightly() -> bool:
@@ -178,7 +193,9 @@ def load_cached_kernels_lightly() -> bool:
     the typed containers, jitclass, third-party extensions' entry points), 0.2-0.25 s of
     the 0.26 s a sweep worker's first call of a cached kernel took. Loading machine code needs
     none of it, only numba's runtime (``rtsys.initialize``, which the refresh also does), so
-    that is all this load does; a compile still refreshes the target first
+    that is all this load does, and the runtime only for a kernel whose machine code calls it
+    (``needs_runtime``: initialising it compiles the runtime's own module, 16-45 ms, which
+    the paper's kinematic loop never calls); a compile still refreshes the target first
     (``CompilerBase.__init__``), and so does a lowering that finds no implementation
     (``BaseContext.get_function``). The numbers are the same to the bit (the same machine
     code runs).
@@ -213,13 +230,23 @@ def load_cached_kernels_lightly() -> bool:
         return False
     if not callable(getattr(rtsys, "initialize", None)):
         return False
+    read = getattr(getattr(caching.Cache, "_load_overload", None), "__code__", None)
+    if read is None or read.co_names != _READ_NAMES:
+        return False
 
     def load_overload(self: Any, sig: Any, target_context: Any) -> Any:
         if not (isinstance(target_context, cpu.CPUContext) and _flatcli_function(self)):
             return original(self, sig, target_context)
-        rtsys.initialize(target_context)
         with self._guard_against_spurious_io_errors():
-            return self._load_overload(sig, target_context)
+            if not self._enabled:
+                return None
+            codegen = target_context.codegen()  # type: ignore[no-untyped-call]
+            data = self._cache_file.load(self._index_key(sig, codegen))
+            if data is None:
+                return None
+            if needs_runtime(data):
+                rtsys.initialize(target_context)
+            return self._impl.rebuild(target_context, data)
         return None  # the guard swallowed an error: numba then compiles
 
     load_overload._flatcli_light = True  # type: ignore[attr-defined]
