@@ -20,7 +20,7 @@ from typing import Any
 from flatcli.spec.compose import compose
 from flatcli.spec.keys import MAX_INT, SpecError
 from flatcli.spec.limits import MAX_SPEC_BYTES, check_joints, check_limits
-from flatcli.spec.schema import SCHEMA, Spec, check_value, fit_sizes, from_values, lookup
+from flatcli.spec.schema import SCHEMA, Spec, check_value, find_key, fit_sizes, from_values
 from flatcli.spec.sweeps import PERTURB_PREFIX, is_perturbation_param, validate_sweep
 
 #: Deepest nesting of lists and tables a spec value may have (a grid of groups of vectors
@@ -108,10 +108,8 @@ def _mixed(key: str, shapes: set[str]) -> set[str]:
     """The shapes of a grid key's values that do not fit one column: a key that takes a
     number or one per joint (``Key.kind`` "numbers", e.g. ``plan.goal_rate``) makes a list
     column of numbers and lists alike (a number spread over the joints)."""
-    try:
-        numbers = lookup(key).kind == "numbers"
-    except SpecError:  # a perturbation parameter or a group's name
-        numbers = False
+    found = find_key(key)  # None: a perturbation parameter or a group's name
+    numbers = found is not None and found.kind == "numbers"
     if numbers and any(s.startswith("a list") for s in shapes):
         return shapes - {"a number"}
     return shapes
