@@ -202,8 +202,10 @@ def load_cached_kernels_lightly() -> bool:
 
     This relies on numba's internals deliberately, and only where they are as read: a numba
     release of ``LIGHT_LOAD_NUMBA`` whose ``Cache.load_overload`` calls exactly the three
-    names above, a CPU target, and a function of flatcli's own (a notebook's cached numba
-    functions beside flatcli load as numba loads them); anything else loads as numba does.
+    names above and whose ``Cache._load_overload`` (which this load does in its own way)
+    reads exactly ``_READ_NAMES``, a CPU target, and a function of flatcli's own (a
+    notebook's cached numba functions beside flatcli load as numba loads them); anything
+    else loads as numba does.
     ``FLATCLI_NUMBA_REFRESH=1`` turns it off. Returns whether the light load is in place.
     """
     if os.environ.get("FLATCLI_NUMBA_REFRESH") == "1":
