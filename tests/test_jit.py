@@ -320,3 +320,34 @@ def test_a_kernel_needs_the_runtime_when_its_machine_code_names_it() -> None:
     assert _jit.needs_runtime((("k", "object", (b"plain code", b"")),)) is False
     assert _jit.needs_runtime((("k", "bitcode", b"plain code"),)) is True
     assert _jit.needs_runtime(None) is True
+
+
+_STREAM_PROBE = """
+import json
+from flatcli.montecarlo.streams import _variates, uniform_variates
+values = uniform_variates(2003, [0, 1, 2], 0, 4)
+print(json.dumps({"values": values.tolist(), "hits": sum(_variates.stats.cache_hits.values())}))
+"""
+
+
+def test_a_cache_entry_that_cannot_be_read_is_compiled_again(tmp_path: Path) -> None:
+    """A truncated kernel file in numba's cache (a full disk, a copy cut short): numba's own
+    load raises UnpicklingError; the light load counts it as a miss, so the kernel compiles
+    again and rewrites the entry. The numbers are those of the first, intact run."""
+    import os
+
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "c")}
+
+    def run() -> dict[str, object]:
+        out = subprocess.run([sys.executable, "-c", _STREAM_PROBE], capture_output=True,
+                             text=True, check=True, timeout=600, env=env).stdout
+        return dict(json.loads(out.splitlines()[-1]))
+
+    first = run()
+    files = sorted((tmp_path / "c").rglob("*_variates*.nbc"))
+    assert files and first["hits"] == 0
+    for f in files:
+        f.write_bytes(f.read_bytes()[: f.stat().st_size // 2])
+    again, warm = run(), run()
+    assert again["hits"] == 0 and again["values"] == first["values"]
+    assert warm["hits"] == 1 and warm["values"] == first["values"]  # rewritten whole

@@ -198,7 +198,8 @@ def load_cached_kernels_lightly() -> bool:
     the paper's kinematic loop never calls); a compile still refreshes the target first
     (``CompilerBase.__init__``), and so does a lowering that finds no implementation
     (``BaseContext.get_function``). The numbers are the same to the bit (the same machine
-    code runs).
+    code runs). A cache entry that cannot be read (a truncated file: numba's own load
+    raises UnpicklingError there) counts as a miss: the kernel is compiled again.
 
     This relies on numba's internals deliberately, and only where they are as read: a numba
     release of ``LIGHT_LOAD_NUMBA`` whose ``Cache.load_overload`` calls exactly the three
@@ -243,7 +244,10 @@ def load_cached_kernels_lightly() -> bool:
             if not self._enabled:
                 return None
             codegen = target_context.codegen()  # type: ignore[no-untyped-call]
-            data = self._cache_file.load(self._index_key(sig, codegen))
+            try:
+                data = self._cache_file.load(self._index_key(sig, codegen))
+            except Exception:  # an entry that cannot be read (truncated, not a pickle): a
+                return None  # miss, so numba compiles the kernel again and rewrites it
             if data is None:
                 return None
             if needs_runtime(data):
