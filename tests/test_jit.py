@@ -4,10 +4,12 @@ configuration, never in the package's own directory."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -149,12 +151,16 @@ print(json.dumps({"light": jit.LIGHT_LOAD, "digest": digest, "refreshed": refres
 """
 
 
-def _probe(env: dict[str, str]) -> dict[str, object]:
-    import os
-
-    out = subprocess.run([sys.executable, "-c", _LOAD_PROBE], capture_output=True, text=True,
-                         check=True, timeout=600, env={**os.environ, **env}).stdout
+def _fresh_process(code: str, env: dict[str, str], *args: str,
+                   timeout: float = 600) -> dict[str, Any]:
+    """Run ``code`` in a fresh Python with ``env`` added to this one's; its last line as JSON."""
+    out = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True,
+                         check=True, timeout=timeout, env={**os.environ, **env}).stdout
     return dict(json.loads(out.splitlines()[-1]))
+
+
+def _probe(env: dict[str, str]) -> dict[str, Any]:
+    return _fresh_process(_LOAD_PROBE, env)
 
 
 def test_a_cached_kernel_loads_without_numbas_compiler_and_computes_the_same_bits() -> None:
@@ -228,13 +234,9 @@ def test_a_users_own_cached_function_loads_as_numba_loads_it(tmp_path: Path) -> 
     load never imports), and gives 2 * 3 + 1."""
     (tmp_path / "userkern.py").write_text(
         "import numba\n\n@numba.njit(cache=True)\ndef twice_plus_one(x):\n    return 2 * x + 1\n")
-    import os
-
-    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
-    runs = [json.loads(subprocess.run(
-        [sys.executable, "-c", _USER_PROBE, str(tmp_path)], capture_output=True, text=True,
-        check=True, timeout=300, env=env).stdout.splitlines()[-1]) for _ in range(2)]
-    compiled, loaded = runs
+    env = {"NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    compiled, loaded = (_fresh_process(_USER_PROBE, env, str(tmp_path), timeout=300)
+                        for _ in range(2))
     assert compiled["hits"] == 0 and loaded["hits"] == 1  # the second read the cache
     assert loaded["light"] is True and loaded["refreshed"] is True
     assert compiled["value"] == loaded["value"] == 7.0
@@ -265,12 +267,8 @@ def test_a_kernel_compiles_from_a_cold_cache_with_its_functions_registered_late(
     ``lever_arms``, which numba can type only if they were registered before its compile
     began; its K is the Python function's to the bit (the referee), and nothing is left
     pending after the compile."""
-    import os
-
-    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cold")}
-    cold, warm = (json.loads(subprocess.run(
-        [sys.executable, "-c", _COLD_PROBE], capture_output=True, text=True, check=True,
-        timeout=600, env=env).stdout.splitlines()[-1]) for _ in range(2))
+    env = {"NUMBA_CACHE_DIR": str(tmp_path / "cold")}
+    cold, warm = (_fresh_process(_COLD_PROBE, env) for _ in range(2))
     assert cold["deferred"] is True and cold["hits"] == 0
     assert {"barycentric_matrix", "lever_arms"} <= set(cold["pending"])
     assert cold["left"] == 0 and cold["same"] is True
@@ -334,14 +332,10 @@ def test_a_cache_entry_that_cannot_be_read_is_compiled_again(tmp_path: Path) -> 
     """A truncated kernel file in numba's cache (a full disk, a copy cut short): numba's own
     load raises UnpicklingError; the light load counts it as a miss, so the kernel compiles
     again and rewrites the entry. The numbers are those of the first, intact run."""
-    import os
+    env = {"NUMBA_CACHE_DIR": str(tmp_path / "c")}
 
-    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "c")}
-
-    def run() -> dict[str, object]:
-        out = subprocess.run([sys.executable, "-c", _STREAM_PROBE], capture_output=True,
-                             text=True, check=True, timeout=600, env=env).stdout
-        return dict(json.loads(out.splitlines()[-1]))
+    def run() -> dict[str, Any]:
+        return _fresh_process(_STREAM_PROBE, env)
 
     first = run()
     files = sorted((tmp_path / "c").rglob("*_variates*.nbc"))
