@@ -10,8 +10,9 @@ import pytest
 from flatcli.core.metrics import METRIC_NAMES
 from flatcli.montecarlo import Chunk, ChunkResult, grid_cell_text, layout, run_chunk
 from flatcli.montecarlo.chunks import grid_columns, verify_count
+from flatcli.montecarlo.layout import work_pieces
 from flatcli.spec import SpecError, resolve
-from flatcli.storage import UNIT_KEY
+from flatcli.storage import UNIT_KEY, table_checksum
 
 
 def test_a_chunk_has_one_row_per_trial_with_draws_and_metrics_by_name() -> None:
@@ -30,6 +31,32 @@ def test_a_chunk_has_one_row_per_trial_with_draws_and_metrics_by_name() -> None:
     # a trial's row does not depend on the chunk it ran in
     alone = run_chunk(cell, Chunk(0, 2, 3)).table.to_pandas()
     assert alone.iloc[0].equals(frame.iloc[1])
+
+
+def test_a_chunk_joined_from_pieces_is_the_whole_chunk() -> None:
+    """The last chunks of a run are computed in pieces (layout.work_pieces): joined, they are
+    the chunk computed whole, to the bit (the referee: run_chunk on the whole chunk), with
+    sensor noise, a perturbed plant and the reference re-runs of sweep.verify in both."""
+    spec = resolve({"plan": {"duration": 1.0}, "track": {"dt": 0.01, "kp": [100, 110],
+                                                         "kv": [20, 21]},
+                    "sweep": {"trials": 60, "seed": 5, "verify": 3,
+                              "grid": {"track.sensor_noise": [0.001]},
+                              "perturb": {"initial": {"dist": "normal", "std": 0.02},
+                                          "mass": {"dist": "uniform", "low": -0.05,
+                                                   "high": 0.05, "relative": True}}}})
+    cell = layout(spec).cells[0]
+    chunk = Chunk(0, cell.first_trial, cell.first_trial + 60)
+    whole = run_chunk(cell, chunk)
+    parts = [run_chunk(cell, piece) for _, piece in work_pieces([chunk], 2)]
+    assert len(parts) == 2
+    joined = ChunkResult.joined(parts)
+    assert joined.table.equals(whole.table)
+    assert joined.table.schema.equals(whole.table.schema, check_metadata=True)
+    assert table_checksum(joined.table) == table_checksum(whole.table)
+    assert all(column.num_chunks == 1 for column in joined.table.columns)
+    assert joined.seconds == sum(p.seconds for p in parts)
+    assert joined.peak_mib == max(p.peak_mib for p in parts)
+    assert ChunkResult.joined([whole]) is whole
 
 
 def test_a_dynamic_chunk_perturbs_the_servo_and_refuses_an_invalid_one() -> None:

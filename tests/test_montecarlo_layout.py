@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import itertools
 import json
 import math
 
@@ -14,8 +15,12 @@ from flatcli.montecarlo.layout import (
     CHUNK_MIN,
     CHUNKS_PER_CELL,
     ID_STRIDE,
+    TAIL_PIECE_MIN,
+    TAIL_PIECES,
+    Chunk,
     cell_keys,
     default_chunk,
+    work_pieces,
 )
 from flatcli.spec import SpecError, resolve
 
@@ -129,3 +134,27 @@ def test_a_default_chunk_stays_within_its_bounds_and_the_cell(per_cell: int) -> 
     assert chunk == min(per_cell, max(CHUNK_MIN, min(CHUNK_MAX, math.ceil(per_cell / 16))))
     assert chunk <= per_cell and (chunk >= CHUNK_MIN or chunk == per_cell)
     assert chunk <= CHUNK_MAX
+
+
+@pytest.mark.parametrize("workers", [1, 2, 3, 8])
+@pytest.mark.parametrize("sizes", [[625] * 16, [250, 250, 250, 250], [60, 60], [7, 24, 101],
+                                   [1000, 999, 3]])
+def test_work_pieces_tile_every_chunk_and_cut_only_the_last_ones(workers: int,
+                                                                 sizes: list[int]) -> None:
+    starts = [sum(sizes[:k]) for k in range(len(sizes))]
+    todo = [Chunk(k % 2, a, a + n) for k, (a, n) in enumerate(zip(starts, sizes, strict=True))]
+    pieces = work_pieces(todo, workers)
+    # every chunk once, in order, its pieces consecutive and covering it exactly
+    assert [c for c, _ in pieces] == sorted((c for c, _ in pieces), key=todo.index)
+    for chunk in todo:
+        mine = [p for c, p in pieces if c == chunk]
+        assert mine[0].start == chunk.start and mine[-1].stop == chunk.stop
+        assert all(a.stop == b.start for a, b in itertools.pairwise(mine))
+        assert all(p.cell == chunk.cell and p.size >= 1 for p in mine)
+        last = todo.index(chunk) >= len(todo) - workers
+        if workers == 1 or not last:
+            assert mine == [chunk]  # whole
+        else:  # cut: as many pieces as allowed, none below the minimum unless it is whole
+            assert len(mine) == max(1, min(TAIL_PIECES, chunk.size // TAIL_PIECE_MIN))
+            assert len(mine) == 1 or min(p.size for p in mine) >= TAIL_PIECE_MIN
+            assert max(p.size for p in mine) - min(p.size for p in mine) <= 1

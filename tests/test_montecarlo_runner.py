@@ -34,6 +34,8 @@ def test_results_identical_across_workers_and_chunk_sizes(tmp_path: Path) -> Non
         "w2": ["--workers", "2", "--oversubscribe"],
         "w2c7": ["--workers", "2", "--oversubscribe", "--set", "sweep.chunk=7"],
         "w1c60": ["--workers", "1", "--set", "sweep.chunk=60"],
+        # one chunk per cell, each computed in two pieces (the last chunks of a run: 2 workers)
+        "w2c60": ["--workers", "2", "--oversubscribe", "--set", "sweep.chunk=60"],
     }
     frames = {}
     for name, extra in runs.items():
@@ -48,6 +50,10 @@ def test_results_identical_across_workers_and_chunk_sizes(tmp_path: Path) -> Non
     assert (reference["status"] == "ok").mean() > 0.9
     for name, frame in frames.items():
         pd.testing.assert_frame_equal(frame, reference, check_exact=True, obj=name)
+    for path in (tmp_path / "w1c60" / "trials").iterdir():  # a chunk file joined from pieces
+        whole = pq.read_table(path)
+        joined = pq.read_table(tmp_path / "w2c60" / "trials" / path.name)
+        assert joined.equals(whole) and joined.schema.equals(whole.schema, check_metadata=True)
 
 
 def test_a_killed_sweep_resumes_to_the_uninterrupted_result(tmp_path: Path) -> None:

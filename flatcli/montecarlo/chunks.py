@@ -8,7 +8,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -51,6 +51,17 @@ class ChunkResult:
     table: pa.Table
     seconds: float
     peak_mib: float = math.nan
+
+    @staticmethod
+    def joined(parts: Sequence[ChunkResult]) -> ChunkResult:
+        """The result of a chunk computed in pieces (``layout.work_pieces``), ``parts`` in
+        the order of their trials: the rows in that order (one Arrow chunk per column, as a
+        whole chunk's), the pieces' times added, the largest of their peaks."""
+        if len(parts) == 1:
+            return parts[0]
+        table = pa.concat_tables([p.table for p in parts]).combine_chunks()
+        peaks = [p.peak_mib for p in parts if not math.isnan(p.peak_mib)]
+        return ChunkResult(table, sum(p.seconds for p in parts), max(peaks, default=math.nan))
 
     def first_failure(self) -> tuple[int, str] | None:
         """The first trial whose status is one of ``FAILURES``, for --fail-fast."""

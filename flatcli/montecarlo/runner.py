@@ -15,7 +15,7 @@ from pathlib import Path
 
 from flatcli.executors import default_workers, make_executor
 from flatcli.interrupts import check, deferred, interruptible
-from flatcli.montecarlo.chunks import run_chunk
+from flatcli.montecarlo.chunks import ChunkResult, run_chunk
 from flatcli.montecarlo.directory import (
     SHOWN,
     TRIALS_DIR,
@@ -27,7 +27,7 @@ from flatcli.montecarlo.directory import (
     verified_chunks,
     write_manifest,
 )
-from flatcli.montecarlo.layout import Chunk, Layout, layout
+from flatcli.montecarlo.layout import Chunk, Layout, layout, work_pieces
 from flatcli.montecarlo.tally import status_counts, watch
 from flatcli.progress import Progress
 from flatcli.spec import Spec
@@ -102,23 +102,32 @@ def run_sweep(
                     with interruptible():
                         warm_up(lay)  # load the kernel once here; forked workers inherit it
                 setup = time.perf_counter() - started
-                tasks = ((c, (lay.cells[c.cell], c)) for c in todo)
+                tasks = (((c, piece), (lay.cells[c.cell], piece))
+                         for c, piece in work_pieces(todo, executor.workers))
+                # (start, size, result) of the pieces in of each chunk not yet whole
+                parts: dict[str, list[tuple[int, int, ChunkResult]]] = {}
                 compute = writing = 0.0
                 worker_peak = 0.0  # the largest peak a chunk's process reported [MiB]
                 # per-trial counts
                 watcher = watch(progress) if executor_kind == "local" else None
                 syncer = Syncer()  # chunk files flushed to disk in groups, off this thread
                 try:
-                    for chunk, result in executor.run(run_chunk, tasks):
+                    for (chunk, piece), part in executor.run(run_chunk, tasks):
+                        compute += part.seconds
+                        worker_peak = max(worker_peak, part.peak_mib)
+                        if progress is not None:
+                            progress.advance(piece.size, status_counts(part.table))
+                        pieces = parts.setdefault(chunk.name, [])
+                        pieces.append((piece.start, piece.size, part))
+                        if sum(size for _, size, _ in pieces) < chunk.size:
+                            continue  # the chunk's file is written when it is whole
+                        result = ChunkResult.joined(
+                            [p for _, _, p in sorted(parts.pop(chunk.name), key=lambda x: x[0])])
                         began = time.thread_time()  # this thread's processor time
-                        compute += result.seconds
-                        worker_peak = max(worker_peak, result.peak_mib)
                         cell = lay.cells[chunk.cell]
                         write_table(directory / TRIALS_DIR / chunk.name, result.table,
                                     chunk_provenance(provenance, cell, chunk, result.table), syncer)
                         writing += time.thread_time() - began
-                        if progress is not None:
-                            progress.advance(chunk.size, status_counts(result.table))
                         check()  # a Ctrl-C recorded meanwhile: this chunk is written, stop
                         failure = result.first_failure() if fail_fast else None
                         if failure is not None:
