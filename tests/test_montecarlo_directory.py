@@ -10,6 +10,7 @@ import re
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pyarrow as pa
 import pyarrow.compute as pc
@@ -23,6 +24,7 @@ from flatcli.montecarlo.directory import (
     FINAL_FILES,
     RERUN_FILES,
     Previous,
+    TrialsAssembly,
     chunk_problem,
     chunk_provenance,
     clear,
@@ -30,15 +32,24 @@ from flatcli.montecarlo.directory import (
     manifest_problem,
     plan_directory,
     record_outputs,
+    remove_temporaries,
     spec_differences,
     survey,
     verified_chunks,
     write_manifest,
 )
 from flatcli.montecarlo.layout import Layout
+from flatcli.report.summary import SUMMARY_INPUTS
 from flatcli.rundirs import sweep_state
 from flatcli.spec import Spec, SpecError, resolve
-from flatcli.storage import LOCK_NAME, column_units, read_provenance, to_jsonable, write_table
+from flatcli.storage import (
+    LOCK_NAME,
+    column_units,
+    provenance_metadata,
+    read_provenance,
+    to_jsonable,
+    write_table,
+)
 
 
 def small_spec(**sweep: object) -> Spec:
@@ -554,3 +565,64 @@ def test_record_outputs_records_only_flatclis_names(finished: tuple[Path, Layout
     assert "rerun-3/run.json" in files and "rerun-3/notes.txt" not in files
     assert not any("link" in f or "elsewhere" in f for f in files)
     survey(directory)  # the manifest it wrote passes its own check
+
+
+def test_trials_parquet_grows_in_the_grids_order_from_chunks_in_any_order(
+        finished: tuple[Path, Layout], tmp_path: Path) -> None:
+    """TrialsAssembly, as a run feeds it: chunks arrive out of order and one was kept from
+    before (read from its file when its turn comes); trials.parquet is the chunk files in the
+    grid's order (the referee: pyarrow reading each file), and the summary's columns are the
+    file's columns as pandas reads them back."""
+    directory, lay = copy_of(finished, tmp_path)
+    chunks = list(lay.chunks())
+    assert len(chunks) == 4
+    provenance = {"digest": lay.spec.digest(), "spec": lay.spec.tree}
+    assembly = TrialsAssembly(directory, lay, provenance, kept={chunks[1].name})
+    for chunk in (chunks[3], chunks[0], chunks[2]):
+        assembly.add(chunk, pq.read_table(directory / TRIALS_DIR / chunk.name))
+        assert not (directory / "trials.parquet").exists()  # renamed only when whole
+    path, columns = assembly.close()
+    assert path == directory / "trials.parquet"
+    assert not list(directory.glob(".*.tmp"))
+    written = pq.read_table(path)
+    expected = pa.concat_tables([pq.read_table(directory / TRIALS_DIR / c.name) for c in chunks])
+    assert written.equals(expected)
+    assert written.schema.metadata == provenance_metadata(provenance)
+    frame = pd.read_parquet(path)
+    assert set(columns) == set(SUMMARY_INPUTS) & set(frame.columns)
+    for name, values in columns.items():
+        if values.dtype == object:  # text: None where null, one object per distinct word
+            assert values.tolist() == [None if pd.isna(v) else v for v in frame[name]]
+            assert len({id(v) for v in values}) == len(set(values.tolist()))
+        else:
+            np.testing.assert_array_equal(values, frame[name].to_numpy(
+                dtype=values.dtype, na_value=False if values.dtype == bool else np.nan))
+
+
+def test_an_aborted_assembly_leaves_the_trials_parquet_the_directory_had(
+        finished: tuple[Path, Layout], tmp_path: Path) -> None:
+    directory, lay = copy_of(finished, tmp_path)
+    (directory / "trials.parquet").write_bytes(b"the previous file")
+    chunk = next(lay.chunks())
+    assembly = TrialsAssembly(directory, lay, {"digest": "d"}, kept=())
+    assembly.add(chunk, pq.read_table(directory / TRIALS_DIR / chunk.name))
+    assert len(list(directory.glob(".trials.parquet.*.tmp"))) == 1  # being written
+    assembly.abort()
+    assert (directory / "trials.parquet").read_bytes() == b"the previous file"
+    assert not list(directory.glob(".*.tmp"))
+
+
+def test_a_killed_runs_temporary_final_tables_go_and_nothing_else(tmp_path: Path) -> None:
+    directory = tmp_path / "d"
+    directory.mkdir()
+    outside = tmp_path / "outside.txt"
+    outside.write_text("keep")
+    for name in FINAL_FILES:
+        (directory / f".{name}.x1y2z3.tmp").write_text("half")
+    (directory / ".notes.txt.abc.tmp").write_text("not flatcli's")
+    (directory / ".trials.parquet.link.tmp").symlink_to(outside)
+    (directory / "trials.parquet").write_text("the finished one")
+    remove_temporaries(directory)
+    assert sorted(p.name for p in directory.iterdir()) == [
+        ".notes.txt.abc.tmp", ".trials.parquet.link.tmp", "trials.parquet"]
+    assert outside.read_text() == "keep"

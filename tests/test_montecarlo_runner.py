@@ -79,11 +79,13 @@ def test_a_killed_sweep_resumes_to_the_uninterrupted_result(tmp_path: Path) -> N
     done_before = len(list(chunks.glob("chunk-*.parquet")))
     assert not (cut / "trials.parquet").exists(), "killed too late to test a resume"
     assert 0 < done_before < 100
+    assert len(list(cut.glob(".trials.parquet.*.tmp"))) == 1  # trials.parquet, half written
 
     code, out = sweep(str(spec), "--out", str(cut), "--workers", "2", "--oversubscribe")
     assert code == 0, out
     assert f"resuming with {done_before * 30} done" in out
     pd.testing.assert_frame_equal(trials(cut), trials(whole), check_exact=True)
+    assert not list(cut.glob(".*.tmp"))  # the killed run's temporary file is gone
 
 
 def test_a_failing_trial_is_recorded_and_the_others_finish(tmp_path: Path) -> None:

@@ -10,8 +10,9 @@ so. A directory holding another spec is refused, naming the keys that differ; on
 spec differs only in grid values is extended, reusing the cells it has finished. ``--force``
 removes only files the manifest lists (or, without a manifest, files whose content shows
 flatcli wrote them), never follows a symbolic link, and refuses when the directory holds
-anything else. The final tables (trials.parquet, summary.parquet, summary.md, run.json) are
-built from the chunk files alone.
+anything else. The final tables (trials.parquet, summary.parquet, summary.md, run.json) hold
+the chunks' rows alone: trials.parquet grows under a temporary name while the chunks come in
+(``TrialsAssembly``) and takes its name when the last is in.
 """
 
 from __future__ import annotations
@@ -47,7 +48,8 @@ from flatcli.montecarlo.chunks import grid_columns
 from flatcli.montecarlo.layout import KEY_SPACE, Cell, Chunk, Layout
 from flatcli.report.summary import (
     SUMMARY_INPUTS,
-    file_columns,
+    Columns,
+    ColumnsOf,
     summary_markdown,
     summary_rows,
     summary_table,
@@ -617,39 +619,102 @@ def peak_rss_mib(largest_worker: float) -> dict[str, float]:
     return {"main": peak_memory_mib(), "largest_child": largest_worker}
 
 
-def assemble_trials(directory: Path, lay: Layout, provenance: Mapping[str, Any]) -> Path:
-    """Concatenate the chunk files, in the grid's order, into trials.parquet (streamed);
-    ``cell`` is the cell's position in this spec's grid (a reused chunk may have been
-    written when it had another)."""
-    target = directory / "trials.parquet"
-    meta = provenance_metadata(provenance)
-    writer = None
-    with atomic_path(target) as tmp:
+class TrialsAssembly:
+    """trials.parquet, written while the sweep runs: the chunks in the grid's order, each
+    appended as soon as it and every chunk before it are in (``add``: one finished early
+    waits in memory, at most the executor's window of them; one kept from before, ``kept``,
+    is read from its file when its turn comes), with ``cell`` the cell's position in this
+    spec's grid (a reused chunk may have been written when it had another). The summary's
+    columns (``SUMMARY_INPUTS``) are taken as the chunks pass, so the end reads nothing back.
+
+    The file is written under a temporary name beside trials.parquet (``atomic_path``) and
+    renamed over it by ``close`` once every chunk is in; ``abort`` (or a kill) leaves the
+    trials.parquet the directory had, and the next run removes the temporary file
+    (``remove_temporaries``)."""
+
+    def __init__(self, directory: Path, lay: Layout, provenance: Mapping[str, Any],
+                 kept: Iterable[str]) -> None:
+        self._directory = directory
+        self._order = list(lay.chunks())
+        self._kept = set(kept)
+        self._next = 0  # the position in _order of the next chunk to append
+        self._held: dict[str, pa.Table] = {}
+        self._meta = provenance_metadata(provenance)
+        self._summary = ColumnsOf(SUMMARY_INPUTS)
+        self._writer: pq.ParquetWriter | None = None
+        self._stack = contextlib.ExitStack()
+        self._tmp = self._stack.enter_context(atomic_path(directory / "trials.parquet"))
+
+    def add(self, chunk: Chunk, table: pa.Table) -> None:
+        """A chunk just computed (its rows, as its file holds them)."""
+        self._held[chunk.name] = table
+        self._append_ready(everything=False)
+
+    def close(self) -> tuple[Path, Columns]:
+        """Append what is left (from the chunk files), flush and rename: trials.parquet's
+        path, and the summary's columns of all its rows."""
         try:
-            for chunk in lay.chunks():
-                table = read_parquet(directory / TRIALS_DIR / chunk.name)
-                table = table.set_column(table.schema.get_field_index("cell"), "cell",
-                                         repeated(chunk.cell, pa.int64(), table.num_rows))
-                table = table.replace_schema_metadata(meta)
-                if writer is None:
-                    writer = pq.ParquetWriter(tmp, table.schema, **parquet_options(table.schema))
-                try:  # (cast only where the types differ: pyarrow.compute loads for it)
-                    same = table.schema.equals(writer.schema, check_metadata=False)
-                    writer.write_table(table if same else table.cast(writer.schema))
-                except (ValueError, pa.ArrowException) as exc:
-                    raise SpecError(
-                        f"{TRIALS_DIR}/{chunk.name} has other columns than the chunks before it "
-                        f"({str(exc).splitlines()[0][:80]}); use --force to start over"
-                    ) from None
-        finally:
-            if writer is not None:
-                writer.close()
-    return target
+            self._append_ready(everything=True)
+            if self._writer is not None:
+                self._writer.close()
+                self._writer = None
+        except BaseException:
+            self.abort()
+            raise
+        self._stack.close()
+        return self._directory / "trials.parquet", self._summary.columns()
+
+    def abort(self) -> None:
+        """Stop, and remove the temporary file (trials.parquet stays as it was)."""
+        with contextlib.suppress(OSError, ValueError, pa.ArrowException):
+            if self._writer is not None:
+                self._writer.close()
+        self._writer = None
+        self._stack.__exit__(RuntimeError, RuntimeError("aborted"), None)
+
+    def _append_ready(self, everything: bool) -> None:
+        while self._next < len(self._order):
+            chunk = self._order[self._next]
+            table = self._held.pop(chunk.name, None)
+            if table is None:
+                if not everything and chunk.name not in self._kept:
+                    return  # not computed yet
+                table = read_parquet(self._directory / TRIALS_DIR / chunk.name)
+            self._append(chunk, table)
+            self._next += 1
+
+    def _append(self, chunk: Chunk, table: pa.Table) -> None:
+        table = table.set_column(table.schema.get_field_index("cell"), "cell",
+                                 repeated(chunk.cell, pa.int64(), table.num_rows))
+        table = table.replace_schema_metadata(self._meta)
+        if self._writer is None:
+            self._writer = pq.ParquetWriter(self._tmp, table.schema,
+                                            **parquet_options(table.schema))
+        try:  # (cast only where the types differ: pyarrow.compute loads for it)
+            same = table.schema.equals(self._writer.schema, check_metadata=False)
+            self._writer.write_table(table if same else table.cast(self._writer.schema))
+        except (ValueError, pa.ArrowException) as exc:
+            raise SpecError(
+                f"{TRIALS_DIR}/{chunk.name} has other columns than the chunks before it "
+                f"({str(exc).splitlines()[0][:80]}); use --force to start over"
+            ) from None
+        self._summary.add(table)
+
+
+def remove_temporaries(directory: Path) -> None:
+    """Remove the temporary files of the final tables and the manifest (``atomic_path``'s
+    ``.NAME.random.tmp``) that a run killed while writing them left. Only under the
+    directory's lock: then no other run is writing them."""
+    for path in _entries(directory):
+        if _temporary_of(path.name) in FINAL_FILES and is_regular(path):
+            path.unlink(missing_ok=True)
 
 
 def finish_sweep(directory: Path, lay: Layout, provenance: Mapping[str, Any], started: float,
-                 timing: Mapping[str, Any], tags: list[str] | None = None) -> str:
-    """trials.parquet, summary.parquet, summary.md and run.json from the chunk files.
+                 timing: Mapping[str, Any], trials: TrialsAssembly,
+                 tags: list[str] | None = None) -> str:
+    """trials.parquet (``trials``, closed here), summary.parquet, summary.md and run.json from
+    the chunks.
 
     ``timing`` gains the end-to-end figures: ``wall_seconds`` from ``started`` (a
     perf_counter time) to the summary, ``trials_per_second`` over it, and
@@ -657,8 +722,7 @@ def finish_sweep(directory: Path, lay: Layout, provenance: Mapping[str, Any], st
     planning the cells, loading the compiled kernel): chunks and final tables.
     """
     finishing = time.perf_counter()
-    trials_path = assemble_trials(directory, lay, provenance)
-    columns = file_columns(trials_path, SUMMARY_INPUTS)
+    _, columns = trials.close()
     cells = {c.index: {k: v for k, (_, v) in grid_columns(c.values, c.spec).items()}
              for c in lay.cells}
     rows = summary_rows(columns, cells, lay.spec.summary.reach_tolerance)

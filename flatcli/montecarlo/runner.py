@@ -19,11 +19,13 @@ from flatcli.montecarlo.chunks import ChunkResult, run_chunk
 from flatcli.montecarlo.directory import (
     SHOWN,
     TRIALS_DIR,
+    TrialsAssembly,
     chunk_provenance,
     clear,
     finish_sweep,
     note,
     plan_directory,
+    remove_temporaries,
     verified_chunks,
     write_manifest,
 )
@@ -78,10 +80,12 @@ def run_sweep(
     with directory_lock(directory):
         plan = plan_directory(directory, lay, force)
         executor = make_executor(executor_kind, workers, scheduler)
+        trials: TrialsAssembly | None = None
         with deferred():  # Ctrl-C and SIGTERM raised where no lock is held
             try:
                 if plan.mode == "restart":
                     clear(directory, plan.previous)
+                remove_temporaries(directory)  # of a run killed while it wrote a final table
                 if plan.note:
                     note(plan.note)
                 digest = spec.digest()
@@ -111,6 +115,7 @@ def run_sweep(
                 # per-trial counts
                 watcher = watch(progress) if executor_kind == "local" else None
                 syncer = Syncer()  # chunk files flushed to disk in groups, off this thread
+                trials = TrialsAssembly(directory, lay, provenance, done)
                 try:
                     for (chunk, piece), part in executor.run(run_chunk, tasks):
                         compute += part.seconds
@@ -127,6 +132,7 @@ def run_sweep(
                         cell = lay.cells[chunk.cell]
                         write_table(directory / TRIALS_DIR / chunk.name, result.table,
                                     chunk_provenance(provenance, cell, chunk, result.table), syncer)
+                        trials.add(chunk, result.table)  # trials.parquet grows in the grid's order
                         writing += time.thread_time() - began
                         check()  # a Ctrl-C recorded meanwhile: this chunk is written, stop
                         failure = result.first_failure() if fail_fast else None
@@ -147,6 +153,8 @@ def run_sweep(
                 running = time.perf_counter() - started - setup
             except BaseException:
                 executor.close(abort=True)
+                if trials is not None:
+                    trials.abort()
                 raise
             executor.close()
         summary_text = finish_sweep(directory, lay, provenance, started, {
@@ -160,7 +168,7 @@ def run_sweep(
             "workers": executor.workers,
             "worker_peak_mib": worker_peak,
             "executor": executor.description,
-        }, tags)
+        }, trials, tags)
     return SweepResult(directory, lay, simulated, time.perf_counter() - started, summary_text)
 
 

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -116,33 +115,46 @@ def frame_columns(frame: pd.DataFrame) -> dict[str, NDArray[Any]]:
     return out
 
 
-def file_columns(path: Path, names: Sequence[str]) -> dict[str, NDArray[Any]]:
-    """Columns of a Parquet file as ``summary_rows`` reads them (``Columns``), read one at a
-    time (a sweep of 10^6 trials holds numpy's arrays only, not the Arrow table besides) and
-    the text columns as one object per distinct word (not one string per row)."""
-    import pyarrow.parquet as pq
+class ColumnsOf:
+    """The columns ``summary_rows`` reads (``Columns``), gathered from Arrow tables in turn (a
+    sweep's chunks, as trials.parquet receives them): each table's columns of ``names``
+    converted as it comes (the rest never), a text column's words held once each (one object
+    per distinct word, not one string per row: a sweep of 10^6 trials holds numpy's arrays
+    only)."""
 
-    from flatcli.arrow import floats, null_mask, to_numpy
+    def __init__(self, names: Sequence[str]) -> None:
+        self._parts: dict[str, list[NDArray[Any]]] = {name: [] for name in names}
+        self._words: dict[str | None, str | None] = {}
 
-    out: dict[str, NDArray[Any]] = {}
-    with pq.ParquetFile(path, read_dictionary=list(_TEXT)) as file:
-        present = set(file.schema_arrow.names)
-        for name in (n for n in names if n in present):  # older files lack some
-            column = file.read(columns=[name]).column(0)
-            if name in _TEXT:  # read as a dictionary: its words, and an index per row
-                encoded = column.unify_dictionaries().combine_chunks()
-                words = np.array([*encoded.dictionary.to_pylist(), None], dtype=object)
-                codes = np.asarray(to_numpy(encoded.indices), dtype=np.int64)
-                codes[null_mask(encoded.indices)] = len(words) - 1
-                out[name] = words[codes]
+    def add(self, table: pa.Table) -> None:
+        """Take the columns of one more table (the rows after those taken before)."""
+        from flatcli.arrow import floats, to_numpy
+
+        present = set(table.schema.names)
+        for name, parts in self._parts.items():
+            if name not in present:  # older files lack some
+                continue
+            column = table.column(name)
+            if name in _TEXT:
+                words = self._words
+                parts.append(np.array([words.setdefault(v, v) for v in column.to_pylist()],
+                                      dtype=object))
             elif name in _FLAGS:
-                out[name] = np.asarray(to_numpy(column), dtype=bool)  # null: False
+                parts.append(np.asarray(to_numpy(column), dtype=bool))  # null: False
             elif name == "cell":
-                out[name] = np.asarray(to_numpy(column), dtype=np.int64)
+                parts.append(np.asarray(to_numpy(column), dtype=np.int64))
             else:
-                out[name] = floats(column)
-            del column
-    return out
+                parts.append(floats(column))
+
+    def columns(self) -> dict[str, NDArray[Any]]:
+        """The columns of every table taken, in order; the parts are let go one column at a
+        time (the peak is the columns and one column's parts)."""
+        out: dict[str, NDArray[Any]] = {}
+        for name in list(self._parts):
+            parts = self._parts.pop(name)
+            if parts:
+                out[name] = parts[0] if len(parts) == 1 else np.concatenate(parts)
+        return out
 
 
 def _null(value: Any) -> bool:
