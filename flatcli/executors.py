@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import itertools
 import logging
 import multiprocessing
 import os
@@ -129,7 +130,8 @@ class LocalExecutor:
     """In this process (one worker) or a process pool (one process per worker).
 
     On Linux the pool forks, so workers start with everything the parent already imported
-    and compiled; at most two tasks per worker are in flight, so memory stays bounded.
+    and compiled; at most two tasks per worker are in flight, so memory stays bounded. A run
+    of a single task runs it in this process, as one worker would: the pool is not started.
     """
 
     def __init__(self, workers: int) -> None:
@@ -148,14 +150,18 @@ class LocalExecutor:
     def run(
         self, fn: Callable[..., Any], tasks: Iterable[tuple[T, tuple[Any, ...]]]
     ) -> Iterator[tuple[T, Any]]:
-        if self._pool is None:
-            for tag, args in tasks:
+        queue = iter(tasks)
+        head = list(itertools.islice(queue, 2)) if self._pool is not None else []
+        if self._pool is None or len(head) < 2:
+            # in this process: one worker, or a single task (which a pool would only delay
+            # by its start: forking the workers, sending the task, 30-40 ms)
+            for tag, args in itertools.chain(head, queue):
                 with interruptible():  # a kernel's run holds no lock: Ctrl-C ends it at once
                     result = fn(*args)
                 yield tag, result
             return
         try:
-            yield from self._run_pool(self._pool, fn, tasks)
+            yield from self._run_pool(self._pool, fn, itertools.chain(head, queue))
         except BrokenProcessPool:
             raise WorkerLostError("a worker process died (killed or out of memory)") from None
 

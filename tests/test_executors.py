@@ -109,3 +109,20 @@ def test_at_most_two_tasks_per_worker_are_in_flight(workers: int) -> None:
         executor.close()
     assert len(in_flight) == 30 and pulled == 30
     assert max(in_flight) <= (2 * workers if workers > 1 else 1)  # one at a time in process
+
+
+def test_a_single_task_runs_in_this_process_and_two_in_the_pool() -> None:
+    """One task: run here (a pool would only delay it by its start); two or more: in the
+    pool's workers, whose pid is not this one (the referee: os.getpid in the task)."""
+    executor = LocalExecutor(2)
+    try:
+        alone = dict(executor.run(task_pid, [(0, ())]))
+        pair = dict(executor.run(task_pid, [(0, ()), (1, ())]))
+    finally:
+        executor.close()
+    assert alone == {0: os.getpid()}
+    assert sorted(pair) == [0, 1] and os.getpid() not in pair.values()
+
+
+def task_pid() -> int:
+    return os.getpid()
