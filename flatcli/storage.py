@@ -64,14 +64,14 @@ def atomic_path(path: Path, syncer: Syncer | None = None) -> Iterator[Path]:
     the syncer's thread (``Syncer``): the file is whole whenever its name exists (the rename
     follows the last write), but until the syncer has flushed it a crash of the machine (not
     of the process: the kernel keeps what was written) may lose it."""
-    with _naming(path):
+    with naming_os_errors(path):
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp",
                                         dir=path.parent)
         os.close(fd)
     tmp = Path(tmp_name)
     try:
-        with _naming(path, tmp):
+        with naming_os_errors(path, tmp):
             yield tmp
             if syncer is None:
                 with tmp.open("rb+") as fh:
@@ -137,7 +137,7 @@ class Syncer:
             started = time.perf_counter()
             try:
                 for path in group:
-                    with _naming(path):
+                    with naming_os_errors(path):
                         fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
                         try:
                             os.fsync(fd)
@@ -168,7 +168,7 @@ class Syncer:
 
 
 @contextlib.contextmanager
-def _naming(path: Path, tmp: Path | None = None) -> Iterator[None]:
+def naming_os_errors(path: Path, tmp: Path | None = None) -> Iterator[None]:
     """Re-raise an OS error that names no file (or the temporary file ``tmp``) as one that
     names ``path``: what the user asked for, and what the one line of the CLI shows."""
     try:

@@ -626,3 +626,49 @@ def test_a_killed_runs_temporary_final_tables_go_and_nothing_else(tmp_path: Path
     assert sorted(p.name for p in directory.iterdir()) == [
         ".notes.txt.abc.tmp", ".trials.parquet.link.tmp", "trials.parquet"]
     assert outside.read_text() == "keep"
+
+
+def test_chunks_held_for_their_turn_are_bounded_and_read_back_past_it(
+        finished: tuple[Path, Layout], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Chunks finishing in reverse order (the first one last, as a slow first chunk or a
+    lost Dask worker makes them): at most HELD_CHUNKS wait in memory, the others are read
+    from their files when their turn comes; the file is the same (the referee: pyarrow
+    reading the chunk files)."""
+    import flatcli.montecarlo.directory as directory_module
+
+    monkeypatch.setattr(directory_module, "HELD_CHUNKS", 1)
+    directory, lay = copy_of(finished, tmp_path)
+    chunks = list(lay.chunks())
+    assembly = TrialsAssembly(directory, lay, {"digest": "d"}, kept=())
+    for chunk in reversed(chunks):
+        assembly.add(chunk, pq.read_table(directory / TRIALS_DIR / chunk.name))
+        assert len(assembly._held) <= 1
+    path, _ = assembly.close()
+    expected = pa.concat_tables([pq.read_table(directory / TRIALS_DIR / c.name) for c in chunks])
+    assert pq.read_table(path).equals(expected)
+
+
+def test_a_full_disk_while_trials_parquet_grows_is_an_os_error_naming_it(
+        finished: tuple[Path, Layout], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """pyarrow's OS errors name no file: this one names trials.parquet, with the OS's reason
+    (not "other columns than the chunks before it; use --force", which would have the user
+    remove the finished chunks); nothing is left behind."""
+    import errno
+
+    import flatcli.montecarlo.directory as directory_module
+
+    class FullDisk(pq.ParquetWriter):  # type: ignore[misc]
+        def write_table(self, table: pa.Table, row_group_size: int | None = None) -> None:
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(directory_module.pq, "ParquetWriter", FullDisk)
+    directory, lay = copy_of(finished, tmp_path)
+    chunk = next(lay.chunks())
+    assembly = TrialsAssembly(directory, lay, {"digest": "d"}, kept=())
+    with pytest.raises(OSError) as caught:
+        assembly.add(chunk, pq.read_table(directory / TRIALS_DIR / chunk.name))
+    assert not isinstance(caught.value, SpecError)
+    assert caught.value.filename == str(directory / "trials.parquet")
+    assert caught.value.strerror == "No space left on device"
+    assembly.abort()
+    assert not list(directory.glob(".*.tmp")) and not (directory / "trials.parquet").exists()

@@ -61,6 +61,7 @@ from flatcli.storage import (
     LOCK_NAME,
     PARQUET_META_KEY,
     atomic_path,
+    naming_os_errors,
     parquet_options,
     peak_memory_mib,
     provenance_metadata,
@@ -646,9 +647,12 @@ class TrialsAssembly:
         self._tmp = self._stack.enter_context(atomic_path(directory / "trials.parquet"))
 
     def add(self, chunk: Chunk, table: pa.Table) -> None:
-        """A chunk just computed (its rows, as its file holds them)."""
+        """A chunk just computed and written to its file (its rows, as the file holds them)."""
         self._held[chunk.name] = table
         self._append_ready(everything=False)
+        if len(self._held) > HELD_CHUNKS:  # read back from its file when its turn comes
+            del self._held[chunk.name]
+            self._kept.add(chunk.name)
 
     def close(self) -> tuple[Path, Columns]:
         """Append what is left (from the chunk files), flush and rename: trials.parquet's
@@ -656,7 +660,8 @@ class TrialsAssembly:
         try:
             self._append_ready(everything=True)
             if self._writer is not None:
-                self._writer.close()
+                with naming_os_errors(self._directory / "trials.parquet", self._tmp):
+                    self._writer.close()
                 self._writer = None
         except BaseException:
             self.abort()
@@ -687,18 +692,28 @@ class TrialsAssembly:
         table = table.set_column(table.schema.get_field_index("cell"), "cell",
                                  repeated(chunk.cell, pa.int64(), table.num_rows))
         table = table.replace_schema_metadata(self._meta)
-        if self._writer is None:
-            self._writer = pq.ParquetWriter(self._tmp, table.schema,
-                                            **parquet_options(table.schema))
         try:  # (cast only where the types differ: pyarrow.compute loads for it)
-            same = table.schema.equals(self._writer.schema, check_metadata=False)
-            self._writer.write_table(table if same else table.cast(self._writer.schema))
+            with naming_os_errors(self._directory / "trials.parquet", self._tmp):
+                if self._writer is None:
+                    self._writer = pq.ParquetWriter(self._tmp, table.schema,
+                                                    **parquet_options(table.schema))
+                same = table.schema.equals(self._writer.schema, check_metadata=False)
+                self._writer.write_table(table if same else table.cast(self._writer.schema))
+        except OSError:  # a full disk, an I/O error: the file's (never the chunks')
+            raise
         except (ValueError, pa.ArrowException) as exc:
             raise SpecError(
                 f"{TRIALS_DIR}/{chunk.name} has other columns than the chunks before it "
                 f"({str(exc).splitlines()[0][:80]}); use --force to start over"
             ) from None
         self._summary.add(table)
+
+
+#: Finished chunks held in memory while an earlier one still runs; past them, a chunk is read
+#: back from its file when its turn comes: the main process's memory stays bounded in
+#: whatever order the chunks finish (a slow first chunk, a Dask worker lost and its chunk
+#: computed again).
+HELD_CHUNKS = 16
 
 
 def remove_temporaries(directory: Path) -> None:
