@@ -43,9 +43,17 @@ def load_numba_blas_alone() -> list[str]:
     self-contained (numba reads their ``__pyx_capi__`` tables); loaded here by file into
     ``sys.modules``, numba's import finds them and scipy.linalg is not imported. Anything
     unexpected (scipy absent or laid out otherwise, scipy.linalg already imported, a module
-    that fails to load) leaves the normal import to do its work. Returns the modules loaded.
+    that fails to load) leaves the normal import to do its work. Returns the modules loaded
+    (none when they are there already).
+
+    Loading them costs about 4 ms (scipy's own OpenBLAS, numpy loaded), so it is done only
+    where numba sets up its compiler: before a compile (``defer_registration``'s hook) and
+    before numba's own cache load (the light load's fallback); a process that only loads
+    flatcli's kernels from the cache never needs them (no cached kernel of flatcli calls
+    BLAS or LAPACK).
+    Without those hooks in place (``DEFERRED`` false) they are loaded when this module is.
     """
-    if "scipy.linalg" in sys.modules:
+    if "scipy.linalg" in sys.modules or all(n in sys.modules for n in NUMBA_BLAS_MODULES):
         return []
     try:
         spec = importlib.util.find_spec("scipy")
@@ -78,10 +86,8 @@ def load_numba_blas_alone() -> list[str]:
     return loaded
 
 
-load_numba_blas_alone()
-
 import llvmlite.binding  # noqa: E402
-import numba  # noqa: E402 - after the BLAS modules above, so that numba finds them
+import numba  # noqa: E402 - its import checks scipy's version only, not its BLAS
 import numpy as np  # noqa: E402
 from numba.extending import register_jitable  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
@@ -239,6 +245,7 @@ def load_cached_kernels_lightly() -> bool:
 
     def load_overload(self: Any, sig: Any, target_context: Any) -> Any:
         if not (isinstance(target_context, cpu.CPUContext) and _flatcli_function(self)):
+            load_numba_blas_alone()  # numba's own load refreshes the target: its BLAS check
             return original(self, sig, target_context)
         with self._guard_against_spurious_io_errors():
             if not self._enabled:
@@ -312,6 +319,7 @@ def defer_registration() -> bool:
     def __init__(self: Any, *args: Any, **kwargs: Any) -> None:  # noqa: N807
         if _PENDING:
             register_pending()
+        load_numba_blas_alone()  # the refresh below runs numba's BLAS check
         original(self, *args, **kwargs)
 
     __init__._flatcli_registers = True  # type: ignore[attr-defined]
@@ -323,6 +331,8 @@ def defer_registration() -> bool:
 #: Whether ``jitable`` registers functions with numba at its first compile
 #: (``defer_registration``) rather than when they are marked.
 DEFERRED = LIGHT_LOAD and defer_registration()
+if not DEFERRED:  # numba's refresh may come at any first call: its BLAS check served now
+    load_numba_blas_alone()
 
 
 def jitable(fn: F) -> F:
