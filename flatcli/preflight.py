@@ -36,13 +36,15 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from flatcli.core.metrics import METRIC_NAMES, STATUS_NAMES
+from flatcli.core.metrics import STATUS_NAMES
 from flatcli.executors import default_workers
 from flatcli.machine import physical_memory
 from flatcli.montecarlo import Chunk, Layout, grid_cell_text, grid_label, layout, run_chunk
-from flatcli.report import fmt, short_key, summarize_trials, table
+from flatcli.montecarlo.chunks import grid_columns
+from flatcli.report import fmt, short_key, table
+from flatcli.report.summary import SUMMARY_INPUTS, ColumnsOf, summary_rows
 from flatcli.spec import Spec, spec_toml
-from flatcli.storage import peak_memory_mib
+from flatcli.storage import parquet_options, peak_memory_mib
 
 #: Trials the calibration runs in all (at least one per cell).
 CALIBRATION_TRIALS = 128
@@ -325,24 +327,29 @@ def _calibrate(lay: Layout, compiled: bool) -> Calibration:
 
 
 def _finish_cost(lay: Layout, tables: Sequence[pa.Table]) -> tuple[float, float, int]:
-    """Time and memory per trial of the final tables, measured on the calibration rows
-    repeated to a trials table of up to FINISH_SAMPLE_ROWS rows: written as Parquet,
-    read back (the columns the summary needs) and summarised per cell."""
+    """Time and memory per trial of the sweep's work in the main process beyond the chunk
+    files, measured on the calibration rows repeated to a trials table of up to
+    FINISH_SAMPLE_ROWS rows, along the sweep's own path: appended to trials.parquet (here in
+    memory) in chunk-sized tables as they come in, the summary's columns taken as they pass
+    (``ColumnsOf``), and summarised per cell (``summary_rows``). The appends happen while
+    the workers run and the summary after them; both are counted, as if after them."""
     combined = pa.concat_tables([t.cast(tables[0].schema) for t in tables])
     n = min(lay.total, FINISH_SAMPLE_ROWS)
     repeats = math.ceil(n / combined.num_rows)
     big = pa.concat_tables([combined] * repeats).slice(0, n).combine_chunks()
-    cells = {c.index: {k: grid_cell_text(v) for k, v in c.values.items()} for c in lay.cells}
+    cells = {c.index: {k: v for k, (_, v) in grid_columns(c.values, c.spec).items()}
+             for c in lay.cells}
     began = time.process_time()
-    buffer = io.BytesIO()
-    pq.write_table(big, buffer)
-    buffer.seek(0)
-    columns = ["cell", "status", "singular_hits", *METRIC_NAMES]
-    read = pq.read_table(buffer, columns=columns)
-    frame = read.to_pandas()
-    summarize_trials(frame, cells)
+    gathered = ColumnsOf(SUMMARY_INPUTS)
+    with pq.ParquetWriter(io.BytesIO(), big.schema, **parquet_options(big.schema)) as writer:
+        for start in range(0, n, lay.chunk_size):
+            part = big.slice(start, lay.chunk_size)
+            writer.write_table(part)
+            gathered.add(part)
+    columns = gathered.columns()
+    summary_rows(columns, cells, lay.spec.summary.reach_tolerance)
     seconds = time.process_time() - began
-    in_memory = read.nbytes + int(frame.memory_usage(deep=True).sum())
+    in_memory = sum(int(values.nbytes) for values in columns.values())
     return seconds / n, in_memory / n, n
 
 
