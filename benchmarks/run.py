@@ -50,6 +50,7 @@ from benchmarks.baselines import (
     solve_ivp_trials_per_second,
     timed,
 )
+from benchmarks.baselines.floor import floor_seconds
 from benchmarks.chains import HEADERS as CHAIN_HEADERS
 from benchmarks.chains import run_all as run_chains
 from benchmarks.integrators import HEADERS as INTEGRATOR_HEADERS
@@ -350,11 +351,16 @@ def sweeps(bench: Bench, million: bool) -> None:
     inputs = dopri_inputs(plan, trials)
     dopri_metrics(plan, trials.subset(slice(0, 2)))
     rounds = 1 if bench.quick else 5
-    runs: dict[str, list[dict[str, Any]]] = {"w2": [], "w1": [], "twin": []}
+    runs: dict[str, list[dict[str, Any]]] = {"w2": [], "w1": [], "twin": [], "w10": []}
     kernel: list[float] = []
+    floor: list[float] = []
+    floor_seconds(work)  # its first run may compile the probe
     for _ in range(rounds):  # interleaved, so drifts hit all alike
         kernel.append(bench.measure(section, "kernel, 2 threads", lambda: n / timed(
             lambda: dopri_metrics(plan, trials, threads=2, inputs=inputs), 1, 0).median))
+        floor.append(bench.measure(section, "start-up floor", partial(floor_seconds, work)))
+        runs["w10"].append(bench.measure(section, "10 trials", partial(
+            sweep, SPEC, work / "w10", 10, 2, *SAME_WORK)))
         runs["w2"].append(bench.measure(section, "2 workers, none", partial(
             sweep, SPEC, work / "w2", n, 2, *SAME_WORK)))
         runs["w1"].append(bench.measure(section, "1 worker, none", partial(
@@ -400,6 +406,19 @@ def sweeps(bench: Bench, million: bool) -> None:
               for a, b in zip(runs["w2"], runs["w1"], strict=True)]
     bench.row(section, "  1 to 2 workers (none)", f"{median(one_two):.2f}x",
               f"{median(steady):.2f}x", "", f"identical results: {same}")
+    small = [float(r["process_seconds"]) for r in runs["w10"]]
+    distance = [a - b for a, b in zip(small, floor, strict=True)]
+    bench.row(section, "start-up floor: a process importing numpy, numba, pyarrow.parquet, "
+              "click, flatcli's numba set-up, calling one tiny cached kernel "
+              "(benchmarks/baselines/floor.py)", "", "", f"{median(floor):.3f} s",
+              f"range {spread_text(floor, 3)} s")
+    bench.row(section, "10 trials, 2 workers, none: start to exit", "", "",
+              f"{median(small):.3f} s", f"{median(distance):.3f} s above the floor (paired); "
+              "target: start-up under 0.5 s")
+    ceiling = [(n / k) / (n / k + f) for k, f in zip(kernel, floor, strict=True)]
+    bench.row(section, f"  the whole-process ratio a sweep at the floor would reach ({n} "
+              "trials, steady 1.0x)", f"{median(ceiling):.2f}x", "", "",
+              "t / (t + floor), t the kernel's time for the trials")
     dyn = bench.measure(section, "dynamic plant, 2 workers", partial(
         sweep, SPEC, work / "dynamic", n, 2, "--set", "plant.model=dynamic"))
     bench.row(section, f"{n} trials, dynamic plant (plant.model = \"dynamic\"), 2 workers, "
@@ -415,7 +434,8 @@ def sweeps(bench: Bench, million: bool) -> None:
               f"{dask['steady_trials_per_second']:.0f}", f"{dask['process_seconds']:.1f} s",
               f"start-up (cluster) {dask['setup_seconds']:.1f} s; identical results: "
               f"{same_dask}")
-    bench.raw["sweep"] = {"runs": runs, "kernel_2_threads": kernel,
+    bench.raw["sweep"] = {"runs": runs, "kernel_2_threads": kernel, "floor_seconds": floor,
+                          "whole_process_ceiling": ceiling,
                           "ratio_whole_process": paired("process_trials_per_second"),
                           "ratio_steady": paired("steady_trials_per_second"),
                           "one_to_two_workers": one_two, "dynamic": dyn, "dask": dask,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -297,3 +298,24 @@ def test_python_control_obstacle_task_meets_its_ends_and_points() -> None:
         result.fine_clearance, abs=SAME_TRAJECTORY_TOL)
     assert result.violated_between == (result.fine_clearance < clearance - pcflatsys.FINE_TOL)
     assert result.violated_between  # between its points it cuts into the disc (by 1.4 cm)
+
+
+def test_the_start_up_floor_runs_its_kernel_and_nothing_of_flatcli_but_its_numba_set_up(
+        tmp_path: Path) -> None:
+    """benchmarks/baselines/floor.py: the floor's process, run twice (the second from the
+    cache), prints 3.0 (the closed form: the sum of the squares of three ones) and loads none
+    of flatcli's modules but the package, its empty core package and ``_jit``."""
+    import json
+    import subprocess
+    import sys
+
+    from benchmarks.baselines.floor import floor_script, floor_seconds
+
+    assert floor_seconds(tmp_path) > 0 and floor_seconds(tmp_path) > 0
+    listing = floor_script(tmp_path, "import json; print(json.dumps(sorted(m for m in "
+                           "sys.modules if m.startswith('flatcli'))))")
+    out = subprocess.run([sys.executable, "-c", listing], check=True, capture_output=True,
+                         text=True).stdout.splitlines()
+    assert out[0] == "3.0"
+    assert json.loads(out[1]) == ["flatcli", "flatcli.core", "flatcli.core._jit",
+                                  "flatcli.floor_probe"]

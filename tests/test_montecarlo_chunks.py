@@ -53,6 +53,9 @@ def test_a_chunk_joined_from_pieces_is_the_whole_chunk() -> None:
     assert joined.table.equals(whole.table)
     assert joined.table.schema.equals(whole.table.schema, check_metadata=True)
     assert table_checksum(joined.table) == table_checksum(whole.table)
+    # the checksum its file records, computed where the rows were made
+    assert whole.checksum == joined.checksum == table_checksum(whole.table)
+    assert all(p.checksum == table_checksum(p.table) for p in parts)
     assert all(column.num_chunks == 1 for column in joined.table.columns)
     assert joined.seconds == sum(p.seconds for p in parts)
     assert joined.peak_mib == max(p.peak_mib for p in parts)

@@ -36,7 +36,7 @@ from flatcli.montecarlo.draws import (
 from flatcli.montecarlo.layout import Cell, Chunk
 from flatcli.montecarlo.tally import simulate_counted
 from flatcli.spec import PERTURB_TARGETS, Spec, lookup, perturbations
-from flatcli.storage import null_where_nan, peak_memory_mib, with_units
+from flatcli.storage import null_where_nan, peak_memory_mib, table_checksum, with_units
 from flatcli.units import units_of
 
 #: Statuses ``--fail-fast`` stops at: trials that did not run, or not to the end.
@@ -46,11 +46,15 @@ FAILURES = ("error", "diverged", "unresolved")
 @dataclass(frozen=True)
 class ChunkResult:
     """A finished chunk: one row per trial (the columns of trials.parquet), its time [s],
-    and the peak resident memory of the process that ran it [MiB] (``peak_memory_mib``)."""
+    the peak resident memory of the process that ran it [MiB] (``peak_memory_mib``), and the
+    checksum of its table (``storage.table_checksum``, which its file records), computed by
+    the worker that ran it rather than in the main process, which writes every chunk.
+    ``checksum`` None: not computed (the writer computes it)."""
 
     table: pa.Table
     seconds: float
     peak_mib: float = math.nan
+    checksum: str | None = None
 
     @staticmethod
     def joined(parts: Sequence[ChunkResult]) -> ChunkResult:
@@ -61,7 +65,8 @@ class ChunkResult:
             return parts[0]
         table = pa.concat_tables([p.table for p in parts]).combine_chunks()
         peaks = [p.peak_mib for p in parts if not math.isnan(p.peak_mib)]
-        return ChunkResult(table, sum(p.seconds for p in parts), max(peaks, default=math.nan))
+        return ChunkResult(table, sum(p.seconds for p in parts), max(peaks, default=math.nan),
+                           table_checksum(table))
 
     def first_failure(self) -> tuple[int, str] | None:
         """The first trial whose status is one of ``FAILURES``, for --fail-fast."""
@@ -195,7 +200,8 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
         columns["ee_error_bound"] = null_where_nan(
             reach_bounds(spec, plans, value, metrics, valid, across))
     table = with_units(pa.table(columns), units_of(columns, spec))
-    return ChunkResult(table, time.perf_counter() - started, peak_memory_mib())
+    return ChunkResult(table, time.perf_counter() - started, peak_memory_mib(),
+                       table_checksum(table))
 
 
 @dataclass(frozen=True)

@@ -544,13 +544,14 @@ def record_outputs(directory: Path, paths: Iterable[Path]) -> None:
 # ---------------------------------------------------------------------------------------
 # Chunks: written with what verifies them, verified before they are reused.
 
-def chunk_provenance(base: Mapping[str, Any], cell: Cell, chunk: Chunk, table: pa.Table
-                     ) -> dict[str, Any]:
+def chunk_provenance(base: Mapping[str, Any], cell: Cell, chunk: Chunk, table: pa.Table,
+                     checksum: str | None = None) -> dict[str, Any]:
     """What a chunk file records about itself: the sweep's provenance, its cell's key,
-    digest and grid values, its trial range and its content's checksum."""
+    digest and grid values, its trial range and its content's checksum (``checksum``, the
+    table's as its worker computed it, or computed here)."""
     return {**base, "cell_key": cell.key, "cell_digest": cell.digest,
             "values": to_jsonable(cell.values), "trials": [chunk.start, chunk.stop],
-            "checksum": table_checksum(table)}
+            "checksum": table_checksum(table) if checksum is None else checksum}
 
 
 def chunk_problem(path: Path, cell: Cell, chunk: Chunk) -> str | None:

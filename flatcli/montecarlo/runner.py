@@ -126,12 +126,13 @@ def run_sweep(
                         pieces.append((piece.start, piece.size, part))
                         if sum(size for _, size, _ in pieces) < chunk.size:
                             continue  # the chunk's file is written when it is whole
+                        began = time.thread_time()  # this thread's processor time
                         result = ChunkResult.joined(
                             [p for _, _, p in sorted(parts.pop(chunk.name), key=lambda x: x[0])])
-                        began = time.thread_time()  # this thread's processor time
                         cell = lay.cells[chunk.cell]
                         write_table(directory / TRIALS_DIR / chunk.name, result.table,
-                                    chunk_provenance(provenance, cell, chunk, result.table), syncer)
+                                    chunk_provenance(provenance, cell, chunk, result.table,
+                                                     result.checksum), syncer)
                         trials.add(chunk, result.table)  # trials.parquet grows in the grid's order
                         writing += time.thread_time() - began
                         check()  # a Ctrl-C recorded meanwhile: this chunk is written, stop
