@@ -624,9 +624,10 @@ def peak_rss_mib(largest_worker: float) -> dict[str, float]:
 class TrialsAssembly:
     """trials.parquet, written while the sweep runs: the chunks in the grid's order, each
     appended as soon as it and every chunk before it are in (``add``: one finished early
-    waits in memory, at most the executor's window of them; one kept from before, ``kept``,
-    is read from its file when its turn comes), with ``cell`` the cell's position in this
-    spec's grid (a reused chunk may have been written when it had another). The summary's
+    waits in memory, at most ``HELD_CHUNKS`` of them, the others and those kept from before
+    (``kept``) are read from their files when their turn comes), with ``cell`` the cell's
+    position in this spec's grid (a reused chunk may have been written when it had
+    another). The summary's
     columns (``SUMMARY_INPUTS``) are taken as the chunks pass, so the end reads nothing back.
 
     The file is written under a temporary name beside trials.parquet (``atomic_path``) and

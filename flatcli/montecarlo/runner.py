@@ -108,7 +108,7 @@ def run_sweep(
                 setup = time.perf_counter() - started
                 tasks = (((c, piece), (lay.cells[c.cell], piece))
                          for c, piece in work_pieces(todo, executor.workers))
-                # (start, size, result) of the pieces in of each chunk not yet whole
+                # (start, size, result) of the pieces computed so far of each chunk not yet whole
                 parts: dict[str, list[tuple[int, int, ChunkResult]]] = {}
                 compute = writing = 0.0
                 worker_peak = 0.0  # the largest peak a chunk's process reported [MiB]
@@ -157,7 +157,11 @@ def run_sweep(
                 if trials is not None:
                     trials.abort()
                 raise
-            executor.close()
+            try:
+                executor.close()
+            except BaseException:
+                trials.abort()  # the temporary trials.parquet goes with the run
+                raise
         summary_text = finish_sweep(directory, lay, provenance, started, {
             "setup_seconds": setup,
             "simulate_seconds": running,
