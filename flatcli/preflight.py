@@ -40,7 +40,7 @@ from flatcli.core.metrics import STATUS_NAMES
 from flatcli.executors import default_workers
 from flatcli.machine import physical_memory
 from flatcli.montecarlo import Chunk, Layout, grid_cell_text, grid_label, layout, run_chunk
-from flatcli.montecarlo.chunks import grid_columns
+from flatcli.montecarlo.directory import summary_cells
 from flatcli.report import fmt, short_key, table
 from flatcli.report.summary import SUMMARY_INPUTS, ColumnsOf, summary_rows
 from flatcli.spec import Spec, spec_toml
@@ -337,8 +337,7 @@ def _finish_cost(lay: Layout, tables: Sequence[pa.Table]) -> tuple[float, float,
     n = min(lay.total, FINISH_SAMPLE_ROWS)
     repeats = math.ceil(n / combined.num_rows)
     big = pa.concat_tables([combined] * repeats).slice(0, n).combine_chunks()
-    cells = {c.index: {k: v for k, (_, v) in grid_columns(c.values, c.spec).items()}
-             for c in lay.cells}
+    cells = summary_cells(lay)
     began = time.process_time()
     gathered = ColumnsOf(SUMMARY_INPUTS)
     with pq.ParquetWriter(io.BytesIO(), big.schema, **parquet_options(big.schema)) as writer:

@@ -727,6 +727,12 @@ def remove_temporaries(directory: Path) -> None:
             path.unlink(missing_ok=True)
 
 
+def summary_cells(lay: Layout) -> dict[int, dict[str, Any]]:
+    """Each cell's grid columns as the summary shows them: {cell: {column: value}}."""
+    return {c.index: {k: v for k, (_, v) in grid_columns(c.values, c.spec).items()}
+            for c in lay.cells}
+
+
 def finish_sweep(directory: Path, lay: Layout, provenance: Mapping[str, Any], started: float,
                  timing: Mapping[str, Any], trials: TrialsAssembly,
                  tags: list[str] | None = None) -> str:
@@ -740,8 +746,7 @@ def finish_sweep(directory: Path, lay: Layout, provenance: Mapping[str, Any], st
     """
     finishing = time.perf_counter()
     _, columns = trials.close()
-    cells = {c.index: {k: v for k, (_, v) in grid_columns(c.values, c.spec).items()}
-             for c in lay.cells}
+    cells = summary_cells(lay)
     rows = summary_rows(columns, cells, lay.spec.summary.reach_tolerance)
     names = list(rows[0]) if rows else []
     write_table(directory / "summary.parquet", summary_table(rows, units_of(names, lay.spec)),
