@@ -31,7 +31,7 @@ try:  # too little memory to load even these (ulimit -v): one line, not a traceb
 
     import click
 
-    from flatcli import STARTUP_ERROR, __version__
+    from flatcli import __version__
     from flatcli.interrupts import last_signal, raise_interrupt
     from flatcli.startup import library_error_text, probe_libraries, while_importing
     from flatcli.threads import THREAD_VARIABLES
@@ -40,9 +40,6 @@ try:  # too little memory to load even these (ulimit -v): one line, not a traceb
     # before numpy first loads; a user's own setting wins.
     for _var in THREAD_VARIABLES:
         os.environ.setdefault(_var, "1")
-
-    if STARTUP_ERROR is not None:
-        raise STARTUP_ERROR
 except (ImportError, MemoryError) as _exc:  # pragma: no cover - exercised in a subprocess
     sys.stderr.write(f"error: cannot start flatcli: {type(_exc).__name__} while loading its "
                      "modules; out of memory? (a limit such as ulimit -v, or a container's)\n")

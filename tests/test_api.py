@@ -163,6 +163,26 @@ def test_load_of_an_interrupted_sweep(tmp_path: Path) -> None:
         partial.summary_text
 
 
+def test_the_version_is_the_installed_distributions_and_costs_no_metadata_search() -> None:
+    """flatcli.__version__ is a constant that pyproject.toml reads; the referee is the
+    metadata pip wrote for the installed distribution. Neither ``import flatcli`` nor
+    ``flatcli --version`` loads importlib.metadata (its import and the search of sys.path for
+    the distribution cost about 20 ms of every process)."""
+    from importlib.metadata import version
+
+    assert flatcli.__version__ == version("flatcli")
+    code = ("import sys, flatcli\n"
+            "from flatcli.cli import main\n"
+            "try:\n"
+            "    main(['--version'])\n"
+            "except SystemExit:\n"
+            "    pass\n"
+            "print('importlib.metadata' in sys.modules)\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          check=True)
+    assert done.stdout.splitlines() == [f"flatcli, version {flatcli.__version__}", "False"]
+
+
 def test_import_flatcli_is_light_and_its_functions_stay_functions_whatever_is_imported() -> None:
     """No submodule is named like a public function (the sweeps' package is
     flatcli.montecarlo, the run directories' module flatcli.rundirs), so importing either, before
