@@ -25,9 +25,9 @@ from typing import TYPE_CHECKING, Any
 # its own work only (flatcli.threads), so a notebook's numpy keeps its threads.
 
 #: flatcli's version: the one place it is written (pyproject.toml reads it from here, and the
-#: installed package's metadata says the same: tests/test_package.py). A constant, not
+#: installed package's metadata says the same: tests/test_api.py). A constant, not
 #: ``importlib.metadata.version``: that import and the search of sys.path for the
-#: distribution cost about 20 ms of every flatcli process, --help and a sweep's included.
+#: distribution cost about 20 ms at the start of every flatcli process, --help included.
 __version__ = "0.1.0"
 
 if TYPE_CHECKING:
