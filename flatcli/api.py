@@ -529,7 +529,13 @@ class SweepResult(Run):
 
     @cached_property
     def spec(self) -> Spec:
-        return spec_of(self.state.manifest)
+        """The sweep's spec, its grid in the order the sweep enumerated it (a record of an
+        older flatcli sorted the grid's keys: ``layout.grid_in_recorded_order``)."""
+        from flatcli.montecarlo.layout import grid_in_recorded_order
+
+        grid_cells = self.state.manifest.get("grid_cells")
+        return grid_in_recorded_order(spec_of(self.state.manifest),
+                                      grid_cells if isinstance(grid_cells, list) else None)
 
     @cached_property
     def trials(self) -> pd.DataFrame:

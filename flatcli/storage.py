@@ -223,9 +223,20 @@ def to_jsonable(value: Any) -> Any:
     return value
 
 
+def top_sorted(value: Any) -> Any:
+    """A mapping with its own keys sorted (stable, diffable records) and every mapping inside
+    it in its own order: a spec's ``[sweep.grid]`` is enumerated in the order its keys are
+    written, so a record that sorted them would hand back another grid (another cell under
+    each index)."""
+    if isinstance(value, Mapping):
+        return {k: value[k] for k in sorted(value)}
+    return value
+
+
 def write_json(path: Path, obj: Any) -> None:
-    """Pretty JSON with sorted keys (nan as null, inf as "inf": ``to_jsonable``)."""
-    write_text(path, json.dumps(to_jsonable(obj), indent=2, sort_keys=True) + "\n")
+    """Pretty JSON, its top-level keys sorted, every table inside in its own order
+    (``top_sorted``; nan as null, inf as "inf": ``to_jsonable``)."""
+    write_text(path, json.dumps(top_sorted(to_jsonable(obj)), indent=2) + "\n")
 
 
 def write_parquet(path: Path, frame: pd.DataFrame, provenance: Mapping[str, Any]) -> None:
@@ -256,7 +267,7 @@ def parquet_options(schema: pa.Schema) -> dict[str, Any]:
 
 def provenance_metadata(provenance: Mapping[str, Any]) -> dict[bytes, bytes]:
     """Parquet schema metadata holding ``provenance`` as JSON under ``PARQUET_META_KEY``."""
-    return {PARQUET_META_KEY: json.dumps(to_jsonable(provenance), sort_keys=True).encode()}
+    return {PARQUET_META_KEY: json.dumps(top_sorted(to_jsonable(provenance))).encode()}
 
 
 def table_checksum(table: pa.Table) -> str:

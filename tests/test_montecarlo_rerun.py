@@ -174,3 +174,77 @@ def test_a_rerun_never_writes_through_a_link_or_over_something_else(
                                            "re-run writes its files; remove it yourself"):
         rerun_and_compare(spec, directory, trial)
     assert list(outside.iterdir()) == []
+
+
+#: A grid whose keys are not in alphabetical order ("track.sensor_noise" > "track.kp"): a
+#: record that sorted them would enumerate its cells in another order.
+UNSORTED_GRID = """
+name = "unsorted"
+[plan]
+duration = 1.0
+start = [1.8, 1.0, 0.0]
+goal = [1.5, 1.5, 0.0]
+[track]
+initial = [1.8, 1.0, 0.0]
+dt = 0.01
+kv = [20, 21]
+[sweep]
+trials = 2
+seed = 3
+[sweep.perturb]
+initial = { dist = "normal", std = 0.01 }
+[sweep.grid]
+"track.sensor_noise" = [0.0, 0.001, 0.002]
+"track.kp" = [[100, 110], [60, 70]]
+"""
+
+
+def _rerun_cli(*args: str) -> tuple[int, str]:
+    from click.testing import CliRunner
+
+    from flatcli.cli import main
+
+    result = CliRunner().invoke(main, ["rerun", *args])
+    return result.exit_code, result.output
+
+
+def test_rerun_of_a_directory_finds_each_trials_own_cell(tmp_path: Path) -> None:
+    """``flatcli rerun DIR TRIAL`` (the spec read back from the sweep's record) re-runs the
+    trial's own cell for every cell of a grid whose keys are not in alphabetical order; the
+    referee is the trial's own row (its grid values and every metric)."""
+    from flatcli import api
+
+    spec = write_spec(tmp_path, UNSORTED_GRID)
+    out_dir = tmp_path / "d"
+    assert sweep(str(spec), "--out", str(out_dir), "-q")[0] == 0
+    loaded = api.load(out_dir)
+    assert list(loaded.spec.sweep.grid) == ["track.sensor_noise", "track.kp"]
+    table = pd.read_parquet(out_dir / "trials.parquet")
+    for cell in range(6):
+        row = table[table["cell"] == cell].iloc[0]
+        code, out = _rerun_cli(str(out_dir), str(int(row["trial"])), "-q")
+        assert code == 0, out
+        rerun_spec_text = tomllib.loads(_rerun_cli(str(out_dir), str(int(row["trial"])),
+                                                   "--print-spec")[1])
+        assert rerun_spec_text["track"]["sensor_noise"] == row["track.sensor_noise"]
+
+
+def test_a_record_with_sorted_grid_keys_comes_back_in_the_sweeps_order(tmp_path: Path) -> None:
+    """A sweep.json written by an older flatcli (every key sorted, the grid's too) gives the
+    grid back in the order the sweep ran it, from the manifest's cell keys (grid_cells)."""
+    import json
+
+    from flatcli import api
+
+    spec = write_spec(tmp_path, UNSORTED_GRID)
+    out_dir = tmp_path / "d"
+    assert sweep(str(spec), "--out", str(out_dir), "-q")[0] == 0
+    manifest = out_dir / "sweep.json"
+    data = json.loads(manifest.read_text())
+    manifest.write_text(json.dumps(data, indent=2, sort_keys=True))
+    assert list(json.loads(manifest.read_text())["spec"]["sweep"]["grid"]) == [
+        "track.kp", "track.sensor_noise"]
+    assert list(api.load(out_dir).spec.sweep.grid) == ["track.sensor_noise", "track.kp"]
+    row = pd.read_parquet(out_dir / "trials.parquet").iloc[5]  # cell 2
+    code, out = _rerun_cli(str(out_dir), str(int(row["trial"])), "-q")
+    assert code == 0, out

@@ -344,7 +344,7 @@ def spec_differences(old: Mapping[str, Any], new: Mapping[str, Any]
     b = _flat(to_jsonable(experiment(new)))
     keys: list[str] = []
     grid: list[str] = []
-    for dotted in [*a, *(k for k in b if k not in a)]:
+    for dotted in sorted({*a, *b}):  # alphabetical, whatever order either tree has
         x, y = a.get(dotted, _MISSING), b.get(dotted, _MISSING)
         if x == y:
             continue

@@ -94,6 +94,39 @@ def cell_keys(cells: list[dict[str, Any]]) -> list[int]:
     return keys
 
 
+#: Grid keys at most whose recorded order ``grid_in_recorded_order`` searches for (7! orders).
+ORDER_SEARCH_KEYS = 7
+
+
+def grid_in_recorded_order(spec: Spec, grid_cells: Sequence[str] | None) -> Spec:
+    """``spec`` with its ``[sweep.grid]`` keys in the order that enumerates its cells as
+    ``grid_cells`` (a manifest's cell keys, in the order the sweep ran them) lists them.
+
+    A record written before records kept their tables' order holds the grid with its keys
+    sorted; the cells of a grid whose keys were not written in alphabetical order then come
+    back under other indices. The cell keys come from the values alone, so the order that
+    gives the recorded sequence of keys is the sweep's own. ``spec`` as it is when its order
+    already gives it, when nothing is recorded, or when no order of at most
+    ``ORDER_SEARCH_KEYS`` keys does.
+    """
+    grid = spec.sweep.grid
+    names = list(grid)
+    if not grid_cells or len(names) < 2 or len(names) > ORDER_SEARCH_KEYS:
+        return spec
+    try:
+        wanted = [int(k) for k in grid_cells]
+    except (TypeError, ValueError):
+        return spec
+    for order in itertools.permutations(names):
+        combos = [dict(zip(order, combo, strict=True))
+                  for combo in itertools.product(*(grid[k] for k in order))]
+        if cell_keys(combos) == wanted:
+            if list(order) == names:
+                return spec
+            return spec.with_overrides({"sweep.grid": {k: grid[k] for k in order}})
+    return spec
+
+
 def cell_digest(spec: Spec, key: int) -> str:
     """What makes two cells the same computation: the cell's spec (its grid values applied)
     without ``name``, ``sweep.grid`` and the figures' format, its key, and ``CHUNK_FORMAT``."""

@@ -18,9 +18,10 @@ from flatcli.experiment import run_track
 from flatcli.files import kind, not_regular
 from flatcli.montecarlo.directory import RERUN_FILES, recorded_digest
 from flatcli.montecarlo.draws import perturbation_columns
-from flatcli.montecarlo.layout import Layout, layout
+from flatcli.montecarlo.layout import Cell, Layout, layout
 from flatcli.report import table, track_title
 from flatcli.spec import PERTURB_TARGETS, Spec, build
+from flatcli.spec.limits import ID_STRIDE
 from flatcli.storage import run_record
 
 
@@ -51,9 +52,22 @@ def trial_row(directory: Path, trial: int) -> dict[str, Any]:
     return row
 
 
+def trial_cell(lay: Layout, trial: int) -> Cell:
+    """The cell a trial id belongs to: the one whose key is the id's (``trial = key *
+    ID_STRIDE + i``, ``layout``), found by its key, not by the row's ``cell`` index, which
+    counts cells in the grid's order as that sweep wrote it. FlatcliError if the layout has
+    no such cell."""
+    key = trial // ID_STRIDE
+    found = [c for c in lay.cells if c.key == key]
+    if not found:
+        raise FlatcliError(f"--rerun: trial {trial} belongs to no cell of the sweep's grid "
+                           f"(its cell key {key} is not among the grid's)")
+    return found[0]
+
+
 def rerun_spec(lay: Layout, row: Mapping[str, Any]) -> Spec:
     """A plain track spec that re-runs one trial of a sweep exactly."""
-    cell = lay.cells[int(row["cell"])]
+    cell = trial_cell(lay, int(row["trial"]))
     values = {k: v for k, v in cell.spec.values().items() if not k.startswith("sweep.")}
     for name in lay.perturbed:
         drawn = [float(row[c]) for c in perturbation_columns(name, cell.spec.joints)]
