@@ -94,3 +94,24 @@ def test_the_number_of_files_is_bounded(tmp_path: Path) -> None:
 def test_include_is_for_files_not_for_set() -> None:
     with pytest.raises(SpecError, match="include: spec files are included by a spec file"):
         resolve({}, {"include": ["x.toml"]})
+
+
+def test_a_spec_that_picks_a_robot_and_names_nothing_is_named_after_it(tmp_path: Path) -> None:
+    write(tmp_path / "my_arm.toml", "[robot]\nmass = [2.0, 1.0, 1.0]\n")
+    assert load_spec(None, ["robot=chain4"]).name == "chain4"
+    assert load_spec(None, [f"robot='{tmp_path / 'my_arm.toml'}'"]).name == "my_arm"
+    assert load_spec(write(tmp_path / "s.toml", 'robot = "my_arm.toml"\n')).name == "my_arm"
+    # a robot chosen by an included file names it too; a name set anywhere wins
+    write(tmp_path / "base.toml", 'robot = "chain6"\n')
+    assert load_spec(write(tmp_path / "i.toml", 'include = ["base.toml"]\n')).name == "chain6"
+    assert load_spec(write(tmp_path / "n.toml", 'name = "mine"\nrobot = "chain4"\n')).name == (
+        "mine")
+    assert load_spec(tmp_path / "s.toml", ["name=other"]).name == "other"
+    # the top level's choice names it, whatever an include picked
+    assert load_spec(write(tmp_path / "t.toml", 'robot = "chain4"\ninclude = ["base.toml"]\n')
+                     ).name == "chain4"
+    # the shipped paper robot is flatcli's defaults: the default name, not runs/paper/
+    assert load_spec(None, ["robot=paper"]).name == "paper_example"
+    # a stem that names no directory keeps the default name
+    write(tmp_path / ".hidden.toml", "[robot]\nmass = [2.0, 1.0, 1.0]\n")
+    assert load_spec(None, [f"robot='{tmp_path / '.hidden.toml'}'"]).name == "paper_example"

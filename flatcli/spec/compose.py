@@ -10,7 +10,9 @@ included into a spec.
   includes it (they may include others).
 
 The order, lowest first: the defaults, the robot file, the included files in order, the file's
-own keys, then ``--set`` items. A later key replaces an earlier one key by key (a section's
+own keys, then ``--set`` items. A spec that picks a robot and sets no ``name`` anywhere is named
+after it (``chain4``, the stem of ``my_robot.toml``; the shipped ``paper`` robot, flatcli's
+defaults, keeps the default name): runs, summaries and ``flatcli design`` call it by its name. A later key replaces an earlier one key by key (a section's
 keys merge; a table such as ``sweep.grid`` is one value). An include cycle, a missing file, a
 robot no file gives, and more than ``MAX_FILES`` files are refused in one line naming the file.
 """
@@ -70,6 +72,8 @@ class _Composer:
 
     def __init__(self) -> None:
         self.files: list[Path] = []
+        self.robot: Path | None = None  # the robot file the spec is named after
+        self.top: bool | None = None  # whether the top level chose it
 
     def file(self, path: Path, chain: tuple[Path, ...], where: str,
              robot: str | None = None) -> dict[str, Any]:
@@ -105,6 +109,9 @@ class _Composer:
         out: dict[str, Any] = {}
         if selection is not None:
             path = robot_file(selection, base, f"{source}: robot" if chain else "robot")
+            if len(chain) <= 1 or self.top is None:  # the top level's, else the last read
+                self.robot = path
+                self.top = len(chain) <= 1 or None
             out.update(self.file(path, chain, f"{source}: robot {selection!r}"))
         if isinstance(include, str) or not isinstance(include, list) or not all(
                 isinstance(i, str) and i.strip() for i in include):
@@ -115,6 +122,19 @@ class _Composer:
             path = path if path.is_absolute() or base is None else base / path
             out.update(self.file(path, chain, f"{source}: include {name!r}"))
         out.update(flatten(own))
+        return out
+
+    def named(self, out: dict[str, Any]) -> dict[str, Any]:
+        """``out`` with the robot's name where no file set ``name`` (module docstring)."""
+        from flatcli.spec.keys import SpecError as _Error
+        from flatcli.spec.schema import check_value
+
+        if "name" in out or self.robot is None or self.robot.stem == "paper":
+            return out
+        try:
+            out["name"] = check_value("name", self.robot.stem)
+        except _Error:  # a stem that names no directory (".x"): the default name
+            pass
         return out
 
 
@@ -134,10 +154,11 @@ def compose(tree: Mapping[str, Any], base: Path | None = None, robot: str | None
     composer = _Composer()
     if source is not None:
         composer.files.append(source.resolve())
-    return composer.tree(tree, base, chain, str(source) if source is not None else "the spec",
-                         robot)
+    return composer.named(composer.tree(tree, base, chain,
+                                        str(source) if source is not None else "the spec", robot))
 
 
 def compose_file(path: Path, robot: str | None = None) -> dict[str, Any]:
     """A spec file's dotted keys, composed (``compose``)."""
-    return _Composer().file(path, (), str(path), robot)
+    composer = _Composer()
+    return composer.named(composer.file(path, (), str(path), robot))
