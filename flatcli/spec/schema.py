@@ -107,16 +107,17 @@ class OptimizeSpec:
 
     objective: str | None = choice(
         OBJECTIVES, None, "what to optimise (none: the plain plan): \"energy\" (integral of "
-        "th1'^2 + th2'^2), \"peak_rate\" (max of abs th1', abs th2'), \"effort\" (T x energy), "
-        "\"margin\" (maximise the minimum singularity margin)", nullable=True)
+        "th1'^2 + ... + thN'^2), \"peak_rate\" (max of abs th1', ..., abs thN'), \"effort\" (T x "
+        "energy), \"margin\" (maximise the minimum singularity margin)", nullable=True)
     angle_limit: Vector = vector("links", (INF, INF, INF), "bound on abs th_i along the plan (left "
                                  "out: none on every link)", "rad", gt=0, inf=True)
     rate_limit: float | Vector = numbers("joints", INF, "bound on abs th_j' along the plan (one "
                                          "for every joint, or one per joint)", "rad/s", gt=0,
                                          inf=True)
-    min_margin: float = number(0.02, "lower bound on the signed margin sin th1 * th1' along the "
-                               "plan (it never crosses the singular set; 0 would let th2' spike "
-                               "without bound between the check samples)", "rad/s", gt=0)
+    min_margin: float = number(0.02, "lower bound on the signed margin along the plan (sin th1 * "
+                               "th1' for N = 2, -(dh_0/dt) / (2 K_10) beyond: it never crosses the "
+                               "singular set; 0 would let thN' spike without bound between the "
+                               "check samples)", "rad/s", gt=0)
     free_rates: bool = flag(True, "optimise th1'(0) and th1'(T) as well (the plan's start_rate "
                             "and goal_rate are the starting guess)")
     constraint_samples: int = integer(201, "grid points where the limits are imposed", ge=10)
@@ -222,8 +223,9 @@ class TrackSpec:
                                  "the rms, max, singular hits, margin, momentum drift and "
                                  "peak metrics are then over those samples only (docs/outputs.md)",
                                  ge=1)
-    singular_threshold: float = number(1e-2, "a sample whose margin abs(sin th1 * u1) is below "
-                                       "it is a singular hit", "rad/s", ge=0)
+    singular_threshold: float = number(1e-2, "a sample whose margin (abs(sin th1 * u1) for N = 2, "
+                                       "abs(dh_0/dt) / (2 abs(K_10)) beyond) is below it is a "
+                                       "singular hit", "rad/s", ge=0)
     sensor_noise: float = number(0.0, "std of the noise on the measured angles, drawn per "
                                  "output interval dt and held over it", "rad", ge=0)
     rate_limit: float = number(INF, "actuator limit: the joint-rate commands are clipped to "
