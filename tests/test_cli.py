@@ -810,3 +810,24 @@ def test_the_program_under_a_profiler_ends_the_usual_way_so_the_profile_is_writt
                            "--version"], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0 and done.stdout.startswith("flatcli, version")
     assert profile.stat().st_size > 0
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ('include = ["loop_a.toml"]', "include 'loop_a.toml': cannot read spec file"),
+    ('robot = "loop_a.toml"', "robot 'loop_a.toml': cannot read spec file"),
+    ('include = ["x\\u0000y.toml"]', "a file name must not contain a NUL byte"),
+    ('robot = "~nosuchuser_flatcli/x.toml"', "robot: '~nosuchuser_flatcli/x.toml': no home"),
+    ('robot = "../../x"', "robot '../../x': spec file not found"),
+])
+@pytest.mark.parametrize("command", ["plan", "track", "sweep", "design"])
+def test_misused_robot_files_and_includes_are_one_line_exit_2(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, text: str, message: str,
+        command: str) -> None:
+    monkeypatch.chdir(tmp_path)
+    Path("loop_a.toml").symlink_to("loop_b.toml")
+    Path("loop_b.toml").symlink_to("loop_a.toml")
+    Path("s.toml").write_text(text + "\n")
+    code, out = run(command, "s.toml")
+    assert code == 2 and out.startswith("error: ") and out.count("\n") == 1, out
+    assert message in out and "Traceback" not in out
+    assert not Path("runs").exists()

@@ -115,3 +115,40 @@ def test_a_spec_that_picks_a_robot_and_names_nothing_is_named_after_it(tmp_path:
     # a stem that names no directory keeps the default name
     write(tmp_path / ".hidden.toml", "[robot]\nmass = [2.0, 1.0, 1.0]\n")
     assert load_spec(None, [f"robot='{tmp_path / '.hidden.toml'}'"]).name == "paper_example"
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ('include = ["loop_a.toml"]', r"a\.toml: include 'loop_a\.toml': cannot read spec file "
+                                  r".*loop_a\.toml: a loop of symbolic links$"),
+    ('robot = "loop_a.toml"', r"a\.toml: robot 'loop_a\.toml': cannot read spec file .*: a "
+                              r"loop of symbolic links$"),
+    ('include = ["x\\u0000y.toml"]', r"include 'x\\x00y\.toml': a file name must not contain "
+                                    r"a NUL byte$"),
+    ('robot = "x\\u0000y.toml"', r"robot: a file name must not contain a NUL byte$"),
+    ('robot = "~nosuchuser_flatcli/x.toml"', r"robot: '~nosuchuser_flatcli/x\.toml': no home "
+                                             r"directory of user 'nosuchuser_flatcli'$"),
+    ('include = ["~nosuchuser_flatcli/x.toml"]', r"include '~nosuchuser_flatcli/x\.toml': no "
+                                                 r"home directory of user"),
+    ('robot = "../../nowhere/x"', r"a\.toml: robot '\.\./\.\./nowhere/x': spec file not "
+                                  r"found: .*nowhere/x$"),
+])
+def test_misused_file_names_are_one_line_naming_the_key(tmp_path: Path, text: str,
+                                                        message: str) -> None:
+    """A link loop, a NUL byte, an unknown user's home and a missing robot file each end in
+    one SpecError naming what chose the file (robot or include), never a traceback."""
+    (tmp_path / "loop_a.toml").symlink_to(tmp_path / "loop_b.toml")
+    (tmp_path / "loop_b.toml").symlink_to(tmp_path / "loop_a.toml")
+    with pytest.raises(SpecError, match=message) as info:
+        load_spec(write(tmp_path / "a.toml", text + "\n"))
+    assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize(("sets", "message"), [
+    (["robot=../../nowhere/x"], r"^robot '\.\./\.\./nowhere/x': spec file not found"),
+    (["robot='~nosuchuser_flatcli/x.toml'"], r"^robot: '~nosuchuser_flatcli/x\.toml': no home"),
+    (['robot="x\\u0000y.toml"'], r"^robot: a file name must not contain a NUL byte$"),
+])
+def test_a_robot_file_chosen_on_the_command_line_is_named_robot(sets: list[str],
+                                                                message: str) -> None:
+    with pytest.raises(SpecError, match=message):
+        load_spec(None, sets)

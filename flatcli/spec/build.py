@@ -228,8 +228,14 @@ def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     return out
 
 
+#: Characters a bare word of ``--set`` may have besides letters and digits (a name, or a
+#: file's path: ``--set robot=../robots/my.toml``).
+_BARE = str.maketrans("", "", "_-./~")
+
+
 def parse_set(items: Iterable[str]) -> dict[str, Any]:
-    """``--set KEY=VALUE`` items to {dotted key: value}; VALUE is a TOML value, or a bare word."""
+    """``--set KEY=VALUE`` items to {dotted key: value}; VALUE is a TOML value, or a bare word
+    (letters, digits and ``_-./~``, taken as text)."""
     out: dict[str, Any] = {}
     for item in items:
         key, sep, text = item.partition("=")
@@ -242,7 +248,7 @@ def parse_set(items: Iterable[str]) -> dict[str, Any]:
         try:
             parsed = tomllib.loads(f"v = {text.strip()}")
         except tomllib.TOMLDecodeError:
-            if not text.strip().replace("_", "").replace("-", "").isalnum():
+            if not text.strip().translate(_BARE).isalnum():
                 raise SpecError(f"--set {key}: cannot read {text!r} as a TOML value") from None
             parsed = {"v": text.strip()}
         except RecursionError:

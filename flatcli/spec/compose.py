@@ -43,6 +43,22 @@ def is_path(selection: str) -> bool:
     return selection.endswith(".toml") or "/" in selection or "\\" in selection
 
 
+def file_path(name: str, base: Path | None, where: str) -> Path:
+    """The file a spec names (``robot = "..."``, ``include``): ``~`` and ``~user`` expanded,
+    relative to ``base``; SpecError naming ``where`` for a name no file can have (a NUL
+    byte) or a home directory that cannot be found (``~nosuchuser/x.toml``)."""
+    if "\0" in name:
+        raise SpecError(f"{where}: a file name must not contain a NUL byte")
+    try:
+        path = Path(name).expanduser()
+    except RuntimeError:  # Python's "Could not determine home directory"
+        user = name[1:].split("/", 1)[0]
+        whose = f"of user {user!r}" if user else "(HOME is not set)"
+        named = "" if repr(name) in where else f" {name!r}:"
+        raise SpecError(f"{where}:{named} no home directory {whose}") from None
+    return path if path.is_absolute() or base is None else base / path
+
+
 def robot_file(selection: Any, base: Path | None, where: str = "robot") -> Path:
     """The file a robot selection names; SpecError for anything else."""
     if not isinstance(selection, str) or not selection.strip():
@@ -50,8 +66,7 @@ def robot_file(selection: Any, base: Path | None, where: str = "robot") -> Path:
                         f"({', '.join(robot_names())}) or a robot file (\"my_robot.toml\"), "
                         f"got {selection!r}")
     if is_path(selection):
-        path = Path(selection).expanduser()
-        return path if path.is_absolute() or base is None else base / path
+        return file_path(selection, base, where)
     names = robot_names()
     if selection not in names:
         raise SpecError(f"{where}: unknown robot {selection!r}; shipped: {', '.join(names)}, "
@@ -80,7 +95,11 @@ class _Composer:
         """The dotted keys a file gives, its robot file and includes merged below them."""
         from flatcli.spec.build import read_toml
 
-        real = path.resolve()
+        try:
+            real = path.resolve()
+        except (OSError, RuntimeError, ValueError):  # a link loop (RuntimeError before 3.13)
+            raise SpecError(f"{where}: cannot read spec file {_shown(path)}: a loop of symbolic "
+                            "links") from None
         if real in chain:
             names = " -> ".join(_shown(p) for p in (*chain[chain.index(real):], real))
             raise SpecError(f"{where}: include cycle {names}")
@@ -90,8 +109,8 @@ class _Composer:
         self.files.append(real)
         try:
             tree = read_toml(path)
-        except SpecError as exc:
-            raise SpecError(str(exc) if not chain else f"{where}: {exc}") from None
+        except SpecError as exc:  # named by what chose the file, unless it is the spec itself
+            raise SpecError(str(exc) if where == str(path) else f"{where}: {exc}") from None
         return self.tree(tree, path.parent, (*chain, real), str(path), robot)
 
     def tree(self, tree: Mapping[str, Any], base: Path | None, chain: tuple[Path, ...],
@@ -109,18 +128,18 @@ class _Composer:
         out: dict[str, Any] = {}
         if selection is not None:
             path = robot_file(selection, base, f"{source}: robot" if chain else "robot")
+            where = f"{source}: robot {selection!r}" if chain else f"robot {selection!r}"
             if len(chain) <= 1 or self.top is None:  # the top level's, else the last read
                 self.robot = path
                 self.top = len(chain) <= 1 or None
-            out.update(self.file(path, chain, f"{source}: robot {selection!r}"))
+            out.update(self.file(path, chain, where))
         if isinstance(include, str) or not isinstance(include, list) or not all(
                 isinstance(i, str) and i.strip() for i in include):
             raise SpecError(f"{source}: include: expected a list of spec files (include = "
                             f"[\"my_robot.toml\"]), got {include!r}")
         for name in include:
-            path = Path(name).expanduser()
-            path = path if path.is_absolute() or base is None else base / path
-            out.update(self.file(path, chain, f"{source}: include {name!r}"))
+            where = f"{source}: include {name!r}"
+            out.update(self.file(file_path(name, base, where), chain, where))
         out.update(flatten(own))
         return out
 
