@@ -11,6 +11,7 @@ remove them, as it removes the sweep's own files).
 
 from __future__ import annotations
 
+import contextlib
 import json
 from pathlib import Path
 
@@ -78,15 +79,30 @@ def export_csv(directory: Path, out: Path | None = None) -> list[Path]:
     sweep = _sweep_of(target)
     written = []
     with directory_lock(sweep if sweep is not None else target):
-        for path, name in zip(paths, names, strict=True):
-            table = csv_ready(pq.read_table(path))
-            csv_path = target / name
-            with atomic_path(csv_path) as tmp:
+        # every CSV goes to its temporary file first and all are renamed together at the
+        # end: a table that cannot be read (a damaged trials.parquet) leaves no CSV of the
+        # others behind
+        with contextlib.ExitStack() as files:
+            for path, name in zip(paths, names, strict=True):
+                table = csv_ready(_read(path))
+                csv_path = target / name
+                tmp = files.enter_context(atomic_path(csv_path))
                 pacsv.write_csv(table, tmp, pacsv.WriteOptions(quoting_style="needed"))
-            written.append(csv_path)
+                written.append(csv_path)
         if sweep is not None:
             record_outputs(sweep, written)
     return written
+
+
+def _read(path: Path) -> pa.Table:
+    """A Parquet table; FlatcliError naming it if it cannot be read (damaged, truncated, or
+    not Parquet), so that nothing is exported."""
+    try:
+        return pq.read_table(path)
+    except (pa.ArrowException, OSError) as exc:
+        first = (str(exc).splitlines() or [type(exc).__name__])[0]
+        raise FlatcliError(f"{path}: not a readable Parquet table ({first}); nothing "
+                           "exported") from None
 
 
 def _sweep_of(target: Path) -> Path | None:
