@@ -789,6 +789,7 @@ def summarize(directory: Path, plot: bool, fmt: str | None, dpi: int | None, x: 
     from flatcli import api
     from flatcli.files import is_regular, kind, read_text
     from flatcli.report import FigureFile
+    from flatcli.report.sweep_figures import check_axes
 
     require_stdout(quiet)
     with user_errors():
@@ -807,6 +808,7 @@ def summarize(directory: Path, plot: bool, fmt: str | None, dpi: int | None, x: 
                     if not is_regular(directory / name):
                         fail(f"--plot: {directory / name} not found: not a finished sweep "
                              "directory")
+                check_axes(directory, x, hue)  # before anything is printed
             say(quiet, read_text(summary_md).rstrip("\n"))
             if plot:
                 from flatcli.report import plot_sweep
@@ -822,6 +824,8 @@ def summarize(directory: Path, plot: bool, fmt: str | None, dpi: int | None, x: 
         if plot and not result.complete:
             fail(f"--plot: {result.state.missing_text()}; the figures need every trial "
                  "(run the sweep again to finish it)")
+        if plot:
+            check_axes(directory, x, hue)  # before anything is printed
         say(quiet, result.summary_text)
         if plot:
             paths = result.save_figures(fmt=fmt, dpi=dpi, x=x, hue=hue)

@@ -831,3 +831,26 @@ def test_misused_robot_files_and_includes_are_one_line_exit_2(
     assert code == 2 and out.startswith("error: ") and out.count("\n") == 1, out
     assert message in out and "Traceback" not in out
     assert not Path("runs").exists()
+
+
+def test_summarize_checks_x_and_hue_before_it_prints_anything(tmp_path: Path) -> None:
+    """A bad --x or --hue is the only line summarize prints (the summary is not printed
+    first), exit 2, no figure written; with and without the sweep's manifest."""
+    from small_sweep import SPEC, write_spec
+
+    spec = write_spec(tmp_path, SPEC.replace("trials = 60", "trials = 4"))
+    directory = tmp_path / "d"
+    code, out = run("sweep", str(spec), "--out", str(directory), "-q")
+    assert code == 0, out
+    for args, message in ((["--x", "track.dt"], "--x: 'track.dt' is not a grid key"),
+                          (["--hue", "track.sensor_noise", "--x", "track.sensor_noise"],
+                           "is the --x key")):
+        for manifest in (True, False):
+            if not manifest:
+                (directory / "sweep.json").rename(tmp_path / "sweep.json")
+            code, out = run("summarize", str(directory), "--plot", *args)
+            assert code == 2 and out.startswith("error: ") and out.count("\n") == 1, out
+            assert message in out
+            assert not list(directory.glob("sweep_*"))
+            if not manifest:
+                (tmp_path / "sweep.json").rename(directory / "sweep.json")

@@ -60,6 +60,14 @@ def plot_sweep(directory: Path, file: FigureFile | None = None, x: str | None = 
             for name, fig in _figures(sweep, x, hue).items()]
 
 
+def check_axes(directory: Path, x: str | None, hue: str | None) -> None:
+    """FlatcliError naming ``--x`` or ``--hue`` if the figures of the finished sweep in
+    ``directory`` cannot be drawn against them (``OutcomeAxis.choose``): asked before
+    anything is printed or drawn."""
+    if x is not None or hue is not None:
+        OutcomeAxis.choose(SweepData.load(directory), x, hue)
+
+
 def sweep_figures(directory: Path, x: str | None = None, hue: str | None = None
                   ) -> dict[str, Figure]:
     """The figures of a finished sweep by name (``FIGURE_NAMES``): "errors", "singular"
