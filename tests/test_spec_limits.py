@@ -230,3 +230,18 @@ def test_memory_per_row_grows_with_the_columns_of_n_joints() -> None:
     assert track_step_bytes(2) == BYTES_PER_TRACK_STEP
     assert plan_sample_bytes(10) == pytest.approx(BYTES_PER_PLAN_SAMPLE * 65 / 17)
     assert track_step_bytes(10) == pytest.approx(BYTES_PER_TRACK_STEP * 76 / 20)
+
+
+def test_the_as_built_laws_design_is_priced_by_its_bandwidth() -> None:
+    """track.lqr_bandwidth = 1e12 rad/s failed after 38 s naming track.lqr_terminal: the
+    Riccati equation takes about 0.8 b T steps of at least a millisecond
+    (tests/test_lqr.py checks the steps), so it is refused at once, naming the key."""
+    as_built = {"robot.com": [0.1, 0.1, 0.003], "track.controller": "asbuilt"}
+    with pytest.raises(SpecError, match=r"^track\.lqr_bandwidth = 1e\+12 rad/s .* would take "
+                                        r"at least .* years.*lower track\.lqr_bandwidth"):
+        resolve({}, {**as_built, "track.lqr_bandwidth": 1e12})
+    spec = resolve({}, {**as_built, "track.lqr_bandwidth": 50.0})  # fits
+    assert limits.riccati_seconds(spec) == pytest.approx(0.8 * 50 * 2.0 * 1e-3)
+    assert track_seconds(spec) >= limits.riccati_seconds(spec)
+    # the flat law designs nothing: its bandwidth key is not priced
+    assert limits.riccati_seconds(resolve({}, {"track.lqr_bandwidth": 1e12})) == 0.0
