@@ -27,3 +27,24 @@ def test_quiet_progress_prints_nothing(tmp_path: Path) -> None:
         progress.advance(10)
         progress.close()
     assert path.read_text() == ""
+
+
+def test_the_cells_planning_is_shown_for_a_large_grid_only() -> None:
+    import io
+
+    from flatcli.progress import CELLS_SHOWN
+
+    stream = io.StringIO()
+    progress = Progress("s", stream=stream, interval=1e9)
+    for done in range(CELLS_SHOWN + 1):
+        progress.cells(done, CELLS_SHOWN)
+    assert stream.getvalue() == ""
+    for done in range(CELLS_SHOWN + 2):
+        progress.cells(done, CELLS_SHOWN + 1)
+    lines = stream.getvalue().splitlines()
+    assert lines[0] == f"sweep 's': planning {CELLS_SHOWN + 1} grid cells"
+    assert lines[1].startswith(f"  {CELLS_SHOWN + 1}/{CELLS_SHOWN + 1} cells planned (100%)")
+    assert len(lines) == 2
+    quiet = io.StringIO()
+    Progress("s", quiet=True, stream=quiet).cells(0, 10**4)
+    assert quiet.getvalue() == ""

@@ -76,7 +76,8 @@ def run_sweep(
     started = time.perf_counter()
     if executor_kind == "local" or scheduler == "local":
         check_workers(workers if workers is not None else default_workers(), oversubscribe)
-    lay = layout(spec, workers if executor_kind == "local" else None)
+    lay = layout(spec, workers if executor_kind == "local" else None,
+                 None if progress is None else progress.cells)
     with directory_lock(directory):
         plan = plan_directory(directory, lay, force)
         executor = make_executor(executor_kind, workers, scheduler)

@@ -28,21 +28,29 @@ from flatcli.spec.sweeps import PERTURB_PREFIX, is_perturbation_param, validate_
 MAX_DEPTH = 8
 
 
-def build(values: Mapping[str, Any]) -> Spec:
+def build(values: Mapping[str, Any], parent: Spec | None = None) -> Spec:
     """A Spec from {dotted key: value}, every value checked; keys not given keep defaults.
 
     ``sweep.perturb.NAME.PARAM`` keys (a grid cell's perturbation parameter) set that
-    parameter of the ``[sweep.perturb]`` entry NAME.
+    parameter of the ``[sweep.perturb]`` entry NAME. ``parent``: a validated spec whose
+    values these are, some replaced (``Spec.with_overrides``): a value that is the parent's
+    own object is not checked again, nor is the parent's grid when the robot keeps its
+    joints, so a sweep's N cells cost O(N), not O(N^2) (each cell's spec holds the whole
+    grid).
     """
     checked: dict[str, Any] = {}
     params: dict[str, Any] = {}
-    for dotted, value in values.items():
+    known = parent.values() if parent is not None else {}
+    fresh = {k: v for k, v in values.items() if not (k in known and known[k] is v)}
+    for dotted, value in fresh.items():
         _scan(dotted, value, 0)
     for dotted, value in values.items():
         if dotted in SCHEMA:  # a whole section given as a scalar
             raise SpecError(f"{dotted}: expected a table")
         if is_perturbation_param(dotted):
             params[dotted] = value
+        elif dotted not in fresh:
+            checked[dotted] = value  # checked and normalised when the parent was built
         else:
             checked[dotted] = check_value(dotted, value)
     if params:
@@ -53,9 +61,12 @@ def build(values: Mapping[str, Any]) -> Spec:
         checked["sweep.perturb"] = perturb
     spec = fit_sizes(from_values(checked), checked)
     check_joints(spec.joints)  # before anything costs O(N^3)
+    grid_checked = (parent is not None and spec.sweep.grid is parent.sweep.grid
+                    and spec.joints == parent.joints)
     validate_sweep(spec.sweep, spec.joints, spec.plant.torque_limit,
-                   spec.task.end_effector is not None)
-    check_grid_shapes(spec.sweep.grid)
+                   spec.task.end_effector is not None, grid_checked=grid_checked)
+    if not grid_checked:
+        check_grid_shapes(spec.sweep.grid)
     check_derived(spec)
     check_verify(spec.sweep.verify)
     check_limits(spec)

@@ -90,6 +90,17 @@ MIN_RTOL = 100 * 2.220446049250313e-16
 #: pass (``flatcli.core.planning.margin_zeros``), about 10 us each: at most this many.
 MAX_HALF_TURNS = 1e5
 
+#: The most cells a sweep's grid may have. Every cell is checked and planned in the main
+#: process before the first trial (its plan and reference tables: 5-11 ms for the paper's
+#: robot on this project's machine, seconds for an optimised plan or a chain) and is a row of
+#: the summary; a study of more settings than this draws them with [sweep.perturb].
+MAX_GRID_CELLS = 10_000
+#: The most obstacles a task may have. A candidate plan's proof examines every link against
+#: every disc on each interval, and its screening holds (candidates x samples x links x
+#: discs) distances: 0.06 ms and about 25 KiB per disc and candidate on the paper's robot
+#: (1,000 discs: 0.7 s for 12 candidates), up to task.budget candidates.
+MAX_OBSTACLES = 1_000
+
 MEMORY_FRACTION = 0.5
 DEFAULT_TIME_BUDGET = 30 * 86400.0
 
@@ -299,6 +310,16 @@ def check_limits(spec: Any) -> None:
         raise SpecError(f"sweep.trials: at most {ID_STRIDE:.0e} trials per cell (a trial's id "
                         f"is cell key * {ID_STRIDE:.0e} + i), got {sweep.trials}")
     cells = grid_cells(sweep.grid)
+    if cells > MAX_GRID_CELLS:
+        sizes = " x ".join(str(len(v)) for v in sweep.grid.values() if isinstance(v, list))
+        raise SpecError(f"sweep.grid: {cells:.4g} cells ({sizes}), more than the "
+                        f"{MAX_GRID_CELLS} a sweep plans before its first trial; use fewer "
+                        "grid values, or draw the settings with [sweep.perturb]")
+    if len(spec.task.obstacles) > MAX_OBSTACLES:
+        raise SpecError(f"task.obstacles: {len(spec.task.obstacles)} discs, more than the "
+                        f"{MAX_OBSTACLES} a task's proof takes (it examines every link against "
+                        "every disc on each interval of every candidate); merge nearby discs "
+                        "into larger ones")
     memory(f"sweep.grid of {cells:.3g} cells",
            cells * (BYTES_PER_CELL + steps * cell_step_bytes(joints)),
            "use fewer grid values")

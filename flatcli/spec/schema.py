@@ -354,10 +354,11 @@ class Spec:
         """{dotted key: value} of every key."""
         return dict(_values(self, ""))
 
-    def experiment_tree(self) -> dict[str, Any]:
+    def experiment_tree(self, skip: Collection[str] = ()) -> dict[str, Any]:
         """``tree`` without the sections that only say how results are shown
-        (``PRESENTATION``): what the experiment is."""
-        return experiment(self.tree)
+        (``PRESENTATION``): what the experiment is; without the dotted keys ``skip`` too
+        (not copied: a sweep's cells leave out the grid they all share)."""
+        return experiment(_tree(self, skip))
 
     def to_json(self) -> str:
         """Canonical JSON of the experiment (``experiment_tree``; sorted keys, no spaces; inf
@@ -374,7 +375,7 @@ class Spec:
         """A new spec with some dotted keys replaced, validated again."""
         from flatcli.spec.build import build  # build validates with the sweep's rules
 
-        return build({**self.values(), **overrides})
+        return build({**self.values(), **overrides}, parent=self)
 
 
 def experiment(tree: Mapping[str, Any]) -> dict[str, Any]:
@@ -387,12 +388,14 @@ def _is_section(f: Field[Any]) -> bool:
     return "key" not in f.metadata
 
 
-def _tree(record: Any) -> dict[str, Any]:
+def _tree(record: Any, skip: Collection[str] = (), prefix: str = "") -> dict[str, Any]:
     out: dict[str, Any] = {}
     for f in fields(record):
         value = getattr(record, f.name)
+        if f"{prefix}{f.name}" in skip:
+            continue
         if _is_section(f):
-            out[f.name] = _tree(value)
+            out[f.name] = _tree(value, skip, f"{prefix}{f.name}.")
         elif isinstance(value, Mapping):
             out[f.name] = copy.deepcopy(dict(value))
         else:
