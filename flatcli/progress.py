@@ -20,14 +20,30 @@ COMPILING = "compiling the simulation kernel (once, ~30 s)"
 
 
 def kernel_cached() -> bool:
-    """Whether numba's on-disk cache (the directory ``flatcli.core._jit`` chose) holds an
-    index of the closed-loop kernel, so a simulation starts without compiling."""
+    """Whether numba's on-disk cache (the directory ``flatcli.core._jit`` chose) holds a
+    readable index of the closed-loop kernel, so a simulation starts without compiling (a
+    damaged index is compiled again: ``_jit.repair_unreadable_indexes``)."""
     import numba
 
     import flatcli.core._jit  # noqa: F401  (sets numba's cache directory)
 
     root = Path(getattr(numba.config, "CACHE_DIR", "") or "")
-    return root.is_dir() and any(root.glob("**/*kernels.*_batch-*.nbi"))
+    return root.is_dir() and any(_readable_index(p)
+                                 for p in root.glob("**/*kernels.*_batch-*.nbi"))
+
+
+def _readable_index(path: Path) -> bool:
+    """Whether numba can read a cache index: its version, then its pickled entries (as
+    ``numba.core.caching.IndexDataCacheFile._load_index`` reads them)."""
+    import pickle
+
+    try:
+        with path.open("rb") as f:
+            pickle.load(f)
+            pickle.loads(f.read())
+    except Exception:  # damaged: numba's load raises anything pickle can
+        return False
+    return True
 
 
 def announce_compile(quiet: bool, stream: TextIO | None = None) -> bool:
