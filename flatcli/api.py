@@ -43,6 +43,7 @@ from flatcli.report import (
     metrics_text,
     optimization_summary,
     optimization_text,
+    task_text,
     plan_figure,
     plan_summary,
     plan_text,
@@ -304,6 +305,8 @@ class PlanResult(Run):
         text = plan_text(self.spec.name, self.plan, self.samples)
         if self.optimization is not None:
             text += "\n\n" + optimization_text(self.optimization)
+        if self.metrics is not None and "task_candidates" in self.metrics:
+            text += "\n\n" + task_text(self.metrics)
         return text
 
     def plot(self) -> Figure:
@@ -690,6 +693,8 @@ def plan(spec: SpecLike = None, overrides: Overrides = None) -> PlanResult:
         metrics["clearance_bound"] = bound if math.isfinite(bound) else None
         metrics["certified_intervals"] = task.certificate.intervals
     metrics["task_candidates"] = task.candidates
+    metrics["rate_factor"] = None if s.task.rest else float(task.shape)
+    metrics["rest_skew"] = float(task.shape) if s.task.rest else None
     return PlanResult(s, None, metrics, opt, made, samples)  # the frame on first use
 
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from flatcli.spec import SpecError, load_spec, resolve
+from flatcli.spec import SpecError, load_spec, parse_set, resolve
 from flatcli.spec.compose import MAX_FILES, ROBOTS, robot_names
 
 #: flatcli/data/robots/chain4.toml's robot (base + 3 links), as written there.
@@ -152,3 +152,48 @@ def test_a_robot_file_chosen_on_the_command_line_is_named_robot(sets: list[str],
                                                                 message: str) -> None:
     with pytest.raises(SpecError, match=message):
         load_spec(None, sets)
+
+
+def test_a_file_unsets_what_its_robot_file_and_includes_gave(tmp_path: Path) -> None:
+    write(tmp_path / "base.toml", "[plan]\nduration = 3.0\nsamples = 101\n[track]\ndt = 0.002\n")
+    spec = load_spec(write(tmp_path / "s.toml", 'robot = "chain4"\ninclude = ["base.toml"]\n'
+                                                'unset = ["plan.goal", "plan.duration", "track"]\n'
+                                                "[plan]\nsamples = 51\n"),
+                     ["task.end_effector=[0.1,0.3]"])
+    assert spec.plan.duration == 2.0  # the default again (base.toml and chain4 set it)
+    assert spec.plan.samples == 51  # the file's own keys come after its unset
+    assert spec.track.dt == 1e-3  # a section: every key of it
+    assert spec.plan.start == (0.0, 1.0, 0.3, 0.0)  # chain4's start is kept
+    # chain4's goal is gone: on N = 3 with a target the goal stands at the start
+    assert spec.plan.goal == spec.plan.start
+    # unset in an included file removes what that file's own includes gave
+    write(tmp_path / "inner.toml", 'include = ["base.toml"]\nunset = ["plan.samples"]\n')
+    assert load_spec(write(tmp_path / "t.toml", 'include = ["inner.toml"]\n')).plan.samples == 201
+
+
+def test_set_tilde_removes_a_key_where_it_stands_on_the_command_line() -> None:
+    chain = ["robot=chain4", "task.end_effector=[0.1,0.3]"]
+    assert load_spec(None, [*chain, "~plan.goal"]).plan.goal == (0.0, 1.0, 0.3, 0.0)
+    assert load_spec(None, ["plan.duration=3", "~plan.duration"]).plan.duration == 2.0
+    assert load_spec(None, ["~plan.duration", "plan.duration=3"]).plan.duration == 3.0
+    # the last item wins, whatever came between
+    assert load_spec(None, ["plan.duration=3", "~plan", "plan.duration=4"]).plan.duration == 4.0
+    assert load_spec(None, ["plan.duration=3", "plan.duration=4", "~plan"]).plan.duration == 2.0
+    # through the API: a "~KEY" key with the value None, on a spec or a dict
+    assert resolve({"plan": {"duration": 3.0}}, {"~plan.duration": None}).plan.duration == 2.0
+    spec = resolve({}, {"plan.duration": 3.0})
+    assert spec.with_overrides({"~plan.duration": None}).plan.duration == 2.0
+
+
+@pytest.mark.parametrize(("sets", "tree", "message"), [
+    (["~plan.gaol"], {}, r"^--set ~plan\.gaol: 'plan\.gaol' is not a spec key or section "
+                         r"\(did you mean 'plan\.goal'\?\)$"),
+    (["~plan.goal=1"], {}, r"^--set ~plan\.goal: removes the key; it takes no value"),
+    ([], {"unset": ["plan.nope"]}, r"^the spec: unset: 'plan\.nope' is not a spec key"),
+    ([], {"unset": "plan.goal"}, r"^the spec: unset: expected a list of spec keys"),
+    ([], {"unset": [1]}, r"^the spec: unset: expected a list of spec keys"),
+])
+def test_bad_unsets_are_one_line_naming_the_key(sets: list[str], tree: dict[str, object],
+                                                message: str) -> None:
+    with pytest.raises(SpecError, match=message):
+        resolve(tree, parse_set(sets))

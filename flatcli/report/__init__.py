@@ -34,6 +34,7 @@ if TYPE_CHECKING:
         metrics_text,
         optimization_summary,
         optimization_text,
+        task_text,
         plan_summary,
         plan_text,
     )
@@ -63,6 +64,7 @@ _LAZY = {
     "new_figure": "flatcli.report.figures",
     "optimization_summary": "flatcli.report.runs",
     "optimization_text": "flatcli.report.runs",
+    "task_text": "flatcli.report.runs",
     "plan_figure": "flatcli.report.figures",
     "plan_summary": "flatcli.report.runs",
     "plan_text": "flatcli.report.runs",
@@ -95,6 +97,7 @@ __all__ = [
     "new_figure",
     "optimization_summary",
     "optimization_text",
+    "task_text",
     "plan_figure",
     "plan_summary",
     "plan_text",

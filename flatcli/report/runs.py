@@ -139,6 +139,27 @@ def optimization_text(summary: Mapping[str, Any]) -> str:
     return table(["optimisation", ""], rows)
 
 
+#: A planned task's results, in the order ``task_text`` shows them.
+TASK_ROWS = ("ee_error_final", "base_attitude_error_final", "min_clearance", "clearance_bound",
+             "certified_intervals", "task_candidates", "rate_factor", "rest_skew")
+
+
+def task_text(metrics: Mapping[str, object]) -> str:
+    """A planned task's results with their units (those that apply), and a line when the
+    search changed the end rates the spec gave."""
+    from flatcli.units import DIMENSIONLESS, unit_of
+
+    rows = [[k, metrics[k], "" if (unit := unit_of(k)) in (None, DIMENSIONLESS) else unit]
+            for k in TASK_ROWS if metrics.get(k) is not None]
+    text = table(["task", "value", "unit"], rows, 5)
+    factor = metrics.get("rate_factor")
+    if isinstance(factor, float) and factor != 1.0:
+        text += (f"\nnote: the end rates are plan.start_rate and plan.goal_rate x {factor:g} "
+                 "(the search's candidate: the rates as given did not plan, or were not "
+                 "proven clear)")
+    return text
+
+
 def metrics_text(name: str, metrics: Mapping[str, object]) -> str:
     """Terminal summary of one closed-loop run: each metric with its unit (``flatcli.units``;
     blank for a count or a flag)."""

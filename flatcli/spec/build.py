@@ -209,8 +209,27 @@ def resolve(user: Mapping[str, Any], overrides: Mapping[str, Any] | None = None,
     robot = extra.pop("robot") if "robot" in extra and not isinstance(
         extra["robot"], Mapping) else None
     flat = compose(user, base, robot, source)
-    flat.update(extra)
-    return build(flat)
+    return build(with_overrides(flat, extra))
+
+
+#: An override key ``~KEY`` removes KEY (``--set ~KEY``; ``{"~KEY": None}`` through the API).
+UNSET_PREFIX = "~"
+
+
+def with_overrides(values: Mapping[str, Any], overrides: Mapping[str, Any]) -> dict[str, Any]:
+    """Dotted ``values`` with ``overrides`` applied in order: a key set, or ``~KEY`` removed
+    (with every key of a section: it takes its default again, as if never given)."""
+    from flatcli.spec.compose import remove_key
+
+    out = dict(values)
+    for key, value in overrides.items():
+        if key.startswith(UNSET_PREFIX):
+            if value is not None:
+                raise SpecError(f"--set {key}: removes the key; it takes no value")
+            remove_key(out, key[len(UNSET_PREFIX):].strip(), f"--set {key}")
+        else:
+            out[key] = value
+    return out
 
 
 def load_spec(path: Path | None, sets: Iterable[str] = ()) -> Spec:
@@ -245,14 +264,24 @@ _BARE = str.maketrans("", "", "_-./~")
 
 
 def parse_set(items: Iterable[str]) -> dict[str, Any]:
-    """``--set KEY=VALUE`` items to {dotted key: value}; VALUE is a TOML value, or a bare word
-    (letters, digits and ``_-./~``, taken as text)."""
+    """``--set KEY=VALUE`` items to {dotted key: value}, in the order they apply; VALUE is a
+    TOML value, or a bare word (letters, digits and ``_-./~``, taken as text). ``~KEY``
+    (Hydra's syntax) removes KEY: {"~KEY": None}."""
     out: dict[str, Any] = {}
     for item in items:
         key, sep, text = item.partition("=")
         key = key.strip()
+        if key.startswith(UNSET_PREFIX):  # ~KEY: remove KEY here (Hydra's syntax)
+            if sep:
+                raise SpecError(f"--set {key}: removes the key; it takes no value (--set "
+                                f"{key}, then --set {key[1:]}=VALUE to give it another)")
+            name = key[len(UNSET_PREFIX):].strip()
+            for old in (name, key):
+                out.pop(old, None)  # the last of the items wins, in order
+            out[f"{UNSET_PREFIX}{name}"] = None
+            continue
         if not sep or not key:
-            raise SpecError(f"--set: expected KEY=VALUE, got {item!r}")
+            raise SpecError(f"--set: expected KEY=VALUE or ~KEY, got {item!r}")
         if any(c in text for c in "\n\r\0"):
             raise SpecError(f"--set {key}: the value must be one line (no newline or NUL), "
                             f"got {text!r}")
@@ -266,6 +295,8 @@ def parse_set(items: Iterable[str]) -> dict[str, Any]:
             raise SpecError(f"--set {key}: the value is nested too deeply") from None
         if list(parsed) != ["v"]:
             raise SpecError(f"--set {key}: cannot read {text!r} as one TOML value")
+        out.pop(f"{UNSET_PREFIX}{key}", None)
+        out.pop(key, None)  # moved last: it applies after every earlier item
         out[key] = parsed["v"]
     return out
 

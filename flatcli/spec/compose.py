@@ -10,7 +10,10 @@ included into a spec.
   includes it (they may include others).
 
 The order, lowest first: the defaults, the robot file, the included files in order, the file's
-own keys, then ``--set`` items. A spec that picks a robot and sets no ``name`` anywhere is named
+own keys, then ``--set`` items. ``unset = ["plan.goal"]`` in a file removes keys its robot file
+and includes gave it (a section name removes all of its keys), and ``--set ~plan.goal`` (as
+Hydra's ``~key``) removes a key at that point of the command line: the key takes its default
+again, as if never given. A spec that picks a robot and sets no ``name`` anywhere is named
 after it (``chain4``, the stem of ``my_robot.toml``; the shipped ``paper`` robot, flatcli's
 defaults, keeps the default name): runs, summaries and ``flatcli design`` call it by its name. A later key replaces an earlier one key by key (a section's
 keys merge; a table such as ``sweep.grid`` is one value). An include cycle, a missing file, a
@@ -74,6 +77,22 @@ def robot_file(selection: Any, base: Path | None, where: str = "robot") -> Path:
     return ROBOTS / f"{selection}.toml"
 
 
+def remove_key(values: dict[str, Any], dotted: str, where: str) -> None:
+    """Remove ``dotted`` from dotted ``values`` (a section: every key in it), so it takes its
+    default again as if never given (``unset = [...]``, ``--set ~KEY``); SpecError naming
+    ``where`` for a name that is no key or section."""
+    from flatcli.spec.schema import SCHEMA, all_keys
+    from flatcli.spec.sweeps import is_perturbation_param
+
+    known = dotted in SCHEMA or is_perturbation_param(dotted) or dotted in set(all_keys())
+    if not known or not dotted:
+        names = all_keys() + [s for s in SCHEMA if s]
+        raise SpecError(f"{where}: {dotted!r} is not a spec key or section"
+                        f"{suggest(dotted, names)}")
+    for key in [k for k in values if k == dotted or k.startswith(f"{dotted}.")]:
+        del values[key]
+
+
 def _shown(path: Path) -> str:
     """A file as a message names it: relative to the current directory when inside it."""
     try:
@@ -121,6 +140,7 @@ class _Composer:
 
         own = dict(tree)
         include = own.pop("include", [])
+        unset = own.pop("unset", [])
         selection: Any = robot  # the command line's choice replaces the file's own
         if "robot" in own and not isinstance(own["robot"], Mapping):
             chosen = own.pop("robot")
@@ -140,6 +160,12 @@ class _Composer:
         for name in include:
             where = f"{source}: include {name!r}"
             out.update(self.file(file_path(name, base, where), chain, where))
+        if isinstance(unset, str) or not isinstance(unset, list) or not all(
+                isinstance(k, str) for k in unset):
+            raise SpecError(f"{source}: unset: expected a list of spec keys (unset = "
+                            f"[\"plan.goal\"]), got {unset!r}")
+        for dotted in unset:
+            remove_key(out, dotted, f"{source}: unset")
         out.update(flatten(own))
         return out
 

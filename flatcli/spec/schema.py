@@ -373,9 +373,9 @@ class Spec:
 
     def with_overrides(self, overrides: Mapping[str, Any]) -> Spec:
         """A new spec with some dotted keys replaced, validated again."""
-        from flatcli.spec.build import build  # build validates with the sweep's rules
+        from flatcli.spec.build import build, with_overrides  # the sweep's rules too
 
-        return build({**self.values(), **overrides}, parent=self)
+        return build(with_overrides(self.values(), overrides), parent=self)
 
 
 def experiment(tree: Mapping[str, Any]) -> dict[str, Any]:
@@ -493,12 +493,28 @@ SIZED_POLE = 5.0
 def sized_defaults(spec: Spec) -> dict[str, tuple[float, ...]]:
     """The defaults of robot-sized keys that follow from the robot and its plan for a robot
     of N != 2 joints (the paper's robot's own defaults do not fit it): the plant starts on
-    the plan (``track.initial = plan.start``) and every flat output gets a double pole at
-    ``-SIZED_POLE``."""
+    the plan (``track.initial = plan.start``), every flat output gets a double pole at
+    ``-SIZED_POLE``, and a task that gives the end effector's target derives the goal from
+    it (``plan.goal`` stands at ``plan.start`` until then: ``goal_is_derived``)."""
     joints = spec.joints
-    return {"track.initial": tuple(spec.plan.start),
-            "track.kp": (SIZED_POLE ** 2,) * joints,
-            "track.kv": (2 * SIZED_POLE,) * joints}
+    out = {"track.initial": tuple(spec.plan.start),
+           "track.kp": (SIZED_POLE ** 2,) * joints,
+           "track.kv": (2 * SIZED_POLE,) * joints}
+    if spec.task.end_effector is not None:
+        out["plan.goal"] = tuple(spec.plan.start)
+    return out
+
+
+def goal_is_derived(spec: Spec) -> bool:
+    """Whether ``plan.goal`` was left for the task to derive: its default (the paper's goal),
+    or, on a robot of N != 2 joints with ``task.end_effector`` set, ``plan.start``
+    (``sized_defaults``). Read from the values, so a spec written out (run.json, ``--cfg``)
+    reads back the same; a goal set equal to the start counts as left out."""
+    goal = spec.plan.goal
+    if goal == find_key("plan.goal").default:  # type: ignore[union-attr]
+        return True
+    return (spec.joints != 2 and spec.task.end_effector is not None
+            and goal == spec.plan.start)
 
 
 def fit_sizes(spec: Spec, given: Collection[str]) -> Spec:
@@ -533,7 +549,7 @@ def fit_sizes(spec: Spec, given: Collection[str]) -> Spec:
             if len(value) != want and dotted not in given and dotted in SIZED_KEYS:
                 if derived is None:
                     derived = sized_defaults(_replaced(spec, replaced) if replaced else spec)
-                if len(derived[dotted]) == want:  # plan.start of the wrong size: said below
+                if dotted in derived and len(derived[dotted]) == want:  # else: said below
                     replaced[dotted] = derived[dotted]
                     continue
             hint = "" if dotted in given else " (the default is the paper's robot's: set it)"
@@ -542,7 +558,7 @@ def fit_sizes(spec: Spec, given: Collection[str]) -> Spec:
 
 
 #: The keys ``sized_defaults`` gives.
-SIZED_KEYS = frozenset({"track.initial", "track.kp", "track.kv"})
+SIZED_KEYS = frozenset({"track.initial", "track.kp", "track.kv", "plan.goal"})
 
 
 def check_size(dotted: str, value: Any, joints: int, hint: str = "") -> None:
