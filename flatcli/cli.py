@@ -716,7 +716,7 @@ def sweep(spec: Path, robot: str | None, sets: tuple[str, ...], name: str | None
         except KeyboardInterrupt:
             click.echo(f"error: interrupted; {RESUME_HINT.format(directory)}", err=True)
             sys.exit(interrupted_status())
-    say(quiet, done.summary_text)
+    say(quiet, done.headline_text)
     say(quiet, f"{done.state.total} trials ({done.simulated} simulated now) in "
                f"{done.wall_seconds:.1f} s; wrote {directory}/trials.parquet, summary.md")
 
@@ -767,8 +767,10 @@ def rerun(directory: Path, trial: int, print_spec: bool, fmt: str | None, dpi: i
         rerun_trial(s, found.state.directory, trial, print_spec, quiet)
 
 
-@main.command(short_help="A sweep's tables again; --plot draws its figures.")
+@main.command(short_help="A sweep's summary again; --full its tables, --plot its figures.")
 @click.argument("directory", type=click.Path(path_type=Path, file_okay=False))
+@click.option("--full", is_flag=True,
+              help="Print every table of summary.md, not the one-screen headline.")
 @plot_option("Also write the summary figures (a finished sweep only).")
 @figure_options
 @click.option("--x", "x", metavar="KEY",
@@ -778,12 +780,13 @@ def rerun(directory: Path, trial: int, print_spec: bool, fmt: str | None, dpi: i
               help="With --plot: the grid key whose values get a colour each (the other grid "
                    "keys a line style).")
 @quiet_option
-def summarize(directory: Path, plot: bool, fmt: str | None, dpi: int | None, x: str | None,
-              hue: str | None, quiet: bool) -> None:
-    """Print a sweep's summary tables again (and --plot its figures, against any grid key
-    with --x and --hue).
+def summarize(directory: Path, full: bool, plot: bool, fmt: str | None, dpi: int | None,
+              x: str | None, hue: str | None, quiet: bool) -> None:
+    """Print a sweep's summary again: one screen (per cell its grid values, trials by status,
+    median final error; the error reasons; where the full tables are), or with --full every
+    table of summary.md; --plot writes its figures, against any grid key with --x, --hue.
 
-    Of an interrupted sweep: the tables of its finished trials, and how much is missing.
+    Of an interrupted sweep: the finished trials, and how much is missing.
     DIRECTORY may be a sweep's or its name's (runs/<name>, whose sweep/ it reads).
     """
     from flatcli import api
@@ -826,7 +829,7 @@ def summarize(directory: Path, plot: bool, fmt: str | None, dpi: int | None, x: 
                  "(run the sweep again to finish it)")
         if plot:
             check_axes(directory, x, hue)  # before anything is printed
-        say(quiet, result.summary_text)
+        say(quiet, result.summary_text if full else result.headline_text)
         if plot:
             paths = result.save_figures(fmt=fmt, dpi=dpi, x=x, hue=hue)
             say(quiet, "wrote " + ", ".join(str(p) for p in paths))

@@ -382,7 +382,11 @@ def test_compile_notice_only_on_a_cold_cache(tmp_path: Path,
     assert announce_compile(True, stream) is True and stream.getvalue().count("\n") == 1
     index = tmp_path / "core_0123" / "kernels.paper_kinematic_batch-124.py311.nbi"
     index.parent.mkdir()
-    index.write_bytes(b"")
+    index.write_bytes(b"")  # a damaged index: numba compiles again (tests/test_progress.py)
+    assert announce_compile(False, io.StringIO()) is True
+    import pickle
+
+    index.write_bytes(pickle.dumps("0.68.1") + pickle.dumps((1.0, {})))  # a readable one
     stream = io.StringIO()
     assert announce_compile(False, stream) is False and stream.getvalue() == ""
 
@@ -727,7 +731,10 @@ def test_sweeps_and_plan_track_runs_are_kept_apart(tmp_path: Path,
     assert isinstance(sweep, api.SweepResult) and sweep.complete
     assert json.loads((tmp_path / "runs/small/sweep/run.json").read_text())["tags"] == [
         "nightly"]
-    code, out = run("summarize", "runs/small")  # the name's sweep
+    code, out = run("summarize", "runs/small")  # the name's sweep: its headline
+    assert code == 0 and out.startswith("sweep 'small': 2 cells, ")
+    assert "full tables: runs/small/sweep/summary.md (flatcli summarize " in out
+    code, out = run("summarize", "runs/small", "--full")
     assert code == 0 and "### Trials by status" in out
     trial = int(pd.read_parquet(tmp_path / "runs/small/sweep/trials.parquet")["trial"][0])
     code, out = run("rerun", "runs/small", str(trial))  # no SPEC: the sweep's own

@@ -110,12 +110,15 @@ def test_summarize_a_partial_sweep_says_what_is_missing(tree: Path) -> None:
     code, out = cli("summarize", str(tree / "cut"))
     assert code == 0, out
     assert out.startswith("partial sweep: 95 of 120 trials finished (79%)")
+    assert "the finished trials: 2 cells, 95 trials" in out and "full tables:" in out
+    code, out = cli("summarize", str(tree / "cut"), "--full")
+    assert out.startswith("partial sweep: 95 of 120 trials finished (79%)")
     assert "cells not finished: 0 (of 0-1)" in out and "### Trials by status" in out
     code, out = cli("summarize", str(tree / "cut"), "--plot")
     assert code == 2 and out.startswith("error: --plot: partial sweep") and \
         out.count("\n") == 1
     assert not list((tree / "cut").glob("*.png"))
-    code, out = cli("summarize", str(tree / "small"))
+    code, out = cli("summarize", str(tree / "small"), "--full")
     assert code == 0 and out == (tree / "small" / "summary.md").read_text()
 
 

@@ -50,6 +50,7 @@ class SweepResult:
     simulated: int  # trials simulated by this invocation (the rest were resumed)
     wall_seconds: float
     summary_text: str
+    headline: str = ""  # one screen of it (``report.summary.headline``)
 
 
 def run_sweep(
@@ -163,7 +164,7 @@ def run_sweep(
             except BaseException:
                 trials.abort()  # the temporary trials.parquet goes with the run
                 raise
-        summary_text = finish_sweep(directory, lay, provenance, started, {
+        summary_text, short = finish_sweep(directory, lay, provenance, started, {
             "setup_seconds": setup,
             "simulate_seconds": running,
             "simulated_trials": simulated,
@@ -175,7 +176,8 @@ def run_sweep(
             "worker_peak_mib": worker_peak,
             "executor": executor.description,
         }, trials, tags)
-    return SweepResult(directory, lay, simulated, time.perf_counter() - started, summary_text)
+    return SweepResult(directory, lay, simulated, time.perf_counter() - started, summary_text,
+                       short)
 
 
 def warm_up(lay: Layout) -> None:
