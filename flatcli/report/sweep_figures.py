@@ -588,12 +588,23 @@ def outcomes_figure(sweep: SweepData, axis: OutcomeAxis) -> Figure:
         ax.set_xlabel(axis.label)
         ax.xaxis.set_tick_params(labelbottom=True)
     handles, names = axes[0].get_legend_handles_labels()
-    if any(names) and names != ["all cells"]:
-        fig.legend(handles, names, loc="lower center", ncol=min(3, len(names)))
-    lines = math.ceil(len(names) / 3) if names != ["all cells"] else 0
     fig.suptitle(f"{conditions(sweep)}\noutcomes against {short_key(axis.key)} (points "
                  "slightly spread in x to keep the intervals apart)")
-    fig.tight_layout(rect=(0, 0.03 + 0.04 * lines, 1, 1))
+    shown = any(names) and names != ["all cells"]
+    spare = axes[len(panels)] if len(panels) < len(axes) else None
+    if shown and spare is not None:  # the empty panel holds the legend, inside the page
+        spare.set_visible(True)
+        spare.axis("off")
+        spare.legend(handles, names, loc="center", fontsize=7, frameon=False)
+        fig.tight_layout()
+    elif shown:  # below the panels, in as many columns as fit the page
+        widest = max(len(n) for n in names)
+        ncol = max(1, min(3, int(PAGE_WIDTH * 72 / (7 * 0.6 * widest + 40))))
+        lines = math.ceil(len(names) / ncol)
+        fig.legend(handles, names, loc="lower center", ncol=ncol, fontsize=7, frameon=False)
+        fig.tight_layout(rect=(0, 0.02 + 0.035 * lines, 1, 1))
+    else:
+        fig.tight_layout()
     return fig
 
 
