@@ -229,3 +229,20 @@ def test_the_outcome_legend_lies_inside_the_page_beside_the_panels(
     for ax in panels:
         assert not box.overlaps(ax.get_window_extent(renderer))
     assert len(legends[0].get_texts()) == 4  # (gains) x (the other grid keys that vary)
+
+
+def test_a_sweep_with_error_trials_draws_their_share_not_the_final_error_twice(
+        tmp_path: Path) -> None:
+    """The panel of the final error and the share of error trials were both named "error":
+    a sweep with error trials drew the final-error panel twice and no share of its errors.
+    Referee: the share of error trials of each cell, counted from the trials."""
+    fig = sweep_figure(_sweep_dir(tmp_path), "singular", x="sweep.perturb.initial.std")
+    titles = [ax.get_title() for ax in fig.axes if ax.axison]
+    assert titles.count("resolved trials (ok, singular)") == 1
+    assert "trials that could not run" in titles
+    ax = next(a for a in fig.axes if a.get_title() == "trials that could not run")
+    trials = _trials(_cells())
+    counted = trials.groupby("cell")["status"].apply(lambda s: float((s == "error").mean()))
+    drawn = sorted({round(float(y), 12) for line in ax.get_lines()
+                    for y in line.get_ydata() if line.get_marker() in ("o", "s", "^", "D", "v")})
+    assert drawn == sorted({round(v, 12) for v in counted})

@@ -535,7 +535,7 @@ def outcomes_figure(sweep: SweepData, axis: OutcomeAxis) -> Figure:
         ax.legend()
         cell_axis(ax, sweep)
         return _finish(fig, f"{conditions(sweep)}\nsingular hits and failures per cell")
-    panels = ["error", *kinds]
+    panels = ["final error", *kinds]  # not "error": that is a status's share (kinds)
     columns = 2 if len(panels) <= 4 else 3
     rows = math.ceil(len(panels) / columns)
     fig = new_figure(PAGE_WIDTH, 2.3 * rows + 0.9)
@@ -556,7 +556,7 @@ def outcomes_figure(sweep: SweepData, axis: OutcomeAxis) -> Figure:
             look = {"color": f"C{axis.colours[first] % 9}",
                     "ls": styles[axis.styles[first] % len(styles)],
                     "marker": markers[axis.styles[first] % len(markers)]}
-            if kind == "error":
+            if kind == "final error":
                 median = part["err_y_final_median"].to_numpy(dtype=np.float64)
                 p95 = part["err_y_final_p95"].to_numpy(dtype=np.float64)
                 ax.errorbar(xs, median, yerr=[np.zeros_like(median), p95 - median],
@@ -567,7 +567,7 @@ def outcomes_figure(sweep: SweepData, axis: OutcomeAxis) -> Figure:
             high = part[f"{kind}_fraction_high"].to_numpy(dtype=np.float64)
             ax.errorbar(xs, p, yerr=[p - low, high - p], capsize=2, lw=1, ms=3.5,
                         clip_on=False, label=name or "all cells", **look)
-        if kind == "error":
+        if kind == "final error":
             ax.set_yscale("log")
             ax.set_ylabel("final error of $y$ [rad]\n(median to 95th percentile)")
             ax.set_title("resolved trials (ok, singular)")
