@@ -208,3 +208,21 @@ def test_a_chain_task_needs_its_goal_unset_and_is_proven_or_refused() -> None:
     assert dense.min() >= clear.metrics["clearance_bound"] >= 0.0
     with pytest.raises(FlatcliError, match=r"task\.obstacles: no plan among .* proven clear"):
         api.plan(overrides={**base, "~plan.goal": None, "task.obstacles": [[0.3, 0.3, 0.05]]})
+
+
+@pytest.mark.parametrize("which", [0, 3])
+def test_the_rest_fade_table_is_todays(which: int) -> None:
+    """docs/tasks.md's rest-to-rest table is written by benchmarks/rest_fade.py; a row
+    measured again here matches it to the three digits it prints (1 %), off the plan; on
+    the plan every number is rounding (below 1e-9: the loop is exact to the integrator)."""
+    from benchmarks import rest_fade
+
+    start, fade = rest_fade.ROWS[which]
+    measured = rest_fade.row(start, fade)
+    documented = rest_fade.documented()[(rest_fade.label(start), fade)]
+    keys = ["err_theta_max", "err_theta_final", "ee_error_at_T", "rate_at_T"]
+    for key, doc in zip(keys, documented, strict=True):
+        if start == rest_fade.ON_PLAN:
+            assert doc < 1e-9 and measured[key] < 1e-9, key
+        else:
+            assert measured[key] == pytest.approx(doc, rel=0.01), key
