@@ -462,7 +462,18 @@ def _slack(plan: Plan, constraints: Constraints, theta: list[Interval],
                 worst = np.minimum(worst, lim - rates[j].magnitude())
     if constraints.min_margin > 0:
         worst = np.minimum(worst, margin.mignitude() - constraints.min_margin)
-    worst = np.where(np.isnan(worst), -np.inf, worst)
+    # an interval with a nan end or lo > hi (empty) bounds nothing: what a constraint reads
+    # from one is never proven
+    used = list(theta) if (len(constraints.obstacles) or constraints.angle_limit is not None) \
+        else []
+    if constraints.rate_limit is not None and np.isfinite(constraints.rate_limit).any():
+        used += rates[1:]
+    if constraints.min_margin > 0:
+        used.append(margin)
+    broken = np.zeros(n, dtype=bool)
+    for x in used:
+        broken |= ~(x.lo <= x.hi)  # nan compares false
+    worst = np.where(np.isnan(worst) | broken, -np.inf, worst)
     return worst, clear
 
 
