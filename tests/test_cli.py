@@ -304,6 +304,16 @@ def test_design_of_the_audits_chain4_is_not_flat_and_the_plant_gets_its_own_verd
         (["sweep", "flat.toml"], "sweep: 1000 identical trials (no [sweep.perturb] and no "
                                  "track.sensor_noise)"),
         (["sweep", "MISSING.toml", "--workers", "abc"], "'abc' is not a valid integer"),
+        (["track", "--set", "robot.com=[0.1,0.1,0.003]", "--set", "track.controller=asbuilt",
+          "--set", "track.lqr_bandwidth=1e12"], "track.lqr_bandwidth = 1e+12 rad/s"),
+        (["plan", "--set", "task.end_effector=[-0.25,0.05]", "--set",
+          "task.obstacles=[" + ",".join(f"[{2 + i / 100},0,0.001]" for i in range(1001)) + "]"],
+         "task.obstacles: 1001 discs, more than the 1000"),
+        (["sweep", "flat.toml", "--set", "sweep.grid={\"plan.goal_rate\" = ["
+          + ",".join(str(0.5 + i / 1e4) for i in range(101)) + "], \"track.kp\" = ["
+          + ",".join(f"[{100 + i}, 110]" for i in range(100)) + "]}"],
+         "sweep.grid: 1.01e+04 cells (101 x 100), more than the 10000"),
+        (["summarize", "nowhere", "--full", "--x", "track.dt"], "only with --plot"),
     ],
 )
 def test_bad_input_is_one_line_exit_2_and_writes_nothing(
