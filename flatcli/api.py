@@ -43,12 +43,12 @@ from flatcli.report import (
     metrics_text,
     optimization_summary,
     optimization_text,
-    task_text,
     plan_figure,
     plan_summary,
     plan_text,
     plan_title,
     save_figure,
+    task_text,
     track_figure,
     track_title,
 )

@@ -30,8 +30,8 @@ from flatcli.core.simulate import (
 )
 from flatcli.core.task import Task, TaskPlan, plan_task, task_ends
 from flatcli.spec import Spec, SpecError
-from flatcli.spec.schema import goal_is_derived
 from flatcli.spec.limits import check_track
+from flatcli.spec.schema import goal_is_derived
 
 if TYPE_CHECKING:  # the optimiser (scipy's SLSQP) loads only for a spec that optimises
     from flatcli.core.optimize import OptimizeResult

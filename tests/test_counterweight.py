@@ -10,10 +10,10 @@ the Python API planning the resulting design (its input energy) and judging it
 from __future__ import annotations
 
 import numpy as np
-from hypothesis import given, settings
-from hypothesis import strategies as st
 import pytest
 from click.testing import CliRunner
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import flatcli
 from flatcli.cli import main
@@ -120,7 +120,7 @@ def test_the_answers_change_continuously_with_the_segment(tilt: float, shift: fl
     tilt over its length, shifted up to 3 bands): moving one end by 1e-12 m (a rounding)
     changes each counterweight by at most 1e-6 of its mass, or the segment is refused both
     times; a refusal only where the segment misses the band."""
-    m, r = 0.5, np.array([0.05, 0.0])
+    m = 0.5
     band = POSITION_RTOL * 0.1
     a = np.array([-0.1, (shift + tilt) * band])
     b = np.array([-0.02, shift * band])

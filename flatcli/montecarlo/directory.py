@@ -47,16 +47,16 @@ from flatcli.files import (
 from flatcli.montecarlo.chunks import grid_columns
 from flatcli.montecarlo.layout import KEY_SPACE, Cell, Chunk, Layout
 from flatcli.report.summary import (
-    error_reasons,
-    grid_columns_of,
-    headline,
-    totals_text,
     SUMMARY_INPUTS,
     Columns,
     ColumnsOf,
+    error_reasons,
+    grid_columns_of,
+    headline,
     summary_markdown,
     summary_rows,
     summary_table,
+    totals_text,
 )
 from flatcli.spec import SpecError
 from flatcli.spec.limits import ID_STRIDE

@@ -34,9 +34,9 @@ if TYPE_CHECKING:
         metrics_text,
         optimization_summary,
         optimization_text,
-        task_text,
         plan_summary,
         plan_text,
+        task_text,
     )
     from flatcli.report.summary import (
         COMPLETED,
@@ -97,7 +97,6 @@ __all__ = [
     "new_figure",
     "optimization_summary",
     "optimization_text",
-    "task_text",
     "plan_figure",
     "plan_summary",
     "plan_text",
@@ -113,6 +112,7 @@ __all__ = [
     "summary_markdown",
     "sweep_figures",
     "table",
+    "task_text",
     "track_figure",
     "track_title",
 ]

@@ -463,9 +463,9 @@ def grid_display(records: Sequence[Mapping[str, Any]], grid_keys: Sequence[str],
         values = [r.get(key) for r in records]
         if len({repr(v) for v in values}) <= 1:
             continue
-        if all(isinstance(v, list | tuple | np.ndarray) for v in values) and len(
-                {len(v) for v in values}) == 1:
-            stacked = [list(v) for v in values]
+        lists = [list(v) for v in values if isinstance(v, list | tuple | np.ndarray)]
+        if len(lists) == len(values) and len({len(v) for v in lists}) == 1:
+            stacked = lists
             for i in range(len(stacked[0])):
                 column = [row[i] for row in stacked]
                 if len({repr(v) for v in column}) > 1:

@@ -15,13 +15,15 @@ and includes gave it (a section name removes all of its keys), and ``--set ~plan
 Hydra's ``~key``) removes a key at that point of the command line: the key takes its default
 again, as if never given. A spec that picks a robot and sets no ``name`` anywhere is named
 after it (``chain4``, the stem of ``my_robot.toml``; the shipped ``paper`` robot, flatcli's
-defaults, keeps the default name): runs, summaries and ``flatcli design`` call it by its name. A later key replaces an earlier one key by key (a section's
-keys merge; a table such as ``sweep.grid`` is one value). An include cycle, a missing file, a
+defaults, keeps the default name): runs, summaries and ``flatcli design`` call it by its
+name. A later key replaces an earlier one key by key (a section's keys merge; a table such
+as ``sweep.grid`` is one value). An include cycle, a missing file, a
 robot no file gives, and more than ``MAX_FILES`` files are refused in one line naming the file.
 """
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Mapping
 from importlib import resources
 from pathlib import Path
@@ -176,10 +178,8 @@ class _Composer:
 
         if "name" in out or self.robot is None or self.robot.stem == "paper":
             return out
-        try:
+        with contextlib.suppress(_Error):  # a stem that names no directory (".x"): the default
             out["name"] = check_value("name", self.robot.stem)
-        except _Error:  # a stem that names no directory (".x"): the default name
-            pass
         return out
 
 
