@@ -221,9 +221,8 @@ T_IV = ("tests/test_intervals.py", "tests/test_clearance.py")
 T_CL = ("tests/test_clearance.py", "tests/test_tasks_core.py", "-k",
         "clearance or certif or bounds or violation or proven or disc or limit or slack or "
         "budget or nan or touch or exact_plan or constraints or either_end")
-T_RD = ("tests/test_rundirs.py", "tests/test_workspace.py", "-k",
-        "claim or latest or stamp or record or out_ or sweep_state or summarize or tags or "
-        "legacy or leaves")
+T_RD = ("tests/test_rundirs.py", "tests/test_workspace.py::"
+        "test_a_workspace_map_leaves_the_names_latest_plan_or_track_run_alone")
 T_CP = ("tests/test_spec_compose.py",)
 T_IN = ("tests/test_interrupts.py",)
 

@@ -197,3 +197,13 @@ def test_bad_unsets_are_one_line_naming_the_key(sets: list[str], tree: dict[str,
                                                 message: str) -> None:
     with pytest.raises(SpecError, match=message):
         resolve(tree, parse_set(sets))
+
+
+def test_unset_removes_the_key_and_its_section_only() -> None:
+    """~plan.goal removes plan.goal, not plan.goal_rate (a key whose name starts the same);
+    ~plan removes every key of [plan] and nothing of [plant]."""
+    sets = ["plan.goal_rate=0.9", "plan.goal=[1.3,2.1,0.0]", "plant.momentum=0.001"]
+    spec = load_spec(None, [*sets, "~plan.goal"])
+    assert spec.plan.goal == (1.2, 2.0, 0.0) and spec.plan.goal_rate == 0.9
+    spec = load_spec(None, [*sets, "~plan"])
+    assert spec.plan.goal_rate == 0.5 and spec.plant.momentum == 0.001
