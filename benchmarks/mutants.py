@@ -217,10 +217,13 @@ CL = "flatcli/core/clearance.py"
 RD = "flatcli/rundirs.py"
 CP = "flatcli/spec/compose.py"
 IN = "flatcli/interrupts.py"
-T_IV = ("tests/test_intervals.py", "tests/test_clearance.py")
-T_CL = ("tests/test_clearance.py", "tests/test_tasks_core.py", "-k",
-        "clearance or certif or bounds or violation or proven or disc or limit or slack or "
-        "budget or nan or touch or exact_plan or constraints or either_end")
+T_IV = ("tests/test_intervals.py",)
+T_CL = ("tests/test_clearance.py", *(f"tests/test_tasks_core.py::{name}" for name in (
+    "test_a_violation_planted_between_two_samples_is_caught",
+    "test_a_proven_plan_clears_on_a_grid_100x_finer",
+    "test_limits_between_samples_are_proven_or_refuted",
+    "test_candidates_screened_together_have_each_plans_own_least_slack",
+    "test_a_disc_beside_a_slanted_link_inside_its_box_is_proven_clear")))
 T_RD = ("tests/test_rundirs.py", "tests/test_workspace.py::"
         "test_a_workspace_map_leaves_the_names_latest_plan_or_track_run_alone")
 T_CP = ("tests/test_spec_compose.py",)
