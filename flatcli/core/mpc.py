@@ -1,38 +1,42 @@
-"""Model predictive control on the flat outputs: the least correction to the linearising
-feedback that keeps the actuators' limits and the singularity margin and reaches the goal.
+"""Model predictive control that respects the actuators: an inner feedback law plus a
+correction chosen at sample instants by a QP over the next H samples.
 
-Between samples the controller is the flat law (``control``) plus a held correction dv:
+Between samples the controller is an inner law (the flat outputs' linearising feedback of
+``control``, or the as-built robot's time-varying LQR of ``lqr``) with a correction dv held
+over the sample, added where the law's input enters (the flat law's v = y'': dv is added to
+the plan's y''; the as-built law's joint rates w: dv is added to them). With the
+controller's model, the error s of the state from the plan then obeys, to first order about
+the plan, a linear system that the design discretises exactly over each sample
+[t_k, t_k+1) (zero-order hold on dv):
 
-    v_j(t) = y_jd''(t) + kv_j (y_jd' - y_j') + kp_j (y_jd - y_j) + dv_j,     t in [t_k, t_k+1)
+    s_k+1 = A_k s_k + B_k dv_k,
 
-so that, with the right model, each flat output's error e_j = y_j - y_jd obeys
-e_j'' = -kp_j e_j - kv_j e_j' + dv_j exactly: a linear system, discretised here exactly over a
-sample (zero-order hold on dv; ``discretise``). At each sample t_k (every ``every`` output
-steps) it solves, over the next H samples (the horizon),
+(the flat law: s = (e_j, e_j') per flat output, e'' = -kp e - kv e' + dv, the same A, B at
+every sample; the as-built law: s = the angles' errors, e' = (A(t) - B(t) L(t)) e + B(t) dv).
+At each sample k (every ``every`` output steps) the controller measures s_k and solves
 
-    minimise   sum_i  q_p |e_i|^2 + q_v |e_i'|^2 + r |dv_i|^2  (+ the slack's penalty)
-    subject to |th_l'| <= R (1 - backoff)     at the start and end of every sample interval
-               sign(sigma_d) sigma >= min(m, |sigma_d| / 2)          at every sample
-               e(T) = 0, e'(T) = 0            where T is within the horizon
+    minimise   sum_i  s_i' W s_i + r |dv_i|^2      (i over the samples left in the horizon)
+    subject to lo_q <= quantity_q <= hi_q            for each constrained quantity, sample i
+               s = 0 at T                            where T is within the horizon
 
-a QP in dv (``qp``): the joint rates th' and the signed margin sigma are functions of the flat
-flag (``FlatModel.flag_values``), linearised about the plan at each sample (their exact
-derivatives by complex step: ``FlatModel.flag_jacobian``), with the applied flag
-y'' = y_d'' - kp e - kv e' + dv. The inequalities are soft: one slack s >= 0, added to each,
-costs ``SLACK_QUADRATIC`` s^2 / 2 + ``SLACK_LINEAR`` s, so a state from which the limits
-cannot all be kept still gets the correction that violates them least; the terminal
-equalities are hard (with two samples or more to go they can always be met; in the last
-sample the correction planned one sample earlier is held). The default weights are
-q_p = q_v = 0 and r = 1: the least-norm correction, so that where no limit is near and the
-goal is beyond the horizon, dv = 0 and the controller is the paper's law.
+a QP in the corrections (``qp``). A constrained quantity (a joint rate, the singularity
+margin) is a function of the state and the input, linearised about the plan at each sample:
+quantity = value + slope_s . s_i + slope_v . dv_i (``Design``). Its bounds are soft: one
+slack s >= 0 widens each, at a cost ``SLACK_QUADRATIC`` s^2 / 2 + ``SLACK_LINEAR`` s, so a
+state from which the limits cannot all be kept still gets the correction that violates them
+least, and the sample is counted (``qp_infeasible``); the terminal equalities are hard (with
+two samples or more to go they can be met; in the last sample the correction planned one
+sample earlier is held).
 
-What it guarantees and what it does not: the limits hold at the samples of the prediction
-made with the controller's model and the linearisation, not between samples nor for a plant
-that differs from the model; recursive feasibility is not guaranteed (the slack takes what
-cannot be met, and a trial counts the samples where it had to: ``qp_infeasible``).
+What it guarantees and what it does not: the limits hold at the predicted samples for the
+controller's model and the linearisation about the plan, not between samples, not for a
+plant that differs from the model, and not to the linearisation's error far from the plan
+(tests/test_mpc.py measures it); recursive feasibility is not guaranteed (the slack takes
+what cannot be met).
 
-``design`` (numpy, once per plan) tabulates everything a sample needs; ``sample_step``
-(compiled into the closed loop, allocating nothing) builds and solves one QP.
+``design`` tabulates everything a sample needs (numpy, once per plan: ``flat_design``);
+``sample_step`` (compiled into the closed loop, allocating nothing) builds and solves one
+QP.
 """
 
 from __future__ import annotations
@@ -54,7 +58,7 @@ Array = NDArray[np.float64]
 #: The slack's penalty: s^2 / 2 times this plus s times ``SLACK_LINEAR``.
 SLACK_QUADRATIC = 1e4
 SLACK_LINEAR = 1e6
-#: A sample whose slack exceeds this [the constraints' units: rad/s] counts as infeasible.
+#: A sample whose slack exceeds this [the quantities' units] counts as infeasible.
 SLACK_TOLERANCE = 1e-9
 #: Active-set iterations per QP at most, per variable and constraint.
 ITERATIONS_PER_ROW = 3
@@ -62,36 +66,37 @@ ITERATIONS_PER_ROW = 3
 
 @dataclass(frozen=True)
 class MpcSettings:
-    """The MPC's settings (spec ``[track]``, ``track.mpc_*``).
+    """The MPC's settings (spec ``track.mpc_*``).
 
-    every : a sample every this many output steps (sample time = every * track.dt)
+    sample : the sample time [s] (a multiple of track.dt that divides plan.duration)
     horizon : samples predicted, H >= 2
-    weight_position, weight_rate : q_p [1/rad^2], q_v [s^2/rad^2] on the flat outputs'
-        errors e, e' at each predicted sample
-    weight_input : r [s^4/rad^2] on the correction dv (> 0)
-    margin : the singularity margin kept, m [rad/s] (0: none)
+    kp, kv : the inner flat law's gains per flat output [1/s^2, 1/s] (None: ``INNER_KP``,
+        ``INNER_KV``); the as-built inner law is the LQR of ``track.lqr_*``
+    weight_state : W's diagonal on the errors (the flat law: e and e' of each output)
+    weight_input : r on the correction dv (> 0)
+    margin : the singularity margin kept [rad/s] (0: none)
     backoff : the joint-rate limit is kept at R (1 - backoff)
     """
 
-    every: int = 10
+    sample: float = 0.1
     horizon: int = 20
-    weight_position: float = 0.0
-    weight_rate: float = 0.0
+    kp: tuple[float, ...] | None = None
+    kv: tuple[float, ...] | None = None
+    weight_state: float = 0.0
     weight_input: float = 1.0
     margin: float = 0.05
     backoff: float = 0.01
 
     def __post_init__(self) -> None:
-        if not (isinstance(self.every, int) and self.every >= 1):
-            raise FlatcliError(f"track.mpc_every: must be an integer >= 1, got {self.every!r}")
+        if not (self.sample > 0 and math.isfinite(self.sample)):
+            raise FlatcliError(f"track.mpc_sample: must be a finite number > 0 s, got "
+                               f"{self.sample}")
         if not (isinstance(self.horizon, int) and 2 <= self.horizon <= 200):
             raise FlatcliError(f"track.mpc_horizon: must be an integer in [2, 200], got "
                                f"{self.horizon!r}")
-        for name, value in (("weight_position", self.weight_position),
-                            ("weight_rate", self.weight_rate)):
-            if not (value >= 0 and math.isfinite(value)):
-                raise FlatcliError(f"track.mpc_{name}: must be a finite number >= 0, got "
-                                   f"{value}")
+        if not (self.weight_state >= 0 and math.isfinite(self.weight_state)):
+            raise FlatcliError(f"track.mpc_weight_state: must be a finite number >= 0, got "
+                               f"{self.weight_state}")
         if not (self.weight_input > 0 and math.isfinite(self.weight_input)):
             raise FlatcliError(f"track.mpc_weight_input: must be a finite number > 0, got "
                                f"{self.weight_input}")
@@ -101,36 +106,54 @@ class MpcSettings:
         if not 0 <= self.backoff < 1:
             raise FlatcliError(f"track.mpc_backoff: must be in [0, 1), got {self.backoff}")
 
+    def every(self, dt: float, duration: float) -> int:
+        """Output steps per sample; FlatcliError naming the key unless the sample time is
+        a multiple of dt that divides the duration."""
+        every = round(self.sample / dt)
+        steps = round(duration / dt)
+        if every < 1 or not math.isclose(every * dt, self.sample, rel_tol=1e-9) or steps % every:
+            raise FlatcliError(f"track.mpc_sample: {self.sample:g} s must be a multiple of "
+                               f"track.dt = {dt:g} s that divides plan.duration = "
+                               f"{duration:g} s")
+        return every
+
+
+#: The inner flat law's default gains: a double pole at -1 rad/s for every output, slow
+#: enough that correcting a few milliradians asks little of the joints (the paper's
+#: gains, with poles at -10 rad/s and beyond, ask rates far beyond a 4 rad/s limit).
+INNER_KP = 1.0
+INNER_KV = 2.0
+
 
 class Design(NamedTuple):
-    """What every sample of one plan's MPC reads (``design``); N outputs, H samples ahead,
-    K samples in [0, T], n = N H + 1 variables (the corrections dv_0..dv_H-1 output by
-    output within each sample, then the slack).
+    """What every sample of one plan's MPC reads (``design``); S error states, N
+    corrections, H samples ahead, K samples in [0, T], Q constrained quantities, n = N H + 1
+    variables (the corrections dv_0..dv_H-1, N each, then the slack).
 
-    kp, kv : (N,) the flat law's gains [1/s^2, 1/s]
-    phi : (N, H + 1, 2, 2) the error's transition over i samples, per output
-    gamma : (N, H, 2) the error's response after i + 1 samples to a unit dv held one sample
-    factors : (H, n, n) ``qp.factor`` of the cost's Hessian with L = 1..H samples costed
-    gradients : (H, n, 2 N) the cost's gradient per unit initial error (e_j, e_j' in pairs)
-    rates : (K + 1, N) the plan's joint rates th1'..thN' at the samples [rad/s]
-    rate_slopes : (K + 1, N, 3 N) their derivatives along the flag (y, y', y'')
-    sigma : (K + 1,) the plan's signed margin [rad/s]; sigma_slopes : (K + 1, 2 N) along y, y'
-    limit : the joint-rate limit kept [rad/s] (inf: none); margin : m [rad/s]
-    samples : K; every : output steps per sample
+    A : (K, S, S), B : (K, S, N) the error's transition over sample k
+    weights : (S,) W's diagonal; weight_input : r
+    factors : (K, n, n) ``qp.factor`` of the cost's Hessian at sample k
+    gradients : (K, n, S) the cost's gradient per unit initial error at sample k
+    value : (K + 1, Q) the quantities along the plan at the samples
+    slope_s : (K + 1, Q, S), slope_v : (K + 1, Q, N) their slopes along s and dv
+    lo, hi : (K + 1, Q) their bounds (-inf, inf: none)
+    endpoint : (Q,) 1.0 for a quantity also bounded at the end of each sample interval (it
+        depends on dv, so it jumps at the next sample), 0.0 for one continuous in time
     """
 
-    kp: Array
-    kv: Array
-    phi: Array
-    gamma: Array
+    A: Array
+    B: Array
+    weights: Array
+    weight_input: float
     factors: Array
     gradients: Array
-    rates: Array
-    rate_slopes: Array
-    sigma: Array
-    sigma_slopes: Array
-    limit: float
-    margin: float
+    value: Array
+    slope_s: Array
+    slope_v: Array
+    lo: Array
+    hi: Array
+    endpoint: Array
+    horizon: int
     samples: int
     every: int
 
@@ -143,104 +166,128 @@ def discretise(kp: float, kv: float, ts: float) -> tuple[Array, Array]:
     return np.ascontiguousarray(m[:2, :2]), np.ascontiguousarray(m[:2, 2])
 
 
-def predictions(kp: Array, kv: Array, ts: float, horizon: int) -> tuple[Array, Array]:
-    """phi (N, H + 1, 2, 2) and gamma (N, H, 2) of ``Design``."""
-    n = len(kp)
-    phi = np.zeros((n, horizon + 1, 2, 2))
-    gamma = np.zeros((n, horizon, 2))
-    for j in range(n):
-        a, b = discretise(float(kp[j]), float(kv[j]), ts)
-        power = np.eye(2)
-        for i in range(horizon + 1):
-            phi[j, i] = power
-            if i < horizon:
-                gamma[j, i] = power @ b
-            power = a @ power
-    return phi, gamma
-
-
-def condensed_cost(phi: Array, gamma: Array, settings: MpcSettings, costed: int
-                   ) -> tuple[Array, Array]:
-    """The Hessian (n, n) and the gradient per unit initial error (n, 2 N) of the cost over
-    the first ``costed`` samples (the corrections after them cost r alone, so they are 0),
-    with the slack's quadratic penalty last."""
-    n_out, horizon = phi.shape[0], gamma.shape[1]
-    size = n_out * horizon + 1
-    hessian = np.zeros((size, size))
-    gradient = np.zeros((size, 2 * n_out))
-    weights = np.diag([settings.weight_position, settings.weight_rate])
-    for j in range(n_out):
-        cols = [k * n_out + j for k in range(horizon)]
-        for i in range(1, costed + 1):  # the error at sample i: phi_i s0 + sum_k<i gamma
-            response = np.zeros((2, horizon))
-            for k in range(i):
-                response[:, k] = gamma[j, i - 1 - k]
-            hessian[np.ix_(cols, cols)] += response.T @ weights @ response
-            gradient[np.ix_(cols, [2 * j, 2 * j + 1])] += response.T @ weights @ phi[j, i]
-    hessian[np.arange(size - 1), np.arange(size - 1)] += settings.weight_input
-    hessian[size - 1, size - 1] = SLACK_QUADRATIC
+def condensed_cost(A: Array, B: Array, weights: Array, weight_input: float, start: int,
+                   horizon: int) -> tuple[Array, Array]:
+    """The Hessian (n, n) and the gradient per unit initial error (n, S) at sample ``start``
+    of the cost over the samples left in the horizon (the corrections after T cost r alone,
+    so they are 0), with the slack's quadratic penalty last."""
+    samples, size, inputs = B.shape
+    costed = min(horizon, samples - start)
+    n = inputs * horizon + 1
+    hessian = np.zeros((n, n))
+    gradient = np.zeros((n, size))
+    W = np.diag(weights)
+    # the error at sample i: Phi_i s0 + sum_k<i Gamma_ik dv_k, built sample by sample
+    phi = np.eye(size)
+    gamma = np.zeros((size, n - 1))
+    for i in range(costed):
+        k = start + i
+        gamma = A[k] @ gamma
+        gamma[:, i * inputs: (i + 1) * inputs] = B[k]
+        phi = A[k] @ phi
+        hessian[:-1, :-1] += gamma.T @ W @ gamma
+        gradient[:-1] += gamma.T @ W @ phi
+    hessian[np.arange(n - 1), np.arange(n - 1)] += weight_input
+    hessian[n - 1, n - 1] = SLACK_QUADRATIC
     return hessian, gradient
 
 
-def design(model: Any, trajectory: Any, duration: float, dt: float, kp: Array, kv: Array,
-           rate_limit: float, settings: MpcSettings) -> Design:
-    """The MPC of one plan (``Design``): its predictions, cost factors and the plan's joint
-    rates and margin with their slopes at every sample.
+def design(A: Array, B: Array, weights: Array, weight_input: float, value: Array,
+           slope_s: Array, slope_v: Array, lo: Array, hi: Array, endpoint: Array,
+           horizon: int, every: int) -> Design:
+    """A ``Design`` from its tables (see there): the cost's factors are computed here."""
+    samples = A.shape[0]
+    factors = []
+    gradients = []
+    for k in range(samples):
+        hessian, gradient = condensed_cost(A, B, weights, weight_input, k, horizon)
+        factors.append(qp.factor(hessian))
+        gradients.append(gradient)
+    arrays = [np.ascontiguousarray(a, dtype=float) for a in
+              (A, B, weights, np.stack(factors), np.stack(gradients), value, slope_s, slope_v,
+               lo, hi, endpoint)]
+    return Design(arrays[0], arrays[1], arrays[2], float(weight_input), *arrays[3:],
+                  int(horizon), int(samples), int(every))
+
+
+def flat_design(model: Any, trajectory: Any, duration: float, dt: float, rate_limit: float,
+                settings: MpcSettings) -> Design:
+    """The MPC about a flat plan (module docstring): per flat output j the errors
+    (e_j, e_j') under the inner law e'' = -kp e - kv e' + dv; the quantities are the joint
+    rates th1'..thN' [rad/s] (bounded by the rate limit) and the signed margin [rad/s] (kept
+    at min(margin, |margin along the plan| / 2) on the plan's side), linearised by complex
+    step through the flat model's map from the flag (``FlatModel.flag_jacobian``): the
+    applied flag is the plan's plus (e, e', -kp e - kv e' + dv).
 
     Parameters
     ----------
-    model : the flat model the controller believes (``flatmodel.FlatModel``)
+    model : the flat model the controller believes (``flatmodel.FlatModel``), N joints
     trajectory : the plan's flat outputs (``basis.FlatTrajectory``)
-    duration : T [s]; dt : the output step [s] (a sample every ``settings.every`` of them)
-    kp, kv : (N,) the flat law's gains
+    duration : T [s]; dt : the output step [s]
     rate_limit : the joint-rate limit [rad/s] (inf: none)
-
-    Raises FlatcliError naming the key if the samples do not divide T.
     """
-    steps = round(duration / dt)
-    if steps % settings.every:
-        raise FlatcliError(f"track.mpc_every: {settings.every} output steps must divide the "
-                           f"{steps} of plan.duration / track.dt")
-    samples = steps // settings.every
-    ts = settings.every * dt
-    kp = np.asarray(kp, dtype=float)
-    kv = np.asarray(kv, dtype=float)
-    phi, gamma = predictions(kp, kv, ts, settings.horizon)
-    factors = []
-    gradients = []
-    for costed in range(1, settings.horizon + 1):
-        hessian, gradient = condensed_cost(phi, gamma, settings, costed)
-        factors.append(qp.factor(hessian))
-        gradients.append(gradient)
+    n = model.n_joints
+    every = settings.every(dt, duration)
+    samples = round(duration / dt) // every
+    ts = every * dt
+    kp = np.full(n, INNER_KP) if settings.kp is None else np.asarray(settings.kp, dtype=float)
+    kv = np.full(n, INNER_KV) if settings.kv is None else np.asarray(settings.kv, dtype=float)
+    if kp.shape != (n,) or kv.shape != (n,):
+        raise FlatcliError(f"track.mpc_kp, track.mpc_kv: expected {n} gains each, one per "
+                           "flat output")
+    size = 2 * n
+    a = np.zeros((size, size))
+    b = np.zeros((size, n))
+    for j in range(n):
+        aj, bj = discretise(float(kp[j]), float(kv[j]), ts)
+        a[2 * j: 2 * j + 2, 2 * j: 2 * j + 2] = aj
+        b[2 * j: 2 * j + 2, j] = bj
+    A = np.broadcast_to(a, (samples, size, size))
+    B = np.broadcast_to(b, (samples, size, n))
     times = np.arange(samples + 1) * ts
     flag = trajectory.flags(times).T  # (3 N, K + 1)
-    values, slopes = model.flag_jacobian(flag)
-    n = len(kp)
-    rates = np.ascontiguousarray(values[n + 1: 2 * n + 1].T)
-    rate_slopes = np.ascontiguousarray(np.transpose(slopes[n + 1: 2 * n + 1], (2, 0, 1)))
-    sigma = np.ascontiguousarray(values[2 * n + 1])
-    sigma_slopes = np.ascontiguousarray(slopes[2 * n + 1, : 2 * n].T)
+    values, slopes = model.flag_jacobian(flag)  # (2 N + 2, ...), (2 N + 2, 3 N, K + 1)
+    rows = list(range(n + 1, 2 * n + 2))  # th1'..thN', then the margin
+    value = values[rows].T.copy()  # (K + 1, Q)
+    d = np.transpose(slopes[rows], (2, 0, 1))  # (K + 1, Q, 3 N) along y, y', y''
+    dy, dy_dot, dy_ddot = d[..., :n], d[..., n: 2 * n], d[..., 2 * n:]
+    slope_s = np.zeros((samples + 1, n + 1, size))
+    slope_s[..., 0::2] = dy - kp * dy_ddot
+    slope_s[..., 1::2] = dy_dot - kv * dy_ddot
+    slope_v = dy_ddot.copy()
     limit = rate_limit * (1.0 - settings.backoff) if math.isfinite(rate_limit) else math.inf
-    return Design(kp, kv, phi, gamma, np.ascontiguousarray(np.stack(factors)),
-                  np.ascontiguousarray(np.stack(gradients)), rates, rate_slopes, sigma,
-                  sigma_slopes, float(limit), float(settings.margin), samples,
-                  settings.every)
+    lo = np.full((samples + 1, n + 1), -np.inf)
+    hi = np.full((samples + 1, n + 1), np.inf)
+    if math.isfinite(limit):
+        lo[:, :n], hi[:, :n] = -limit, limit
+    sigma = value[:, n]
+    if settings.margin > 0:
+        kept = np.minimum(settings.margin, 0.5 * np.abs(sigma))
+        positive = sigma > 0
+        lo[:, n] = np.where(positive, kept, -np.inf)
+        hi[:, n] = np.where(positive, np.inf, -kept)
+        lo[0, n], hi[0, n] = -np.inf, np.inf  # the measured state: nothing to choose
+    endpoint = (np.abs(slope_v).max(axis=(0, 2)) > 0.0).astype(float)
+    weights = np.full(size, settings.weight_state)
+    return design(A, B, weights, settings.weight_input, value, slope_s, slope_v, lo, hi,
+                  endpoint, settings.horizon, every)
 
 
-def rows(design: Design) -> int:
-    """The QP's constraints at most: 2 N terminal equalities, per sample 2 N two-sided
-    joint-rate rows (both ends of its interval) and the margin's, and the slack's own."""
-    n = int(design.kp.shape[0])
-    horizon = int(design.gamma.shape[1])
-    return 2 * n + horizon * (2 * n + 1) + 1
+def rows(d: Design) -> int:
+    """The QP's constraints at most: S terminal equalities, per sample a two-sided row of
+    each quantity (and of each endpoint one at its interval's end), and the slack's own."""
+    size = int(d.A.shape[1])
+    quantities = int(d.value.shape[1])
+    return size + d.horizon * (quantities + int(d.endpoint.sum())) + 1
 
 
 class Scratch(NamedTuple):
     """One trial's MPC state and buffers (``scratch``): the correction held dv (N,), the last
     solution (n,), whether it exists (valid[0]), the QP's rows C (m, n), their bounds lo, hi
-    (m,), widths (m,) and softness (m,) (``qp.solve``), its gradient (n,) and solution (n,),
-    the initial errors s0 (2 N,), the predicted errors (2 N,), a row (n,), the QP's buffers,
-    and counters: QP iterations, infeasible samples, largest slack."""
+    (m,), widths (m,) and softness (m,) (``qp.solve``), its gradient (n,) and solution
+    (n,), the measured errors s0 (S,), a row (n,) and a row of state slopes (S,) being
+    propagated, the QP's buffers, and counters: QP iterations, infeasible samples, largest
+    slack."""
 
     held: Array
     last: Array
@@ -253,21 +300,27 @@ class Scratch(NamedTuple):
     g: Array
     x: Array
     s0: Array
-    predicted: Array
     row: Array
+    slope: Array
+    spare: Array
     work: qp.Work
     counters: Array
 
 
-def scratch(design: Design) -> Scratch:
+def scratch(d: Design) -> Scratch:
     """Fresh buffers for one trial's samples."""
-    n_out = design.kp.shape[0]
-    size = design.factors.shape[1]
-    m = rows(design)
-    return Scratch(np.zeros(n_out), np.zeros(size), np.zeros(1), np.zeros((m, size)),
+    inputs = d.B.shape[2]
+    size = d.factors.shape[1]
+    states = d.A.shape[1]
+    m = rows(d)
+    return Scratch(np.zeros(inputs), np.zeros(size), np.zeros(1), np.zeros((m, size)),
                    np.zeros(m), np.zeros(m), np.zeros(m, dtype=np.int64), np.zeros(m),
-                   np.zeros(size), np.zeros(size), np.zeros(2 * n_out),
-                   np.zeros(2 * n_out), np.zeros(size), qp.work(size, m), np.zeros(3))
+                   np.zeros(size), np.zeros(size), np.zeros(states), np.zeros(size),
+                   np.zeros(states), np.zeros(states), qp.work(size, m), np.zeros(3))
+
+
+#: Where ``Scratch.counters`` keeps what a trial reports.
+QP_ITERATIONS, QP_INFEASIBLE, QP_SLACK = 0, 1, 2
 
 
 @jitable
@@ -279,30 +332,38 @@ def reset(s: Scratch) -> None:
 
 
 @jitable
-def _predicted(d: Design, s: Scratch, j: int, i: int) -> tuple[float, float]:
-    """The error (e_j, e_j') at sample i of the horizon from s0 alone (no correction)."""
-    e0 = s.s0[2 * j]
-    r0 = s.s0[2 * j + 1]
-    return (d.phi[j, i, 0, 0] * e0 + d.phi[j, i, 0, 1] * r0,
-            d.phi[j, i, 1, 0] * e0 + d.phi[j, i, 1, 1] * r0)
-
-
-@jitable
-def _state_row(d: Design, s: Scratch, a: Array, b: Array, i: int, direct: Array,
-               direct_sample: int) -> float:
-    """Into s.row: the coefficients on the corrections of sum_j a_j e_j + b_j e_j' at
-    sample i (plus ``direct``_j on dv_j of sample ``direct_sample``, none if < 0); returns
-    its value from s0 alone."""
-    n_out = d.kp.shape[0]
+def _row(d: Design, s: Scratch, k: int, i: int, at: int, q: int, direct: int) -> float:
+    """Into s.row: the coefficients on the corrections of quantity q's deviation from the
+    plan's at sample ``at`` given the state at horizon sample i (q < 0: the unit state
+    component -q - 1), plus its slope along dv_direct (direct < 0: none); returns the
+    deviation's value from s0 alone. The state's slope row is carried back through the
+    transitions (slope . A_k+i-1 ... A_k+j+1 B_k+j for dv_j)."""
+    inputs = d.B.shape[2]
+    states = d.A.shape[1]
+    slope, spare = s.slope, s.spare
+    for c in range(states):
+        slope[c] = (1.0 if c == -q - 1 else 0.0) if q < 0 else d.slope_s[at, q, c]
     s.row[:] = 0.0
+    for j in range(i - 1, -1, -1):
+        kk = k + j
+        for v in range(inputs):
+            acc = 0.0
+            for c in range(states):
+                acc += slope[c] * d.B[kk, c, v]
+            s.row[j * inputs + v] = acc
+        for c in range(states):
+            acc = 0.0
+            for r in range(states):
+                acc += slope[r] * d.A[kk, r, c]
+            spare[c] = acc
+        for c in range(states):
+            slope[c] = spare[c]
+    if direct >= 0 and q >= 0:
+        for v in range(inputs):
+            s.row[direct * inputs + v] += d.slope_v[at, q, v]
     value = 0.0
-    for j in range(n_out):
-        e, r = _predicted(d, s, j, i)
-        value += a[j] * e + b[j] * r
-        for k in range(i):
-            s.row[k * n_out + j] = a[j] * d.gamma[j, i - 1 - k, 0] + b[j] * d.gamma[j, i - 1 - k, 1]
-        if direct_sample >= 0:
-            s.row[direct_sample * n_out + j] += direct[j]
+    for c in range(states):
+        value += slope[c] * s.s0[c]
     return value
 
 
@@ -320,86 +381,66 @@ def _append(s: Scratch, count: int, width: int, lo: float, hi: float, slack: boo
 
 
 @jitable
-def sample_step(d: Design, s: Scratch, k: int, a: Array, b: Array, direct: Array) -> None:
-    """The correction for sample k (0..K - 1) into s.held, from the flat outputs' errors
-    s.s0 (e_j, e_j' in pairs) measured there; ``a``, ``b``, ``direct`` (N,) scratch."""
-    n_out = d.kp.shape[0]
-    horizon = d.gamma.shape[1]
+def sample_step(d: Design, s: Scratch, k: int) -> None:
+    """The correction for sample k (0..K - 1) into s.held, from the errors s.s0 measured
+    there (module docstring)."""
+    inputs = d.B.shape[2]
+    states = d.A.shape[1]
+    quantities = d.value.shape[1]
     size = s.row.shape[0]
     remaining = d.samples - k
     if remaining <= 1:  # the last sample: hold what was planned for it one sample ago
-        for j in range(n_out):
-            s.held[j] = s.last[n_out + j] if s.valid[0] != 0.0 else 0.0
+        for v in range(inputs):
+            s.held[v] = s.last[inputs + v] if s.valid[0] != 0.0 else 0.0
         return
-    costed = min(horizon, remaining)
-    factor = d.factors[costed - 1]
-    gradient = d.gradients[costed - 1]
+    costed = min(d.horizon, remaining)
+    gradient = d.gradients[k]
     for c in range(size):
         acc = 0.0
-        for q in range(2 * n_out):
+        for q in range(states):
             acc += gradient[c, q] * s.s0[q]
         s.g[c] = acc
     s.g[size - 1] += SLACK_LINEAR
     count = 0
-    if remaining <= horizon:  # the goal: e(T) = 0, e'(T) = 0
-        for j in range(n_out):
-            for which in range(2):
-                a[:] = 0.0
-                b[:] = 0.0
-                if which == 0:
-                    a[j] = 1.0
-                else:
-                    b[j] = 1.0
-                value = _state_row(d, s, a, b, remaining, direct, -1)
-                count = _append(s, count, remaining * n_out, -value, -value, False)
+    if remaining <= d.horizon:  # the goal: s(T) = 0
+        for c in range(states):
+            value = _row(d, s, k, remaining, k + remaining, -c - 1, -1)
+            count = _append(s, count, remaining * inputs, -value, -value, False)
     meq = count
     for i in range(costed):
-        t = k + i
-        if math.isfinite(d.limit):
-            for end in range(2):  # the rates at the interval's start, and at its end
-                at = t + end
-                state_sample = i + end
-                for lj in range(n_out):
-                    slopes = d.rate_slopes[at, lj]
-                    commanded = False  # does the rate follow dv (else it is a state)
-                    for j in range(n_out):
-                        direct[j] = slopes[2 * n_out + j]
-                        commanded = commanded or direct[j] != 0.0
-                        a[j] = slopes[j] - d.kp[j] * direct[j]
-                        b[j] = slopes[n_out + j] - d.kv[j] * direct[j]
-                    if end == 1 and not commanded and i < costed - 1:
-                        continue  # the same row as the next sample's start
-                    value = _state_row(d, s, a, b, state_sample, direct, i)
-                    rate = d.rates[at, lj] + value
-                    count = _append(s, count, (i + 1) * n_out, -d.limit - rate,
-                                    d.limit - rate, True)
-        sigma = d.sigma[t]
-        if d.margin > 0.0 and i > 0 and math.isfinite(sigma):
-            sign = 1.0 if sigma > 0.0 else -1.0
-            kept = min(d.margin, 0.5 * abs(sigma))
-            for j in range(n_out):
-                a[j] = d.sigma_slopes[t, j]
-                b[j] = d.sigma_slopes[t, n_out + j]
-            value = _state_row(d, s, a, b, i, direct, -1)
-            for c in range(i * n_out):
-                s.row[c] *= sign
-            count = _append(s, count, i * n_out, kept - abs(sigma) - sign * value, math.inf,
-                            True)
+        for q in range(quantities):
+            for end in range(2):  # at the interval's start; an endpoint also at its end
+                if end == 1 and d.endpoint[q] == 0.0 and i < costed - 1:
+                    continue  # a continuous quantity: the next sample's start row
+                at = k + i + end
+                lo = d.lo[at, q]
+                hi = d.hi[at, q]
+                if math.isinf(lo) and math.isinf(hi):
+                    continue
+                deviation = _row(d, s, k, i + end, at, q, i)
+                value = d.value[at, q] + deviation
+                width = (i + 1) * inputs
+                if end == 0 and d.endpoint[q] == 0.0:
+                    width = i * inputs  # no dv of its own sample: a state's function
+                    if i == 0:
+                        continue  # the measured state: nothing to choose
+                count = _append(s, count, width, lo - value, hi - value, True)
     count = _append(s, count, 0, 0.0, math.inf, True)  # the slack itself: s >= 0
-    status, iterations, _ = qp.solve(factor, s.g, s.C, s.lo, s.hi, s.width, s.soft, meq,
-                                     count, s.x, s.work, ITERATIONS_PER_ROW * (size + count))
-    s.counters[0] += iterations
-    if status != qp.OPTIMAL:  # no correction: the flat law alone
-        s.counters[1] += 1.0
+    status, iterations, _ = qp.solve(d.factors[k], s.g, s.C, s.lo, s.hi, s.width, s.soft,
+                                     meq, count, s.x, s.work,
+                                     ITERATIONS_PER_ROW * (size + count))
+    s.counters[QP_ITERATIONS] += iterations
+    if status != qp.OPTIMAL:  # no correction: the inner law alone
+        s.counters[QP_INFEASIBLE] += 1.0
         s.held[:] = 0.0
         s.valid[0] = 0.0
         return
     slack = s.x[size - 1]
     if slack > SLACK_TOLERANCE:
-        s.counters[1] += 1.0
-    s.counters[2] = max(s.counters[2], slack)
-    for j in range(n_out):
-        s.held[j] = s.x[j]
+        s.counters[QP_INFEASIBLE] += 1.0
+    s.counters[QP_SLACK] = max(s.counters[QP_SLACK], slack)
+    for v in range(inputs):
+        s.held[v] = s.x[v]
     for c in range(size):
         s.last[c] = s.x[c]
     s.valid[0] = 1.0
