@@ -203,11 +203,12 @@ def design(A: Array, B: Array, weights: Array, weight_input: float, value: Array
         hessian, gradient = condensed_cost(A, B, weights, weight_input, k, horizon)
         factors.append(qp.factor(hessian))
         gradients.append(gradient)
-    arrays = [np.ascontiguousarray(a, dtype=float) for a in
-              (A, B, weights, np.stack(factors), np.stack(gradients), value, slope_s, slope_v,
-               lo, hi, endpoint)]
-    return Design(arrays[0], arrays[1], arrays[2], float(weight_input), *arrays[3:],
-                  int(horizon), int(samples), int(every))
+    def c(a: Any) -> Array:
+        return np.ascontiguousarray(a, dtype=float)
+
+    return Design(c(A), c(B), c(weights), float(weight_input), c(np.stack(factors)),
+                  c(np.stack(gradients)), c(value), c(slope_s), c(slope_v), c(lo), c(hi),
+                  c(endpoint), int(horizon), int(samples), int(every))
 
 
 def flat_design(model: Any, trajectory: Any, duration: float, dt: float, rate_limit: float,
