@@ -222,3 +222,49 @@ def test_a_limit_the_correction_can_reach_within_a_sample_needs_no_slack(paper_p
     s = _solve(d, k, np.zeros(4))
     assert s.counters[mpc.QP_INFEASIBLE] == 0.0
     assert s.held[0] < 0.0  # th1' is slowed down
+
+
+def test_the_as_built_discretisation_is_the_nonlinear_loop_to_second_order() -> None:
+    """The as-built design's A_k, B_k against the robot as built in closed loop with its
+    LQR and a held correction: th' = (th0'(q, w), w), w = w_r - L (th - th_r) + dv, the base
+    rate from the link geometry (tests/asbuilt_support.py, nothing of flatcli's chain),
+    integrated by DOP853: the prediction's error falls as the square of the error's size
+    (a first-order model), and is small."""
+    from asbuilt_support import AS_BUILT, base_rate
+
+    import flatcli
+    from flatcli.core.lqr import LqrWeights, tracked
+
+    plan = flatcli.plan(overrides={"robot.com": list(AS_BUILT.com)}).plan
+    assert plan.model.kind == "exact"
+    settings = mpc.MpcSettings(sample=0.1, horizon=5)
+    d = mpc.asbuilt_design(plan, LqrWeights(), 0.001, math.inf, settings)
+    curves = tracked(plan, LqrWeights(), None)
+    n = 2
+
+    def reference(t: float) -> tuple[Array, Array, Array]:
+        c = curves.derivative(np.array([t]), 0)[0]
+        r = curves.derivative(np.array([t]), 1)[0]
+        theta = np.r_[c[n], c[:n]]
+        return theta, r[:n], c[n + 1:].reshape(n, n + 1)
+
+    def loop(t: float, theta: Array, dv: Array) -> Array:
+        ref, w_ref, gains = reference(t)
+        w = w_ref - gains @ (theta - ref) + dv
+        return np.r_[base_rate(AS_BUILT, theta[1:], w), w]
+
+    k = 7
+    t0, t1 = k * 0.1, (k + 1) * 0.1
+    rng = np.random.default_rng(5)
+    direction_e = rng.standard_normal(n + 1)
+    direction_v = rng.standard_normal(n)
+    misses = []
+    for size in (1e-3, 5e-4):
+        e0, dv = size * direction_e, size * direction_v
+        start = reference(t0)[0] + e0
+        end = solve_ivp(lambda t, th, dv=dv: loop(t, th, dv), (t0, t1), start,
+                        **TIGHT).y[:, -1]
+        e1 = end - reference(t1)[0]
+        misses.append(np.abs(e1 - (d.A[k] @ e0 + d.B[k] @ dv)).max())
+    assert misses[0] < 1e-2 * 1e-3  # small against the error itself
+    assert 3.0 < misses[0] / misses[1] < 5.0  # second order: halving the size quarters it

@@ -445,3 +445,78 @@ def sample_step(d: Design, s: Scratch, k: int) -> None:
     for c in range(size):
         s.last[c] = s.x[c]
     s.valid[0] = 1.0
+
+
+def asbuilt_design(plan: Any, weights: Any, dt: float, rate_limit: float,
+                   settings: MpcSettings, servo: float | None = None) -> Design:
+    """The MPC about a plan of a robot as built (module docstring): the inner law is the
+    as-built LQR w = w_r - L(t) e (``lqr``: its weights ``weights``, designed on the plan's
+    robot; the dynamic plant's servo lag of bandwidth ``servo`` [rad/s] a state too) and
+    dv is added to the joint rates it commands; the errors e (the angles th0..thN, then the
+    joint rates with a servo: the order of ``lqr.linearisation``) obey, to first order,
+    e' = (A(t) - B(t) L(t)) e + B(t) dv, discretised over each sample by integrating the
+    transition and the response to a held dv (DOP853 at rtol ``DISCRETE_RTOL``). The
+    quantities are the commanded joint rates w_r - L e + dv (with a servo, plus the plan's
+    joint accelerations over its bandwidth: the lead the law adds), bounded by the rate
+    limit; there is no singular set, so no margin.
+
+    Raises FlatcliError naming the key if the sample time does not fit (``MpcSettings``).
+    """
+    from scipy.integrate import solve_ivp
+
+    from flatcli.core.exact import constraint_of
+    from flatcli.core.lqr import TrackedLayout, linearisation, tracked
+
+    duration = plan.duration
+    every = settings.every(dt, duration)
+    samples = round(duration / dt) // every
+    ts = every * dt
+    n = plan.n_joints
+    curves = tracked(plan, weights, servo)
+    layout = TrackedLayout(n, 2 * n + 1 if servo is not None else n + 1)
+    size = layout.width
+    constraint = constraint_of(plan.robot)
+
+    def closed_loop(t: float) -> tuple[Array, Array]:
+        channels = curves.derivative(np.array([t]), 0)[0]
+        rates = curves.derivative(np.array([t]), 1)[0]
+        a, b = linearisation(constraint, channels[None, :n], rates[None, :n], servo)
+        gains = channels[n + 1:].reshape(n, size)
+        return a[0] - b[0] @ gains, b[0]
+
+    def rhs(t: float, z: Array) -> Array:
+        acl, b = closed_loop(t)
+        phi = z[: size * size].reshape(size, size)
+        gamma = z[size * size:].reshape(size, n)
+        return np.concatenate([(acl @ phi).ravel(), (acl @ gamma + b).ravel()])
+
+    A = np.zeros((samples, size, size))
+    B = np.zeros((samples, size, n))
+    start = np.concatenate([np.eye(size).ravel(), np.zeros(size * n)])
+    for k in range(samples):
+        sol = solve_ivp(rhs, (k * ts, (k + 1) * ts), start, method="DOP853",
+                        rtol=DISCRETE_RTOL, atol=DISCRETE_ATOL)
+        if not sol.success:
+            raise FlatcliError(f"track.mpc_sample: the as-built law's error could not be "
+                               f"discretised over sample {k} ({sol.message})")
+        end = sol.y[:, -1]
+        A[k] = end[: size * size].reshape(size, size)
+        B[k] = end[size * size:].reshape(size, n)
+    times = np.arange(samples + 1) * ts
+    channels = curves.derivative(times, 0)
+    value = curves.derivative(times, 1)[:, :n].copy()  # w_r: the joints' planned rates
+    if servo is not None:
+        value += curves.derivative(times, 2)[:, :n] / servo
+    slope_s = -channels[:, n + 1:].reshape(samples + 1, n, size)
+    slope_v = np.broadcast_to(np.eye(n), (samples + 1, n, n)).copy()
+    limit = rate_limit * (1.0 - settings.backoff) if math.isfinite(rate_limit) else math.inf
+    lo = np.full((samples + 1, n), -limit)
+    hi = np.full((samples + 1, n), limit)
+    endpoint = np.ones(n)
+    return design(A, B, np.full(size, settings.weight_state), settings.weight_input, value,
+                  slope_s, slope_v, lo, hi, endpoint, settings.horizon, every)
+
+
+#: Tolerances of the as-built design's discretisation over each sample.
+DISCRETE_RTOL = 1e-10
+DISCRETE_ATOL = 1e-12
