@@ -16,8 +16,8 @@ import pytest
 from numpy.typing import NDArray
 from scipy.integrate import solve_ivp
 
-from flatcli.core import mpc
-from flatcli.core.model import FlatcliError
+from flatcli.core.controllers import mpc
+from flatcli.core.errors import FlatcliError
 
 Array = NDArray[np.float64]
 
@@ -233,7 +233,7 @@ def test_the_as_built_discretisation_is_the_nonlinear_loop_to_second_order() -> 
     from asbuilt_support import AS_BUILT, base_rate
 
     import flatcli
-    from flatcli.core.lqr import LqrWeights, tracked
+    from flatcli.core.controllers.lqr import LqrWeights, tracked
 
     plan = flatcli.plan(overrides={"robot.com": list(AS_BUILT.com)}).plan
     assert plan.model.kind == "exact"

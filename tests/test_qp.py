@@ -17,7 +17,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from numpy.typing import NDArray
 
-from flatcli.core import qp
+from flatcli.core.controllers import qp
 
 Array = NDArray[np.float64]
 

@@ -49,9 +49,9 @@ import numpy as np
 import scipy.linalg
 from numpy.typing import NDArray
 
-from flatcli.core import qp
 from flatcli.core._jit import jitable
-from flatcli.core.model import FlatcliError
+from flatcli.core.controllers import qp
+from flatcli.core.errors import FlatcliError
 
 Array = NDArray[np.float64]
 
@@ -464,8 +464,8 @@ def asbuilt_design(plan: Any, weights: Any, dt: float, rate_limit: float,
     """
     from scipy.integrate import solve_ivp
 
-    from flatcli.core.exact import constraint_of
-    from flatcli.core.lqr import TrackedLayout, linearisation, tracked
+    from flatcli.core.controllers.lqr import TrackedLayout, linearisation, tracked
+    from flatcli.core.plan.exact import constraint_of
 
     duration = plan.duration
     every = settings.every(dt, duration)
