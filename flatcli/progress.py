@@ -11,7 +11,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, TextIO
 
-from flatcli.core.metrics import STATUS_NAMES
+from flatcli.core.loop.metrics import STATUS_NAMES
 
 #: A sweep of more grid cells than this says how its cells' planning goes (``cells``).
 CELLS_SHOWN = 50

@@ -1,4 +1,5 @@
-"""The continuous-time proof (flatcli/core/clearance.py): tests that fail when a bound is wrong.
+"""The continuous-time proof (flatcli/core/plan/clearance.py): tests that fail when a bound
+is wrong.
 
 Referees, none of them the code under test: the links placed in the complex plane from
 their definitions (tests/task_referees.py); each plan sampled densely on random time
@@ -24,12 +25,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from numpy.typing import NDArray
 
-from flatcli.core import clearance as cl
-from flatcli.core.clearance import Constraints, certify, point_slack, sampled_slack
-from flatcli.core.intervals import Interval
-from flatcli.core.model import PAPER_ROBOT, FlatcliError, RobotParams
-from flatcli.core.planning import Plan, plan_point_to_point
-from flatcli.core.rest import plan_rest_to_rest
+from flatcli.core.errors import FlatcliError
+from flatcli.core.plan import clearance as cl
+from flatcli.core.plan.clearance import Constraints, certify, point_slack, sampled_slack
+from flatcli.core.plan.intervals import Interval
+from flatcli.core.plan.planning import Plan, plan_point_to_point
+from flatcli.core.plan.rest import plan_rest_to_rest
+from flatcli.core.robots.params import PAPER_ROBOT, RobotParams
 from tests import task_referees as ref
 
 Array = NDArray[np.float64]
@@ -335,7 +337,7 @@ def test_the_samples_screen_names_a_violation_and_a_nan_as_one() -> None:
 
 
 def test_an_exact_plan_is_refused_in_one_line() -> None:
-    from flatcli.core.exact import plan_exact
+    from flatcli.core.plan.exact import plan_exact
 
     built = RobotParams(com=(0.1, 0.1, 0.003))
     plan = plan_exact(built, START, GOAL, 0.1, 0.5, 2.0)

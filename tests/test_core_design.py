@@ -1,4 +1,4 @@
-"""Tests of flatcli.core.design: is a design flat, with closed-form outputs, or not at all.
+"""Tests of flatcli.core.robots.design: is a design flat, with closed-form outputs, or not at all.
 
 The referee is a sympy derivation from the link positions (as in ``tests/test_chain.py``):
 each link's centre of mass placed along the chain from O0, h_j = dH/dth_j' by the chain rule,
@@ -19,8 +19,8 @@ import pytest
 import sympy as sp
 from numpy.typing import NDArray
 
-from flatcli.core.chain import chain_momentum
-from flatcli.core.design import (
+from flatcli.core.robots.chain import chain_momentum
+from flatcli.core.robots.design import (
     INTEGRABILITY_RTOL,
     VERDICTS,
     constraint_form,
@@ -30,7 +30,7 @@ from flatcli.core.design import (
     wedge,
     wedge_components,
 )
-from flatcli.core.model import PAPER_ROBOT, RobotParams, flatness_check
+from flatcli.core.robots.params import PAPER_ROBOT, RobotParams, flatness_check
 
 Array = NDArray[np.float64]
 Numbers = Sequence[str | float]
@@ -319,8 +319,9 @@ def test_a_flat_verdict_says_what_each_plan_method_does_and_it_is_so(name: str) 
     """The verdict's last reason claims plan.method "flat" refuses the design and "auto"
     plans it exactly: the planners' own choice (``exact.method_for``) and the flat planner's
     refusal (``model.require_flat``) are the referees."""
-    from flatcli.core.exact import method_for
-    from flatcli.core.model import FlatcliError, require_flat
+    from flatcli.core.errors import FlatcliError
+    from flatcli.core.plan.exact import method_for
+    from flatcli.core.robots.params import require_flat
 
     design = robot(*CONTROLLABLE[name][0])
     text = design_verdict(design).reasons[-1]

@@ -1,4 +1,4 @@
-"""Interval arithmetic (flatcli/core/intervals.py): every bound against the exact value.
+"""Interval arithmetic (flatcli/core/plan/intervals.py): every bound against the exact value.
 
 Referees: exact rational arithmetic (``fractions.Fraction`` of the floats, no rounding), so a
 bound that is not rounded outwards, or a wrong formula, is caught even by an ulp; dense
@@ -18,8 +18,8 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from flatcli.core import intervals as iv
-from flatcli.core.intervals import Interval
+from flatcli.core.plan import intervals as iv
+from flatcli.core.plan.intervals import Interval
 
 #: Finite floats of a plan's magnitudes (angles, rates, lengths) and beyond.
 FLOATS = st.floats(-1e6, 1e6, allow_nan=False, allow_infinity=False)

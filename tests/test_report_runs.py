@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from flatcli.core.model import PAPER_ROBOT
-from flatcli.core.planning import plan_point_to_point
+from flatcli.core.plan.planning import plan_point_to_point
+from flatcli.core.robots.params import PAPER_ROBOT
 from flatcli.report.runs import optimization_text, plan_summary
 
 
@@ -38,9 +38,9 @@ def test_the_optimisers_chosen_end_rates_are_shown_for_every_inner_joint() -> No
 def test_plan_text_names_its_curves_in_words_not_class_names() -> None:
     """The header says what the curves are (the basis's degree and coefficients, an exact
     plan's pieces), never a Python class name."""
-    from flatcli.core.basis import BSplineBasis
-    from flatcli.core.exact import plan_exact
-    from flatcli.core.rest import plan_rest_to_rest
+    from flatcli.core.curves.basis import BSplineBasis
+    from flatcli.core.plan.exact import plan_exact
+    from flatcli.core.plan.rest import plan_rest_to_rest
     from flatcli.report.runs import plan_text
 
     start, goal = np.array([1.8, 1, 0]), np.array([1.2, 2, 0])

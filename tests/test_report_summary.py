@@ -172,7 +172,7 @@ def test_a_task_sweep_counts_trials_resolved_within_the_reach_tolerance() -> Non
 
 
 def _headline_rows(cells: int, errors: int = 0) -> list[dict[str, object]]:
-    from flatcli.core.metrics import STATUS_NAMES
+    from flatcli.core.loop.metrics import STATUS_NAMES
 
     rows: list[dict[str, object]] = []
     for c in range(cells):

@@ -287,5 +287,5 @@ def test_a_record_that_is_json_but_not_an_object_is_unreadable(tmp_path: Path) -
     (tmp_path / "run.json").write_text('{"command": "plan"}')
     assert read_json(tmp_path / "run.json") == {"command": "plan"}
     (tmp_path / "run.json").write_text("[")
-    with pytest.raises(RunDirectoryError, match="its run.json is unreadable"):
+    with pytest.raises(RunDirectoryError, match=r"its run\.json is unreadable"):
         claim(tmp_path, "plan", "x", "d")

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from flatcli.core.planning import Plan, PlanSamples
+from flatcli.core.plan.planning import Plan, PlanSamples
 from flatcli.report.tables import fmt, table
 
 if TYPE_CHECKING:
@@ -38,8 +38,8 @@ _ORDINAL = {3: "cubic", 5: "quintic", 7: "degree-7"}
 def curves_text(plan: Plan) -> str:
     """What a plan's curves are, in words (no class names): the flat outputs' (or an exact
     plan's joint paths') basis and its coefficients."""
-    from flatcli.core.basis import BSplineBasis, PolynomialBasis
-    from flatcli.core.pieces import PiecewiseBasis
+    from flatcli.core.curves.basis import BSplineBasis, PolynomialBasis
+    from flatcli.core.curves.pieces import PiecewiseBasis
 
     basis = plan.trajectory.basis
     if isinstance(basis, PolynomialBasis):
