@@ -281,7 +281,8 @@ def robot_option(fn: F) -> F:
              "under the spec's own keys (shorthand for --set robot=...).")(fn)
 
 
-def set_option(help: str = "Override a spec key (dotted; VALUE in TOML), repeatable."
+def set_option(help: str = "Override a spec key (dotted; VALUE in TOML), or remove one with "
+                             "~KEY (it takes its default again), repeatable."
                ) -> Callable[[F], F]:
     from flatcli.completion import complete_set
 
