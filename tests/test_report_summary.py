@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -215,7 +216,8 @@ def test_a_large_grid_shows_its_worst_cells_and_the_error_reasons() -> None:
     shown = [int(line.split("|")[1]) for line in lines[3:3 + HEADLINE_CELLS]]
     assert len(shown) == HEADLINE_CELLS and shown == sorted(shown) and 1 in shown
     assert f"({HEADLINE_CELLS} of 400 cells shown: those with the most trials not ok)" in text
-    assert "error (2 trials): plan: the margin is zero" in text
+    assert "error (2 trials like this): plan: the margin is zero" in text
+    assert "error (1 trial): task.end_effector: unreachable" in text
     assert "(1 more error reason in trials.parquet's reason column)" in text
     assert "| error |" in lines[1]  # a status any cell has is a column
     assert len(lines) <= 30
@@ -231,3 +233,20 @@ def test_the_headline_shows_outcome_counts_when_the_summary_has_them() -> None:
         r.update(outcome_reached=5, outcome_missed=15, outcome_reached_fraction=0.25)
     head = headline(rows, [], "t", "d").splitlines()[1]
     assert "| reached | missed |" in head and "fraction" not in head
+
+
+def test_error_reasons_that_differ_only_in_numbers_are_one_kind(tmp_path: Path) -> None:
+    """Each trial's own target makes its reason's numbers differ: counted as one kind, shown
+    as the first; ok trials and other reasons apart."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from flatcli.report.summary import error_reasons
+
+    reasons = ["task.end_effector: [-0.3, 0.04] m is unreachable: 0.05 m beyond",
+               "task.end_effector: [0.41, -1e-05] m is unreachable: 0.1 m beyond",
+               "plan: the margin is zero at t = 0.3 s", None, ""]
+    pq.write_table(pa.table({"status": ["error", "error", "error", "ok", "error"],
+                             "reason": reasons}), tmp_path / "trials.parquet")
+    assert error_reasons([tmp_path / "trials.parquet"]) == {
+        reasons[0]: 2, reasons[2]: 1, "(no reason recorded)": 1}

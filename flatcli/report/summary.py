@@ -13,6 +13,7 @@ interval (``wilson_interval``), so a reader sees how much each statistic leaves 
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
@@ -497,20 +498,29 @@ def grid_columns_of(records: Sequence[Mapping[str, Any]]) -> list[str]:
     return names[names.index("cell") + 1: names.index("trials")]
 
 
+#: Numbers in an error reason (a trial's own target, times, sizes): reasons that differ only
+#: in them are one kind of error in a headline.
+_NUMBER = re.compile(r"[-+]?\d+(\.\d*)?([eE][-+]?\d+)?")
+
+
 def error_reasons(paths: Sequence[Any]) -> dict[str, int]:
     """reason -> trials, of the error trials in the Parquet files ``paths`` (trials.parquet,
-    or a partial sweep's chunk files); nothing is read but the two columns."""
+    or a partial sweep's chunk files), reasons that differ only in their numbers counted as
+    one (shown as the first of them); nothing is read but the two columns."""
     import pyarrow.compute as pc
     import pyarrow.parquet as pq
 
-    out: dict[str, int] = {}
+    first: dict[str, str] = {}
+    counts: dict[str, int] = {}
     for path in paths:
         table = pq.read_table(path, columns=["status", "reason"])
         errors = table.filter(pc.equal(table.column("status"), "error"))
         for reason in errors.column("reason").to_pylist():
             text = str(reason or "").strip() or "(no reason recorded)"
-            out[text] = out.get(text, 0) + 1
-    return out
+            kind = _NUMBER.sub("#", text)
+            first.setdefault(kind, text)
+            counts[kind] = counts.get(kind, 0) + 1
+    return {first[kind]: count for kind, count in counts.items()}
 
 
 def headline(records: Sequence[Mapping[str, Any]], grid_keys: Sequence[str], title: str,
@@ -544,7 +554,8 @@ def headline(records: Sequence[Mapping[str, Any]], grid_keys: Sequence[str], tit
                      "trials not ok)")
     for reason, count in sorted((reasons or {}).items(), key=lambda kv: -kv[1])[
             :HEADLINE_REASONS]:
-        lines.append(f"error ({count} trial{'s' if count != 1 else ''}): {reason}")
+        lines.append(f"error ({count} trial{'s' if count != 1 else ''}"
+                     f"{' like this' if count != 1 else ''}): {reason}")
     more = len(reasons or {}) - HEADLINE_REASONS
     if more > 0:
         lines.append(f"({more} more error reason{'s' if more != 1 else ''} in "
