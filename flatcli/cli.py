@@ -896,18 +896,24 @@ def runs(directories: tuple[Path, ...], filters: tuple[str, ...], sort: str | No
         show(runs_table(roots[0], rows, width))
 
 
-@main.command(short_help="A run's or sweep's tables as CSV.")
+@main.command(short_help="A run's or sweep's tables as CSV or MATLAB files.")
 @click.argument("directory", type=click.Path(path_type=Path, file_okay=False))
-@click.option("--csv", "as_csv", is_flag=True, help="Write CSV files (the one format so far).")
+@click.option("--csv", "as_csv", is_flag=True, help="Write CSV files.")
+@click.option("--mat", "as_mat", is_flag=True,
+              help="Write MATLAB files (.mat: the columns, their units and a description).")
 @out_option(help="Write the files here [default: beside the tables].")
-def export(directory: Path, as_csv: bool, out: Path | None) -> None:
-    """Write a run's or sweep's Parquet tables in another format (--csv)."""
-    if not as_csv:
-        fail("export: choose a format: --csv")
-    from flatcli.export import export_csv
+def export(directory: Path, as_csv: bool, as_mat: bool, out: Path | None) -> None:
+    """Write a run's or sweep's Parquet tables in other formats (--csv, --mat, or both)."""
+    if not (as_csv or as_mat):
+        fail("export: choose a format: --csv, --mat (or both)")
+    from flatcli.export import export_csv, export_mat
 
+    paths = []
     with user_errors():
-        paths = export_csv(directory, out)
+        if as_csv:
+            paths += export_csv(directory, out)
+        if as_mat:
+            paths += export_mat(directory, out)
     show("wrote " + ", ".join(str(p) for p in paths))
 
 
