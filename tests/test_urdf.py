@@ -385,6 +385,13 @@ def test_a_missing_urdf_is_one_line_exit_2(tmp_path: Path) -> None:
     assert code == 2 and out == f"error: URDF file not found: {tmp_path / 'nowhere.urdf'}\n"
 
 
+def test_a_urdf_given_as_the_spec_says_to_pass_it_as_the_robot(tmp_path: Path) -> None:
+    code, out = run("plan", str(ARM), "--out", str(tmp_path / "p"))
+    assert code == 2 and out.count("\n") == 1
+    assert f"{ARM} is a URDF, a robot rather than a spec: pass it as --robot {ARM}" in out
+    assert not (tmp_path / "p").exists()
+
+
 def test_export_robot_writes_a_urdf_that_reads_back_as_the_specs_robot(tmp_path: Path) -> None:
     out = tmp_path / "chain4.urdf"
     code, text = run("export-robot", "--robot", "chain4", "--set", "robot.com_across=0.003",

@@ -332,7 +332,11 @@ def read_text(path: Path, what: str = "spec file", limit: int = MAX_SPEC_BYTES) 
 def read_toml(path: Path) -> dict[str, Any]:
     """Parse a TOML file; SpecError for a missing, unreadable, oversized or non-regular file
     (a FIFO or a device is refused without reading from it), for text that is not UTF-8,
-    and for TOML that is invalid or nested too deeply."""
+    and for TOML that is invalid or nested too deeply; a URDF given as a spec is named as
+    one."""
+    if path.suffix.lower() == ".urdf":
+        raise SpecError(f"{path} is a URDF, a robot rather than a spec: pass it as --robot "
+                        f"{path} (or robot = \"{path.name}\" in a spec)")
     text = read_text(path)
     try:
         return tomllib.loads(text)
