@@ -50,7 +50,7 @@ if TYPE_CHECKING:
         track,
         workspace,
     )
-    from flatcli.core.model import FlatcliError
+    from flatcli.core.errors import FlatcliError
     from flatcli.pycontrol import flatsystem
     from flatcli.spec import Spec, SpecError
     from flatcli.urdf import read_urdf
@@ -72,7 +72,7 @@ _LAZY = {
     "TrackResult": "flatcli.api",
     "WorkspaceResult": "flatcli.api",
     "SweepResult": "flatcli.api",
-    "FlatcliError": "flatcli.core.model",
+    "FlatcliError": "flatcli.core.errors",
     "Spec": "flatcli.spec",
     "SpecError": "flatcli.spec",
     "flatsystem": "flatcli.pycontrol",

@@ -1,7 +1,7 @@
 """flatcli's robots as python-control flat systems (``flatcli.flatsystem``).
 
 ``flatsystem(spec, overrides)`` returns a ``control.flatsys.FlatSystem`` whose ``forward`` and
-``reverse`` are flatcli's own flat maps (``flatcli.core.flatmodel``: the paper's closed forms
+``reverse`` are flatcli's own flat maps (``flatcli.core.models.flatmodel``: the paper's closed forms
 for N = 2, the chain's for N >= 3), so ``control.flatsys.point_to_point``,
 ``solve_flat_ocp`` and python-control's simulation (``control.input_output_response``) work on
 flatcli's robots. For every design with closed-form flat outputs (``flatcli design``:
@@ -36,12 +36,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from flatcli.core.model import FlatcliError
+from flatcli.core.errors import FlatcliError
 
 if TYPE_CHECKING:
     from flatcli.api import Overrides, SpecLike
-    from flatcli.core.flatmodel import FlatModel
-    from flatcli.core.planning import Plan
+    from flatcli.core.models.flatmodel import FlatModel
+    from flatcli.core.plan.planning import Plan
 
 Array = NDArray[np.float64]
 #: Complex-step size of ``accelerations`` (exact to rounding: no difference is taken).
@@ -101,15 +101,15 @@ def base_rate(model: FlatModel, theta: Array, rates: Array) -> float:
     """th0' [rad/s] the model's momentum constraint (H = 0) gives at angles theta (N + 1,)
     and joint rates th1'..thN' (N,): the reduced constraint's coefficients for the paper's
     model, the chain's weights h_j otherwise."""
-    from flatcli.core.flatmodel import ChainModel, PaperModel
+    from flatcli.core.models.flatmodel import ChainModel, PaperModel
 
     if isinstance(model, PaperModel):
-        from flatcli.core.model import base_rate as paper_rate
+        from flatcli.core.robots.params import base_rate as paper_rate
 
         return float(paper_rate(model.coefficients, 1.0, 0.0, theta[1], theta[2], rates[0],
                                 rates[1]))
     assert isinstance(model, ChainModel)
-    from flatcli.core.chain import momentum_weights
+    from flatcli.core.robots.chain import momentum_weights
 
     h = np.empty(theta.shape[0])
     momentum_weights(model.K, model.inertia, np.ascontiguousarray(theta, dtype=float), h)
@@ -134,8 +134,8 @@ def flatsystem(spec: SpecLike = None, overrides: Overrides = None) -> Any:
     """
     fs = _control()
     from flatcli.api import load_spec
-    from flatcli.core.flatmodel import flat_model
-    from flatcli.core.model import require_flat
+    from flatcli.core.models.flatmodel import flat_model
+    from flatcli.core.robots.params import require_flat
     from flatcli.experiment import checked, robot_from
 
     s = load_spec(spec, overrides)

@@ -54,7 +54,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from flatcli.core.model import FlatcliError, RobotParams
+from flatcli.core.errors import FlatcliError
+from flatcli.core.robots.params import RobotParams
 
 Array = NDArray[np.float64]
 

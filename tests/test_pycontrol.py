@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 
 import flatcli
-from flatcli.core.chain import chain_momentum
-from flatcli.core.model import FlatcliError
+from flatcli.core.errors import FlatcliError
+from flatcli.core.robots.chain import chain_momentum
 from flatcli.pycontrol import MISSING, end_inputs, end_states, reverse_map
 
 #: python-control's solution against flatcli's plan (the issue's bar: 1e-9; the two agree to

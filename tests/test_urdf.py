@@ -26,8 +26,9 @@ from hypothesis import strategies as st
 from numpy.typing import NDArray
 
 from flatcli.cli import main
-from flatcli.core.chain import chain_momentum
-from flatcli.core.model import PAPER_ROBOT, FlatcliError, RobotParams, placed
+from flatcli.core.errors import FlatcliError
+from flatcli.core.robots.chain import chain_momentum
+from flatcli.core.robots.params import PAPER_ROBOT, RobotParams, placed
 from flatcli.urdf import read_urdf, urdf_robot, urdf_text
 
 Array = NDArray[np.float64]

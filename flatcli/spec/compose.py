@@ -97,7 +97,7 @@ class _Composer:
     def urdf(self, path: Path, chain: tuple[Path, ...], where: str) -> dict[str, Any]:
         """The ``[robot]`` keys a URDF file gives (``flatcli.urdf``); SpecError naming the
         file and the joint or element for one that is missing, malformed or not planar."""
-        from flatcli.core.model import FlatcliError
+        from flatcli.core.errors import FlatcliError
         from flatcli.urdf import read_urdf
 
         try:
