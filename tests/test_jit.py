@@ -402,8 +402,8 @@ def test_a_cache_entry_that_cannot_be_read_is_compiled_again(tmp_path: Path) -> 
     assert warm["hits"] == 1 and warm["values"] == first["values"]  # rewritten whole
 
 
-@pytest.mark.parametrize("damage", ["garbage", "truncated", "empty"])
-@pytest.mark.parametrize("refresh", ["0", "1"])
+@pytest.mark.parametrize(("damage", "refresh"), [("garbage", "0"), ("garbage", "1"),
+                                                 ("truncated", "0"), ("empty", "0")])
 def test_a_damaged_cache_index_is_compiled_again_once(tmp_path: Path, damage: str,
                                                       refresh: str) -> None:
     """A damaged index (``.nbi``) made numba raise (ValueError, UnpicklingError) when it
