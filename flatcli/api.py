@@ -48,6 +48,7 @@ from flatcli.report import (
     plan_text,
     plan_title,
     save_figure,
+    task_text,
     track_figure,
     track_title,
 )
@@ -304,6 +305,8 @@ class PlanResult(Run):
         text = plan_text(self.spec.name, self.plan, self.samples)
         if self.optimization is not None:
             text += "\n\n" + optimization_text(self.optimization)
+        if self.metrics is not None and "task_candidates" in self.metrics:
+            text += "\n\n" + task_text(self.metrics)
         return text
 
     def plot(self) -> Figure:
@@ -514,7 +517,8 @@ class SweepResult(Run):
     command = "sweep"
 
     def __init__(self, state: SweepState, simulated: int | None = None,
-                 wall_seconds: float | None = None, summary_text: str | None = None) -> None:
+                 wall_seconds: float | None = None, summary_text: str | None = None,
+                 headline_text: str | None = None) -> None:
         super().__init__(state.directory, read_json(state.directory / RECORD)
                          if state.complete else {"command": "sweep",
                                                  "spec": state.manifest.get("spec", {})})
@@ -522,6 +526,7 @@ class SweepResult(Run):
         self.simulated = simulated
         self.wall_seconds = wall_seconds
         self._summary_text = summary_text
+        self._headline_text = headline_text
 
     @property
     def complete(self) -> bool:
@@ -569,6 +574,30 @@ class SweepResult(Run):
         if self.complete and is_regular(self.directory / "summary.md"):
             return read_text(self.directory / "summary.md").rstrip("\n")
         return self._partial[1]
+
+    @property
+    def headline_text(self) -> str:
+        """The summary in one screen (what ``flatcli sweep`` and ``summarize`` print): per
+        cell its varying grid values, trials by status and median final error, the most
+        frequent error reasons, and where the full tables are (``summary_text``)."""
+        from flatcli.report.summary import error_reasons, grid_columns_of, headline, totals_text
+
+        if self._headline_text is not None:
+            return self._headline_text
+        assert self.directory is not None
+        records = [{str(k): v for k, v in r.items()} for r in self.summary.to_dict("records")]
+        if self.complete:
+            title = f"sweep {self.spec.name!r}: {totals_text(records)}"
+            files = [self.directory / "trials.parquet"]
+        else:
+            title = (f"{self.state.missing_text()}; the finished trials: "
+                     f"{totals_text(records) if records else 'none'} (run the same flatcli "
+                     "sweep command again to finish it)")
+            files = list(self.state.chunk_files)
+        errors = sum(int(r["error"]) for r in records)
+        return headline(records, grid_columns_of(records), title, str(self.directory),
+                        error_reasons(files) if errors else None,
+                        grid=self.spec.sweep.grid)
 
     @property
     def metrics(self) -> dict[str, int]:
@@ -690,6 +719,8 @@ def plan(spec: SpecLike = None, overrides: Overrides = None) -> PlanResult:
         metrics["clearance_bound"] = bound if math.isfinite(bound) else None
         metrics["certified_intervals"] = task.certificate.intervals
     metrics["task_candidates"] = task.candidates
+    metrics["rate_factor"] = None if s.task.rest else float(task.shape)
+    metrics["rest_skew"] = float(task.shape) if s.task.rest else None
     return PlanResult(s, None, metrics, opt, made, samples)  # the frame on first use
 
 
@@ -979,7 +1010,8 @@ def sweep(spec: SpecLike, out: str | os.PathLike[str] | None = None, *,
                          Progress(s.name, quiet), oversubscribe=oversubscribe, tags=chosen)
         state = sweep_state(directory)
     assert state is not None
-    return SweepResult(state, done.simulated, done.wall_seconds, done.summary_text)
+    return SweepResult(state, done.simulated, done.wall_seconds, done.summary_text,
+                       done.headline or None)
 
 
 @computes

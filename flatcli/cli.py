@@ -282,7 +282,8 @@ def robot_option(fn: F) -> F:
              "spec's own keys (shorthand for --set robot=...).")(fn)
 
 
-def set_option(help: str = "Override a spec key (dotted; VALUE in TOML), repeatable."
+def set_option(help: str = "Override a spec key (dotted; VALUE in TOML), or remove one with "
+                             "~KEY (it takes its default again), repeatable."
                ) -> Callable[[F], F]:
     from flatcli.completion import complete_set
 
@@ -730,7 +731,7 @@ def sweep(spec: Path, robot: str | None, sets: tuple[str, ...], name: str | None
         except KeyboardInterrupt:
             click.echo(f"error: interrupted; {RESUME_HINT.format(directory)}", err=True)
             sys.exit(interrupted_status())
-    say(quiet, done.summary_text)
+    say(quiet, done.headline_text)
     say(quiet, f"{done.state.total} trials ({done.simulated} simulated now) in "
                f"{done.wall_seconds:.1f} s; wrote {directory}/trials.parquet, summary.md")
 
@@ -781,8 +782,10 @@ def rerun(directory: Path, trial: int, print_spec: bool, fmt: str | None, dpi: i
         rerun_trial(s, found.state.directory, trial, print_spec, quiet)
 
 
-@main.command(short_help="A sweep's tables again; --plot draws its figures.")
+@main.command(short_help="A sweep's summary again; --full its tables, --plot its figures.")
 @click.argument("directory", type=click.Path(path_type=Path, file_okay=False))
+@click.option("--full", is_flag=True,
+              help="Print every table of summary.md, not the one-screen headline.")
 @plot_option("Also write the summary figures (a finished sweep only).")
 @figure_options
 @click.option("--x", "x", metavar="KEY",
@@ -792,17 +795,19 @@ def rerun(directory: Path, trial: int, print_spec: bool, fmt: str | None, dpi: i
               help="With --plot: the grid key whose values get a colour each (the other grid "
                    "keys a line style).")
 @quiet_option
-def summarize(directory: Path, plot: bool, fmt: str | None, dpi: int | None, x: str | None,
-              hue: str | None, quiet: bool) -> None:
-    """Print a sweep's summary tables again (and --plot its figures, against any grid key
-    with --x and --hue).
+def summarize(directory: Path, full: bool, plot: bool, fmt: str | None, dpi: int | None,
+              x: str | None, hue: str | None, quiet: bool) -> None:
+    """Print a sweep's summary again: one screen (per cell its grid values, trials by status,
+    median final error; the error reasons; where the full tables are), or with --full every
+    table of summary.md; --plot writes its figures, against any grid key with --x, --hue.
 
-    Of an interrupted sweep: the tables of its finished trials, and how much is missing.
+    Of an interrupted sweep: the finished trials, and how much is missing.
     DIRECTORY may be a sweep's or its name's (runs/<name>, whose sweep/ it reads).
     """
     from flatcli import api
     from flatcli.files import is_regular, kind, read_text
     from flatcli.report import FigureFile
+    from flatcli.report.sweep_figures import check_axes
 
     require_stdout(quiet)
     with user_errors():
@@ -821,6 +826,7 @@ def summarize(directory: Path, plot: bool, fmt: str | None, dpi: int | None, x: 
                     if not is_regular(directory / name):
                         fail(f"--plot: {directory / name} not found: not a finished sweep "
                              "directory")
+                check_axes(directory, x, hue)  # before anything is printed
             say(quiet, read_text(summary_md).rstrip("\n"))
             if plot:
                 from flatcli.report import plot_sweep
@@ -836,7 +842,9 @@ def summarize(directory: Path, plot: bool, fmt: str | None, dpi: int | None, x: 
         if plot and not result.complete:
             fail(f"--plot: {result.state.missing_text()}; the figures need every trial "
                  "(run the sweep again to finish it)")
-        say(quiet, result.summary_text)
+        if plot:
+            check_axes(directory, x, hue)  # before anything is printed
+        say(quiet, result.summary_text if full else result.headline_text)
         if plot:
             paths = result.save_figures(fmt=fmt, dpi=dpi, x=x, hue=hue)
             say(quiet, "wrote " + ", ".join(str(p) for p in paths))

@@ -31,6 +31,7 @@ from flatcli.core.plan.task import Task, TaskPlan, plan_task, task_ends
 from flatcli.core.robots.params import RobotParams
 from flatcli.spec import Spec, SpecError
 from flatcli.spec.limits import check_track
+from flatcli.spec.schema import goal_is_derived
 
 if TYPE_CHECKING:  # the optimiser (scipy's SLSQP) loads only for a spec that optimises
     from flatcli.core.optimize import OptimizeResult
@@ -134,7 +135,7 @@ def planned(spec: Spec) -> tuple[Plan, OptimizeResult | None, TaskPlan | None]:
         if spec.joints > 2 and spec.robot.model != "derived":
             raise SpecError("robot.model: \"paper\" applies to the paper's robot only")
         starts, goals = task_ends(robot, task, start, goal, _is_default("plan.start", p.start),
-                                  _is_default("plan.goal", p.goal))
+                                  goal_is_derived(spec))
         if opt.objective is None:
             angle = np.asarray(opt.angle_limit, dtype=float)
             rate = np.broadcast_to(np.asarray(opt.rate_limit, dtype=float), (spec.joints,))
@@ -460,7 +461,7 @@ def run_rest_track(spec: Spec, plan: Plan) -> TrackRun:
                        np.asarray(spec.track.initial), times, spec.task.fade,
                        spec.plant.momentum)
     ref = plan.sample(times)
-    u = trace.u1[:, None]
+    u = trace.u
     with np.errstate(all="ignore"):
         y, _, sigma = plan.model.outputs(trace.theta, u)
         H = plan.model.momentum(plant, trace.theta, trace.theta_dot)
@@ -480,8 +481,8 @@ def run_rest_track(spec: Spec, plan: Plan) -> TrackRun:
     row[Metric.MOMENTUM_DRIFT] = float(np.nanmax(np.abs(H - spec.plant.momentum)))
     row[Metric.PEAK_RATE] = float(np.nanmax(np.abs(trace.theta_dot[:, 1:])))
     ok = trace.finished and finite
-    columns = chain_trace_columns(2)
-    record = np.column_stack([trace.theta, trace.u1, trace.theta_dot])[None, :, :]
+    columns = chain_trace_columns(plan.n_joints)
+    record = np.column_stack([trace.theta, trace.u, trace.theta_dot])[None, :, :]
     outcome = Outcome(metrics=metrics,
                       status=np.array([int(Status.OK if ok else Status.DIVERGED)]),
                       event=np.array([int(Event.NONE if ok else Event.BOUND)]),

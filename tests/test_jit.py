@@ -400,3 +400,42 @@ def test_a_cache_entry_that_cannot_be_read_is_compiled_again(tmp_path: Path) -> 
     again, warm = run(), run()
     assert again["hits"] == 0 and again["values"] == first["values"]
     assert warm["hits"] == 1 and warm["values"] == first["values"]  # rewritten whole
+
+
+@pytest.mark.parametrize(("damage", "refresh"), [("garbage", "0"), ("garbage", "1"),
+                                                 ("truncated", "0"), ("empty", "0")])
+def test_a_damaged_cache_index_is_compiled_again_once(tmp_path: Path, damage: str,
+                                                      refresh: str) -> None:
+    """A damaged index (``.nbi``) made numba raise (ValueError, UnpicklingError) when it
+    saved the kernel it had compiled, on every run, until the cache was deleted: it is
+    removed, the kernel compiled once and the index written whole, with the light load and
+    with numba's own (``FLATCLI_NUMBA_REFRESH=1``, which read the index before compiling).
+    Referee: the first, intact run's numbers and numba's own hit counter."""
+    env = {"NUMBA_CACHE_DIR": str(tmp_path / "c"), "FLATCLI_NUMBA_REFRESH": refresh}
+
+    def run() -> dict[str, Any]:
+        return _fresh_process(_STREAM_PROBE, env)
+
+    first = run()
+    indexes = sorted((tmp_path / "c").rglob("*_variates*.nbi"))
+    assert indexes and first["hits"] == 0
+    for f in indexes:
+        data = f.read_bytes()
+        f.write_bytes({"garbage": bytes(range(7, 207)), "truncated": data[: len(data) // 2],
+                       "empty": b""}[damage])
+    again, warm = run(), run()
+    assert again["hits"] == 0 and again["values"] == first["values"]
+    assert warm["hits"] == 1 and warm["values"] == first["values"]  # the index written whole
+
+
+def test_only_flatclis_own_indexes_are_repaired(tmp_path: Path) -> None:
+    """An index outside flatcli's cache directory raises as numba does."""
+    from numba.core import caching
+
+    assert _jit.ours(Path(_jit.numba.config.CACHE_DIR) / "x.nbi") is _jit.CACHING
+    assert not _jit.ours(tmp_path / "x.nbi")
+    cache_file = caching.IndexDataCacheFile(str(tmp_path), "f", 0.0)
+    (tmp_path / cache_file._index_name).write_bytes(b"\x80\x05garbage")
+    with pytest.raises(Exception):  # noqa: B017 - whatever pickle raises
+        cache_file._load_index()
+    assert (tmp_path / cache_file._index_name).exists()

@@ -279,6 +279,62 @@ def _flatcli_function(cache: Any) -> bool:
 LIGHT_LOAD = CACHING and load_cached_kernels_lightly()
 
 
+def repair_unreadable_indexes() -> bool:
+    """Treat a cache index (``.nbi``) in flatcli's cache directory that cannot be read as
+    absent: it is removed, numba compiles the kernel once and writes a fresh index.
+
+    numba reads a kernel's index before it loads the kernel and again before it saves one it
+    compiled (``IndexDataCacheFile._load_index``), and only a missing index counts as empty:
+    a damaged one (a full disk, a copy cut short, a stray write) raised UnpicklingError or
+    ValueError after every full recompile, so every track and sweep failed until the user
+    deleted the cache. Only indexes under ``numba.config.CACHE_DIR`` (flatcli's hash-keyed
+    directory) are repaired; any other raises as numba does. Returns whether the repair is
+    in place (numba's ``IndexDataCacheFile`` as read: ``_load_index`` and ``_index_path``).
+    """
+    from numba.core import caching
+
+    index_file = getattr(caching, "IndexDataCacheFile", None)
+    found = getattr(index_file, "_load_index", None)
+    if found is None:
+        return False
+    if getattr(found, "_flatcli_repairs", False):
+        return True
+    original: Callable[..., Any] = found
+
+    def _load_index(self: Any) -> Any:
+        try:
+            return original(self)
+        except Exception:
+            path = Path(getattr(self, "_index_path", ""))
+            if not ours(path):
+                raise
+            try:
+                path.unlink(missing_ok=True)
+            except OSError:
+                raise  # numba's own error follows the one it could not repair
+            return {}
+
+    _load_index._flatcli_repairs = True  # type: ignore[attr-defined]
+    _load_index.__doc__ = original.__doc__
+    setattr(index_file, "_load_index", _load_index)  # noqa: B010
+    return True
+
+
+def ours(path: Path) -> bool:
+    """Whether ``path`` lies in flatcli's numba cache directory (``CACHING``)."""
+    root = getattr(numba.config, "CACHE_DIR", "")
+    if not (CACHING and root):
+        return False
+    try:
+        return Path(os.path.abspath(path)).is_relative_to(os.path.abspath(root))
+    except (OSError, ValueError):
+        return False
+
+
+#: Whether a damaged cache index is compiled again once (``repair_unreadable_indexes``).
+REPAIRS_INDEXES = CACHING and repair_unreadable_indexes()
+
+
 #: ``jitable`` functions not yet registered with numba (``DEFERRED``).
 _PENDING: list[Callable[..., Any]] = []
 _PENDING_LOCK = threading.Lock()

@@ -50,9 +50,13 @@ from flatcli.report.summary import (
     SUMMARY_INPUTS,
     Columns,
     ColumnsOf,
+    error_reasons,
+    grid_columns_of,
+    headline,
     summary_markdown,
     summary_rows,
     summary_table,
+    totals_text,
 )
 from flatcli.spec import SpecError
 from flatcli.spec.limits import ID_STRIDE
@@ -735,9 +739,10 @@ def summary_cells(lay: Layout) -> dict[int, dict[str, Any]]:
 
 def finish_sweep(directory: Path, lay: Layout, provenance: Mapping[str, Any], started: float,
                  timing: Mapping[str, Any], trials: TrialsAssembly,
-                 tags: list[str] | None = None) -> str:
+                 tags: list[str] | None = None) -> tuple[str, str]:
     """trials.parquet (``trials``, closed here), summary.parquet, summary.md and run.json from
-    the chunks.
+    the chunks; summary.md's text and the headline the terminal shows
+    (``report.summary.headline``: one screen).
 
     ``timing`` gains the end-to-end figures: ``wall_seconds`` from ``started`` (a
     perf_counter time) to the summary, ``trials_per_second`` over it, and
@@ -753,6 +758,10 @@ def finish_sweep(directory: Path, lay: Layout, provenance: Mapping[str, Any], st
                 provenance)
     text = summary_markdown(rows, list(cells[lay.cells[0].index]))
     write_text(directory / "summary.md", text + "\n")
+    errors = sum(int(r["error"]) for r in rows)
+    short = headline(rows, grid_columns_of(rows), f"sweep {lay.spec.name!r}: {totals_text(rows)}",
+                     str(directory), error_reasons([directory / "trials.parquet"])
+                     if errors else None, grid=lay.spec.sweep.grid)
     statuses, tally = np.unique(np.asarray(columns["status"], dtype=str), return_counts=True)
     counts = {str(s): int(c) for s, c in zip(statuses, tally, strict=True)}
     now = time.perf_counter()
@@ -768,5 +777,5 @@ def finish_sweep(directory: Path, lay: Layout, provenance: Mapping[str, Any], st
         trials=lay.total, chunk=lay.chunk_size, status_counts=counts, timing=timing,
         **({"tags": tags} if tags else {}),
     ))
-    return text
+    return text, short
 

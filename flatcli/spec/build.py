@@ -36,21 +36,29 @@ from flatcli.spec.sweeps import PERTURB_PREFIX, is_perturbation_param, validate_
 MAX_DEPTH = 8
 
 
-def build(values: Mapping[str, Any]) -> Spec:
+def build(values: Mapping[str, Any], parent: Spec | None = None) -> Spec:
     """A Spec from {dotted key: value}, every value checked; keys not given keep defaults.
 
     ``sweep.perturb.NAME.PARAM`` keys (a grid cell's perturbation parameter) set that
-    parameter of the ``[sweep.perturb]`` entry NAME.
+    parameter of the ``[sweep.perturb]`` entry NAME. ``parent``: a validated spec whose
+    values these are, some replaced (``Spec.with_overrides``): a value that is the parent's
+    own object is not checked again, nor is the parent's grid when the robot keeps its
+    joints, so a sweep's N cells cost O(N), not O(N^2) (each cell's spec holds the whole
+    grid).
     """
     checked: dict[str, Any] = {}
     params: dict[str, Any] = {}
-    for dotted, value in values.items():
+    known = parent.values() if parent is not None else {}
+    fresh = {k: v for k, v in values.items() if not (k in known and known[k] is v)}
+    for dotted, value in fresh.items():
         _scan(dotted, value, 0)
     for dotted, value in values.items():
         if dotted in SCHEMA:  # a whole section given as a scalar
             raise SpecError(f"{dotted}: expected a table")
         if is_perturbation_param(dotted):
             params[dotted] = value
+        elif dotted not in fresh:
+            checked[dotted] = value  # checked and normalised when the parent was built
         else:
             checked[dotted] = check_value(dotted, value)
     if params:
@@ -61,9 +69,12 @@ def build(values: Mapping[str, Any]) -> Spec:
         checked["sweep.perturb"] = perturb
     spec = fit_sizes(from_values(checked), checked)
     check_joints(spec.joints)  # before anything costs O(N^3)
+    grid_checked = (parent is not None and spec.sweep.grid is parent.sweep.grid
+                    and spec.joints == parent.joints)
     validate_sweep(spec.sweep, spec.joints, spec.plant.torque_limit,
-                   spec.task.end_effector is not None)
-    check_grid_shapes(spec.sweep.grid)
+                   spec.task.end_effector is not None, grid_checked=grid_checked)
+    if not grid_checked:
+        check_grid_shapes(spec.sweep.grid)
     check_derived(spec)
     check_verify(spec.sweep.verify)
     check_limits(spec)
@@ -206,8 +217,27 @@ def resolve(user: Mapping[str, Any], overrides: Mapping[str, Any] | None = None,
     robot = extra.pop("robot") if "robot" in extra and not isinstance(
         extra["robot"], Mapping) else None
     flat = compose(user, base, robot, source)
-    flat.update(extra)
-    return build(flat)
+    return build(with_overrides(flat, extra))
+
+
+#: An override key ``~KEY`` removes KEY (``--set ~KEY``; ``{"~KEY": None}`` through the API).
+UNSET_PREFIX = "~"
+
+
+def with_overrides(values: Mapping[str, Any], overrides: Mapping[str, Any]) -> dict[str, Any]:
+    """Dotted ``values`` with ``overrides`` applied in order: a key set, or ``~KEY`` removed
+    (with every key of a section: it takes its default again, as if never given)."""
+    from flatcli.spec.compose import remove_key
+
+    out = dict(values)
+    for key, value in overrides.items():
+        if key.startswith(UNSET_PREFIX):
+            if value is not None:
+                raise SpecError(f"--set {key}: removes the key; it takes no value")
+            remove_key(out, key[len(UNSET_PREFIX):].strip(), f"--set {key}")
+        else:
+            out[key] = value
+    return out
 
 
 def resolve_robot(user: Mapping[str, Any], overrides: Mapping[str, Any] | None = None, *,
@@ -264,27 +294,45 @@ def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     return out
 
 
+#: Characters a bare word of ``--set`` may have besides letters and digits (a name, or a
+#: file's path: ``--set robot=../robots/my.toml``).
+_BARE = str.maketrans("", "", "_-./~")
+
+
 def parse_set(items: Iterable[str]) -> dict[str, Any]:
-    """``--set KEY=VALUE`` items to {dotted key: value}; VALUE is a TOML value, or a bare word."""
+    """``--set KEY=VALUE`` items to {dotted key: value}, in the order they apply; VALUE is a
+    TOML value, or a bare word (letters, digits and ``_-./~``, taken as text). ``~KEY``
+    (Hydra's syntax) removes KEY: {"~KEY": None}."""
     out: dict[str, Any] = {}
     for item in items:
         key, sep, text = item.partition("=")
         key = key.strip()
+        if key.startswith(UNSET_PREFIX):  # ~KEY: remove KEY here (Hydra's syntax)
+            if sep:
+                raise SpecError(f"--set {key}: removes the key; it takes no value (--set "
+                                f"{key}, then --set {key[1:]}=VALUE to give it another)")
+            name = key[len(UNSET_PREFIX):].strip()
+            for old in (name, key):
+                out.pop(old, None)  # the last of the items wins, in order
+            out[f"{UNSET_PREFIX}{name}"] = None
+            continue
         if not sep or not key:
-            raise SpecError(f"--set: expected KEY=VALUE, got {item!r}")
+            raise SpecError(f"--set: expected KEY=VALUE or ~KEY, got {item!r}")
         if any(c in text for c in "\n\r\0"):
             raise SpecError(f"--set {key}: the value must be one line (no newline or NUL), "
                             f"got {text!r}")
         try:
             parsed = tomllib.loads(f"v = {text.strip()}")
         except tomllib.TOMLDecodeError:
-            if not text.strip().replace("_", "").replace("-", "").isalnum():
+            if not text.strip().translate(_BARE).isalnum():
                 raise SpecError(f"--set {key}: cannot read {text!r} as a TOML value") from None
             parsed = {"v": text.strip()}
         except RecursionError:
             raise SpecError(f"--set {key}: the value is nested too deeply") from None
         if list(parsed) != ["v"]:
             raise SpecError(f"--set {key}: cannot read {text!r} as one TOML value")
+        out.pop(f"{UNSET_PREFIX}{key}", None)
+        out.pop(key, None)  # moved last: it applies after every earlier item
         out[key] = parsed["v"]
     return out
 

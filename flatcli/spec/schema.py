@@ -107,16 +107,17 @@ class OptimizeSpec:
 
     objective: str | None = choice(
         OBJECTIVES, None, "what to optimise (none: the plain plan): \"energy\" (integral of "
-        "th1'^2 + th2'^2), \"peak_rate\" (max of abs th1', abs th2'), \"effort\" (T x energy), "
-        "\"margin\" (maximise the minimum singularity margin)", nullable=True)
+        "th1'^2 + ... + thN'^2), \"peak_rate\" (max of abs th1', ..., abs thN'), \"effort\" (T x "
+        "energy), \"margin\" (maximise the minimum singularity margin)", nullable=True)
     angle_limit: Vector = vector("links", (INF, INF, INF), "bound on abs th_i along the plan (left "
                                  "out: none on every link)", "rad", gt=0, inf=True)
     rate_limit: float | Vector = numbers("joints", INF, "bound on abs th_j' along the plan (one "
                                          "for every joint, or one per joint)", "rad/s", gt=0,
                                          inf=True)
-    min_margin: float = number(0.02, "lower bound on the signed margin sin th1 * th1' along the "
-                               "plan (it never crosses the singular set; 0 would let th2' spike "
-                               "without bound between the check samples)", "rad/s", gt=0)
+    min_margin: float = number(0.02, "lower bound on the signed margin along the plan (sin th1 * "
+                               "th1' for N = 2, -(dh_0/dt) / (2 K_10) beyond: it never crosses the "
+                               "singular set; 0 would let thN' spike without bound between the "
+                               "check samples)", "rad/s", gt=0)
     free_rates: bool = flag(True, "optimise th1'(0) and th1'(T) as well (the plan's start_rate "
                             "and goal_rate are the starting guess)")
     constraint_samples: int = integer(201, "grid points where the limits are imposed", ge=10)
@@ -222,8 +223,9 @@ class TrackSpec:
                                  "the rms, max, singular hits, margin, momentum drift and "
                                  "peak metrics are then over those samples only (docs/outputs.md)",
                                  ge=1)
-    singular_threshold: float = number(1e-2, "a sample whose margin abs(sin th1 * u1) is below "
-                                       "it is a singular hit", "rad/s", ge=0)
+    singular_threshold: float = number(1e-2, "a sample whose margin (abs(sin th1 * u1) for N = 2, "
+                                       "abs(dh_0/dt) / (2 abs(K_10)) beyond) is below it is a "
+                                       "singular hit", "rad/s", ge=0)
     sensor_noise: float = number(0.0, "std of the noise on the measured angles, drawn per "
                                  "output interval dt and held over it", "rad", ge=0)
     rate_limit: float = number(INF, "actuator limit: the joint-rate commands are clipped to "
@@ -352,10 +354,11 @@ class Spec:
         """{dotted key: value} of every key."""
         return dict(_values(self, ""))
 
-    def experiment_tree(self) -> dict[str, Any]:
+    def experiment_tree(self, skip: Collection[str] = ()) -> dict[str, Any]:
         """``tree`` without the sections that only say how results are shown
-        (``PRESENTATION``): what the experiment is."""
-        return experiment(self.tree)
+        (``PRESENTATION``): what the experiment is; without the dotted keys ``skip`` too
+        (not copied: a sweep's cells leave out the grid they all share)."""
+        return experiment(_tree(self, skip))
 
     def to_json(self) -> str:
         """Canonical JSON of the experiment (``experiment_tree``; sorted keys, no spaces; inf
@@ -370,9 +373,9 @@ class Spec:
 
     def with_overrides(self, overrides: Mapping[str, Any]) -> Spec:
         """A new spec with some dotted keys replaced, validated again."""
-        from flatcli.spec.build import build  # build validates with the sweep's rules
+        from flatcli.spec.build import build, with_overrides  # the sweep's rules too
 
-        return build({**self.values(), **overrides})
+        return build(with_overrides(self.values(), overrides), parent=self)
 
 
 def experiment(tree: Mapping[str, Any]) -> dict[str, Any]:
@@ -385,12 +388,14 @@ def _is_section(f: Field[Any]) -> bool:
     return "key" not in f.metadata
 
 
-def _tree(record: Any) -> dict[str, Any]:
+def _tree(record: Any, skip: Collection[str] = (), prefix: str = "") -> dict[str, Any]:
     out: dict[str, Any] = {}
     for f in fields(record):
         value = getattr(record, f.name)
+        if f"{prefix}{f.name}" in skip:
+            continue
         if _is_section(f):
-            out[f.name] = _tree(value)
+            out[f.name] = _tree(value, skip, f"{prefix}{f.name}.")
         elif isinstance(value, Mapping):
             out[f.name] = copy.deepcopy(dict(value))
         else:
@@ -488,12 +493,28 @@ SIZED_POLE = 5.0
 def sized_defaults(spec: Spec) -> dict[str, tuple[float, ...]]:
     """The defaults of robot-sized keys that follow from the robot and its plan for a robot
     of N != 2 joints (the paper's robot's own defaults do not fit it): the plant starts on
-    the plan (``track.initial = plan.start``) and every flat output gets a double pole at
-    ``-SIZED_POLE``."""
+    the plan (``track.initial = plan.start``), every flat output gets a double pole at
+    ``-SIZED_POLE``, and a task that gives the end effector's target derives the goal from
+    it (``plan.goal`` stands at ``plan.start`` until then: ``goal_is_derived``)."""
     joints = spec.joints
-    return {"track.initial": tuple(spec.plan.start),
-            "track.kp": (SIZED_POLE ** 2,) * joints,
-            "track.kv": (2 * SIZED_POLE,) * joints}
+    out = {"track.initial": tuple(spec.plan.start),
+           "track.kp": (SIZED_POLE ** 2,) * joints,
+           "track.kv": (2 * SIZED_POLE,) * joints}
+    if spec.task.end_effector is not None:
+        out["plan.goal"] = tuple(spec.plan.start)
+    return out
+
+
+def goal_is_derived(spec: Spec) -> bool:
+    """Whether ``plan.goal`` was left for the task to derive: its default (the paper's goal),
+    or, on a robot of N != 2 joints with ``task.end_effector`` set, ``plan.start``
+    (``sized_defaults``). Read from the values, so a spec written out (run.json, ``--cfg``)
+    reads back the same; a goal set equal to the start counts as left out."""
+    goal = spec.plan.goal
+    if goal == find_key("plan.goal").default:  # type: ignore[union-attr]
+        return True
+    return (spec.joints != 2 and spec.task.end_effector is not None
+            and goal == spec.plan.start)
 
 
 def fit_sizes(spec: Spec, given: Collection[str]) -> Spec:
@@ -528,7 +549,7 @@ def fit_sizes(spec: Spec, given: Collection[str]) -> Spec:
             if len(value) != want and dotted not in given and dotted in SIZED_KEYS:
                 if derived is None:
                     derived = sized_defaults(_replaced(spec, replaced) if replaced else spec)
-                if len(derived[dotted]) == want:  # plan.start of the wrong size: said below
+                if dotted in derived and len(derived[dotted]) == want:  # else: said below
                     replaced[dotted] = derived[dotted]
                     continue
             hint = "" if dotted in given else " (the default is the paper's robot's: set it)"
@@ -537,7 +558,7 @@ def fit_sizes(spec: Spec, given: Collection[str]) -> Spec:
 
 
 #: The keys ``sized_defaults`` gives.
-SIZED_KEYS = frozenset({"track.initial", "track.kp", "track.kv"})
+SIZED_KEYS = frozenset({"track.initial", "track.kp", "track.kv", "plan.goal"})
 
 
 def check_size(dotted: str, value: Any, joints: int, hint: str = "") -> None:

@@ -207,8 +207,10 @@ def riccati(constraint: Constraint, reference: PiecewiseCurves,
     sol = solve_ivp(rhs, (0.0, duration), final.ravel(), method="DOP853",
                     rtol=RICCATI_RTOL, atol=RICCATI_ATOL, dense_output=True)
     if not sol.success or sol.sol is None:
-        raise FlatcliError(f"track.lqr_terminal: the Riccati equation could not be "
-                           f"integrated ({sol.message})")
+        raise FlatcliError(f"track.lqr_bandwidth, track.lqr_terminal: the Riccati equation "
+                           f"could not be integrated ({sol.message}); lower track.lqr_bandwidth "
+                           f"({weights.bandwidth:g} rad/s) or track.lqr_terminal "
+                           f"({weights.terminal:g} s)")
     return sol.sol
 
 
