@@ -32,6 +32,7 @@ try:  # too little memory to load even these (ulimit -v): one line, not a traceb
     import click
 
     from flatcli import __version__
+    from flatcli.core import OWN_PROCESS_VARIABLE
     from flatcli.interrupts import last_signal, raise_interrupt
     from flatcli.startup import library_error_text, probe_libraries, while_importing
     from flatcli.threads import THREAD_VARIABLES
@@ -204,6 +205,9 @@ def run() -> NoReturn:
     every command under a profiler or a tracer (``python -m cProfile``, coverage), which
     write their files at the teardown.
     """
+    # the program is flatcli's own process, and so are the processes it starts: numba tuned
+    # for its kernels (flatcli.core._jit.own_process) when the core is first imported
+    os.environ[OWN_PROCESS_VARIABLE] = "1"
     try:
         main.main()
         status = 0

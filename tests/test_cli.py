@@ -371,11 +371,10 @@ def test_compile_notice_only_on_a_cold_cache(tmp_path: Path,
                                              monkeypatch: pytest.MonkeyPatch) -> None:
     import io
 
-    import numba
-
+    from flatcli.core import _jit
     from flatcli.progress import COMPILING, announce_compile
 
-    monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(_jit, "CACHE_DIRECTORY", tmp_path)
     stream = io.StringIO()
     assert announce_compile(False, stream) is True
     assert stream.getvalue() == COMPILING + "\n"
