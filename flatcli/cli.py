@@ -33,6 +33,7 @@ try:  # too little memory to load even these (ulimit -v): one line, not a traceb
 
     from flatcli import __version__
     from flatcli.core import OWN_PROCESS_VARIABLE
+    from flatcli.core.names import EXECUTORS, FIGURE_FORMATS, OBJECTIVES
     from flatcli.interrupts import last_signal, raise_interrupt
     from flatcli.startup import library_error_text, probe_libraries, while_importing
     from flatcli.threads import THREAD_VARIABLES
@@ -60,10 +61,6 @@ STDOUT = "standard output"
 #: is EXIT_USAGE, 2): 0 closed-form outputs, 1 flat without them, 3 not flat.
 DESIGN_EXIT = {"closed_form": 0, "flat": 1, "not_flat": 3}
 RESUME_HINT = "finished chunks are kept in {}/trials; run the same command again to resume"
-#: ``flatcli.core.optimize.OBJECTIVES`` and ``flatcli.executors.EXECUTORS``, spelled out here
-#: so that ``--help`` need not import the numerical core (tests/test_cli.py checks they agree).
-OBJECTIVES = ("energy", "peak_rate", "effort", "margin")
-EXECUTORS = ("local", "dask")
 
 
 def fail(message: str) -> NoReturn:
@@ -249,9 +246,6 @@ OPTION_ORDER = ("robot", "sets", "name", "tags", "objective", "out", "force", "p
                 "quiet")
 #: The one meaning of -q in every command.
 QUIET_HELP = "Print nothing but errors (the exit status says how it went)."
-#: ``figures.format``'s choices (``flatcli.spec.schema.FIGURE_FORMATS``), spelled out so that
-#: --help need not import the numerical core.
-FIGURE_FORMATS = ("png", "pdf", "svg")
 
 
 class TrialId(click.ParamType[int, Any]):

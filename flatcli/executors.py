@@ -32,6 +32,7 @@ import numpy as np
 
 from flatcli.core import OWN_PROCESS_VARIABLE
 from flatcli.core.errors import FlatcliError
+from flatcli.core.names import EXECUTORS
 from flatcli.interrupts import check, interruptible
 from flatcli.machine import cores
 from flatcli.storage import forget_inherited_locks
@@ -39,7 +40,6 @@ from flatcli.threads import limit_process, single_threaded
 
 T = TypeVar("T")
 
-EXECUTORS = ("local", "dask")
 
 #: How long the Dask executor tries to reach a scheduler before giving up.
 CONNECT_TIMEOUT = "10s"

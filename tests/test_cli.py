@@ -332,15 +332,6 @@ def test_version() -> None:
     assert code == 0 and out.startswith("flatcli, version")
 
 
-def test_choices_spelled_out_for_a_fast_help_match_their_homes() -> None:
-    from flatcli import cli
-    from flatcli.core.optimize import OBJECTIVES
-    from flatcli.executors import EXECUTORS
-
-    assert tuple(OBJECTIVES) == cli.OBJECTIVES
-    assert tuple(EXECUTORS) == cli.EXECUTORS
-
-
 HEAVY = ("numpy", "numba", "scipy", "pandas", "pyarrow", "matplotlib")
 
 

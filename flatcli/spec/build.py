@@ -10,22 +10,35 @@ from __future__ import annotations
 
 import copy
 import math
-import os
-import stat
 import tomllib
 from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from flatcli.spec.compose import compose
 from flatcli.spec.keys import MAX_INT, SpecError
-from flatcli.spec.limits import MAX_SPEC_BYTES, check_joints, check_limits
-from flatcli.spec.schema import SCHEMA, Spec, check_value, find_key, fit_sizes, from_values
+from flatcli.spec.limits import check_joints, check_limits
+from flatcli.spec.schema import SCHEMA, SpecRecord, check_value, find_key, fit_sizes, from_values
 from flatcli.spec.sweeps import PERTURB_PREFIX, is_perturbation_param, validate_sweep
+from flatcli.spec.tree import read_toml
 
 #: Deepest nesting of lists and tables a spec value may have (a grid of groups of vectors
 #: needs 3).
 MAX_DEPTH = 8
+
+
+@dataclass(frozen=True)
+class Spec(SpecRecord):
+    """A resolved, validated spec: every key has a value (defaults filled in).
+
+    Build one with ``flatcli.spec.resolve`` or ``load_spec``; read it by attribute
+    (``spec.track.dt``, ``spec.robot.mass``).
+    """
+
+    def with_overrides(self, overrides: Mapping[str, Any]) -> Spec:
+        """A new spec with some dotted keys replaced, validated again."""
+        return build({**self.values(), **overrides})
 
 
 def build(values: Mapping[str, Any]) -> Spec:
@@ -51,7 +64,7 @@ def build(values: Mapping[str, Any]) -> Spec:
             name, param = dotted.removeprefix(PERTURB_PREFIX).split(".")
             perturb[name] = {**perturb.get(name, {}), param: value}
         checked["sweep.perturb"] = perturb
-    spec = fit_sizes(from_values(checked), checked)
+    spec = fit_sizes(from_values(Spec, checked), checked)
     check_joints(spec.joints)  # before anything costs O(N^3)
     validate_sweep(spec.sweep, spec.joints, spec.plant.torque_limit,
                    spec.task.end_effector is not None)
@@ -216,18 +229,6 @@ def load_spec(path: Path | None, sets: Iterable[str] = ()) -> Spec:
     return resolve(read_toml(path), parse_set(sets), base=path.parent, source=path)
 
 
-def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
-    """Dotted keys of a user's nested dict, descending into known sections only."""
-    out: dict[str, Any] = {}
-    for name, value in tree.items():
-        dotted = f"{prefix}.{name}" if prefix else name
-        if isinstance(value, dict) and dotted in SCHEMA:
-            out.update(flatten(value, dotted))
-        else:
-            out[dotted] = value
-    return out
-
-
 def parse_set(items: Iterable[str]) -> dict[str, Any]:
     """``--set KEY=VALUE`` items to {dotted key: value}; VALUE is a TOML value, or a bare word."""
     out: dict[str, Any] = {}
@@ -251,48 +252,3 @@ def parse_set(items: Iterable[str]) -> dict[str, Any]:
             raise SpecError(f"--set {key}: cannot read {text!r} as one TOML value")
         out[key] = parsed["v"]
     return out
-
-
-def read_toml(path: Path) -> dict[str, Any]:
-    """Parse a TOML file; SpecError for a missing, unreadable, oversized or non-regular file
-    (a FIFO or a device is refused without reading from it), for text that is not UTF-8,
-    and for TOML that is invalid or nested too deeply."""
-    try:
-        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
-    except FileNotFoundError:
-        raise SpecError(f"spec file not found: {path}") from None
-    except OSError as exc:
-        raise SpecError(f"cannot read spec file {path}: {exc.strerror}") from None
-    try:
-        info = os.fstat(fd)
-        if stat.S_ISDIR(info.st_mode):
-            raise SpecError(f"spec file is a directory: {path}")
-        if not stat.S_ISREG(info.st_mode):
-            raise SpecError(f"spec file {path} is not a regular file (a FIFO, socket or "
-                            "device); give a TOML file")
-        if info.st_size > MAX_SPEC_BYTES:
-            raise SpecError(f"spec file {path} is {info.st_size} bytes, more than the "
-                            f"{MAX_SPEC_BYTES} a spec may have")
-        data = b""
-        while len(data) <= MAX_SPEC_BYTES:
-            block = os.read(fd, MAX_SPEC_BYTES + 1 - len(data))
-            if not block:
-                break
-            data += block
-    except OSError as exc:
-        raise SpecError(f"cannot read spec file {path}: {exc.strerror}") from None
-    finally:
-        os.close(fd)
-    if len(data) > MAX_SPEC_BYTES:
-        raise SpecError(f"spec file {path} is more than the {MAX_SPEC_BYTES} bytes a spec may "
-                        "have")
-    try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise SpecError(f"spec file {path} is not UTF-8 text (byte {exc.start})") from None
-    try:
-        return tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise SpecError(f"spec file {path} is not valid TOML: {exc}") from None
-    except RecursionError:
-        raise SpecError(f"spec file {path}: TOML nested too deeply") from None

@@ -23,6 +23,8 @@ from pathlib import Path
 from typing import Any
 
 from flatcli.spec.keys import SpecError, suggest
+from flatcli.spec.schema import dotted_keys
+from flatcli.spec.tree import read_toml
 
 #: Where the shipped robot files are (package data).
 ROBOTS = Path(str(resources.files("flatcli") / "data" / "robots"))
@@ -74,8 +76,6 @@ class _Composer:
     def file(self, path: Path, chain: tuple[Path, ...], where: str,
              robot: str | None = None) -> dict[str, Any]:
         """The dotted keys a file gives, its robot file and includes merged below them."""
-        from flatcli.spec.build import read_toml
-
         real = path.resolve()
         if real in chain:
             names = " -> ".join(_shown(p) for p in (*chain[chain.index(real):], real))
@@ -94,8 +94,6 @@ class _Composer:
              source: str, robot: str | None = None) -> dict[str, Any]:
         """The dotted keys of a spec tree read from ``source`` (a file, or "the spec"), with
         its robot file and its includes merged below its own keys."""
-        from flatcli.spec.build import flatten
-
         own = dict(tree)
         include = own.pop("include", [])
         selection: Any = robot  # the command line's choice replaces the file's own
@@ -114,7 +112,7 @@ class _Composer:
             path = Path(name).expanduser()
             path = path if path.is_absolute() or base is None else base / path
             out.update(self.file(path, chain, f"{source}: include {name!r}"))
-        out.update(flatten(own))
+        out.update(dotted_keys(own))
         return out
 
 
