@@ -70,15 +70,6 @@ def is_regular(path: Path) -> bool:
     return kind(path) == "file"
 
 
-def require_regular(path: Path) -> None:
-    """UnreadableFileError unless ``path`` is a regular file (it is then safe to open)."""
-    what = kind(path)
-    if what == "missing":
-        raise UnreadableFileError(path, "not found")
-    if what != "file":
-        raise UnreadableFileError(path, f"is {what}, not a regular file")
-
-
 def read_bounded(path: Path, limit: int) -> bytes:
     """The content of a regular file of at most ``limit`` bytes.
 

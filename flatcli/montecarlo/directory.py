@@ -597,11 +597,6 @@ def verified_chunks(directory: Path, lay: Layout) -> tuple[set[str], list[str]]:
     return done, problems
 
 
-def finished_chunks(directory: Path, lay: Layout) -> set[str]:
-    """Names of this layout's verified chunk files."""
-    return verified_chunks(directory, lay)[0]
-
-
 def note(text: str) -> None:
     """A line on stderr about the directory (a chunk recomputed, cells reused)."""
     print(text, file=sys.stderr, flush=True)

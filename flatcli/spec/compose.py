@@ -135,7 +135,3 @@ def compose(tree: Mapping[str, Any], base: Path | None = None, robot: str | None
     return composer.tree(tree, base, chain, str(source) if source is not None else "the spec",
                          robot)
 
-
-def compose_file(path: Path, robot: str | None = None) -> dict[str, Any]:
-    """A spec file's dotted keys, composed (``compose``)."""
-    return _Composer().file(path, (), str(path), robot)
