@@ -34,7 +34,8 @@ from typing import TYPE_CHECKING, Any
 from flatcli.core.errors import FlatcliError
 from flatcli.core.plan.planning import Plan, PlanSamples
 from flatcli.core.plan.workspace import BRANCHES, DEFAULT_ATTITUDES, WorkspaceMap
-from flatcli.experiment import TrackRun, plan_and_optimization, run_track
+from flatcli.experiment import TrackRun as TrackRun  # the type of TrackResult.run
+from flatcli.experiment import plan_and_optimization, run_track
 from flatcli.files import is_regular, kind, read_text
 from flatcli.progress import announce_compile
 from flatcli.report import (
