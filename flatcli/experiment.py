@@ -158,7 +158,15 @@ def _flat(spec: Spec, robot: RobotParams) -> Planned:
 
 
 def _exact(spec: Spec, robot: RobotParams) -> Planned:
-    return exact_plan_from(spec, robot, *_ends(spec)), None, None
+    """The exact plan (``exact.plan_exact``): its objective from ``plan.optimize.objective``;
+    its limits are the flat optimiser's, refused here."""
+    opt = spec.plan.optimize
+    for key, value in (("angle_limit", opt.angle_limit), ("rate_limit", opt.rate_limit)):
+        if np.any(np.isfinite(np.asarray(value, dtype=float))):
+            raise SpecError(f"plan.optimize.{key}: limits apply to flat plans only; an exact "
+                            "plan (plan.method) minimises its objective without them")
+    return plan_exact(robot, *_ends(spec), spec.plan.duration, basis_from(spec, "exact"),
+                      checked(opt.objective)), None, None
 
 
 def _optimized(spec: Spec, robot: RobotParams, start: Array | None = None,
@@ -167,23 +175,15 @@ def _optimized(spec: Spec, robot: RobotParams, start: Array | None = None,
 
     p, opt, joints = spec.plan, spec.plan.optimize, spec.joints
     own_start, own_goal, start_rate, goal_rate = _ends(spec)
+    limits = PlanLimits(angle_limit=checked(opt.angle_limit),
+                        rate_limit=checked(opt.rate_limit), min_margin=opt.min_margin)
     result = optimize_plan(
         robot, own_start if start is None else start, own_goal if goal is None else goal,
-        p.duration,
-        model=checked(spec.robot.model),
-        basis=basis_from(spec),
-        objective=checked(opt.objective),
-        limits=PlanLimits(
-            angle_limit=checked(opt.angle_limit),
-            rate_limit=checked(opt.rate_limit),
-            min_margin=opt.min_margin,
-        ),
-        free_rates=opt.free_rates,
+        p.duration, model=checked(spec.robot.model), basis=basis_from(spec),
+        objective=checked(opt.objective), limits=limits, free_rates=opt.free_rates,
         start_rate=checked(float(start_rate[0]) if joints == 2 else start_rate),
         goal_rate=checked(float(goal_rate[0]) if joints == 2 else goal_rate),
-        constraint_samples=opt.constraint_samples,
-        max_iter=opt.max_iter,
-    )
+        constraint_samples=opt.constraint_samples, max_iter=opt.max_iter)
     return result.plan, result, None
 
 
@@ -191,10 +191,9 @@ def _task(spec: Spec, robot: RobotParams) -> Planned:
     """A task's plan through the closed-form flat outputs: its candidates tried until one is
     proven clear (``task.plan_task``; a rest task with its rest-to-rest plan)."""
     task, starts, goals = _task_ends(spec, robot)
-    p, opt, joints = spec.plan, spec.plan.optimize, spec.joints
-    done = plan_task(robot, task, starts, goals, p.duration, joint_rates(p.start_rate, joints),
-                     joint_rates(p.goal_rate, joints), checked(spec.robot.model),
-                     None if task.rest else basis_from(spec),
+    opt, joints, (_, _, start_rate, goal_rate) = spec.plan.optimize, spec.joints, _ends(spec)
+    done = plan_task(robot, task, starts, goals, spec.plan.duration, start_rate, goal_rate,
+                     checked(spec.robot.model), None if task.rest else basis_from(spec),
                      np.asarray(opt.angle_limit, dtype=float),
                      np.broadcast_to(np.asarray(opt.rate_limit, dtype=float), (joints,)))
     return done.plan, None, done
@@ -202,10 +201,20 @@ def _task(spec: Spec, robot: RobotParams) -> Planned:
 
 def _optimized_task(spec: Spec, robot: RobotParams) -> Planned:
     """A task's optimised plan, from its first candidate ends, its obstacles proven clear
-    afterwards (SpecError if not: the optimiser does not know them)."""
+    afterwards (SpecError if not: the optimiser does not see them)."""
+    from flatcli.core.plan.clearance import Constraints, certify
+
     task, starts, goals = _task_ends(spec, robot)
     plan, result, _ = _optimized(spec, robot, starts[0], goals[0])
-    return plan, result, _task_certified(plan, task, starts[0], goals[0])
+    cert = None
+    if task.obstacles:
+        cert = certify(plan, Constraints(np.asarray(task.obstacles, dtype=float),
+                                         task.clearance))
+        if not cert.ok:
+            raise SpecError(f"task.obstacles: the optimised plan is not clear: {cert.reason} "
+                            "(the optimiser does not see obstacles; plan without --optimize "
+                            "to search for a clear plan)")
+    return plan, result, TaskPlan(plan, starts[0], goals[0], cert, 1)
 
 
 #: The planners, by (task kind, method): the one place a spec's plan is chosen.
@@ -228,12 +237,6 @@ REFUSED: dict[tuple[TaskKind, PlanMethod], str] = {
 }
 
 
-def plan_and_optimization(spec: Spec) -> tuple[Plan, OptimizeResult | None]:
-    """The reference plan of a spec, and the optimiser's report when it optimised one."""
-    plan, result, _ = planned(spec)
-    return plan, result
-
-
 def planned(spec: Spec) -> Planned:
     """The spec's plan by its planner (``PLANNERS[task kind, method]``): the plan, the
     optimiser's report when it optimised one, and for an active ``[task]`` its ``TaskPlan``
@@ -251,48 +254,9 @@ def planned(spec: Spec) -> Planned:
     return planner(spec, robot)
 
 
-def _task_certified(plan: Plan, task: Task, start: Array, goal: Array) -> TaskPlan:
-    """An optimised plan of a task, its obstacles proven clear (FlatcliError if not: the
-    optimiser does not know them)."""
-    from flatcli.core.plan.clearance import Constraints, certify
-
-    cert = None
-    if task.obstacles:
-        cert = certify(plan, Constraints(np.asarray(task.obstacles, dtype=float),
-                                         task.clearance))
-        if not cert.ok:
-            raise SpecError(f"task.obstacles: the optimised plan is not clear: {cert.reason} "
-                            "(the optimiser does not see obstacles; plan without --optimize "
-                            "to search for a clear plan)")
-    return TaskPlan(plan, start, goal, cert, 1)
-
-
-def exact_plan_from(spec: Spec, robot: RobotParams, start: Array, goal: Array,
-                    start_rate: Array, goal_rate: Array) -> Plan:
-    """The exact plan of a spec (``exact.plan_exact``): its objective from
-    ``plan.optimize.objective``; its limits are the flat optimiser's, refused here."""
-    opt = spec.plan.optimize
-    for key, value in (("angle_limit", opt.angle_limit), ("rate_limit", opt.rate_limit)):
-        if np.any(np.isfinite(np.asarray(value, dtype=float))):
-            raise SpecError(f"plan.optimize.{key}: limits apply to flat plans only; an exact "
-                            "plan (plan.method) minimises its objective without them")
-    return plan_exact(robot, start, goal, start_rate, goal_rate, spec.plan.duration,
-                      basis_from(spec, "exact"), checked(opt.objective))
-
-
 def plan_from(spec: Spec) -> Plan:
     """The reference plan of a spec (optimised when ``plan.optimize.objective`` is set)."""
-    return plan_and_optimization(spec)[0]
-
-
-def flat_plan_from(spec: Spec) -> Plan:
-    """``plan_from`` where the paper's robot (N = 2) is required: its analyses (the fold,
-    the actuators, the findings) are about that robot."""
-    plan = plan_from(spec)
-    if plan.n_joints != 2:
-        raise SpecError(f"robot.mass: this needs the paper's robot (3 links, 2 joints), got "
-                        f"{spec.joints + 1} links")
-    return plan
+    return planned(spec)[0]
 
 
 def scenario_from(spec: Spec, plan: Plan) -> Scenario:

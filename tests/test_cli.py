@@ -527,6 +527,7 @@ def test_exported_csv_files_do_not_block_force(tiny_sweep: tuple[Path, Path],
 def test_an_unwritable_out_is_refused_before_any_work(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch, command: str) -> None:
     import flatcli.api
+    import flatcli.experiment
 
     readable = tmp_path / "readable"  # as a directory of mode 0o555 is to a user
     readable.mkdir()
@@ -539,7 +540,7 @@ def test_an_unwritable_out_is_refused_before_any_work(
     def computed(*args: Any, **kwargs: Any) -> Any:
         raise AssertionError("planned before the output was checked")
 
-    monkeypatch.setattr(flatcli.api, "plan_and_optimization", computed)
+    monkeypatch.setattr(flatcli.experiment, "planned", computed)  # every plan's one way
     monkeypatch.setattr(flatcli.api, "run_track", computed)
     for out in (readable, readable / "run"):
         result = CliRunner().invoke(main, [command, "--out", str(out)])
@@ -592,11 +593,12 @@ def test_plan_and_track_refuse_a_directory_another_run_writes_before_any_work(
     import multiprocessing
 
     import flatcli.api
+    import flatcli.experiment
 
     def computed(*args: Any, **kwargs: Any) -> Any:
         raise AssertionError("computed while another run writes there")
 
-    monkeypatch.setattr(flatcli.api, "plan_and_optimization", computed)
+    monkeypatch.setattr(flatcli.experiment, "planned", computed)  # every plan's one way
     monkeypatch.setattr(flatcli.api, "run_track", computed)
     out = tmp_path / "o"
     context = multiprocessing.get_context("spawn")

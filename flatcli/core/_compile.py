@@ -1,9 +1,6 @@
-"""``python -m flatcli.core._compile``: the child process of ``_jit.compile_in_child``.
-
-It reads the pickled ``(module, qualified name, argument types)`` of a kernel on its standard
-input, and compiles that kernel into the cache, as a process flatcli owns (the parent sets
-``_jit.OWN_PROCESS_VARIABLE``; ``own_process`` is called again here in case it did not).
-"""
+"""``python -m flatcli.core._compile``, the child of ``_jit.compile_in_child``: compiles the
+kernel named on its standard input (pickled module, qualified name and argument types) into
+the cache, as a process flatcli owns."""
 
 from __future__ import annotations
 
@@ -16,12 +13,13 @@ from flatcli.core import _jit
 
 
 def compile_from(stream: Any) -> None:
-    """Compile the kernel named on ``stream`` into the cache (SystemExit if the name is not
-    a compiled kernel)."""
+    """Compile the kernel named on ``stream`` into the cache (SystemExit if its module makes
+    no kernel of that name: ``_jit.KERNELS_BY_NAME``)."""
     _jit.own_process()
     module, name, sig = pickle.load(stream)  # its types' classes import with their modules
-    dispatcher: Any = getattr(importlib.import_module(module), name, None)
-    if getattr(dispatcher, "py_func", None) is None:
+    importlib.import_module(module)  # makes its kernels
+    dispatcher: Any = _jit.KERNELS_BY_NAME.get((module, name))
+    if dispatcher is None:
         raise SystemExit(f"{module}.{name} is not a compiled kernel")
     dispatcher.compile(sig)
 

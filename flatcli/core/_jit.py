@@ -13,18 +13,12 @@ compiles afresh, never reuses a stale kernel. The cache lives in
 be written, in ``<temporary directory>/flatcli-numba-<uid>/<hash>``; if no directory can be
 written, kernels are compiled in every process and not cached. Never in the package's own
 ``__pycache__`` (numba's fallback), where a stale kernel would be found again. flatcli's
-kernels find it through their own cache (``KernelCache``): numba's configuration
-(``numba.config.CACHE_DIR``) stays the user's.
+kernels find it through their own cache (``KernelCache``): ``numba.config`` stays the user's.
 
-Importing the core changes nothing else in the process: no LLVM option, no numba class
-replaced, no module put into ``sys.modules``. What flatcli's own processes do to start and
-compile faster (``_owned``: LLVM's inliner threshold, a lighter load of cached kernels,
-numba's registration deferred) is applied where flatcli owns the process (``own_process``:
-the ``flatcli`` program and the processes it starts). Kernels are compiled only in such a
-process: elsewhere (a notebook, a test) a kernel the cache lacks is compiled by a child
-process flatcli owns (``compile_in_child``) and loaded from the cache, so every process runs
-the same machine code and a user's own numba code compiles as it would without flatcli
-(``tests/test_jit.py``).
+Importing the core changes nothing else in the process (no LLVM option, no numba class
+replaced, no module put into ``sys.modules``): what flatcli's own processes change is
+``_owned``'s, installed by ``own_process``; elsewhere kernels are compiled by a child process
+flatcli owns (``compile_in_child``). docs/development.md, *Speed tricks stay home*.
 """
 
 from __future__ import annotations
@@ -113,15 +107,10 @@ CACHING = CACHE_DIRECTORY is not None
 
 @dataclass
 class Ownership:
-    """What ``own_process`` turned on in this process; nothing on import.
-
-    owned : kernels are compiled here (with flatcli's inliner threshold) and saved to the
-        cache; otherwise a child process compiles them (``compile_in_child``)
-    defer : ``jitable`` functions register with numba at its first compile, not when marked
-    load : how a kernel is read from the cache, ``(cache, sig, target_context, numba's own
-        load)``, or None for numba's own
-    before_compile : run before numba sets up a compile (or None)
-    """
+    """What ``own_process`` turned on in this process (nothing on import): kernels compiled
+    and saved here (``owned``), registration deferred (``defer``), a kernel's cached load
+    ``(cache, sig, target context, numba's load)`` (``load``; None: numba's), a call before
+    numba sets up a compile (``before_compile``)."""
 
     owned: bool = False
     defer: bool = False
@@ -134,10 +123,8 @@ OWNERSHIP = Ownership()
 
 
 def own_process() -> None:
-    """Make this process flatcli's own: its numba and llvmlite tuned for flatcli's kernels
-    (``_owned``: LLVM's inliner threshold, the light load of cached kernels, registration
-    deferred, numba's BLAS check served without scipy.linalg), and kernels compiled here
-    and saved to the cache. Idempotent; never called on ``import flatcli``."""
+    """Make this process flatcli's own: numba and llvmlite tuned for its kernels (``_owned``),
+    kernels compiled here and saved. Idempotent; never called on ``import flatcli``."""
     if OWNERSHIP.owned:
         return
     from flatcli.core import _owned
@@ -228,13 +215,10 @@ class _KernelCacheImpl(caching.CompileResultCacheImpl):
 
 
 class KernelCache(caching.FunctionCache):
-    """The on-disk cache of one kernel, in ``CACHE_DIRECTORY``.
-
-    Only a process flatcli owns writes it (``Ownership.owned``); elsewhere a kernel the
-    cache lacks is compiled by such a process (``compile_in_child``) and read back, and if
-    that fails it is compiled here and kept in memory only, so that no kernel compiled
-    without flatcli's inliner threshold is ever cached for its own processes to load.
-    """
+    """The on-disk cache of one kernel, in ``CACHE_DIRECTORY``. Only a process flatcli owns
+    writes it; elsewhere a kernel it lacks is compiled by one (``compile_in_child``) and read
+    back, or, if that fails, compiled here and not cached: no kernel compiled without
+    flatcli's inliner threshold is ever cached for its own processes to load."""
 
     _impl_class = _KernelCacheImpl
 
@@ -264,12 +248,9 @@ CHILD_MODULE = "flatcli.core._compile"
 
 
 def compile_in_child(py_func: Callable[..., Any], sig: Any) -> bool:
-    """Compile the kernel ``py_func`` for the argument types ``sig`` in a child process that
-    flatcli owns (``python -m flatcli.core._compile``), into the cache; whether it did.
-
-    A kernel not reachable by its module and name (a function made inside another), types
-    that cannot be pickled, or a child that fails: False (with a warning for the last), and
-    the caller compiles the kernel itself, without caching it.
+    """Compile the kernel ``py_func`` for the argument types ``sig`` into the cache in a child
+    process flatcli owns (``python -m flatcli.core._compile``); whether it did (not for a
+    kernel made inside a function, types that do not pickle, or a child that fails: warned).
     """
     module, name = py_func.__module__, py_func.__qualname__
     if "<" in name or not sys.executable:
@@ -298,12 +279,18 @@ def compile_in_child(py_func: Callable[..., Any], sig: Any) -> bool:
     return True
 
 
+#: Every kernel made in this process, by (module, qualified name): how the child of
+#: ``compile_in_child`` finds one (a kernel ``compile_kernels`` generated too).
+KERNELS_BY_NAME: dict[tuple[str, str], Any] = {}
+
+
 def _dispatcher(fn: F, runtime: bool) -> F:
     """``fn`` compiled by numba on first call: nopython, no GIL, IEEE semantics (no
     fastmath), numba's runtime or not, cached in ``CACHE_DIRECTORY`` (``KernelCache``)."""
     options: dict[str, Any] = {} if runtime else {"_nrt": False}  # numba's stubs lack it
     dispatcher = numba.njit(nogil=True, error_model="numpy", pipeline_class=KernelCompiler,
                             **options)(fn)
+    KERNELS_BY_NAME[fn.__module__, fn.__qualname__] = dispatcher
     if CACHING and isinstance(dispatcher, Dispatcher):
         try:
             cache: Any = KernelCache(fn)  # type: ignore[no-untyped-call]
@@ -332,6 +319,18 @@ def allocating_kernel(fn: F) -> F:
     helpers called once per batch, not per step)."""
     return _dispatcher(fn, runtime=True)
 
+
+
+def named_kernel(name: str) -> Callable[[F], F]:
+    """``kernel`` for a function a factory makes, under ``name``: numba caches a kernel by
+    its module and qualified name, and links its code by them, so each must be its own
+    (``loop.kernels.compile_kernels``)."""
+
+    def mark(fn: F) -> F:
+        fn.__name__ = fn.__qualname__ = name
+        return kernel(fn)
+
+    return mark
 
 if os.environ.get(OWN_PROCESS_VARIABLE) == "1":
     own_process()

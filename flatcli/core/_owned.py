@@ -1,20 +1,11 @@
-"""What flatcli changes in numba and llvmlite where it owns the process.
+"""What flatcli changes in numba and llvmlite where it owns the process, never on ``import
+flatcli`` (``_jit.own_process`` installs it: docs/development.md, *Speed tricks stay home*).
 
-``_jit.own_process`` installs them (``install``) where flatcli owns the process: the
-``flatcli`` program (``cli.run``), its local sweep workers and the Dask workers of a cluster it
-starts (``executors``), and the child that compiles a kernel for another process
-(``_compile``). Never on ``import flatcli``: a notebook's numba and llvmlite stay as their
-user set them.
-
-Four changes, all for speed, none changing a number (the same IEEE operations run):
-
-* LLVM's inliner threshold, for everything compiled in the process (``INLINE_THRESHOLD``);
-* a cached kernel read without numba's compiler set up (``load_lightly``);
-* ``jitable`` functions registered with numba at its first compile, not when marked;
-* numba's BLAS check served without importing scipy.linalg (``load_numba_blas_alone``).
-
-The last three rely on numba's internals as read in numba 0.68 and check that they are so;
-anything else leaves numba's own way in place.
+Four changes for speed, none changing a number: LLVM's inliner threshold for the process
+(``INLINE_THRESHOLD``); a cached kernel read without numba's compiler set up
+(``load_lightly``); ``jitable`` functions registered at numba's first compile; numba's BLAS
+check served without scipy.linalg (``load_numba_blas_alone``). The last three rely on numba
+0.68's internals as read, and check that they are so; otherwise numba's own way stays.
 """
 
 from __future__ import annotations
@@ -30,15 +21,10 @@ from typing import Any
 import llvmlite.binding
 import numba
 
-#: LLVM's inliner threshold for everything compiled in flatcli's processes (LLVM's own default
-#: at -O3: 250). numba compiles every ``jitable`` function on its own and calls it with each
-#: array of its arguments spread into 7-11 words, a record of arrays into a hundred and
-#: more: one right-hand side of the N-link dynamic plant made about 12 calls and pushed
-#: some 500 words. At LLVM's default it inlined none of them; with this threshold it inlines
-#: them into the right-hand side (which stays one function the integrators call), and the
-#: closed loop ran 1.2-1.6x as fast (N = 3, 4, 6, both plants; the paper's loop 1.15-1.2x;
-#: interleaved on one machine, 2026-12-03), the numbers bit for bit the same (inlining
-#: does not change IEEE arithmetic; checked on 200 outcomes), compiling ~15 % longer.
+#: LLVM's inliner threshold for everything compiled in flatcli's processes (LLVM's default at
+#: -O3: 250, which inlined none of the dozen calls of a right-hand side, each passing its
+#: arrays spread into 7-11 words): it inlines them, and the closed loop ran 1.2-1.6x as fast,
+#: the numbers bit for bit the same (docs/development.md, docs/performance.md).
 INLINE_THRESHOLD = 5000
 
 #: The two extension modules numba's BLAS and LAPACK check imports (``numba.np.linalg``).
@@ -107,20 +93,14 @@ def load_lightly(cache: Any, sig: Any, target_context: Any,
                  numba_load: Callable[[Any, Any], Any]) -> Any:
     """Read a kernel from numba's on-disk cache without first setting up numba's compiler.
 
-    Before it reads a cached kernel, numba 0.68 refreshes the CPU target
-    (``Cache.load_overload`` calls ``target_context.refresh()``): it imports and registers
-    the lowering of every feature numba compiles (numba.cpython.*, numba.np.linalg, arraymath,
-    the typed containers, jitclass, third-party extensions' entry points), 0.2-0.25 s of
-    the 0.26 s a sweep worker's first call of a cached kernel took. Loading machine code needs
-    none of it, only numba's runtime (``rtsys.initialize``, which the refresh also does), so
-    that is all this load does, and the runtime only for a kernel whose machine code calls it
-    (``needs_runtime``: initialising it compiles the runtime's own module, 16-45 ms, which
-    the paper's kinematic loop never calls); a compile still refreshes the target first
-    (``CompilerBase.__init__``), and so does a lowering that finds no implementation
-    (``BaseContext.get_function``). The numbers are the same to the bit (the same machine
-    code runs). A cache entry that cannot be read (a truncated file: numba's own load
-    raises UnpicklingError there) counts as a miss: the kernel is compiled again. Anything
-    but numba's CPU target loads as numba does (``numba_load``).
+    Before it reads a cached kernel, numba 0.68 refreshes the CPU target: it imports and
+    registers the lowering of everything numba compiles, 0.2-0.25 s of the 0.26 s a sweep
+    worker's first call of a cached kernel took. Loading machine code needs only numba's
+    runtime, and that only for a kernel whose machine code calls it (``needs_runtime``: its
+    initialisation compiles the runtime's own module, 16-45 ms); a compile still refreshes
+    the target first. The same machine code runs: the numbers are the same to the bit. An
+    entry that cannot be read (truncated) is a miss: compiled again. Anything but numba's
+    CPU target loads as numba does (``numba_load``).
     """
     from numba.core import cpu
     from numba.core.runtime.nrt import rtsys
@@ -147,21 +127,14 @@ def load_lightly(cache: Any, sig: Any, target_context: Any,
 def load_numba_blas_alone() -> list[str]:
     """Load scipy's ``cython_blas`` and ``cython_lapack`` without the rest of scipy.linalg.
 
-    When numba sets up its compiler (before the first compiled call, cached kernels
-    included) it checks that a BLAS exists with ``import scipy.linalg.cython_blas``, and
-    Python imports a submodule's package first: all of ``scipy.linalg``, 0.1-0.2 s of
-    every flatcli process for modules no kernel uses. The two extension modules are
-    self-contained (numba reads their ``__pyx_capi__`` tables); loaded here by file into
-    ``sys.modules``, numba's import finds them and scipy.linalg is not imported. Anything
-    unexpected (scipy absent or laid out otherwise, scipy.linalg already imported, a module
-    that fails to load) leaves the normal import to do its work. Returns the modules loaded
-    (none when they are there already).
-
-    Loading them costs about 4 ms (scipy's own OpenBLAS, numpy loaded), so it is done only
-    where numba sets up its compiler: before a compile (``Ownership.before_compile``) and
-    before numba's own cache load (``load_lightly``'s fallback); a process that only loads
-    flatcli's kernels from the cache never needs them (no cached kernel of flatcli calls
-    BLAS or LAPACK).
+    When numba sets up its compiler it checks that a BLAS exists with ``import
+    scipy.linalg.cython_blas``, which imports all of ``scipy.linalg`` first (0.1-0.2 s) for
+    modules no kernel uses. The two extension modules are self-contained; loaded here by file
+    into ``sys.modules``, numba's import finds them. Anything unexpected (scipy absent or laid
+    out otherwise, scipy.linalg imported already, a module that fails to load) leaves the
+    normal import to do its work. Loading them costs about 4 ms, so it is done only where
+    numba sets up its compiler: before a compile and before numba's own cache load. Returns
+    the modules loaded.
     """
     if "scipy.linalg" in sys.modules or all(n in sys.modules for n in NUMBA_BLAS_MODULES):
         return []

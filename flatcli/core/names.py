@@ -1,12 +1,8 @@
 """The names and defaults the spec shows, written once, without numpy or numba.
 
-Every enumeration a spec key chooses from that the core defines, and the core's defaults that
-spec keys show, live here: the core's modules import them (so a name means the same in the
-kernels and in the spec), ``flatcli.spec.schema`` builds its keys from them, and shell
-completion (``flatcli.completion``) reads that schema without loading the numerical
-libraries. The spec's own choices (``plan.basis``, ``figures.format``) and the command
-line's executors are here too, so that the command line's ``--help`` reads every choice it
-offers from this one module. Standard library only.
+Every enumeration a spec key or a command's option chooses from, and the core's defaults the
+spec shows: the core imports them, ``flatcli.spec.schema`` builds its keys from them, and the
+command line's ``--help`` and shell completion read them without the numerical libraries.
 """
 
 from __future__ import annotations

@@ -47,24 +47,22 @@ MARGIN_LADDER = (0.02, 0.05, 0.1, 0.2, 0.3, 0.4)
 def plan_of(spec: Spec) -> Plan:
     """The spec's plan, through the public API (``flatcli.plan``)."""
     plan = api.plan(spec).plan
-    assert plan is not None
+    assert plan is not None  # computed, not loaded
     return plan
 
 
 def paper_plan(spec: Spec) -> Plan:
-    """``plan_of`` where the paper's robot (N = 2) is required: the analyses built on it (the
-    fold, the actuators, the findings) are about that robot."""
-    plan = plan_of(spec)
-    if plan.n_joints != 2:
+    """``plan_of`` where the analysis is of the paper's robot (N = 2)."""
+    if spec.joints != 2:
         raise SpecError(f"robot.mass: this needs the paper's robot (3 links, 2 joints), got "
                         f"{spec.joints + 1} links")
-    return plan
+    return plan_of(spec)
 
 
 def track_of(spec: Spec) -> TrackRun:
     """The spec's closed-loop run, through the public API (``flatcli.track``)."""
     run = api.track(spec, quiet=True).run
-    assert run is not None
+    assert run is not None  # computed, not loaded
     return run
 
 

@@ -1,10 +1,5 @@
-"""Spec trees: nested tables (a TOML file, a spec's or a run record's ``tree``) and their
-dotted keys, each walk written once.
-
-``read_toml`` reads a spec file (refusing what is not one); ``flatten`` turns a tree into
-{dotted key: value}, entering the tables its caller says (a spec's sections, or every
-table); ``value_at`` and ``put`` read and write one dotted key of a tree.
-"""
+"""Spec trees (a TOML file, a spec's or a run record's ``tree``) and their dotted keys, each
+walk written once: ``read_toml``, ``flatten``, ``value_at``, ``put``."""
 
 from __future__ import annotations
 
@@ -19,11 +14,8 @@ from flatcli.spec.keys import SpecError
 from flatcli.spec.limits import MAX_SPEC_BYTES
 
 
-def _any_table(dotted: str, value: Mapping[str, Any]) -> bool:
-    return bool(value)
-
-
-def flatten(tree: Mapping[str, Any], enter: Callable[[str, Mapping[str, Any]], bool] = _any_table,
+def flatten(tree: Mapping[str, Any],
+            enter: Callable[[str, Mapping[str, Any]], bool] = lambda dotted, table: bool(table),
             *, quote: bool = False, prefix: str = "") -> dict[str, Any]:
     """{dotted key: value} of a nested tree: a table is entered where ``enter(dotted key,
     table)`` says so (by default every table that is not empty) and is otherwise one value;
