@@ -19,7 +19,15 @@ from typing import Any
 from flatcli.spec.compose import compose
 from flatcli.spec.keys import MAX_INT, SpecError
 from flatcli.spec.limits import check_joints, check_limits
-from flatcli.spec.schema import SCHEMA, SpecRecord, check_value, find_key, fit_sizes, from_values
+from flatcli.spec.schema import (
+    SCHEMA,
+    SpecRecord,
+    check_value,
+    find_key,
+    fit_sizes,
+    from_values,
+    lookup,
+)
 from flatcli.spec.sweeps import PERTURB_PREFIX, is_perturbation_param, validate_sweep
 from flatcli.spec.tree import read_toml
 
@@ -213,6 +221,34 @@ def resolve(user: Mapping[str, Any], overrides: Mapping[str, Any] | None = None,
     flat = compose(user, base, robot, source)
     flat.update(extra)
     return build(flat)
+
+
+def resolve_robot(user: Mapping[str, Any], overrides: Mapping[str, Any] | None = None, *,
+                  base: Path | None = None, source: Path | None = None) -> Spec:
+    """``resolve`` for what describes the robot alone (``flatcli export-robot``): composed and
+    overridden as ``resolve`` does, every key checked to exist and ``name`` and the
+    ``robot.*`` keys checked, but only they are built (the other sections keep their defaults,
+    unchecked against the robot's N), so a robot file without a maneuver (a URDF, a robot
+    of N != 2 joints) exports."""
+    extra = dict(overrides or {})
+    robot = extra.pop("robot") if "robot" in extra and not isinstance(
+        extra["robot"], Mapping) else None
+    flat = compose(user, base, robot, source)
+    flat.update(extra)
+    checked: dict[str, Any] = {}
+    for dotted, value in flat.items():
+        _scan(dotted, value, 0)
+        if dotted in SCHEMA:
+            raise SpecError(f"{dotted}: expected a table")
+        if not is_perturbation_param(dotted):
+            key = check_value if dotted == "name" or dotted.startswith("robot.") else None
+            if key is None:
+                lookup(dotted)
+            else:
+                checked[dotted] = key(dotted, value)
+    spec = from_values(Spec, checked)
+    check_joints(spec.joints)
+    return spec
 
 
 def load_spec(path: Path | None, sets: Iterable[str] = ()) -> Spec:

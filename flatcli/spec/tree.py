@@ -3,13 +3,13 @@ walk written once: ``read_toml``, ``flatten``, ``value_at``, ``put``."""
 
 from __future__ import annotations
 
-import os
-import stat
 import tomllib
 from collections.abc import Callable, Mapping, MutableMapping
 from pathlib import Path
 from typing import Any
 
+from flatcli.core.errors import FlatcliError
+from flatcli.files import read_named_text
 from flatcli.spec.keys import SpecError
 from flatcli.spec.limits import MAX_SPEC_BYTES
 
@@ -52,40 +52,15 @@ def put(tree: MutableMapping[str, Any], dotted: str, value: Any) -> None:
 def read_toml(path: Path) -> dict[str, Any]:
     """Parse a TOML file; SpecError for a missing, unreadable, oversized or non-regular file
     (a FIFO or a device is refused without reading from it), for text that is not UTF-8,
-    and for TOML that is invalid or nested too deeply."""
+    and for TOML that is invalid or nested too deeply; a URDF given as a spec is named as
+    one."""
+    if path.suffix.lower() == ".urdf":
+        raise SpecError(f"{path} is a URDF, a robot rather than a spec: pass it as --robot "
+                        f"{path} (or robot = \"{path.name}\" in a spec)")
     try:
-        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
-    except FileNotFoundError:
-        raise SpecError(f"spec file not found: {path}") from None
-    except OSError as exc:
-        raise SpecError(f"cannot read spec file {path}: {exc.strerror}") from None
-    try:
-        info = os.fstat(fd)
-        if stat.S_ISDIR(info.st_mode):
-            raise SpecError(f"spec file is a directory: {path}")
-        if not stat.S_ISREG(info.st_mode):
-            raise SpecError(f"spec file {path} is not a regular file (a FIFO, socket or "
-                            "device); give a TOML file")
-        if info.st_size > MAX_SPEC_BYTES:
-            raise SpecError(f"spec file {path} is {info.st_size} bytes, more than the "
-                            f"{MAX_SPEC_BYTES} a spec may have")
-        data = b""
-        while len(data) <= MAX_SPEC_BYTES:
-            block = os.read(fd, MAX_SPEC_BYTES + 1 - len(data))
-            if not block:
-                break
-            data += block
-    except OSError as exc:
-        raise SpecError(f"cannot read spec file {path}: {exc.strerror}") from None
-    finally:
-        os.close(fd)
-    if len(data) > MAX_SPEC_BYTES:
-        raise SpecError(f"spec file {path} is more than the {MAX_SPEC_BYTES} bytes a spec may "
-                        "have")
-    try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise SpecError(f"spec file {path} is not UTF-8 text (byte {exc.start})") from None
+        text = read_named_text(path, "spec file", MAX_SPEC_BYTES)
+    except FlatcliError as exc:
+        raise SpecError(str(exc)) from None
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
