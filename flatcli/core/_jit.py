@@ -321,13 +321,14 @@ def allocating_kernel(fn: F) -> F:
 
 
 
-def named_kernel(name: str) -> Callable[[F], F]:
-    """``kernel`` for a function a factory makes, under ``name``: numba caches a kernel by
+def named_kernel(name: str, module: str) -> Callable[[F], F]:
+    """``kernel`` for a function a factory makes, as ``module.name``: numba caches a kernel by
     its module and qualified name, and links its code by them, so each must be its own
     (``loop.kernels.compile_kernels``)."""
 
     def mark(fn: F) -> F:
         fn.__name__ = fn.__qualname__ = name
+        fn.__module__ = module
         return kernel(fn)
 
     return mark

@@ -82,9 +82,9 @@ def asbuilt_shared(model: Any, gains: Gains, rate_limit: float, servo_is_plant: 
 #: The as-built kernels, by (model kind, plant model).
 KERNELS: dict[tuple[str, str], Kernels] = {
     ("asbuilt", "kinematic"): compile_kernels(ASBUILT_KINEMATIC, "asbuilt_kinematic",
-                                              asbuilt_shared, chain_plant),
+                                              asbuilt_shared, chain_plant, __name__),
     ("asbuilt", "dynamic"): compile_kernels(ASBUILT_DYNAMIC, "asbuilt_dynamic",
-                                            asbuilt_shared, chain_plant),
+                                            asbuilt_shared, chain_plant, __name__),
 }
 
 __all__ = ["ASBUILT_DYNAMIC", "ASBUILT_KINEMATIC", "KERNELS", "asbuilt_shared"]

@@ -580,14 +580,15 @@ class Kernels:
 
 
 def compile_kernels(ops: Ops, name: str, shared: Callable[..., Any],
-                    plant: Callable[[Array, str], Array]) -> Kernels:
+                    plant: Callable[[Array, str], Array], module: str = __name__) -> Kernels:
     """The kernels of one combination, generated: ``make_batch``'s runner and ``make_single``'s
     functions compiled, named ``<name>_batch``, ``_start``, ``_derivative``, ``_metrics`` and
-    ``_trace`` (numba caches a kernel by its module and name, and links its code by them:
-    each combination's are its own)."""
+    ``_trace`` in ``module`` (the one that makes them: numba caches a kernel by its module and
+    name, and links its code by them; a compile child imports that module to find it)."""
     parts = zip(("batch", "start", "derivative", "metrics", "trace"),
                 (make_batch(ops), *make_single(ops)), strict=True)
-    compiled: list[Callable[..., Any]] = [named_kernel(f"{name}_{part}")(fn) for part, fn in parts]
+    compiled: list[Callable[..., Any]] = [named_kernel(f"{name}_{part}", module)(fn)
+                                          for part, fn in parts]
     return Kernels(ops, compiled[0], tuple(compiled[1:]), shared, plant)
 
 
