@@ -34,7 +34,8 @@ from typing import TYPE_CHECKING, Any
 from flatcli.core.errors import FlatcliError
 from flatcli.core.plan.planning import Plan, PlanSamples
 from flatcli.core.plan.workspace import BRANCHES, DEFAULT_ATTITUDES, WorkspaceMap
-from flatcli.experiment import TrackRun, plan_and_optimization, run_track
+from flatcli.experiment import TrackRun as TrackRun  # the type of TrackResult.run
+from flatcli.experiment import plan_from, run_track
 from flatcli.files import is_regular, kind, read_text
 from flatcli.progress import announce_compile
 from flatcli.report import (
@@ -296,7 +297,7 @@ class PlanResult(Run):
         from flatcli.trajectory import Trajectory
 
         return Trajectory(self.plan if self.plan is not None else
-                          plan_and_optimization(self.spec)[0])
+                          plan_from(self.spec))
 
     def text(self) -> str:
         """What ``flatcli plan`` prints."""
@@ -363,7 +364,7 @@ class PlanResult(Run):
         s = self.spec
         times = self.frame["t"].to_numpy()
         fine = np.linspace(0.0, float(times[-1]), max(len(times), int(25 * times[-1]) + 1))
-        plan_ = self.plan if self.plan is not None else plan_and_optimization(s)[0]
+        plan_ = self.plan if self.plan is not None else plan_from(s)
         theta = plan_.sample(fine).theta
         return animate(robot_from(s), fine, theta, Path(path), s.task.obstacles,
                        s.task.clearance, s.task.end_effector)
@@ -394,7 +395,7 @@ class TrackResult(Run):
         from flatcli.trajectory import Trajectory
 
         return Trajectory(self.run.plan if self.run is not None else
-                          plan_and_optimization(self.spec)[0])
+                          plan_from(self.spec))
 
     def text(self) -> str:
         """What ``flatcli track`` prints."""

@@ -32,6 +32,8 @@ try:  # too little memory to load even these (ulimit -v): one line, not a traceb
     import click
 
     from flatcli import __version__
+    from flatcli.core import OWN_PROCESS_VARIABLE
+    from flatcli.core.names import EXECUTORS, FIGURE_FORMATS, OBJECTIVES
     from flatcli.interrupts import last_signal, raise_interrupt
     from flatcli.startup import library_error_text, probe_libraries, while_importing
     from flatcli.threads import THREAD_VARIABLES
@@ -59,10 +61,6 @@ STDOUT = "standard output"
 #: is EXIT_USAGE, 2): 0 closed-form outputs, 1 flat without them, 3 not flat.
 DESIGN_EXIT = {"closed_form": 0, "flat": 1, "not_flat": 3}
 RESUME_HINT = "finished chunks are kept in {}/trials; run the same command again to resume"
-#: ``flatcli.core.optimize.OBJECTIVES`` and ``flatcli.executors.EXECUTORS``, spelled out here
-#: so that ``--help`` need not import the numerical core (tests/test_cli.py checks they agree).
-OBJECTIVES = ("energy", "peak_rate", "effort", "margin")
-EXECUTORS = ("local", "dask")
 
 
 def fail(message: str) -> NoReturn:
@@ -204,6 +202,9 @@ def run() -> NoReturn:
     every command under a profiler or a tracer (``python -m cProfile``, coverage), which
     write their files at the teardown.
     """
+    # the program is flatcli's own process, and so are the processes it starts: numba tuned
+    # for its kernels (flatcli.core._jit.own_process) when the core is first imported
+    os.environ[OWN_PROCESS_VARIABLE] = "1"
     try:
         main.main()
         status = 0
@@ -245,9 +246,6 @@ OPTION_ORDER = ("robot", "sets", "name", "tags", "objective", "out", "force", "p
                 "quiet")
 #: The one meaning of -q in every command.
 QUIET_HELP = "Print nothing but errors (the exit status says how it went)."
-#: ``figures.format``'s choices (``flatcli.spec.schema.FIGURE_FORMATS``), spelled out so that
-#: --help need not import the numerical core.
-FIGURE_FORMATS = ("png", "pdf", "svg")
 
 
 class TrialId(click.ParamType[int, Any]):
@@ -941,7 +939,8 @@ def export_robot(spec: Path | None, robot: str | None, sets: tuple[str, ...], as
     if not as_urdf:
         fail("export-robot: choose a format: --urdf")
     from flatcli.experiment import robot_from
-    from flatcli.spec.build import read_toml, resolve_robot
+    from flatcli.spec.build import resolve_robot
+    from flatcli.spec.tree import read_toml
     from flatcli.urdf import write_urdf
 
     require_stdout(out is not None)

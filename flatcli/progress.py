@@ -8,7 +8,6 @@ import sys
 import threading
 import time
 from collections.abc import Mapping
-from pathlib import Path
 from typing import Any, TextIO
 
 from flatcli.core.loop.metrics import STATUS_NAMES
@@ -20,16 +19,14 @@ COMPILING = "compiling the simulation kernel (once, ~30 s)"
 
 
 def kernel_cached() -> bool:
-    """Whether numba's on-disk cache (the directory ``flatcli.core._jit`` chose) holds a
+    """Whether the kernels' on-disk cache (``flatcli.core._jit.CACHE_DIRECTORY``) holds a
     readable index of the closed-loop kernel, so a simulation starts without compiling (a
-    damaged index is compiled again: ``_jit.repair_unreadable_indexes``)."""
-    import numba
+    damaged index is compiled again: ``_jit._RepairingIndexFile``)."""
+    from flatcli.core._jit import CACHE_DIRECTORY
 
-    import flatcli.core._jit  # noqa: F401  (sets numba's cache directory)
-
-    root = Path(getattr(numba.config, "CACHE_DIR", "") or "")
-    return root.is_dir() and any(_readable_index(p)
-                                 for p in root.glob("**/*kernels.*_batch-*.nbi"))
+    root = CACHE_DIRECTORY
+    return root is not None and root.is_dir() and any(
+        _readable_index(p) for p in root.glob("**/*kernels.*_batch-*.nbi"))
 
 
 def _readable_index(path: Path) -> bool:

@@ -342,15 +342,6 @@ def test_version() -> None:
     assert code == 0 and out.startswith("flatcli, version")
 
 
-def test_choices_spelled_out_for_a_fast_help_match_their_homes() -> None:
-    from flatcli import cli
-    from flatcli.core.optimize import OBJECTIVES
-    from flatcli.executors import EXECUTORS
-
-    assert tuple(OBJECTIVES) == cli.OBJECTIVES
-    assert tuple(EXECUTORS) == cli.EXECUTORS
-
-
 HEAVY = ("numpy", "numba", "scipy", "pandas", "pyarrow", "matplotlib")
 
 
@@ -381,11 +372,10 @@ def test_compile_notice_only_on_a_cold_cache(tmp_path: Path,
                                              monkeypatch: pytest.MonkeyPatch) -> None:
     import io
 
-    import numba
-
+    from flatcli.core import _jit
     from flatcli.progress import COMPILING, announce_compile
 
-    monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(_jit, "CACHE_DIRECTORY", tmp_path)
     stream = io.StringIO()
     assert announce_compile(False, stream) is True
     assert stream.getvalue() == COMPILING + "\n"
@@ -551,6 +541,7 @@ def test_exported_csv_files_do_not_block_force(tiny_sweep: tuple[Path, Path],
 def test_an_unwritable_out_is_refused_before_any_work(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch, command: str) -> None:
     import flatcli.api
+    import flatcli.experiment
 
     readable = tmp_path / "readable"  # as a directory of mode 0o555 is to a user
     readable.mkdir()
@@ -563,7 +554,7 @@ def test_an_unwritable_out_is_refused_before_any_work(
     def computed(*args: Any, **kwargs: Any) -> Any:
         raise AssertionError("planned before the output was checked")
 
-    monkeypatch.setattr(flatcli.api, "plan_and_optimization", computed)
+    monkeypatch.setattr(flatcli.experiment, "planned", computed)  # every plan's one way
     monkeypatch.setattr(flatcli.api, "run_track", computed)
     for out in (readable, readable / "run"):
         result = CliRunner().invoke(main, [command, "--out", str(out)])
@@ -616,11 +607,12 @@ def test_plan_and_track_refuse_a_directory_another_run_writes_before_any_work(
     import multiprocessing
 
     import flatcli.api
+    import flatcli.experiment
 
     def computed(*args: Any, **kwargs: Any) -> Any:
         raise AssertionError("computed while another run writes there")
 
-    monkeypatch.setattr(flatcli.api, "plan_and_optimization", computed)
+    monkeypatch.setattr(flatcli.experiment, "planned", computed)  # every plan's one way
     monkeypatch.setattr(flatcli.api, "run_track", computed)
     out = tmp_path / "o"
     context = multiprocessing.get_context("spawn")

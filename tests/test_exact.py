@@ -15,8 +15,9 @@ from scipy.optimize import minimize
 
 from flatcli.core.curves.basis import PolynomialBasis
 from flatcli.core.errors import FlatcliError
+from flatcli.core.names import METHODS
 from flatcli.core.plan import exact
-from flatcli.core.plan.exact import METHODS, method_for, plan_exact, problem
+from flatcli.core.plan.exact import method_for, plan_exact, problem
 from flatcli.core.robots.chain import chain_momentum
 from flatcli.core.robots.params import PAPER_ROBOT, RobotParams
 from tests.asbuilt_support import AS_BUILT, GOAL, START, base_rate, momentum, weights

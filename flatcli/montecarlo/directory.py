@@ -61,6 +61,7 @@ from flatcli.report.summary import (
 from flatcli.spec import SpecError
 from flatcli.spec.limits import ID_STRIDE
 from flatcli.spec.schema import experiment
+from flatcli.spec.tree import flatten
 from flatcli.storage import (
     LOCK_NAME,
     PARQUET_META_KEY,
@@ -317,17 +318,9 @@ def _entries(directory: Path) -> list[Path]:
 # ---------------------------------------------------------------------------------------
 # Comparing specs.
 
-def _flat(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for name, value in tree.items():
-        dotted = f"{prefix}{name}"
-        if dotted == "sweep.grid":
-            out[dotted] = value
-        elif isinstance(value, Mapping) and value and dotted != "sweep.grid":
-            out.update(_flat(value, f"{dotted}."))
-        else:
-            out[dotted] = value
-    return out
+def _flat(tree: Mapping[str, Any]) -> dict[str, Any]:
+    """A spec tree's dotted keys, its tables entered but the grid (one value)."""
+    return flatten(tree, lambda dotted, table: bool(table) and dotted != "sweep.grid")
 
 
 def _show(value: Any) -> str:
@@ -606,11 +599,6 @@ def verified_chunks(directory: Path, lay: Layout) -> tuple[set[str], list[str]]:
             else:
                 problems.append(f"{TRIALS_DIR}/{chunk.name}: {problem}")
     return done, problems
-
-
-def finished_chunks(directory: Path, lay: Layout) -> set[str]:
-    """Names of this layout's verified chunk files."""
-    return verified_chunks(directory, lay)[0]
 
 
 def note(text: str) -> None:

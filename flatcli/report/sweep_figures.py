@@ -27,6 +27,7 @@ from flatcli.report.figures import PAGE_WIDTH, FigureFile, new_figure, save_figu
 from flatcli.report.summary import FAILURES, short_key
 from flatcli.report.tables import fmt
 from flatcli.spec.keys import suggest
+from flatcli.spec.tree import value_at
 from flatcli.storage import read_provenance
 
 if TYPE_CHECKING:
@@ -129,9 +130,7 @@ class SweepData:
         (``"inf"`` in the spec's JSON is inf: no limit)."""
         if dotted in self.summary.columns:
             return self.summary[dotted].to_numpy(dtype=np.float64)
-        node: Any = self.tree
-        for part in dotted.split("."):
-            node = node.get(part) if isinstance(node, Mapping) else None
+        node = value_at(self.tree, dotted)
         value = math.nan if node is None else float(node)
         return np.full(len(self.cells), value)
 
@@ -310,13 +309,6 @@ def _finish(fig: Figure, title: str) -> Figure:
 # ---------------------------------------------------------------------------------------
 # What a sweep's title says: the conditions every cell shares, or that they vary.
 
-def _setting(sweep: SweepData, key: str) -> Any:
-    node: Any = sweep.tree
-    for part in key.split("."):
-        node = node.get(part) if isinstance(node, Mapping) else None
-    return node
-
-
 def _varies(sweep: SweepData, key: str) -> bool:
     """Whether a spec key takes more than one value across the sweep's cells (a grid entry
     or a group sets it) or per trial (perturbed)."""
@@ -334,13 +326,13 @@ def conditions(sweep: SweepData) -> str:
             perturbed = key.startswith("plant.") and key.removeprefix("plant.") in \
                 sweep.tree.get("sweep", {}).get("perturb", {})
             return "perturbed" if perturbed else "per cell"
-        raw = _setting(sweep, key)
+        raw = value_at(sweep.tree, key)
         if raw in ("inf", math.inf) or raw is None:
             return "none"
         return f"{raw:g} {unit}" if isinstance(raw, int | float) else str(raw)
 
     model = "per cell" if _varies(sweep, "plant.model") else str(
-        _setting(sweep, "plant.model") or "kinematic")
+        value_at(sweep.tree, "plant.model") or "kinematic")
     plant = f"{model} plant" if model != "per cell" else "plant per cell"
     parts = [plant, f"sensor noise {value('track.sensor_noise', 'rad')}"]
     if model != "kinematic":

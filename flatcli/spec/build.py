@@ -10,19 +10,18 @@ from __future__ import annotations
 
 import copy
 import math
-import os
-import stat
 import tomllib
 from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from flatcli.spec.compose import compose
 from flatcli.spec.keys import MAX_INT, SpecError
-from flatcli.spec.limits import MAX_SPEC_BYTES, check_joints, check_limits
+from flatcli.spec.limits import check_joints, check_limits
 from flatcli.spec.schema import (
     SCHEMA,
-    Spec,
+    SpecRecord,
     check_value,
     find_key,
     fit_sizes,
@@ -30,10 +29,24 @@ from flatcli.spec.schema import (
     lookup,
 )
 from flatcli.spec.sweeps import PERTURB_PREFIX, is_perturbation_param, validate_sweep
+from flatcli.spec.tree import read_toml
 
 #: Deepest nesting of lists and tables a spec value may have (a grid of groups of vectors
 #: needs 3).
 MAX_DEPTH = 8
+
+
+@dataclass(frozen=True)
+class Spec(SpecRecord):
+    """A resolved, validated spec: every key has a value (defaults filled in).
+
+    Build one with ``flatcli.spec.resolve`` or ``load_spec``; read it by attribute
+    (``spec.track.dt``, ``spec.robot.mass``).
+    """
+
+    def with_overrides(self, overrides: Mapping[str, Any]) -> Spec:
+        """A new spec with some dotted keys replaced, validated again."""
+        return build(with_overrides(self.values(), overrides), parent=self)
 
 
 def build(values: Mapping[str, Any], parent: Spec | None = None) -> Spec:
@@ -67,7 +80,7 @@ def build(values: Mapping[str, Any], parent: Spec | None = None) -> Spec:
             name, param = dotted.removeprefix(PERTURB_PREFIX).split(".")
             perturb[name] = {**perturb.get(name, {}), param: value}
         checked["sweep.perturb"] = perturb
-    spec = fit_sizes(from_values(checked), checked)
+    spec = fit_sizes(from_values(Spec, checked), checked)
     check_joints(spec.joints)  # before anything costs O(N^3)
     grid_checked = (parent is not None and spec.sweep.grid is parent.sweep.grid
                     and spec.joints == parent.joints)
@@ -263,7 +276,7 @@ def resolve_robot(user: Mapping[str, Any], overrides: Mapping[str, Any] | None =
                 lookup(dotted)
             else:
                 checked[dotted] = key(dotted, value)
-    spec = from_values(checked)
+    spec = from_values(Spec, checked)
     check_joints(spec.joints)
     return spec
 
@@ -280,18 +293,6 @@ def load_spec(path: Path | None, sets: Iterable[str] = ()) -> Spec:
     if path is None:
         return resolve({}, parse_set(sets))
     return resolve(read_toml(path), parse_set(sets), base=path.parent, source=path)
-
-
-def flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
-    """Dotted keys of a user's nested dict, descending into known sections only."""
-    out: dict[str, Any] = {}
-    for name, value in tree.items():
-        dotted = f"{prefix}.{name}" if prefix else name
-        if isinstance(value, dict) and dotted in SCHEMA:
-            out.update(flatten(value, dotted))
-        else:
-            out[dotted] = value
-    return out
 
 
 #: Characters a bare word of ``--set`` may have besides letters and digits (a name, or a
@@ -335,60 +336,3 @@ def parse_set(items: Iterable[str]) -> dict[str, Any]:
         out.pop(key, None)  # moved last: it applies after every earlier item
         out[key] = parsed["v"]
     return out
-
-
-def read_text(path: Path, what: str = "spec file", limit: int = MAX_SPEC_BYTES) -> str:
-    """The UTF-8 text of a file a spec names (``what``: "spec file", "URDF file"); SpecError
-    for a missing, unreadable, oversized (> ``limit`` bytes) or non-regular file (a FIFO or
-    a device is refused without reading from it) and for text that is not UTF-8."""
-    try:
-        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
-    except FileNotFoundError:
-        raise SpecError(f"{what} not found: {path}") from None
-    except OSError as exc:
-        raise SpecError(f"cannot read {what} {path}: {exc.strerror}") from None
-    try:
-        info = os.fstat(fd)
-        if stat.S_ISDIR(info.st_mode):
-            raise SpecError(f"{what} is a directory: {path}")
-        if not stat.S_ISREG(info.st_mode):
-            raise SpecError(f"{what} {path} is not a regular file (a FIFO, socket or "
-                            "device)")
-        if info.st_size > limit:
-            raise SpecError(f"{what} {path} is {info.st_size} bytes, more than the "
-                            f"{limit} a {what.split()[0]} may have")
-        data = b""
-        while len(data) <= limit:
-            block = os.read(fd, limit + 1 - len(data))
-            if not block:
-                break
-            data += block
-    except OSError as exc:
-        raise SpecError(f"cannot read {what} {path}: {exc.strerror}") from None
-    finally:
-        os.close(fd)
-    if len(data) > limit:
-        raise SpecError(f"{what} {path} is more than the {limit} bytes a {what.split()[0]} "
-                        "may have")
-    try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise SpecError(f"{what} {path} is not UTF-8 text (byte {exc.start})") from None
-    return text
-
-
-def read_toml(path: Path) -> dict[str, Any]:
-    """Parse a TOML file; SpecError for a missing, unreadable, oversized or non-regular file
-    (a FIFO or a device is refused without reading from it), for text that is not UTF-8,
-    and for TOML that is invalid or nested too deeply; a URDF given as a spec is named as
-    one."""
-    if path.suffix.lower() == ".urdf":
-        raise SpecError(f"{path} is a URDF, a robot rather than a spec: pass it as --robot "
-                        f"{path} (or robot = \"{path.name}\" in a spec)")
-    text = read_text(path)
-    try:
-        return tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise SpecError(f"spec file {path} is not valid TOML: {exc}") from None
-    except RecursionError:
-        raise SpecError(f"spec file {path}: TOML nested too deeply") from None

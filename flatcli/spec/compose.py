@@ -31,6 +31,8 @@ from pathlib import Path
 from typing import Any
 
 from flatcli.spec.keys import SpecError, suggest
+from flatcli.spec.schema import dotted_keys
+from flatcli.spec.tree import read_toml
 
 #: Where the shipped robot files are (package data).
 ROBOTS = Path(str(resources.files("flatcli") / "data" / "robots"))
@@ -116,8 +118,6 @@ class _Composer:
     def file(self, path: Path, chain: tuple[Path, ...], where: str,
              robot: str | None = None) -> dict[str, Any]:
         """The dotted keys a file gives, its robot file and includes merged below them."""
-        from flatcli.spec.build import read_toml
-
         try:
             real = path.resolve()
         except (OSError, RuntimeError, ValueError):  # a link loop (RuntimeError before 3.13)
@@ -153,8 +153,6 @@ class _Composer:
              source: str, robot: str | None = None) -> dict[str, Any]:
         """The dotted keys of a spec tree read from ``source`` (a file, or "the spec"), with
         its robot file and its includes merged below its own keys."""
-        from flatcli.spec.build import flatten
-
         own = dict(tree)
         include = own.pop("include", [])
         unset = own.pop("unset", [])
@@ -183,7 +181,7 @@ class _Composer:
                             f"[\"plan.goal\"]), got {unset!r}")
         for dotted in unset:
             remove_key(out, dotted, f"{source}: unset")
-        out.update(flatten(own))
+        out.update(dotted_keys(own))
         return out
 
     def named(self, out: dict[str, Any]) -> dict[str, Any]:
@@ -217,8 +215,3 @@ def compose(tree: Mapping[str, Any], base: Path | None = None, robot: str | None
     return composer.named(composer.tree(tree, base, chain,
                                         str(source) if source is not None else "the spec", robot))
 
-
-def compose_file(path: Path, robot: str | None = None) -> dict[str, Any]:
-    """A spec file's dotted keys, composed (``compose``)."""
-    composer = _Composer()
-    return composer.named(composer.file(path, (), str(path), robot))

@@ -4,7 +4,7 @@ A record's docstring starts with the one line the heading of its table in docs/s
 shows.
 
 ``[robot]``, ``[plan]``, ``[plan.optimize]``, ``[track]``, ``[plant]`` and ``[sweep]`` are the
-records below; ``Spec`` holds them and the top-level ``name``. A key is one line: its type,
+records below; ``SpecRecord`` holds them and the top-level ``name``. A key is one line: its type,
 its helper (``number``, ``integer``, ``vector``, ``choice``, ``flag``, ``text``, ``table``
 from ``flatcli.spec.keys``) with default, doc, unit and bounds. ``SCHEMA`` is derived from
 these records, and so are docs/spec.md's tables (``python -m flatcli.spec --markdown``).
@@ -26,25 +26,29 @@ import json
 import math
 from collections.abc import Collection, Iterator, Mapping
 from dataclasses import Field, dataclass, field, fields, is_dataclass
-from typing import Any
+from typing import Any, TypeVar
 
-from flatcli.core.controllers.lqr import DEFAULT_BANDWIDTH, DEFAULT_BASE, DEFAULT_TERMINAL
-from flatcli.core.loop.simulate import (
+from flatcli.core.names import (
+    BASES,
     CONTROLLERS,
     DEFAULT_ACCURACY,
     DEFAULT_ATOL,
+    DEFAULT_BANDWIDTH,
+    DEFAULT_BASE,
     DEFAULT_MAX_STEPS,
     DEFAULT_RTOL,
     DEFAULT_SERVO_BANDWIDTH,
+    DEFAULT_TERMINAL,
+    ELBOWS,
     ERROR_ESTIMATES,
+    FIGURE_FORMATS,
     INTEGRATORS,
+    METHODS,
+    MODELS,
+    OBJECTIVES,
     PLANT_MODELS,
     SERVO_MODELS,
 )
-from flatcli.core.optimize import OBJECTIVES
-from flatcli.core.plan.exact import METHODS
-from flatcli.core.plan.inverse import ELBOWS
-from flatcli.core.robots.params import MODELS
 from flatcli.spec.keys import (
     SIZES,
     Key,
@@ -61,23 +65,20 @@ from flatcli.spec.keys import (
     vector,
 )
 from flatcli.spec.limits import MIN_RTOL
-from flatcli.storage import to_jsonable
+from flatcli.spec.tree import flatten
 
 #: Numbers of a per-link vector of the paper's robot: links 0 (base), 1, 2. A robot of N
 #: joints has N + 1 links (``robot.mass`` sets N); the per-link keys follow it.
 LINKS = 3
 #: Numbers of a gain vector of the paper's robot: one per flat output y1, y2 (N on N joints).
 GAINS = 2
-#: Flat-output bases of ``plan.basis``; "auto" picks one (see ``flatcli.experiment``).
-BASES = ("auto", "poly", "bspline")
-#: File formats of ``figures.format`` (``--format``): one raster, two vector.
-FIGURE_FORMATS = ("png", "pdf", "svg")
 #: Sections that say how results are shown, not what is computed: they enter no digest, so
 #: a sweep resumes and a run is "the same run" whatever figures it draws.
 PRESENTATION = ("figures", "summary")
 INF = math.inf
 
 Vector = tuple[float, ...]
+S = TypeVar("S", bound="SpecRecord")
 
 
 @dataclass(frozen=True)
@@ -321,13 +322,12 @@ class SummarySpec:
 
 
 @dataclass(frozen=True)
-class Spec:
+class SpecRecord:
     """top level
 
-    A resolved, validated spec: every key has a value (defaults filled in).
-
-    Build one with ``flatcli.spec.resolve`` or ``load_spec``; read it by attribute
-    (``spec.track.dt``, ``spec.robot.mass``).
+    The records of a spec, its sections and its name, and what they say of themselves. The
+    spec a program holds is ``flatcli.spec.Spec`` (``flatcli.spec.build``: this record
+    validated, and rebuilt with overrides).
     """
 
     name: str = text("paper_example", "run name; default output directory `runs/<name>/`")
@@ -363,6 +363,8 @@ class Spec:
     def to_json(self) -> str:
         """Canonical JSON of the experiment (``experiment_tree``; sorted keys, no spaces; inf
         written as the string "inf")."""
+        from flatcli.storage import to_jsonable  # numpy: not for the schema's other readers
+
         return json.dumps(to_jsonable(self.experiment_tree()), sort_keys=True,
                           separators=(",", ":"))
 
@@ -370,12 +372,6 @@ class Spec:
         """SHA-256 of the canonical JSON: what makes two sweeps the same experiment (the
         figures' format is not part of it)."""
         return hashlib.sha256(self.to_json().encode()).hexdigest()
-
-    def with_overrides(self, overrides: Mapping[str, Any]) -> Spec:
-        """A new spec with some dotted keys replaced, validated again."""
-        from flatcli.spec.build import build, with_overrides  # the sweep's rules too
-
-        return build(with_overrides(self.values(), overrides), parent=self)
 
 
 def experiment(tree: Mapping[str, Any]) -> dict[str, Any]:
@@ -427,13 +423,19 @@ def _sections(record_type: type, prefix: str) -> Iterator[tuple[str, type]]:
 
 
 #: Section name ('' for the top level) -> its record type, in the order of docs/spec.md.
-SECTIONS: dict[str, type] = dict(_sections(Spec, ""))
+SECTIONS: dict[str, type] = dict(_sections(SpecRecord, ""))
 
 #: Section name -> {key name: Key}: the single list of keys, types, units and defaults.
 SCHEMA: dict[str, dict[str, Key]] = {
     section: {f.name: f.metadata["key"] for f in fields(record) if not _is_section(f)}
     for section, record in SECTIONS.items()
 }
+
+
+def dotted_keys(tree: Mapping[str, Any]) -> dict[str, Any]:
+    """A user's nested spec (a parsed TOML file) as {dotted key: value}, entering its
+    sections only: a table a key takes (``sweep.grid``, ``sweep.perturb``) is one value."""
+    return flatten(tree, lambda dotted, table: dotted in SCHEMA)
 
 
 def all_keys() -> list[str]:
@@ -463,13 +465,14 @@ def check_value(dotted: str, value: Any) -> Any:
     return lookup(dotted).check(dotted, value)
 
 
-def from_values(values: Mapping[str, Any]) -> Spec:
-    """A Spec from {dotted key: checked value}; keys not given keep their defaults.
+def from_values(record_type: type[S], values: Mapping[str, Any]) -> S:
+    """A spec record of ``record_type`` (``SpecRecord`` or a subclass) from {dotted key:
+    checked value}; keys not given keep their defaults.
 
     Only ``flatcli.spec.build`` calls this, after checking every value.
     """
-    spec = _record(Spec, "", values)
-    assert isinstance(spec, Spec)
+    spec = _record(record_type, "", values)
+    assert isinstance(spec, record_type)
     return spec
 
 
@@ -490,7 +493,7 @@ def _record(record_type: type, prefix: str, values: Mapping[str, Any]) -> object
 SIZED_POLE = 5.0
 
 
-def sized_defaults(spec: Spec) -> dict[str, tuple[float, ...]]:
+def sized_defaults(spec: SpecRecord) -> dict[str, tuple[float, ...]]:
     """The defaults of robot-sized keys that follow from the robot and its plan for a robot
     of N != 2 joints (the paper's robot's own defaults do not fit it): the plant starts on
     the plan (``track.initial = plan.start``), every flat output gets a double pole at
@@ -517,7 +520,7 @@ def goal_is_derived(spec: Spec) -> bool:
             and goal == spec.plan.start)
 
 
-def fit_sizes(spec: Spec, given: Collection[str]) -> Spec:
+def fit_sizes(spec: S, given: Collection[str]) -> S:
     """The spec with every robot-sized key checked against N = ``spec.joints``.
 
     A list must have the length its key's size gives for N (``Key.size``); a "numbers" key's

@@ -43,8 +43,9 @@ from flatcli.core.models.flatmodel import (
     PaperModel,
     flat_model,
 )
+from flatcli.core.names import Model
 from flatcli.core.robots.dynamics import Chain, inverse_dynamics
-from flatcli.core.robots.params import Coefficients, Model, RobotParams, require_flat
+from flatcli.core.robots.params import Coefficients, RobotParams, require_flat
 
 Array = NDArray[np.float64]
 

@@ -20,8 +20,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from flatcli.core.curves.basis import Basis
 from flatcli.core.errors import FlatcliError
+from flatcli.core.names import Elbow, Model
 from flatcli.core.plan.clearance import Certificate, Constraints, certify, sampled_slack
-from flatcli.core.plan.inverse import Elbow, task_configuration, two_link_task
+from flatcli.core.plan.inverse import task_configuration, two_link_task
 from flatcli.core.plan.planning import Plan, plan_point_to_point
 from flatcli.core.plan.rest import plan_rest_to_rest
 from flatcli.core.robots.kinematics import (
@@ -30,7 +31,7 @@ from flatcli.core.robots.kinematics import (
     virtual_links,
     virtual_links_of,
 )
-from flatcli.core.robots.params import Model, RobotParams
+from flatcli.core.robots.params import RobotParams
 
 Array = NDArray[np.float64]
 
