@@ -316,7 +316,7 @@ def _dispatcher(fn: F, runtime: bool) -> F:
     KERNELS_BY_NAME[fn.__module__, fn.__qualname__] = dispatcher
     if CACHING and isinstance(dispatcher, Dispatcher):
         try:
-            cache: Any = KernelCache(fn)  # type: ignore[no-untyped-call]
+            cache: Any = KernelCache(fn)
         except RuntimeError:  # no source file to key it by (code given to python -c)
             return cast(F, dispatcher)
         setattr(dispatcher, "_cache", cache)  # noqa: B010 - numba's enable_caching: its locators

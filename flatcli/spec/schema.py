@@ -508,7 +508,7 @@ def sized_defaults(spec: SpecRecord) -> dict[str, tuple[float, ...]]:
     return out
 
 
-def goal_is_derived(spec: Spec) -> bool:
+def goal_is_derived(spec: SpecRecord) -> bool:
     """Whether ``plan.goal`` was left for the task to derive: its default (the paper's goal),
     or, on a robot of N != 2 joints with ``task.end_effector`` set, ``plan.start``
     (``sized_defaults``). Read from the values, so a spec written out (run.json, ``--cfg``)
