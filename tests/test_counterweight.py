@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 import flatcli
@@ -115,6 +115,7 @@ def test_a_segment_off_the_ray_by_less_than_the_band_gives_the_same_answers(
 
 @settings(deadline=None, max_examples=300)
 @given(tilt=st.floats(-20.0, 20.0), shift=st.floats(-3.0, 3.0), nudge=st.floats(-1.0, 1.0))
+@example(tilt=0.0, shift=1.0, nudge=1.0)  # the whole segment on the band's edge
 def test_the_answers_change_continuously_with_the_segment(tilt: float, shift: float,
                                                           nudge: float) -> None:
     """A segment crossing or running beside the ray at any small angle (up to 20 bands of
@@ -136,8 +137,11 @@ def test_the_answers_change_continuously_with_the_segment(tilt: float, shift: fl
     first, second = answer(a), answer(a + np.array([0.0, nudge * 1e-12]))
     misses = min(abs(a[1]), abs(b[1])) > band and a[1] * b[1] > 0
     assert (first is None) == misses
+    on_edge = abs(abs(a[1]) - band) <= 1e-9  # the stated tolerance's own edge: a rounding of
+    if on_edge:  # an end lying on it may take that end in or out (tilt 0, shift 1: the whole
+        return  # segment on the edge, 0.25 kg with its far end in, 1.25 kg with it out)
     if first is not None and second is not None:
         assert second[0] == pytest.approx(first[0], rel=1e-6)
         assert second[1] == pytest.approx(first[1], rel=1e-6)
-    elif abs(abs(a[1]) - band) > 1e-9:  # one refusal: only exactly at the band's edge
+    else:  # one refusal: only exactly at the band's edge
         assert first == second
