@@ -58,11 +58,10 @@ def test_a_damaged_kernel_index_counts_as_not_cached(tmp_path: Path,
     it again: flatcli/core/_jit.py), not only when it is missing."""
     import pickle
 
-    import numba
-
+    from flatcli.core import _jit
     from flatcli.progress import kernel_cached
 
-    monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(_jit, "CACHE_DIRECTORY", tmp_path)
     index = tmp_path / "core" / "kernels.paper_kinematic_batch-532.py311.nbi"
     index.parent.mkdir()
     assert not kernel_cached()
