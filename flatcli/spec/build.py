@@ -29,6 +29,7 @@ from flatcli.spec.schema import (
     from_values,
     lookup,
 )
+from flatcli.spec.searches import validate_search
 from flatcli.spec.sweeps import PERTURB_PREFIX, is_perturbation_param, validate_sweep
 
 #: Deepest nesting of lists and tables a spec value may have (a grid of groups of vectors
@@ -64,6 +65,7 @@ def build(values: Mapping[str, Any]) -> Spec:
     validate_sweep(spec.sweep, spec.joints, spec.plant.torque_limit,
                    spec.task.end_effector is not None)
     check_grid_shapes(spec.sweep.grid)
+    validate_search(spec)
     check_derived(spec)
     check_verify(spec.sweep.verify)
     check_limits(spec)
