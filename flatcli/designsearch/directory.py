@@ -29,7 +29,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from flatcli.core.errors import FlatcliError
 from flatcli.designsearch.evaluate import Evaluation, dumps
 from flatcli.spec import Spec, SpecError
 from flatcli.storage import to_jsonable, write_json
@@ -79,23 +78,23 @@ class Journal:
 
     @staticmethod
     def read(path: Path) -> Journal:
+        """The journal at ``path`` (empty if there is none): its lines up to the first that
+        cannot be read (a torn write at the end), the rest counted in ``dropped`` and cut off
+        the file."""
         journal = Journal(path)
         if not path.exists():
             return journal
+        data = path.read_bytes()
+        *complete, tail = data.split(b"\n")  # tail: the text after the last newline
         good = 0
-        with open(path, "rb") as fh:
-            data = fh.read()
-        lines = data.split(b"\n")
-        complete = lines[:-1]  # the text after the last newline is a torn line, if any
         for i, raw in enumerate(complete):
             try:
                 journal._take(json.loads(raw.decode("utf-8")))
             except (ValueError, TypeError, KeyError, UnicodeDecodeError):
-                journal.dropped = len(complete) - i + (1 if lines[-1] else 0)
+                journal.dropped = len(complete) - i
                 break
             good += len(raw) + 1
-        else:
-            journal.dropped = 1 if lines[-1] else 0
+        journal.dropped += 1 if tail else 0
         if good < len(data):
             with open(path, "r+b") as fh:
                 fh.truncate(good)
@@ -206,10 +205,6 @@ def remove_stale_results(directory: Path) -> None:
     for name in (SUMMARY, BEST_ROBOT, BEST_URDF, BEST_SPEC):
         with contextlib.suppress(FileNotFoundError):
             (directory / name).unlink()
-
-
-def unreadable(path: Path) -> FlatcliError:
-    return FlatcliError(f"{path}: cannot be read as a search's journal")
 
 
 __all__ = ["BEST_ROBOT", "BEST_SPEC", "BEST_URDF", "FIGURE_STEM", "FILES", "JOURNAL", "RECORD",

@@ -139,7 +139,8 @@ class SearchState:
     on_candidate: Callable[[SearchState, Row], None] = lambda state, row: None
     rows: list[Row] = field(default_factory=list)
     by_key: dict[str, Row] = field(default_factory=dict)
-    generation: int = 0
+    generation: int = 0  # generations finished after the first population
+    first_done: bool = False  # the first population has been evaluated
     seconds: float = 0.0  # the search's computing time at the last generation boundary
     stop: str = ""
     simulated_trials: int = 0
@@ -165,6 +166,7 @@ class SearchState:
         points = np.asarray(x, dtype=float)
         rows = [self._row(points[:, j]) for j in range(points.shape[1])]
         self._evaluate([r for r in rows if r.evaluation is None])
+        self.first_done = True
         return np.array([r.evaluation.objective for r in rows if r.evaluation is not None])
 
     def generation_done(self, intermediate_result: Any = None) -> bool:
@@ -194,7 +196,8 @@ class SearchState:
         if row is not None:
             return row
         candidate = self.design.candidate(x)
-        row = Row(len(self.rows), self.generation, candidate)
+        # the generation it is a trial vector of (0: the first population)
+        row = Row(len(self.rows), self.generation + (1 if self.first_done else 0), candidate)
         if not candidate.feasible:
             status = INFEASIBLE if candidate.robot is not None else ERROR
             row.evaluation = failed(self.spec, status, candidate.reason)

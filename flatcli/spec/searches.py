@@ -121,6 +121,10 @@ def counterweight_setup(search: Any) -> CounterweightSetup | None:
             raise SpecError(f"search.counterweight.{key}: unknown; allowed: "
                             f"{list(COUNTERWEIGHT_KEYS)}{suggest(str(key), COUNTERWEIGHT_KEYS)}")
         values[key] = _number(f"search.counterweight.{key}", value)
+    if "distance" in set(values) | varied and {"x", "y"} & varied:
+        raise SpecError(f"search.vary.'counterweight.{sorted({'x', 'y'} & varied)[0]}': the "
+                        "designer places this counterweight on the balancing ray (it has a "
+                        "distance); vary counterweight.distance (or give mass, x and y instead)")
     missing = sorted(varied - set(values))
     if missing:
         raise SpecError(f"search.counterweight.{missing[0]}: counterweight.{missing[0]} varies, "
