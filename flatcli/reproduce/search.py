@@ -35,6 +35,8 @@ OFFSETS_MM = (-1.0, 0.0, 0.5, 1.0, 2.0)
 OFFSET_TRIALS = 500
 #: ``--set`` items of ``make reproduce`` that reach the search (as they reach the studies).
 SHARED_SETS = ("sweep.trials=", "sweep.seed=")
+#: search.candidates, if not the spec's (None: the spec's).
+BUDGET: int | None = None
 
 
 def search_spec(context: Context) -> Spec:
@@ -44,6 +46,8 @@ def search_spec(context: Context) -> Spec:
         if item.startswith(SHARED_SETS):
             key, _, value = item.partition("=")
             spec = spec.with_overrides({key: int(value)})
+    if BUDGET is not None:
+        spec = spec.with_overrides({"search.candidates": BUDGET})
     return spec
 
 
@@ -214,7 +218,7 @@ def inputs(context: Context) -> dict[str, object]:
     """The search's resolved spec and the re-measurement's sizes."""
     return {"spec": search_spec(context).tree, "remeasure": [REMEASURE_TRIALS,
                                                              REMEASURE_SEED],
-            "offsets": OFFSETS_MM, "offset_trials": OFFSET_TRIALS}
+            "offsets": OFFSETS_MM, "offset_trials": OFFSET_TRIALS}  # the budget is the spec's
 
 
 SECTION = Section("search", "searching the design (flatcli search)", inputs, run,
