@@ -42,6 +42,7 @@ def whole(tmp_path_factory: pytest.TempPathFactory) -> Path:
     base = tmp_path_factory.mktemp("whole")
     code, out = search(str(write_spec(base)), "--out", str(base / "w1"), "-q", "--workers", "1")
     assert code == 0, out
+    assert out == ""  # -q: nothing but errors
     return base / "w1"
 
 
@@ -257,3 +258,37 @@ def test_a_spec_without_a_search_and_a_dry_run(tmp_path: Path) -> None:
     assert "design variables (3):" in out and "optimiser: scipy's differential_evolution" in out
     assert "at most 24 candidates" in out and "estimate on 1 local worker" in out
     assert out.rstrip().endswith("nothing written") and not (tmp_path / "dry").exists()
+
+
+def test_a_search_of_another_robot_with_a_grid(tmp_path: Path) -> None:
+    """chain4 (N = 3), a grid of two cells pooled per candidate, a quantile objective and a
+    mass constraint that the spec's own design (4.5 kg) breaks."""
+    text = """
+name = "chain4_search"
+robot = "chain4"
+[sweep]
+trials = 6
+seed = 3
+[sweep.perturb]
+initial = { dist = "normal", std = 0.01 }
+[sweep.grid]
+"track.sensor_noise" = [0.0, 0.0005]
+[search]
+candidates = 20
+population = 10
+objective = "quantile"
+max_mass = 4.3
+[search.vary]
+"robot.mass[1]" = { relative = 0.3 }
+"robot.length[3]" = { relative = 0.2 }
+"""
+    code, out = search(str(write_spec(tmp_path, text)), "--out", str(tmp_path / "c4"), "-q",
+                       "--workers", "1")
+    assert code == 0, out
+    frame = table(tmp_path / "c4")
+    assert frame.loc[0, "status"] == "infeasible" and frame.loc[0, "total_mass"] == 4.5
+    studied = frame[frame["status"] == "evaluated"]
+    assert len(studied) and (studied["trials"] == 12).all()  # 2 cells x 6 trials
+    assert (studied["total_mass"] <= 4.3).all()
+    assert all(len(m) == 4 for m in frame["robot.mass"])
+    np.testing.assert_array_equal(studied["objective"], studied["err_theta_final_q0.5"])

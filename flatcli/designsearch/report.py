@@ -325,8 +325,10 @@ def write_results(state: SearchState, directory: Path, record: dict[str, Any],
     write_table_now(state, directory, identity)
     best = best_row(state.rows)
     written = [TABLE]
-    if best is not None and best.candidate.spec is not None and best.candidate.robot is not None:
-        best_spec = best.candidate.spec.with_overrides({"name": f"{spec.name}_best"})
+    rebuilt = None if best is None else state.design.candidate(np.array(best.candidate.x))
+    if best is not None and rebuilt is not None and rebuilt.spec is not None \
+            and best.candidate.robot is not None:
+        best_spec = rebuilt.spec.with_overrides({"name": f"{spec.name}_best"})
         header = (f"The best design of flatcli search {spec.name!r}: candidate {best.index}, "
                   f"{outcome_text(best)}.\nRe-measure it on fresh seeds with a sweep spec "
                   "that says robot = \"best_robot.toml\" (or: flatcli sweep best_spec.toml "

@@ -37,7 +37,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -214,6 +214,7 @@ class SearchState:
             known = self.journal.evaluations.get(key)
             if known is not None:
                 row.evaluation, row.resumed = known, True
+                row.candidate = replace(row.candidate, spec=None)  # done with it: memory
                 self.on_candidate(self, row)
                 continue
             spec = row.candidate.spec
@@ -244,6 +245,7 @@ class SearchState:
 
     def _finish(self, row: Row, evaluation: Evaluation) -> None:
         row.evaluation = evaluation
+        row.candidate = replace(row.candidate, spec=None)  # a long search keeps no specs
         self.journal.add_candidate(design_key(row.candidate.x), evaluation)
         self.on_candidate(self, row)
 

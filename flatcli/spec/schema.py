@@ -349,12 +349,12 @@ class SearchSpec:
                                   "objective: E the candidate's plan input energy, E_0 the "
                                   "spec's own design's", ge=0)
     candidates: int = integer(200, "budget: designs evaluated at most (whole generations)",
-                              ge=1)
+                              ge=1, le=10_000_000)
     seconds: float = number(INF, "budget: stop at the first generation boundary after this "
                             "much time (recorded, so a resume stops there too)", "s", gt=0,
                             inf=True)
     population: int | None = integer(None, "designs per generation of the differential "
-                                     "evolution", ge=5, nullable=True,
+                                     "evolution", ge=5, le=100_000, nullable=True,
                                      default_doc="5 per variable, at least 10")
     seed: int = integer(0, "seed of the optimiser (the trials' draws come from sweep.seed)",
                         ge=0)
