@@ -199,14 +199,16 @@ def write_record(directory: Path, record: Mapping[str, Any]) -> None:
     write_json(directory / RECORD, record)
 
 
-def remove_stale_results(directory: Path) -> None:
-    """The results of an earlier run, removed before a run that will write them again (a
-    resumed search that stops at another budget must not leave an older best behind)."""
-    for name in (SUMMARY, BEST_ROBOT, BEST_URDF, BEST_SPEC):
-        with contextlib.suppress(FileNotFoundError):
-            (directory / name).unlink()
+def remove_best(directory: Path) -> None:
+    """The best design's files of an earlier run, removed by a run that found no best (so an
+    older best is never left beside a table that does not hold it)."""
+    for name in (BEST_ROBOT, BEST_URDF, BEST_SPEC):
+        path = directory / name
+        if path.is_file() and not path.is_symlink():
+            with contextlib.suppress(FileNotFoundError):
+                path.unlink()
 
 
 __all__ = ["BEST_ROBOT", "BEST_SPEC", "BEST_URDF", "FIGURE_STEM", "FILES", "JOURNAL", "RECORD",
            "STOPPING", "SUMMARY", "TABLE", "Journal", "Opened", "design_key", "identity",
-           "open_directory", "read_record", "remove_stale_results", "write_record"]
+           "open_directory", "read_record", "remove_best", "write_record"]

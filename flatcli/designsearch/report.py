@@ -26,6 +26,7 @@ from flatcli.designsearch.directory import (
     FIGURE_STEM,
     SUMMARY,
     TABLE,
+    remove_best,
     write_record,
 )
 from flatcli.designsearch.evaluate import EVALUATED, OUTCOMES
@@ -342,6 +343,8 @@ def write_results(state: SearchState, directory: Path, record: dict[str, Any],
         record["best"] = {"candidate": best.index, "design": dict(zip(
             state.design.names, best.candidate.x, strict=True)),
             **best.evaluation.to_json()}  # type: ignore[union-attr]
+    else:
+        remove_best(directory)
     file = FigureFile(spec.figures.format, spec.figures.dpi)
     fig = convergence_figure(state)
     save_figure(fig, directory / file.name(FIGURE_STEM), file)

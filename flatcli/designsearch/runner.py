@@ -52,7 +52,6 @@ from flatcli.designsearch.directory import (
     design_key,
     identity,
     open_directory,
-    remove_stale_results,
     write_record,
 )
 from flatcli.designsearch.evaluate import (
@@ -348,7 +347,6 @@ def run_search(spec: Spec, directory: Path, executor_kind: str = "local",
         record = run_record("search", spec.tree, identity=digest, status="running",
                             command_line=command)
         write_record(directory, record)
-        remove_stale_results(directory)
         if own_layout is not None and executor_kind == "local" and (
                 len(opened.journal.evaluations) < spec.search.candidates):
             with interruptible():
