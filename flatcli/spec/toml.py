@@ -13,7 +13,8 @@ from typing import Any
 
 import tomli_w
 
-from flatcli.spec.schema import Spec
+from flatcli.spec.schema import SpecRecord
+from flatcli.spec.tree import put
 
 _BARE = re.compile(r"[A-Za-z0-9_-]+")
 
@@ -59,7 +60,7 @@ def _is_table(prefix: str, key: str, value: Any) -> bool:
         "sweep.perturb", "sweep.grid", "search.vary", "search.counterweight"))
 
 
-def spec_toml(spec: Spec, *, sweep: bool = False, search: bool = False,
+def spec_toml(spec: SpecRecord, *, sweep: bool = False, search: bool = False,
               values: Mapping[str, Any] | None = None,
               notes: Mapping[str, str] | None = None) -> str:
     """A spec's keys as TOML (keys left unset, None, are left out), without its ``[sweep]``
@@ -72,11 +73,7 @@ def spec_toml(spec: Spec, *, sweep: bool = False, search: bool = False,
     if not search:
         tree.pop("search", None)
     for dotted, value in (values or {}).items():
-        node = tree
-        *parents, last = dotted.split(".")
-        for part in parents:
-            node = node[part]
-        node[last] = value
+        put(tree, dotted, value)
     out: list[str] = []
     _lines("", tree, out, notes or {})
     return "\n".join(out).lstrip("\n") + "\n"
