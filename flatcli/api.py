@@ -82,6 +82,8 @@ if TYPE_CHECKING:  # pandas loads with the first DataFrame, never in a sweep's p
     from matplotlib.figure import Figure
 
     from flatcli.core.optimize import OptimizeResult
+    from flatcli.designsearch import SearchResult
+    from flatcli.designsearch.check import SearchCheckReport
     from flatcli.preflight import CheckReport
     from flatcli.trajectory import Trajectory
 
@@ -1015,16 +1017,73 @@ def sweep(spec: SpecLike, out: str | os.PathLike[str] | None = None, *,
                        done.headline or None)
 
 
-@computes
-def check(spec: SpecLike, overrides: Overrides = None, *, workers: int | None = None,
-          executor: str = "local", calibrate: bool = True,
-          quiet: bool = False) -> CheckReport:
-    """What a sweep of this spec would do, without doing it: cells, trials, chunks, a time
-    and memory estimate from a short calibration, and warnings (``flatcli.preflight``).
-    Writes nothing. Returns a CheckReport (``.text()``, ``.cells``, ``.warnings``)."""
-    from flatcli.preflight import check_spec
+def search(spec: SpecLike, out: str | os.PathLike[str] | None = None, *,
+           overrides: Overrides = None, workers: int | None = None, executor: str = "local",
+           scheduler: str | None = None, force: bool = False, quiet: bool = False,
+           oversubscribe: bool = False, command: str = "") -> SearchResult:
+    """Run (or resume) the design search of a spec with a ``[search]`` table into ``out``
+    (default ``runs/<name>/search/``): scipy's differential evolution over the design
+    variables of ``[search.vary]``, each candidate studied by the spec's own ``[sweep]``
+    (common random numbers), generation by generation on every core (or Dask); writes
+    search.parquet, summary.md, the convergence figure and the best design as
+    best_robot.toml, best_robot.urdf and best_spec.toml (docs/search.md). Running it again
+    resumes it (the same search.parquet, bit for bit); a larger ``search.candidates``
+    continues it. Progress on stderr unless quiet."""
+    from flatcli.designsearch import SearchResult
+    from flatcli.designsearch.directory import identity
+    from flatcli.designsearch.progress import SearchProgress
+    from flatcli.designsearch.report import write_results, write_table_now
+    from flatcli.designsearch.runner import SearchState, run_search
 
     s = load_spec(spec, overrides)
+    directory = Path(out) if out is not None else ROOT / s.name / "search"
+    check_output_dir(directory)
+    digest = identity(s)
+    if executor == "local":
+        announce_compile(quiet)
+    progress = SearchProgress(s.name, quiet)
+
+    def generation(state: SearchState) -> None:
+        write_table_now(state, directory, digest)  # the rows so far, for a reader
+        progress.on_generation(state)
+
+    record: dict[str, Any] = {}
+
+    def finish(state: SearchState, where: Path, items: dict[str, Any]) -> None:
+        record.update(write_results(state, where, items, digest))
+
+    try:
+        run_search(s, directory, executor, workers, scheduler, force, oversubscribe,
+                   command or " ".join(sys.argv), on_generation=generation,
+                   on_candidate=progress.on_candidate, on_start=progress.on_start,
+                   finish=finish)
+    finally:
+        progress.close()
+    from flatcli.designsearch.directory import SUMMARY
+
+    return SearchResult(directory, record, read_text(directory / SUMMARY).rstrip("\n"))
+
+
+@computes
+def check(spec: SpecLike, overrides: Overrides = None, *, workers: int | None = None,
+          executor: str = "local", calibrate: bool = True, quiet: bool = False,
+          what: str = "auto") -> CheckReport | SearchCheckReport:
+    """What a sweep of this spec would do, without doing it: cells, trials, chunks, a time
+    and memory estimate from a short calibration, and warnings (``flatcli.preflight``); for
+    a spec with ``[search.vary]`` (``what`` "auto"; or "search"), what its design search would
+    do and cost (``flatcli.designsearch.check``). Writes nothing. Returns a CheckReport
+    (``.text()``, ``.cells``, ``.warnings``) or a SearchCheckReport (``.text()``,
+    ``.estimate_seconds``)."""
+    from flatcli.preflight import check_spec
+
+    if what not in ("auto", "sweep", "search"):
+        raise FlatcliError(f"check: what must be 'auto', 'sweep' or 'search', got {what!r}")
+    s = load_spec(spec, overrides)
+    if what == "search" or (what == "auto" and s.search.vary):
+        from flatcli.designsearch.check import check_search_spec
+
+        return check_search_spec(s, workers=workers, executor=executor, calibrate=calibrate,
+                                 quiet=quiet)
     return check_spec(s, workers=workers, executor=executor, calibrate=calibrate, quiet=quiet)
 
 
