@@ -415,8 +415,9 @@ class SpecRecord:
 
     def experiment_tree(self, skip: Collection[str] = ()) -> dict[str, Any]:
         """``tree`` without the sections that only say how results are shown
-        (``PRESENTATION``) and those no trial reads (``OUTSIDE_TRIALS``): what the experiment is; without the dotted keys ``skip`` too
-        (not copied: a sweep's cells leave out the grid they all share)."""
+        (``PRESENTATION``) and those no trial reads (``OUTSIDE_TRIALS``): what the
+        experiment is; without the dotted keys ``skip`` too (not copied: a sweep's cells leave
+        out the grid they all share)."""
         return experiment(_tree(self, skip))
 
     def to_json(self) -> str:
