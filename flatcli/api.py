@@ -522,6 +522,9 @@ class SweepResult(Run):
         self.simulated = simulated
         self.wall_seconds = wall_seconds
         self._summary_text = summary_text
+        #: what the run here did, as the runner reports it (``montecarlo.SweepResult``; of a
+        #: shard: whether it wrote the final tables, what is missing)
+        self.outcome: Any = None
 
     @property
     def complete(self) -> bool:
@@ -543,7 +546,7 @@ class SweepResult(Run):
         in the grid's order, trials in order)."""
         if self.complete:
             return self.table("trials")
-        if not self.state.chunk_files:
+        if not self.state.chunk_files and not self.state.stored:
             import pandas as pd
 
             return pd.DataFrame()
@@ -938,7 +941,7 @@ def sweep(spec: SpecLike, out: str | os.PathLike[str] | None = None, *,
           overrides: Overrides = None, workers: int | None = None, executor: str = "local",
           scheduler: str | None = None, force: bool = False, fail_fast: bool = False,
           quiet: bool = False, oversubscribe: bool = False,
-          tags: Iterable[str] = ()) -> SweepResult:
+          tags: Iterable[str] = (), shard: str | None = None) -> SweepResult:
     """Run (or resume) a Monte Carlo sweep into ``out`` (default ``runs/<name>/sweep/``,
     apart from the plan and track runs of that name).
 
@@ -952,9 +955,13 @@ def sweep(spec: SpecLike, out: str | os.PathLike[str] | None = None, *,
     first trial that errors or diverges; ``oversubscribe``: allow more workers than cores.
     Shows a progress bar on stderr unless quiet. ``tags``: labels of the sweep (run.json).
     Returns the SweepResult of the directory. One run writes into a directory at a time
-    (FlatcliError naming the other run's pid).
+    (FlatcliError naming the other run's pid), except the shards of one study: ``shard``
+    "K/N" computes shard K of N (``montecarlo.layout.Shard``) beside the others, possibly
+    on other machines sharing the directory; the last to finish writes the final tables
+    (docs/cluster.md). A shard's result is ``.complete`` only if it did.
     """
     from flatcli.montecarlo import run_sweep
+    from flatcli.montecarlo.layout import Shard
     from flatcli.report import Progress
     from flatcli.rundirs import check_tags, sweep_directory
     from flatcli.spec.sweeps import identical_trials
@@ -970,16 +977,21 @@ def sweep(spec: SpecLike, out: str | os.PathLike[str] | None = None, *,
     if same is not None and s.sweep.trials > 1 and not quiet:
         print(f"note: the {s.sweep.trials} trials of each cell are identical ({same})",
               file=sys.stderr)
+    part = Shard.parse(shard) if shard is not None else None
     directory = Path(out) if out is not None else sweep_directory(s.name)
     check_output_dir(directory)
     if executor == "local":
         announce_compile(quiet)
-    with directory_lock(directory):
+    # (a shard takes the directory's lock itself: shared, then alone if it is the last)
+    with directory_lock(directory) if part is None else contextlib.nullcontext():
         done = run_sweep(s, directory, executor, workers, scheduler, force, fail_fast,
-                         Progress(s.name, quiet), oversubscribe=oversubscribe, tags=chosen)
+                         Progress(s.name, quiet), oversubscribe=oversubscribe, tags=chosen,
+                         shard=part)
         state = sweep_state(directory)
     assert state is not None
-    return SweepResult(state, done.simulated, done.wall_seconds, done.summary_text)
+    result = SweepResult(state, done.simulated, done.wall_seconds, done.summary_text)
+    result.outcome = done
+    return result
 
 
 @computes
