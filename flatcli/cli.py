@@ -655,7 +655,8 @@ def check(spec: Path | None, robot: str | None, sets: tuple[str, ...], workers: 
               help="Allow more --workers than this machine's cores.")
 @executor_option
 @click.option("--scheduler", metavar="ADDRESS",
-              help="Dask scheduler address (tcp://host:8786), or 'local' for a LocalCluster.")
+              help="Dask scheduler address (tcp://host:8786), 'local' for a LocalCluster, or "
+                   "'slurm' to start workers as SLURM jobs (dask-jobqueue).")
 @click.option("--shard", metavar="K/N",
               help="Compute shard K of N of the study (machines or array jobs sharing --out); "
                    "the last shard to finish writes the final tables.")

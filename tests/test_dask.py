@@ -264,3 +264,47 @@ def test_workers_that_all_leave_mid_sweep_end_it_with_one_line(
                            match=r"^no Dask worker for 3 s at "):
             list(results)
         executor.close()
+
+
+def test_a_cluster_of_separate_processes_as_over_ssh_writes_the_local_bytes(
+        tmp_path: Path, reference: Path) -> None:
+    """What docs/cluster.md tells a user to start on other machines over SSH: a scheduler
+    and a worker host, each a process of its own started by Dask's command line (here on
+    this machine), and the sweep pointed at the scheduler's address."""
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
+    address_file = tmp_path / "scheduler.json"
+    scheduler = subprocess.Popen(
+        [sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1",
+         "--port", "0", "--dashboard-address", ":0", "--scheduler-file", str(address_file)],
+        env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    worker = None
+    try:
+        deadline = time.monotonic() + 120
+        while not address_file.exists() or not address_file.read_text().strip():
+            assert time.monotonic() < deadline and scheduler.poll() is None
+            time.sleep(0.1)
+        worker = subprocess.Popen(
+            [sys.executable, "-m", "distributed.cli.dask_worker", "--scheduler-file",
+             str(address_file), "--nworkers", "2", "--nthreads", "1", "--no-dashboard"],
+            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+            start_new_session=True)
+        import json
+
+        address = json.loads(address_file.read_text())["address"]
+        with Client(address, timeout="30s") as watcher:
+            watcher.wait_for_workers(2, timeout=120)  # both up, as a user would see first
+        out = tmp_path / "ssh"
+        code, text = sweep(str(write_spec(tmp_path)), "--out", str(out), "--executor", "dask",
+                           "--scheduler", address)
+        assert code == 0, text
+        assert f"120 trials on dask at {address}, 2 worker threads" in text
+        assert_same_sweep(out, reference)
+    finally:
+        for process in (worker, scheduler):
+            if process is not None and process.poll() is None:
+                os.killpg(process.pid, signal.SIGTERM)
+                try:
+                    process.wait(timeout=30)
+                except subprocess.TimeoutExpired:
+                    os.killpg(process.pid, signal.SIGKILL)
+                    process.wait()

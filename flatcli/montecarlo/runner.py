@@ -14,7 +14,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from flatcli.executors import default_workers, make_executor
-from flatcli.interrupts import check, deferred, interruptible
+from flatcli.interrupts import check, deferred
 from flatcli.montecarlo.chunks import ChunkResult, run_chunk
 from flatcli.montecarlo.directory import (
     SHOWN,
@@ -30,7 +30,7 @@ from flatcli.montecarlo.directory import (
     reusable_chunks,
     write_manifest,
 )
-from flatcli.montecarlo.layout import Chunk, Layout, Shard, layout, work_pieces
+from flatcli.montecarlo.layout import Cell, Chunk, Layout, Shard, layout, work_pieces
 from flatcli.montecarlo.tally import status_counts, watch
 from flatcli.progress import Progress
 from flatcli.spec import Spec, SpecError
@@ -137,7 +137,8 @@ class _Run:
         guard = locks.setup if locks is not None else contextlib.nullcontext
         with guard():
             plan = plan_directory(directory, lay, force)  # refused before anything is written
-        executor = make_executor(self.executor_kind, self.workers, self.scheduler)
+        executor = make_executor(self.executor_kind, self.workers, self.scheduler,
+                                 self._say)
         try:
             with guard():
                 if locks is not None:  # again: another shard may have written meanwhile
@@ -176,11 +177,11 @@ class _Run:
                     where = executor.description + (
                         f"; shard {shard} of the study's {lay.total} trials" if shard else "")
                     progress.start(sum(c.size for c in mine), resumed, where)
-                if todo and self.executor_kind == "local":
-                    with interruptible():
-                        warm_up(lay)  # load the kernel once here; forked workers inherit it
+                cells = executor.share(lay.cells) if todo else []
+                if todo:  # load the kernel (here, for forked workers; on each Dask worker)
+                    executor.warm(run_chunk, warm_up_task(lay))
                 setup_seconds = time.perf_counter() - started
-                tasks = (((c, piece), (lay.cells[c.cell], piece))
+                tasks = (((c, piece), (cells[c.cell], piece))
                          for c, piece in work_pieces(todo, executor.workers))
                 # (start, size, result) of the pieces computed so far of each chunk not yet whole
                 parts: dict[str, list[tuple[int, int, ChunkResult]]] = {}
@@ -259,6 +260,11 @@ class _Run:
         return SweepResult(directory, lay, simulated, time.perf_counter() - started,
                            summary_text)
 
+    def _say(self, text: str) -> None:
+        """A line on stderr, unless quiet (no progress, or a quiet one)."""
+        if self.progress is not None and not self.progress.quiet:
+            note(text)
+
     def finish(self, part: SweepResult) -> SweepResult:
         """The last shard running, holding the directory alone: the final tables, as a
         resume would write them, if every chunk of the study is done; else ``part`` with
@@ -283,7 +289,8 @@ class _Run:
                        wall_seconds=time.perf_counter() - self.started)
 
 
-def warm_up(lay: Layout) -> None:
-    """Simulate one trial of the first cell, so the compiled kernel is loaded."""
+def warm_up_task(lay: Layout) -> tuple[Cell, Chunk]:
+    """``run_chunk``'s arguments for one trial of the first cell: what loads the compiled
+    kernel."""
     cell = lay.cells[0]
-    run_chunk(cell, Chunk(cell.index, cell.first_trial, cell.first_trial + 1))
+    return cell, Chunk(cell.index, cell.first_trial, cell.first_trial + 1)
