@@ -36,7 +36,7 @@ from flatcli.core.planning import Plan, PlanSamples
 from flatcli.core.workspace import BRANCHES, DEFAULT_ATTITUDES, WorkspaceMap
 from flatcli.experiment import TrackRun, plan_and_optimization, run_track
 from flatcli.files import is_regular, kind, read_text
-from flatcli.progress import announce_compile
+from flatcli.progress import compile_notices, spec_kernel_text
 from flatcli.report import (
     FigureFile,
     Limits,
@@ -924,13 +924,15 @@ def track(spec: SpecLike = None, overrides: Overrides = None, *,
     """Plan, then simulate the closed loop of the spec's ``[track]`` on its ``[plant]``.
 
     Returns a TrackResult (``.frame``, ``.metrics``); nothing is written until ``.save()``.
-    On a cold numba cache prints one line (the kernel compiles once, ~30 s) unless quiet.
+    On a cold numba cache says on stderr, unless quiet, that its kernel compiles (once),
+    how long that should take, and how far it is (``progress.compile_notices``).
     """
     from flatcli.outputs import track_frame
     from flatcli.spec.limits import require_finite_plan
 
     s = load_spec(spec, overrides)
-    run = run_track(s, lambda: announce_compile(quiet))
+    with compile_notices(spec_kernel_text(s), quiet):  # the planner's and the loop's
+        run = run_track(s)
     require_finite_plan({"the reference": run.scenario.reference,
                          "theta": run.scenario.theta_reference})
     return TrackResult(s, track_frame(run), run.metrics, run)
@@ -980,8 +982,6 @@ def sweep(spec: SpecLike, out: str | os.PathLike[str] | None = None, *,
     part = Shard.parse(shard) if shard is not None else None
     directory = Path(out) if out is not None else sweep_directory(s.name)
     check_output_dir(directory)
-    if executor == "local":
-        announce_compile(quiet)
     # (a shard takes the directory's lock itself: shared, then alone if it is the last)
     with directory_lock(directory) if part is None else contextlib.nullcontext():
         done = run_sweep(s, directory, executor, workers, scheduler, force, fail_fast,

@@ -117,15 +117,17 @@ class WorkerLostError(RuntimeError):
 class Executor(Protocol):
     """Runs tasks, yielding (tag, result) as each completes. ``share`` hands objects that
     many tasks take (a sweep's cells) to the workers once, returning what a task's arguments
-    name them by; ``warm`` runs one task on every worker before the work starts (loading the
-    compiled kernel: start-up, not work)."""
+    name them by; ``warm`` makes every worker ready before the work starts (the compiled
+    kernels loaded: start-up, not work)."""
 
     workers: int
     description: str
 
     def share(self, objects: Sequence[Any]) -> list[Any]: ...
 
-    def warm(self, fn: Callable[..., Any], args: tuple[Any, ...]) -> None: ...
+    def warm(self, fn: Callable[..., Any], args: tuple[Any, ...]) -> None:
+        """Make every worker ready to run ``fn(*args)`` as this process is, which has just
+        run it (args: as ``share`` named them)."""
 
     def run(
         self, fn: Callable[..., Any], tasks: Iterable[tuple[T, tuple[Any, ...]]]
@@ -173,9 +175,8 @@ class LocalExecutor:
         return list(objects)
 
     def warm(self, fn: Callable[..., Any], args: tuple[Any, ...]) -> None:
-        """``fn(*args)`` here, before the pool forks: its workers inherit what it loaded."""
-        with interruptible():
-            fn(*args)
+        """Nothing: the pool's workers fork from this process, which has run ``fn(*args)``,
+        and inherit what it loaded."""
 
     def run(
         self, fn: Callable[..., Any], tasks: Iterable[tuple[T, tuple[Any, ...]]]

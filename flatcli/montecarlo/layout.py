@@ -159,6 +159,16 @@ class Cell:
         return self.key * ID_STRIDE
 
 
+def family(cell: Cell) -> str:
+    """The compiled kernel a cell's trials run, in words: its model and plant
+    (``progress.kernel_key``), controller, integrator and joints. Cells of one family run
+    the same code, and cost alike per output step (their parameters change the steps)."""
+    from flatcli.progress import kernel_key
+
+    return (f"{kernel_key(cell.scenario)}, {cell.scenario.controller} controller, "
+            f"{cell.spec.track.integrator}, {cell.spec.joints} joints")
+
+
 def grid_label(values: Mapping[str, Any]) -> str:
     """A cell's grid values as text."""
     return ", ".join(f"{k} = {_show(v)}" for k, v in values.items()) or "(no grid)"

@@ -12,9 +12,10 @@ import sys
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
-from flatcli.executors import default_workers, make_executor
-from flatcli.interrupts import check, deferred
+from flatcli.executors import Executor, default_workers, make_executor
+from flatcli.interrupts import check, deferred, interruptible
 from flatcli.montecarlo.chunks import ChunkResult, run_chunk
 from flatcli.montecarlo.directory import (
     SHOWN,
@@ -30,9 +31,17 @@ from flatcli.montecarlo.directory import (
     reusable_chunks,
     write_manifest,
 )
-from flatcli.montecarlo.layout import Cell, Chunk, Layout, Shard, layout, work_pieces
+from flatcli.montecarlo.layout import (
+    Cell,
+    Chunk,
+    Layout,
+    Shard,
+    family,
+    layout,
+    work_pieces,
+)
 from flatcli.montecarlo.tally import status_counts, watch
-from flatcli.progress import Progress
+from flatcli.progress import Progress, compile_notices, kernel_text, planner_text
 from flatcli.spec import Spec, SpecError
 from flatcli.spec.limits import check_workers
 from flatcli.storage import (
@@ -99,7 +108,9 @@ def run_sweep(
     started = time.perf_counter()
     if executor_kind == "local" or scheduler == "local":
         check_workers(workers if workers is not None else default_workers(), oversubscribe)
-    lay = layout(spec, workers if executor_kind == "local" else None)
+    quiet = progress is None or progress.quiet
+    with compile_notices(planner_text(spec), quiet):  # (the chain's maps)
+        lay = layout(spec, workers if executor_kind == "local" else None)
     run = _Run(spec, lay, directory, executor_kind, workers, scheduler, fail_fast, progress,
                tags, started)
     if shard is None:
@@ -178,8 +189,8 @@ class _Run:
                         f"; shard {shard} of the study's {lay.total} trials" if shard else "")
                     progress.start(sum(c.size for c in mine), resumed, where)
                 cells = executor.share(lay.cells) if todo else []
-                if todo:  # load the kernel (here, for forked workers; on each Dask worker)
-                    executor.warm(run_chunk, warm_up_task(lay))
+                if todo:  # every kernel the chunks run, here and on every worker
+                    self._load_kernels(todo, executor, cells)
                 setup_seconds = time.perf_counter() - started
                 tasks = (((c, piece), (cells[c.cell], piece))
                          for c, piece in work_pieces(todo, executor.workers))
@@ -260,6 +271,23 @@ class _Run:
         return SweepResult(directory, lay, simulated, time.perf_counter() - started,
                            summary_text)
 
+    def _load_kernels(self, todo: list[Chunk], executor: Executor, shared: list[Any]) -> None:
+        """Run one trial of a cell of each kernel family ``todo`` needs (``family``) here,
+        announcing a kernel numba compiles (``progress.compile_notices``), then make the
+        workers ready as this process is (``Executor.warm``: forked workers inherit it, Dask
+        workers run that trial too). A kernel first met in a worker would compile there, in
+        every worker at once, unannounced."""
+        quiet = self.progress is None or self.progress.quiet
+        first: dict[str, Cell] = {}
+        for chunk in todo:
+            cell = self.lay.cells[chunk.cell]
+            first.setdefault(family(cell), cell)
+        for cell in first.values():
+            one = Chunk(cell.index, cell.first_trial, cell.first_trial + 1)
+            with compile_notices(kernel_text(cell.scenario), quiet), interruptible():
+                run_chunk(cell, one)
+            executor.warm(run_chunk, (shared[cell.index], one))
+
     def _say(self, text: str) -> None:
         """A line on stderr, unless quiet (no progress, or a quiet one)."""
         if self.progress is not None and not self.progress.quiet:
@@ -287,10 +315,3 @@ class _Run:
                                         trials, tags)
         return replace(part, summary_text=summary_text, complete=True,
                        wall_seconds=time.perf_counter() - self.started)
-
-
-def warm_up_task(lay: Layout) -> tuple[Cell, Chunk]:
-    """``run_chunk``'s arguments for one trial of the first cell: what loads the compiled
-    kernel."""
-    cell = lay.cells[0]
-    return cell, Chunk(cell.index, cell.first_trial, cell.first_trial + 1)
