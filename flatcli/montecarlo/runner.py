@@ -184,13 +184,14 @@ class _Run:
         trials: TrialsAssembly | None = None
         with deferred():  # Ctrl-C and SIGTERM raised where no lock is held
             try:
+                cells = executor.share(lay.cells) if todo else []
+                if todo:  # every kernel the chunks run, here and on every worker (before
+                    # the progress bar: a compile's notice has the terminal's line)
+                    self._load_kernels(todo, executor, cells)
                 if progress is not None:
                     where = executor.description + (
                         f"; shard {shard} of the study's {lay.total} trials" if shard else "")
                     progress.start(sum(c.size for c in mine), resumed, where)
-                cells = executor.share(lay.cells) if todo else []
-                if todo:  # every kernel the chunks run, here and on every worker
-                    self._load_kernels(todo, executor, cells)
                 setup_seconds = time.perf_counter() - started
                 tasks = (((c, piece), (cells[c.cell], piece))
                          for c, piece in work_pieces(todo, executor.workers))
