@@ -7,9 +7,9 @@ flatcli sets (``slurm_settings``):
 
 * one thread per worker process (``processes = cores``): a trial is one compiled loop,
   and the GIL makes threads of one process no faster;
-* one BLAS and OpenMP thread in each (its variables exported by the job script), and
-  Dask's statistical profiler off (it samples the task's thread every 10 ms), as flatcli's
-  own workers run;
+* one BLAS and OpenMP thread in each (its variables exported by the job script), Dask's
+  statistical profiler off (it samples the task's thread every 10 ms), its event loop's
+  tick and memory monitor every second, as flatcli's own workers run;
 * the job's memory, if the configuration does not say: ``MEMORY_PER_WORKER`` per worker
   process (a sweep's worker peaks near 100 MiB on the paper's robot);
 * the Python that runs flatcli (a shared file system holds its environment), and the job
@@ -33,11 +33,14 @@ from flatcli.core.model import FlatcliError
 SLURM = "slurm"
 #: A worker process's memory where dask-jobqueue's configuration gives none.
 MEMORY_PER_WORKER_GIB = 1
-#: The thread variables a worker's job exports (``flatcli.threads.THREAD_VARIABLES``), and
-#: Dask's profiler switched off.
+#: What a worker's job exports: one thread in each numerical library
+#: (``flatcli.threads.THREAD_VARIABLES``), and Dask's own work beside a chunk's cut down
+#: (``flatcli.executors.WORKER_SETTINGS``: no profiler, a slower tick and memory monitor).
 JOB_ENVIRONMENT = ("export OPENBLAS_NUM_THREADS=1", "export OMP_NUM_THREADS=1",
                    "export MKL_NUM_THREADS=1",
-                   "export DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED=False")
+                   "export DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED=False",
+                   "export DASK_DISTRIBUTED__ADMIN__TICK__INTERVAL=1s",
+                   "export DASK_DISTRIBUTED__WORKER__MEMORY__MONITOR_INTERVAL=1s")
 #: How long sbatch may take to accept the jobs [s].
 SUBMIT_SECONDS = 120.0
 #: How long a sweep waits for the first SLURM job to start its workers (a queue may hold

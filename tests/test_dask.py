@@ -308,3 +308,32 @@ def test_a_cluster_of_separate_processes_as_over_ssh_writes_the_local_bytes(
                 except subprocess.TimeoutExpired:
                     os.killpg(process.pid, signal.SIGKILL)
                     process.wait()
+
+
+def test_the_cluster_flatcli_starts_runs_its_workers_as_flatclis_own() -> None:
+    """--scheduler local: worker processes forked from flatcli's (its modules already
+    loaded), one BLAS thread, and Dask's own work beside a chunk's cut down (no profiler, a
+    tick and memory monitor every second: flatcli.executors.CLUSTER_CONFIG)."""
+
+    from flatcli.executors import CLUSTER_CONFIG, DaskExecutor
+
+    def settings() -> dict[str, object]:
+        import sys
+
+        import dask
+
+        return {"flatcli loaded": "flatcli.montecarlo.chunks" in sys.modules,
+                "threads": os.environ.get("OPENBLAS_NUM_THREADS"),
+                **{key: dask.config.get(key) for key in CLUSTER_CONFIG}}
+
+    import flatcli.montecarlo.chunks  # noqa: F401  (what a sweep's process has loaded)
+
+    executor = DaskExecutor("local", 2)
+    try:
+        found = executor._client.run(settings)
+    finally:
+        executor.close()
+    assert len(found) == 2
+    for worker in found.values():
+        assert worker["flatcli loaded"] and worker["threads"] == "1", worker
+        assert {k: worker[k] for k in CLUSTER_CONFIG} == CLUSTER_CONFIG
