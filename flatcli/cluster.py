@@ -27,7 +27,7 @@ import sys
 import time
 from typing import Any
 
-from flatcli.core.model import FlatcliError
+from flatcli.core.errors import FlatcliError
 
 #: The ``--scheduler`` that starts SLURM jobs.
 SLURM = "slurm"

@@ -31,7 +31,7 @@ from typing import Any, Protocol, TypeVar
 import numpy as np
 
 from flatcli.cluster import SLURM, SLURM_WORKER_TIMEOUT
-from flatcli.core.model import FlatcliError
+from flatcli.core.errors import FlatcliError
 from flatcli.interrupts import check, interruptible
 from flatcli.machine import cores
 from flatcli.storage import forget_inherited_locks

@@ -15,7 +15,7 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any, TextIO
 
-from flatcli.core.metrics import STATUS_NAMES
+from flatcli.core.loop.metrics import STATUS_NAMES
 
 #: The first word of a compile notice (tests strip the notices by it).
 COMPILING = "compiling"

@@ -20,7 +20,7 @@ import pytest
 from small_sweep import SPEC, sweep, write_spec
 
 from flatcli.cluster import JOB_ENVIRONMENT, slurm_settings
-from flatcli.core.model import FlatcliError
+from flatcli.core.errors import FlatcliError
 
 SBATCH = """#!/usr/bin/env bash
 # stand-in for SLURM's sbatch: copy the job script, run it here in a session of its own

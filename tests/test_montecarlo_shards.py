@@ -17,7 +17,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from small_sweep import SPEC, sweep, write_spec
 
-from flatcli.core.model import FlatcliError
+from flatcli.core.errors import FlatcliError
 from flatcli.montecarlo import layout
 from flatcli.montecarlo.layout import Shard
 from flatcli.spec import resolve

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from flatcli.core.metrics import METRIC_NAMES, RESOLVED, STATUS_NAMES
+from flatcli.core.loop.metrics import METRIC_NAMES, RESOLVED, STATUS_NAMES
 from flatcli.report.tables import fmt, table
 
 if TYPE_CHECKING:  # the statistics are numpy's: a sweep writes them without pandas or scipy
