@@ -19,21 +19,22 @@ from flatcli.core.loop.metrics import STATUS_NAMES
 
 #: The first word of a compile notice (tests strip the notices by it).
 COMPILING = "compiling"
-#: What compiling each group of kernels took on this project's machine (2 cores, shared;
-#: docs/performance.md says when and at what load) [s], by what it is (``kernel_text``,
+#: What compiling each group of kernels took on this project's machine (2 cores shared with
+#: other work: measured 2026-12-04 at load 7-11, docs/performance.md; ``make bench
+#: --sections compiles`` measures them again) [s], by what it is (``kernel_text``,
 #: ``planner_text``): the time a notice expects until this machine has compiled it itself
 #: (then its own time, ``compile_record``). The N of a chain changes nothing: its kernels
 #: take any N.
 COMPILE_SECONDS: dict[str, float] = {
-    "the simulation kernel of the paper model, kinematic plant": 37.0,
-    "the simulation kernel of the paper model, dynamic plant": 88.0,
-    "the simulation kernel of the chain model, kinematic plant": 233.0,
-    "the simulation kernel of the chain model, dynamic plant": 300.0,
-    "the simulation kernel of the as-built model, kinematic plant": 300.0,
-    "the simulation kernel of the as-built model, dynamic plant": 420.0,
-    "the planner of the paper model": 30.0,
-    "the planner of the chain model": 21.0,
-    "the planner of the as-built model": 60.0,
+    "the simulation kernel of the paper model, kinematic plant": 40.0,
+    "the simulation kernel of the paper model, dynamic plant": 90.0,
+    "the simulation kernel of the chain model, kinematic plant": 235.0,
+    "the simulation kernel of the chain model, dynamic plant": 175.0,
+    "the simulation kernel of the as-built model, kinematic plant": 250.0,
+    "the simulation kernel of the as-built model, dynamic plant": 580.0,
+    "the planner of the paper model": 10.0,
+    "the planner of the chain model": 30.0,
+    "the planner of the as-built model": 10.0,
 }
 #: A kernel the table does not know (the longest it lists) [s].
 COMPILE_SECONDS_UNKNOWN = max(COMPILE_SECONDS.values())
