@@ -36,7 +36,7 @@ from flatcli.core.plan.planning import Plan, PlanSamples
 from flatcli.core.plan.workspace import BRANCHES, DEFAULT_ATTITUDES, WorkspaceMap
 from flatcli.experiment import TrackRun, plan_and_optimization, run_track
 from flatcli.files import is_regular, kind, read_text
-from flatcli.progress import compile_notices, spec_kernel_text
+from flatcli.progress import compile_notices, planner_text, spec_kernel_text
 from flatcli.report import (
     FigureFile,
     Limits,
@@ -667,18 +667,21 @@ def _floats(value: Any) -> Any:
 # The functions.
 
 @computes
-def plan(spec: SpecLike = None, overrides: Overrides = None) -> PlanResult:
+def plan(spec: SpecLike = None, overrides: Overrides = None, *,
+         quiet: bool = True) -> PlanResult:
     """Plan the spec's maneuver (optimised when ``plan.optimize.objective`` is set).
 
     Returns a PlanResult (``.frame``, ``.metrics``, ``.optimization``); nothing is written
-    until ``.save()``.
+    until ``.save()``. Not ``quiet`` (as ``flatcli plan``): a planner numba compiles first
+    (the N-link chain's maps, on a cold cache) is announced on stderr.
     """
     from flatcli.experiment import planned as plan_of
     from flatcli.experiment import task_metrics
     from flatcli.spec.limits import require_finite_plan
 
     s = load_spec(spec, overrides)
-    made, optimization, task = plan_of(s)
+    with contextlib.nullcontext() if quiet else compile_notices(planner_text(s), quiet):
+        made, optimization, task = plan_of(s)
     samples = made.sample(made.grid(s.plan.samples))
     require_finite_plan({"theta": samples.theta, "theta_dot": samples.theta_dot,
                          "u_dot": samples.u_dot, "y": samples.y})

@@ -453,7 +453,7 @@ def run_one(command: str, spec: Path | None, robot: str | None, sets: tuple[str,
             if note is not None and not quiet:
                 click.echo(note, err=True)
             result: api.PlanResult | api.TrackResult = (
-                api.plan(s) if command == "plan" else api.track(s, quiet=quiet))
+                api.plan(s, quiet=quiet) if command == "plan" else api.track(s, quiet=quiet))
             result.tags = chosen
             directory = result.save(target, plot=plot)
             if animate and isinstance(result, api.PlanResult):

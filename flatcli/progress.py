@@ -4,6 +4,7 @@ notice of a kernel numba compiles (``compile_notices``)."""
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import math
 import os
@@ -201,6 +202,25 @@ class _Notice:
         print(f"\r{text}\033[K" if self.terminal else text, file=self.stream, flush=True)
 
 
+@functools.cache
+def _listener_class() -> type:
+    """A ``numba.core.event.Listener`` that hands numba's compile events to a ``_Notice``
+    (made once: numba is loaded by then)."""
+    from numba.core import event
+
+    class Listener(event.Listener):
+        def __init__(self, notice: _Notice) -> None:
+            self.notice = notice
+
+        def on_start(self, ev: Any) -> None:
+            self.notice.on_start(ev)
+
+        def on_end(self, ev: Any) -> None:
+            self.notice.on_end(ev)
+
+    return Listener
+
+
 def _flatcli_function(event: Any) -> bool:
     dispatcher = (event.data or {}).get("dispatcher")
     module = getattr(getattr(dispatcher, "py_func", None), "__module__", "") or ""
@@ -220,15 +240,7 @@ def compile_notices(key: str, quiet: bool, stream: TextIO | None = None) -> Iter
     from numba.core import event
 
     notice = _Notice(key, stream or sys.stderr, quiet)
-
-    class Listener(event.Listener):
-        def on_start(self, ev: Any) -> None:
-            notice.on_start(ev)
-
-        def on_end(self, ev: Any) -> None:
-            notice.on_end(ev)
-
-    listener = Listener()
+    listener = _listener_class()(notice)
     event.register("numba:compile", listener)  # type: ignore[no-untyped-call]
     try:
         yield notice
