@@ -755,3 +755,37 @@ def test_a_list_of_chunks_not_as_flatcli_writes_it_holds_none(
     assert verified_chunks(directory, lay) == (set(), [])
     run_sweep(lay.spec, directory, workers=1)  # nothing trusted: all computed again
     assert (directory / "trials.parquet").read_bytes() == before
+
+
+def test_a_full_disk_while_dropped_cells_are_written_back_keeps_the_old_table(
+        swept: tuple[Path, Layout], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A grid narrowed to one value: the other cell's chunks, held in trials.parquet only,
+    go back to chunk files before the new trials.parquet replaces it. A full disk then (an
+    OSError naming the chunk file) leaves the old trials.parquet as it was; once there is
+    room the run completes, and widening the grid again computes nothing and gives the
+    first file's bytes."""
+    import errno
+
+    from flatcli.montecarlo import directory as module
+
+    folder, lay = copy_of(swept, tmp_path)
+    before = (folder / "trials.parquet").read_bytes()
+    narrow = small_spec(grid={"track.sensor_noise": [0.0]})
+
+    def full(path: Path, *_: object, **__: object) -> None:
+        raise OSError(errno.ENOSPC, "No space left on device", str(path))
+
+    with monkeypatch.context() as patch:
+        patch.setattr(module, "write_table", full)
+        with pytest.raises(OSError, match=r"No space left on device.*chunk-") as caught:
+            run_sweep(narrow, folder, workers=1)
+    assert caught.value.errno == errno.ENOSPC
+    assert (folder / "trials.parquet").read_bytes() == before
+    assert not list(folder.glob(".trials.parquet.*.tmp"))
+    done = run_sweep(narrow, folder, workers=1)
+    assert done.simulated == 0
+    assert len(list((folder / TRIALS_DIR).glob("chunk-*.parquet"))) == 2  # the other cell
+    again = run_sweep(lay.spec, folder, workers=1)
+    assert again.simulated == 0
+    assert (folder / "trials.parquet").read_bytes() == before
+    assert not (folder / TRIALS_DIR).exists()
