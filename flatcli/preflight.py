@@ -81,6 +81,10 @@ KERNEL_REPEATS = 2
 CALIBRATION_SECONDS = 5.0
 #: The least it runs, however long the layout took [s].
 CALIBRATION_MIN_SECONDS = 1.0
+#: How long it keeps measuring more trials of each cell once every cell has its same draws
+#: (the budget allowing) [s]: the share of the cores the sweep will get shows over seconds
+#: of work, where a short burst of it is favoured by the kernel's scheduler.
+CALIBRATION_STEADY_SECONDS = 2.0
 #: How often the calibration says how far it is [s].
 REPORT_EVERY = 1.0
 #: Rows, and cells, of the synthetic trials table whose summary is timed to estimate the
@@ -134,6 +138,7 @@ class Calibration:
     cell_verify: tuple[float, ...] = ()  # its sweep.verify re-runs, all of them [s]
     measured_cells: int = 0  # cells whose own trials were run
     slowdown: float = 1.0  # the calibration workers' wall time over their CPU time
+    other_load: float = 0.0  # the load average at its end, less its own processes
     processes: int = 1  # worker processes the calibration ran in
     seconds: float = 0.0  # the calibration's wall time after loading the kernels [s]
 
@@ -204,9 +209,23 @@ class CheckReport:
         return sum(self._chunk_cost(c) for c in self.chunks) + sum(cal.cell_verify)
 
     @property
+    def slowdown(self) -> float:
+        """How much slower than alone the sweep's workers will run here (a local sweep; 1
+        elsewhere): the more of what the calibration's workers met (their wall time over
+        their CPU time) and what the load average says (the other processes' and the
+        workers' runnable processes over the cores). A short calibration sees less than a
+        sweep will (the kernel's scheduler favours a process that has just woken), the load
+        average more when the load has just fallen (docs/performance.md: how each did)."""
+        cal = self.calibration
+        if cal is None or self.executor != "local":
+            return 1.0
+        busy = min(self.workers, len(self.chunks), self.cores)
+        return max(1.0, cal.slowdown, (cal.other_load + busy) / self.cores)
+
+    @property
     def _trial_seconds(self) -> float:
-        """The trials' wall time [s]: their CPU time over the cores the workers get, slowed
-        as the calibration's workers were (``Calibration.slowdown``; on this machine only)."""
+        """The trials' wall time [s]: their CPU time over the cores the workers get, times
+        ``slowdown``."""
         cal = self.calibration
         assert cal is not None
         chunks = self.chunks
@@ -214,7 +233,7 @@ class CheckReport:
         busy = min(self.workers, len(chunks), self.cores if local else self.workers)
         work = self.cpu_seconds or 0.0
         largest = max(self._chunk_cost(c) for c in chunks)
-        return max(work / busy, largest) * (cal.slowdown if local else 1.0)
+        return max(work / busy, largest) * self.slowdown
 
     @property
     def memory_mib(self) -> tuple[float, float] | None:
@@ -281,8 +300,10 @@ class CheckReport:
             if self.executor == "local":
                 cores = min(self.workers, self.cores)
                 where += f" on {cores} core{'s' if cores > 1 else ''}"
-                if cal.slowdown > 1.05:
-                    where += f", {cal.slowdown:.1f}x slower than alone as the calibration ran"
+                if self.slowdown > 1.05:
+                    where += (f", {self.slowdown:.1f}x slower than alone (the calibration's "
+                              f"workers {cal.slowdown:.1f}x; the load average "
+                              f"{cal.other_load:.1f} besides)")
             lines.append(
                 f"estimate on {where}: {_duration(total)} (planning "
                 f"{self.planning_seconds:.1f} s, loading the kernel {self._load_seconds:.1f} s, "
@@ -420,24 +441,35 @@ def _calibrate(lay: Layout, processes: int, budget: float, say: Callable[[str], 
                                                          first + skip + k)))
         if 0 < verify < lay.trials_per_cell:  # one verified trial: its re-run's cost
             jobs.append(("verified", (name, 0), c, Chunk(c.index, first, first + 1)))
-    turns = itertools.zip_longest(*groups.values())  # kernels in turn
-    for cell in (c for turn in turns for c in turn if c is not None):
-        jobs.append(("same", cell.index, cell, Chunk(cell.index, 0, per_cell)))
+    turns = list(itertools.chain.from_iterable(itertools.zip_longest(*groups.values())))
+    order = [c for c in turns if c is not None]  # kernels in turn
+    kernel_jobs = len(jobs)
+    # the same draws in every cell (ids 0 .. per_cell - 1), then, while the calibration has
+    # run less than CALIBRATION_STEADY_SECONDS, more of each cell's trials (the next ids):
+    # the cores' share a sweep gets shows over seconds, not over a short burst
+    rounds = ((r, c) for r in itertools.count() for c in order)
     results: dict[tuple[str, Any], tuple[pa.Table, float, float]] = {}
-    kernel_jobs = len(jobs) - len(lay.cells)
     lead = next(iter(groups.values()))[0]
     warm = (lead, Chunk(lead.index, lead.first_trial + skip, lead.first_trial + skip + 1))
+    steady = began + min(CALIBRATION_STEADY_SECONDS, budget)
     with _pool(processes, warm) as pool:
         pending: dict[Future[Any], tuple[str, Any]] = {}
         queue = iter(jobs)
         given = 0
         last_said = began
         while True:
-            while len(pending) < 2 * processes and (given < kernel_jobs
-                                                    or time.perf_counter() < deadline):
-                job = next(queue, None)
-                if job is None:
-                    break
+            while len(pending) < 2 * processes:
+                now = time.perf_counter()
+                if given < kernel_jobs:
+                    job = next(queue)
+                else:
+                    r, cell = next(rounds)
+                    if now >= deadline or (r > 0 and now >= steady):
+                        break
+                    # (ids past sweep.verify's: those of the one cell of a sweep without a
+                    # grid, key 0, are its own)
+                    job = ("same", (cell.index, r), cell,
+                           Chunk(cell.index, skip + r * per_cell, skip + (r + 1) * per_cell))
                 pending[pool.submit(_measured, job[2], job[3])] = (job[0], job[1])
                 given += 1
             if not pending:
@@ -448,12 +480,19 @@ def _calibrate(lay: Layout, processes: int, budget: float, say: Callable[[str], 
             now = time.perf_counter()
             if now - last_said >= REPORT_EVERY:
                 last_said = now
-                measured = sum(1 for what, _ in results if what == "same")
+                measured = sum(1 for what, key in results if what == "same" and key[1] == 0)
                 say(f"  {measured} of {len(lay.cells)} cells measured, {now - began:.1f} s")
         worker_mib = max(pool.submit(_worker_peak).result() for _ in range(processes))
     seconds = time.perf_counter() - began
     return _costs(lay, groups, loads, results, k, per_cell, verify, worker_mib, seconds,
                   processes, say)
+
+
+def _other_load(processes: int, seconds: float) -> float:
+    """The 1-minute load average now, less the calibration's own ``processes`` busy for its
+    last ``seconds`` (the average weighs the last t seconds by 1 - exp(-t / 60))."""
+    own = processes * (1.0 - math.exp(-seconds / 60.0))
+    return max(0.0, os.getloadavg()[0] - own)
 
 
 @contextlib.contextmanager
@@ -496,9 +535,11 @@ def _costs(lay: Layout, groups: dict[str, list[Cell]], loads: dict[str, tuple[fl
         chunk_of[name], verify_of[name] = per_chunk, re_run
         steps = []
         for cell in cells:
-            same = results.get(("same", cell.index))
-            if same is not None:
-                trial_of[cell.index] = max(same[1] - per_chunk, 0.0) / same[0].num_rows
+            runs = [v for (what, key), v in results.items()
+                    if what == "same" and key[0] == cell.index]
+            if runs:
+                cpu = sum(c for _, c, _ in runs) - per_chunk * len(runs)
+                trial_of[cell.index] = max(cpu, 0.0) / sum(t.num_rows for t, _, _ in runs)
                 steps.append(trial_of[cell.index] / cell.scenario.n_steps)
         step_of[name] = (sum(steps) / len(steps) if steps
                          else per_trial / cells[0].scenario.n_steps)
@@ -511,7 +552,8 @@ def _costs(lay: Layout, groups: dict[str, list[Cell]], loads: dict[str, tuple[fl
                        for c in lay.cells)
     cell_chunk = tuple(chunk_of[names[c.index]] for c in lay.cells)
     cell_verify = tuple(verify * verify_of[names[c.index]] for c in lay.cells)
-    tables = [results[("same", c.index)][0] for c in lay.cells if ("same", c.index) in results]
+    tables = [results[("same", (c.index, 0))][0] for c in lay.cells
+              if ("same", (c.index, 0)) in results]  # the same draws in every cell
     everything = [t for t, _, _ in results.values()]
     cpu = sum(c for _, c, _ in results.values())
     wall = sum(w for _, _, w in results.values())
@@ -531,7 +573,8 @@ def _costs(lay: Layout, groups: dict[str, list[Cell]], loads: dict[str, tuple[fl
         sum(load for load, _ in loads.values()), any(cold for _, cold in loads.values()),
         statuses, row_bytes, finish_seconds, finish_bytes, finish_rows, worker_mib,
         unchanged, tuple(kernels), cell_trial, cell_chunk, cell_verify, len(trial_of),
-        max(1.0, wall / cpu) if cpu > 0 else 1.0, processes, seconds)
+        max(1.0, wall / cpu) if cpu > 0 else 1.0, _other_load(processes, seconds),
+        processes, seconds)
 
 
 def _finish_cost(lay: Layout, tables: Sequence[pa.Table]) -> tuple[float, float, int]:
