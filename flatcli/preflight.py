@@ -617,8 +617,8 @@ def _unchanged_keys(lay: Layout, tables: Sequence[pa.Table]) -> list[str]:
     if not keys or not any(s != "error" for t in tables for s in t.column("status").to_pylist()):
         return []
     drop = ["cell", *keys]
-    results = [t.drop_columns([c for c in drop if c in t.column_names]).to_pandas()
-               for t in tables]
+    # (Arrow's equality: a not-applicable metric is null, never nan, so nulls compare alike)
+    results = [t.drop_columns([c for c in drop if c in t.column_names]) for t in tables]
     index = {tuple(_freeze(c.values[k]) for k in keys): c.index for c in lay.cells}
     unchanged = []
     for j, key in enumerate(keys):
