@@ -33,7 +33,7 @@ def make_tree(root: Path) -> Path:
     assert code == 0, out
     code, out = sweep_without_final_tables(str(spec), "--out", str(root / "cut"), "-q",
                                            "--workers", "1")
-    assert code == 130, out
+    assert code != 0, out  # (interrupted, as a kill before the final tables)
     manifest = json.loads((root / "cut" / "sweep.json").read_text())
     first = manifest["cells"][manifest["grid_cells"][0]]["chunks"][0]  # cell 0's first chunk
     (root / "cut" / "trials" / first).unlink()
