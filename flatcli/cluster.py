@@ -36,7 +36,8 @@ MEMORY_PER_WORKER_GIB = 1
 #: What a worker's job exports: one thread in each numerical library
 #: (``flatcli.threads.THREAD_VARIABLES``), and Dask's own work beside a chunk's cut down
 #: (``flatcli.executors.WORKER_SETTINGS``: no profiler, a slower tick and memory monitor).
-JOB_ENVIRONMENT = ("export OPENBLAS_NUM_THREADS=1", "export OMP_NUM_THREADS=1",
+JOB_ENVIRONMENT = ("export FLATCLI_OWN_PROCESS=1", "export OPENBLAS_NUM_THREADS=1",
+                   "export OMP_NUM_THREADS=1",
                    "export MKL_NUM_THREADS=1",
                    "export DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED=False",
                    "export DASK_DISTRIBUTED__ADMIN__TICK__INTERVAL=1s",

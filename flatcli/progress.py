@@ -18,6 +18,8 @@ from typing import Any, TextIO
 
 from flatcli.core.loop.metrics import STATUS_NAMES
 
+#: A sweep of more grid cells than this says how its cells' planning goes (``cells``).
+CELLS_SHOWN = 50
 #: The first word of a compile notice (tests strip the notices by it).
 COMPILING = "compiling"
 #: What compiling each group of kernels took on this project's machine (2 cores shared with
@@ -290,6 +292,25 @@ class Progress:
 
             self._bar = tqdm(total=total, initial=done, unit="trial", file=self.stream,
                              dynamic_ncols=True, smoothing=0.1)
+
+    def cells(self, done: int, total: int) -> None:
+        """``done`` of the sweep's ``total`` grid cells are checked and planned (before the
+        first trial: each cell's plan and reference tables are made in this process); shown
+        from the first call, every ``interval`` seconds and at the end, for a grid of more
+        than ``CELLS_SHOWN`` cells."""
+        if self.quiet or total <= CELLS_SHOWN:
+            return
+        now = time.perf_counter()
+        if done == 0:
+            self._t0 = self._last = now
+            print(f"sweep {self.name!r}: planning {total} grid cells", file=self.stream,
+                  flush=True)
+            return
+        if now - self._last >= self.interval or done == total:
+            self._last = now
+            rate = done / max(now - self._t0, 1e-9)
+            print(f"  {done}/{total} cells planned ({100 * done / total:.0f}%), ETA "
+                  f"{(total - done) / rate:.0f} s", file=self.stream, flush=True)
 
     @property
     def fresh(self) -> int:

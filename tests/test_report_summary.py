@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -169,3 +170,83 @@ def test_a_task_sweep_counts_trials_resolved_within_the_reach_tolerance() -> Non
     assert tighter["reached_fraction"] == 1 / 5
     plain = summarize_trials(frame.drop(columns="ee_error_bound"), {0: {}}).iloc[0]
     assert "reached_fraction" not in plain and "ee_error_bound_max" not in plain
+
+
+def _headline_rows(cells: int, errors: int = 0) -> list[dict[str, object]]:
+    from flatcli.core.loop.metrics import STATUS_NAMES
+
+    rows: list[dict[str, object]] = []
+    for c in range(cells):
+        counts = dict.fromkeys(STATUS_NAMES, 0)
+        counts.update(ok=20 - c % 5 - (errors if c == 1 else 0), diverged=c % 5,
+                      error=errors if c == 1 else 0)
+        rows.append({"cell": c, "plant.com": [0.1, 0.1, 0.001 * c], "gains": "printed",
+                     "track.kp": [10.0, 13.0], "trials": 20, **counts,
+                     "err_y_final_median": 1e-3 * c})
+    return rows
+
+
+def test_the_headline_fits_one_screen_and_says_where_the_tables_are() -> None:
+    """18 cells: every cell on one line (the varying grid component, the statuses any cell
+    has), at most 24 lines and 100 columns; the footer names summary.md and --full."""
+    from flatcli.report.summary import headline, totals_text
+
+    rows = _headline_rows(18)
+    text = headline(rows, ["plant.com", "gains", "track.kp"], f"sweep 's': {totals_text(rows)}",
+                    "runs/s/sweep", grid={"plant.com": [], "gains": [
+                        {"label": "printed", "track.kp": [10.0, 13.0]}]})
+    lines = text.splitlines()
+    assert lines[0] == ("sweep 's': 18 cells, 360 trials: ok 327, singular 0, diverged 33, "
+                        "unresolved 0, error 0")
+    assert lines[1].split("|")[1:-1] == [" cell ", " plant.com[2] ", " ok ", " diverged ",
+                                         " err_y_final med [rad] "]
+    assert len(lines) == 1 + 2 + 18 + 2 and max(len(line) for line in lines) <= 100
+    assert lines[-2:] == ["full tables: runs/s/sweep/summary.md (flatcli summarize runs/s/sweep "
+                          "--full)", "every trial: runs/s/sweep/trials.parquet"]
+
+
+def test_a_large_grid_shows_its_worst_cells_and_the_error_reasons() -> None:
+    from flatcli.report.summary import HEADLINE_CELLS, headline
+
+    rows = _headline_rows(400, errors=3)
+    reasons = {"plan: the margin is zero": 2, "task.end_effector: unreachable": 1,
+               "a": 1, "b": 1}
+    text = headline(rows, ["plant.com"], "t", "d", reasons)
+    lines = text.splitlines()
+    shown = [int(line.split("|")[1]) for line in lines[3:3 + HEADLINE_CELLS]]
+    assert len(shown) == HEADLINE_CELLS and shown == sorted(shown) and 1 in shown
+    assert f"({HEADLINE_CELLS} of 400 cells shown: those with the most trials not ok)" in text
+    assert "error (2 trials like this): plan: the margin is zero" in text
+    assert "error (1 trial): task.end_effector: unreachable" in text
+    assert "(1 more error reason in trials.parquet's reason column)" in text
+    assert "| error |" in lines[1]  # a status any cell has is a column
+    assert len(lines) <= 30
+
+
+def test_the_headline_shows_outcome_counts_when_the_summary_has_them() -> None:
+    """The hook for per-trial outcomes (issue 39): outcome_<name> count columns appear after
+    the statuses; their fractions do not."""
+    from flatcli.report.summary import headline
+
+    rows = _headline_rows(2)
+    for r in rows:
+        r.update(outcome_reached=5, outcome_missed=15, outcome_reached_fraction=0.25)
+    head = headline(rows, [], "t", "d").splitlines()[1]
+    assert "| reached | missed |" in head and "fraction" not in head
+
+
+def test_error_reasons_that_differ_only_in_numbers_are_one_kind(tmp_path: Path) -> None:
+    """Each trial's own target makes its reason's numbers differ: counted as one kind, shown
+    as the first; ok trials and other reasons apart."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from flatcli.report.summary import error_reasons
+
+    reasons = ["task.end_effector: [-0.3, 0.04] m is unreachable: 0.05 m beyond",
+               "task.end_effector: [0.41, -1e-05] m is unreachable: 0.1 m beyond",
+               "plan: the margin is zero at t = 0.3 s", None, ""]
+    pq.write_table(pa.table({"status": ["error", "error", "error", "ok", "error"],
+                             "reason": reasons}), tmp_path / "trials.parquet")
+    assert error_reasons([tmp_path / "trials.parquet"]) == {
+        reasons[0]: 2, reasons[2]: 1, "(no reason recorded)": 1}

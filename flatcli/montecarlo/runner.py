@@ -73,6 +73,7 @@ class SweepResult:
     complete: bool = True
     missing: int = 0
     running: bool = False  # (a shard) other shards were still running when it finished
+    headline: str = ""  # one screen of it (``report.summary.headline``)
 
 
 def run_sweep(
@@ -110,7 +111,8 @@ def run_sweep(
         check_workers(workers if workers is not None else default_workers(), oversubscribe)
     quiet = progress is None or progress.quiet
     with compile_notices(planner_text(spec), quiet):  # (the chain's maps)
-        lay = layout(spec, workers if executor_kind == "local" else None)
+        lay = layout(spec, workers if executor_kind == "local" else None,
+                     None if progress is None else progress.cells)
     run = _Run(spec, lay, directory, executor_kind, workers, scheduler, fail_fast, progress,
                tags, started)
     if shard is None:
@@ -267,10 +269,10 @@ class _Run:
         if trials is None:  # a shard: its chunks are written, the study may not be whole
             return SweepResult(directory, lay, simulated, time.perf_counter() - started, "",
                                complete=False)
-        summary_text = finish_sweep(directory, lay, provenance, started, self.timing, trials,
-                                    self.tags)
+        summary_text, short = finish_sweep(directory, lay, provenance, started, self.timing,
+                                           trials, self.tags)
         return SweepResult(directory, lay, simulated, time.perf_counter() - started,
-                           summary_text)
+                           summary_text, headline=short)
 
     def _load_kernels(self, todo: list[Chunk], executor: Executor, shared: list[Any]) -> None:
         """Run one trial of a cell of each kernel family ``todo`` needs (``family``) here,
@@ -312,7 +314,7 @@ class _Run:
         tags = self.tags or list(plan.previous.tags)
         trials = TrialsAssembly(directory, lay, provenance, done, stored)
         with deferred():
-            summary_text = finish_sweep(directory, lay, provenance, self.started, self.timing,
-                                        trials, tags)
-        return replace(part, summary_text=summary_text, complete=True,
+            summary_text, short = finish_sweep(directory, lay, provenance, self.started,
+                                               self.timing, trials, tags)
+        return replace(part, summary_text=summary_text, headline=short, complete=True,
                        wall_seconds=time.perf_counter() - self.started)

@@ -15,6 +15,12 @@ tracking error the scheme costs (docs/tasks.md measures it).
 
 The plant is the kinematic one: th1' = u1, th2' = u2 and th0' from H = H0 with the plant's
 own momentum weights (``chain.momentum_weights``), integrated by scipy's DOP853.
+
+A chain of N joints (``ChainModel``) is blended the same way: u_j' = y_jd'' + w (u_j'_fb -
+y_jd'') for the inner joints and th_N' = th_Nd' + w (th_N'_fb - th_Nd'), the feedback's being
+the chain's linearising inputs for v_j = y_jd'' + kv_j (y_jd' - y_j') + kp_j (y_jd - y_j)
+(``chainflat.inputs``, as the compiled chain loop commands them), on the kinematic plant of
+state (th0..thN, u_1..u_N-1).
 """
 
 from __future__ import annotations
@@ -28,7 +34,7 @@ from scipy.integrate import solve_ivp
 
 from flatcli.core.controllers.control import Gains, feedback
 from flatcli.core.errors import FlatcliError
-from flatcli.core.models.flatmodel import PaperModel
+from flatcli.core.models.flatmodel import ChainModel, PaperModel
 from flatcli.core.plan.rest import RestPlan
 from flatcli.core.robots.chain import barycentric_matrix, momentum_weights
 from flatcli.core.robots.params import RobotParams
@@ -54,30 +60,39 @@ def fade(t: Array | float, duration: float, fraction: float) -> Array:
 
 @dataclass(frozen=True)
 class RestTrace:
-    """A rest loop's trace on the output grid: times (n,) [s], angles (n, 3) [rad], the
-    rates the plant applies (n, 3) [rad/s], the controller's u1 (n,) [rad/s], the fade
-    (n,), and whether the integration reached T."""
+    """A rest loop's trace on the output grid: times (n,) [s], angles (n, N + 1) [rad], the
+    rates the plant applies (n, N + 1) [rad/s], the controller's inner rates u_1..u_N-1
+    (n, N - 1) [rad/s], the fade (n,), and whether the integration reached T."""
 
     t: Array
     theta: Array
     theta_dot: Array
-    u1: Array
+    u: Array
     weight: Array
     finished: bool
+
+    @property
+    def u1(self) -> Array:
+        """(n,) u_1 = th1' [rad/s]."""
+        return np.asarray(self.u[:, 0], dtype=float)
 
 
 def track_rest(plan: RestPlan, gains: Gains, plant: RobotParams, initial: Array,
                times: Array, fraction: float, momentum: float = 0.0) -> RestTrace:
-    """The closed loop of a rest plan of the paper's robot from angles ``initial`` (3,)
-    [rad] at rest (u1(0) = 0), sampled at ``times`` (n,) [s].
+    """The closed loop of a rest plan from angles ``initial`` (N + 1,) [rad] at rest (the
+    inner rates 0), sampled at ``times`` (n,) [s]: the paper's robot in its closed forms,
+    a chain through ``chainflat`` (module docstring).
 
     Raises
     ------
-    FlatcliError for a plan that is not the paper's robot's (the loop is written for N = 2).
+    FlatcliError for a plan of neither model (an exact plan has no flat outputs).
     """
+    if isinstance(plan.model, ChainModel):
+        return _track_rest_chain(plan, plan.model, gains, plant, initial, times, fraction,
+                                 momentum)
     if not isinstance(plan.model, PaperModel):
-        raise FlatcliError("task.rest: tracking a rest plan is implemented for the paper's "
-                           "robot (2 joints) only; plan it with flatcli plan")
+        raise FlatcliError("task.rest: a rest plan is tracked through its flat outputs; this "
+                           "plan has none")
     k = plan.model.coefficients
     g = gains.paper()
     K = barycentric_matrix(*(np.asarray(v, dtype=float) for v in
@@ -115,8 +130,64 @@ def track_rest(plan: RestPlan, gains: Gains, plant: RobotParams, initial: Array,
     applied = np.full((n, 3), math.nan)
     for i in range(sol.y.shape[1]):
         applied[i] = rates(float(times[i]), states[i])[0]
-    return RestTrace(np.asarray(times, dtype=float), states[:, :3], applied, states[:, 3],
+    return RestTrace(np.asarray(times, dtype=float), states[:, :3], applied, states[:, 3:4],
                      fade(times, T, fraction), bool(sol.status == 0))
+
+
+def _track_rest_chain(plan: RestPlan, model: ChainModel, gains: Gains, plant: RobotParams,
+                      initial: Array, times: Array, fraction: float, momentum: float
+                      ) -> RestTrace:
+    """``track_rest`` of a chain of N joints (module docstring)."""
+    from flatcli.core.models.chainflat import inputs, outputs
+
+    n = model.n_joints
+    if gains.n_outputs != n:
+        raise FlatcliError(f"track.kp, track.kv: expected {n} gains each (one per flat output), "
+                           f"got {gains.n_outputs}")
+    kp, kv = np.asarray(gains.kp, dtype=float), np.asarray(gains.kv, dtype=float)
+    K_plant = barycentric_matrix(*(np.asarray(v, dtype=float) for v in
+                                   (plant.mass, plant.length, plant.com)))
+    inertia_plant = np.asarray(plant.inertia, dtype=float)
+    T = plan.duration
+    weights = np.empty(n + 1)
+    y, y_dot = np.empty(n), np.empty(n)
+    u_dot = np.empty(n - 1)
+
+    def commands(t: float, x: Array) -> tuple[Array, float]:
+        flags = plan.flags(np.array([t]))[0]
+        ref, ref_dot, ref_ddot = flags[:n], flags[n:2 * n], flags[2 * n:]
+        ff_rate = float(plan.sample(np.array([t])).theta_dot[0, n])
+        w = float(fade(t, T, fraction))
+        if w == 0.0:
+            return ref_ddot[: n - 1].copy(), ff_rate
+        theta, u = np.ascontiguousarray(x[: n + 1]), np.ascontiguousarray(x[n + 1:])
+        outputs(model.K, model.inertia, theta, u, y, y_dot)
+        v = ref_ddot + kv * (ref_dot - y_dot) + kp * (ref - y)
+        th_n_dot = float(inputs(model.K, model.inertia, theta, u, v, u_dot))
+        return (ref_ddot[: n - 1] + w * (u_dot - ref_ddot[: n - 1]),
+                ff_rate + w * (th_n_dot - ff_rate))
+
+    def rates(t: float, x: Array) -> tuple[Array, Array]:
+        accel, th_n_dot = commands(t, x)
+        momentum_weights(K_plant, inertia_plant, np.ascontiguousarray(x[: n + 1]), weights)
+        th0_dot = (momentum - float(weights[1:n] @ x[n + 1:]) - weights[n] * th_n_dot) / weights[0]
+        return np.array([th0_dot, *x[n + 1:], th_n_dot]), accel
+
+    def rhs(t: float, x: Array) -> Array:
+        r, accel = rates(t, x)
+        return np.concatenate([r, accel])
+
+    x0 = np.concatenate([np.asarray(initial, dtype=float)[: n + 1], np.zeros(n - 1)])
+    with np.errstate(all="ignore"):
+        sol = solve_ivp(rhs, (0.0, T), x0, method="DOP853", t_eval=times, rtol=RTOL, atol=ATOL)
+    count = len(times)
+    states = np.full((count, 2 * n), math.nan)
+    states[: sol.y.shape[1]] = sol.y.T
+    applied = np.full((count, n + 1), math.nan)
+    for i in range(sol.y.shape[1]):
+        applied[i] = rates(float(times[i]), states[i])[0]
+    return RestTrace(np.asarray(times, dtype=float), states[:, : n + 1], applied,
+                     states[:, n + 1:], fade(times, T, fraction), bool(sol.status == 0))
 
 
 __all__ = ["RestTrace", "fade", "track_rest"]

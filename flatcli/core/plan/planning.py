@@ -43,8 +43,9 @@ from flatcli.core.models.flatmodel import (
     PaperModel,
     flat_model,
 )
+from flatcli.core.names import Model
 from flatcli.core.robots.dynamics import Chain, inverse_dynamics
-from flatcli.core.robots.params import Coefficients, Model, RobotParams, require_flat
+from flatcli.core.robots.params import Coefficients, RobotParams, require_flat
 
 Array = NDArray[np.float64]
 
@@ -246,10 +247,11 @@ class Plan:
         t = np.asarray(t, dtype=float)
         n = self.n_joints
         flags = self.flags(t)
+        c = flags.shape[-1] // 3  # channels: N flat outputs (an exact plan: N joints and th0)
         theta, theta_dot, u_dot, sigma = self.model.flags_to_states(flags)
         return PlanSamples(
             t=t, theta=theta, theta_dot=theta_dot, u_dot=u_dot, y=flags[..., :n],
-            y_dot=flags[..., n:2 * n], y_ddot=flags[..., 2 * n:],
+            y_dot=flags[..., c:c + n], y_ddot=flags[..., 2 * c:2 * c + n],
             margin=np.abs(np.asarray(sigma)), momentum=self.momentum(theta, theta_dot),
         )
 
