@@ -37,7 +37,7 @@ from flatcli.core.plan.workspace import BRANCHES, DEFAULT_ATTITUDES, WorkspaceMa
 from flatcli.experiment import TrackRun as TrackRun  # the type of TrackResult.run
 from flatcli.experiment import plan_from, run_track
 from flatcli.files import is_regular, kind, read_text
-from flatcli.progress import announce_compile
+from flatcli.progress import compile_notices, planner_text, spec_kernel_text
 from flatcli.report import (
     FigureFile,
     Limits,
@@ -529,6 +529,9 @@ class SweepResult(Run):
         self.simulated = simulated
         self.wall_seconds = wall_seconds
         self._summary_text = summary_text
+        #: what the run here did, as the runner reports it (``montecarlo.SweepResult``; of a
+        #: shard: whether it wrote the final tables, what is missing)
+        self.outcome: Any = None
         self._headline_text = headline_text
 
     @property
@@ -551,7 +554,7 @@ class SweepResult(Run):
         in the grid's order, trials in order)."""
         if self.complete:
             return self.table("trials")
-        if not self.state.chunk_files:
+        if not self.state.chunk_files and not self.state.stored:
             import pandas as pd
 
             return pd.DataFrame()
@@ -696,18 +699,21 @@ def _floats(value: Any) -> Any:
 # The functions.
 
 @computes
-def plan(spec: SpecLike = None, overrides: Overrides = None) -> PlanResult:
+def plan(spec: SpecLike = None, overrides: Overrides = None, *,
+         quiet: bool = True) -> PlanResult:
     """Plan the spec's maneuver (optimised when ``plan.optimize.objective`` is set).
 
     Returns a PlanResult (``.frame``, ``.metrics``, ``.optimization``); nothing is written
-    until ``.save()``.
+    until ``.save()``. Not ``quiet`` (as ``flatcli plan``): a planner numba compiles first
+    (the N-link chain's maps, on a cold cache) is announced on stderr.
     """
     from flatcli.experiment import planned as plan_of
     from flatcli.experiment import task_metrics
     from flatcli.spec.limits import require_finite_plan
 
     s = load_spec(spec, overrides)
-    made, optimization, task = plan_of(s)
+    with contextlib.nullcontext() if quiet else compile_notices(planner_text(s), quiet):
+        made, optimization, task = plan_of(s)
     samples = made.sample(made.grid(s.plan.samples))
     require_finite_plan({"theta": samples.theta, "theta_dot": samples.theta_dot,
                          "u_dot": samples.u_dot, "y": samples.y})
@@ -955,13 +961,15 @@ def track(spec: SpecLike = None, overrides: Overrides = None, *,
     """Plan, then simulate the closed loop of the spec's ``[track]`` on its ``[plant]``.
 
     Returns a TrackResult (``.frame``, ``.metrics``); nothing is written until ``.save()``.
-    On a cold numba cache prints one line (the kernel compiles once, ~30 s) unless quiet.
+    On a cold numba cache says on stderr, unless quiet, that its kernel compiles (once),
+    how long that should take, and how far it is (``progress.compile_notices``).
     """
     from flatcli.outputs import track_frame
     from flatcli.spec.limits import require_finite_plan
 
     s = load_spec(spec, overrides)
-    run = run_track(s, lambda: announce_compile(quiet))
+    with compile_notices(spec_kernel_text(s), quiet):  # the planner's and the loop's
+        run = run_track(s)
     require_finite_plan({"the reference": run.scenario.reference,
                          "theta": run.scenario.theta_reference})
     return TrackResult(s, track_frame(run), run.metrics, run)
@@ -972,7 +980,7 @@ def sweep(spec: SpecLike, out: str | os.PathLike[str] | None = None, *,
           overrides: Overrides = None, workers: int | None = None, executor: str = "local",
           scheduler: str | None = None, force: bool = False, fail_fast: bool = False,
           quiet: bool = False, oversubscribe: bool = False,
-          tags: Iterable[str] = ()) -> SweepResult:
+          tags: Iterable[str] = (), shard: str | None = None) -> SweepResult:
     """Run (or resume) a Monte Carlo sweep into ``out`` (default ``runs/<name>/sweep/``,
     apart from the plan and track runs of that name).
 
@@ -986,9 +994,13 @@ def sweep(spec: SpecLike, out: str | os.PathLike[str] | None = None, *,
     first trial that errors or diverges; ``oversubscribe``: allow more workers than cores.
     Shows a progress bar on stderr unless quiet. ``tags``: labels of the sweep (run.json).
     Returns the SweepResult of the directory. One run writes into a directory at a time
-    (FlatcliError naming the other run's pid).
+    (FlatcliError naming the other run's pid), except the shards of one study: ``shard``
+    "K/N" computes shard K of N (``montecarlo.layout.Shard``) beside the others, possibly
+    on other machines sharing the directory; the last to finish writes the final tables
+    (docs/cluster.md). A shard's result is ``.complete`` only if it did.
     """
     from flatcli.montecarlo import run_sweep
+    from flatcli.montecarlo.layout import Shard
     from flatcli.report import Progress
     from flatcli.rundirs import check_tags, sweep_directory
     from flatcli.spec.sweeps import identical_trials
@@ -1004,17 +1016,20 @@ def sweep(spec: SpecLike, out: str | os.PathLike[str] | None = None, *,
     if same is not None and s.sweep.trials > 1 and not quiet:
         print(f"note: the {s.sweep.trials} trials of each cell are identical ({same})",
               file=sys.stderr)
+    part = Shard.parse(shard) if shard is not None else None
     directory = Path(out) if out is not None else sweep_directory(s.name)
     check_output_dir(directory)
-    if executor == "local":
-        announce_compile(quiet)
-    with directory_lock(directory):
+    # (a shard takes the directory's lock itself: shared, then alone if it is the last)
+    with directory_lock(directory) if part is None else contextlib.nullcontext():
         done = run_sweep(s, directory, executor, workers, scheduler, force, fail_fast,
-                         Progress(s.name, quiet), oversubscribe=oversubscribe, tags=chosen)
+                         Progress(s.name, quiet), oversubscribe=oversubscribe, tags=chosen,
+                         shard=part)
         state = sweep_state(directory)
     assert state is not None
-    return SweepResult(state, done.simulated, done.wall_seconds, done.summary_text,
-                       done.headline or None)
+    result = SweepResult(state, done.simulated, done.wall_seconds, done.summary_text,
+                         done.headline or None)
+    result.outcome = done
+    return result
 
 
 def search(spec: SpecLike, out: str | os.PathLike[str] | None = None, *,
@@ -1039,8 +1054,6 @@ def search(spec: SpecLike, out: str | os.PathLike[str] | None = None, *,
     directory = Path(out) if out is not None else ROOT / s.name / "search"
     check_output_dir(directory)
     digest = identity(s)
-    if executor == "local":
-        announce_compile(quiet)
     progress = SearchProgress(s.name, quiet)
 
     def generation(state: SearchState) -> None:
@@ -1056,7 +1069,7 @@ def search(spec: SpecLike, out: str | os.PathLike[str] | None = None, *,
         run_search(s, directory, executor, workers, scheduler, force, oversubscribe,
                    command or " ".join(sys.argv), on_generation=generation,
                    on_candidate=progress.on_candidate, on_start=progress.on_start,
-                   finish=finish)
+                   finish=finish, quiet=quiet)
     finally:
         progress.close()
     from flatcli.designsearch.directory import SUMMARY

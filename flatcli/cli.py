@@ -466,7 +466,7 @@ def run_one(command: str, spec: Path | None, robot: str | None, sets: tuple[str,
             if note is not None and not quiet:
                 click.echo(note, err=True)
             result: api.PlanResult | api.TrackResult = (
-                api.plan(s) if command == "plan" else api.track(s, quiet=quiet))
+                api.plan(s, quiet=quiet) if command == "plan" else api.track(s, quiet=quiet))
             result.tags = chosen
             directory = result.save(target, plot=plot)
             if animate and isinstance(result, api.PlanResult):
@@ -669,7 +669,11 @@ def check(spec: Path | None, robot: str | None, sets: tuple[str, ...], workers: 
               help="Allow more --workers than this machine's cores.")
 @executor_option
 @click.option("--scheduler", metavar="ADDRESS",
-              help="Dask scheduler address (tcp://host:8786), or 'local' for a LocalCluster.")
+              help="Dask scheduler address (tcp://host:8786), 'local' for a LocalCluster, or "
+                   "'slurm' to start workers as SLURM jobs (dask-jobqueue).")
+@click.option("--shard", metavar="K/N",
+              help="Compute shard K of N of the study (machines or array jobs sharing --out); "
+                   "the last shard to finish writes the final tables.")
 @click.option("--fail-fast", is_flag=True,
               help="Stop at the first trial that raises or diverges (exit status 1).")
 @click.option("--rerun", "rerun", type=TrialId(),
@@ -682,8 +686,8 @@ def check(spec: Path | None, robot: str | None, sets: tuple[str, ...], workers: 
 def sweep(spec: Path, robot: str | None, sets: tuple[str, ...], name: str | None,
           tags: tuple[str, ...], out: Path | None, force: bool, plot: bool, fmt: str | None,
           dpi: int | None, workers: int | None, oversubscribe: bool, executor: str,
-          scheduler: str | None, fail_fast: bool, rerun: int | None, print_spec: bool,
-          dry_run: bool, quiet: bool) -> None:
+          scheduler: str | None, shard: str | None, fail_fast: bool, rerun: int | None,
+          print_spec: bool, dry_run: bool, quiet: bool) -> None:
     """Run a Monte Carlo sweep from a TOML spec with a [sweep] table, into
     runs/<name>/sweep/ (or --out); running the same command again resumes it."""
     require_stdout(quiet)
@@ -697,6 +701,8 @@ def sweep(spec: Path, robot: str | None, sets: tuple[str, ...], name: str | None
         s = api.load_spec(spec, spec_overrides(sets, robot=robot, name=name, fmt=fmt,
                                                dpi=dpi))
         directory = out if out is not None else sweep_directory(s.name)
+        if shard is not None and (rerun is not None or dry_run):
+            fail("--shard: not with --rerun or --dry-run")
         if dry_run:
             if rerun is not None or print_spec:
                 fail("--dry-run: not with --rerun or --print-spec")
@@ -711,11 +717,13 @@ def sweep(spec: Path, robot: str | None, sets: tuple[str, ...], name: str | None
         chosen = check_tags(tags)
         check_output_dir(directory)
         try:
-            with directory_lock(directory):
+            # (a shard takes the directory's lock itself: with the other shards, then alone)
+            with directory_lock(directory) if shard is None else contextlib.nullcontext():
                 done = api.sweep(s, directory, workers=workers, executor=executor,
                                  scheduler=scheduler, force=force, fail_fast=fail_fast,
-                                 quiet=quiet, oversubscribe=oversubscribe, tags=chosen)
-                if plot:
+                                 quiet=quiet, oversubscribe=oversubscribe, tags=chosen,
+                                 shard=shard)
+                if plot and done.complete:
                     done.save_figures()
         except FailFastError as exc:
             click.echo(f"error: {exc}", err=True)
@@ -731,6 +739,9 @@ def sweep(spec: Path, robot: str | None, sets: tuple[str, ...], name: str | None
         except KeyboardInterrupt:
             click.echo(f"error: interrupted; {RESUME_HINT.format(directory)}", err=True)
             sys.exit(interrupted_status())
+    if not done.complete:  # a shard whose study is not whole yet
+        say(quiet, shard_text(shard or "", done, directory))
+        return
     say(quiet, done.headline_text)
     say(quiet, f"{done.state.total} trials ({done.simulated} simulated now) in "
                f"{done.wall_seconds:.1f} s; wrote {directory}/trials.parquet, summary.md")
@@ -797,6 +808,16 @@ def search(spec: Path, robot: str | None, sets: tuple[str, ...], name: str | Non
     say(quiet, done.summary_text)
     say(quiet, f"wrote {directory}/search.parquet, summary.md, best_robot.toml, "
                "best_robot.urdf")
+def shard_text(shard: str, done: Any, directory: Path) -> str:
+    """What a shard that did not write the study's final tables says of it."""
+    state, outcome = done.state, done.outcome
+    head = (f"shard {shard}: its chunks are done ({done.simulated} trials simulated now, in "
+            f"{done.wall_seconds:.1f} s); the study has {state.done} of {state.total} trials")
+    if outcome is not None and outcome.running:
+        return (f"{head}; other shards are still running: the last one to finish writes "
+                f"{directory}/trials.parquet")
+    return (f"{head} and no other shard is running: run the missing shards again (the same "
+            "command resumes a shard), or the sweep without --shard")
 
 
 def rerun_trial(s: Any, directory: Path, trial: int, print_spec: bool, quiet: bool) -> None:

@@ -275,11 +275,15 @@ class SearchOutcome:
     setup_seconds: float
 
 
-def warm_up(lay: Layout) -> None:
-    """Simulate one trial, so the compiled kernel is loaded before the workers fork."""
+def warm_up(lay: Layout, quiet: bool = True) -> None:
+    """Simulate one trial, so the compiled kernel is loaded before the workers fork; a kernel
+    numba compiles is announced unless quiet (``progress.compile_notices``)."""
+    from flatcli.progress import compile_notices, kernel_text
+
     cell = lay.cells[0]
-    slim_chunk(cell, Chunk(cell.index, cell.first_trial, cell.first_trial + 1),
-               "err_theta_final")
+    with compile_notices(kernel_text(cell.scenario), quiet):
+        slim_chunk(cell, Chunk(cell.index, cell.first_trial, cell.first_trial + 1),
+                   "err_theta_final")
 
 
 def check_search(spec: Spec) -> tuple[Design, int, int]:
@@ -319,7 +323,7 @@ def run_search(spec: Spec, directory: Path, executor_kind: str = "local",
                on_candidate: Callable[[SearchState, Row], None] | None = None,
                on_start: Callable[[SearchState, int, int, str], None] | None = None,
                finish: Callable[[SearchState, Path, dict[str, Any]], None] | None = None,
-               ) -> SearchOutcome:
+               quiet: bool = True) -> SearchOutcome:
     """Run (or resume) the search of ``spec`` into ``directory`` (module docstring).
 
     Everything that can be refused is refused before a byte is written. ``on_start`` (state,
@@ -350,7 +354,7 @@ def run_search(spec: Spec, directory: Path, executor_kind: str = "local",
         if own_layout is not None and executor_kind == "local" and (
                 len(opened.journal.evaluations) < spec.search.candidates):
             with interruptible():
-                warm_up(own_layout)  # forked workers inherit the loaded kernel
+                warm_up(own_layout, quiet)  # forked workers inherit the loaded kernel
         executor = make_executor(executor_kind, workers, scheduler)
         state = SearchState(spec, design, opened.journal, executor, own_energy,
                             on_generation or (lambda s: None),
