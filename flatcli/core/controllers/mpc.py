@@ -51,6 +51,7 @@ from numpy.typing import NDArray
 
 from flatcli.core._jit import jitable
 from flatcli.core.controllers import qp
+from flatcli.core.controllers.parts import SampledPart
 from flatcli.core.errors import FlatcliError
 
 Array = NDArray[np.float64]
@@ -445,6 +446,28 @@ def sample_step(d: Design, s: Scratch, k: int) -> None:
     for c in range(size):
         s.last[c] = s.x[c]
     s.valid[0] = 1.0
+
+
+@jitable
+def period(d: Design) -> int:
+    """Output steps between samples."""
+    return d.every
+
+
+@jitable
+def extras(s: Scratch, row: Array) -> None:
+    """The trial's ``COLUMNS`` into row (3,): QP iterations, infeasible samples (counts),
+    the largest slack [the quantities' units]."""
+    row[0] = s.counters[QP_ITERATIONS]
+    row[1] = s.counters[QP_INFEASIBLE]
+    row[2] = s.counters[QP_SLACK]
+
+
+#: The per-trial columns the MPC reports (``extras``).
+COLUMNS = ("qp_iterations", "qp_infeasible", "qp_slack_max")
+
+#: The MPC's parts for the loop factory (``loop.compose``).
+PART = SampledPart("mpc", scratch, reset, period, sample_step, extras, COLUMNS)
 
 
 def asbuilt_design(plan: Any, weights: Any, dt: float, rate_limit: float,

@@ -43,7 +43,7 @@ def reference_trial(scenario: Any, trials: Any, kernels: Kernels, shared: Any,
     times = scenario.times
     nx = kernels.ops.state(n_joints)
     size = nx + kernels.ops.aux(n_joints)
-    buffers = kernels.buffers(n_joints, grid.ref.shape[1])
+    buffers = kernels.buffers(n_joints, grid.ref.shape[1], shared)
     noise = trials.noise_table(i, n)
     bound = settings.bound
     start = np.empty(nx)

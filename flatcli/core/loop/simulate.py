@@ -42,12 +42,18 @@ from numpy.typing import NDArray
 
 from flatcli.core.controllers.control import Gains
 from flatcli.core.controllers.lqr import LqrWeights, tracked
+from flatcli.core.controllers.mpc import (
+    INNER_KP,
+    INNER_KV,
+    MpcSettings,
+    asbuilt_design,
+    flat_design,
+)
 from flatcli.core.curves.pieces import PiecewiseCurves
 from flatcli.core.errors import FlatcliError
-from flatcli.core.loop.asbuiltkernels import KERNELS as ASBUILT_KERNELS
+from flatcli.core.loop.compose import SampledShared
 from flatcli.core.loop.kernels import (
     ADAPTIVE,
-    KERNELS,
     RK4,
     Grid,
     Kernels,
@@ -58,6 +64,7 @@ from flatcli.core.loop.kernels import (
 )
 from flatcli.core.loop.metrics import N_METRICS, Metric, Status
 from flatcli.core.loop.reference import reference_trial
+from flatcli.core.loop.table import kernels_for
 from flatcli.core.names import (
     CONTROLLERS,
     DEFAULT_ACCURACY,
@@ -157,9 +164,12 @@ class Scenario:
     plant : "kinematic" or "dynamic" (``PLANT_MODELS``)
     servo_model : what the dynamic plant's servo believes: "robot" (the plan's robot, the
         nominal model) or "plant" (each trial's plant)
-    controller : "flat" (the linearising feedback with ``gains``) or "asbuilt" (the LQR of
-        ``lqr``, designed on the plan's robot with ``lqr``; ``gains`` unused)
+    controller : "flat" (the linearising feedback with ``gains``), "asbuilt" (the LQR of
+        ``lqr``, designed on the plan's robot with ``lqr``; ``gains`` unused) or "mpc" (model
+        predictive control with ``mpc`` wrapping the flat law with ``mpc``'s own gains on a
+        flat plan, or the as-built law on an exact plan: ``law``; ``gains`` unused)
     lqr : the as-built law's weights (``lqr.LqrWeights``)
+    mpc : the MPC's settings (``mpc.MpcSettings``)
     servo_bandwidth : the dynamic plant's nominal servo bandwidth [rad/s], the lag the
         as-built law is designed for there
     twin : the adaptive integrator's error estimate: each trial reaching T is integrated a
@@ -184,6 +194,7 @@ class Scenario:
     servo_model: ServoModel = "robot"
     controller: Controller = "flat"
     lqr: LqrWeights = field(default_factory=LqrWeights)
+    mpc: MpcSettings = field(default_factory=MpcSettings)
     servo_bandwidth: float = DEFAULT_SERVO_BANDWIDTH
     twin: float = TWIN_FACTOR
     accuracy: float = DEFAULT_ACCURACY
@@ -237,11 +248,47 @@ class Scenario:
                                f"{self.controller!r}")
         if self.controller == "flat" and self.plan.model.kind == "exact":
             raise FlatcliError(FLAT_ON_EXACT)
+        if self.controller == "mpc":
+            self.mpc.every(self.dt, self.plan.duration)  # FlatcliError naming the key
         n = self.plan.n_joints
         if self.gains.n_outputs != n:
             raise FlatcliError(f"track.kp, track.kv: expected {n} gains each (one per flat "
                                f"output) for a robot of {n} joints, got {self.gains.n_outputs}")
         object.__setattr__(self, "n_steps", steps)
+
+    @property
+    def law(self) -> str:
+        """The law whose reference the kernels track: "flat" (the plan's flat outputs) or
+        "asbuilt" (its angles and the LQR's gains); the MPC wraps the flat law on a flat
+        plan and the as-built law on an exact one."""
+        if self.controller == "mpc":
+            return "asbuilt" if self.plan.model.kind == "exact" else "flat"
+        return self.controller
+
+    @cached_property
+    def mpc_design(self) -> Any:
+        """The MPC's design about the plan (``mpc.flat_design``, ``mpc.asbuilt_design``),
+        once per scenario; None for the other controllers."""
+        if self.controller != "mpc":
+            return None
+        if self.law == "asbuilt":
+            servo = self.servo_bandwidth if self.plant == "dynamic" else None
+            return asbuilt_design(self.plan, self.lqr, self.dt, self.rate_limit, self.mpc,
+                                  servo)
+        return flat_design(self.plan.model, self.plan.trajectory, self.plan.duration, self.dt,
+                           self.rate_limit, self.mpc)
+
+    @property
+    def inner_gains(self) -> Gains:
+        """The flat law's gains: ``gains``, or the MPC's inner law's (``mpc.INNER_KP``,
+        ``mpc.INNER_KV`` unless set)."""
+        if self.controller != "mpc":
+            return self.gains
+        n = self.n_joints
+        settings = self.mpc
+        kp = settings.kp if settings.kp is not None else (INNER_KP,) * n
+        kv = settings.kv if settings.kv is not None else (INNER_KV,) * n
+        return Gains(tuple(kp), tuple(kv))
 
     @property
     def n_joints(self) -> int:
@@ -251,13 +298,14 @@ class Scenario:
     def prepared(self) -> Scenario:
         """This scenario with its reference tables computed (before shipping it to workers)."""
         _ = self.reference, self.theta_reference, self.plan_on_own_grid, self.pieces
+        _ = self.mpc_design
         return self
 
     @cached_property
     def tracked(self) -> Any:
         """What the controller tracks, as curves y(t): the plan's flat outputs (the flat
         law), or the plan's angles and the as-built law's gains (``lqr.tracked``)."""
-        if self.controller == "asbuilt":
+        if self.law == "asbuilt":
             servo = self.servo_bandwidth if self.plant == "dynamic" else None
             curves: PiecewiseCurves = tracked(self.plan, self.lqr, servo)
             return curves
@@ -426,6 +474,8 @@ class Outcome:
     estimated : whether each trial reaching T had its error estimated (the adaptive
         integrator with a twin, ``Scenario.twin``); accuracy : the largest err_estimate of a
         verified trial [rad] (``Scenario.accuracy``)
+    extra : (N, E) the controller's own per-trial columns ``extra_columns`` (the MPC's
+        ``mpc.COLUMNS``; E = 0 for the flat and as-built laws)
     """
 
     metrics: Array
@@ -437,6 +487,8 @@ class Outcome:
     integrator: Integrator = "adaptive"
     estimated: bool = False
     accuracy: float = math.inf
+    extra: Array | None = None
+    extra_columns: tuple[str, ...] = ()
 
     @cached_property
     def verified(self) -> NDArray[np.bool_]:
@@ -497,10 +549,8 @@ def kernel_inputs(scenario: Scenario, trials: Trials) -> tuple[
     """The kernels of a scenario's (model, plant) and everything they take but the noise,
     the buffers and the results."""
     plan = scenario.plan
-    if scenario.controller == "asbuilt":
-        kernels = ASBUILT_KERNELS[("asbuilt", scenario.plant)]
-    else:
-        kernels = KERNELS[(plan.model.kind, scenario.plant)]
+    model = "asbuilt" if scenario.law == "asbuilt" else plan.model.kind
+    kernels = kernels_for(scenario.controller, model, scenario.plant)
     params, offset = placements(trials.links, trials.across)
     arrays = TrialArrays(params, np.ascontiguousarray(trials.momentum, dtype=float),
                          trials.servo_table(), np.ascontiguousarray(trials.initial, dtype=float),
@@ -513,10 +563,12 @@ def kernel_inputs(scenario: Scenario, trials: Trials) -> tuple[
                         float(scenario.singular_threshold), float(scenario.rtol),
                         float(scenario.atol), int(scenario.max_steps), False,
                         twin_factor(scenario), int(scenario.observe_every))
-    shared = kernels.shared(plan.model, scenario.gains, scenario.rate_limit,
+    shared = kernels.shared(plan.model, scenario.inner_gains, scenario.rate_limit,
                             scenario.servo_model == "plant", plan.robot)
-    if scenario.controller == "asbuilt" and scenario.plant == "dynamic":
+    if scenario.law == "asbuilt" and scenario.plant == "dynamic":
         shared = shared._replace(lead=1.0 / scenario.servo_bandwidth, lagged=True)
+    if scenario.mpc_design is not None:
+        shared = SampledShared(shared, scenario.mpc_design)
     return kernels, shared, arrays, grid, settings
 
 
@@ -527,7 +579,7 @@ def closed_loop_rhs(scenario: Scenario, trials: Trials, i: int = 0) -> Callable[
     kernels, shared, arrays, grid, _ = kernel_inputs(scenario, trials)
     joints = scenario.n_joints
     nx = kernels.ops.state(joints)
-    buffers = kernels.buffers(joints, grid.ref.shape[1])
+    buffers = kernels.buffers(joints, grid.ref.shape[1], shared)
     out = np.empty(nx + kernels.ops.aux(joints))
     zero = np.zeros(joints + 1)
     rhs_at = kernels.single[1]
@@ -557,7 +609,8 @@ def closed_loop_start(scenario: Scenario, trials: Trials, i: int = 0) -> Array:
     kernels, shared, arrays, grid, _ = kernel_inputs(scenario, trials)
     joints = scenario.n_joints
     out = np.empty(kernels.ops.state(joints))
-    kernels.single[0](shared, arrays, i, grid, kernels.buffers(joints, 3 * joints), out)
+    kernels.single[0](shared, arrays, i, grid,
+                      kernels.buffers(joints, grid.ref.shape[1], shared), out)
     return out
 
 
@@ -594,30 +647,37 @@ def simulate(
     N = trials.count
     columns = trace_columns(scenario)
     width = len(columns)
+    kernels, shared, arrays, grid, settings = kernel_inputs(scenario, trials)
+    extra_columns = kernels.ops.extra_columns
     results = Results(np.empty((N, N_METRICS)), np.zeros(N, dtype=np.int64),
                       np.zeros(N, dtype=np.int64), np.full(N, math.nan),
-                      np.empty((N, n + 1, width)) if record else np.empty((0, 0, width)))
-    kernels, shared, arrays, grid, settings = kernel_inputs(scenario, trials)
+                      np.empty((N, n + 1, width)) if record else np.empty((0, 0, width)),
+                      np.full((N, len(extra_columns)), math.nan))
     settings = settings._replace(record=record)
+    if integrator == "dop853" and kernels.ops.sampled:
+        raise FlatcliError(f"track.integrator: \"dop853\" does not run a controller that acts "
+                           f"at sample instants (track.controller = "
+                           f"\"{scenario.controller}\"); use \"adaptive\" or \"rk4\"")
     if integrator == "dop853":
         for i in range(N):
             reference_trial(scenario, trials, kernels, shared, arrays, grid, settings, i,
                             results)
     else:
         method = RK4 if integrator == "rk4" else ADAPTIVE
-        buffers = kernels.buffers(joints, grid.ref.shape[1])
+        buffers = kernels.buffers(joints, grid.ref.shape[1], shared)
 
         def run(rows: slice, tables: Array) -> None:
             part = TrialArrays(*(a[rows] for a in arrays))
             trace = results.trace[rows] if record else results.trace
             out = Results(results.metrics[rows], results.status[rows], results.event[rows],
-                          results.event_time[rows], trace)
+                          results.event_time[rows], trace, results.extra[rows])
             kernels.batch(method, shared, part, grid, settings, tables, buffers, out)
 
         _run_with_noise(run, trials, n, angles)
     return Outcome(results.metrics, results.status, results.event, results.event_time,
                    results.trace if record else None, columns, integrator,
-                   integrator == "adaptive" and settings.twin > 0, float(scenario.accuracy))
+                   integrator == "adaptive" and settings.twin > 0, float(scenario.accuracy),
+                   results.extra, extra_columns)
 
 
 class ReferenceCheck(NamedTuple):

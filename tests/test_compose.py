@@ -1,0 +1,179 @@
+"""A sampled controller composed with an inner law and a plant (flatcli/core/loop/compose.py),
+and the integrators' sample hooks (flatcli/core/loop/integrate.py): the MPC of
+flatcli/core/controllers/mpc.py as ``track.controller = "mpc"``.
+
+Referee: an independent closed loop in numpy and scipy. The flat outputs and the inputs that
+make y'' = v come from the general N-link chain's maps (``ChainModel``, ``chainflat.inputs``)
+for N = 2, not from the paper's closed form the kernels use; the base's rate from the link
+kinematics' angular momentum (``params.momentum``), solved for th0'; the loop integrated by
+DOP853 at rtol 1e-11 over each sample interval with the correction held, the correction
+computed at each sample instant by the MPC's own step (its QP is refereed by
+tests/test_mpc.py) from the errors measured there.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+import pytest
+from numpy.typing import NDArray
+from scipy.integrate import solve_ivp
+
+import flatcli
+from flatcli.core.controllers import mpc
+from flatcli.core.controllers.control import Gains
+from flatcli.core.errors import FlatcliError
+from flatcli.core.loop.metrics import Metric, Status
+from flatcli.core.loop.simulate import Scenario, Trials, simulate
+from flatcli.core.models.chainflat import inputs
+from flatcli.core.models.flatmodel import ChainModel
+from flatcli.core.robots.params import Links, momentum
+
+Array = NDArray[np.float64]
+
+#: The referee's and the compiled loop's tolerances, and how close their final angles must be
+#: [rad] (they agreed to 7.7e-12 rad with and without the rate limit, 2026-12-05).
+REFEREE_RTOL = 1e-11
+KERNEL_RTOL = 1e-11
+AGREE = 1e-9
+
+
+@numba.njit(cache=False)
+def _step(d, s, k):  # type: ignore[no-untyped-def]
+    mpc.sample_step(d, s, k)
+
+
+@pytest.fixture(scope="module")
+def plan():  # type: ignore[no-untyped-def]
+    return flatcli.plan().plan
+
+
+def _initial(plan, errors: Array) -> Array:  # type: ignore[no-untyped-def]
+    start = plan.sample(np.array([0.0]))
+    return np.array([*start.theta[0], start.theta_dot[0][1]]) + np.r_[errors, 0.0]
+
+
+def _referee(plan, settings: mpc.MpcSettings, dt: float, limit: float, x0: Array  # type: ignore[no-untyped-def]
+             ) -> tuple[Array, Array]:
+    """The final angles (3,) and the corrections held (K, 2) of the referee loop (module
+    docstring) on the kinematic plant of the nominal robot, H0 = 0."""
+    model = ChainModel.of(plan.robot)
+    links = Links(*(float(v) for v in plan.robot.links))
+    design = mpc.flat_design(plan.model, plan.trajectory, plan.duration, dt, limit, settings)
+    scratch = mpc.scratch(design)
+    mpc.reset(scratch)
+    kp = np.full(2, mpc.INNER_KP)
+    kv = np.full(2, mpc.INNER_KV)
+    ts = design.every * dt
+    held = np.zeros((design.samples, 2))
+
+    def law(t: float, x: Array, dv: Array) -> tuple[float, float, float]:
+        theta, u = x[:3], x[3:4]
+        y, y_dot, _ = model.outputs(theta[None], u[None])
+        flag = plan.trajectory.flags(np.array([t]))[0]
+        v = flag[4:6] + dv + kv * (flag[2:4] - y_dot[0]) + kp * (flag[0:2] - y[0])
+        u_dot = np.zeros(1)
+        command = inputs(np.array(model.K), np.array(model.inertia), theta, u, v, u_dot)
+        return float(u_dot[0]), float(x[3]), float(command)
+
+    def rhs(t: float, x: Array, dv: Array) -> Array:
+        u1_dot, u1, u2 = law(t, x, dv)
+        w1 = min(max(u1, -limit), limit)
+        w2 = min(max(u2, -limit), limit)
+        if (u1 >= limit and u1_dot > 0) or (u1 <= -limit and u1_dot < 0):
+            u1_dot = 0.0
+        # H = H(0) + th0' (H(1) - H(0)) is linear in th0': H = 0
+        h_zero = momentum(links, x[0], x[1], x[2], 0.0, w1, w2)
+        h_one = momentum(links, x[0], x[1], x[2], 1.0, w1, w2)
+        return np.array([-h_zero / (h_one - h_zero), w1, w2, u1_dot])
+
+    x = x0.copy()
+    for k in range(design.samples):
+        t0 = k * ts
+        y, y_dot, _ = model.outputs(x[None, :3], x[None, 3:4])
+        flag = plan.trajectory.flags(np.array([t0]))[0]
+        scratch.s0[:] = [y[0, 0] - flag[0], y_dot[0, 0] - flag[2], y[0, 1] - flag[1],
+                         y_dot[0, 1] - flag[3]]
+        _step(design, scratch, k)
+        dv = scratch.held.copy()
+        held[k] = dv
+        sol = solve_ivp(rhs, (t0, t0 + ts), x, method="DOP853", rtol=REFEREE_RTOL,
+                        atol=1e-13, args=(dv,))
+        assert sol.success
+        x = sol.y[:, -1]
+    return x[:3], held
+
+
+@pytest.mark.parametrize("limit", [math.inf, 40.0])
+def test_the_compiled_mpc_loop_is_the_sampled_loop_integrated_by_scipy(plan, limit: float  # type: ignore[no-untyped-def]
+                                                                        ) -> None:
+    """Horizon 5 of 10 samples: the correction without (the first half) and with the goal
+    in the horizon; 40 rad/s below the plan's 48.8 rad/s peak: the QP's rate rows bind."""
+    settings = mpc.MpcSettings(sample=0.2, horizon=5)
+    dt = 0.002
+    x0 = _initial(plan, np.array([2e-3, -3e-3, 1e-3]))
+    final, held = _referee(plan, settings, dt, limit, x0)
+    assert np.abs(held).max() > 1e-3  # the correction acts (else this proves little)
+    scenario = Scenario(plan, Gains((1.0, 1.0), (2.0, 2.0)), dt=dt, rate_limit=limit,
+                        controller="mpc", mpc=settings, rtol=KERNEL_RTOL, atol=1e-13, twin=0.0)
+    trials = Trials(plan.robot.as_array()[None], np.zeros(1), x0[None])
+    out = simulate(scenario, trials, "adaptive", record=True)
+    assert out.status[0] == Status.OK
+    assert out.trace is not None
+    np.testing.assert_allclose(out.trace[0, -1, :3], final, atol=AGREE, rtol=0)
+    assert out.extra_columns == mpc.COLUMNS
+    assert out.extra is not None and out.extra[0, 0] > 0  # QP iterations were counted
+    assert out.extra[0, 1] == 0  # no sample needed the slack
+    # the limits are kept at the samples only (mpc's docstring); on this maneuver at every
+    # output sample too: no joint ever turned at the limit (39.58 rad/s, 2026-12-05)
+    assert out.metrics[0, Metric.PEAK_RATE] < limit
+
+
+def test_rk4_samples_where_the_adaptive_integrator_stops(plan) -> None:  # type: ignore[no-untyped-def]
+    """Both integrators sample at the same instants: at dt = 1 ms their final angles agree
+    to RK4's error (the held corrections would differ by a sample's jump otherwise)."""
+    settings = mpc.MpcSettings(sample=0.1, horizon=8)
+    x0 = _initial(plan, np.array([1e-3, 2e-3, -1e-3]))
+    scenario = Scenario(plan, Gains((1.0, 1.0), (2.0, 2.0)), dt=0.001, controller="mpc",
+                        mpc=settings, rtol=1e-11, atol=1e-13, twin=0.0)
+    trials = Trials(plan.robot.as_array()[None], np.zeros(1), x0[None])
+    adaptive = simulate(scenario, trials, "adaptive")
+    rk4 = simulate(scenario, trials, "rk4")
+    assert rk4.metrics[0, Metric.ERR_THETA_FINAL] == pytest.approx(
+        adaptive.metrics[0, Metric.ERR_THETA_FINAL], abs=1e-8)
+    assert adaptive.metrics[0, Metric.ERR_THETA_FINAL] < 1e-6  # the terminal condition
+
+
+def test_a_sample_time_that_does_not_fit_names_the_key(plan) -> None:  # type: ignore[no-untyped-def]
+    with pytest.raises(FlatcliError, match=r"track\.mpc_sample"):
+        Scenario(plan, Gains((1.0, 1.0), (2.0, 2.0)), dt=0.001, controller="mpc",
+                 mpc=mpc.MpcSettings(sample=0.3))
+
+
+def test_the_reference_integrator_refuses_a_sampled_controller(plan) -> None:  # type: ignore[no-untyped-def]
+    scenario = Scenario(plan, Gains((1.0, 1.0), (2.0, 2.0)), dt=0.01, controller="mpc")
+    trials = Trials(plan.robot.as_array()[None], np.zeros(1), _initial(plan, np.zeros(3))[None])
+    with pytest.raises(FlatcliError, match=r"track\.integrator"):
+        simulate(scenario, trials, "dop853")
+
+
+def test_every_generated_kernel_has_closure_names_of_its_own() -> None:
+    """numba links a name two loaded kernels share to one definition (tests/test_kernels.py):
+    each composed combination's closures carry their own tag, the same in every process."""
+    from flatcli.core.loop import table
+    from flatcli.core.loop.integrate import make_trial_integrators
+    from flatcli.core.loop.kernels import make_batch, make_single
+
+    seen: dict[str, tuple[str, str, str]] = {}
+    for key, kernels in table.KERNELS.items():
+        ops = kernels.ops
+        functions = [make_batch(ops), *make_single(ops),
+                     *make_trial_integrators(ops.rhs, ops.observe, ops.record, ops.stage,
+                                             ops.reset, ops.period, ops.sample)]
+        for name in (f.__qualname__ for f in functions):
+            assert name not in seen, (key, seen.get(name), name)
+            seen[name] = key
+    assert {key[0] for key in table.KERNELS} == {"flat", "asbuilt", "mpc"}
+    assert len([key for key in table.KERNELS if key[0] == "mpc"]) == 6
