@@ -10,10 +10,11 @@ the helpers below, e.g. ``dt: float = number(1e-3, "integration step", "s", gt=0
 from __future__ import annotations
 
 import difflib
+import inspect
 import math
 import unicodedata
 from collections.abc import Iterable
-from dataclasses import dataclass, field
+from dataclasses import MISSING, dataclass, field, fields
 from typing import Any
 
 from flatcli.core.errors import FlatcliError
@@ -359,3 +360,35 @@ def discs(doc: str, unit: str = "m") -> Any:
 def table(doc: str, default_doc: str = "{}") -> Any:
     """A TOML table kept as written (validated by its own rules, see ``flatcli.spec.sweeps``)."""
     return _declare(Key("table", {}, doc, default_doc=default_doc))
+
+
+def settings_keys(settings: type, prefix: str) -> Any:
+    """A class decorator (applied before ``dataclass``) adding to a section's record one key
+    ``<prefix><field>`` per field of a controller's settings record (``core.controllers.
+    settings.setting``): its kind, default, doc, unit and bounds come from the settings'
+    own field, so a controller's keys are generated from its settings alone."""
+    def add(record: type) -> type:
+        annotations = dict(inspect.get_annotations(record))
+        for f in fields(settings):
+            meta = f.metadata["setting"]
+            default = None if f.default is MISSING else f.default
+            kind = meta["kind"]
+            if kind == "joints":
+                declared = vector("joints", default, meta["doc"], meta["unit"], nullable=True,
+                                  default_doc="the controller's own")
+                annotation = "Vector | None"
+            elif kind == "int":
+                declared = integer(default, meta["doc"], meta["unit"], ge=meta["ge"],
+                                   le=meta["le"])
+                annotation = "int"
+            else:
+                declared = number(default, meta["doc"], meta["unit"], gt=meta["gt"],
+                                  ge=meta["ge"], le=meta["le"])
+                annotation = "float"
+            name = prefix + f.name
+            annotations[name] = annotation
+            setattr(record, name, declared)
+        record.__annotations__ = annotations
+        return record
+
+    return add

@@ -42,7 +42,6 @@ QP.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -52,6 +51,7 @@ from numpy.typing import NDArray
 from flatcli.core._jit import jitable
 from flatcli.core.controllers import qp
 from flatcli.core.controllers.parts import SampledPart
+from flatcli.core.controllers.settings import MpcSettings as MpcSettings
 from flatcli.core.errors import FlatcliError
 
 Array = NDArray[np.float64]
@@ -63,60 +63,6 @@ SLACK_LINEAR = 1e6
 SLACK_TOLERANCE = 1e-9
 #: Active-set iterations per QP at most, per variable and constraint.
 ITERATIONS_PER_ROW = 3
-
-
-@dataclass(frozen=True)
-class MpcSettings:
-    """The MPC's settings (spec ``track.mpc_*``).
-
-    sample : the sample time [s] (a multiple of track.dt that divides plan.duration)
-    horizon : samples predicted, H >= 2
-    kp, kv : the inner flat law's gains per flat output [1/s^2, 1/s] (None: ``INNER_KP``,
-        ``INNER_KV``); the as-built inner law is the LQR of ``track.lqr_*``
-    weight_state : W's diagonal on the errors (the flat law: e and e' of each output)
-    weight_input : r on the correction dv (> 0)
-    margin : the singularity margin kept [rad/s] (0: none)
-    backoff : the joint-rate limit is kept at R (1 - backoff)
-    """
-
-    sample: float = 0.1
-    horizon: int = 20
-    kp: tuple[float, ...] | None = None
-    kv: tuple[float, ...] | None = None
-    weight_state: float = 0.0
-    weight_input: float = 1.0
-    margin: float = 0.05
-    backoff: float = 0.01
-
-    def __post_init__(self) -> None:
-        if not (self.sample > 0 and math.isfinite(self.sample)):
-            raise FlatcliError(f"track.mpc_sample: must be a finite number > 0 s, got "
-                               f"{self.sample}")
-        if not (isinstance(self.horizon, int) and 2 <= self.horizon <= 200):
-            raise FlatcliError(f"track.mpc_horizon: must be an integer in [2, 200], got "
-                               f"{self.horizon!r}")
-        if not (self.weight_state >= 0 and math.isfinite(self.weight_state)):
-            raise FlatcliError(f"track.mpc_weight_state: must be a finite number >= 0, got "
-                               f"{self.weight_state}")
-        if not (self.weight_input > 0 and math.isfinite(self.weight_input)):
-            raise FlatcliError(f"track.mpc_weight_input: must be a finite number > 0, got "
-                               f"{self.weight_input}")
-        if not (self.margin >= 0 and math.isfinite(self.margin)):
-            raise FlatcliError(f"track.mpc_margin: must be a finite number >= 0 rad/s, got "
-                               f"{self.margin}")
-        if not 0 <= self.backoff < 1:
-            raise FlatcliError(f"track.mpc_backoff: must be in [0, 1), got {self.backoff}")
-
-    def every(self, dt: float, duration: float) -> int:
-        """Output steps per sample; FlatcliError naming the key unless the sample time is
-        a multiple of dt that divides the duration."""
-        every = round(self.sample / dt)
-        steps = round(duration / dt)
-        if every < 1 or not math.isclose(every * dt, self.sample, rel_tol=1e-9) or steps % every:
-            raise FlatcliError(f"track.mpc_sample: {self.sample:g} s must be a multiple of "
-                               f"track.dt = {dt:g} s that divides plan.duration = "
-                               f"{duration:g} s")
-        return every
 
 
 #: The inner flat law's default gains: a double pole at -1 rad/s for every output, slow

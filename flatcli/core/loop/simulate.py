@@ -42,13 +42,8 @@ from numpy.typing import NDArray
 
 from flatcli.core.controllers.control import Gains
 from flatcli.core.controllers.lqr import LqrWeights, tracked
-from flatcli.core.controllers.mpc import (
-    INNER_KP,
-    INNER_KV,
-    MpcSettings,
-    asbuilt_design,
-    flat_design,
-)
+from flatcli.core.controllers.mpc import INNER_KP, INNER_KV, asbuilt_design, flat_design
+from flatcli.core.controllers.settings import MpcSettings
 from flatcli.core.curves.pieces import PiecewiseCurves
 from flatcli.core.errors import FlatcliError
 from flatcli.core.loop.compose import SampledShared
