@@ -382,6 +382,39 @@ def make_single(ops: Ops) -> tuple[Callable[..., None], Callable[..., None],
     return initial_of, rhs_at, observe_trace, record_trace
 
 
+def make_control_single(ops: Ops) -> tuple[Callable[..., int], Callable[..., None],
+                                           Callable[..., None]]:
+    """(control_start, sample_at, extras_at) of a combination whose controller acts at
+    sample instants (``Ops.sampled``), one trial i at a time (for the scipy reference):
+    start its controller afresh and return its period p [output steps]; its sample at output
+    sample j, state x and noise (before the right-hand side is evaluated there: ``rhs_at``
+    then sees what it holds); its columns into ``row``. The controller's state lives in
+    ``buffers.scratch`` between the calls."""
+    make_loop, reset, period, sample, extras = (ops.make_loop, ops.reset, ops.period,
+                                                ops.sample, ops.extras)
+    variant = jitable_variant(ops_tag(ops))
+
+    @variant
+    def control_start(shared: Any, trials: TrialArrays, i: int, buffers: Buffers) -> int:
+        loop = make_loop(shared, trials, i, buffers.scratch)
+        reset(loop)
+        return period(loop)
+
+    @variant
+    def sample_at(shared: Any, trials: TrialArrays, i: int, grid: Grid, buffers: Buffers,
+                  x: Array, noise: Array, j: int) -> None:
+        loop = make_loop(shared, trials, i, buffers.scratch)
+        sample(loop, x, noise, grid.ref[2 * j], j)
+
+    @variant
+    def extras_at(shared: Any, trials: TrialArrays, i: int, buffers: Buffers,
+                  row: Array) -> None:
+        loop = make_loop(shared, trials, i, buffers.scratch)
+        extras(loop, row)
+
+    return control_start, sample_at, extras_at
+
+
 # --------------------------------------------------------------------------------------
 # The paper's robot (N = 2): the closed forms of ``plant`` (its right-hand sides)
 
@@ -616,8 +649,10 @@ def chain_plant(params: Array, plant: str) -> Array:
 @dataclass(frozen=True)
 class Kernels:
     """The compiled functions of one (model, plant) combination: its batch kernel and its
-    single-trial kernels (initial state, right-hand side, observer of a trace), and how
-    its shared record and per-trial plant arrays are made (``paper_shared``, ...)."""
+    single-trial kernels (initial state, right-hand side, observer of a trace, trace rows:
+    ``make_single``; then, for a controller acting at sample instants, its start, sample and
+    columns: ``make_control_single``), and how its shared record and per-trial plant arrays
+    are made (``paper_shared``, ...)."""
 
     ops: Ops
     batch: Callable[..., None]
@@ -646,10 +681,13 @@ def compile_kernels(ops: Ops, name: str, shared: Callable[..., Any],
     functions compiled, named ``<name>_batch``, ``_start``, ``_derivative``, ``_metrics`` and
     ``_trace`` in ``module`` (the one that makes them: numba caches a kernel by its module and
     name, and links its code by them; a compile child imports that module to find it)."""
-    parts = zip(("batch", "start", "derivative", "metrics", "trace"),
-                (make_batch(ops), *make_single(ops)), strict=True)
+    names = ["batch", "start", "derivative", "metrics", "trace"]
+    functions = [make_batch(ops), *make_single(ops)]
+    if ops.sampled:
+        names += ["control_start", "sample", "extras"]
+        functions += make_control_single(ops)
     compiled: list[Callable[..., Any]] = [named_kernel(f"{name}_{part}", module)(fn)
-                                          for part, fn in parts]
+                                          for part, fn in zip(names, functions, strict=True)]
     return Kernels(ops, compiled[0], tuple(compiled[1:]), shared, plant)
 
 

@@ -649,10 +649,6 @@ def simulate(
                       np.empty((N, n + 1, width)) if record else np.empty((0, 0, width)),
                       np.full((N, len(extra_columns)), math.nan))
     settings = settings._replace(record=record)
-    if integrator == "dop853" and kernels.ops.sampled:
-        raise FlatcliError(f"track.integrator: \"dop853\" does not run a controller that acts "
-                           f"at sample instants (track.controller = "
-                           f"\"{scenario.controller}\"); use \"adaptive\" or \"rk4\"")
     if integrator == "dop853":
         for i in range(N):
             reference_trial(scenario, trials, kernels, shared, arrays, grid, settings, i,
