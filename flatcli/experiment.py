@@ -336,6 +336,11 @@ class TrackRun:
             value = float(v)
             out[name] = None if np.isnan(value) else (int(value) if name in COUNT_METRICS
                                                       else value)
+        if self.outcome.extra is not None:  # the controller's own (the MPC's qp_*)
+            for name, v in zip(self.outcome.extra_columns, self.outcome.extra[0], strict=True):
+                value = float(v)
+                out[name] = None if np.isnan(value) else (
+                    int(value) if name in self.outcome.extra_counts else value)
         status, reason = describe_status(
             int(self.outcome.status[0]),
             int(self.outcome.event[0]),
@@ -401,6 +406,9 @@ class TrackRun:
         cols["momentum"] = H
         for j in range(1, n + 1):
             cols[f"tau{j}"] = named.get(f"tau{j}", nan)
+        for j in range(1, n + 1):  # the MPC's held correction (``simulate.trace_columns``)
+            if f"dv{j}" in named:
+                cols[f"dv{j}"] = named[f"dv{j}"]
         cols.update(_positions(plant_from(self.spec), theta))
         return cols
 

@@ -55,10 +55,11 @@ def _initial(plan, errors: Array) -> Array:  # type: ignore[no-untyped-def]
     return np.array([*start.theta[0], start.theta_dot[0][1]]) + np.r_[errors, 0.0]
 
 
-def _referee(plan, settings: mpc.MpcSettings, dt: float, limit: float, x0: Array  # type: ignore[no-untyped-def]
-             ) -> tuple[Array, Array]:
+def _referee(plan, settings: mpc.MpcSettings, dt: float, limit: float, x0: Array,  # type: ignore[no-untyped-def]
+             given: Array | None = None) -> tuple[Array, Array]:
     """The final angles (3,) and the corrections held (K, 2) of the referee loop (module
-    docstring) on the kinematic plant of the nominal robot, H0 = 0."""
+    docstring) on the kinematic plant of the nominal robot, H0 = 0; with ``given`` (K, 2)
+    those corrections are held instead of the MPC's (a replay)."""
     model = ChainModel.of(plan.robot)
     links = Links(*(float(v) for v in plan.robot.links))
     design = mpc.flat_design(plan.model, plan.trajectory, plan.duration, dt, limit, settings)
@@ -97,7 +98,7 @@ def _referee(plan, settings: mpc.MpcSettings, dt: float, limit: float, x0: Array
         scratch.s0[:] = [y[0, 0] - flag[0], y_dot[0, 0] - flag[2], y[0, 1] - flag[1],
                          y_dot[0, 1] - flag[3]]
         _step(design, scratch, k)
-        dv = scratch.held.copy()
+        dv = scratch.held.copy() if given is None else given[k]
         held[k] = dv
         sol = solve_ivp(rhs, (t0, t0 + ts), x, method="DOP853", rtol=REFEREE_RTOL,
                         atol=1e-13, args=(dv,))
@@ -129,6 +130,26 @@ def test_the_compiled_mpc_loop_is_the_sampled_loop_integrated_by_scipy(plan, lim
     # the limits are kept at the samples only (mpc's docstring); on this maneuver at every
     # output sample too: no joint ever turned at the limit (39.58 rad/s, 2026-12-05)
     assert out.metrics[0, Metric.PEAK_RATE] < limit
+
+
+def test_the_trace_holds_the_corrections_the_loop_applied(plan) -> None:  # type: ignore[no-untyped-def]
+    """Replayed: the corrections dv1, dv2 of the compiled trial's trace at its sample
+    instants, held over each sample by the referee loop (no MPC in it), end where the
+    compiled trial ends."""
+    settings = mpc.MpcSettings(sample=0.2, horizon=5)
+    dt, limit = 0.002, 40.0
+    x0 = _initial(plan, np.array([-2e-3, 1e-3, 3e-3]))
+    scenario = Scenario(plan, Gains((1.0, 1.0), (2.0, 2.0)), dt=dt, rate_limit=limit,
+                        controller="mpc", mpc=settings, rtol=KERNEL_RTOL, atol=1e-13, twin=0.0)
+    out = simulate(scenario, Trials(plan.robot.as_array()[None], np.zeros(1), x0[None]),
+                   "adaptive", record=True)
+    assert out.trace is not None
+    every = settings.every(dt, plan.duration)
+    columns = [out.columns.index("dv1"), out.columns.index("dv2")]
+    held = out.trace[0, :-1:every][:, columns]  # the rows at t_k = k sample
+    assert np.abs(held).max() > 1e-3
+    final, _ = _referee(plan, settings, dt, limit, x0, given=held)
+    np.testing.assert_allclose(out.trace[0, -1, :3], final, atol=AGREE, rtol=0)
 
 
 def test_rk4_samples_where_the_adaptive_integrator_stops(plan) -> None:  # type: ignore[no-untyped-def]

@@ -413,7 +413,7 @@ def extras(s: Scratch, row: Array) -> None:
 COLUMNS = ("qp_iterations", "qp_infeasible", "qp_slack_max")
 
 #: The MPC's parts for the loop factory (``loop.compose``).
-PART = SampledPart("mpc", scratch, reset, period, sample_step, extras, COLUMNS)
+PART = SampledPart("mpc", scratch, reset, period, sample_step, extras, COLUMNS, COLUMNS[:2])
 
 
 def asbuilt_design(plan: Any, weights: Any, dt: float, rate_limit: float,

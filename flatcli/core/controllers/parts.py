@@ -30,6 +30,7 @@ class SampledPart:
         errors in ``s0``
     extras : extras(scratch, row), compiled: the trial's ``columns`` into row (E,)
     columns : the per-trial columns it reports (metrics beside the loop's)
+    counts : those of ``columns`` that are counts (written as integers)
     """
 
     name: str
@@ -39,3 +40,4 @@ class SampledPart:
     step: Callable[..., None]
     extras: Callable[..., None]
     columns: tuple[str, ...]
+    counts: tuple[str, ...] = ()

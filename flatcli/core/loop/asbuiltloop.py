@@ -251,7 +251,8 @@ def observe_kinematic(loop: AsbuiltLoop, obs: Any, acc: Array, j: int, x: Array,
 
 
 @jitable
-def record_kinematic(trace: Array, j: int, nx: int, x: Array, f: Array) -> None:
+def record_kinematic(loop: Any, trace: Array, j: int, nx: int, x: Array, f: Array
+                     ) -> None:
     """Trace row j (``simulate.chain_trace_columns``): th, the rate commands of joints
     1..N-1 (in the columns of the flat loop's u_j), then th0'..th_N'."""
     n = nx - 1
@@ -388,7 +389,8 @@ def observe_dynamic(loop: AsbuiltLoop, obs: Any, acc: Array, j: int, x: Array, f
 
 
 @jitable
-def record_dynamic(trace: Array, j: int, nx: int, x: Array, f: Array) -> None:
+def record_dynamic(loop: Any, trace: Array, j: int, nx: int, x: Array, f: Array
+                   ) -> None:
     """Trace row j (``simulate.chain_dynamic_trace_columns``): the state, the rate commands
     r_1..r_N-1 (the flat loop's u_j columns), tau_1..tau_N, r_N."""
     n = (nx - 2) // 2

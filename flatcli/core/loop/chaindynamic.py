@@ -408,7 +408,8 @@ def observe_chain_dynamic(loop: ChainDynamicLoop, obs: Any, acc: Array, j: int, 
 
 
 @jitable
-def record_chain_dynamic(trace: Array, j: int, nx: int, x: Array, f: Array) -> None:
+def record_chain_dynamic(loop: Any, trace: Array, j: int, nx: int, x: Array, f: Array
+                         ) -> None:
     """Trace row j: the state, the torques tau_1..tau_N, the rate command r_N
     (``simulate.chain_dynamic_trace_columns``)."""
     n = (nx - 1) // 3

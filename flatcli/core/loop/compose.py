@@ -14,7 +14,10 @@ robot or a chain, the as-built law; kinematic or dynamic plant):
   law's design is about at the measured state (``inner.measure``) and the controller updates
   what it holds (``part.step``);
 * each trial (and its twin) starts from a fresh controller (``part.reset``); after the trial
-  the controller's per-trial columns are written (``part.extras``, ``Results.extra``).
+  the controller's per-trial columns are written (``part.extras``, ``Results.extra``);
+* the right-hand side writes what the controller holds (N values: the held dv) after the
+  inner combination's aux values, and a trace row gains them after the inner row's columns
+  (``simulate.trace_columns``: dv1..dvN), so a test can replay the controller's decisions.
 
 The plant, its observer, trace and momentum residual are the inner combination's: the
 metrics are about the plan, not the shifted reference.
@@ -70,7 +73,8 @@ def sampled_ops(inner: Ops, part: SampledPart) -> Ops:
     variant = jitable_variant(variant_tag(*_functions(inner), part.step, part.reset))
     make_inner, bounded_inner, initial_inner = inner.make_loop, inner.bounded, inner.initial_state
     rhs_inner, stage_inner = inner.rhs, inner.stage or inner.rhs
-    observe_inner, residual_inner = inner.observe, inner.residual
+    observe_inner, residual_inner, record_inner = inner.observe, inner.residual, inner.record
+    state, aux_inner, width_inner = inner.state, inner.aux, inner.width
     additive, measure = inner.additive, inner.measure
     reset_part, period_part = part.reset, part.period
     step_part, extras_part = part.step, part.extras
@@ -91,8 +95,12 @@ def sampled_ops(inner: Ops, part: SampledPart) -> Ops:
 
     @variant
     def rhs(loop: SampledLoop, x: Array, ref: Array, noise: Array, out: Array) -> None:
-        additive(loop.inner, ref, loop.part.held, loop.shifted)
+        held = loop.part.held
+        additive(loop.inner, ref, held, loop.shifted)
         rhs_inner(loop.inner, x, loop.shifted, noise, out)
+        end = out.shape[0] - held.shape[0]
+        for v in range(held.shape[0]):  # after the inner loop's aux values: what it holds
+            out[end + v] = held[v]
 
     @variant
     def stage(loop: SampledLoop, x: Array, ref: Array, noise: Array, out: Array) -> None:
@@ -102,6 +110,14 @@ def sampled_ops(inner: Ops, part: SampledPart) -> Ops:
     @variant
     def observe(loop: SampledLoop, obs: Any, acc: Array, j: int, x: Array, f: Array) -> None:
         observe_inner(loop.inner, obs, acc, j, x, f)
+
+    @variant
+    def record(loop: SampledLoop, trace: Array, j: int, nx: int, x: Array, f: Array) -> None:
+        record_inner(loop.inner, trace, j, nx, x, f)
+        held = loop.part.held.shape[0]
+        end, written = trace.shape[1] - held, f.shape[0] - held
+        for v in range(held):  # the held values the right-hand side wrote last in f
+            trace[j, end + v] = f[written + v]
 
     @variant
     def residual(loop: SampledLoop, trials: Any, i: int, plan_theta: Array,
@@ -134,9 +150,16 @@ def sampled_ops(inner: Ops, part: SampledPart) -> Ops:
             raise ValueError(f"{part.name}: a trial's scratch needs the plan's design")
         return SampledScratch(scratch_inner(n), make_part(shared.design), np.zeros(flag_size))
 
-    return Ops(make_loop, bounded, initial_state, rhs, observe, inner.record, residual,
-               inner.state, inner.aux, inner.width, scratch, stage, reset=reset, period=period,
+    def aux(n: int) -> int:
+        return aux_inner(n) + n  # and what the controller holds, one per joint
+
+    def width(n: int) -> int:
+        return width_inner(n) + n
+
+    return Ops(make_loop, bounded, initial_state, rhs, observe, record, residual,
+               state, aux, width, scratch, stage, reset=reset, period=period,
                sample=sample, extras=extras, extra_columns=part.columns,
+               extra_counts=part.counts,
                needs_shared_scratch=True)
 
 

@@ -212,7 +212,8 @@ def observed(j: int, n: int, every: int) -> bool:
 
 
 @jitable
-def record_rates(trace: Array, j: int, nx: int, x: Array, f: Array) -> None:
+def record_rates(loop: Any, trace: Array, j: int, nx: int, x: Array, f: Array
+                 ) -> None:
     """Trace row j: the state x (nx,), then the first ``width - nx`` rates f the plant applies
     (th0', th1', ...; the default ``record`` of ``make_trial_integrators``)."""
     for i in range(nx):
@@ -249,7 +250,7 @@ def make_trial_integrators(
     """(rk4_trial, adaptive_trial): the two integrators of one trial for a plant, compiled
     inline with its right-hand side ``rhs`` (which writes the state's derivative into
     out[:nx] and the controller's signed margin into out[nx]), its ``observe``r, and
-    ``record_sample(trace, j, nx, x, f)``, which writes trace row j (``record_rates``).
+    ``record_sample(loop, trace, j, nx, x, f)``, which writes trace row j (``record_rates``).
     ``stage`` (default ``rhs``): the right-hand side where nothing after out[nx] is read,
     which must write out[:nx + 1] exactly as ``rhs`` does (the stages of a step and the
     first-step estimate; a step's end only where no output sample falls on it); ``observe``
@@ -353,7 +354,7 @@ def make_trial_integrators(
             if observed(s, n, every):
                 observe(loop, obs, acc, s, x, k1)
             if record:
-                record_sample(trace, s, nx, x, k1)
+                record_sample(loop, trace, s, nx, x, k1)
             if s == n:
                 break
             before = k1[nx]
@@ -477,7 +478,7 @@ def make_trial_integrators(
         if observing:
             observe(loop, obs, acc, 0, x, k1)
             if record:
-                record_sample(trace, 0, nx, x, k1)
+                record_sample(loop, trace, 0, nx, x, k1)
         if not _finite(k1[:nx]):
             return 0, _BOUND, 0.0, 0, evaluations
         last = 0
@@ -601,7 +602,7 @@ def make_trial_integrators(
                     if wanted:
                         observe(loop, obs, acc, j, xs, fs)
                     if record:
-                        record_sample(trace, j, nx, xs, fs)
+                        record_sample(loop, trace, j, nx, xs, fs)
                     last = j
                 if beyond:
                     return last, _BOUND, t_new, steps, evaluations
@@ -637,7 +638,7 @@ def make_trial_integrators(
                     if observed(last, n, every):
                         observe(loop, obs, acc, last, x, k1)
                     if record:
-                        record_sample(trace, last, nx, x, k1)
+                        record_sample(loop, trace, last, nx, x, k1)
                 if (observing and last >= n) or t >= duration * (1.0 - 1e-14):
                     break
                 if passing:  # on the far side the right-hand side is another: start afresh

@@ -230,6 +230,7 @@ class Ops:
     sample: Callable[..., None] = no_sample
     extras: Callable[..., None] = no_extras
     extra_columns: tuple[str, ...] = ()
+    extra_counts: tuple[str, ...] = ()
     additive: Callable[..., None] | None = None
     measure: Callable[..., None] | None = None
     needs_shared_scratch: bool = False
@@ -374,10 +375,12 @@ def make_single(ops: Ops) -> tuple[Callable[..., None], Callable[..., None],
                               math.nan, 0, 0)
 
     @variant
-    def record_trace(states: Array, rates: Array, last: int, trace: Array) -> None:
+    def record_trace(shared: Any, trials: TrialArrays, i: int, buffers: Buffers,
+                     states: Array, rates: Array, last: int, trace: Array) -> None:
+        loop = make_loop(shared, trials, i, buffers.scratch)
         nx = states.shape[1]
         for j in range(last + 1):
-            record(trace, j, nx, states[j], rates[j])
+            record(loop, trace, j, nx, states[j], rates[j])
 
     return initial_of, rhs_at, observe_trace, record_trace
 

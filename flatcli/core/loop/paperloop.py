@@ -326,7 +326,8 @@ def observe_dynamic(loop: DynamicLoop, obs: Any, acc: Array, j: int, x: Array, f
 
 
 @jitable
-def record_dynamic(trace: Array, j: int, nx: int, x: Array, f: Array) -> None:
+def record_dynamic(loop: Any, trace: Array, j: int, nx: int, x: Array, f: Array
+                   ) -> None:
     """Trace row j of the dynamic plant (``simulate.DYNAMIC_TRACE_COLUMNS``): the state, the
     torques tau1, tau2 and the rate command r2."""
     for i in range(nx):

@@ -180,4 +180,4 @@ def reference_trial(scenario: Any, trials: Any, kernels: Kernels, shared: Any,
     if settings.record:
         trace = results.trace[i]
         trace[:] = math.nan
-        record_trace(states, rates, last, trace)
+        record_trace(shared, arrays, i, buffers, states, rates, last, trace)

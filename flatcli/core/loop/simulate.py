@@ -86,9 +86,13 @@ TRACE_COLUMNS: tuple[str, ...] = (
     "theta0", "theta1", "theta2", "u1", "theta0_dot", "theta1_dot", "theta2_dot",
 )  # fmt: skip
 def trace_columns(scenario: Scenario) -> tuple[str, ...]:
-    """The trace columns of a scenario's trials (``Outcome.columns``)."""
+    """The trace columns of a scenario's trials (``Outcome.columns``): the plant's, then for
+    the MPC the correction it holds, dv1..dvN (the flat law's [rad/s^2], added to y'';
+    the as-built law's [rad/s], added to the joint-rate commands)."""
     columns = chain_dynamic_trace_columns if scenario.plant == "dynamic" else chain_trace_columns
-    return columns(scenario.n_joints)
+    held = tuple(f"dv{j}" for j in range(1, scenario.n_joints + 1)) \
+        if scenario.controller == "mpc" else ()
+    return (*columns(scenario.n_joints), *held)
 
 
 def chain_trace_columns(n: int) -> tuple[str, ...]:
@@ -470,7 +474,8 @@ class Outcome:
         integrator with a twin, ``Scenario.twin``); accuracy : the largest err_estimate of a
         verified trial [rad] (``Scenario.accuracy``)
     extra : (N, E) the controller's own per-trial columns ``extra_columns`` (the MPC's
-        ``mpc.COLUMNS``; E = 0 for the flat and as-built laws)
+        ``mpc.COLUMNS``; E = 0 for the flat and as-built laws); extra_counts: those of
+        them that count something (integers)
     """
 
     metrics: Array
@@ -484,6 +489,7 @@ class Outcome:
     accuracy: float = math.inf
     extra: Array | None = None
     extra_columns: tuple[str, ...] = ()
+    extra_counts: tuple[str, ...] = ()
 
     @cached_property
     def verified(self) -> NDArray[np.bool_]:
@@ -668,7 +674,7 @@ def simulate(
     return Outcome(results.metrics, results.status, results.event, results.event_time,
                    results.trace if record else None, columns, integrator,
                    integrator == "adaptive" and settings.twin > 0, float(scenario.accuracy),
-                   results.extra, extra_columns)
+                   results.extra, extra_columns, kernels.ops.extra_counts)
 
 
 class ReferenceCheck(NamedTuple):
