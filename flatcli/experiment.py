@@ -6,7 +6,7 @@ This is wiring only: every number is computed by ``flatcli.core``.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 from typing import TYPE_CHECKING, Any, Literal
 
@@ -468,10 +468,13 @@ def task_metrics(spec: Spec, theta: Array, reference: Array | None = None,
     return out
 
 
-def run_track(spec: Spec, before_simulating: Callable[[], object] | None = None) -> TrackRun:
+def run_track(spec: Spec, before_simulating: Callable[[], object] | None = None,
+              controller: Any = None) -> TrackRun:
     """Plan, then simulate the closed loop of a spec, recording the trace (SpecError, before
     any work, if that could not end within the time budget: ``check_track``);
-    ``before_simulating`` is called once the plan and scenario are made and valid."""
+    ``before_simulating`` is called once the plan and scenario are made and valid.
+    ``controller``: a controller written in Python (``core.controllers.python``) acting at
+    its sample instants around the spec's law, integrated by DOP853."""
     check_track(spec)
     if spec.track.controller == "flat" and not task_from(spec).active and method_for(
             robot_from(spec), spec.plan.method) == "exact":  # before planning compiles
@@ -480,10 +483,14 @@ def run_track(spec: Spec, before_simulating: Callable[[], object] | None = None)
     if spec.task.rest:
         return run_rest_track(spec, plan)
     scenario = scenario_from(spec, plan)
+    integrator = checked(spec.track.integrator)
+    if controller is not None:
+        scenario = replace(scenario, python=controller)
+        integrator = "dop853"
     trials = nominal_trials(spec, plan)
     if before_simulating is not None:
         before_simulating()
-    outcome = simulate(scenario, trials, checked(spec.track.integrator), record=True)
+    outcome = simulate(scenario, trials, integrator, record=True)
     return TrackRun(spec, plan, scenario, outcome)
 
 

@@ -241,3 +241,59 @@ def test_a_bad_mpc_key_is_one_line_and_exit_status_2(tmp_path) -> None:  # type:
         assert result.exit_code == 2, result.output
         assert named in result.output and "Traceback" not in result.output
         assert not (tmp_path / "run").exists()  # no half-written output
+
+
+class PythonMpc:
+    """The MPC's sample step run by the Python interpreter (its compiled functions are plain
+    Python functions too): a controller written in Python, as a researcher would pass one."""
+
+    def __init__(self, design: mpc.Design, sample: float) -> None:
+        self.design = design
+        self.sample = sample
+        self.scratch = mpc.scratch(design)
+
+    def reset(self) -> None:
+        mpc.reset(self.scratch)
+
+    def step(self, k: int, t: float, errors: Array) -> Array:
+        self.scratch.s0[:] = errors
+        mpc.sample_step(self.design, self.scratch, k)
+        return self.scratch.held.copy()
+
+
+def test_a_controller_written_in_python_runs_in_the_same_loop(plan) -> None:  # type: ignore[no-untyped-def]
+    """flatcli.track(..., controller=obj): the MPC's step as Python around the flat law with
+    the MPC's inner gains equals the compiled MPC run by the same DOP853 loop, and the
+    compiled MPC's adaptive trial to 1e-9 rad."""
+    settings = mpc.MpcSettings(sample=0.2, horizon=4)
+    common = {"track.dt": 0.01, "track.rate_limit": 40.0, "track.mpc_sample": 0.2,
+              "track.mpc_horizon": 4}
+    compiled = flatcli.track(overrides={**common, "track.controller": "mpc",
+                                        "track.integrator": "dop853"}, quiet=True)
+    adaptive = flatcli.track(overrides={**common, "track.controller": "mpc",
+                                        "track.rtol": 1e-11, "track.atol": 1e-13}, quiet=True)
+    design = mpc.flat_design(plan.model, plan.trajectory, plan.duration, 0.01, 40.0, settings)
+    ours = flatcli.track(overrides={**common, "track.kp": [1.0, 1.0], "track.kv": [2.0, 2.0]},
+                         controller=PythonMpc(design, 0.2), quiet=True)
+    angles = [f"theta{i}" for i in range(3)]
+    theirs = compiled.frame[angles].to_numpy()
+    assert np.abs(ours.frame[angles].to_numpy() - theirs).max() < 1e-12
+    assert np.abs(ours.frame[angles].to_numpy() - adaptive.frame[angles].to_numpy()).max() < AGREE
+    np.testing.assert_array_equal(ours.frame["dv1"], compiled.frame["dv1"])
+
+
+def test_a_python_controller_that_breaks_the_interface_is_one_clear_error() -> None:
+    class NoStep:
+        sample = 0.1
+
+        def reset(self) -> None:
+            pass
+
+    class WrongSize(NoStep):
+        def step(self, k: int, t: float, errors: Array) -> Array:
+            return np.zeros(3)
+
+    with pytest.raises(FlatcliError, match=r"controller: NoStep has no method step"):
+        flatcli.track(controller=NoStep(), quiet=True)
+    with pytest.raises(FlatcliError, match=r"controller: step\(\) must return 2 finite"):
+        flatcli.track(controller=WrongSize(), quiet=True)

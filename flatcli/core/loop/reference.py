@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from flatcli.core.controllers.python import held_values
 from flatcli.core.loop.integrate import CROSS_STEP, STALL_MARGIN
 from flatcli.core.loop.kernels import Grid, Kernels, Results, Settings, TrialArrays
 from flatcli.core.loop.metrics import Event, Metric, Status
@@ -56,9 +57,12 @@ def reference_trial(scenario: Any, trials: Any, kernels: Kernels, shared: Any,
     start = np.empty(nx)
     initial_of(shared, arrays, i, grid, buffers, start)
     period = 0
+    python = scenario.python  # a controller written in Python (``controllers.python``)
     if sampled:
         control_start, sample_at, extras_at = kernels.single[4:7]
         period = control_start(shared, arrays, i, buffers)
+        if python is not None:
+            python.reset()
     out = np.empty(size)
     evaluations = [0]
 
@@ -112,6 +116,10 @@ def reference_trial(scenario: Any, trials: Any, kernels: Kernels, shared: Any,
         if period > 0 and begin % period == 0:
             sample_at(shared, arrays, i, grid, buffers, np.ascontiguousarray(x),
                       noise[begin], begin)
+            if python is not None:  # its step, on the errors the compiled loop measured
+                part = buffers.scratch.part
+                part.held[:] = held_values(python.step(begin // period, float(times[begin]),
+                                                       part.s0.copy()), part.held.shape[0])
         t0, filled = float(times[begin]), begin  # samples up to ``filled`` are in states
         while stopped == int(Event.NONE):
             with np.errstate(all="ignore"):

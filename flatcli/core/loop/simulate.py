@@ -43,6 +43,7 @@ from numpy.typing import NDArray
 from flatcli.core.controllers.control import Gains
 from flatcli.core.controllers.lqr import LqrWeights, tracked
 from flatcli.core.controllers.mpc import INNER_KP, INNER_KV, asbuilt_design, flat_design
+from flatcli.core.controllers.python import design as python_design
 from flatcli.core.controllers.settings import MpcSettings
 from flatcli.core.curves.pieces import PiecewiseCurves
 from flatcli.core.errors import FlatcliError
@@ -91,7 +92,7 @@ def trace_columns(scenario: Scenario) -> tuple[str, ...]:
     the as-built law's [rad/s], added to the joint-rate commands)."""
     columns = chain_dynamic_trace_columns if scenario.plant == "dynamic" else chain_trace_columns
     held = tuple(f"dv{j}" for j in range(1, scenario.n_joints + 1)) \
-        if scenario.controller == "mpc" else ()
+        if scenario.sampled is not None else ()
     return (*columns(scenario.n_joints), *held)
 
 
@@ -169,6 +170,9 @@ class Scenario:
         flat plan, or the as-built law on an exact plan: ``law``; ``gains`` unused)
     lqr : the as-built law's weights (``lqr.LqrWeights``)
     mpc : the MPC's settings (``mpc.MpcSettings``)
+    python : a controller written in Python acting at sample instants around the law
+        ``controller`` names ("flat" or "asbuilt"; ``controllers.python``), or None; it runs
+        with the "dop853" integrator only
     servo_bandwidth : the dynamic plant's nominal servo bandwidth [rad/s], the lag the
         as-built law is designed for there
     twin : the adaptive integrator's error estimate: each trial reaching T is integrated a
@@ -194,6 +198,7 @@ class Scenario:
     controller: Controller = "flat"
     lqr: LqrWeights = field(default_factory=LqrWeights)
     mpc: MpcSettings = field(default_factory=MpcSettings)
+    python: Any = None
     servo_bandwidth: float = DEFAULT_SERVO_BANDWIDTH
     twin: float = TWIN_FACTOR
     accuracy: float = DEFAULT_ACCURACY
@@ -249,11 +254,22 @@ class Scenario:
             raise FlatcliError(FLAT_ON_EXACT)
         if self.controller == "mpc":
             self.mpc.every(self.dt, self.plan.duration)  # FlatcliError naming the key
+        if self.python is not None and self.controller == "mpc":
+            raise FlatcliError("controller: a Python controller wraps track.controller = "
+                               "\"flat\" or \"asbuilt\", not \"mpc\"")
         n = self.plan.n_joints
         if self.gains.n_outputs != n:
             raise FlatcliError(f"track.kp, track.kv: expected {n} gains each (one per flat "
                                f"output) for a robot of {n} joints, got {self.gains.n_outputs}")
         object.__setattr__(self, "n_steps", steps)
+
+    @property
+    def sampled(self) -> str | None:
+        """The controller acting at sample instants around the law: "mpc", "python" (a
+        Python controller, ``python``) or None."""
+        if self.controller == "mpc":
+            return "mpc"
+        return "python" if self.python is not None else None
 
     @property
     def law(self) -> str:
@@ -266,8 +282,14 @@ class Scenario:
 
     @cached_property
     def mpc_design(self) -> Any:
-        """The MPC's design about the plan (``mpc.flat_design``, ``mpc.asbuilt_design``),
-        once per scenario; None for the other controllers."""
+        """The sampled controller's design: the MPC's about the plan (``mpc.flat_design``,
+        ``mpc.asbuilt_design``) or a Python controller's (``python.design``), once per
+        scenario; None for the laws without samples."""
+        if self.python is not None:
+            n = self.n_joints
+            errors = 2 * n if self.law == "flat" else (
+                2 * n + 1 if self.plant == "dynamic" else n + 1)
+            return python_design(self.python, self.dt, self.plan.duration, errors, n)
         if self.controller != "mpc":
             return None
         if self.law == "asbuilt":
@@ -551,7 +573,7 @@ def kernel_inputs(scenario: Scenario, trials: Trials) -> tuple[
     the buffers and the results."""
     plan = scenario.plan
     model = "asbuilt" if scenario.law == "asbuilt" else plan.model.kind
-    kernels = kernels_for(scenario.controller, model, scenario.plant)
+    kernels = kernels_for(scenario.sampled or scenario.law, model, scenario.plant)
     params, offset = placements(trials.links, trials.across)
     arrays = TrialArrays(params, np.ascontiguousarray(trials.momentum, dtype=float),
                          trials.servo_table(), np.ascontiguousarray(trials.initial, dtype=float),
@@ -655,6 +677,10 @@ def simulate(
                       np.empty((N, n + 1, width)) if record else np.empty((0, 0, width)),
                       np.full((N, len(extra_columns)), math.nan))
     settings = settings._replace(record=record)
+    if scenario.python is not None and integrator != "dop853":
+        raise FlatcliError("track.integrator: a controller written in Python runs with "
+                           "\"dop853\" only (its steps are Python calls between scipy's "
+                           f"segments), got {integrator!r}")
     if integrator == "dop853":
         for i in range(N):
             reference_trial(scenario, trials, kernels, shared, arrays, grid, settings, i,

@@ -11,7 +11,7 @@ this module to find one by name).
 
 from __future__ import annotations
 
-from flatcli.core.controllers import mpc
+from flatcli.core.controllers import mpc, python
 from flatcli.core.controllers.parts import SampledPart
 from flatcli.core.errors import FlatcliError
 from flatcli.core.loop.asbuiltkernels import KERNELS as ASBUILT_KERNELS
@@ -20,7 +20,7 @@ from flatcli.core.loop.kernels import KERNELS as FLAT_KERNELS
 from flatcli.core.loop.kernels import Kernels, compile_kernels
 
 #: The controllers that act at sample instants, by ``track.controller``.
-SAMPLED: dict[str, SampledPart] = {"mpc": mpc.PART}
+SAMPLED: dict[str, SampledPart] = {"mpc": mpc.PART, "python": python.PART}
 
 
 def _base() -> dict[tuple[str, str, str], Kernels]:
