@@ -50,6 +50,7 @@ from numpy.typing import NDArray
 
 from flatcli.core._jit import jitable
 from flatcli.core.controllers import qp
+from flatcli.core.controllers.control import Gains
 from flatcli.core.controllers.parts import SampledPart
 from flatcli.core.controllers.settings import MpcSettings as MpcSettings
 from flatcli.core.errors import FlatcliError
@@ -412,8 +413,32 @@ def extras(s: Scratch, row: Array) -> None:
 #: The per-trial columns the MPC reports (``extras``).
 COLUMNS = ("qp_iterations", "qp_infeasible", "qp_slack_max")
 
+def design_for(scenario: Any) -> Design:
+    """The MPC's design for a ``loop.simulate.Scenario`` (its ``mpc`` settings): about the
+    flat plan (``flat_design``), or about an exact plan with the as-built law
+    (``asbuilt_design``, the dynamic plant's servo bandwidth a state)."""
+    if scenario.law == "asbuilt":
+        servo = scenario.servo_bandwidth if scenario.plant == "dynamic" else None
+        return asbuilt_design(scenario.plan, scenario.lqr, scenario.dt, scenario.rate_limit,
+                              scenario.mpc, servo)
+    plan = scenario.plan
+    return flat_design(plan.model, plan.trajectory, plan.duration, scenario.dt,
+                       scenario.rate_limit, scenario.mpc)
+
+
+def inner_gains(scenario: Any) -> Gains:
+    """The inner flat law's gains: ``track.mpc_kp``, ``track.mpc_kv`` (``INNER_KP``,
+    ``INNER_KV`` unless set)."""
+    n = scenario.n_joints
+    settings = scenario.mpc
+    kp = settings.kp if settings.kp is not None else (INNER_KP,) * n
+    kv = settings.kv if settings.kv is not None else (INNER_KV,) * n
+    return Gains(tuple(kp), tuple(kv))
+
+
 #: The MPC's parts for the loop factory (``loop.compose``).
-PART = SampledPart("mpc", scratch, reset, period, sample_step, extras, COLUMNS, COLUMNS[:2])
+PART = SampledPart("mpc", scratch, reset, period, sample_step, extras, COLUMNS, COLUMNS[:2],
+                   design_for, inner_gains)
 
 
 def asbuilt_design(plan: Any, weights: Any, dt: float, rate_limit: float,

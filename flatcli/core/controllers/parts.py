@@ -31,6 +31,10 @@ class SampledPart:
     extras : extras(scratch, row), compiled: the trial's ``columns`` into row (E,)
     columns : the per-trial columns it reports (metrics beside the loop's)
     counts : those of ``columns`` that are counts (written as integers)
+    design : design(scenario) -> its design record (Python, once per plan; ``scenario`` a
+        ``loop.simulate.Scenario``: its plan, law, plant, dt, limits and settings)
+    gains : gains(scenario) -> the inner flat law's ``control.Gains`` (None: the
+        scenario's own, track.kp and track.kv)
     """
 
     name: str
@@ -41,3 +45,5 @@ class SampledPart:
     extras: Callable[..., None]
     columns: tuple[str, ...]
     counts: tuple[str, ...] = ()
+    design: Callable[[Any], Any] | None = None
+    gains: Callable[[Any], Any] | None = None

@@ -118,5 +118,15 @@ def held_values(value: Any, inputs: int) -> Array:
     return held
 
 
+def design_for(scenario: Any) -> Design:
+    """The design of a ``loop.simulate.Scenario``'s Python controller (``python``): the
+    errors are the flat law's (2 N) or the as-built law's (N + 1, 2 N + 1 on the dynamic
+    plant), N values held."""
+    n = scenario.n_joints
+    errors = 2 * n if scenario.law == "flat" else (
+        2 * n + 1 if scenario.plant == "dynamic" else n + 1)
+    return design(scenario.python, scenario.dt, scenario.plan.duration, errors, n)
+
+
 #: The Python controller's parts for the loop factory.
-PART = SampledPart("python", scratch, reset, period, step, extras, ())
+PART = SampledPart("python", scratch, reset, period, step, extras, (), (), design_for)

@@ -42,8 +42,6 @@ from numpy.typing import NDArray
 
 from flatcli.core.controllers.control import Gains
 from flatcli.core.controllers.lqr import LqrWeights, tracked
-from flatcli.core.controllers.mpc import INNER_KP, INNER_KV, asbuilt_design, flat_design
-from flatcli.core.controllers.python import design as python_design
 from flatcli.core.controllers.settings import MpcSettings
 from flatcli.core.curves.pieces import PiecewiseCurves
 from flatcli.core.errors import FlatcliError
@@ -60,7 +58,7 @@ from flatcli.core.loop.kernels import (
 )
 from flatcli.core.loop.metrics import N_METRICS, Metric, Status
 from flatcli.core.loop.reference import reference_trial
-from flatcli.core.loop.table import kernels_for
+from flatcli.core.loop.table import SAMPLED, kernels_for
 from flatcli.core.names import (
     CONTROLLERS,
     DEFAULT_ACCURACY,
@@ -281,35 +279,24 @@ class Scenario:
         return self.controller
 
     @cached_property
-    def mpc_design(self) -> Any:
-        """The sampled controller's design: the MPC's about the plan (``mpc.flat_design``,
-        ``mpc.asbuilt_design``) or a Python controller's (``python.design``), once per
-        scenario; None for the laws without samples."""
-        if self.python is not None:
-            n = self.n_joints
-            errors = 2 * n if self.law == "flat" else (
-                2 * n + 1 if self.plant == "dynamic" else n + 1)
-            return python_design(self.python, self.dt, self.plan.duration, errors, n)
-        if self.controller != "mpc":
+    def sampled_design(self) -> Any:
+        """The sampled controller's design (its part's ``design``: the MPC's about the plan,
+        a Python controller's sizes), once per scenario; None for the laws without
+        samples."""
+        if self.sampled is None:
             return None
-        if self.law == "asbuilt":
-            servo = self.servo_bandwidth if self.plant == "dynamic" else None
-            return asbuilt_design(self.plan, self.lqr, self.dt, self.rate_limit, self.mpc,
-                                  servo)
-        return flat_design(self.plan.model, self.plan.trajectory, self.plan.duration, self.dt,
-                           self.rate_limit, self.mpc)
+        part = SAMPLED[self.sampled]
+        return None if part.design is None else part.design(self)
 
     @property
     def inner_gains(self) -> Gains:
-        """The flat law's gains: ``gains``, or the MPC's inner law's (``mpc.INNER_KP``,
-        ``mpc.INNER_KV`` unless set)."""
-        if self.controller != "mpc":
+        """The flat law's gains: ``gains``, or the sampled controller's inner law's
+        (``SampledPart.gains``: the MPC's track.mpc_kp, track.mpc_kv)."""
+        part = SAMPLED[self.sampled] if self.sampled is not None else None
+        if part is None or part.gains is None:
             return self.gains
-        n = self.n_joints
-        settings = self.mpc
-        kp = settings.kp if settings.kp is not None else (INNER_KP,) * n
-        kv = settings.kv if settings.kv is not None else (INNER_KV,) * n
-        return Gains(tuple(kp), tuple(kv))
+        gains: Gains = part.gains(self)
+        return gains
 
     @property
     def n_joints(self) -> int:
@@ -319,7 +306,7 @@ class Scenario:
     def prepared(self) -> Scenario:
         """This scenario with its reference tables computed (before shipping it to workers)."""
         _ = self.reference, self.theta_reference, self.plan_on_own_grid, self.pieces
-        _ = self.mpc_design
+        _ = self.sampled_design
         return self
 
     @cached_property
@@ -590,8 +577,8 @@ def kernel_inputs(scenario: Scenario, trials: Trials) -> tuple[
                             scenario.servo_model == "plant", plan.robot)
     if scenario.law == "asbuilt" and scenario.plant == "dynamic":
         shared = shared._replace(lead=1.0 / scenario.servo_bandwidth, lagged=True)
-    if scenario.mpc_design is not None:
-        shared = SampledShared(shared, scenario.mpc_design)
+    if scenario.sampled is not None:
+        shared = SampledShared(shared, scenario.sampled_design)
     return kernels, shared, arrays, grid, settings
 
 
