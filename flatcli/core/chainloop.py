@@ -37,6 +37,7 @@ from flatcli.core.chainflat import (
 )
 from flatcli.core.control import law
 from flatcli.core.metrics import (
+    observe_clipped,
     observe_errors,
 )
 
@@ -167,6 +168,8 @@ def observe_chain(loop: ChainLoop, obs: Any, acc: Array, j: int, x: Array, f: Ar
     pcs, psn = plant_trig(loop, work.cs, work.sn)
     h = chain_momentum_given(loop.params, pcs, psn, f[: n + 1])
     observe_errors(acc, j, et2, ey2, abs(sigma), h, loop.h0, peak, threshold)
+    # the joints turn at their commands clipped to the limit: at it exactly where clipped
+    observe_clipped(acc, j, peak >= loop.rate_limit)
 
 
 @jitable

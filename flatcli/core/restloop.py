@@ -13,8 +13,10 @@ Where w = 0 the plant is driven open loop by the plan, so an initial error persi
 the fade-in and whatever error is left when the fade-out begins is carried to T: that is the
 tracking error the scheme costs (docs/tasks.md measures it).
 
-The plant is the kinematic one: th1' = u1, th2' = u2 and th0' from H = H0 with the plant's
-own momentum weights (``chain.momentum_weights``), integrated by scipy's DOP853.
+The plant is the kinematic one: th1' = sat(u1), th2' = sat(u2) (sat clips a joint rate to
++-rate_limit, as ``paperloop.kinematic_rhs``; u1' is 0 while u1 is at or beyond the limit and
+the command pushes it further out, so u1 does not wind up) and th0' from H = H0 with the
+plant's own momentum weights (``chain.momentum_weights``), integrated by scipy's DOP853.
 """
 
 from __future__ import annotations
@@ -55,7 +57,8 @@ def fade(t: Array | float, duration: float, fraction: float) -> Array:
 class RestTrace:
     """A rest loop's trace on the output grid: times (n,) [s], angles (n, 3) [rad], the
     rates the plant applies (n, 3) [rad/s], the controller's u1 (n,) [rad/s], the fade
-    (n,), and whether the integration reached T."""
+    (n,), whether the integration reached T, and per sample whether a rate command was at
+    or beyond the rate limit (n,) (clipped)."""
 
     t: Array
     theta: Array
@@ -63,12 +66,15 @@ class RestTrace:
     u1: Array
     weight: Array
     finished: bool
+    clipped: NDArray[np.bool_]
 
 
 def track_rest(plan: RestPlan, gains: Gains, plant: RobotParams, initial: Array,
-               times: Array, fraction: float, momentum: float = 0.0) -> RestTrace:
+               times: Array, fraction: float, momentum: float = 0.0,
+               rate_limit: float = math.inf) -> RestTrace:
     """The closed loop of a rest plan of the paper's robot from angles ``initial`` (3,)
-    [rad] at rest (u1(0) = 0), sampled at ``times`` (n,) [s].
+    [rad] at rest (u1(0) = 0), sampled at ``times`` (n,) [s], its joint rates clipped to
+    ``rate_limit`` [rad/s] (inf: none).
 
     Raises
     ------
@@ -95,14 +101,20 @@ def track_rest(plan: RestPlan, gains: Gains, plant: RobotParams, initial: Array,
         return (float(flags[4]) + w * (float(u1_dot) - float(flags[4])),
                 ff_rate + w * (float(u2) - ff_rate))
 
-    def rates(t: float, x: Array) -> tuple[Array, float]:
+    limit = float(rate_limit)
+
+    def rates(t: float, x: Array) -> tuple[Array, float, bool]:
         u1_dot, u2 = commands(t, x)
+        w1 = min(max(float(x[3]), -limit), limit)
+        w2 = min(max(u2, -limit), limit)
+        if (x[3] >= limit and u1_dot > 0.0) or (x[3] <= -limit and u1_dot < 0.0):
+            u1_dot = 0.0  # conditional integration: no wind-up while th1' is clipped
         momentum_weights(K, inertia, np.array([x[0], x[1], x[2]]), weights)
-        th0_dot = (momentum - weights[1] * x[3] - weights[2] * u2) / weights[0]
-        return np.array([th0_dot, x[3], u2]), u1_dot
+        th0_dot = (momentum - weights[1] * w1 - weights[2] * w2) / weights[0]
+        return np.array([th0_dot, w1, w2]), u1_dot, abs(w1) >= limit or abs(w2) >= limit
 
     def rhs(t: float, x: Array) -> Array:
-        r, u1_dot = rates(t, x)
+        r, u1_dot, _ = rates(t, x)
         return np.array([r[0], r[1], r[2], u1_dot])
 
     x0 = np.array([*np.asarray(initial, dtype=float)[:3], 0.0])
@@ -112,10 +124,11 @@ def track_rest(plan: RestPlan, gains: Gains, plant: RobotParams, initial: Array,
     states = np.full((n, 4), math.nan)
     states[: sol.y.shape[1]] = sol.y.T
     applied = np.full((n, 3), math.nan)
+    clipped = np.zeros(n, dtype=bool)
     for i in range(sol.y.shape[1]):
-        applied[i] = rates(float(times[i]), states[i])[0]
+        applied[i], _, clipped[i] = rates(float(times[i]), states[i])
     return RestTrace(np.asarray(times, dtype=float), states[:, :3], applied, states[:, 3],
-                     fade(times, T, fraction), bool(sol.status == 0))
+                     fade(times, T, fraction), bool(sol.status == 0), clipped)
 
 
 __all__ = ["RestTrace", "fade", "track_rest"]
