@@ -56,14 +56,17 @@ __all__ = [
     "COMPLEX_STEP",
     "ENERGY_ORDER",
     "ENERGY_PIECES",
+    "RATE_WARNING",
     "Boundary",
     "FlatTrajectory",
     "Plan",
     "PlanSamples",
     "boundary_system",
+    "fastest_joint",
     "min_acceleration_trajectory",
     "plan_chain",
     "plan_point_to_point",
+    "rate_warning_text",
 ]
 
 
@@ -243,13 +246,13 @@ class Plan:
     def sample(self, t: Array) -> PlanSamples:
         """Evaluate the plan at times t (n,) [s] within [0, duration]."""
         t = np.asarray(t, dtype=float)
-        n = self.n_joints
         flags = self.flags(t)
         theta, theta_dot, u_dot, sigma = self.model.flags_to_states(flags)
+        y, y_dot, y_ddot = self.model.flag_outputs(flags)
         return PlanSamples(
-            t=t, theta=theta, theta_dot=theta_dot, u_dot=u_dot, y=flags[..., :n],
-            y_dot=flags[..., n:2 * n], y_ddot=flags[..., 2 * n:],
-            margin=np.abs(np.asarray(sigma)), momentum=self.momentum(theta, theta_dot),
+            t=t, theta=theta, theta_dot=theta_dot, u_dot=u_dot, y=y, y_dot=y_dot,
+            y_ddot=y_ddot, margin=np.abs(np.asarray(sigma)),
+            momentum=self.momentum(theta, theta_dot),
         )
 
     def momentum(self, theta: Array, theta_dot: Array) -> Array:
@@ -312,6 +315,31 @@ class Plan:
         """Times in (0, T) where the plan meets the singular set [s]
         (``FlatModel.margin_zeros``)."""
         return self.model.margin_zeros(self.trajectory)
+
+
+#: Default ``plan.rate_warning`` [rad/s]: a plan whose joints turn faster says so.
+RATE_WARNING = 50.0
+
+
+def fastest_joint(samples: PlanSamples) -> tuple[int, float, float]:
+    """(j, peak, t): the joint j in 1..N whose rate abs(th_j') is largest on a plan's samples,
+    that peak [rad/s] (inf if a rate is not finite) and its time [s] (one plan)."""
+    rates = np.abs(np.asarray(samples.theta_dot, dtype=float)[:, 1:])
+    rates = np.where(np.isnan(rates), np.inf, rates)
+    where = int(np.argmax(rates))
+    k, j = divmod(where, rates.shape[1])
+    return j + 1, float(rates[k, j]), float(samples.t[k])
+
+
+def rate_warning_text(samples: PlanSamples, limit: float) -> str:
+    """One line when a plan's fastest joint (``fastest_joint``) exceeds ``limit`` [rad/s]
+    (``plan.rate_warning``) on its samples, naming the joint, the peak and the time; "" when
+    it does not."""
+    joint, peak, when = fastest_joint(samples)
+    if peak <= limit:
+        return ""
+    return (f"warning: the plan's th{joint}' reaches {peak:.4g} rad/s at t = {when:.4g} s, "
+            f"above plan.rate_warning = {limit:g} rad/s")
 
 
 def plan_point_to_point(

@@ -40,8 +40,12 @@ def plan_text(name: str, plan: Plan, samples: PlanSamples) -> str:
         ["t = 0", *samples.y[0], *samples.y_dot[0]],
         [f"t = {plan.duration:g} s", *samples.y[-1], *samples.y_dot[-1]],
     ]
-    outputs = [f"y{j} [rad]" for j in range(1, n + 1)]
-    rates = [f"y{j}' [rad/s]" for j in range(1, n + 1)]
+    if plan.model.kind == "exact":  # no flat outputs: its y columns are the joint paths
+        outputs = [f"y{j} = th{j} [rad]" for j in range(1, n + 1)]
+        rates = [f"y{j}' = th{j}' [rad/s]" for j in range(1, n + 1)]
+    else:
+        outputs = [f"y{j} [rad]" for j in range(1, n + 1)]
+        rates = [f"y{j}' [rad/s]" for j in range(1, n + 1)]
     model, margin = plan.model.name, f"min margin {plan.model.margin_label}"
     energy = ("input energy, integral of th1'^2 + th2'^2" if n == 2
               else f"input energy, integral of th1'^2 + ... + th{n}'^2")
