@@ -147,9 +147,9 @@ def test_a_directory_without_the_accuracy_columns_has_no_verified_trials() -> No
 
 
 def test_a_task_sweep_counts_trials_resolved_within_the_reach_tolerance() -> None:
-    """reached: resolved trials (ok, singular) whose ee_error_bound is within the tolerance,
-    over all of the cell's trials; its interval the Wilson score interval of that count
-    (closed form: scipy's binomtest(...).proportion_ci(method="wilson"))."""
+    """ee_error_bound_within: resolved trials (ok, singular) whose ee_error_bound is within
+    the tolerance, over all of the cell's trials; its interval the Wilson score interval of
+    that count (scipy's binomtest(...).proportion_ci(method="wilson"))."""
     frame = pd.DataFrame({
         "cell": [0] * 5, "status": ["ok", "ok", "singular", "diverged", "ok"],
         "ee_error_bound": [1e-4, 2e-3, 5e-4, math.nan, 1e-3],
@@ -158,14 +158,48 @@ def test_a_task_sweep_counts_trials_resolved_within_the_reach_tolerance() -> Non
                                   "plan_momentum_residual", "peak_rate", "err_estimate")},
         "singular_hits": [0, 0, 1, 0, 0]})
     row = summarize_trials(frame, {0: {}}, reach_tolerance=1e-3).iloc[0]
-    assert row["reached_fraction"] == 3 / 5  # 1e-4, 5e-4 and 1e-3 (at the tolerance)
+    assert row["ee_error_bound_within_fraction"] == 3 / 5  # 1e-4, 5e-4 and 1e-3 (at the tolerance)
     ci = binomtest(3, 5).proportion_ci(confidence_level=0.95, method="wilson")
-    assert row["reached_fraction_low"] == pytest.approx(ci.low, rel=1e-12)
-    assert row["reached_fraction_high"] == pytest.approx(ci.high, rel=1e-12)
+    assert row["ee_error_bound_within_fraction_low"] == pytest.approx(ci.low, rel=1e-12)
+    assert row["ee_error_bound_within_fraction_high"] == pytest.approx(ci.high, rel=1e-12)
     assert row["ee_error_bound_max"] == 2e-3 and row["ee_error_bound_median"] == 7.5e-4
     assert "### The task's target" in summary_markdown(
         summarize_trials(frame, {0: {}}, 1e-3), [])
     tighter = summarize_trials(frame, {0: {}}, reach_tolerance=2e-4).iloc[0]
-    assert tighter["reached_fraction"] == 1 / 5
+    assert tighter["ee_error_bound_within_fraction"] == 1 / 5
     plain = summarize_trials(frame.drop(columns="ee_error_bound"), {0: {}}).iloc[0]
-    assert "reached_fraction" not in plain and "ee_error_bound_max" not in plain
+    assert "ee_error_bound_within_fraction" not in plain and "ee_error_bound_max" not in plain
+    assert "reached_fraction" not in plain  # no outcome column: no outcomes
+
+
+def test_outcomes_come_first_counted_over_all_trials_and_lost_ones_are_infinitely_wrong(
+        ) -> None:
+    """The headline columns on a handmade frame: counts per outcome, the fraction reached of
+    ALL the cell's trials with scipy's Wilson interval (binomtest), and medians of the final
+    errors over all trials with the trials that did not reach T as inf (numpy's median of
+    the column with nan replaced by inf, written out here)."""
+    base = {m: [0.1] * 6 for m in ("err_theta_rms", "err_y_rms", "err_y_final", "min_margin",
+                                   "momentum_drift", "plan_momentum_residual", "peak_rate",
+                                   "err_estimate")}
+    frame = pd.DataFrame({
+        "cell": [0] * 5 + [1], "status": ["ok", "ok", "singular", "diverged", "error", "ok"],
+        "outcome": ["reached", "missed", "missed", "lost", "lost", "reached"],
+        "err_theta_final": [1e-4, 2.0, 5.0, math.nan, math.nan, 3e-4],
+        "singular_hits": [0, 0, 1, 0, 0, 0], **base})
+    summary = summarize_trials(frame, {0: {"g": "a"}, 1: {"g": "b"}})
+    columns = list(summary.columns)
+    assert columns[columns.index("trials") + 1:][:4] == ["reached", "collided", "missed", "lost"]
+    row = summary.iloc[0]
+    assert (row["reached"], row["collided"], row["missed"], row["lost"]) == (1, 0, 2, 2)
+    assert row["reached_fraction"] == 1 / 5 and row["lost_fraction"] == 2 / 5
+    ci = binomtest(1, 5).proportion_ci(confidence_level=0.95, method="wilson")
+    assert (row["reached_fraction_low"], row["reached_fraction_high"]) == (ci.low, ci.high)
+    assert row["err_theta_final_median_all"] == 5.0  # median(1e-4, 2, 5, inf, inf)
+    assert row["err_theta_final_median"] == 2.0  # the resolved trials' (1e-4, 2, 5)
+    assert summary.iloc[1]["err_theta_final_median_all"] == 3e-4
+    lost = summarize_trials(frame.assign(err_theta_final=[math.nan] * 3 + [1.0] * 3),
+                            {0: {}, 1: {}}).iloc[0]
+    assert lost["err_theta_final_median_all"] == math.inf  # 3 of 5 never reached T
+    text = summary_markdown(summary, ["g"])
+    assert text.index("### Outcomes") < text.index("### Trials by status")
+    assert "ALL the cell's trials" in text and "infinitely wrong" in text

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from flatcli.executors import default_workers, make_executor
+from flatcli.experiment import plan_warnings
 from flatcli.interrupts import check, deferred, interruptible
 from flatcli.montecarlo.chunks import ChunkResult, run_chunk
 from flatcli.montecarlo.directory import (
@@ -29,9 +30,10 @@ from flatcli.montecarlo.directory import (
     verified_chunks,
     write_manifest,
 )
-from flatcli.montecarlo.layout import Chunk, Layout, layout, work_pieces
+from flatcli.montecarlo.layout import Chunk, Layout, grid_label, layout, work_pieces
 from flatcli.montecarlo.tally import status_counts, watch
 from flatcli.progress import Progress
+from flatcli.report.summary import prefetch_statistics
 from flatcli.spec import Spec
 from flatcli.spec.limits import check_workers
 from flatcli.storage import Syncer, directory_lock, versions, write_table
@@ -50,6 +52,17 @@ class SweepResult:
     simulated: int  # trials simulated by this invocation (the rest were resumed)
     wall_seconds: float
     summary_text: str
+
+
+def plan_notes(lay: Layout) -> None:
+    """One line for each cell whose plan's joints turn faster than ``plan.rate_warning``
+    (``experiment.plan_warnings``), at most ``SHOWN`` and then how many more."""
+    lines = [f"{warning} (cell {cell.index}: {grid_label(cell.values)})"
+             for cell in lay.cells for warning in plan_warnings(cell.spec, cell.scenario.plan)]
+    for line in lines[:SHOWN]:
+        note(line)
+    if len(lines) > SHOWN:
+        note(f"warning: {len(lines) - SHOWN} more cells' plans exceed plan.rate_warning")
 
 
 def run_sweep(
@@ -88,6 +101,8 @@ def run_sweep(
                 remove_temporaries(directory)  # of a run killed while it wrote a final table
                 if plan.note:
                     note(plan.note)
+                if progress is not None and not progress.quiet:  # (-q: none)
+                    plan_notes(lay)
                 digest = spec.digest()
                 keep = plan.previous if plan.mode in ("resume", "extend") else None
                 tags = write_manifest(directory, lay, keep, tags)
@@ -116,8 +131,12 @@ def run_sweep(
                 watcher = watch(progress) if executor_kind == "local" else None
                 syncer = Syncer()  # chunk files flushed to disk in groups, off this thread
                 trials = TrialsAssembly(directory, lay, provenance, done)
+                prefetched = False
                 try:
                     for (chunk, piece), part in executor.run(run_chunk, tasks):
+                        if not prefetched:  # the workers are forked by now
+                            prefetch_statistics()
+                            prefetched = True
                         compute += part.seconds
                         worker_peak = max(worker_peak, part.peak_mib)
                         if progress is not None:

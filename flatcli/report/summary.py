@@ -12,17 +12,21 @@ interval (``wilson_interval``), so a reader sees how much each statistic leaves 
 
 from __future__ import annotations
 
+import contextlib
+import importlib
 import math
+import threading
 from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from flatcli.core.metrics import METRIC_NAMES, RESOLVED, STATUS_NAMES
+from flatcli.core.metrics import METRIC_NAMES, OUTCOME_NAMES, RESOLVED, STATUS_NAMES
+from flatcli.core.outcome import lost_as_infinite
 from flatcli.report.tables import fmt, table
 
-if TYPE_CHECKING:  # the statistics are numpy's: a sweep writes them without pandas or scipy
+if TYPE_CHECKING:  # the statistics are numpy's and, for the Wilson intervals, scipy's
     import pandas as pd
     import pyarrow as pa
 
@@ -36,58 +40,61 @@ ERROR_METRICS = ("err_theta_rms", "err_theta_final", "err_y_rms", "err_y_final")
 SUMMARY_INPUTS: tuple[str, ...] = (
     "cell", "status", "singular_hits", *ERROR_METRICS, "min_margin", "momentum_drift",
     "plan_momentum_residual", "peak_rate", "err_estimate", "verified", "reference_difference",
-    "reference_status", "ee_error_bound")
+    "reference_status", "ee_error_bound", "outcome", "ee_error_final", "clipped_time")
 assert set(SUMMARY_INPUTS) <= {"cell", "status", "verified", "reference_difference",
-                               "reference_status", "ee_error_bound", *METRIC_NAMES}
+                               "reference_status", "ee_error_bound", "outcome",
+                               "ee_error_final", *METRIC_NAMES}
+#: The errors whose median over all of a cell's trials is given, lost ones counted as
+#: infinitely wrong (``outcome.lost_as_infinite``): ``{name}_median_all``.
+ALL_TRIALS_MEDIANS = ("err_theta_final", "err_y_final", "ee_error_final")
 #: Statuses of trials that did not run to the end, reported as fractions of a cell's trials.
 FAILURES = ("diverged", "unresolved", "error")
 
 
-#: Phi^-1(0.975) = sqrt(2) erfinv(0.95): the z of a 95 % interval (to 16 digits; e.g.
-#: scipy.stats.norm.ppf(0.975), which tests/test_report_summary.py compares).
-Z95 = 1.959963984540054
+def prefetch_statistics() -> threading.Thread:
+    """Start importing scipy.stats (``wilson_interval``'s binomtest, about 0.6 s) in a daemon
+    thread, so that a sweep's summary finds it loaded: called by the sweep's main process
+    once its workers run (after they are forked: they never load it), where it overlaps
+    their computation instead of adding to the sweep's end."""
+    def load() -> None:
+        with contextlib.suppress(Exception):  # the summary imports it again, and says why
+            importlib.import_module("scipy.stats")
+
+    thread = threading.Thread(target=load, name="flatcli-scipy-stats", daemon=True)
+    thread.start()
+    return thread
 
 
 def wilson_interval(successes: Any, trials: Any, confidence: float = 0.95
                     ) -> tuple[Array, Array]:
-    """Wilson score interval of a binomial proportion (95 % by default), as scipy's
-    ``scipy.stats.binomtest(k, n).proportion_ci(confidence, method="wilson")``.
-
-    With p = k / n and z = Phi^-1((1 + confidence) / 2): (p + z^2 / 2n -+ z sqrt(p (1 - p) /
-    n + z^2 / 4n^2)) / (1 + z^2 / n) (Wilson 1927; Brown, Cai, DasGupta, Statist. Sci. 16,
-    2001). Unlike p -+ z sqrt(p (1 - p) / n) it stays inside [0, 1] and is
-    not empty at k = 0 or k = n, which is where a sweep's failure counts usually are.
+    """Wilson score interval of a binomial proportion (95 % by default): scipy's
+    ``scipy.stats.binomtest(k, n).proportion_ci(confidence, method="wilson")`` for each k,
+    n (Wilson 1927; Brown, Cai, DasGupta, Statist. Sci. 16, 2001). Unlike
+    p -+ z sqrt(p (1 - p) / n) it stays inside [0, 1] and is not empty at k = 0 or k = n,
+    which is where a sweep's failure counts usually are.
 
     Parameters
     ----------
     successes : k, counts (array-like of ints)
     trials : n, same shape (n = 0 gives nan bounds)
-    confidence : in (0, 1); other than 0.95 its z comes from scipy (loaded then only)
+    confidence : in (0, 1)
 
     Returns
     -------
     low, high : arrays of k's shape
     """
-    k, n = np.broadcast_arrays(np.asarray(successes, dtype=float),
-                               np.asarray(trials, dtype=float))
-    z = Z95 if confidence == 0.95 else _normal_quantile((1.0 + confidence) / 2.0)
-    with np.errstate(invalid="ignore", divide="ignore"):  # n = 0: nan, set below
-        p = k / n
-        # in the arithmetic of Newcombe (Statist. Med. 17, 1998), as scipy writes it
-        denominator = 2.0 * (n + z * z)
-        centre = (2.0 * n * p + z * z) / denominator
-        delta = z / denominator * np.sqrt(4.0 * n * p * (1.0 - p) + z * z)
-        low = np.where(k == 0, 0.0, centre - delta)
-        high = np.where(k == n, 1.0, centre + delta)
-    low = np.where(n > 0, low, np.nan)
-    high = np.where(n > 0, high, np.nan)
-    return np.asarray(low, dtype=float), np.asarray(high, dtype=float)
+    from scipy.stats import binomtest  # loaded when a summary is made (about 0.6 s once)
 
-
-def _normal_quantile(q: float) -> float:
-    from scipy.special import ndtri
-
-    return float(ndtri(q))
+    k, n = np.broadcast_arrays(np.asarray(successes), np.asarray(trials))
+    low = np.full(k.shape, np.nan)
+    high = np.full(k.shape, np.nan)
+    for index in np.ndindex(k.shape):
+        kk, nn = int(k[index]), int(n[index])
+        if nn > 0:
+            ci = binomtest(kk, nn).proportion_ci(confidence_level=confidence,
+                                                 method="wilson")
+            low[index], high[index] = float(ci.low), float(ci.high)
+    return low, high
 
 
 #: Columns of trials as ``summary_rows`` reads them: name -> a numpy array per trial (cell:
@@ -95,7 +102,7 @@ def _normal_quantile(q: float) -> float:
 #: null; the rest floats, nan for null).
 Columns = Mapping[str, NDArray[Any]]
 #: The columns ``summary_rows`` reads as text and as flags.
-_TEXT = ("status", "reference_status")
+_TEXT = ("status", "reference_status", "outcome")
 _FLAGS = ("verified",)
 
 
@@ -215,6 +222,8 @@ def summary_rows(columns: Columns, cells: Mapping[int, Mapping[str, Any]],
             return values_[~np.isnan(values_)]
 
         row: dict[str, Any] = {"cell": cell, **values, "trials": int(in_cell.sum())}
+        if "outcome" in columns:  # the headline: what the robot did (older files lack it)
+            _outcomes(row, columns, in_cell)
         for name in STATUS_NAMES:
             row[name] = int((status == name).sum())
         for metric in ERROR_METRICS:
@@ -251,10 +260,32 @@ def summary_rows(columns: Columns, cells: Mapping[int, Mapping[str, Any]],
             row["ee_error_bound_max"] = _stat(np.max, bound)
             if reach_tolerance is not None:
                 within = np.asarray(columns["ee_error_bound"], dtype=np.float64)[resolved]
-                _fraction(row, "reached", int(np.sum(within <= reach_tolerance)),
+                _fraction(row, "ee_error_bound_within", int(np.sum(within <= reach_tolerance)),
                           row["trials"])
+        if "clipped_time" in columns:
+            clipped = present("clipped_time", done)
+            row["clipped_time_median"] = _stat(np.median, clipped)
+            row["clipped_time_max"] = _stat(np.max, clipped)
         rows.append(row)
     return rows
+
+
+def _outcomes(row: dict[str, Any], columns: Columns, in_cell: NDArray[np.bool_]) -> None:
+    """The cell's outcomes (``core.outcome``) into ``row``: counts of each, the fraction
+    reached with its 95 % Wilson interval (scipy's) and the others' fractions with theirs,
+    all of the cell's trials; then the median of each of ``ALL_TRIALS_MEDIANS`` over all its
+    trials, one that did not reach T (lost) counted as infinitely wrong
+    (``outcome.lost_as_infinite``: inf where more than half did not)."""
+    outcome = np.asarray(columns["outcome"], dtype=object)[in_cell]
+    total = int(in_cell.sum())
+    for name in OUTCOME_NAMES:
+        row[name] = int(np.sum(outcome == name))
+    for name in OUTCOME_NAMES:
+        _fraction(row, name, row[name], total)
+    for metric in ALL_TRIALS_MEDIANS:
+        if metric in columns:
+            values = lost_as_infinite(np.asarray(columns[metric], dtype=np.float64)[in_cell])
+            row[f"{metric}_median_all"] = _stat(np.median, values)
 
 
 def _reference(row: dict[str, Any], columns: Columns, in_cell: NDArray[np.bool_],
@@ -376,6 +407,8 @@ def summary_markdown(summary: pd.DataFrame | Sequence[Mapping[str, Any]],
     if grid_keys:
         parts += ["### Cells\n", table(["cell", *(short_key(k) for k in grid_keys)],
                                        rows(list(grid_keys))), ""]
+    if records and "reached_fraction" in records[0]:
+        parts += [*outcome_tables(records, rows, shares), ""]
     parts += [
         "### Trials by status\n",
         table(["cell", "trials", *STATUS_NAMES, "resolved"],
@@ -423,21 +456,44 @@ def summary_markdown(summary: pd.DataFrame | Sequence[Mapping[str, Any]],
             "of the norm of the angles' difference [rad]; other status: checked trials whose\n"
             "reference ended with another status.",
         ]
-    if records and "reached_fraction" in records[0]:
+    if records and "ee_error_bound_within_fraction" in records[0]:
         parts += [
-            "\n### The task's target (resolved trials)\n",
-            table(["cell", "reached [%, 95 % interval]", "bound med", "bound p95", "bound max"],
+            "\n### The task's target: the bound (resolved trials)\n",
+            table(["cell", "within [%, 95 % interval]", "bound med", "bound p95",
+                   "bound max"],
                   [[line[0], share[1], *line[1:]] for line, share in zip(
                       marked(rows(["ee_error_bound_median", "ee_error_bound_p95",
-                                   "ee_error_bound_max"])), shares(["reached"]), strict=True)],
+                                   "ee_error_bound_max"])),
+                      shares(["ee_error_bound_within"]), strict=True)],
                   3),
             "\nbound: ee_error_bound, an upper bound on the end effector's final distance from\n"
-            "the trial's target [m] (task.end_effector, or its own draw of\n"
-            "sweep.perturb.end_effector; from err_theta_final and the plant's links). reached:\n"
-            "share of the cell's trials (those whose target could not be planned included)\n"
-            "resolved to the end with a bound within summary.reach_tolerance.",
+            "the trial's target [m] from err_theta_final and the plant's links. within: share\n"
+            "of the cell's trials resolved to the end with a bound within\n"
+            "summary.reach_tolerance (the measured distance, ee_error_final, decides reached).",
         ]
     return "\n".join(parts)
+
+
+def outcome_tables(records: Sequence[Mapping[str, Any]],
+                   rows: Callable[[Sequence[str]], list[list[object]]],
+                   shares: Callable[[Sequence[str]], list[list[object]]]) -> list[str]:
+    """summary.md's first table: what the robot did, per cell (``_outcomes``)."""
+    medians = [m for m in ALL_TRIALS_MEDIANS if f"{m}_median_all" in records[0]]
+    heads = {"err_theta_final": "th final med", "err_y_final": "y final med",
+             "ee_error_final": "ee final med"}
+    lines = [[*share, *line[1:]] for share, line in zip(
+        shares(list(OUTCOME_NAMES)), rows([f"{m}_median_all" for m in medians]), strict=True)]
+    return [
+        "### Outcomes [% of trials, 95 % interval]\n",
+        table(["cell", *OUTCOME_NAMES, *(heads[m] for m in medians)], lines, 3),
+        "\nreached: resolved to the end, every angle within track.goal_tolerance of the\n"
+        "plan's goal at T (and a task's end effector within task.goal_tolerance of its\n"
+        "target); collided: entered, or not shown clear of, a task's obstacle; missed:\n"
+        "resolved, not within tolerance; lost: diverged, unresolved or error. Shares of\n"
+        "all the cell's trials, Wilson score intervals (scipy). final med: median over\n"
+        "ALL the cell's trials of the final error (th, y [rad]; ee [m]), a trial that did\n"
+        "not reach T counted as infinitely wrong (inf: more than half did not).",
+    ]
 
 
 def cell_text(value: Any) -> object:
