@@ -55,6 +55,8 @@ from benchmarks.chains import HEADERS as CHAIN_HEADERS
 from benchmarks.chains import run_all as run_chains
 from benchmarks.integrators import HEADERS as INTEGRATOR_HEADERS
 from benchmarks.integrators import run_all as run_integrators
+from benchmarks.outcomes import HEADERS as OUTCOME_HEADERS
+from benchmarks.outcomes import run_all as run_outcomes
 from benchmarks.tasks import HEADERS as TASK_HEADERS
 from benchmarks.tasks import run_all as run_tasks
 from flatcli.core.metrics import METRIC_NAMES
@@ -77,7 +79,7 @@ SWEEPS = ("flatcli sweep through the command line: benchmarks/paper_sweep.toml, 
 SCALING = "Scaling: 2 workers, each process's own peak memory"
 #: The sections ``--sections`` may name, in the order they run.
 SECTIONS = ("planning", "closed_loop", "sweeps", "integrators", "chains", "asbuilt",
-            "optimised", "tasks")
+            "optimised", "tasks", "outcomes")
 
 
 def load() -> list[float]:
@@ -558,6 +560,7 @@ HEADERS = {
     **CHAIN_HEADERS,
     **ASBUILT_HEADERS,
     **TASK_HEADERS,
+    **OUTCOME_HEADERS,
     "Optimised plans: least energy, abs(th2) <= 3, rates <= 20, margin >= 0.05":
         ["plan", "energy [rad^2/s]", "limit violation", "max abs(H)", "time", "note"],
     LADDER: ["limit", "value", "energy [rad^2/s]", "time", "note"],
@@ -615,6 +618,7 @@ def main(argv: list[str] | None = None) -> None:
         "asbuilt": [partial(run_asbuilt, bench, sweep)],
         "optimised": [partial(optimised, bench), partial(optimised_ladder, bench)],
         "tasks": [partial(run_tasks, bench)],
+        "outcomes": [partial(run_outcomes, bench)],
     }
     for name in SECTIONS:
         if name in chosen:

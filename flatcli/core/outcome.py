@@ -48,7 +48,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from flatcli.core import intervals as iv
-from flatcli.core.clearance import joint_boxes, link_clearance_bounds, segment_distance
+from flatcli.core._jit import kernel
+from flatcli.core.clearance import joint_boxes, link_clearance_bounds
 from flatcli.core.kinematics import moments_of
 from flatcli.core.metrics import OUTCOME_NAMES, RESOLVED
 
@@ -188,33 +189,158 @@ def _first_min(values: Array) -> tuple[Array, NDArray[np.int64], NDArray[np.int6
     return least, j.astype(np.int64), link.astype(np.int64), obstacle.astype(np.int64)
 
 
+#: Intervals of a trial the interval geometry examines in each round (``_batch_clearance``).
+REFINE_ROUND = 64
+
+
+@kernel
+def sample_clearances(theta: Array, moments: Array, length: Array, shift: Array, obs: Array,
+                      out: Array) -> None:
+    """Each link's distance from each disc's surface [m] at every sample, into ``out``
+    (T, S, N + 1, K): ``joint_points`` and ``_link_clearances`` in one pass, compiled
+    (angles theta (T, S, N + 1) [rad]; moments, length (T, N + 1) [m]; shift (T,) [m]; obs
+    (K, 3) discs x, y, radius [m]; nan where the angles are)."""
+    count, samples, angles = theta.shape
+    discs = obs.shape[0]
+    for t in range(count):
+        for j in range(samples):
+            psi = 0.0
+            ox = 0.0
+            oy = 0.0
+            last_c = 1.0
+            last_s = 0.0
+            for a in range(angles):  # O_0 = -sum_a (F_a / M) e(psi_a) - shift e_perp(psi_N)
+                psi += theta[t, j, a]
+                c, s_ = math.cos(psi), math.sin(psi)
+                ox -= moments[t, a] * c
+                oy -= moments[t, a] * s_
+                last_c, last_s = c, s_
+            ox += shift[t] * last_s
+            oy -= shift[t] * last_c
+            psi = 0.0
+            for a in range(angles):  # link a: O_a O_a+1
+                psi += theta[t, j, a]
+                dx = length[t, a] * math.cos(psi)
+                dy = length[t, a] * math.sin(psi)
+                length2 = dx * dx + dy * dy
+                for k in range(discs):
+                    cx, cy = obs[k, 0], obs[k, 1]
+                    u = ((cx - ox) * dx + (cy - oy) * dy) / (length2 if length2 > 0 else 1.0)
+                    u = min(max(u, 0.0), 1.0)
+                    out[t, j, a, k] = math.hypot(cx - (ox + u * dx), cy - (oy + u * dy)) - obs[k, 2]
+                ox += dx
+                oy += dy
+
+
+@kernel
+def interval_floors(exact: Array, move: Array, pad: Array, valid: NDArray[np.bool_],
+                    out: Array) -> None:
+    """Each output interval's cheap bound into ``out`` (T, S - 1) [m]: the least over links
+    and discs of the larger of the two samples' clearances ``exact`` (T, S, L, K) less
+    ``move`` (T, S - 1), how far a joint can move within the interval's box, and ``pad``
+    (T,) for rounding (``_batch_clearance``); inf where ``valid`` (T, S - 1) is false."""
+    count, intervals = move.shape
+    links, discs = exact.shape[2], exact.shape[3]
+    for t in range(count):
+        for j in range(intervals):
+            if not valid[t, j]:
+                out[t, j] = math.inf
+                continue
+            least = math.inf
+            for a in range(links):
+                for k in range(discs):
+                    least = min(least, max(exact[t, j, a, k], exact[t, j + 1, a, k]))
+            out[t, j] = least - move[t, j] - pad[t]
+
+
+def _link_clearances(points: Array, obs: Array) -> Array:
+    """(..., N + 1, K) each link's distance from each disc's surface [m] at joints points
+    (..., N + 2, 2) (``clearance.segment_distance`` less the radii, by components: the same
+    numbers, without its (..., 2) temporaries)."""
+    ax, ay = points[..., :-1, 0, None], points[..., :-1, 1, None]
+    dx, dy = points[..., 1:, 0, None] - ax, points[..., 1:, 1, None] - ay
+    cx, cy, radius = obs[:, 0], obs[:, 1], obs[:, 2]
+    length2 = dx * dx + dy * dy
+    u = np.clip(((cx - ax) * dx + (cy - ay) * dy) / np.where(length2 > 0, length2, 1.0),
+                0.0, 1.0)
+    return np.asarray(np.hypot(cx - (ax + u * dx), cy - (ay + u * dy)) - radius, dtype=float)
+
+
 def _batch_clearance(geometry: Geometry, obs: Array, theta: Array, rates: Array,
                      dt: float) -> MotionClearance:
-    centres, radii = obs[:, :2], obs[:, 2]
-    with np.errstate(invalid="ignore"):
-        exact = segment_distance(joint_points(geometry, theta), centres) - radii  # (T,S,L,K)
+    """``motion_clearance`` of a batch. Each output interval's box of angles (module
+    docstring) first gets a cheap lower bound: clearance is 1-Lipschitz in the links' end
+    points, and within the box no joint moves farther from its place at either sample than
+    sum_a (abs(F_a / M) + l_a) P_a + abs(m_N e_N / M) P_N, P_a = sum_{b <= a} (abs(th_j+1,b -
+    th_j,b) / 2 + the box's half width in th_b) (abs(e(psi) - e(psi')) <= abs(psi - psi')), so
+    the larger of the two samples' exact clearances less that is a bound. The interval
+    geometry (``clearance.link_clearance_bounds``) then examines a trial's intervals in the
+    order of their bounds, ``REFINE_ROUND`` at a time, each keeping the larger of its two
+    bounds, until the least bound of the trial is one it examined: the least of all intervals'
+    bounds is then the interval geometry's, found without examining the intervals far from
+    every obstacle (most of them)."""
+    exact = np.empty((*theta.shape, len(obs)))  # (T, S, L, K)
+    sample_clearances(np.ascontiguousarray(theta, dtype=float), geometry.moments,
+                      geometry.length, geometry.shift, obs, exact)
     sampled, j, link, obstacle = _first_min(exact)
+    centres = obs[:, :2]
     a, b = theta[:, :-1], theta[:, 1:]
-    mean = np.abs(b - a) / dt
-    w = RATE_MARGIN * np.maximum(np.maximum(np.abs(rates[:, :-1]), np.abs(rates[:, 1:])), mean)
+    step = np.abs(b - a)
+    w = RATE_MARGIN * np.maximum(np.maximum(np.abs(rates[:, :-1]), np.abs(rates[:, 1:])),
+                                 step / dt)
     mid = 0.5 * (a + b)
     half = 0.5 * w * dt
     valid: NDArray[np.bool_] = np.asarray(np.isfinite(mid).all(axis=-1)
                                           & np.isfinite(half).all(axis=-1))  # (T, S - 1)
     mid = np.where(valid[..., None], mid, 0.0)
     half = np.where(valid[..., None], half, 0.0)
-    boxes = [iv.centred(mid[..., k], half[..., k]) for k in range(theta.shape[-1])]
-    with np.errstate(invalid="ignore", over="ignore"):
-        bounds = link_clearance_bounds(
-            joint_boxes(geometry.moments[:, None, :], geometry.length[:, None, :],
-                        geometry.shift[:, None], boxes), obs)  # (T, S - 1, L, K)
-    bounds = np.where(valid[..., None, None], bounds, np.nan)
-    bound, i, b_link, b_obstacle = _first_min(bounds)
-    has = ~np.isnan(bound)
+    reach = np.cumsum(0.5 * np.where(valid[..., None], step, 0.0) + half, axis=-1)
+    coef = np.abs(geometry.moments) + geometry.length  # (T, N + 1)
+    move = (np.einsum("ta,tsa->ts", coef, reach)
+            + np.abs(geometry.shift)[:, None] * reach[..., -1])  # (T, S - 1)
+    pad = 64.0 * np.finfo(float).eps * (1.0 + np.abs(centres).sum() + coef.sum(axis=-1))
+    count, intervals = valid.shape
+    least = np.empty((count, intervals))  # (T, S - 1): each interval's bound, cheap first
+    interval_floors(exact, move, pad, valid, least)
+    examined = np.zeros((count, intervals), dtype=bool)
+    at = np.zeros((count, intervals, 2), dtype=np.int64)  # an examined one's link, obstacle
+    discs = len(obs)
+    while intervals:
+        best = np.argmin(least, axis=1)
+        rows = np.flatnonzero(np.isfinite(least[np.arange(count), best])
+                              & ~examined[np.arange(count), best])
+        if not len(rows):
+            break
+        open_ = np.where(examined[rows], np.inf, least[rows])
+        take = min(REFINE_ROUND, intervals)
+        chosen = np.argpartition(open_, take - 1, axis=1)[:, :take]
+        trial = np.repeat(rows, take)
+        which = chosen.ravel()
+        keep = np.isfinite(open_[np.repeat(np.arange(len(rows)), take), which])
+        trial, which = trial[keep], which[keep]
+        boxes = [iv.centred(mid[trial, which, k], half[trial, which, k])
+                 for k in range(theta.shape[-1])]
+        with np.errstate(invalid="ignore", over="ignore"):
+            found = link_clearance_bounds(
+                joint_boxes(geometry.moments[trial], geometry.length[trial],
+                            geometry.shift[trial], boxes), obs)  # (P, L, K)
+        cheap = (np.maximum(exact[trial, which], exact[trial, which + 1])
+                 - (move[trial, which] + pad[trial])[:, None, None])
+        both = np.maximum(cheap, np.where(np.isnan(found), -np.inf, found)).reshape(
+            len(trial), -1)
+        where = np.argmin(both, axis=1)
+        least[trial, which] = both[np.arange(len(trial)), where]
+        at[trial, which, 0], at[trial, which, 1] = np.divmod(where, discs)
+        examined[trial, which] = True
+    i = np.argmin(least, axis=1) if intervals else np.zeros(count, dtype=np.int64)
+    bound = least[np.arange(count), i] if intervals else np.full(count, np.inf)
+    has = np.isfinite(bound)
+    b_link, b_obstacle = at[np.arange(count), i, 0], at[np.arange(count), i, 1]
     return MotionClearance(
         sampled, np.where(np.isnan(sampled), np.nan, j * dt), link, obstacle,
-        bound, np.stack([np.where(has, i * dt, np.nan), np.where(has, (i + 1) * dt, np.nan)],
-                        axis=-1), b_link, b_obstacle)
+        np.where(has, bound, np.nan),
+        np.stack([np.where(has, i * dt, np.nan), np.where(has, (i + 1) * dt, np.nan)],
+                 axis=-1), b_link, b_obstacle)
 
 
 @dataclass(frozen=True)
