@@ -265,7 +265,7 @@ def runs_table(root: Path, rows: Sequence[Row] | None = None, width: int | None 
     ``width`` characters wide where it can be. Narrowed step by step, each only if still
     too wide: shorter times and stamps by their ids (``…439c92``; the time column has the
     rest), the name column where every run's directory says it, fewer key metrics per row
-    (``(+k)`` says how many more), then the name and tags columns; a last line says what was
+    (``(+k)`` says how many more), then the name, tags and outcome columns; a last line says what was
     left out (``--json`` has every field)."""
     rows = rows_below(root) if rows is None else list(rows)
     if not rows:
@@ -275,7 +275,8 @@ def runs_table(root: Path, rows: Sequence[Row] | None = None, width: int | None 
     outcomes = any(r.info.outcome for r in rows)
     redundant = all(r.where.split("/")[0] == r.info.name for r in rows)
 
-    def build(short: bool, most: int | None, name: bool, tags: bool) -> str:
+    def build(short: bool, most: int | None, name: bool, tags: bool,
+              outcomes: bool = outcomes) -> str:
         headers = ["run", "command", *(["name"] if name else []), "time", "status",
                    *(["outcome"] if outcomes else []), *(["tags"] if tags else []),
                    "key metrics"]
@@ -298,15 +299,18 @@ def runs_table(root: Path, rows: Sequence[Row] | None = None, width: int | None 
     if width is None or _width(text) <= width:
         return text
     most = max(len(r.info.metrics) for r in rows)
-    layouts = [(most, not redundant, tagged), *((k, not redundant, tagged)
-                                                for k in range(most - 1, 0, -1)),
-               (1, False, tagged), (1, False, False)]
-    for most_, name, tags in layouts:
-        text = build(True, most_, name, tags)
+    layouts = [(most, not redundant, tagged, outcomes),
+               *((k, not redundant, tagged, outcomes) for k in range(most - 1, 0, -1)),
+               (1, False, tagged, outcomes), (1, False, False, outcomes),
+               (1, False, False, False)]
+    for most_, name, tags, shown_outcomes in layouts:
+        text = build(True, most_, name, tags, shown_outcomes)
         if _width(text) <= width:
             break
     dropped = [what for what, shown_ in (("name", name or redundant),
-                                         ("tags", tags or not tagged)) if not shown_]
+                                         ("tags", tags or not tagged),
+                                         ("outcome", shown_outcomes or not outcomes))
+               if not shown_]
     if dropped or most_ < most:
         left = [*dropped, *(["some key metrics"] if most_ < most else [])]
         note = f"(narrowed to {width} columns: {', '.join(left)} left out; --json has all)"

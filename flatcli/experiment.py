@@ -323,6 +323,9 @@ class TrackRun:
                                    ("clearance_bound", clearance.bound[0])):
                     out[key] = float(value) if np.isfinite(value) else None
         judged = self.judged(status, reason)
+        if self.spec.task.end_effector is not None:  # measured as a sweep measures it
+            distance = float(judged.target_error[0])
+            out["ee_error_final"] = distance if np.isfinite(distance) else None
         for i, value in enumerate(judged.final_error[0]):
             out[f"err_theta{i}_final"] = float(value) if np.isfinite(value) else None
         out["status"] = status

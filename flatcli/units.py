@@ -113,7 +113,7 @@ INDEXED_UNITS: dict[str, str] = {
 _INDEX = re.compile(r"(?<=[a-z_])\d+")
 
 #: Suffixes of summary.parquet's statistics of a metric (in the metric's unit).
-STATISTICS = ("_median", "_p95", "_max")
+STATISTICS = ("_median_all", "_median", "_p95", "_max")
 #: Suffixes of summary.parquet's fractions and their confidence bounds (dimensionless).
 FRACTIONS = ("_fraction", "_fraction_low", "_fraction_high")
 
