@@ -42,8 +42,8 @@ def best_time(fn: Callable[[], Any], repeats: int) -> float:
 
 def planning(bench: Any) -> dict[str, float]:
     import flatcli
-    from flatcli.core.exact import plan_exact
-    from flatcli.core.lqr import tracked
+    from flatcli.core.controllers.lqr import tracked
+    from flatcli.core.plan.exact import plan_exact
     from flatcli.experiment import plan_from, robot_from
     from flatcli.reproduce.asbuilt import AS_BUILT_COM, GOAL_SPEC, dense_momentum
     from flatcli.spec import load_spec, resolve

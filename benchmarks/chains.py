@@ -26,11 +26,11 @@ from typing import Any, Literal
 
 import numpy as np
 
-from flatcli.core.control import Gains
-from flatcli.core.metrics import Metric
-from flatcli.core.model import RobotParams
-from flatcli.core.planning import plan_chain
-from flatcli.core.simulate import Scenario, Trials, simulate
+from flatcli.core.controllers.control import Gains
+from flatcli.core.loop.metrics import Metric
+from flatcli.core.loop.simulate import Scenario, Trials, simulate
+from flatcli.core.plan.planning import plan_chain
+from flatcli.core.robots.params import RobotParams
 
 JOINTS = (2, 3, 4, 6)
 SECTION = "Robots of N links: closed loop, adaptive integrator, one core"
@@ -148,7 +148,7 @@ def run_all(bench: Any) -> None:
 PAPER_LOOP = """
 import dataclasses, json, sys, time
 from benchmarks.baselines import PAPER_MANEUVER, PAPER_TRACKING, paper_trials
-from flatcli.core.simulate import Scenario, simulate
+from flatcli.core.loop.simulate import Scenario, simulate
 n = int(sys.argv[1])
 trials = paper_trials(n, seed=1)
 sc = Scenario(PAPER_MANEUVER.cubic(), PAPER_TRACKING.gains, PAPER_TRACKING.dt).prepared()

@@ -23,9 +23,9 @@ from numpy.typing import NDArray
 from scipy.integrate import solve_ivp
 
 from benchmarks.baselines import PAPER_MANEUVER, paper_trials, timed
-from flatcli.core.control import Gains
-from flatcli.core.metrics import Metric, Status
-from flatcli.core.simulate import (
+from flatcli.core.controllers.control import Gains
+from flatcli.core.loop.metrics import Metric, Status
+from flatcli.core.loop.simulate import (
     Scenario,
     Trials,
     closed_loop_rhs,

@@ -169,7 +169,8 @@ MUTANTS = (
     _m("busy-one-past", "check off by one", "flatcli/preflight.py",
        "report.load >= report.cores", "report.load > report.cores", "tests/test_preflight.py"),
     # the singular set
-    _m("zero-margin-no-crossing", "margin exactly 0 not a crossing", "flatcli/core/integrate.py",
+    _m("zero-margin-no-crossing", "margin exactly 0 not a crossing",
+       "flatcli/core/loop/integrate.py",
        "return (a > 0.0) != (b > 0.0) or b == 0.0", "return (a > 0.0) != (b > 0.0)",
        "tests/test_integrate.py"),
     # spec rules

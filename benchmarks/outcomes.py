@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from flatcli.core.outcome import Geometry, Goal, judge
+from flatcli.core.loop.outcome import Geometry, Goal, judge
 
 SECTION = "Outcomes (issue 39): what judging the trials costs"
 HEADERS = {SECTION: ["what", "per trial", "against a trial's own", "note"]}
@@ -40,7 +40,7 @@ CAPTURE = {"plan.start": [1.8, 1.0, 0.0], "task.end_effector": [-0.25, 0.05],
 def _trial_seconds(scenario: Any, trials: Any, obstacles: Any = None, repeats: int = 3
                    ) -> float:
     """The least, over ``repeats``, of the seconds per trial of ``simulate``."""
-    from flatcli.core.simulate import simulate
+    from flatcli.core.loop.simulate import simulate
 
     simulate(scenario, trials.subset(slice(0, 2)), obstacles=obstacles)  # compiled, warm
     best = np.inf
@@ -53,7 +53,7 @@ def _trial_seconds(scenario: Any, trials: Any, obstacles: Any = None, repeats: i
 
 def _perturbed(spec: Any, plan: Any, count: int) -> Any:
     """``count`` trials of a spec's nominal trial, th(0) off by up to 2 mrad."""
-    from flatcli.core.simulate import Trials
+    from flatcli.core.loop.simulate import Trials
     from flatcli.experiment import nominal_trials
 
     one = nominal_trials(spec, plan)
@@ -80,6 +80,7 @@ def judging(bench: Any, count: int) -> dict[str, float]:
     judge(["ok"] * count, [""] * count, final, goal, geometry)
     per_judge = (time.perf_counter() - started) / count
     run = flatcli.track(overrides={"track.kp": [100, 110], "track.kv": [10, 13]}, quiet=True).run
+    assert run is not None
     trial = _trial_seconds(run.scenario, _perturbed(run.spec, run.plan, 200))
     bench.row(SECTION, f"judging a trial (core.outcome.judge, {count} trials of a task)",
               f"{per_judge * 1e6:.1f} us", f"{per_judge / trial:.3f}x",
@@ -93,6 +94,7 @@ def clearance(bench: Any, count: int) -> dict[str, float]:
     import flatcli
 
     run = flatcli.track(overrides=CAPTURE, quiet=True).run
+    assert run is not None
     trials = _perturbed(run.spec, run.plan, count)
     without = _trial_seconds(run.scenario, trials)
     with_ = _trial_seconds(run.scenario, trials, run.spec.task.obstacles)

@@ -59,11 +59,11 @@ from benchmarks.outcomes import HEADERS as OUTCOME_HEADERS
 from benchmarks.outcomes import run_all as run_outcomes
 from benchmarks.tasks import HEADERS as TASK_HEADERS
 from benchmarks.tasks import run_all as run_tasks
-from flatcli.core.metrics import METRIC_NAMES
-from flatcli.core.model import PAPER_ROBOT
+from flatcli.core.loop.metrics import METRIC_NAMES
+from flatcli.core.loop.simulate import Scenario, simulate
 from flatcli.core.optimize import PlanLimits, optimize_plan
-from flatcli.core.planning import plan_point_to_point
-from flatcli.core.simulate import Scenario, simulate
+from flatcli.core.plan.planning import plan_point_to_point
+from flatcli.core.robots.params import PAPER_ROBOT
 from flatcli.report import fmt, table
 from flatcli.storage import to_jsonable, write_json, write_text
 from flatcli.threads import limit_process

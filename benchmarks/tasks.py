@@ -8,7 +8,7 @@
   ``flatcli.plan``, most of them refused (the refusals' reasons counted); every plan flatcli
   accepts re-checked on a grid 100x finer than its own (20,001 samples) by link kinematics
   written here in the complex plane (the centre of mass solved for, nothing taken from
-  ``flatcli.core.kinematics``): violations counted, the goal is none;
+  ``flatcli.core.robots.kinematics``): violations counted, the goal is none;
 * feasible random tasks (``feasible_tasks``): a witness drawn first, the obstacle-free plan
   (``flatcli.plan``) of a random target and base attitude, rest to rest or not (half each),
   then three discs near it, each cleared by the witness's links by task.clearance + 3 mm to
@@ -97,7 +97,7 @@ def capture_timing(bench: Any) -> dict[str, Any]:
 
 def random_tasks(bench: Any, count: int, seed: int = 21) -> dict[str, Any]:
     import flatcli
-    from flatcli.core.model import FlatcliError
+    from flatcli.core.errors import FlatcliError
 
     rng = np.random.default_rng(seed)
     planned = refused = violations = 0
@@ -231,7 +231,7 @@ def feasible_tasks(bench: Any, count: int, seed: int = 2121,
     the raw numbers, and the first ``keep`` tasks that do not rest (for python-control)
     """
     import flatcli
-    from flatcli.core.model import FlatcliError
+    from flatcli.core.errors import FlatcliError
 
     rng = np.random.default_rng(seed)
     mass, length, com = PAPER

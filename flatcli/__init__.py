@@ -48,7 +48,7 @@ if TYPE_CHECKING:
         track,
         workspace,
     )
-    from flatcli.core.model import FlatcliError
+    from flatcli.core.errors import FlatcliError
     from flatcli.spec import Spec, SpecError
 
 #: Public names and the module each one lives in (loaded on first use).
@@ -68,7 +68,7 @@ _LAZY = {
     "TrackResult": "flatcli.api",
     "WorkspaceResult": "flatcli.api",
     "SweepResult": "flatcli.api",
-    "FlatcliError": "flatcli.core.model",
+    "FlatcliError": "flatcli.core.errors",
     "Spec": "flatcli.spec",
     "SpecError": "flatcli.spec",
 }

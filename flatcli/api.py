@@ -31,9 +31,9 @@ from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from flatcli.core.model import FlatcliError
-from flatcli.core.planning import Plan, PlanSamples
-from flatcli.core.workspace import BRANCHES, DEFAULT_ATTITUDES, WorkspaceMap
+from flatcli.core.errors import FlatcliError
+from flatcli.core.plan.planning import Plan, PlanSamples
+from flatcli.core.plan.workspace import BRANCHES, DEFAULT_ATTITUDES, WorkspaceMap
 from flatcli.experiment import TrackRun, plan_and_optimization, run_track
 from flatcli.files import is_regular, kind, read_text
 from flatcli.progress import announce_compile
@@ -303,7 +303,7 @@ class PlanResult(Run):
         beyond ``plan.rate_warning`` on its samples (none for a loaded plan)."""
         if self.samples is None:
             return []
-        from flatcli.core.planning import rate_warning_text
+        from flatcli.core.plan.planning import rate_warning_text
 
         text = rate_warning_text(self.samples, self.spec.plan.rate_warning)
         return [text] if text else []
@@ -479,7 +479,7 @@ class WorkspaceResult(Run):
         that reach them, the thin region hatched, the robot at its start."""
         import numpy as np
 
-        from flatcli.core.workspace import WorkspaceMap
+        from flatcli.core.plan.workspace import WorkspaceMap
         from flatcli.experiment import robot_from
         from flatcli.report.task_figures import workspace_figure
 
@@ -590,7 +590,7 @@ class SweepResult(Run):
     @property
     def metrics(self) -> dict[str, int]:
         """Trials in all, finished, and finished by status."""
-        from flatcli.core.metrics import STATUS_NAMES
+        from flatcli.core.loop.metrics import STATUS_NAMES
 
         if self.complete:
             counts = self.record.get("status_counts", {})
@@ -734,8 +734,8 @@ class PlanBatch:
         """Maneuver ``index`` (or a block of them) as a core ``Plan``."""
         import numpy as np
 
-        from flatcli.core.basis import FlatTrajectory
-        from flatcli.core.planning import Plan as CorePlan
+        from flatcli.core.curves.basis import FlatTrajectory
+        from flatcli.core.plan.planning import Plan as CorePlan
 
         plan = self.plan
         coefficients = np.ascontiguousarray(plan.trajectory.coefficients[index])
@@ -789,8 +789,8 @@ class PlanBatch:
         (``report.plan_summary``) computes them one maneuver at a time."""
         import numpy as np
 
-        from flatcli.core.basis import composite_gauss_legendre
-        from flatcli.core.planning import ENERGY_ORDER, ENERGY_PIECES
+        from flatcli.core.curves.basis import composite_gauss_legendre
+        from flatcli.core.plan.planning import ENERGY_ORDER, ENERGY_PIECES
 
         s = self.samples
         out: dict[str, Any] = {
@@ -849,7 +849,7 @@ def plan_many(spec: SpecLike = None, overrides: Overrides = None, *, start: Any 
     """
     import numpy as np
 
-    from flatcli.core.planning import plan_point_to_point
+    from flatcli.core.plan.planning import plan_point_to_point
     from flatcli.experiment import robot_from
 
     s = load_spec(spec, overrides)
@@ -1033,9 +1033,9 @@ def workspace(spec: SpecLike = None, overrides: Overrides = None, *,
     import numpy as np
     import pandas as pd
 
-    from flatcli.core.kinematics import reach
-    from flatcli.core.task import task_ends
-    from flatcli.core.workspace import workspace_areas, workspace_map
+    from flatcli.core.plan.task import task_ends
+    from flatcli.core.plan.workspace import workspace_areas, workspace_map
+    from flatcli.core.robots.kinematics import reach
     from flatcli.experiment import robot_from, task_from
     from flatcli.units import units_of
 

@@ -265,8 +265,8 @@ def runs_table(root: Path, rows: Sequence[Row] | None = None, width: int | None 
     ``width`` characters wide where it can be. Narrowed step by step, each only if still
     too wide: shorter times and stamps by their ids (``…439c92``; the time column has the
     rest), the name column where every run's directory says it, fewer key metrics per row
-    (``(+k)`` says how many more), then the name, tags and outcome columns; a last line says what was
-    left out (``--json`` has every field)."""
+    (``(+k)`` says how many more), then the name, tags and outcome columns; a last line says
+    what was left out (``--json`` has every field)."""
     rows = rows_below(root) if rows is None else list(rows)
     if not rows:
         return f"no runs in {root}"

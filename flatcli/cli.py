@@ -46,8 +46,8 @@ except (ImportError, MemoryError) as _exc:  # pragma: no cover - exercised in a 
     raise SystemExit(1) from None
 
 if TYPE_CHECKING:  # the core loads numba: imported where a command needs it
-    from flatcli.core.design import DesignVerdict
-    from flatcli.core.model import RobotParams
+    from flatcli.core.robots.design import DesignVerdict
+    from flatcli.core.robots.params import RobotParams
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -55,7 +55,7 @@ EXIT_USAGE = 2
 EXIT_RUNTIME = 1
 #: How an OS error on the standard output names its "file".
 STDOUT = "standard output"
-#: ``flatcli design``'s exit status per verdict of ``flatcli.core.design.VERDICTS`` (bad input
+#: ``flatcli design``'s exit status per verdict of ``core.robots.design.VERDICTS`` (bad input
 #: is EXIT_USAGE, 2): 0 closed-form outputs, 1 flat without them, 3 not flat.
 DESIGN_EXIT = {"closed_form": 0, "flat": 1, "not_flat": 3}
 RESUME_HINT = "finished chunks are kept in {}/trials; run the same command again to resume"
@@ -110,7 +110,7 @@ def user_errors() -> Iterator[None]:
     are silent inside (the metrics and statuses say what went wrong)."""
     import numpy as np
 
-    from flatcli.core.model import FlatcliError  # the core loads with the command's work
+    from flatcli.core.errors import FlatcliError
 
     try:
         with np.errstate(all="ignore"):
@@ -564,8 +564,8 @@ def design(spec: Path | None, robot: str | None, sets: tuple[str, ...], counterw
     centre of mass on its joint, each design's verdict and plan energy (exit status 0).
     """
     from flatcli import api
-    from flatcli.core.design import design_verdict
-    from flatcli.core.model import constraint_coefficients
+    from flatcli.core.robots.design import design_verdict
+    from flatcli.core.robots.params import constraint_coefficients
     from flatcli.experiment import checked, plant_from, robot_from
     from flatcli.report import table
 
@@ -601,7 +601,7 @@ def design(spec: Path | None, robot: str | None, sets: tuple[str, ...], counterw
 def chain_constants(name: str, robot: RobotParams) -> str:
     """The constants of an N-link robot's momentum: the barycentric matrix K [kg m^2] (H =
     sum_ab (K_ab cos(psi_a - psi_b) + I_a delta_ab) psi_a' psi_b') and I_N."""
-    from flatcli.core.flatmodel import ChainModel
+    from flatcli.core.models.flatmodel import ChainModel
     from flatcli.report import table
 
     model = ChainModel.of(robot)

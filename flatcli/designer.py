@@ -2,7 +2,7 @@
 mass on its joint, and what it makes of the design.
 
 The spec's last link (``robot.mass[N]``, ``robot.inertia[N]``, ``robot.com[N]``,
-``robot.com_across``) is read as the bare link; ``flatcli.core.counterweight`` finds the
+``robot.com_across``) is read as the bare link; ``flatcli.core.robots.counterweight`` finds the
 least-mass and the least-inertia counterweight among the allowed positions; each resulting
 robot gets its flatness verdict (``core.design.design_verdict``) and the input energy of the
 spec's maneuver planned for it (``plan.method`` as the spec says: flat where the closed form
@@ -16,9 +16,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from flatcli.core.counterweight import Counterweight, apply, design_counterweight
-from flatcli.core.design import DesignVerdict, design_verdict
-from flatcli.core.model import FlatcliError, RobotParams
+from flatcli.core.errors import FlatcliError
+from flatcli.core.robots.counterweight import Counterweight, apply, design_counterweight
+from flatcli.core.robots.design import DesignVerdict, design_verdict
+from flatcli.core.robots.params import RobotParams
 from flatcli.experiment import plan_from, robot_from
 from flatcli.report import table
 from flatcli.spec import Spec

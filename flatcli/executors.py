@@ -30,7 +30,7 @@ from typing import Any, Protocol, TypeVar
 
 import numpy as np
 
-from flatcli.core.model import FlatcliError
+from flatcli.core.errors import FlatcliError
 from flatcli.interrupts import check, interruptible
 from flatcli.machine import cores
 from flatcli.storage import forget_inherited_locks

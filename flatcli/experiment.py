@@ -13,15 +13,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from flatcli.core.basis import Basis, BSplineBasis, PolynomialBasis
-from flatcli.core.control import Gains
-from flatcli.core.exact import method_for, plan_exact
-from flatcli.core.lqr import LqrWeights
-from flatcli.core.metrics import COUNT_METRICS, METRIC_NAMES, describe_status
-from flatcli.core.model import RobotParams
-from flatcli.core.outcome import Geometry, Goal, Judged, judge
-from flatcli.core.planning import Plan, plan_point_to_point, rate_warning_text
-from flatcli.core.simulate import (
+from flatcli.core.controllers.control import Gains
+from flatcli.core.controllers.lqr import LqrWeights
+from flatcli.core.curves.basis import Basis, BSplineBasis, PolynomialBasis
+from flatcli.core.loop.metrics import COUNT_METRICS, METRIC_NAMES, describe_status
+from flatcli.core.loop.outcome import Geometry, Goal, Judged, judge
+from flatcli.core.loop.simulate import (
     TWIN_FACTOR,
     NoiseStreams,
     Outcome,
@@ -29,7 +26,10 @@ from flatcli.core.simulate import (
     Trials,
     simulate,
 )
-from flatcli.core.task import Task, TaskPlan, plan_task, task_ends
+from flatcli.core.plan.exact import method_for, plan_exact
+from flatcli.core.plan.planning import Plan, plan_point_to_point, rate_warning_text
+from flatcli.core.plan.task import Task, TaskPlan, plan_task, task_ends
+from flatcli.core.robots.params import RobotParams
 from flatcli.spec import Spec, SpecError
 from flatcli.spec.limits import check_track
 
@@ -39,7 +39,7 @@ if TYPE_CHECKING:  # the optimiser (scipy's SLSQP) loads only for a spec that op
 Array = NDArray[np.float64]
 
 #: spawn_key slot of a trial's perturbation stream (SeedSequence(seed, (trial, 0))); its
-#: sensor noise comes from slot 1 (``flatcli.core.simulate.noise_generator``).
+#: sensor noise comes from slot 1 (``flatcli.core.loop.simulate.noise_generator``).
 STREAM_PERTURB = 0
 
 
@@ -188,7 +188,7 @@ def planned(spec: Spec) -> tuple[Plan, OptimizeResult | None, TaskPlan | None]:
 def _task_certified(plan: Plan, task: Task, start: Array, goal: Array) -> TaskPlan:
     """An optimised plan of a task, its obstacles proven clear (FlatcliError if not: the
     optimiser does not know them)."""
-    from flatcli.core.clearance import Constraints, certify
+    from flatcli.core.plan.clearance import Constraints, certify
 
     cert = None
     if task.obstacles:
@@ -440,7 +440,7 @@ def judge_trials(spec: Spec, scenario: Scenario, status: list[str], reason: list
 def _positions(robot: RobotParams, theta: Array) -> dict[str, Array]:
     """ee_x, ee_y, base_x, base_y [m] at angles theta (n, N + 1) (``core.kinematics``; nan
     where the angles are)."""
-    from flatcli.core.kinematics import base_position, end_effector
+    from flatcli.core.robots.kinematics import base_position, end_effector
 
     ee = end_effector(robot, theta)
     base = base_position(robot, theta)
@@ -455,8 +455,8 @@ def task_metrics(spec: Spec, theta: Array, reference: Array | None = None,
     ``reference``; null for a plan), the base attitude's error at the end
     (``base_attitude_error_final`` [rad]) and the least distance of any link from any
     obstacle's surface (``min_clearance`` [m]); null where the task does not ask."""
-    from flatcli.core.clearance import segment_distance
-    from flatcli.core.kinematics import end_effector, joint_positions
+    from flatcli.core.plan.clearance import segment_distance
+    from flatcli.core.robots.kinematics import end_effector, joint_positions
 
     task = spec.task
     robot = plant or robot_from(spec)
@@ -503,11 +503,11 @@ def run_rest_track(spec: Spec, plan: Plan) -> TrackRun:
     """The closed loop of a rest-to-rest task (``core.restloop``: feedforward at the ends,
     feedback faded in between), recorded as a ``TrackRun`` of the reference integrator
     (DOP853): the trace on the output grid and the metrics that apply (the others null)."""
-    from flatcli.core.metrics import N_METRICS, Event, Metric, Status, clipped_time_of
-    from flatcli.core.outcome import motion_clearance
-    from flatcli.core.rest import RestPlan
-    from flatcli.core.restloop import track_rest
-    from flatcli.core.simulate import chain_trace_columns
+    from flatcli.core.loop.metrics import N_METRICS, Event, Metric, Status, clipped_time_of
+    from flatcli.core.loop.outcome import motion_clearance
+    from flatcli.core.loop.restloop import track_rest
+    from flatcli.core.loop.simulate import chain_trace_columns
+    from flatcli.core.plan.rest import RestPlan
 
     assert isinstance(plan, RestPlan)
     if spec.track.integrator != "dop853" and spec.track.integrator != "adaptive":
@@ -515,7 +515,7 @@ def run_rest_track(spec: Spec, plan: Plan) -> TrackRun:
                         "(\"adaptive\" or \"dop853\"), not fixed-step \"rk4\"")
     if spec.plant.model != "kinematic":
         raise SpecError("plant.model: a rest-to-rest task (task.rest) is tracked on the "
-                        "kinematic plant only (its loop, core/restloop.py, has no servos)")
+                        "kinematic plant only (its loop, core/loop/restloop.py, has no servos)")
     scenario = scenario_from(spec, plan)
     plant = plant_from(spec)
     times = scenario.times

@@ -19,7 +19,7 @@ import pyarrow.compute as pc
 import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 
-from flatcli.core.model import FlatcliError
+from flatcli.core.errors import FlatcliError
 from flatcli.files import kind, not_regular
 from flatcli.montecarlo.directory import MANIFEST, RERUN_DIR, record_outputs
 from flatcli.storage import atomic_path, check_output_dir, directory_lock

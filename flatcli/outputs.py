@@ -15,9 +15,9 @@ from typing import Any
 
 import pandas as pd
 
-from flatcli.core.kinematics import base_position, end_effector
-from flatcli.core.model import RobotParams
-from flatcli.core.planning import PlanSamples
+from flatcli.core.plan.planning import PlanSamples
+from flatcli.core.robots.kinematics import base_position, end_effector
+from flatcli.core.robots.params import RobotParams
 from flatcli.experiment import TrackRun
 from flatcli.report import FigureFile, Limits, plot_track
 from flatcli.storage import write_json, write_parquet

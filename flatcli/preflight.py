@@ -36,7 +36,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from flatcli.core.metrics import STATUS_NAMES
+from flatcli.core.loop.metrics import STATUS_NAMES
 from flatcli.executors import default_workers
 from flatcli.machine import physical_memory
 from flatcli.montecarlo import Chunk, Layout, grid_cell_text, grid_label, layout, run_chunk
@@ -243,7 +243,7 @@ def check_spec(spec: Spec, workers: int | None = None, executor: str = "local",
     from flatcli.progress import announce_compile
 
     if workers is not None and workers < 1:
-        from flatcli.core.model import FlatcliError
+        from flatcli.core.errors import FlatcliError
 
         raise FlatcliError(f"--workers: must be >= 1, got {workers}")
     started = time.perf_counter()

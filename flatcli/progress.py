@@ -11,7 +11,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, TextIO
 
-from flatcli.core.metrics import STATUS_NAMES
+from flatcli.core.loop.metrics import STATUS_NAMES
 
 #: What the first simulation prints when numba's cache holds no compiled kernel yet.
 COMPILING = "compiling the simulation kernel (once, ~30 s)"

@@ -35,7 +35,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 import flatcli
-from flatcli.core.model import FlatcliError
+from flatcli.core.errors import FlatcliError
 from flatcli.files import kind
 
 if TYPE_CHECKING:  # pandas loads with the first DataFrame: a sweep writes Arrow tables only

@@ -20,8 +20,8 @@ import numpy as np
 import pandas as pd
 from numpy.typing import ArrayLike, NDArray
 
-from flatcli.core.model import FlatcliError
-from flatcli.core.planning import Plan
+from flatcli.core.errors import FlatcliError
+from flatcli.core.plan.planning import Plan
 
 Array = NDArray[np.float64]
 

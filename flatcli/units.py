@@ -18,7 +18,7 @@ from __future__ import annotations
 import re
 from collections.abc import Iterable
 
-from flatcli.core.metrics import OUTCOME_NAMES, STATUS_NAMES
+from flatcli.core.loop.metrics import OUTCOME_NAMES, STATUS_NAMES
 from flatcli.spec import PERTURB_TARGETS, Spec, find_key
 
 #: A pure number: a count, a fraction, a ratio.
@@ -45,18 +45,18 @@ UNITS: dict[str, str] = {
     "margin": _RATE,
     "momentum": _MOMENTUM,  # H along a plan or a run; in trials.parquet the plant's H0
     "tau1": _TORQUE, "tau2": _TORQUE,  # the dynamic plant's joint torques
-    # positions with the system's centre of mass at the origin (flatcli.core.kinematics)
+    # positions with the system's centre of mass at the origin (flatcli.core.robots.kinematics)
     "ee_x": "m", "ee_y": "m", "base_x": "m", "base_y": "m",
     # a task's metrics (metrics.json of a track run, run.json's summary of a plan)
     "ee_error_final": "m", "ee_error_max": "m", "base_attitude_error_final": _ANGLE,
     "min_clearance": "m", "clearance_bound": "m", "certified_intervals": DIMENSIONLESS,
     "task_candidates": DIMENSIONLESS,
     "ee_error_bound": "m",  # trials.parquet of a task sweep
-    # workspace.parquet: one row per target (flatcli.core.workspace)
+    # workspace.parquet: one row per target (flatcli.core.plan.workspace)
     "target_x": "m", "target_y": "m",
     "abs_sin_th1": DIMENSIONLESS, "abs_sin_th1_up": DIMENSIONLESS,
     "abs_sin_th1_down": DIMENSIONLESS,
-    # trials.parquet: the metrics of flatcli.core.metrics (definitions in docs/outputs.md)
+    # trials.parquet: the metrics of flatcli.core.loop.metrics (definitions in docs/outputs.md)
     "err_theta_rms": _ANGLE, "err_theta_max": _ANGLE, "err_theta_final": _ANGLE,
     "err_y_rms": _ANGLE, "err_y_max": _ANGLE, "err_y_final": _ANGLE,
     "singular_hits": DIMENSIONLESS,

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from flatcli.core.model import RobotParams
+from flatcli.core.robots.params import RobotParams
 
 Array = NDArray[np.float64]
 

@@ -2,7 +2,7 @@
 
 Sources of the values below:
 
-* robot: Franch, Agrawal, Oh, Fattah (IROS 2003), Sec. VI; ``flatcli.core.model.PAPER_ROBOT``
+* robot: Franch, Agrawal, Oh, Fattah (IROS 2003), Sec. VI; ``core.robots.params.PAPER_ROBOT``
   (m_i = 1 kg, l_i = 0.2 m, I_i = 0.0533 kg m^2, d0 = d1 = 0.1 m, d2 = 0).
 * maneuver: paper, Sec. VI: th(0) = (1.8, 1, 0), th(2) = (1.2, 2, 0), th1'(0) = 0.1,
   th1'(2) = 0.5, T = 2 s, cubic flat outputs.
@@ -21,10 +21,10 @@ import numpy as np
 import pytest
 from numpy.typing import ArrayLike, NDArray
 
-from flatcli.core.control import Gains
-from flatcli.core.model import PAPER_ROBOT, Model, RobotParams
-from flatcli.core.planning import Basis, Plan, plan_point_to_point
-from flatcli.core.simulate import Scenario, Trials
+from flatcli.core.controllers.control import Gains
+from flatcli.core.loop.simulate import Scenario, Trials
+from flatcli.core.plan.planning import Basis, Plan, plan_point_to_point
+from flatcli.core.robots.params import PAPER_ROBOT, Model, RobotParams
 
 Array = NDArray[np.float64]
 

@@ -23,10 +23,10 @@ from numpy.typing import NDArray
 from scipy.integrate import simpson
 from test_chainplan import example_chain
 
-from flatcli.core.chain import chain_momentum
-from flatcli.core.model import PAPER_ROBOT, RobotParams, momentum
 from flatcli.core.optimize import TUNING, OptimizeResult, PlanLimits, optimize_plan
-from flatcli.core.planning import Plan, PlanSamples
+from flatcli.core.plan.planning import Plan, PlanSamples
+from flatcli.core.robots.chain import chain_momentum
+from flatcli.core.robots.params import PAPER_ROBOT, RobotParams, momentum
 
 Array = NDArray[np.float64]
 

@@ -34,9 +34,9 @@ import sympy as sp
 from numpy.typing import ArrayLike, NDArray
 from scipy.integrate import solve_ivp
 
-from flatcli.core.dynamics import Chain, mass_matrix
-from flatcli.core.model import RobotParams
-from flatcli.core.planning import Plan
+from flatcli.core.plan.planning import Plan
+from flatcli.core.robots.dynamics import Chain, mass_matrix
+from flatcli.core.robots.params import RobotParams
 
 Array = NDArray[np.float64]
 

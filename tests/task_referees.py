@@ -1,4 +1,4 @@
-"""Referees of the task tests, written apart from flatcli.core.kinematics: the links placed
+"""Referees of the task tests, written apart from flatcli.core.robots.kinematics: the links placed
 in the complex plane from their definitions alone.
 
 Body i's centre of mass is z_i = O_0 + sum_{a<i} l_a e^{i psi_a} + d_i e^{i psi_i} (the last
@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from flatcli.core.model import RobotParams
+from flatcli.core.robots.params import RobotParams
 
 Array = NDArray[np.float64]
 Complex = NDArray[np.complex128]

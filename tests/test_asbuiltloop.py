@@ -1,4 +1,4 @@
-"""Tests of the as-built controller in closed loop (flatcli.core.asbuiltloop, asbuiltkernels)
+"""Tests of the as-built controller in closed loop (flatcli.core.loop.asbuiltloop, asbuiltkernels)
 and of every plant's centre of mass across its last link.
 
 Referees: scipy's DOP853 (rtol 1e-10) of a closed loop written here, its plant's th0' from the
@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from flatcli.core.control import Gains
-from flatcli.core.exact import plan_exact
-from flatcli.core.metrics import Metric, Status
-from flatcli.core.model import PAPER_ROBOT, RobotParams
-from flatcli.core.planning import plan_chain, plan_point_to_point
-from flatcli.core.simulate import Scenario, Trials, simulate
+from flatcli.core.controllers.control import Gains
+from flatcli.core.loop.metrics import Metric, Status
+from flatcli.core.loop.simulate import Scenario, Trials, simulate
+from flatcli.core.plan.exact import plan_exact
+from flatcli.core.plan.planning import plan_chain, plan_point_to_point
+from flatcli.core.robots.params import PAPER_ROBOT, RobotParams
 from tests.asbuilt_support import AS_BUILT, FIG4, GOAL, START, base_rate, momentum
 
 GAINS = Gains((100.0, 110.0), (10.0, 13.0))  # the flat law's (swapped: README)

@@ -12,11 +12,11 @@ from benchmarks import baselines as b
 from benchmarks.baselines import pcflatsys, shooting
 from benchmarks.baselines.links import PAPER, disc_gaps, link_clearance, link_joints
 from benchmarks.tasks import near_discs
-from flatcli.core.control import Gains
-from flatcli.core.metrics import METRIC_NAMES
-from flatcli.core.model import Links, constraint_coefficients
-from flatcli.core.planning import Plan
-from flatcli.core.simulate import Scenario, simulate
+from flatcli.core.controllers.control import Gains
+from flatcli.core.loop.metrics import METRIC_NAMES
+from flatcli.core.loop.simulate import Scenario, simulate
+from flatcli.core.plan.planning import Plan
+from flatcli.core.robots.params import Links, constraint_coefficients
 
 #: python-control's quintic with flatcli's end accelerations is flatcli's cubic: the two
 #: differ by the rounding of two least-squares solves and the flat maps.

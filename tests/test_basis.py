@@ -1,4 +1,4 @@
-"""Tests of flatcli.core.basis: the bases, their piecewise form, and the quadrature rules.
+"""Tests of flatcli.core.curves.basis: the bases, their piecewise form, and the quadrature rules.
 
 References are independent of the code under test: numpy's ``Polynomial`` for monomials,
 scipy's ``BSpline`` for B-splines, and closed-form integrals of polynomials.
@@ -14,14 +14,14 @@ from numpy.polynomial import Polynomial
 from numpy.typing import NDArray
 from scipy.interpolate import BSpline
 
-from flatcli.core.basis import (
+from flatcli.core.curves.basis import (
     Basis,
     BSplineBasis,
     PolynomialBasis,
     composite_gauss_legendre,
     quadrature,
 )
-from flatcli.core.model import FlatcliError
+from flatcli.core.errors import FlatcliError
 
 Array = NDArray[np.float64]
 

@@ -1,4 +1,4 @@
-"""Tests of flatcli.core.chain: the N-link chain's momentum, against a sympy derivation.
+"""Tests of flatcli.core.robots.chain: the N-link chain's momentum, against a sympy derivation.
 
 The referee derives H for N = 2..6 from the link kinematics with sympy: each link's centre
 of mass placed along the chain from the base's joint O0, velocities by the chain rule through
@@ -15,7 +15,7 @@ import pytest
 import sympy as sp
 from numpy.typing import NDArray
 
-from flatcli.core.chain import (
+from flatcli.core.robots.chain import (
     barycentric_matrices,
     barycentric_matrix,
     base_inertia_slopes,
@@ -23,7 +23,7 @@ from flatcli.core.chain import (
     momentum_weights,
     weight_slopes,
 )
-from flatcli.core.model import PAPER_ROBOT, momentum
+from flatcli.core.robots.params import PAPER_ROBOT, momentum
 
 Array = NDArray[np.float64]
 

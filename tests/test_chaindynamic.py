@@ -1,4 +1,4 @@
-"""Tests of flatcli.core.chaindynamic: the dynamic plant of an N-link chain in closed loop.
+"""Tests of flatcli.core.loop.chaindynamic: the dynamic plant of an N-link chain in closed loop.
 
 References, none of them the code under test:
 
@@ -24,8 +24,8 @@ from numpy.typing import NDArray
 from scipy.integrate import solve_ivp
 from test_chainloop import example
 
-from flatcli.core.chain import chain_momentum
-from flatcli.core.chaindynamic import (
+from flatcli.core.controllers.control import Gains
+from flatcli.core.loop.chaindynamic import (
     chain_dynamic_aux,
     chain_dynamic_loop,
     chain_dynamic_rhs,
@@ -33,21 +33,9 @@ from flatcli.core.chaindynamic import (
     chain_dynamic_state,
     make_scratch,
 )
-from flatcli.core.chainflat import inputs, outputs, scratch
-from flatcli.core.chainloop import chain_matrix
-from flatcli.core.control import Gains
-from flatcli.core.dynamics import (
-    Chain,
-    bias_forces,
-    forward_dynamics,
-    kinetic_energy,
-    make_chain,
-    mass_matrix,
-)
-from flatcli.core.metrics import Metric, Status
-from flatcli.core.model import PAPER_ROBOT, RobotParams
-from flatcli.core.planning import Plan, plan_chain, plan_point_to_point
-from flatcli.core.simulate import (
+from flatcli.core.loop.chainloop import chain_matrix
+from flatcli.core.loop.metrics import Metric, Status
+from flatcli.core.loop.simulate import (
     DYNAMIC_TRACE_COLUMNS,
     NoiseStreams,
     Outcome,
@@ -57,6 +45,18 @@ from flatcli.core.simulate import (
     noise_generator,
     simulate,
 )
+from flatcli.core.models.chainflat import inputs, outputs, scratch
+from flatcli.core.plan.planning import Plan, plan_chain, plan_point_to_point
+from flatcli.core.robots.chain import chain_momentum
+from flatcli.core.robots.dynamics import (
+    Chain,
+    bias_forces,
+    forward_dynamics,
+    kinetic_energy,
+    make_chain,
+    mass_matrix,
+)
+from flatcli.core.robots.params import PAPER_ROBOT, RobotParams
 
 Array = NDArray[np.float64]
 

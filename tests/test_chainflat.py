@@ -1,4 +1,4 @@
-"""Tests of flatcli.core.chainflat: the N-link flat maps.
+"""Tests of flatcli.core.models.chainflat: the N-link flat maps.
 
 References: for N = 2, the paper's closed-form maps (``flatness``, themselves checked against
 a sympy derivation in tests/test_model.py and tests/test_flatness.py); for any N, the
@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from flatcli.core import chainflat
-from flatcli.core.chain import barycentric_matrix, chain_momentum
-from flatcli.core.flatness import flat_inputs, flat_outputs, flat_state
-from flatcli.core.model import PAPER_ROBOT
+from flatcli.core.models import chainflat
+from flatcli.core.models.flatness import flat_inputs, flat_outputs, flat_state
+from flatcli.core.robots.chain import barycentric_matrix, chain_momentum
+from flatcli.core.robots.params import PAPER_ROBOT
 
 Array = NDArray[np.float64]
 

@@ -1,4 +1,4 @@
-"""Tests of flatcli.core.chainloop: the closed loop of an N-link chain.
+"""Tests of flatcli.core.loop.chainloop: the closed loop of an N-link chain.
 
 References: for N = 2 the paper's closed-loop kernel (``simulate`` with ``plant``, itself
 checked against scipy's DOP853 and the closed-form error dynamics); for N >= 3, scipy's
@@ -14,14 +14,14 @@ import pytest
 from numpy.typing import NDArray
 from scipy.integrate import solve_ivp
 
-from flatcli.core.chainflat import scratch
-from flatcli.core.chainloop import ChainLoop, chain_matrix, chain_rhs
-from flatcli.core.control import Gains
-from flatcli.core.integrate import plan_flag
-from flatcli.core.metrics import Metric, Status
-from flatcli.core.model import PAPER_ROBOT, RobotParams
-from flatcli.core.planning import plan_chain, plan_point_to_point
-from flatcli.core.simulate import NoiseStreams, Scenario, Trials, simulate
+from flatcli.core.controllers.control import Gains
+from flatcli.core.loop.chainloop import ChainLoop, chain_matrix, chain_rhs
+from flatcli.core.loop.integrate import plan_flag
+from flatcli.core.loop.metrics import Metric, Status
+from flatcli.core.loop.simulate import NoiseStreams, Scenario, Trials, simulate
+from flatcli.core.models.chainflat import scratch
+from flatcli.core.plan.planning import plan_chain, plan_point_to_point
+from flatcli.core.robots.params import PAPER_ROBOT, RobotParams
 
 Array = NDArray[np.float64]
 
@@ -112,7 +112,7 @@ def test_an_exact_model_gives_the_linear_error_dynamics() -> None:
     out = simulate(sc, Trials(robot.as_array()[None], np.zeros(1), x0[None]), "adaptive",
                    record=True)
     assert out.trace is not None
-    from flatcli.core.chainflat import outputs
+    from flatcli.core.models.chainflat import outputs
 
     t = sc.times
     y = np.empty((t.size, n))

@@ -1,4 +1,4 @@
-"""Tests of flatcli.core.chainplan: N-link plans.
+"""Tests of flatcli.core.plan.planning: N-link plans.
 
 References: for N = 2 the paper's closed-form planner (``planning``, checked against a
 sympy derivation and the paper's numbers in tests/test_planning.py); for every N, the angular
@@ -13,8 +13,9 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from flatcli.core.model import PAPER_ROBOT, FlatcliError, RobotParams
-from flatcli.core.planning import Plan, plan_chain, plan_point_to_point
+from flatcli.core.errors import FlatcliError
+from flatcli.core.plan.planning import Plan, plan_chain, plan_point_to_point
+from flatcli.core.robots.params import PAPER_ROBOT, RobotParams
 
 Array = NDArray[np.float64]
 
@@ -86,7 +87,7 @@ def test_a_plan_through_the_singular_set_is_refused() -> None:
     with pytest.raises(FlatcliError, match=r"plan: the margin .* is zero at t = ") as info:
         example_plan(3, goal_rate=-0.5)
     # the same curve, built without the check, samples a sign change at the named time
-    from flatcli.core.planning import min_acceleration_trajectory
+    from flatcli.core.plan.planning import min_acceleration_trajectory
 
     plan = example_plan(3)
     curve = min_acceleration_trajectory(

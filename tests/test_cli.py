@@ -203,7 +203,7 @@ def test_design_gives_a_verdict_and_its_exit_status(sets: list[str], verdict: st
 
 def test_design_exit_codes_cover_every_verdict() -> None:
     from flatcli.cli import DESIGN_EXIT
-    from flatcli.core.design import VERDICTS
+    from flatcli.core.robots.design import VERDICTS
 
     assert set(DESIGN_EXIT) == set(VERDICTS)
     assert sorted(DESIGN_EXIT.values()) == [0, 1, 3]  # 2 is bad input

@@ -1,4 +1,5 @@
-"""Tests of flatcli.core.control: the linearising feedback (Franch et al. 2003, eqs. 39-42).
+"""Tests of flatcli.core.controllers.control: the linearising feedback (Franch et al.
+2003, eqs. 39-42).
 
 With an exact model (plant = nominal, no noise, no rate limit) the closed loop must make
 the flat-output errors e = y - y_ref obey e'' + kv e' + kp e = 0 exactly; the simulated
@@ -15,11 +16,11 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from numpy.typing import NDArray
 
-from flatcli.core.control import Gains, PaperGains, feedback
-from flatcli.core.flatness import flat_inputs, flat_outputs
-from flatcli.core.model import MODELS, PAPER_ROBOT, Model, constraint_coefficients
-from flatcli.core.planning import Plan
-from flatcli.core.simulate import Integrator, Scenario, Trials, simulate
+from flatcli.core.controllers.control import Gains, PaperGains, feedback
+from flatcli.core.loop.simulate import Integrator, Scenario, Trials, simulate
+from flatcli.core.models.flatness import flat_inputs, flat_outputs
+from flatcli.core.plan.planning import Plan
+from flatcli.core.robots.params import MODELS, PAPER_ROBOT, Model, constraint_coefficients
 
 Array = NDArray[np.float64]
 

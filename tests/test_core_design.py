@@ -1,4 +1,4 @@
-"""Tests of flatcli.core.design: is a design flat, with closed-form outputs, or not at all.
+"""Tests of flatcli.core.robots.design: is a design flat, with closed-form outputs, or not at all.
 
 The referee is a sympy derivation from the link positions (as in ``tests/test_chain.py``):
 each link's centre of mass placed along the chain from O0, h_j = dH/dth_j' by the chain rule,
@@ -19,8 +19,8 @@ import pytest
 import sympy as sp
 from numpy.typing import NDArray
 
-from flatcli.core.chain import chain_momentum
-from flatcli.core.design import (
+from flatcli.core.robots.chain import chain_momentum
+from flatcli.core.robots.design import (
     INTEGRABILITY_RTOL,
     VERDICTS,
     constraint_form,
@@ -30,7 +30,7 @@ from flatcli.core.design import (
     wedge,
     wedge_components,
 )
-from flatcli.core.model import PAPER_ROBOT, RobotParams, flatness_check
+from flatcli.core.robots.params import PAPER_ROBOT, RobotParams, flatness_check
 
 Array = NDArray[np.float64]
 Numbers = Sequence[str | float]

@@ -1,4 +1,4 @@
-"""Tests of the counterweight designer (flatcli.core.counterweight, flatcli.designer and
+"""Tests of the counterweight designer (flatcli.core.robots.counterweight, flatcli.designer and
 ``flatcli design --counterweight``).
 
 Referees: the centre of mass and the inertia about the joint from their definitions
@@ -15,9 +15,10 @@ from click.testing import CliRunner
 
 import flatcli
 from flatcli.cli import main
-from flatcli.core.counterweight import apply, design_counterweight
-from flatcli.core.design import design_verdict
-from flatcli.core.model import FlatcliError, RobotParams
+from flatcli.core.errors import FlatcliError
+from flatcli.core.robots.counterweight import apply, design_counterweight
+from flatcli.core.robots.design import design_verdict
+from flatcli.core.robots.params import RobotParams
 
 #: Balancing to rounding.
 ROUNDING = 1e-12

@@ -1,11 +1,11 @@
-"""Tests of flatcli.core.dynamics: the free-floating chain's M(q) and C(q, q') q'.
+"""Tests of flatcli.core.robots.dynamics: the free-floating chain's M(q) and C(q, q') q'.
 
 References, none of them the code under test:
 
 * a sympy Lagrangian derived in this module from the link positions (each centre of mass
   placed along the chain joint by joint, taken relative to the system centre of mass,
   differentiated symbolically): M = d^2 T / dq' dq', C q' = d/dq (dT/dq') q' - dT/dq;
-* ``flatcli.core.model.momentum``, H from the full link kinematics (itself checked against an
+* ``core.robots.params.momentum``, H from the full link kinematics (itself checked against an
   inertial-frame sympy derivation in tests/test_model.py);
 * the kinetic energy summed over the links' centre-of-mass velocities and spins
   (``link_kinetic_energy`` below), and numpy's linear algebra.
@@ -21,7 +21,8 @@ import pytest
 import sympy as sp
 from numpy.typing import NDArray
 
-from flatcli.core.dynamics import (
+from flatcli.core.errors import FlatcliError
+from flatcli.core.robots.dynamics import (
     Chain,
     bias_forces,
     forward_dynamics,
@@ -35,7 +36,7 @@ from flatcli.core.dynamics import (
     three_body_joint_space,
     three_body_terms,
 )
-from flatcli.core.model import PAPER_ROBOT, FlatcliError, Links, RobotParams, momentum
+from flatcli.core.robots.params import PAPER_ROBOT, Links, RobotParams, momentum
 from tests.referees import base_row_momentum
 
 Array = NDArray[np.float64]

@@ -1,4 +1,4 @@
-"""Tests of flatcli.core.exact: exact plans of any controllable design.
+"""Tests of flatcli.core.plan.exact: exact plans of any controllable design.
 
 Referees: the angular momentum from the link geometry written in ``tests/asbuilt_support.py``
 (complex planar vectors; no barycentric matrix, no h_j of flatcli), scipy's DOP853 at rtol
@@ -13,11 +13,12 @@ import pytest
 from scipy.integrate import solve_ivp
 from scipy.optimize import minimize
 
-from flatcli.core import exact
-from flatcli.core.basis import PolynomialBasis
-from flatcli.core.chain import chain_momentum
-from flatcli.core.exact import METHODS, method_for, plan_exact, problem
-from flatcli.core.model import PAPER_ROBOT, FlatcliError, RobotParams
+from flatcli.core.curves.basis import PolynomialBasis
+from flatcli.core.errors import FlatcliError
+from flatcli.core.plan import exact
+from flatcli.core.plan.exact import METHODS, method_for, plan_exact, problem
+from flatcli.core.robots.chain import chain_momentum
+from flatcli.core.robots.params import PAPER_ROBOT, RobotParams
 from tests.asbuilt_support import AS_BUILT, GOAL, START, base_rate, momentum, weights
 
 #: |H| along an exact plan from the geometry referee, th0' from the plan's own curve: the

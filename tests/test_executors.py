@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from flatcli.core.model import FlatcliError
+from flatcli.core.errors import FlatcliError
 from flatcli.executors import LocalExecutor, make_executor
 
 

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from flatcli.core.chain import chain_momentum
-from flatcli.core.planning import Plan
+from flatcli.core.plan.planning import Plan
+from flatcli.core.robots.chain import chain_momentum
 from flatcli.experiment import plan_and_optimization
 from flatcli.reproduce.chains import CHAIN_SPECS
 from flatcli.spec import load_spec

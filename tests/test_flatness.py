@@ -1,4 +1,4 @@
-"""Tests of flatcli.core.flatness: the flat maps, their inverses, and the singular set.
+"""Tests of flatcli.core.models.flatness: the flat maps, their inverses, and the singular set.
 
 Away from the singular set (margin |sin y1 * y1'| above ``MARGIN``) every map must be
 inverted by its partner; the accelerations are also checked against an independent
@@ -12,7 +12,7 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from flatcli.core.flatness import (
+from flatcli.core.models.flatness import (
     flag_state,
     flat_accelerations,
     flat_inputs,
@@ -21,7 +21,7 @@ from flatcli.core.flatness import (
     signed_margin,
     singularity_margin,
 )
-from flatcli.core.model import (
+from flatcli.core.robots.params import (
     MODELS,
     PAPER_ROBOT,
     Coefficients,

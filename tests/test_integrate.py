@@ -1,11 +1,11 @@
-"""The integrators' singular-set test (flatcli/core/integrate.py): a margin that reaches zero
+"""The integrators' singular-set test (flatcli/core/loop/integrate.py): a margin that reaches zero
 within a step is a crossing, exactly as one that changes sign."""
 
 from __future__ import annotations
 
 import pytest
 
-from flatcli.core.integrate import _C2, _C3, _C4, _C5, _first_flip, _flipped
+from flatcli.core.loop.integrate import _C2, _C3, _C4, _C5, _first_flip, _flipped
 
 
 @pytest.mark.parametrize(("a", "b", "crossed"), [

@@ -25,8 +25,14 @@ def test_the_source_hash_changes_with_any_file_of_the_core(
     monkeypatch.setattr(_jit, "_CORE_DIR", copy)
     before = _jit.core_source_hash()
     assert before == _jit.core_source_hash()
-    metrics = copy / "metrics.py"  # a module the kernel inlines, not the kernel's own file
-    metrics.write_text(metrics.read_text() + "\n# an edit\n")
+    # modules the kernels inline, in the core's folders, not the kernels' own file
+    for module in ("loop/metrics.py", "models/chainflat.py", "robots/chain.py"):
+        edited = copy / module
+        edited.write_text(edited.read_text() + "\n# an edit\n")
+        after = _jit.core_source_hash()
+        assert after != before, module
+        before = after
+    (copy / "plants" / "kinematic.py").write_text("# a new module in a folder\n")
     assert _jit.core_source_hash() != before
 
 
@@ -58,7 +64,7 @@ def test_an_unwritable_cache_falls_back_to_a_temporary_directory(
 
 
 def test_numba_uses_the_hash_keyed_directory_in_a_fresh_process(tmp_path: Path) -> None:
-    code = ("import numba, flatcli.core.simulate as s, flatcli.core._jit as j; "
+    code = ("import numba, flatcli.core.loop.simulate as s, flatcli.core._jit as j; "
             "print(numba.config.CACHE_DIR, j.CACHING, j.core_source_hash())")
     env = {"PATH": "/usr/bin:/bin", "HOME": str(tmp_path), "NUMBA_CACHE_DIR": str(tmp_path / "n")}
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
@@ -295,7 +301,7 @@ _COLD_PROBE = """
 import json, sys
 import numpy as np
 import flatcli.core._jit as jit
-from flatcli.core.chain import barycentric_matrices, barycentric_matrix
+from flatcli.core.robots.chain import barycentric_matrices, barycentric_matrix
 rng = np.random.default_rng(5)
 params = rng.uniform(0.05, 2.0, (20, 16))  # 20 chains of N = 3: mass, inertia, length, com
 pending = sorted(f.__name__ for f in jit._PENDING)
@@ -345,7 +351,7 @@ def test_a_kernel_needs_the_runtime_when_its_machine_code_names_it() -> None:
     out otherwise counts as needing it."""
     import numpy as np
 
-    from flatcli.core.chain import barycentric_matrices
+    from flatcli.core.robots.chain import barycentric_matrices
     from flatcli.montecarlo.streams import _variates, uniform_variates
 
     barycentric_matrices(np.ones((1, 12)))

@@ -1,4 +1,4 @@
-"""The kernel factory (flatcli/core/kernels.py): every (model, plant) combination's compiled
+"""The kernel factory (flatcli/core/loop/kernels.py): every (model, plant) combination's compiled
 closures carry names of their own, the same in every process.
 
 numba links a name that two loaded kernels share to one definition (its own rule: "the
@@ -26,8 +26,8 @@ import json
 import subprocess
 import sys
 
-from flatcli.core import asbuiltkernels, kernels
-from flatcli.core.integrate import make_trial_integrators
+from flatcli.core.loop import asbuiltkernels, kernels
+from flatcli.core.loop.integrate import make_trial_integrators
 
 COMBINATIONS = {
     "paper kinematic": kernels.PAPER_KINEMATIC, "paper dynamic": kernels.PAPER_DYNAMIC,

@@ -1,4 +1,5 @@
-"""Tests of flatcli.core.lqr: the as-built law's linearisation, Riccati gains and channels.
+"""Tests of flatcli.core.controllers.lqr: the as-built law's linearisation, Riccati gains
+and channels.
 
 Referees: central differences of th0' = -(h . w) / h_0 with h from the link geometry
 (``tests/asbuilt_support.py``); the LQR's cost-to-go theorem (a closed loop with the optimal
@@ -12,8 +13,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from flatcli.core.exact import constraint_of, plan_exact
-from flatcli.core.lqr import (
+from flatcli.core.controllers.lqr import (
     LqrWeights,
     TrackedLayout,
     linearisation,
@@ -22,8 +22,10 @@ from flatcli.core.lqr import (
     riccati_gains,
     tracked,
 )
-from flatcli.core.model import PAPER_ROBOT, FlatcliError, RobotParams
-from flatcli.core.planning import plan_point_to_point
+from flatcli.core.errors import FlatcliError
+from flatcli.core.plan.exact import constraint_of, plan_exact
+from flatcli.core.plan.planning import plan_point_to_point
+from flatcli.core.robots.params import PAPER_ROBOT, RobotParams
 from tests.asbuilt_support import AS_BUILT, GOAL, START, base_rate
 
 #: Central differences of the referee's base rate (step 1e-6): their truncation.

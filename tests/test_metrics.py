@@ -1,4 +1,4 @@
-"""Tests of flatcli.core.metrics: every metric recomputed independently from a recorded trace.
+"""Tests of flatcli.core.loop.metrics: every metric recomputed independently from a recorded trace.
 
 The independent computation uses numpy only on the trace (norms, RMS, maxima), the public
 flat map and margin, the plan sampled anew, and an angular momentum written here from the
@@ -15,9 +15,8 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from flatcli.core.control import Gains
-from flatcli.core.flatness import flat_outputs, singularity_margin
-from flatcli.core.metrics import (
+from flatcli.core.controllers.control import Gains
+from flatcli.core.loop.metrics import (
     COUNT_METRICS,
     METRIC_NAMES,
     N_METRICS,
@@ -30,9 +29,10 @@ from flatcli.core.metrics import (
     observe_torque,
     reset_accumulator,
 )
-from flatcli.core.model import PAPER_ROBOT, RobotParams
-from flatcli.core.planning import Plan
-from flatcli.core.simulate import Scenario, Trials, simulate
+from flatcli.core.loop.simulate import Scenario, Trials, simulate
+from flatcli.core.models.flatness import flat_outputs, singularity_margin
+from flatcli.core.plan.planning import Plan
+from flatcli.core.robots.params import PAPER_ROBOT, RobotParams
 
 Array = NDArray[np.float64]
 
@@ -266,7 +266,7 @@ def test_metric_names_are_the_public_columns() -> None:
 def test_torque_metrics_accumulate_only_where_a_plant_has_torques() -> None:
     """peak_torque = max abs(tau_i) and torque_saturated = the count of samples flagged;
     nan when no sample had torques (the kinematic plant)."""
-    from flatcli.core.metrics import ACCUMULATOR_SIZE
+    from flatcli.core.loop.metrics import ACCUMULATOR_SIZE
 
     acc = np.empty(ACCUMULATOR_SIZE)
     out = np.empty(N_METRICS)

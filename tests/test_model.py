@@ -1,4 +1,4 @@
-"""Tests of flatcli.core.model: coefficients, momentum, base rate, design check, parameters.
+"""Tests of flatcli.core.robots.params: coefficients, momentum, base rate, design check, parameters.
 
 The referee is an independent symbolic derivation of the angular momentum from the link
 kinematics in the inertial frame (``derivation`` below), not the paper's formulas.
@@ -19,11 +19,11 @@ from numpy.typing import NDArray
 from sympy import QQ
 from sympy.polys.rings import PolyElement, PolyRing, ring
 
-from flatcli.core.chain import barycentric_matrix
-from flatcli.core.model import (
+from flatcli.core.errors import FlatcliError
+from flatcli.core.robots.chain import barycentric_matrix
+from flatcli.core.robots.params import (
     MODELS,
     PAPER_ROBOT,
-    FlatcliError,
     Links,
     RobotParams,
     base_rate,

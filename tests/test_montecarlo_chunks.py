@@ -7,7 +7,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pytest
 
-from flatcli.core.metrics import METRIC_NAMES
+from flatcli.core.loop.metrics import METRIC_NAMES
 from flatcli.montecarlo import Chunk, ChunkResult, grid_cell_text, layout, run_chunk
 from flatcli.montecarlo.chunks import grid_columns, verify_count
 from flatcli.montecarlo.layout import work_pieces

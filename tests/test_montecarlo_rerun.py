@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 from small_sweep import SPEC, sweep, write_spec
 
-from flatcli.core.model import FlatcliError
+from flatcli.core.errors import FlatcliError
 from flatcli.montecarlo import layout, rerun_spec
 from flatcli.montecarlo.rerun import rerun_and_compare, same, trial_row
 from flatcli.spec import resolve

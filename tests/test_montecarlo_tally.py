@@ -12,7 +12,7 @@ import pandas as pd
 import pytest
 from small_sweep import SPEC, write_spec
 
-from flatcli.core.simulate import NoiseStreams, Trials, simulate
+from flatcli.core.loop.simulate import NoiseStreams, Trials, simulate
 from flatcli.montecarlo import layout, run_sweep, tally
 from flatcli.report import Progress
 from flatcli.spec import load_spec

@@ -10,13 +10,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from flatcli.core.basis import PolynomialBasis
-from flatcli.core.flatmodel import flat_model
-from flatcli.core.flatness import flat_outputs
-from flatcli.core.model import PAPER_ROBOT
+from flatcli.core.curves.basis import PolynomialBasis
+from flatcli.core.models.flatmodel import flat_model
+from flatcli.core.models.flatness import flat_outputs
 from flatcli.core.optimize import default_basis
 from flatcli.core.optimize.affine import affine_map
-from flatcli.core.planning import FlatTrajectory, Plan
+from flatcli.core.plan.planning import FlatTrajectory, Plan
+from flatcli.core.robots.params import PAPER_ROBOT
 
 #: Linear algebra on coefficients of order 1-10 (pseudo-inverse plus null space): observed
 #: ~1e-13.

@@ -5,7 +5,7 @@ Reference values and where they come from:
 
 * the paper's maneuver and cubic plan (Franch et al. 2003, Sec. VI; ``conftest``);
 * the cubic's input energy 101.19 rad^2/s and peak |th2'| 48.8 rad/s at t = 0: as
-  ``flatcli.core.planning`` computes them for the paper's cubic (whose states and rates
+  ``flatcli.core.plan.planning`` computes them for the paper's cubic (whose states and rates
   ``tests/test_planning.py`` checks against the full link kinematics); the optimiser's own
   starting guess must reproduce them;
 * re-choosing only the cubic's end rates: a two-variable minimisation of
@@ -47,10 +47,11 @@ from scipy.optimize import minimize
 from test_chainplan import example_chain
 
 import flatcli.core.optimize as optimize
-from flatcli.core.basis import BSplineBasis, PolynomialBasis
-from flatcli.core.model import PAPER_ROBOT, FlatcliError
+from flatcli.core.curves.basis import BSplineBasis, PolynomialBasis
+from flatcli.core.errors import FlatcliError
 from flatcli.core.optimize import OBJECTIVES, PlanLimits, optimize_plan
-from flatcli.core.planning import Plan, plan_chain, plan_point_to_point
+from flatcli.core.plan.planning import Plan, plan_chain, plan_point_to_point
+from flatcli.core.robots.params import PAPER_ROBOT
 
 #: The optimiser's design target: the optimised energy is at most a third of the cubic's.
 ENERGY_FRACTION = 1.0 / 3.0

@@ -12,14 +12,14 @@ import numpy as np
 import pytest
 from optimize_support import DURATION, GOAL, START
 
-from flatcli.core.basis import PolynomialBasis
-from flatcli.core.flatmodel import flat_model
-from flatcli.core.model import PAPER_ROBOT
+from flatcli.core.curves.basis import PolynomialBasis
+from flatcli.core.models.flatmodel import flat_model
 from flatcli.core.optimize import TUNING, PlanLimits
 from flatcli.core.optimize.assessment import active_limits, assess
 from flatcli.core.optimize.feasibility import Ends
 from flatcli.core.optimize.problem import Request
-from flatcli.core.planning import Plan
+from flatcli.core.plan.planning import Plan
+from flatcli.core.robots.params import PAPER_ROBOT
 
 K = flat_model(PAPER_ROBOT)  # the paper's closed form
 

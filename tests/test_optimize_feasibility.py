@@ -18,11 +18,12 @@ import numpy as np
 import pytest
 from optimize_support import DURATION, GOAL, START, fine, optimize_paper
 
-from flatcli.core.flatmodel import flat_model
-from flatcli.core.flatness import chart
-from flatcli.core.model import PAPER_ROBOT, FlatcliError
+from flatcli.core.errors import FlatcliError
+from flatcli.core.models.flatmodel import flat_model
+from flatcli.core.models.flatness import chart
 from flatcli.core.optimize import PlanLimits, optimize_plan, required_fold
 from flatcli.core.optimize.feasibility import Ends, check_ends, end_rate_bounds
+from flatcli.core.robots.params import PAPER_ROBOT
 
 #: Where th2 must reach on this maneuver [rad] (``required_fold``, 4 digits; the test
 #: below checks it against an optimised plan's own momentum balance).

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from flatcli.core.model import FlatcliError
+from flatcli.core.errors import FlatcliError
 from flatcli.core.optimize import PlanLimits
 from flatcli.core.optimize.limits import describe_violation, limit_rows
 from flatcli.core.optimize.quantities import MARGIN, RATES

@@ -12,15 +12,15 @@ import numpy as np
 import pytest
 from optimize_support import DURATION, GOAL, START
 
-from flatcli.core.flatmodel import flat_model
-from flatcli.core.model import PAPER_ROBOT
+from flatcli.core.models.flatmodel import flat_model
 from flatcli.core.optimize import TUNING, PlanLimits, default_basis
 from flatcli.core.optimize.affine import affine_map
 from flatcli.core.optimize.feasibility import Ends
 from flatcli.core.optimize.limits import limit_rows
 from flatcli.core.optimize.problem import Problem, Request
 from flatcli.core.optimize.quantities import MARGIN, RATES
-from flatcli.core.planning import FlatTrajectory, Plan
+from flatcli.core.plan.planning import FlatTrajectory, Plan
+from flatcli.core.robots.params import PAPER_ROBOT
 
 #: Identities that hold to rounding.
 EXACT_TOL = 1e-12

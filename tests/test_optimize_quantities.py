@@ -10,8 +10,7 @@ import numpy as np
 from numpy.typing import NDArray
 from test_chainplan import example_plan
 
-from flatcli.core.flatmodel import ChainModel, state_and_rates
-from flatcli.core.model import PAPER_ROBOT
+from flatcli.core.models.flatmodel import ChainModel, state_and_rates
 from flatcli.core.optimize.quantities import (
     ANGLES,
     FLAG_SIZE,
@@ -23,7 +22,8 @@ from flatcli.core.optimize.quantities import (
     layout,
     layout_of,
 )
-from flatcli.core.planning import Plan
+from flatcli.core.plan.planning import Plan
+from flatcli.core.robots.params import PAPER_ROBOT
 
 #: Identities that hold to rounding.
 EXACT_TOL = 1e-12

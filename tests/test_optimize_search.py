@@ -16,12 +16,12 @@ import numpy as np
 import pytest
 from optimize_support import DURATION, GOAL, START, check_plan, optimize_paper
 
-from flatcli.core.flatmodel import flat_model
-from flatcli.core.model import PAPER_ROBOT
+from flatcli.core.models.flatmodel import flat_model
 from flatcli.core.optimize import TUNING, PlanLimits, default_basis, optimize_plan
 from flatcli.core.optimize.feasibility import check_ends
 from flatcli.core.optimize.problem import Request
 from flatcli.core.optimize.search import Search
+from flatcli.core.robots.params import PAPER_ROBOT
 
 K = flat_model(PAPER_ROBOT)  # the paper's closed form
 

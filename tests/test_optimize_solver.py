@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 from optimize_support import DURATION, GOAL, START
 
-from flatcli.core.flatmodel import flat_model
-from flatcli.core.model import PAPER_ROBOT
+from flatcli.core.models.flatmodel import flat_model
 from flatcli.core.optimize import TUNING, PlanLimits, Tuning, default_basis
 from flatcli.core.optimize.assessment import assess
 from flatcli.core.optimize.feasibility import Ends
 from flatcli.core.optimize.problem import Request
 from flatcli.core.optimize.solver import exchange_times, solve
+from flatcli.core.robots.params import PAPER_ROBOT
 
 K = flat_model(PAPER_ROBOT)  # the paper's closed form
 

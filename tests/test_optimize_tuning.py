@@ -9,7 +9,7 @@ from typing import Any
 
 import pytest
 
-from flatcli.core.model import FlatcliError
+from flatcli.core.errors import FlatcliError
 from flatcli.core.optimize import TUNING, Tuning
 
 

@@ -30,8 +30,8 @@ from referees import ClippedLoop
 from scipy.integrate import solve_ivp
 
 import flatcli
-from flatcli.core.outcome import Geometry, Goal, joint_points, judge, motion_clearance
-from flatcli.core.simulate import closed_loop_rhs, closed_loop_start, simulate
+from flatcli.core.loop.outcome import Geometry, Goal, joint_points, judge, motion_clearance
+from flatcli.core.loop.simulate import closed_loop_rhs, closed_loop_start, simulate
 from flatcli.experiment import nominal_trials
 
 Array = NDArray[np.float64]
@@ -247,8 +247,8 @@ def test_the_rest_loops_capture_pushed_into_a_disc_collides() -> None:
     """make_reproduce's capture maneuver (rest to rest, the rest loop of core/restloop.py)
     from the plan's start is clear; started 0.1 rad off in th0 it swings link 2 into a disc:
     collided, as the referee finds on a grid 100x finer (the rest loop at dt / 100)."""
-    from flatcli.core.control import Gains
-    from flatcli.core.restloop import track_rest
+    from flatcli.core.controllers.control import Gains
+    from flatcli.core.loop.restloop import track_rest
 
     for initial, collides in (([1.8, 1.0, 0.0], False), ([1.9, 1.0, 0.0], True)):
         result = flatcli.track("flatcli/data/capture.toml",
@@ -301,7 +301,7 @@ def test_the_motion_clearance_of_a_chain_and_of_a_robot_as_built() -> None:
 def test_judge_both_sides_of_each_outcome_by_hand() -> None:
     """The rule on made-up trials (docs/outputs.md): within tolerance or not, a target met or
     not, a sample inside a disc, a bound below zero for a resolved and a lost trial."""
-    from flatcli.core.outcome import MotionClearance
+    from flatcli.core.loop.outcome import MotionClearance
 
     goal = Goal(np.zeros(3), 1e-3)
     final = np.array([[5e-4, -9e-4, 0.0], [0.0, 2e-3, 0.0], [np.nan] * 3, [0.0] * 3,
@@ -394,7 +394,7 @@ def test_a_task_plan_keeps_its_joints_below_the_rate_warning_when_a_candidate_do
     187 rad/s; with plan.rate_warning = 50 rad/s the planner picks end rates that stay below
     (on the plan's own grid), and says nothing; without a warning it keeps the first, and
     with a warning below every candidate's peak it keeps the slowest and warns."""
-    from flatcli.core.planning import fastest_joint
+    from flatcli.core.plan.planning import fastest_joint
 
     task = {k: v for k, v in CAPTURE.items() if k != "task.obstacles"}
     free = flatcli.plan(overrides={**task, "plan.rate_warning": math.inf})

@@ -12,7 +12,7 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import pytest
 
-from flatcli.core.dynamics import make_chain
+from flatcli.core.robots.dynamics import make_chain
 from flatcli.experiment import plan_from, run_track
 from flatcli.outputs import plan_frame, track_frame, write_track
 from flatcli.spec import resolve
@@ -141,7 +141,7 @@ def test_a_robot_of_three_joints_has_a_column_per_link_and_output(tmp_path: Path
     assert set(units) == set(track.columns)
     assert units["theta3"] == "rad" and units["u2"] == "rad/s" and units["tau3"] == "N m"
     # H of the plant by another route: the mass matrix of the Lagrangian dynamics,
-    # H = (M(q) q')_0 (flatcli/core/dynamics.py), not the link kinematics the table used
+    # H = (M(q) q')_0 (flatcli/core/robots/dynamics.py), not the link kinematics the table used
     chain = make_chain(*(THREE_JOINTS["robot"][k] for k in ("mass", "inertia", "length", "com")))
     theta = track[[f"theta{i}" for i in range(4)]].to_numpy()
     rates = track[[f"theta{i}_dot" for i in range(4)]].to_numpy()
@@ -162,7 +162,7 @@ def test_a_plan_table_of_many_joints_is_built_without_warnings() -> None:
     # times (printed by `flatcli plan -q`)
     import warnings
 
-    from flatcli.core.planning import PlanSamples
+    from flatcli.core.plan.planning import PlanSamples
 
     n, points = 40, 5
     rng = np.random.default_rng(1)

@@ -1,13 +1,13 @@
-"""Tests of flatcli.core.paperloop: the kinematic and the dynamic plant in closed loop.
+"""Tests of flatcli.core.loop.paperloop: the kinematic and the dynamic plant in closed loop.
 
 References, none of them the code under test:
 
 * the kinetic energy and the angular momentum summed over the links (``link_kinetic_energy``
-  of tests/test_dynamics.py; ``flatcli.core.model.momentum``, the full link kinematics);
-* the general-n chain (``flatcli.core.dynamics.mass_matrix``, ``bias_forces``,
+  of tests/test_dynamics.py; ``flatcli.core.robots.params.momentum``, the full link kinematics);
+* the general-n chain (``flatcli.core.robots.dynamics.mass_matrix``, ``bias_forces``,
   ``inverse_dynamics``), itself checked against a sympy Lagrangian in tests/test_dynamics.py,
   for the written-out three-body sums the compiled plant uses;
-* the controller's own law (``flatcli.core.control.feedback``) for the commands;
+* the controller's own law (``flatcli.core.controllers.control.feedback``) for the commands;
 * the kinematic plant for the limit of infinite servo bandwidth;
 * scipy's DOP853 (``track.integrator = "dop853"``) for the compiled integrator;
 * tests/data/kinematic_golden.npz: the kinematic plant's outcomes written by
@@ -27,11 +27,9 @@ from conftest import PRINTED_GAINS, SWAPPED_GAINS
 from numpy.typing import NDArray
 from test_dynamics import link_kinetic_energy
 
-from flatcli.core.control import Gains, feedback
-from flatcli.core.dynamics import bias_forces, make_chain, mass_matrix
-from flatcli.core.metrics import METRIC_NAMES, Metric, Status
-from flatcli.core.model import PAPER_ROBOT, Coefficients, RobotParams, momentum
-from flatcli.core.paperloop import (
+from flatcli.core.controllers.control import Gains, feedback
+from flatcli.core.loop.metrics import METRIC_NAMES, Metric, Status
+from flatcli.core.loop.paperloop import (
     AUX_R2,
     AUX_TAU1,
     AUX_TAU2,
@@ -40,8 +38,7 @@ from flatcli.core.paperloop import (
     dynamic_loop,
     dynamic_rhs,
 )
-from flatcli.core.planning import Plan
-from flatcli.core.simulate import (
+from flatcli.core.loop.simulate import (
     DYNAMIC_TRACE_COLUMNS,
     TRACE_COLUMNS,
     NoiseStreams,
@@ -50,6 +47,9 @@ from flatcli.core.simulate import (
     Trials,
     simulate,
 )
+from flatcli.core.plan.planning import Plan
+from flatcli.core.robots.dynamics import bias_forces, make_chain, mass_matrix
+from flatcli.core.robots.params import PAPER_ROBOT, Coefficients, RobotParams, momentum
 
 Array = NDArray[np.float64]
 

@@ -1,4 +1,4 @@
-"""Tests of flatcli.core.pieces: curves as piecewise polynomials.
+"""Tests of flatcli.core.curves.pieces: curves as piecewise polynomials.
 
 Referees: numpy's own polynomial evaluation and integration (``numpy.polynomial``), and
 closed-form functions (sin, exp) with their derivatives and integrals.
@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.polynomial import polynomial as npp
 
-from flatcli.core.pieces import PiecewiseBasis, curves, fit, integral, joined, node_times
+from flatcli.core.curves.pieces import PiecewiseBasis, curves, fit, integral, joined, node_times
 
 #: A polynomial of the fit's degree comes back to rounding (relative to its size).
 ROUNDING = 1e-12

@@ -12,10 +12,11 @@ import math
 import numpy as np
 import pytest
 
-from flatcli.core.design import design_verdict
-from flatcli.core.flatmodel import flat_model
-from flatcli.core.model import FlatcliError, RobotParams, flatness_check
-from flatcli.core.simulate import placements
+from flatcli.core.errors import FlatcliError
+from flatcli.core.loop.simulate import placements
+from flatcli.core.models.flatmodel import flat_model
+from flatcli.core.robots.design import design_verdict
+from flatcli.core.robots.params import RobotParams, flatness_check
 from tests.asbuilt_support import momentum
 
 #: Two exact descriptions of one robot agree to rounding.

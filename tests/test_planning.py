@@ -1,4 +1,4 @@
-"""Tests of flatcli.core.planning: the paper's plan, its momentum, exact rates, refusals."""
+"""Tests of flatcli.core.plan.planning: the paper's plan, its momentum, exact rates, refusals."""
 
 from __future__ import annotations
 
@@ -9,22 +9,16 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from flatcli.core.basis import Basis, BSplineBasis, PolynomialBasis
-from flatcli.core.flatmodel import paper_margin_zeros as margin_zeros
-from flatcli.core.flatness import flat_inputs
-from flatcli.core.model import (
-    MODELS,
-    PAPER_ROBOT,
-    FlatcliError,
-    Model,
-    base_rate,
-    momentum,
-)
-from flatcli.core.planning import (
+from flatcli.core.curves.basis import Basis, BSplineBasis, PolynomialBasis
+from flatcli.core.errors import FlatcliError
+from flatcli.core.models.flatmodel import paper_margin_zeros as margin_zeros
+from flatcli.core.models.flatness import flat_inputs
+from flatcli.core.plan.planning import (
     Plan,
     PlanSamples,
     plan_point_to_point,
 )
+from flatcli.core.robots.params import MODELS, PAPER_ROBOT, Model, base_rate, momentum
 
 if TYPE_CHECKING:
     from conftest import Maneuver
@@ -258,8 +252,8 @@ def test_a_plan_through_the_singular_set_is_refused(paper_maneuver: Maneuver) ->
     """th1'(T) = -0.5 against th1'(0) = +0.1: y1' must pass through 0 inside (0, T). The
     refusal names the time, which a dense sampling of the margin brackets."""
     basis = PolynomialBasis(3, paper_maneuver.duration)
-    from flatcli.core.flatmodel import boundary_conditions
-    from flatcli.core.planning import min_acceleration_trajectory
+    from flatcli.core.models.flatmodel import boundary_conditions
+    from flatcli.core.plan.planning import min_acceleration_trajectory
 
     k = PAPER_ROBOT.coefficients("derived")
     bc = boundary_conditions(k, paper_maneuver.start, paper_maneuver.goal, 0.1, -0.5)
@@ -281,7 +275,7 @@ def test_a_plan_that_touches_the_singular_set_is_refused(paper_maneuver: Maneuve
     basis = PolynomialBasis(3, T)
     # in s = t / T: 1 + (2 s - 1)^3 / 3 = 2/3 + 2 s - 4 s^2 + 8/3 s^3 (y2 = t / T, any curve)
     coefficients = np.array([[2.0 / 3.0, 2.0, -4.0, 8.0 / 3.0], [0.0, 1.0, 0.0, 0.0]])
-    from flatcli.core.planning import FlatTrajectory
+    from flatcli.core.plan.planning import FlatTrajectory
 
     curve = FlatTrajectory(basis, coefficients)
     t = np.linspace(0.0, T, 10_001)

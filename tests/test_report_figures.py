@@ -10,8 +10,8 @@ import matplotlib
 import numpy as np
 import pytest
 
-from flatcli.core.model import PAPER_ROBOT
-from flatcli.core.planning import plan_point_to_point
+from flatcli.core.plan.planning import plan_point_to_point
+from flatcli.core.robots.params import PAPER_ROBOT
 from flatcli.experiment import run_track
 from flatcli.outputs import plan_frame, track_frame
 from flatcli.report.figures import (

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from flatcli.core.model import PAPER_ROBOT
-from flatcli.core.planning import plan_point_to_point
+from flatcli.core.plan.planning import plan_point_to_point
+from flatcli.core.robots.params import PAPER_ROBOT
 from flatcli.report.runs import optimization_text, plan_summary
 
 

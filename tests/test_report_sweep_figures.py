@@ -8,8 +8,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from flatcli.core.metrics import METRIC_NAMES
-from flatcli.core.model import FlatcliError
+from flatcli.core.errors import FlatcliError
+from flatcli.core.loop.metrics import METRIC_NAMES
 from flatcli.report.figures import FigureFile, new_figure
 from flatcli.report.summary import summarize_trials
 from flatcli.report.sweep_figures import (

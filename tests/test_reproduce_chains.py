@@ -20,8 +20,8 @@ import numpy as np
 import pytest
 from scipy.integrate import quad, solve_ivp
 
-from flatcli.core.chain import chain_momentum
-from flatcli.core.model import constraint_coefficients, flatness_check
+from flatcli.core.robots.chain import chain_momentum
+from flatcli.core.robots.params import constraint_coefficients, flatness_check
 from flatcli.experiment import plan_from, robot_from
 from flatcli.reproduce.chains import CHAIN_SPECS, natural_drift, path_rates, plan_checks
 from flatcli.spec import load_spec, resolve

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatcli.core.metrics import Metric
+from flatcli.core.loop.metrics import Metric
 from flatcli.experiment import run_track
 from flatcli.report import fmt
 from flatcli.reproduce.findings import GAIN_READINGS, gains_verdict, study_findings

@@ -1,4 +1,4 @@
-"""Tests of flatcli.core.simulate: integrators against a tight reference, statuses, batching,
+"""Tests of flatcli.core.loop.simulate: integrators against a tight reference, statuses, batching,
 actuator and sensor models.
 
 The referee of every accuracy claim is scipy's DOP853 (``solve_ivp``) at rtol 1e-12, atol
@@ -16,11 +16,10 @@ from numpy.typing import NDArray
 from referees import ClippedLoop, Passage, through_crossings
 from scipy.integrate import solve_ivp
 
-from flatcli.core.control import Gains
-from flatcli.core.metrics import Event, Metric, Status
-from flatcli.core.model import PAPER_ROBOT, FlatcliError, RobotParams
-from flatcli.core.planning import Plan
-from flatcli.core.simulate import (
+from flatcli.core.controllers.control import Gains
+from flatcli.core.errors import FlatcliError
+from flatcli.core.loop.metrics import Event, Metric, Status
+from flatcli.core.loop.simulate import (
     TWIN_FACTOR,
     TWIN_RTOL_FLOOR,
     NoiseStreams,
@@ -33,6 +32,8 @@ from flatcli.core.simulate import (
     simulate,
     twin_factor,
 )
+from flatcli.core.plan.planning import Plan
+from flatcli.core.robots.params import PAPER_ROBOT, RobotParams
 
 Array = NDArray[np.float64]
 
@@ -794,7 +795,7 @@ def test_the_docs_say_what_observe_every_changes() -> None:
     unchanged rows, the rest in the others."""
     from pathlib import Path
 
-    from flatcli.core.metrics import METRIC_NAMES
+    from flatcli.core.loop.metrics import METRIC_NAMES
 
     text = (Path(__file__).resolve().parents[1] / "docs" / "outputs.md").read_text()
     section = text.split("### Observing every k-th sample", 1)[1].split("\n#", 1)[0]

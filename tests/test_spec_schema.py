@@ -9,9 +9,9 @@ from dataclasses import fields
 import numpy as np
 import pytest
 
-from flatcli.core.model import MODELS
+from flatcli.core.loop.simulate import INTEGRATORS
 from flatcli.core.optimize import OBJECTIVES
-from flatcli.core.simulate import INTEGRATORS
+from flatcli.core.robots.params import MODELS
 from flatcli.spec import (
     GAINS,
     LINKS,

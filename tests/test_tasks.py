@@ -1,7 +1,7 @@
 """Tests of the [task] section through the API and the command line (issue 21).
 
 Referees: the links placed in the complex plane with the centre of mass solved for
-(tests/task_referees.py), which shares nothing with flatcli.core.kinematics; sympy's H of the
+(tests/task_referees.py), which shares nothing with flatcli.core.robots.kinematics; sympy's H of the
 three-link robot (tests/referees.py::link_momentum); a grid 100x finer than the plan's own.
 """
 
@@ -17,7 +17,8 @@ from click.testing import CliRunner
 
 from flatcli import api
 from flatcli.cli import main
-from flatcli.core.model import PAPER_ROBOT, FlatcliError
+from flatcli.core.errors import FlatcliError
+from flatcli.core.robots.params import PAPER_ROBOT
 from tests import task_referees as ref
 from tests.referees import link_momentum
 
@@ -115,10 +116,10 @@ def test_bad_tasks_are_one_line_naming_the_key(tmp_path: Path, sets: list[str],
 
 def test_candidates_refuted_at_samples_skip_the_proof_and_change_nothing(
         monkeypatch: pytest.MonkeyPatch) -> None:
-    """flatcli.core.task screens the candidates at SCREEN_SAMPLES points, in batches, before
+    """flatcli.core.plan.task screens the candidates at SCREEN_SAMPLES points, in batches, before
     proving them: the plan, its certificate and the candidates tried are those of proving
     every one in turn."""
-    from flatcli.core import task as core_task
+    from flatcli.core.plan import task as core_task
 
     proofs = {"n": 0}
     certify = core_task.certify

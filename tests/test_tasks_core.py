@@ -1,4 +1,4 @@
-"""Tests of the task core: flatcli.core.kinematics, inverse, rest, intervals and clearance.
+"""Tests of the task core: flatcli.core.robots.kinematics, inverse, rest, intervals and clearance.
 
 Referees: the links placed in the complex plane from their definitions with the centre of
 mass solved for (tests/task_referees.py), sympy's H of the three-link robot
@@ -16,11 +16,14 @@ import sympy as sp
 from numpy.typing import NDArray
 from scipy.integrate import solve_ivp
 
-from flatcli.core import intervals as iv
-from flatcli.core.clearance import Constraints, certify, sampled_slack
-from flatcli.core.intervals import Interval
-from flatcli.core.inverse import BOUNDARY_TOL, redundant_task, task_configuration, two_link
-from flatcli.core.kinematics import (
+from flatcli.core.errors import FlatcliError
+from flatcli.core.plan import intervals as iv
+from flatcli.core.plan.clearance import Constraints, certify, sampled_slack
+from flatcli.core.plan.intervals import Interval
+from flatcli.core.plan.inverse import BOUNDARY_TOL, redundant_task, task_configuration, two_link
+from flatcli.core.plan.planning import plan_point_to_point
+from flatcli.core.plan.rest import plan_rest_to_rest
+from flatcli.core.robots.kinematics import (
     base_position,
     end_effector,
     joint_positions,
@@ -28,9 +31,7 @@ from flatcli.core.kinematics import (
     system_com,
     virtual_links,
 )
-from flatcli.core.model import PAPER_ROBOT, FlatcliError, RobotParams
-from flatcli.core.planning import plan_point_to_point
-from flatcli.core.rest import plan_rest_to_rest
+from flatcli.core.robots.params import PAPER_ROBOT, RobotParams
 from tests import task_referees as ref
 from tests.referees import link_momentum
 
@@ -38,7 +39,7 @@ Array = NDArray[np.float64]
 
 #: Positions from two ways of summing the same few terms of size <= 0.5 m.
 POSITION_TOL = 1e-15 * 8
-#: The inverse kinematics' own acceptance tolerance (flatcli.core.inverse.IK_TOL) plus the
+#: The inverse kinematics' own acceptance tolerance (flatcli.core.plan.inverse.IK_TOL) plus the
 #: rounding of the referee's sums.
 IK_CHECK = 1e-12 + 1e-15
 #: H along a plan from the referee's kinematics: rounding of terms up to I |rates|.

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from flatcli.core.metrics import METRIC_NAMES, STATUS_NAMES
+from flatcli.core.loop.metrics import METRIC_NAMES, STATUS_NAMES
 from flatcli.experiment import plan_from
 from flatcli.outputs import plan_frame
 from flatcli.report.summary import summarize_trials

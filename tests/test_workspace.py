@@ -1,4 +1,4 @@
-"""Workspace maps (flatcli/core/workspace.py, flatcli.workspace and flatcli workspace).
+"""Workspace maps (flatcli/core/plan/workspace.py, flatcli.workspace and flatcli workspace).
 
 Referees, none of them the code under test: the full link kinematics written out below (each
 body's centre of mass from its joint, the base placed so that the system's centre of mass is at
@@ -21,8 +21,9 @@ from scipy.optimize import least_squares
 
 import flatcli
 from flatcli.api import load_spec
-from flatcli.core.model import FlatcliError, RobotParams
-from flatcli.core.workspace import workspace_areas, workspace_map
+from flatcli.core.errors import FlatcliError
+from flatcli.core.plan.workspace import workspace_areas, workspace_map
+from flatcli.core.robots.params import RobotParams
 from flatcli.experiment import robot_from
 
 PAPER = robot_from(load_spec())

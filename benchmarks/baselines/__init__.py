@@ -24,7 +24,7 @@ One module per baseline: ``problem`` (the shared maneuver and trials), ``timing`
 ``compiled``, ``dopri``, ``numpy_batch``, ``ivp``; their public names are re-exported here.
 
 Nothing here prints; every function returns its results. The closed-loop baselines share no
-code with ``flatcli.core.simulate``: the formulas are written out again below, so that
+code with ``flatcli.core.loop.simulate``: the formulas are written out again below, so that
 agreeing with flatcli to rounding is a check of both.
 """
 

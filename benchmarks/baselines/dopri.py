@@ -2,7 +2,7 @@
 adaptive Dormand-Prince 5(4) integrator with dense output, the metrics at every output
 sample, ``prange`` over trials.
 
-The same work as ``flatcli.core.simulate`` with ``track.error_estimate = "none"`` (one
+The same work as ``flatcli.core.loop.simulate`` with ``track.error_estimate = "none"`` (one
 solution per trial): the same tolerances, step-size controller and first step, so the same
 steps and right-hand sides per trial (``same_work_check`` counts them), and at every output
 sample t_j = j dt the state from the dense output, the closed loop's rates there, and the
@@ -32,8 +32,8 @@ from numpy.typing import NDArray
 from benchmarks.baselines.loop import LoopInputs, loop_inputs
 from benchmarks.baselines.problem import PAPER_TRACKING, Tracking
 from benchmarks.baselines.timing import Throughput, throughput
-from flatcli.core.planning import Plan
-from flatcli.core.simulate import DEFAULT_ATOL, DEFAULT_RTOL, Trials
+from flatcli.core.loop.simulate import DEFAULT_ATOL, DEFAULT_RTOL, Trials
+from flatcli.core.plan.planning import Plan
 
 Array = NDArray[np.float64]
 

@@ -12,10 +12,10 @@ from scipy.integrate import solve_ivp
 
 from benchmarks.baselines.loop import loop_inputs
 from benchmarks.baselines.problem import PAPER_TRACKING, Tracking
-from flatcli.core.planning import (
+from flatcli.core.loop.simulate import Trials
+from flatcli.core.plan.planning import (
     Plan,
 )
-from flatcli.core.simulate import Trials
 
 Array = NDArray[np.float64]
 

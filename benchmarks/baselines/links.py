@@ -1,5 +1,5 @@
 """The bench's own link kinematics in the complex plane (written apart from
-``flatcli.core.kinematics``): where the links of a free-floating chain are with its centre of
+``flatcli.core.robots.kinematics``): where the links of a free-floating chain are with its centre of
 mass at the origin, and how far each link is from a disc. The referee of the task benches
 (``benchmarks.tasks``) and of python-control's plans (``pcflatsys.pc_obstacle_task``)."""
 

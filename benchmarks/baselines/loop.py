@@ -1,4 +1,4 @@
-"""The closed loop written out again, independently of flatcli.core.simulate: the plant's
+"""The closed loop written out again, independently of flatcli.core.loop.simulate: the plant's
 coefficients and the inputs every closed-loop baseline shares."""
 
 from __future__ import annotations
@@ -10,9 +10,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from benchmarks.baselines.problem import Tracking
-from flatcli.core.basis import PolynomialBasis
-from flatcli.core.planning import Plan
-from flatcli.core.simulate import Trials
+from flatcli.core.curves.basis import PolynomialBasis
+from flatcli.core.loop.simulate import Trials
+from flatcli.core.plan.planning import Plan
 
 Array = NDArray[np.float64]
 

@@ -10,10 +10,10 @@ from numpy.typing import NDArray
 from benchmarks.baselines.loop import LoopInputs, loop_inputs
 from benchmarks.baselines.problem import PAPER_TRACKING, Tracking
 from benchmarks.baselines.timing import Throughput, throughput
-from flatcli.core.planning import (
+from flatcli.core.loop.simulate import Trials
+from flatcli.core.plan.planning import (
     Plan,
 )
-from flatcli.core.simulate import Trials
 
 Array = NDArray[np.float64]
 

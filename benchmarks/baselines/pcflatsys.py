@@ -18,10 +18,10 @@ from scipy.optimize import NonlinearConstraint
 from benchmarks.baselines.links import FINE, disc_gaps, link_clearance, link_joints
 from benchmarks.baselines.problem import PAPER_MANEUVER, Maneuver
 from benchmarks.baselines.quality import PlanQuality, flat_plan_quality, limits_violation
-from flatcli.core.flatmodel import state_and_rates
-from flatcli.core.flatness import flat_inputs
-from flatcli.core.model import Coefficients
-from flatcli.core.planning import Plan
+from flatcli.core.models.flatmodel import state_and_rates
+from flatcli.core.models.flatness import flat_inputs
+from flatcli.core.plan.planning import Plan
+from flatcli.core.robots.params import Coefficients
 
 Array = NDArray[np.float64]
 

@@ -8,19 +8,19 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from flatcli.core.control import Gains
-from flatcli.core.model import (
+from flatcli.core.controllers.control import Gains
+from flatcli.core.loop.simulate import Trials
+from flatcli.core.plan.planning import (
+    Plan,
+    plan_point_to_point,
+)
+from flatcli.core.robots.params import (
     PAPER_ROBOT,
     Coefficients,
     Model,
     RobotParams,
     constraint_coefficients,
 )
-from flatcli.core.planning import (
-    Plan,
-    plan_point_to_point,
-)
-from flatcli.core.simulate import Trials
 
 Array = NDArray[np.float64]
 Triple = tuple[float, float, float]

@@ -8,14 +8,14 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from flatcli.core.basis import composite_gauss_legendre
-from flatcli.core.flatmodel import state_and_rates
-from flatcli.core.model import (
+from flatcli.core.curves.basis import composite_gauss_legendre
+from flatcli.core.models.flatmodel import state_and_rates
+from flatcli.core.plan.planning import ENERGY_ORDER, ENERGY_PIECES, Plan
+from flatcli.core.robots.params import (
     Coefficients,
     RobotParams,
     momentum,
 )
-from flatcli.core.planning import ENERGY_ORDER, ENERGY_PIECES, Plan
 
 Array = NDArray[np.float64]
 

@@ -11,7 +11,7 @@ from numpy.typing import NDArray
 from scipy.optimize import Bounds, minimize
 
 from benchmarks.baselines.problem import PAPER_MANEUVER, Maneuver
-from flatcli.core.model import (
+from flatcli.core.robots.params import (
     base_rate,
     momentum,
 )

@@ -113,10 +113,11 @@ _CORE_DIR = Path(__file__).resolve().parent
 
 
 def core_source_hash() -> str:
-    """Hash of the source of every module of the core [12 hex digits]."""
+    """Hash of the source of every module of the core, its folders' included [12 hex
+    digits]."""
     digest = hashlib.sha256()
-    for path in sorted(_CORE_DIR.glob("*.py")):
-        digest.update(path.name.encode())
+    for path in sorted(_CORE_DIR.rglob("*.py")):
+        digest.update(path.relative_to(_CORE_DIR).as_posix().encode())
         digest.update(path.read_bytes())
     digest.update(numba.__version__.encode())
     return digest.hexdigest()[:12]

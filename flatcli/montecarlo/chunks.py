@@ -17,16 +17,16 @@ import pyarrow as pa
 from numpy.typing import NDArray
 
 from flatcli.arrow import flags, numbers, repeated, texts
-from flatcli.core.metrics import (
+from flatcli.core.errors import FlatcliError
+from flatcli.core.loop.metrics import (
     COUNT_METRICS,
     METRIC_NAMES,
     STATUS_NAMES,
     Status,
     describe_status,
 )
-from flatcli.core.model import FlatcliError
-from flatcli.core.outcome import Geometry, Judged, MotionClearance, judge
-from flatcli.core.simulate import NoiseStreams, Scenario, Trials, check_against_reference
+from flatcli.core.loop.outcome import Geometry, Judged, MotionClearance, judge
+from flatcli.core.loop.simulate import NoiseStreams, Scenario, Trials, check_against_reference
 from flatcli.experiment import (
     checked,
     goal_of,
@@ -284,7 +284,7 @@ def reach_bounds(spec: Spec, plans: list[Any], value: dict[str, Any], metrics: A
     from each plant's links and its err_theta_final, against the plan each trial tracked and
     its target: ``value["end_effector"]``); nan for a trial that did not run or did not reach
     the end."""
-    from flatcli.core.task import end_effector_error_bound
+    from flatcli.core.plan.task import end_effector_error_bound
 
     bound = np.full(len(valid), np.nan)
     if spec.task.end_effector is None:

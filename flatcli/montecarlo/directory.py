@@ -34,7 +34,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from flatcli.arrow import read_parquet, repeated, to_numpy
-from flatcli.core.metrics import OUTCOME_NAMES
+from flatcli.core.loop.metrics import OUTCOME_NAMES
 from flatcli.files import (
     MAX_MANIFEST_BYTES,
     UnreadableFileError,

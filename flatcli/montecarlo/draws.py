@@ -22,7 +22,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from flatcli.core.planning import Plan
+from flatcli.core.plan.planning import Plan
 from flatcli.experiment import STREAM_PERTURB, initial_rates, plant_from
 from flatcli.montecarlo.streams import uniform_variates
 from flatcli.spec import PERTURB_TARGETS, Perturbation, Spec, SpecError, lookup

@@ -24,9 +24,9 @@ from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from flatcli.core.model import FlatcliError
-from flatcli.core.planning import Plan
-from flatcli.core.simulate import Scenario
+from flatcli.core.errors import FlatcliError
+from flatcli.core.loop.simulate import Scenario
+from flatcli.core.plan.planning import Plan
 from flatcli.experiment import plan_from, plant_from, scenario_from
 from flatcli.machine import cores
 from flatcli.spec import PERTURB_TARGETS, Spec, SpecError, grid_overrides

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from flatcli.core.model import FlatcliError
+from flatcli.core.errors import FlatcliError
 from flatcli.experiment import run_track
 from flatcli.files import kind, not_regular
 from flatcli.montecarlo.directory import RERUN_FILES, recorded_digest

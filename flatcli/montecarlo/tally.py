@@ -7,7 +7,7 @@ statuses to counters in shared memory, which the forked worker processes inherit
 of the parent reads them a few times a second into the bar (``watch``).
 
 Batches change nothing but the timing: every trial is integrated alone, whatever else is in
-its batch (``flatcli.core.simulate``). Where the counters do not reach (a Dask worker, a
+its batch (``flatcli.core.loop.simulate``). Where the counters do not reach (a Dask worker, a
 spawned process) nothing is counted, and the bar moves as chunks finish.
 """
 
@@ -21,9 +21,9 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from flatcli.core.metrics import STATUS_NAMES, Status
-from flatcli.core.outcome import MotionClearance
-from flatcli.core.simulate import Integrator, Outcome, Scenario, Trials, simulate
+from flatcli.core.loop.metrics import STATUS_NAMES, Status
+from flatcli.core.loop.outcome import MotionClearance
+from flatcli.core.loop.simulate import Integrator, Outcome, Scenario, Trials, simulate
 from flatcli.interrupts import critical
 
 #: How often the parent reads the counters into the progress bar [s].

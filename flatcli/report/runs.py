@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from flatcli.core.planning import Plan, PlanSamples
+from flatcli.core.plan.planning import Plan, PlanSamples
 from flatcli.report.tables import fmt, table
 
 if TYPE_CHECKING:

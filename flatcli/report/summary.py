@@ -22,8 +22,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from flatcli.core.metrics import METRIC_NAMES, OUTCOME_NAMES, RESOLVED, STATUS_NAMES
-from flatcli.core.outcome import lost_as_infinite
+from flatcli.core.loop.metrics import METRIC_NAMES, OUTCOME_NAMES, RESOLVED, STATUS_NAMES
+from flatcli.core.loop.outcome import lost_as_infinite
 from flatcli.report.tables import fmt, table
 
 if TYPE_CHECKING:  # the statistics are numpy's and, for the Wilson intervals, scipy's

@@ -21,8 +21,8 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
-from flatcli.core.metrics import OUTCOME_NAMES, RESOLVED
-from flatcli.core.model import FlatcliError
+from flatcli.core.errors import FlatcliError
+from flatcli.core.loop.metrics import OUTCOME_NAMES, RESOLVED
 from flatcli.report.figures import PAGE_WIDTH, FigureFile, new_figure, save_figure, styled
 from flatcli.report.summary import FAILURES, short_key
 from flatcli.report.tables import fmt

@@ -15,9 +15,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from flatcli.core.kinematics import joint_positions
-from flatcli.core.model import RobotParams
-from flatcli.core.workspace import WorkspaceMap
+from flatcli.core.plan.workspace import WorkspaceMap
+from flatcli.core.robots.kinematics import joint_positions
+from flatcli.core.robots.params import RobotParams
 from flatcli.report.figures import PAGE_WIDTH, new_figure, style, styled
 
 Array = NDArray[np.float64]

@@ -46,7 +46,7 @@ def check_inputs(out: Path, montecarlo: Path | None, workers: int | None,
     """Every input of ``reproduce``, checked before anything is written: the output
     directory, the study's spec with its --set items (every grid cell planned), --workers,
     --only."""
-    from flatcli.core.model import FlatcliError
+    from flatcli.core.errors import FlatcliError
     from flatcli.montecarlo import layout
     from flatcli.storage import check_output_dir
 

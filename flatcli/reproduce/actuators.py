@@ -21,10 +21,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from flatcli.core.dynamics import make_chain
-from flatcli.core.metrics import STATUS_NAMES
-from flatcli.core.outcome import GOAL_TOLERANCE
-from flatcli.core.simulate import DEFAULT_SERVO_BANDWIDTH
+from flatcli.core.loop.metrics import STATUS_NAMES
+from flatcli.core.loop.outcome import GOAL_TOLERANCE
+from flatcli.core.loop.simulate import DEFAULT_SERVO_BANDWIDTH
+from flatcli.core.robots.dynamics import make_chain
 from flatcli.experiment import flat_plan_from, robot_from, run_track
 from flatcli.report import (
     COMPLETED,

@@ -18,10 +18,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from flatcli.core.chain import chain_momentum, momentum_weights
-from flatcli.core.flatmodel import ChainModel
-from flatcli.core.model import RobotParams, flatness_check
-from flatcli.core.planning import Plan
+from flatcli.core.models.flatmodel import ChainModel
+from flatcli.core.plan.planning import Plan
+from flatcli.core.robots.chain import chain_momentum, momentum_weights
+from flatcli.core.robots.params import RobotParams, flatness_check
 from flatcli.experiment import TrackRun, plan_from, robot_from, run_track
 from flatcli.outputs import plan_frame, track_frame
 from flatcli.report import FigureFile, Progress, fmt, new_figure, save_figure, styled, table

@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from flatcli.core.metrics import OUTCOME_NAMES, RESOLVED, Metric, Status
-from flatcli.core.planning import Plan
+from flatcli.core.loop.metrics import OUTCOME_NAMES, RESOLVED, Metric, Status
+from flatcli.core.plan.planning import Plan
 from flatcli.experiment import TrackRun, plan_and_optimization, run_track
 from flatcli.report import cell_text, fmt, table
 from flatcli.spec import Spec

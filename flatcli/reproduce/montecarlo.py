@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from flatcli.core.metrics import RESOLVED
+from flatcli.core.loop.metrics import RESOLVED
 from flatcli.report import Progress, fmt, plot_sweep
 from flatcli.reproduce.findings import reached_text, study_findings
 from flatcli.reproduce.sections import Context, Outcome, Section

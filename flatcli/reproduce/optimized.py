@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from flatcli.core.optimize import required_fold
-from flatcli.core.planning import Plan, PlanSamples
+from flatcli.core.plan.planning import Plan, PlanSamples
 from flatcli.experiment import flat_plan_from, plan_and_optimization
 from flatcli.report import FigureFile, finish_grid, fmt, new_figure, plan_summary, styled, table
 from flatcli.report.figures import PAGE_WIDTH

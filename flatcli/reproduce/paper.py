@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from flatcli.core.model import constraint_coefficients
-from flatcli.core.planning import Plan, PlanSamples
+from flatcli.core.plan.planning import Plan, PlanSamples
+from flatcli.core.robots.params import constraint_coefficients
 from flatcli.experiment import TrackRun, plan_from, run_track
 from flatcli.outputs import plan_frame, track_frame, track_limits
 from flatcli.report import (

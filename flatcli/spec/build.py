@@ -153,8 +153,8 @@ def check_derived(spec: Spec) -> None:
     are checked where they are made.)"""
     import numpy as np
 
-    from flatcli.core.chain import barycentric_matrix
-    from flatcli.core.model import Links, constraint_coefficients
+    from flatcli.core.robots.chain import barycentric_matrix
+    from flatcli.core.robots.params import Links, constraint_coefficients
 
     robot, plant = spec.robot, spec.plant
     for section, record in (("robot", robot), ("plant", plant)):

@@ -16,7 +16,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-from flatcli.core.model import FlatcliError
+from flatcli.core.errors import FlatcliError
 
 #: Largest magnitude of a finite number in a spec (keys that allow inf excepted): far beyond
 #: any physical value of a planar robot, and small enough that the products and powers the

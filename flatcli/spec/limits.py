@@ -59,14 +59,14 @@ SECONDS_PER_TRIAL = 1e-5
 #: paper's robot: 7e5 attempts in 0.8 s).
 SECONDS_PER_ATTEMPT = 5e-7
 #: Planning a robot of N > 2 joints at best [s per N^4]: the general chain's flat maps cost
-#: O(N^4) per evaluation as the core computes them (``flatcli.core.chain``); a plan took 1.1 s
+#: O(N^4) per evaluation as the core computes them (``core.robots.chain``); a plan took 1.1 s
 #: at N = 50, 16 s at N = 100, 355 s at N = 200 (about 1.6e-7 N^4 s, this project's machine).
 SECONDS_PER_CHAIN_PLAN = 4e-8
 #: The flat outputs of a ``flatcli track`` trace on N > 2 joints at best [s per output sample
 #: per N^4]: the same maps at every sample (measured 2.4e-8 N^4 s per sample, N = 20 to 40).
 SECONDS_PER_CHAIN_SAMPLE = 5e-9
 #: Checking a spec of N > 2 joints: the barycentric matrix K of the robot and of the plant,
-#: O(N^3) each as the core computes it (``flatcli.core.chain.barycentric_matrix``: 0.29 s at
+#: O(N^3) each as the core computes it (``flatcli.core.robots.chain.barycentric_matrix``: 0.29 s at
 #: N = 100, 2.2 s at 200, 7.3 s at 300) [s per N^3].
 SECONDS_PER_CHAIN_CHECK = 2.7e-7
 #: The most joints a robot may have: beyond it checking one spec (every sweep cell is one)
@@ -81,7 +81,7 @@ NOTICE_SECONDS = 5.0
 MIN_RTOL = 100 * 2.220446049250313e-16
 
 #: The planner looks for the singular set sin th1 = 0 at every multiple of pi that th1 may
-#: pass (``flatcli.core.planning.margin_zeros``), about 10 us each: at most this many.
+#: pass (``flatcli.core.plan.planning.margin_zeros``), about 10 us each: at most this many.
 MAX_HALF_TURNS = 1e5
 
 MEMORY_FRACTION = 0.5

@@ -28,14 +28,9 @@ from collections.abc import Collection, Iterator, Mapping
 from dataclasses import Field, dataclass, field, fields, is_dataclass
 from typing import Any
 
-from flatcli.core.exact import METHODS
-from flatcli.core.inverse import ELBOWS
-from flatcli.core.lqr import DEFAULT_BANDWIDTH, DEFAULT_BASE, DEFAULT_TERMINAL
-from flatcli.core.model import MODELS
-from flatcli.core.optimize import OBJECTIVES
-from flatcli.core.outcome import GOAL_TOLERANCE, TARGET_TOLERANCE
-from flatcli.core.planning import RATE_WARNING
-from flatcli.core.simulate import (
+from flatcli.core.controllers.lqr import DEFAULT_BANDWIDTH, DEFAULT_BASE, DEFAULT_TERMINAL
+from flatcli.core.loop.outcome import GOAL_TOLERANCE, TARGET_TOLERANCE
+from flatcli.core.loop.simulate import (
     CONTROLLERS,
     DEFAULT_ACCURACY,
     DEFAULT_ATOL,
@@ -47,6 +42,11 @@ from flatcli.core.simulate import (
     PLANT_MODELS,
     SERVO_MODELS,
 )
+from flatcli.core.optimize import OBJECTIVES
+from flatcli.core.plan.exact import METHODS
+from flatcli.core.plan.inverse import ELBOWS
+from flatcli.core.plan.planning import RATE_WARNING
+from flatcli.core.robots.params import MODELS
 from flatcli.spec.keys import (
     SIZES,
     Key,

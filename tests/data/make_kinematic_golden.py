@@ -15,10 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
-from flatcli.core.control import Gains
-from flatcli.core.model import PAPER_ROBOT
-from flatcli.core.planning import plan_point_to_point
-from flatcli.core.simulate import NoiseStreams, Scenario, Trials, simulate
+from flatcli.core.controllers.control import Gains
+from flatcli.core.loop.simulate import NoiseStreams, Scenario, Trials, simulate
+from flatcli.core.plan.planning import plan_point_to_point
+from flatcli.core.robots.params import PAPER_ROBOT
 
 HERE = Path(__file__).resolve().parent
 #: Every TRACE_STRIDE-th output sample of each trace is kept (the metrics see them all).

@@ -22,9 +22,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from flatcli.core.basis import Basis
+from flatcli.core.curves.basis import Basis
 from flatcli.core.optimize.quantities import Flat
-from flatcli.core.planning import boundary_system, min_acceleration_trajectory
+from flatcli.core.plan.planning import boundary_system, min_acceleration_trajectory
 
 Array = NDArray[np.float64]
 

@@ -27,14 +27,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from flatcli.core.basis import Basis, BSplineBasis, FlatTrajectory
-from flatcli.core.flatmodel import flat_model
-from flatcli.core.model import (
-    FlatcliError,
-    Model,
-    RobotParams,
-    require_flat,
-)
+from flatcli.core.curves.basis import Basis, BSplineBasis, FlatTrajectory
+from flatcli.core.errors import FlatcliError
+from flatcli.core.models.flatmodel import flat_model
 from flatcli.core.optimize.assessment import active_limits
 from flatcli.core.optimize.feasibility import check_ends
 from flatcli.core.optimize.limits import PlanLimits
@@ -43,7 +38,8 @@ from flatcli.core.optimize.problem import Request
 from flatcli.core.optimize.quantities import Flat
 from flatcli.core.optimize.search import Candidate, Search
 from flatcli.core.optimize.tuning import TUNING, Tuning
-from flatcli.core.planning import ENERGY_ORDER, ENERGY_PIECES, Plan
+from flatcli.core.plan.planning import ENERGY_ORDER, ENERGY_PIECES, Plan
+from flatcli.core.robots.params import Model, RobotParams, require_flat
 
 Array = NDArray[np.float64]
 

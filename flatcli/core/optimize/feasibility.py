@@ -34,9 +34,9 @@ from typing import Any, cast
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from flatcli.core.flatmodel import ChainModel, PaperModel
-from flatcli.core.flatness import chart
-from flatcli.core.model import FlatcliError
+from flatcli.core.errors import FlatcliError
+from flatcli.core.models.flatmodel import ChainModel, PaperModel
+from flatcli.core.models.flatness import chart
 from flatcli.core.optimize.limits import PlanLimits
 from flatcli.core.optimize.quantities import ANGLES, NAMES, Flat, layout
 

@@ -20,7 +20,7 @@ from typing import cast
 import numpy as np
 from numpy.typing import NDArray
 
-from flatcli.core.basis import Basis, composite_gauss_legendre
+from flatcli.core.curves.basis import Basis, composite_gauss_legendre
 from flatcli.core.optimize.affine import Affine, affine_map
 from flatcli.core.optimize.feasibility import (
     Ends,
@@ -37,7 +37,7 @@ from flatcli.core.optimize.quantities import (
     layout_of,
 )
 from flatcli.core.optimize.tuning import Tuning
-from flatcli.core.planning import ENERGY_ORDER, ENERGY_PIECES
+from flatcli.core.plan.planning import ENERGY_ORDER, ENERGY_PIECES
 
 Array = NDArray[np.float64]
 #: (low, high) bounds of one decision variable (None: unbounded).

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from flatcli.core.flatmodel import FlatModel
+from flatcli.core.models.flatmodel import FlatModel
 
 Array = NDArray[np.float64]
 

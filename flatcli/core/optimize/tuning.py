@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields
 
-from flatcli.core.model import FlatcliError
+from flatcli.core.errors import FlatcliError
 
 
 @dataclass(frozen=True)

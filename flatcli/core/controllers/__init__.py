@@ -1,0 +1,2 @@
+"""Controllers: the feedback laws (the flat linearising law, the as-built LQR).
+"""

@@ -1,0 +1,522 @@
+"""Model predictive control that respects the actuators: an inner feedback law plus a
+correction chosen at sample instants by a QP over the next H samples.
+
+Between samples the controller is an inner law (the flat outputs' linearising feedback of
+``control``, or the as-built robot's time-varying LQR of ``lqr``) with a correction dv held
+over the sample, added where the law's input enters (the flat law's v = y'': dv is added to
+the plan's y''; the as-built law's joint rates w: dv is added to them). With the
+controller's model, the error s of the state from the plan then obeys, to first order about
+the plan, a linear system that the design discretises exactly over each sample
+[t_k, t_k+1) (zero-order hold on dv):
+
+    s_k+1 = A_k s_k + B_k dv_k,
+
+(the flat law: s = (e_j, e_j') per flat output, e'' = -kp e - kv e' + dv, the same A, B at
+every sample; the as-built law: s = the angles' errors, e' = (A(t) - B(t) L(t)) e + B(t) dv).
+At each sample k (every ``every`` output steps) the controller measures s_k and solves
+
+    minimise   sum_i  s_i' W s_i + r |dv_i|^2      (i over the samples left in the horizon)
+    subject to lo_q <= quantity_q <= hi_q            for each constrained quantity, sample i
+               s = 0 at T                            where T is within the horizon
+
+a QP in the corrections (``qp``). A constrained quantity (a joint rate, the singularity
+margin) is a function of the state and the input, linearised about the plan at each sample:
+quantity = value + slope_s . s_i + slope_v . dv_i (``Design``). Its bounds are soft: one
+slack s >= 0 widens each, at a cost ``SLACK_QUADRATIC`` s^2 / 2 + ``SLACK_LINEAR`` s, so a
+state from which the limits cannot all be kept still gets the correction that violates them
+least, and the sample is counted (``qp_infeasible``); the terminal equalities are hard (with
+two samples or more to go they can be met; in the last sample the correction planned one
+sample earlier is held).
+
+What it guarantees and what it does not: the limits hold at the predicted samples for the
+controller's model and the linearisation about the plan, not between samples, not for a
+plant that differs from the model, and not to the linearisation's error far from the plan
+(tests/test_mpc.py measures it); recursive feasibility is not guaranteed (the slack takes
+what cannot be met).
+
+``design`` tabulates everything a sample needs (numpy, once per plan: ``flat_design``);
+``sample_step`` (compiled into the closed loop, allocating nothing) builds and solves one
+QP.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import numpy as np
+import scipy.linalg
+from numpy.typing import NDArray
+
+from flatcli.core._jit import jitable
+from flatcli.core.controllers import qp
+from flatcli.core.errors import FlatcliError
+
+Array = NDArray[np.float64]
+
+#: The slack's penalty: s^2 / 2 times this plus s times ``SLACK_LINEAR``.
+SLACK_QUADRATIC = 1e4
+SLACK_LINEAR = 1e6
+#: A sample whose slack exceeds this [the quantities' units] counts as infeasible.
+SLACK_TOLERANCE = 1e-9
+#: Active-set iterations per QP at most, per variable and constraint.
+ITERATIONS_PER_ROW = 3
+
+
+@dataclass(frozen=True)
+class MpcSettings:
+    """The MPC's settings (spec ``track.mpc_*``).
+
+    sample : the sample time [s] (a multiple of track.dt that divides plan.duration)
+    horizon : samples predicted, H >= 2
+    kp, kv : the inner flat law's gains per flat output [1/s^2, 1/s] (None: ``INNER_KP``,
+        ``INNER_KV``); the as-built inner law is the LQR of ``track.lqr_*``
+    weight_state : W's diagonal on the errors (the flat law: e and e' of each output)
+    weight_input : r on the correction dv (> 0)
+    margin : the singularity margin kept [rad/s] (0: none)
+    backoff : the joint-rate limit is kept at R (1 - backoff)
+    """
+
+    sample: float = 0.1
+    horizon: int = 20
+    kp: tuple[float, ...] | None = None
+    kv: tuple[float, ...] | None = None
+    weight_state: float = 0.0
+    weight_input: float = 1.0
+    margin: float = 0.05
+    backoff: float = 0.01
+
+    def __post_init__(self) -> None:
+        if not (self.sample > 0 and math.isfinite(self.sample)):
+            raise FlatcliError(f"track.mpc_sample: must be a finite number > 0 s, got "
+                               f"{self.sample}")
+        if not (isinstance(self.horizon, int) and 2 <= self.horizon <= 200):
+            raise FlatcliError(f"track.mpc_horizon: must be an integer in [2, 200], got "
+                               f"{self.horizon!r}")
+        if not (self.weight_state >= 0 and math.isfinite(self.weight_state)):
+            raise FlatcliError(f"track.mpc_weight_state: must be a finite number >= 0, got "
+                               f"{self.weight_state}")
+        if not (self.weight_input > 0 and math.isfinite(self.weight_input)):
+            raise FlatcliError(f"track.mpc_weight_input: must be a finite number > 0, got "
+                               f"{self.weight_input}")
+        if not (self.margin >= 0 and math.isfinite(self.margin)):
+            raise FlatcliError(f"track.mpc_margin: must be a finite number >= 0 rad/s, got "
+                               f"{self.margin}")
+        if not 0 <= self.backoff < 1:
+            raise FlatcliError(f"track.mpc_backoff: must be in [0, 1), got {self.backoff}")
+
+    def every(self, dt: float, duration: float) -> int:
+        """Output steps per sample; FlatcliError naming the key unless the sample time is
+        a multiple of dt that divides the duration."""
+        every = round(self.sample / dt)
+        steps = round(duration / dt)
+        if every < 1 or not math.isclose(every * dt, self.sample, rel_tol=1e-9) or steps % every:
+            raise FlatcliError(f"track.mpc_sample: {self.sample:g} s must be a multiple of "
+                               f"track.dt = {dt:g} s that divides plan.duration = "
+                               f"{duration:g} s")
+        return every
+
+
+#: The inner flat law's default gains: a double pole at -1 rad/s for every output, slow
+#: enough that correcting a few milliradians asks little of the joints (the paper's
+#: gains, with poles at -10 rad/s and beyond, ask rates far beyond a 4 rad/s limit).
+INNER_KP = 1.0
+INNER_KV = 2.0
+
+
+class Design(NamedTuple):
+    """What every sample of one plan's MPC reads (``design``); S error states, N
+    corrections, H samples ahead, K samples in [0, T], Q constrained quantities, n = N H + 1
+    variables (the corrections dv_0..dv_H-1, N each, then the slack).
+
+    A : (K, S, S), B : (K, S, N) the error's transition over sample k
+    weights : (S,) W's diagonal; weight_input : r
+    factors : (K, n, n) ``qp.factor`` of the cost's Hessian at sample k
+    gradients : (K, n, S) the cost's gradient per unit initial error at sample k
+    value : (K + 1, Q) the quantities along the plan at the samples
+    slope_s : (K + 1, Q, S), slope_v : (K + 1, Q, N) their slopes along s and dv
+    lo, hi : (K + 1, Q) their bounds (-inf, inf: none)
+    endpoint : (Q,) 1.0 for a quantity also bounded at the end of each sample interval (it
+        depends on dv, so it jumps at the next sample), 0.0 for one continuous in time
+    """
+
+    A: Array
+    B: Array
+    weights: Array
+    weight_input: float
+    factors: Array
+    gradients: Array
+    value: Array
+    slope_s: Array
+    slope_v: Array
+    lo: Array
+    hi: Array
+    endpoint: Array
+    horizon: int
+    samples: int
+    every: int
+
+
+def discretise(kp: float, kv: float, ts: float) -> tuple[Array, Array]:
+    """The exact transition (2, 2) and input response (2,) over ts [s] of e'' = -kp e - kv e'
+    + dv with dv held (zero-order hold): the matrix exponential of the augmented system."""
+    a = np.array([[0.0, 1.0, 0.0], [-kp, -kv, 1.0], [0.0, 0.0, 0.0]])
+    m = scipy.linalg.expm(a * ts)
+    return np.ascontiguousarray(m[:2, :2]), np.ascontiguousarray(m[:2, 2])
+
+
+def condensed_cost(A: Array, B: Array, weights: Array, weight_input: float, start: int,
+                   horizon: int) -> tuple[Array, Array]:
+    """The Hessian (n, n) and the gradient per unit initial error (n, S) at sample ``start``
+    of the cost over the samples left in the horizon (the corrections after T cost r alone,
+    so they are 0), with the slack's quadratic penalty last."""
+    samples, size, inputs = B.shape
+    costed = min(horizon, samples - start)
+    n = inputs * horizon + 1
+    hessian = np.zeros((n, n))
+    gradient = np.zeros((n, size))
+    W = np.diag(weights)
+    # the error at sample i: Phi_i s0 + sum_k<i Gamma_ik dv_k, built sample by sample
+    phi = np.eye(size)
+    gamma = np.zeros((size, n - 1))
+    for i in range(costed):
+        k = start + i
+        gamma = A[k] @ gamma
+        gamma[:, i * inputs: (i + 1) * inputs] = B[k]
+        phi = A[k] @ phi
+        hessian[:-1, :-1] += gamma.T @ W @ gamma
+        gradient[:-1] += gamma.T @ W @ phi
+    hessian[np.arange(n - 1), np.arange(n - 1)] += weight_input
+    hessian[n - 1, n - 1] = SLACK_QUADRATIC
+    return hessian, gradient
+
+
+def design(A: Array, B: Array, weights: Array, weight_input: float, value: Array,
+           slope_s: Array, slope_v: Array, lo: Array, hi: Array, endpoint: Array,
+           horizon: int, every: int) -> Design:
+    """A ``Design`` from its tables (see there): the cost's factors are computed here."""
+    samples = A.shape[0]
+    factors = []
+    gradients = []
+    for k in range(samples):
+        hessian, gradient = condensed_cost(A, B, weights, weight_input, k, horizon)
+        factors.append(qp.factor(hessian))
+        gradients.append(gradient)
+    def c(a: Any) -> Array:
+        return np.ascontiguousarray(a, dtype=float)
+
+    return Design(c(A), c(B), c(weights), float(weight_input), c(np.stack(factors)),
+                  c(np.stack(gradients)), c(value), c(slope_s), c(slope_v), c(lo), c(hi),
+                  c(endpoint), int(horizon), int(samples), int(every))
+
+
+def flat_design(model: Any, trajectory: Any, duration: float, dt: float, rate_limit: float,
+                settings: MpcSettings) -> Design:
+    """The MPC about a flat plan (module docstring): per flat output j the errors
+    (e_j, e_j') under the inner law e'' = -kp e - kv e' + dv; the quantities are the joint
+    rates th1'..thN' [rad/s] (bounded by the rate limit) and the signed margin [rad/s] (kept
+    at min(margin, |margin along the plan| / 2) on the plan's side), linearised by complex
+    step through the flat model's map from the flag (``FlatModel.flag_jacobian``): the
+    applied flag is the plan's plus (e, e', -kp e - kv e' + dv).
+
+    Parameters
+    ----------
+    model : the flat model the controller believes (``flatmodel.FlatModel``), N joints
+    trajectory : the plan's flat outputs (``basis.FlatTrajectory``)
+    duration : T [s]; dt : the output step [s]
+    rate_limit : the joint-rate limit [rad/s] (inf: none)
+    """
+    n = model.n_joints
+    every = settings.every(dt, duration)
+    samples = round(duration / dt) // every
+    ts = every * dt
+    kp = np.full(n, INNER_KP) if settings.kp is None else np.asarray(settings.kp, dtype=float)
+    kv = np.full(n, INNER_KV) if settings.kv is None else np.asarray(settings.kv, dtype=float)
+    if kp.shape != (n,) or kv.shape != (n,):
+        raise FlatcliError(f"track.mpc_kp, track.mpc_kv: expected {n} gains each, one per "
+                           "flat output")
+    size = 2 * n
+    a = np.zeros((size, size))
+    b = np.zeros((size, n))
+    for j in range(n):
+        aj, bj = discretise(float(kp[j]), float(kv[j]), ts)
+        a[2 * j: 2 * j + 2, 2 * j: 2 * j + 2] = aj
+        b[2 * j: 2 * j + 2, j] = bj
+    A = np.broadcast_to(a, (samples, size, size))
+    B = np.broadcast_to(b, (samples, size, n))
+    times = np.arange(samples + 1) * ts
+    flag = trajectory.flags(times).T  # (3 N, K + 1)
+    values, slopes = model.flag_jacobian(flag)  # (2 N + 2, ...), (2 N + 2, 3 N, K + 1)
+    rows = list(range(n + 1, 2 * n + 2))  # th1'..thN', then the margin
+    value = values[rows].T.copy()  # (K + 1, Q)
+    d = np.transpose(slopes[rows], (2, 0, 1))  # (K + 1, Q, 3 N) along y, y', y''
+    dy, dy_dot, dy_ddot = d[..., :n], d[..., n: 2 * n], d[..., 2 * n:]
+    slope_s = np.zeros((samples + 1, n + 1, size))
+    slope_s[..., 0::2] = dy - kp * dy_ddot
+    slope_s[..., 1::2] = dy_dot - kv * dy_ddot
+    slope_v = dy_ddot.copy()
+    limit = rate_limit * (1.0 - settings.backoff) if math.isfinite(rate_limit) else math.inf
+    lo = np.full((samples + 1, n + 1), -np.inf)
+    hi = np.full((samples + 1, n + 1), np.inf)
+    if math.isfinite(limit):
+        lo[:, :n], hi[:, :n] = -limit, limit
+    sigma = value[:, n]
+    if settings.margin > 0:
+        kept = np.minimum(settings.margin, 0.5 * np.abs(sigma))
+        positive = sigma > 0
+        lo[:, n] = np.where(positive, kept, -np.inf)
+        hi[:, n] = np.where(positive, np.inf, -kept)
+        lo[0, n], hi[0, n] = -np.inf, np.inf  # the measured state: nothing to choose
+    endpoint = (np.abs(slope_v).max(axis=(0, 2)) > 0.0).astype(float)
+    weights = np.full(size, settings.weight_state)
+    return design(A, B, weights, settings.weight_input, value, slope_s, slope_v, lo, hi,
+                  endpoint, settings.horizon, every)
+
+
+def rows(d: Design) -> int:
+    """The QP's constraints at most: S terminal equalities, per sample a two-sided row of
+    each quantity (and of each endpoint one at its interval's end), and the slack's own."""
+    size = int(d.A.shape[1])
+    quantities = int(d.value.shape[1])
+    return size + d.horizon * (quantities + int(d.endpoint.sum())) + 1
+
+
+class Scratch(NamedTuple):
+    """One trial's MPC state and buffers (``scratch``): the correction held dv (N,), the last
+    solution (n,), whether it exists (valid[0]), the QP's rows C (m, n), their bounds lo, hi
+    (m,), widths (m,) and softness (m,) (``qp.solve``), its gradient (n,) and solution
+    (n,), the measured errors s0 (S,), a row (n,) and a row of state slopes (S,) being
+    propagated, the QP's buffers, and counters: QP iterations, infeasible samples, largest
+    slack."""
+
+    held: Array
+    last: Array
+    valid: Array
+    C: Array
+    lo: Array
+    hi: Array
+    width: NDArray[np.int64]
+    soft: Array
+    g: Array
+    x: Array
+    s0: Array
+    row: Array
+    slope: Array
+    spare: Array
+    work: qp.Work
+    counters: Array
+
+
+def scratch(d: Design) -> Scratch:
+    """Fresh buffers for one trial's samples."""
+    inputs = d.B.shape[2]
+    size = d.factors.shape[1]
+    states = d.A.shape[1]
+    m = rows(d)
+    return Scratch(np.zeros(inputs), np.zeros(size), np.zeros(1), np.zeros((m, size)),
+                   np.zeros(m), np.zeros(m), np.zeros(m, dtype=np.int64), np.zeros(m),
+                   np.zeros(size), np.zeros(size), np.zeros(states), np.zeros(size),
+                   np.zeros(states), np.zeros(states), qp.work(size, m), np.zeros(3))
+
+
+#: Where ``Scratch.counters`` keeps what a trial reports.
+QP_ITERATIONS, QP_INFEASIBLE, QP_SLACK = 0, 1, 2
+
+
+@jitable
+def reset(s: Scratch) -> None:
+    """A trial starts: no correction held, no solution, counters at 0."""
+    s.held[:] = 0.0
+    s.valid[0] = 0.0
+    s.counters[:] = 0.0
+
+
+@jitable
+def _row(d: Design, s: Scratch, k: int, i: int, at: int, q: int, direct: int) -> float:
+    """Into s.row: the coefficients on the corrections of quantity q's deviation from the
+    plan's at sample ``at`` given the state at horizon sample i (q < 0: the unit state
+    component -q - 1), plus its slope along dv_direct (direct < 0: none); returns the
+    deviation's value from s0 alone. The state's slope row is carried back through the
+    transitions (slope . A_k+i-1 ... A_k+j+1 B_k+j for dv_j)."""
+    inputs = d.B.shape[2]
+    states = d.A.shape[1]
+    slope, spare = s.slope, s.spare
+    for c in range(states):
+        slope[c] = (1.0 if c == -q - 1 else 0.0) if q < 0 else d.slope_s[at, q, c]
+    s.row[:] = 0.0
+    for j in range(i - 1, -1, -1):
+        kk = k + j
+        for v in range(inputs):
+            acc = 0.0
+            for c in range(states):
+                acc += slope[c] * d.B[kk, c, v]
+            s.row[j * inputs + v] = acc
+        for c in range(states):
+            acc = 0.0
+            for r in range(states):
+                acc += slope[r] * d.A[kk, r, c]
+            spare[c] = acc
+        for c in range(states):
+            slope[c] = spare[c]
+    if direct >= 0 and q >= 0:
+        for v in range(inputs):
+            s.row[direct * inputs + v] += d.slope_v[at, q, v]
+    value = 0.0
+    for c in range(states):
+        value += slope[c] * s.s0[c]
+    return value
+
+
+@jitable
+def _append(s: Scratch, count: int, width: int, lo: float, hi: float, slack: bool) -> int:
+    """Row ``count`` of the QP: lo <= s.row[:width] x (+- the slack) <= hi; returns
+    count + 1."""
+    for c in range(width):
+        s.C[count, c] = s.row[c]
+    s.lo[count] = lo
+    s.hi[count] = hi
+    s.width[count] = width
+    s.soft[count] = 1.0 if slack else 0.0
+    return count + 1
+
+
+@jitable
+def sample_step(d: Design, s: Scratch, k: int) -> None:
+    """The correction for sample k (0..K - 1) into s.held, from the errors s.s0 measured
+    there (module docstring)."""
+    inputs = d.B.shape[2]
+    states = d.A.shape[1]
+    quantities = d.value.shape[1]
+    size = s.row.shape[0]
+    remaining = d.samples - k
+    if remaining <= 1:  # the last sample: hold what was planned for it one sample ago
+        for v in range(inputs):
+            s.held[v] = s.last[inputs + v] if s.valid[0] != 0.0 else 0.0
+        return
+    costed = min(d.horizon, remaining)
+    gradient = d.gradients[k]
+    for c in range(size):
+        acc = 0.0
+        for q in range(states):
+            acc += gradient[c, q] * s.s0[q]
+        s.g[c] = acc
+    s.g[size - 1] += SLACK_LINEAR
+    count = 0
+    if remaining <= d.horizon:  # the goal: s(T) = 0
+        for c in range(states):
+            value = _row(d, s, k, remaining, k + remaining, -c - 1, -1)
+            count = _append(s, count, remaining * inputs, -value, -value, False)
+    meq = count
+    for i in range(costed):
+        for q in range(quantities):
+            for end in range(2):  # at the interval's start; an endpoint also at its end
+                if end == 1 and d.endpoint[q] == 0.0 and i < costed - 1:
+                    continue  # a continuous quantity: the next sample's start row
+                at = k + i + end
+                lo = d.lo[at, q]
+                hi = d.hi[at, q]
+                if math.isinf(lo) and math.isinf(hi):
+                    continue
+                deviation = _row(d, s, k, i + end, at, q, i)
+                value = d.value[at, q] + deviation
+                width = (i + 1) * inputs
+                if end == 0 and d.endpoint[q] == 0.0:
+                    width = i * inputs  # no dv of its own sample: a state's function
+                    if i == 0:
+                        continue  # the measured state: nothing to choose
+                count = _append(s, count, width, lo - value, hi - value, True)
+    count = _append(s, count, 0, 0.0, math.inf, True)  # the slack itself: s >= 0
+    status, iterations, _ = qp.solve(d.factors[k], s.g, s.C, s.lo, s.hi, s.width, s.soft,
+                                     meq, count, s.x, s.work,
+                                     ITERATIONS_PER_ROW * (size + count))
+    s.counters[QP_ITERATIONS] += iterations
+    if status != qp.OPTIMAL:  # no correction: the inner law alone
+        s.counters[QP_INFEASIBLE] += 1.0
+        s.held[:] = 0.0
+        s.valid[0] = 0.0
+        return
+    slack = s.x[size - 1]
+    if slack > SLACK_TOLERANCE:
+        s.counters[QP_INFEASIBLE] += 1.0
+    s.counters[QP_SLACK] = max(s.counters[QP_SLACK], slack)
+    for v in range(inputs):
+        s.held[v] = s.x[v]
+    for c in range(size):
+        s.last[c] = s.x[c]
+    s.valid[0] = 1.0
+
+
+def asbuilt_design(plan: Any, weights: Any, dt: float, rate_limit: float,
+                   settings: MpcSettings, servo: float | None = None) -> Design:
+    """The MPC about a plan of a robot as built (module docstring): the inner law is the
+    as-built LQR w = w_r - L(t) e (``lqr``: its weights ``weights``, designed on the plan's
+    robot; the dynamic plant's servo lag of bandwidth ``servo`` [rad/s] a state too) and
+    dv is added to the joint rates it commands; the errors e (the angles th0..thN, then the
+    joint rates with a servo: the order of ``lqr.linearisation``) obey, to first order,
+    e' = (A(t) - B(t) L(t)) e + B(t) dv, discretised over each sample by integrating the
+    transition and the response to a held dv (DOP853 at rtol ``DISCRETE_RTOL``). The
+    quantities are the commanded joint rates w_r - L e + dv (with a servo, plus the plan's
+    joint accelerations over its bandwidth: the lead the law adds), bounded by the rate
+    limit; there is no singular set, so no margin.
+
+    Raises FlatcliError naming the key if the sample time does not fit (``MpcSettings``).
+    """
+    from scipy.integrate import solve_ivp
+
+    from flatcli.core.controllers.lqr import TrackedLayout, linearisation, tracked
+    from flatcli.core.plan.exact import constraint_of
+
+    duration = plan.duration
+    every = settings.every(dt, duration)
+    samples = round(duration / dt) // every
+    ts = every * dt
+    n = plan.n_joints
+    curves = tracked(plan, weights, servo)
+    layout = TrackedLayout(n, 2 * n + 1 if servo is not None else n + 1)
+    size = layout.width
+    constraint = constraint_of(plan.robot)
+
+    def closed_loop(t: float) -> tuple[Array, Array]:
+        channels = curves.derivative(np.array([t]), 0)[0]
+        rates = curves.derivative(np.array([t]), 1)[0]
+        a, b = linearisation(constraint, channels[None, :n], rates[None, :n], servo)
+        gains = channels[n + 1:].reshape(n, size)
+        return a[0] - b[0] @ gains, b[0]
+
+    def rhs(t: float, z: Array) -> Array:
+        acl, b = closed_loop(t)
+        phi = z[: size * size].reshape(size, size)
+        gamma = z[size * size:].reshape(size, n)
+        return np.concatenate([(acl @ phi).ravel(), (acl @ gamma + b).ravel()])
+
+    A = np.zeros((samples, size, size))
+    B = np.zeros((samples, size, n))
+    start = np.concatenate([np.eye(size).ravel(), np.zeros(size * n)])
+    for k in range(samples):
+        sol = solve_ivp(rhs, (k * ts, (k + 1) * ts), start, method="DOP853",
+                        rtol=DISCRETE_RTOL, atol=DISCRETE_ATOL)
+        if not sol.success:
+            raise FlatcliError(f"track.mpc_sample: the as-built law's error could not be "
+                               f"discretised over sample {k} ({sol.message})")
+        end = sol.y[:, -1]
+        A[k] = end[: size * size].reshape(size, size)
+        B[k] = end[size * size:].reshape(size, n)
+    times = np.arange(samples + 1) * ts
+    channels = curves.derivative(times, 0)
+    value = curves.derivative(times, 1)[:, :n].copy()  # w_r: the joints' planned rates
+    if servo is not None:
+        value += curves.derivative(times, 2)[:, :n] / servo
+    slope_s = -channels[:, n + 1:].reshape(samples + 1, n, size)
+    slope_v = np.broadcast_to(np.eye(n), (samples + 1, n, n)).copy()
+    limit = rate_limit * (1.0 - settings.backoff) if math.isfinite(rate_limit) else math.inf
+    lo = np.full((samples + 1, n), -limit)
+    hi = np.full((samples + 1, n), limit)
+    endpoint = np.ones(n)
+    return design(A, B, np.full(size, settings.weight_state), settings.weight_input, value,
+                  slope_s, slope_v, lo, hi, endpoint, settings.horizon, every)
+
+
+#: Tolerances of the as-built design's discretisation over each sample.
+DISCRETE_RTOL = 1e-10
+DISCRETE_ATOL = 1e-12

@@ -1,0 +1,781 @@
+"""The compiled closed loop: one kernel factory, one kernel per (model, plant).
+
+A closed loop is the controller's model (the paper's closed form for N = 2, ``plant``'s
+right-hand sides, or the general chain of ``chainloop`` and ``chaindynamic``) driving a
+plant (kinematic or dynamic). Each combination supplies the same few functions, its
+``Ops``:
+
+* ``make_loop(shared, trials, i, scratch)``: trial i's loop record (its plant, its H0, its
+  servo; the controller's model and gains in ``shared``);
+* ``bounded(loop)``: whether the actuators bound the right-hand side where the controller's
+  margin changes sign (a finite rate limit, or a finite torque limit on the dynamic plant):
+  then the integrators pass such a crossing, else the trial stops there;
+* ``initial_state(loop, initial, ref0, x0)``: the state at t = 0 into x0;
+* ``rhs``, ``observe``, ``record``: the right-hand side and what an output sample keeps
+  (``integrate.make_trial_integrators`` compiles the integrators around them);
+* ``residual(loop, trials, i, plan_theta, plan_theta_dot)``: the plan's momentum residual
+  on the trial's plant.
+
+``make_batch`` builds from them the batch runner every kernel is: trial after trial, RK4 or
+the adaptive Dormand-Prince, metrics and status (``metrics.conclude_trial``); ``make_rhs``
+and ``make_observer`` the single evaluations the scipy reference (``reference``) calls.
+The four kernels of each kind below are those factories' functions, compiled once
+(``KERNELS``, looked up by ``(model kind, plant)``).
+
+Every buffer a kernel writes into is made by the caller (``Buffers``): the kernels run
+without numba's reference counting (``_jit.kernel``), which on the N-link loop, whose
+records hold arrays, costs more than the arithmetic.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+
+from flatcli.core._jit import jitable, jitable_variant, kernel, variant_tag
+from flatcli.core.controllers.control import Gains
+from flatcli.core.loop.chaindynamic import (
+    ChainDynamicLoop,
+    chain_dynamic_aux,
+    chain_dynamic_initial,
+    chain_dynamic_loop,
+    chain_dynamic_rhs,
+    chain_dynamic_stage,
+    chain_dynamic_state,
+    make_scratch,
+    observe_chain_dynamic,
+    record_chain_dynamic,
+)
+from flatcli.core.loop.chainloop import ChainLoop, chain_rhs, observe_chain, plan_residual
+from flatcli.core.loop.integrate import (
+    WORK_ROWS,
+    make_trial_integrators,
+    observed,
+    plan_flag,
+    record_rates,
+)
+from flatcli.core.loop.metrics import (
+    ACCUMULATOR_SIZE,
+    Event,
+    conclude_trial,
+    finish_metrics,
+    observe_crossing,
+    plan_momentum_residual,
+    reset_accumulator,
+)
+from flatcli.core.loop.paperloop import (
+    DYNAMIC_AUX,
+    DYNAMIC_STATE,
+    KINEMATIC_AUX,
+    KINEMATIC_STATE,
+    DynamicLoop,
+    Loop,
+    dynamic_initial,
+    dynamic_rhs,
+    is_flat_plant,
+    kinematic_rhs,
+    observe_dynamic,
+    observe_kinematic,
+    record_dynamic,
+)
+from flatcli.core.models.chainflat import Scratch, scratch
+from flatcli.core.robots.chain import barycentric_matrices, barycentric_matrix
+from flatcli.core.robots.dynamics import ThreeBody
+from flatcli.core.robots.params import (
+    Coefficients,
+    Links,
+    RobotParams,
+    constraint_coefficients,
+    momentum,
+)
+
+Array = NDArray[np.float64]
+
+#: The kernels' integrator codes.
+RK4 = 0
+ADAPTIVE = 1
+EVENT_NONE = int(Event.NONE)
+
+
+class Grid(NamedTuple):
+    """The plan on the scenario's grids: ref (2 n + 1, 3 N) y, y', y'' at half steps;
+    theta_ref (n + 1, N + 1) its angles on the output grid; breaks, local its piecewise
+    polynomials (``integrate.plan_flag``); plan_theta, plan_theta_dot (p, N + 1) on its own
+    grid (for the momentum residual)."""
+
+    ref: Array
+    theta_ref: Array
+    breaks: Array
+    local: Array
+    plan_theta: Array
+    plan_theta_dot: Array
+
+
+class Settings(NamedTuple):
+    """dt [s], the divergence bound, the singular threshold [rad/s], rtol, atol, the step
+    budget, whether traces are kept, the twin's tolerance factor (0: no twin; see
+    ``make_batch``), and which output samples the metrics observe: every ``every``-th one
+    and the last (1: all; ``integrate.observed``)."""
+
+    dt: float
+    bound: float
+    threshold: float
+    rtol: float
+    atol: float
+    max_steps: int
+    record: bool
+    twin: float
+    every: int = 1
+
+
+class TrialArrays(NamedTuple):
+    """What differs between trials (T of them): params (T, 4 (N + 1)) mass, inertia,
+    length, com (of the plant's equivalent placement, ``model.RobotParams.placement``); h0
+    (T,) [kg m^2/s]; servo (T, 2) bandwidth [rad/s], torque limit [N m]; initial (T, 2 N)
+    th(0), u(0); plant (T, ...) the plant's constraint coefficients (the paper's robot,
+    (T, 11)) or its barycentric matrix K (chains, (T, N + 1, N + 1)); offset (T,) the turn
+    of its last link that placement adds [rad] (0: none)."""
+
+    params: Array
+    h0: Array
+    servo: Array
+    initial: Array
+    plant: Array
+    offset: Array
+
+
+class Results(NamedTuple):
+    """Written per trial: metrics (T, N_METRICS), status, event (T,), event_time (T,),
+    trace (T, n + 1, width) if recorded (else (0, 0, width)), and final (T, N + 1) the
+    plant's angles th0..thN at t = T [rad] (nan where the trial stopped before T)."""
+
+    metrics: Array
+    status: NDArray[np.int64]
+    event: NDArray[np.int64]
+    event_time: Array
+    trace: Array
+    final: Array
+
+
+class Buffers(NamedTuple):
+    """The kernels' scratch, made by the caller (``Kernels.buffers``): the integrator's work
+    rows, the metrics' accumulator (and the twin's), the noise of the measured angles, two
+    flags of the plan, the state at t = 0 and at the end, an empty trace, and the loop's own
+    scratch (``Ops.scratch``)."""
+
+    work: Array
+    acc: Array
+    twin_acc: Array
+    noise: Array
+    flag: Array
+    flag_end: Array
+    x0: Array
+    final: Array
+    no_trace: Array
+    scratch: Any
+
+
+@dataclass(frozen=True)
+class Ops:
+    """The functions of one (model, plant) combination (module docstring), and its sizes:
+    ``state(n)`` and ``aux(n)`` (what its right-hand side writes after the state's
+    derivative, the margin first), ``width(n)`` (a trace row), ``scratch(n)`` (its loop's
+    buffers); ``stage`` (None: ``rhs``), the right-hand side of the integrators' stages,
+    whose outputs after the margin nobody reads (``integrate.make_trial_integrators``)."""
+
+    make_loop: Callable[..., Any]
+    bounded: Callable[..., bool]
+    initial_state: Callable[..., None]
+    rhs: Callable[..., None]
+    observe: Callable[..., None]
+    record: Callable[..., None]
+    residual: Callable[..., float]
+    state: Callable[[int], int]
+    aux: Callable[[int], int]
+    width: Callable[[int], int]
+    scratch: Callable[[int], Any]
+    stage: Callable[..., None] | None = None
+
+
+def ops_tag(ops: Ops) -> str:
+    """``_jit.variant_tag`` of a combination's compiled functions."""
+    return variant_tag(ops.make_loop, ops.bounded, ops.initial_state, ops.rhs, ops.observe,
+                       ops.record, ops.residual, ops.stage or ops.rhs)
+
+
+def make_batch(ops: Ops) -> Callable[..., None]:
+    """The batch runner of a combination: every trial integrated alone, in order.
+
+    With ``settings.twin`` f in (0, 1) an adaptive trial that reaches T is integrated a second
+    time, at its tolerances times f and without observing (a *twin*). The adaptive
+    integrator's global error is about proportional to its tolerance, so the twin's error is
+    about f times the trial's, the two final solutions differ by about (1 - f) times the
+    trial's own error, and ``err_estimate`` is the Euclidean norm of the difference of their
+    final angles divided by (1 - f) [rad] (docs, *Metrics*). A tighter twin, not a looser
+    one: the estimate then rests on the twin being the better solution, not on the errors'
+    proportionality, which near the default tolerances fails by up to 8x (a looser twin, and
+    one at a tenth, each fell below the true error by more than 3x on 1 in 200 perturbed
+    trials; one at a hundredth stayed within 0.70-1.36 of it on 595).
+    """
+    rk4_trial, adaptive_trial = make_trial_integrators(ops.rhs, ops.observe, ops.record,
+                                                       ops.stage)
+    make_loop, bounded, initial_state, residual = (ops.make_loop, ops.bounded,
+                                                   ops.initial_state, ops.residual)
+    variant = jitable_variant(ops_tag(ops))
+
+    @variant
+    def run_batch(method: int, shared: Any, trials: TrialArrays, grid: Grid,
+                  settings: Settings, tables: Array, buffers: Buffers,
+                  results: Results) -> None:
+        n = grid.theta_ref.shape[0] - 1
+        angles = grid.theta_ref.shape[1]
+        obs = (grid.theta_ref, grid.ref, settings.threshold)
+        x0 = buffers.x0
+        work = buffers.work
+        for i in range(trials.params.shape[0]):
+            loop = make_loop(shared, trials, i, buffers.scratch)
+            passes = bounded(loop)
+            initial_state(loop, trials.initial[i], grid.ref[0], x0)
+            acc = buffers.acc
+            reset_accumulator(acc)
+            tr = results.trace[i] if settings.record else buffers.no_trace
+            estimate = math.nan
+            at_end = results.final[i]
+            if method == RK4:
+                last, ev, t_ev, evaluations = rk4_trial(
+                    loop, obs, x0, grid.ref, grid.breaks, grid.local, buffers.flag,
+                    buffers.flag_end, settings.dt, n, settings.bound, passes, tables[i],
+                    settings.record, tr, acc, work, buffers.noise, settings.every)
+                steps = last
+            else:
+                last, ev, t_ev, steps, evaluations = adaptive_trial(
+                    loop, obs, x0, grid.breaks, grid.local, settings.dt, n, settings.bound,
+                    settings.rtol, settings.atol, settings.max_steps, tables[i],
+                    settings.record, tr, acc, work, buffers.noise, buffers.flag, grid.ref,
+                    passes, True, settings.every)
+            # the angles at T, where the trial got there (both integrators leave their last
+            # state in integrate._X, the first work row); before the twin overwrites it
+            for k in range(angles):
+                at_end[k] = work[0, k] if ev == EVENT_NONE else math.nan
+            if method != RK4 and ev == EVENT_NONE and settings.twin > 0.0:
+                final = buffers.final
+                for k in range(angles):
+                    final[k] = work[0, k]  # the trial's end (integrate._X)
+                reset_accumulator(buffers.twin_acc)
+                _, twin_ev, _, _, twin_evaluations = adaptive_trial(
+                    loop, obs, x0, grid.breaks, grid.local, settings.dt, n,
+                    settings.bound, settings.rtol * settings.twin,
+                    settings.atol * settings.twin, settings.max_steps, tables[i], False,
+                    buffers.no_trace, buffers.twin_acc, work, buffers.noise, buffers.flag,
+                    grid.ref, passes, False, 1)
+                evaluations += twin_evaluations
+                if twin_ev == EVENT_NONE:
+                    gap = 0.0
+                    for k in range(angles):
+                        gap += (work[0, k] - final[k]) ** 2
+                    estimate = math.sqrt(gap) / (1.0 - settings.twin)
+            conclude_trial(i, residual(loop, trials, i, grid.plan_theta, grid.plan_theta_dot),
+                           acc, last, n, ev, t_ev, estimate, steps, evaluations, settings.dt,
+                           settings.record, tr, results.metrics, results.status,
+                           results.event, results.event_time)
+
+    return run_batch
+
+
+def make_single(ops: Ops) -> tuple[Callable[..., None], Callable[..., None],
+                                   Callable[..., float], Callable[..., None]]:
+    """(initial_of, rhs_at, observe_trace, record_trace) of a combination, one trial i at a
+    time (for the scipy reference): the state at t = 0 into ``out``; the state's derivative
+    and the aux values at time t into ``out``; the metrics of a trace computed elsewhere
+    (samples 0..last, and the times of the crossings it passed; returns the first singular
+    hit's time, nan if none); the trace rows of those samples."""
+    make_loop, initial_state, rhs, observe, residual, record = (
+        ops.make_loop, ops.initial_state, ops.rhs, ops.observe, ops.residual, ops.record)
+    variant = jitable_variant(ops_tag(ops))
+
+    @variant
+    def initial_of(shared: Any, trials: TrialArrays, i: int, grid: Grid, buffers: Buffers,
+                   out: Array) -> None:
+        loop = make_loop(shared, trials, i, buffers.scratch)
+        initial_state(loop, trials.initial[i], grid.ref[0], out)
+
+    @variant
+    def rhs_at(shared: Any, trials: TrialArrays, i: int, grid: Grid, buffers: Buffers,
+               t: float, x: Array, noise: Array, out: Array) -> None:
+        """At time t, the plan's flag evaluated there (t < 0: row -t - 1 of grid.ref, the
+        flag tabulated on the half-step grid, exactly as the kernels observe it)."""
+        loop = make_loop(shared, trials, i, buffers.scratch)
+        if t < 0.0:
+            rhs(loop, x, grid.ref[int(-t) - 1], noise, out)
+            return
+        plan_flag(grid.breaks, grid.local, t, buffers.flag)
+        rhs(loop, x, buffers.flag, noise, out)
+
+    @variant
+    def observe_trace(shared: Any, trials: TrialArrays, i: int, grid: Grid,
+                      settings: Settings, buffers: Buffers, states: Array, rates: Array,
+                      last: int, complete: bool, crossings: Array, out: Array) -> float:
+        loop = make_loop(shared, trials, i, buffers.scratch)
+        acc = buffers.acc
+        reset_accumulator(acc)
+        obs = (grid.theta_ref, grid.ref, settings.threshold)
+        n = grid.theta_ref.shape[0] - 1
+        for j in range(last + 1):
+            if observed(j, n, settings.every):
+                observe(loop, obs, acc, j, states[j], rates[j])
+        for t in crossings:
+            observe_crossing(acc, t)
+        return finish_metrics(out, acc, complete, settings.dt,
+                              residual(loop, trials, i, grid.plan_theta, grid.plan_theta_dot),
+                              math.nan, 0, 0)
+
+    @variant
+    def record_trace(states: Array, rates: Array, last: int, trace: Array) -> None:
+        nx = states.shape[1]
+        for j in range(last + 1):
+            record(trace, j, nx, states[j], rates[j])
+
+    return initial_of, rhs_at, observe_trace, record_trace
+
+
+# --------------------------------------------------------------------------------------
+# The paper's robot (N = 2): the closed forms of ``plant`` (its right-hand sides)
+
+
+class PaperShared(NamedTuple):
+    """The controller of the paper's robot: its coefficients, gains (``control.PaperGains``),
+    the joint-rate limit [rad/s]; for the dynamic plant the nominal robot's three-body
+    chain (the servo's model unless ``servo_is_plant``)."""
+
+    kc: Coefficients
+    gains: Any
+    rate_limit: float
+    robot: ThreeBody
+    robot_links: Links
+    servo_is_plant: bool
+
+
+@jitable
+def _links_row(a: Array, i: int) -> Links:
+    return Links(a[i, 0], a[i, 1], a[i, 2], a[i, 3], a[i, 4], a[i, 5],
+                 a[i, 6], a[i, 7], a[i, 8], a[i, 9], a[i, 10], a[i, 11])
+
+
+@jitable
+def _coefficients_row(a: Array, i: int) -> Coefficients:
+    return Coefficients(a[i, 0], a[i, 1], a[i, 2], a[i, 3], a[i, 4], a[i, 5],
+                        a[i, 6], a[i, 7], a[i, 8], a[i, 9], a[i, 10])
+
+
+@jitable
+def _three_body(K: Array, p: Links) -> ThreeBody:
+    """The three-body chain of a plant from its barycentric matrix K (3, 3)."""
+    return ThreeBody(K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2], K[2, 2], p.i0, p.i1, p.i2)
+
+
+@jitable
+def _paper_kinematic_loop(shared: PaperShared, trials: TrialArrays, i: int,
+                          scratch: Any) -> Loop:
+    p = _links_row(trials.params, i)
+    kq = _coefficients_row(trials.plant, i)
+    return Loop(shared.kc, shared.gains, kq, p, p.m0 + p.m1 + p.m2, trials.h0[i],
+                shared.rate_limit, is_flat_plant(kq), trials.offset[i])
+
+
+@jitable
+def _paper_dynamic_loop(shared: PaperShared, trials: TrialArrays, i: int,
+                        scratch: Any) -> DynamicLoop:
+    p = _links_row(trials.params, i)
+    plant = _three_body(trials.plant[i], p)
+    servo = plant if shared.servo_is_plant else shared.robot
+    same = shared.servo_is_plant or plant == servo
+    return DynamicLoop(shared.kc, shared.gains, p, plant, servo, same, trials.h0[i],
+                       shared.rate_limit, trials.servo[i, 0], trials.servo[i, 1],
+                       trials.offset[i])
+
+
+@jitable
+def _rates_bounded(loop: Any) -> bool:
+    """The kinematic plant: the joint rates are clipped to a finite rate limit."""
+    return not math.isinf(loop.rate_limit)
+
+
+@jitable
+def _rates_or_torques_bounded(loop: Any) -> bool:
+    """The dynamic plant: its servos' commands clipped to a finite rate limit, or their
+    torques to a finite torque limit (0 included: no torque at all)."""
+    return not (math.isinf(loop.rate_limit) and math.isinf(loop.torque_limit))
+
+
+@jitable
+def _copy_initial(loop: Any, initial: Array, ref0: Array, x0: Array) -> None:
+    for k in range(x0.shape[0]):
+        x0[k] = initial[k]
+
+
+@jitable
+def _paper_residual(loop: Any, trials: TrialArrays, i: int, plan_theta: Array,
+                    plan_theta_dot: Array) -> float:
+    offset = trials.offset[i]
+    links = _links_row(trials.params, i)
+    if offset == 0.0:
+        return plan_momentum_residual(plan_theta, plan_theta_dot, links, trials.h0[i])
+    residual = 0.0  # the plant's link 2 turned (``paperloop.Loop.offset``)
+    for j in range(plan_theta.shape[0]):
+        h = momentum(links, plan_theta[j, 0], plan_theta[j, 1], plan_theta[j, 2] + offset,
+                     plan_theta_dot[j, 0], plan_theta_dot[j, 1], plan_theta_dot[j, 2])
+        residual = max(residual, abs(h - trials.h0[i]))
+    return residual
+
+
+def _no_scratch(n: int) -> Any:
+    return np.zeros(1)
+
+
+PAPER_KINEMATIC = Ops(
+    _paper_kinematic_loop, _rates_bounded, _copy_initial, kinematic_rhs, observe_kinematic,
+    record_rates, _paper_residual, lambda n: KINEMATIC_STATE, lambda n: KINEMATIC_AUX,
+    lambda n: KINEMATIC_STATE + 3, _no_scratch)
+PAPER_DYNAMIC = Ops(
+    _paper_dynamic_loop, _rates_or_torques_bounded, dynamic_initial, dynamic_rhs,
+    observe_dynamic, record_dynamic, _paper_residual, lambda n: DYNAMIC_STATE,
+    lambda n: DYNAMIC_AUX, lambda n: DYNAMIC_STATE + 3, _no_scratch)
+
+
+# --------------------------------------------------------------------------------------
+# Chains of N links: the general model of ``chainloop`` and ``chaindynamic``
+
+
+class ChainShared(NamedTuple):
+    """The controller of a chain: its K (N + 1, N + 1) and inertias (N + 1,), gains kp, kv
+    (N,), the joint-rate limit [rad/s], and whether the dynamic plant's servo knows the
+    plant (else it believes the controller's chain)."""
+
+    Kc: Array
+    Ic: Array
+    kp: Array
+    kv: Array
+    rate_limit: float
+    servo_is_plant: bool
+
+
+class ChainScratch(NamedTuple):
+    """A chain loop's buffers: the kinematic loop's rows (6, N + 1) and the flat maps'
+    (``chainflat.Scratch``); the dynamic plant's rows, trigonometry and matrices."""
+
+    rows: Array
+    maps: Scratch
+    dynamic_rows: Array
+    trig: Array
+    matrices: Array
+
+
+def _chain_scratch(n: int) -> ChainScratch:
+    return ChainScratch(np.zeros((8, n + 1)), scratch(n), *make_scratch(n))
+
+
+@jitable
+def _chain_kinematic_loop(shared: ChainShared, trials: TrialArrays, i: int,
+                          scratch: ChainScratch) -> ChainLoop:
+    p = trials.params[i]
+    nb = shared.Ic.shape[0]
+    offset = trials.offset[i]
+    return ChainLoop(shared.Kc, shared.Ic, shared.kp, shared.kv, trials.plant[i],
+                     p[nb: 2 * nb], p, trials.h0[i], shared.rate_limit, scratch.rows,
+                     scratch.maps, np.cos(offset), np.sin(offset))
+
+
+@jitable
+def _chain_dynamic_loop(shared: ChainShared, trials: TrialArrays, i: int,
+                        scratch: ChainScratch) -> ChainDynamicLoop:
+    p = trials.params[i]
+    nb = shared.Ic.shape[0]
+    return chain_dynamic_loop(shared.Kc, shared.Ic, shared.kp, shared.kv, trials.plant[i],
+                              p[nb: 2 * nb], shared.servo_is_plant, p, trials.h0[i],
+                              shared.rate_limit, trials.servo[i, 0], trials.servo[i, 1],
+                              scratch.dynamic_rows, scratch.trig, scratch.matrices,
+                              scratch.maps, trials.offset[i])
+
+
+@jitable
+def _chain_residual(loop: Any, trials: TrialArrays, i: int, plan_theta: Array,
+                    plan_theta_dot: Array) -> float:
+    return plan_residual(plan_theta, plan_theta_dot, trials.params[i], trials.h0[i],
+                         loop.work.cs, loop.work.sn, loop.cos_p, loop.sin_p)
+
+
+CHAIN_KINEMATIC = Ops(
+    _chain_kinematic_loop, _rates_bounded, _copy_initial, chain_rhs, observe_chain,
+    record_rates, _chain_residual, lambda n: 2 * n, lambda n: 1, lambda n: 3 * n + 1,
+    _chain_scratch)
+CHAIN_DYNAMIC = Ops(
+    _chain_dynamic_loop, _rates_or_torques_bounded, chain_dynamic_initial, chain_dynamic_rhs,
+    observe_chain_dynamic, record_chain_dynamic, _chain_residual, chain_dynamic_state,
+    chain_dynamic_aux, lambda n: 4 * n + 2, _chain_scratch, chain_dynamic_stage)
+
+
+# --------------------------------------------------------------------------------------
+# The kernels: the factories' functions, compiled (numba caches each on disk)
+
+_paper_kinematic_batch = make_batch(PAPER_KINEMATIC)
+(_paper_kinematic_initial, _paper_kinematic_rhs, _paper_kinematic_observe,
+ _paper_kinematic_record) = make_single(PAPER_KINEMATIC)
+_paper_dynamic_batch = make_batch(PAPER_DYNAMIC)
+(_paper_dynamic_initial, _paper_dynamic_rhs, _paper_dynamic_observe,
+ _paper_dynamic_record) = make_single(PAPER_DYNAMIC)
+_chain_kinematic_batch = make_batch(CHAIN_KINEMATIC)
+(_chain_kinematic_initial, _chain_kinematic_rhs, _chain_kinematic_observe,
+ _chain_kinematic_record) = make_single(CHAIN_KINEMATIC)
+_chain_dynamic_batch = make_batch(CHAIN_DYNAMIC)
+(_chain_dynamic_initial, _chain_dynamic_rhs, _chain_dynamic_observe,
+ _chain_dynamic_record) = make_single(CHAIN_DYNAMIC)
+
+
+@kernel
+def paper_kinematic_batch(
+    method: int, shared: PaperShared, trials: TrialArrays, grid: Grid, settings: Settings,
+    tables: Array, buffers: Buffers, results: Results,
+) -> None:
+    _paper_kinematic_batch(method, shared, trials, grid, settings, tables, buffers, results)
+
+
+@kernel
+def paper_kinematic_start(
+    shared: PaperShared, trials: TrialArrays, i: int, grid: Grid, buffers: Buffers, out: Array,
+) -> None:
+    _paper_kinematic_initial(shared, trials, i, grid, buffers, out)
+
+
+@kernel
+def paper_kinematic_derivative(
+    shared: PaperShared, trials: TrialArrays, i: int, grid: Grid, buffers: Buffers, t: float,
+    x: Array, noise: Array, out: Array,
+) -> None:
+    _paper_kinematic_rhs(shared, trials, i, grid, buffers, t, x, noise, out)
+
+
+@kernel
+def paper_kinematic_metrics(
+    shared: PaperShared, trials: TrialArrays, i: int, grid: Grid, settings: Settings,
+    buffers: Buffers, states: Array, rates: Array, last: int, complete: bool, crossings: Array,
+    out: Array,
+) -> float:
+    return _paper_kinematic_observe(
+        shared, trials, i, grid, settings, buffers, states, rates, last, complete, crossings,
+        out)
+
+
+@kernel
+def paper_kinematic_trace(states: Array, rates: Array, last: int, trace: Array) -> None:
+    _paper_kinematic_record(states, rates, last, trace)
+
+
+@kernel
+def paper_dynamic_batch(
+    method: int, shared: PaperShared, trials: TrialArrays, grid: Grid, settings: Settings,
+    tables: Array, buffers: Buffers, results: Results,
+) -> None:
+    _paper_dynamic_batch(method, shared, trials, grid, settings, tables, buffers, results)
+
+
+@kernel
+def paper_dynamic_start(
+    shared: PaperShared, trials: TrialArrays, i: int, grid: Grid, buffers: Buffers, out: Array,
+) -> None:
+    _paper_dynamic_initial(shared, trials, i, grid, buffers, out)
+
+
+@kernel
+def paper_dynamic_derivative(
+    shared: PaperShared, trials: TrialArrays, i: int, grid: Grid, buffers: Buffers, t: float,
+    x: Array, noise: Array, out: Array,
+) -> None:
+    _paper_dynamic_rhs(shared, trials, i, grid, buffers, t, x, noise, out)
+
+
+@kernel
+def paper_dynamic_metrics(
+    shared: PaperShared, trials: TrialArrays, i: int, grid: Grid, settings: Settings,
+    buffers: Buffers, states: Array, rates: Array, last: int, complete: bool, crossings: Array,
+    out: Array,
+) -> float:
+    return _paper_dynamic_observe(
+        shared, trials, i, grid, settings, buffers, states, rates, last, complete, crossings,
+        out)
+
+
+@kernel
+def paper_dynamic_trace(states: Array, rates: Array, last: int, trace: Array) -> None:
+    _paper_dynamic_record(states, rates, last, trace)
+
+
+@kernel
+def chain_kinematic_batch(
+    method: int, shared: ChainShared, trials: TrialArrays, grid: Grid, settings: Settings,
+    tables: Array, buffers: Buffers, results: Results,
+) -> None:
+    _chain_kinematic_batch(method, shared, trials, grid, settings, tables, buffers, results)
+
+
+@kernel
+def chain_kinematic_start(
+    shared: ChainShared, trials: TrialArrays, i: int, grid: Grid, buffers: Buffers, out: Array,
+) -> None:
+    _chain_kinematic_initial(shared, trials, i, grid, buffers, out)
+
+
+@kernel
+def chain_kinematic_derivative(
+    shared: ChainShared, trials: TrialArrays, i: int, grid: Grid, buffers: Buffers, t: float,
+    x: Array, noise: Array, out: Array,
+) -> None:
+    _chain_kinematic_rhs(shared, trials, i, grid, buffers, t, x, noise, out)
+
+
+@kernel
+def chain_kinematic_metrics(
+    shared: ChainShared, trials: TrialArrays, i: int, grid: Grid, settings: Settings,
+    buffers: Buffers, states: Array, rates: Array, last: int, complete: bool, crossings: Array,
+    out: Array,
+) -> float:
+    return _chain_kinematic_observe(
+        shared, trials, i, grid, settings, buffers, states, rates, last, complete, crossings,
+        out)
+
+
+@kernel
+def chain_kinematic_trace(states: Array, rates: Array, last: int, trace: Array) -> None:
+    _chain_kinematic_record(states, rates, last, trace)
+
+
+@kernel
+def chain_dynamic_batch(
+    method: int, shared: ChainShared, trials: TrialArrays, grid: Grid, settings: Settings,
+    tables: Array, buffers: Buffers, results: Results,
+) -> None:
+    _chain_dynamic_batch(method, shared, trials, grid, settings, tables, buffers, results)
+
+
+@kernel
+def chain_dynamic_start(
+    shared: ChainShared, trials: TrialArrays, i: int, grid: Grid, buffers: Buffers, out: Array,
+) -> None:
+    _chain_dynamic_initial(shared, trials, i, grid, buffers, out)
+
+
+@kernel
+def chain_dynamic_derivative(
+    shared: ChainShared, trials: TrialArrays, i: int, grid: Grid, buffers: Buffers, t: float,
+    x: Array, noise: Array, out: Array,
+) -> None:
+    _chain_dynamic_rhs(shared, trials, i, grid, buffers, t, x, noise, out)
+
+
+@kernel
+def chain_dynamic_metrics(
+    shared: ChainShared, trials: TrialArrays, i: int, grid: Grid, settings: Settings,
+    buffers: Buffers, states: Array, rates: Array, last: int, complete: bool, crossings: Array,
+    out: Array,
+) -> float:
+    return _chain_dynamic_observe(
+        shared, trials, i, grid, settings, buffers, states, rates, last, complete, crossings,
+        out)
+
+
+@kernel
+def chain_dynamic_trace(states: Array, rates: Array, last: int, trace: Array) -> None:
+    _chain_dynamic_record(states, rates, last, trace)
+
+
+def paper_shared(model: Any, gains: Gains, rate_limit: float, servo_is_plant: bool,
+                 robot: RobotParams) -> PaperShared:
+    """What every trial shares in the paper's closed form: its coefficients, gains, the
+    rate limit, the nominal robot (the servo's model unless ``servo_is_plant``).
+
+    K of the one robot comes from ``barycentric_matrix`` run as Python (the same IEEE
+    operations in the same order as the compiled ``barycentric_matrices``, to the bit): the
+    compiled batch form would load a kernel with numba's runtime into every sweep, 30-50 ms
+    of its start-up, for a 3 x 3 matrix."""
+    p = robot.as_array()
+    nb = p.shape[0] // 4
+    K = barycentric_matrix(p[:nb], p[2 * nb: 3 * nb], p[3 * nb:])
+    links = Links(*(float(v) for v in robot.links))
+    return PaperShared(Coefficients(*(float(v) for v in model.coefficients)), gains.paper(),
+                       float(rate_limit),
+                       ThreeBody(K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2], K[2, 2],
+                                 links.i0, links.i1, links.i2),
+                       links, servo_is_plant)
+
+
+def chain_shared(model: Any, gains: Gains, rate_limit: float, servo_is_plant: bool,
+                 robot: RobotParams) -> ChainShared:
+    """What every trial shares in the general chain: the controller's K and inertias,
+    gains, the rate limit, whether the servo knows the plant (writable copies: the model's
+    arrays are read-only, a type the kernels' plant records do not share)."""
+    return ChainShared(np.array(model.K, dtype=float), np.array(model.inertia, dtype=float),
+                       np.asarray(gains.kp, dtype=float), np.asarray(gains.kv, dtype=float),
+                       float(rate_limit), servo_is_plant)
+
+
+def paper_plant(params: Array, plant: str) -> Array:
+    """Per trial, what the paper's closed form needs of the plant: its constraint
+    coefficients (the kinematic plant, (T, 11)) or its barycentric matrix (the dynamic
+    plant, (T, 3, 3))."""
+    if plant == "kinematic":
+        k = constraint_coefficients(Links(*np.asarray(params, dtype=float).T), "derived")
+        return np.ascontiguousarray(np.stack(np.broadcast_arrays(*k), axis=-1))
+    return barycentric_matrices(params)
+
+
+def chain_plant(params: Array, plant: str) -> Array:
+    """Per trial, the plant's barycentric matrix (T, N + 1, N + 1)."""
+    return barycentric_matrices(params)
+
+
+@dataclass(frozen=True)
+class Kernels:
+    """The compiled functions of one (model, plant) combination: its batch kernel and its
+    single-trial kernels (initial state, right-hand side, observer of a trace), and how
+    its shared record and per-trial plant arrays are made (``paper_shared``, ...)."""
+
+    ops: Ops
+    batch: Callable[..., None]
+    single: tuple[Callable[..., Any], ...]
+    shared: Callable[..., Any]
+    plant: Callable[[Array, str], Array]
+
+    def buffers(self, n: int, flag_size: int) -> Buffers:
+        """Fresh buffers for a robot of N = ``n`` joints."""
+        nx = self.ops.state(n)
+        width = nx + self.ops.aux(n)
+        return Buffers(np.zeros((WORK_ROWS, width)), np.zeros(ACCUMULATOR_SIZE),
+                       np.zeros(ACCUMULATOR_SIZE), np.zeros(n + 1), np.zeros(flag_size),
+                       np.zeros(flag_size), np.zeros(nx), np.zeros(nx),
+                       np.zeros((0, self.ops.width(n))), self.ops.scratch(n))
+
+
+#: Every kernel, by (model kind, plant model): "paper" is the closed form of the paper's
+#: robot (N = 2), "chain" the general N-link model.
+KERNELS: dict[tuple[str, str], Kernels] = {
+    ("paper", "kinematic"): Kernels(
+        PAPER_KINEMATIC, paper_kinematic_batch,
+        (paper_kinematic_start, paper_kinematic_derivative, paper_kinematic_metrics,
+         paper_kinematic_trace), paper_shared, paper_plant),
+    ("paper", "dynamic"): Kernels(
+        PAPER_DYNAMIC, paper_dynamic_batch,
+        (paper_dynamic_start, paper_dynamic_derivative, paper_dynamic_metrics,
+         paper_dynamic_trace), paper_shared, paper_plant),
+    ("chain", "kinematic"): Kernels(
+        CHAIN_KINEMATIC, chain_kinematic_batch,
+        (chain_kinematic_start, chain_kinematic_derivative, chain_kinematic_metrics,
+         chain_kinematic_trace), chain_shared, chain_plant),
+    ("chain", "dynamic"): Kernels(
+        CHAIN_DYNAMIC, chain_dynamic_batch,
+        (chain_dynamic_start, chain_dynamic_derivative, chain_dynamic_metrics,
+         chain_dynamic_trace), chain_shared, chain_plant),
+}
