@@ -30,7 +30,7 @@ $(RUN_STAMP): pyproject.toml constraints.txt | $(BIN)/python
 	@touch $@
 
 $(DEV_STAMP): $(RUN_STAMP)
-	@echo "flatcli: installing the tools of the tests (pytest, hypothesis, sympy, ruff, mypy, dask, python-control)"
+	@echo "flatcli: installing the tools of the tests (pytest, hypothesis, sympy, ruff, mypy, dask, python-control, nbclient)"
 	$(BIN)/python -m pip install -c constraints.txt -e '.[dev]' 2>&1 | { $(PIP_LINES); }
 	@touch $@
 

@@ -12,6 +12,8 @@ The Python API (``flatcli.api``; each command of the CLI is a thin wrapper over 
     flatcli.check("study.toml").text()                    # what a sweep would do
     df = flatcli.runs(filters=["plant.model=dynamic"])    # the runs as a DataFrame
     w = flatcli.workspace(attitude=(1.0, 1.4))            # where the end effector can go
+    sys = flatcli.flatsystem()                            # a python-control FlatSystem
+    u = flatcli.read_urdf("arm.urdf")                     # u.robot: a robot from URDF
 
 ``import flatcli`` stays light (no numpy, numba, scipy or pandas): the API loads on first
 use (PEP 562 module ``__getattr__``).
@@ -49,7 +51,9 @@ if TYPE_CHECKING:
         workspace,
     )
     from flatcli.core.errors import FlatcliError
+    from flatcli.pycontrol import flatsystem
     from flatcli.spec import Spec, SpecError
+    from flatcli.urdf import read_urdf
 
 #: Public names and the module each one lives in (loaded on first use).
 _LAZY = {
@@ -71,6 +75,8 @@ _LAZY = {
     "FlatcliError": "flatcli.core.errors",
     "Spec": "flatcli.spec",
     "SpecError": "flatcli.spec",
+    "flatsystem": "flatcli.pycontrol",
+    "read_urdf": "flatcli.urdf",
 }
 
 __all__ = [
@@ -85,10 +91,12 @@ __all__ = [
     "WorkspaceResult",
     "__version__",
     "check",
+    "flatsystem",
     "load",
     "load_spec",
     "plan",
     "plan_many",
+    "read_urdf",
     "runs",
     "sweep",
     "track",

@@ -277,8 +277,9 @@ def robot_option(fn: F) -> F:
 
     return click.option(
         "--robot", metavar="NAME|FILE", shell_complete=complete_robot,
-        help="The robot: a shipped robot file (chain4, chain6, paper) or your own FILE.toml, "
-             "under the spec's own keys (shorthand for --set robot=...).")(fn)
+        help="The robot: a shipped robot file (chain4, chain6, paper), your own FILE.toml, or "
+             "a URDF (FILE.urdf: a planar chain, its root link the free base), under the "
+             "spec's own keys (shorthand for --set robot=...).")(fn)
 
 
 def set_option(help: str = "Override a spec key (dotted; VALUE in TOML), repeatable."
@@ -406,8 +407,21 @@ def say(quiet: bool, text: str) -> None:
 # ---------------------------------------------------------------------------------------
 # Commands.
 
+def print_citation(ctx: click.Context, param: click.Parameter, value: bool) -> None:
+    """``--cite``: what to cite (CITATION.cff), printed at once like --version."""
+    if not value or ctx.resilient_parsing:
+        return
+    from flatcli.citation import citation_text
+
+    show(citation_text(), nl=False)
+    ctx.exit()
+
+
 @click.group(cls=Cli)
 @click.version_option(__version__, prog_name="flatcli")
+@click.option("--cite", is_flag=True, expose_value=False, is_eager=True,
+              callback=print_citation,
+              help="Print how to cite flatcli and the paper it reproduces, and exit.")
 def main() -> None:
     """Flatness-based planning, feedback control and Monte Carlo studies of planar
     free-floating space robots (Franch, Agrawal, Oh, Fattah, IROS 2003).
@@ -886,19 +900,56 @@ def runs(directories: tuple[Path, ...], filters: tuple[str, ...], sort: str | No
         show(runs_table(roots[0], rows, width))
 
 
-@main.command(short_help="A run's or sweep's tables as CSV.")
+@main.command(short_help="A run's or sweep's tables as CSV or MATLAB files.")
 @click.argument("directory", type=click.Path(path_type=Path, file_okay=False))
-@click.option("--csv", "as_csv", is_flag=True, help="Write CSV files (the one format so far).")
+@click.option("--csv", "as_csv", is_flag=True, help="Write CSV files.")
+@click.option("--mat", "as_mat", is_flag=True,
+              help="Write MATLAB files (.mat: the columns, their units and a description).")
 @out_option(help="Write the files here [default: beside the tables].")
-def export(directory: Path, as_csv: bool, out: Path | None) -> None:
-    """Write a run's or sweep's Parquet tables in another format (--csv)."""
-    if not as_csv:
-        fail("export: choose a format: --csv")
-    from flatcli.export import export_csv
+def export(directory: Path, as_csv: bool, as_mat: bool, out: Path | None) -> None:
+    """Write a run's or sweep's Parquet tables in other formats (--csv, --mat, or both)."""
+    if not (as_csv or as_mat):
+        fail("export: choose a format: --csv, --mat (or both)")
+    from flatcli.export import export_csv, export_mat
 
+    paths = []
     with user_errors():
-        paths = export_csv(directory, out)
+        if as_csv:
+            paths += export_csv(directory, out)
+        if as_mat:
+            paths += export_mat(directory, out)
     show("wrote " + ", ".join(str(p) for p in paths))
+
+
+@main.command("export-robot", short_help="A spec's robot as a URDF file.")
+@spec_argument()
+@robot_option
+@set_option()
+@click.option("--urdf", "as_urdf", is_flag=True,
+              help="Write URDF (the one format so far): a planar chain in the x-y plane, the "
+                   "root link its free base.")
+@click.option("--out", "out", type=click.Path(path_type=Path, dir_okay=False), metavar="FILE",
+              help="Write the URDF to FILE [default: standard output].")
+def export_robot(spec: Path | None, robot: str | None, sets: tuple[str, ...], as_urdf: bool,
+                 out: Path | None) -> None:
+    """Write the robot of SPEC (with --robot and --set applied) in another format (--urdf);
+    reading the file back (robot = "FILE.urdf") gives the same robot."""
+    if not as_urdf:
+        fail("export-robot: choose a format: --urdf")
+    from flatcli.experiment import robot_from
+    from flatcli.spec.build import read_toml, resolve_robot
+    from flatcli.urdf import write_urdf
+
+    require_stdout(out is not None)
+    with user_errors():
+        overrides = spec_overrides(sets, robot=robot)
+        s = resolve_robot({}, overrides) if spec is None else resolve_robot(
+            read_toml(spec), overrides, base=spec.parent, source=spec)
+        text = write_urdf(robot_from(s), s.name, out)
+    if out is None:
+        show(text, nl=False)
+    else:
+        show(f"wrote {out}")
 
 
 #: The sections of ``flatcli reproduce`` (``flatcli.reproduce.SECTION_NAMES``; the CLI does

@@ -87,6 +87,6 @@ def complete_robot(ctx: Any, param: Any, incomplete: str) -> list[Any]:
     """click's ``shell_complete`` of ``--robot``: the shipped robots, or a file."""
     from click.shell_completion import CompletionItem
 
-    if "/" in incomplete or incomplete.endswith(".toml") or incomplete.startswith("."):
+    if "/" in incomplete or incomplete.endswith((".toml", ".urdf")) or incomplete.startswith("."):
         return [CompletionItem(incomplete, type="file")]
     return [CompletionItem(n) for n in robot_names() if n.startswith(incomplete)]

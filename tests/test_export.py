@@ -1,5 +1,6 @@
-"""`flatcli export DIR --csv` (flatcli/export.py): every Parquet table as a CSV that reads
-back to the same values."""
+"""`flatcli export DIR --csv` and `--mat` (flatcli/export.py): every Parquet table as a CSV
+that reads back to the same values, and as a MATLAB file that scipy.io.loadmat reads back to
+them (with the units of the Parquet fields and a description)."""
 
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ from click.testing import CliRunner
 from small_sweep import SPEC, sweep, write_spec
 
 from flatcli.cli import main
-from flatcli.export import csv_ready, export_csv
+from flatcli.export import csv_ready, export_csv, export_mat, matlab_fields
 from flatcli.storage import DirectoryBusyError, directory_lock, forget_inherited_locks
 
 
@@ -73,7 +74,10 @@ def test_bad_export_requests_exit_2(tmp_path: Path) -> None:
     code, out = cli("export", str(tmp_path), "--csv")
     assert code == 2 and "holds no Parquet tables" in out and out.count("\n") == 1
     code, out = cli("export", str(tmp_path))
-    assert code == 2 and out == "error: export: choose a format: --csv\n"
+    assert code == 2 and out == "error: export: choose a format: --csv, --mat (or both)\n"
+    code, out = cli("export", str(tmp_path), "--mat")
+    assert code == 2 and "holds no Parquet tables" in out and out.count("\n") == 1
+    assert list(tmp_path.iterdir()) == []
 
 
 @pytest.mark.timeout(30, method="thread")  # a FIFO opened blindly would block
@@ -124,3 +128,88 @@ def export_in_another_process(directory: Path) -> None:
 def _export_as_another_run(directory: Path) -> None:
     forget_inherited_locks()  # the forked child holds no lock of its parent's
     export_csv(directory)
+
+
+# ---------------------------------------------------------------------------------------
+# MATLAB files, read back by scipy.io.loadmat (the reader MATLAB's format has in Python)
+
+
+def loadmat(path: Path) -> dict[str, object]:
+    from scipy.io import loadmat as scipy_loadmat
+
+    return dict(scipy_loadmat(path, simplify_cells=True))
+
+
+def check_mat_against_parquet(mat_path: Path, parquet_path: Path) -> dict[str, object]:
+    """Every column of the table in the MATLAB file: the same values (NaN for null), the
+    Parquet field's unit, the names mapped one to one; returns the file's variables."""
+    mat = loadmat(mat_path)
+    table = pq.read_table(parquet_path)
+    columns = list(table.column_names)
+    assert list(mat["columns"]) == columns  # type: ignore[call-overload]
+    fields = list(mat["fields"])  # type: ignore[call-overload]
+    assert fields == matlab_fields(columns)
+    data, units = mat["data"], mat["units"]
+    assert isinstance(data, dict) and isinstance(units, dict)
+    assert sorted(data) == sorted(fields)
+    for field, column in zip(fields, columns, strict=True):
+        values = table.column(column)
+        got = np.atleast_1d(data[field])
+        assert got.shape == (table.num_rows,), column
+        kind = values.type
+        if pa.types.is_floating(kind) or (pa.types.is_integer(kind) and values.null_count):
+            expected = values.cast(pa.float64()).fill_null(np.nan).to_numpy()
+            np.testing.assert_array_equal(got.astype(float), expected, err_msg=column)
+        elif pa.types.is_integer(kind):
+            assert got.dtype == np.int64, column
+            np.testing.assert_array_equal(got, values.to_numpy(), err_msg=column)
+        elif pa.types.is_boolean(kind) and not values.null_count:
+            np.testing.assert_array_equal(got.astype(bool), values.to_numpy(
+                zero_copy_only=False), err_msg=column)
+        elif pa.types.is_string(kind) or pa.types.is_dictionary(kind):
+            # MATLAB's '' is a 0x0 char, which loadmat gives back as an empty array
+            text = [v if isinstance(v, str) else "" if np.size(v) == 0 else str(v)
+                    for v in got]
+            assert text == ["" if v is None else str(v) for v in values.to_pylist()], column
+        unit = (table.schema.field(column).metadata or {}).get(b"unit")
+        assert units.get(field) == (None if unit is None else unit.decode()), column
+    description = str(mat["description"])
+    assert f"{table.num_rows} rows, {len(columns)} columns" in description
+    assert "NaN" in description and "docs/outputs.md" in description
+    return mat
+
+
+def test_plan_and_track_runs_export_their_time_series_as_mat(tmp_path: Path) -> None:
+    for command in ("plan", "track"):
+        run = tmp_path / command
+        code, out = cli(command, "--out", str(run), "-q")
+        assert code == 0, out
+        code, out = cli("export", str(run), "--mat", "--csv")
+        assert code == 0 and out == f"wrote {run}/{command}.csv, {run}/{command}.mat\n", out
+        mat = check_mat_against_parquet(run / f"{command}.mat", run / f"{command}.parquet")
+        assert mat["units"]["t"] == "s" and mat["units"]["theta0"] == "rad"  # type: ignore[index]
+
+
+def test_a_sweep_exports_trials_and_summary_as_mat_into_its_manifest(tmp_path: Path) -> None:
+    spec = write_spec(tmp_path, SPEC.replace("trials = 60", "trials = 6"))
+    directory = tmp_path / "d"
+    assert sweep(str(spec), "--out", str(directory), "-q", "--workers", "1")[0] == 0
+    paths = export_mat(directory)
+    assert [p.name for p in paths] == ["summary.mat", "trials.mat"]
+    trials = check_mat_against_parquet(directory / "trials.mat", directory / "trials.parquet")
+    check_mat_against_parquet(directory / "summary.mat", directory / "summary.parquet")
+    fields = list(trials["fields"])  # type: ignore[call-overload]
+    assert "track_sensor_noise" in fields  # the grid key track.sensor_noise, renamed
+    assert set(trials["data"]["status"]) <= {"ok", "singular", "diverged", "failed"}  # type: ignore[index]
+    files = json.loads((directory / "sweep.json").read_text())["files"]
+    assert {"trials.mat", "summary.mat"} <= set(files)
+
+
+def test_matlab_field_names_are_identifiers_and_unique() -> None:
+    names = matlab_fields(["sweep.perturb.initial.std", "1x", "a-b", "a_b", "x" * 70,
+                           "x" * 70])
+    assert names[:4] == ["sweep_perturb_initial_std", "x1x", "a_b", "a_b_2"]
+    assert all(len(n) <= 63 for n in names) and len(set(names)) == len(names)
+    import re
+
+    assert all(re.fullmatch(r"[A-Za-z]\w*", n, flags=re.ASCII) for n in names)

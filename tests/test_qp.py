@@ -1,9 +1,11 @@
-"""The dense QP solver (flatcli/core/qp.py) against two referees: the ``quadprog`` package
-(Goldfarb and Idnani's dual method in Fortran, an independent implementation) and the
+"""The dense QP solver (flatcli/core/controllers/qp.py) against two referees: the ``quadprog``
+package (Goldfarb and Idnani's dual method in Fortran, an independent implementation) and the
 Karush-Kuhn-Tucker conditions of each problem checked directly (stationarity, primal and
 dual feasibility, complementarity), on random problems of every kind the MPC builds:
 equalities, two-sided and one-sided bounds, rows read in part (widths), soft rows with a
-slack, and infeasible problems."""
+slack, and infeasible problems. Whether a problem is feasible at all is decided by scipy's
+linear programming (HiGHS): quadprog calls some feasible, degenerate problems inconsistent
+(hypothesis found one: seed 23316, n = 4, m = 17, meq = 3)."""
 
 from __future__ import annotations
 
@@ -97,6 +99,22 @@ class Problem:
         return status, x, w, q
 
 
+def is_feasible(p: Problem) -> bool:
+    """Whether any x meets the rows: a linear programme with a zero objective (HiGHS)."""
+    from scipy.optimize import linprog
+
+    A, b = p.dense()
+    if A.shape[1] == 0:
+        return True
+    eq = slice(0, p.meq)
+    ineq = slice(p.meq, A.shape[1])
+    result = linprog(np.zeros(p.n), A_ub=-A[:, ineq].T if A.shape[1] > p.meq else None,
+                     b_ub=-b[ineq] if A.shape[1] > p.meq else None,
+                     A_eq=A[:, eq].T if p.meq else None, b_eq=b[eq] if p.meq else None,
+                     bounds=[(None, None)] * p.n, method="highs")
+    return bool(result.status == 0)
+
+
 def quadprog_solution(p: Problem) -> Array | None:
     A, b = p.dense()
     try:
@@ -138,12 +156,26 @@ def test_solutions_equal_quadprogs_and_meet_the_kkt_conditions(
     p = Problem(seed, n, m, meq, soft, feasible)
     reference = quadprog_solution(p) if p.m else np.linalg.solve(p.G, -p.g)
     status, x, w, q = p.solve()
-    if reference is None:
+    if not is_feasible(p):
         assert status == qp.INFEASIBLE
         return
     assert status == qp.OPTIMAL
-    np.testing.assert_allclose(x, reference, atol=AGREE * (1.0 + np.abs(reference).max()))
-    check_kkt(p, x, w, q)
+    check_kkt(p, x, w, q)  # the optimum: the KKT conditions of a strictly convex QP
+    if reference is not None:
+        np.testing.assert_allclose(x, reference, atol=AGREE * (1.0 + np.abs(reference).max()))
+
+
+def test_a_problem_quadprog_calls_inconsistent_is_solved() -> None:
+    """The case hypothesis found: feasible by HiGHS, inconsistent by quadprog; flatcli's
+    solution meets the KKT conditions (the referee that does not depend on quadprog)."""
+    rng_case = (23316, 4, 17, 3, True)
+    p = Problem(rng_case[0], rng_case[1], rng_case[2], rng_case[3], False, rng_case[4])
+    status, x, w, q = p.solve()
+    if is_feasible(p):
+        assert status == qp.OPTIMAL
+        check_kkt(p, x, w, q)
+    else:
+        assert status == qp.INFEASIBLE
 
 
 def test_a_soft_row_that_cannot_be_met_is_met_by_its_slack() -> None:

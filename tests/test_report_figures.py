@@ -174,3 +174,15 @@ def test_the_figure_file_comes_from_the_spec_or_its_record() -> None:
         FigureFile("pdf", 300)
     assert FigureFile.of_tree({"figures": {"format": "svg"}}) == FigureFile("svg", 150)
     assert FigureFile.of_tree({}) == FigureFile()  # a record written before [figures]
+
+
+def test_an_exact_plans_figure_says_it_has_no_margin() -> None:
+    """An exact plan (d2 = 3 mm, plan.method = "auto") records no margin (all NaN): its
+    figure draws, and says so where the margin would be (a log axis of NaN raised before)."""
+    import flatcli
+
+    result = flatcli.plan(overrides={"robot.com": [0.1, 0.1, 0.003]})
+    assert result.frame["margin"].isna().all()
+    figure = result.plot()
+    texts = [t.get_text() for ax in figure.axes for t in ax.texts]
+    assert any("no singularity margin" in t for t in texts)

@@ -87,12 +87,12 @@ FINAL_FILES = (MANIFEST, "trials.parquet", "summary.parquet", "summary.md", "run
 FIGURES = re.compile(r"sweep_[a-z_]+\.(?:png|pdf|svg)")
 _CHUNK = re.compile(r"chunk-[0-9]{10}-[0-9]{9}\.parquet")
 _LEGACY_CHUNK = re.compile(r"chunk-[0-9]{12}\.parquet")
-#: The CSV copies ``flatcli export DIR --csv`` writes of a sweep's tables (recorded in the
-#: manifest, so --force may remove them).
-EXPORTS = ("trials.csv", "summary.csv", "cells.csv")
+#: The CSV and MATLAB copies ``flatcli export DIR --csv`` / ``--mat`` writes of a sweep's
+#: tables (recorded in the manifest, so --force may remove them).
+EXPORTS = ("trials.csv", "summary.csv", "cells.csv", "trials.mat", "summary.mat", "cells.mat")
 #: The files ``flatcli sweep --rerun TRIAL`` writes into DIR/rerun-TRIAL/ (and its export).
 RERUN_FILES = ("track.parquet", "metrics.json", "run.json", "track.png", "track.pdf",
-               "track.svg", "track.csv")
+               "track.svg", "track.csv", "track.mat")
 #: The directory ``flatcli sweep --rerun TRIAL`` writes into.
 RERUN_DIR = re.compile(r"rerun-[0-9]{1,19}")
 #: A directory of a nested sweep: the kinematic twin of reproduce's actuators study.

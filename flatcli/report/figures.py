@@ -311,10 +311,15 @@ def plan_figure(frame: Any, limits: Limits | None = None, title: str = "") -> Fi
     ax[0, 1].set_ylabel(quantity(r"\theta_i", "rad"))
     ax[0, 2].set_ylabel(quantity(r"\theta_i'", "rad/s"))
     margin = cols["margin"]
-    ax[1, 0].semilogy(t, margin, color="C6", label=margin_label(n, r"\theta_1'"))
-    limit_line(ax[1, 0], lim.singular_threshold, "singular_threshold", "rad/s")
-    limit_line(ax[1, 0], lim.min_margin, "min_margin", "rad/s", colour="C1")
-    ax[1, 0].set_ylim(top=30 * float(np.nanmax(margin)))  # room for the legend above
+    if np.any(np.isfinite(margin)):
+        ax[1, 0].semilogy(t, margin, color="C6", label=margin_label(n, r"\theta_1'"))
+        limit_line(ax[1, 0], lim.singular_threshold, "singular_threshold", "rad/s")
+        limit_line(ax[1, 0], lim.min_margin, "min_margin", "rad/s", colour="C1")
+        ax[1, 0].set_ylim(top=30 * float(np.nanmax(margin)))  # room for the legend above
+    else:  # an exact plan (plan.method = "exact"): no flat outputs, no margin
+        ax[1, 0].text(0.5, 0.5, "no singularity margin\n(exact plan: no flat outputs)",
+                      ha="center", va="center", transform=ax[1, 0].transAxes)
+        ax[1, 0].set_yticks([])
     ax[1, 0].set_ylabel("singularity margin [rad/s]")
     ax[1, 1].plot(t, cols["momentum"], color="C4", label="$H$ (full link kinematics)")
     ax[1, 1].set_ylabel(quantity("H", unit_text("kg m^2/s")))

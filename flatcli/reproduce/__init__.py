@@ -68,6 +68,12 @@ def check_inputs(out: Path, montecarlo: Path | None, workers: int | None,
     layout(load_spec(montecarlo, sets))
 
 
+#: REPORT.md's last line: what to cite (``flatcli --cite``, CITATION.cff).
+CITE_LINE = ("To cite: flatcli (this version) and the paper it reproduces, Franch, Agrawal, Oh, "
+             "Fattah, IROS 2003, pp. 3053-3058; `flatcli --cite` prints both with BibTeX "
+             "(CITATION.cff).")
+
+
 def report_text(results: list[Result], missing: list[Section], command: str | None) -> str:
     """REPORT.md: the title, the headlines, every section's lines, and how it was made."""
     lines = ["# Reproducing Franch, Agrawal, Oh, Fattah (IROS 2003) with flatcli", "", INTRO, "",
@@ -88,6 +94,7 @@ def report_text(results: list[Result], missing: list[Section], command: str | No
                               for s in missing) + "."]
     if command is not None:
         lines += ["", f"Made with `{command}` (flatcli {__version__})."]
+    lines += ["", CITE_LINE]
     return "\n".join(lines) + "\n"
 
 

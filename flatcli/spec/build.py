@@ -20,7 +20,15 @@ from typing import Any
 from flatcli.spec.compose import compose
 from flatcli.spec.keys import MAX_INT, SpecError
 from flatcli.spec.limits import MAX_SPEC_BYTES, check_joints, check_limits
-from flatcli.spec.schema import SCHEMA, Spec, check_value, find_key, fit_sizes, from_values
+from flatcli.spec.schema import (
+    SCHEMA,
+    Spec,
+    check_value,
+    find_key,
+    fit_sizes,
+    from_values,
+    lookup,
+)
 from flatcli.spec.sweeps import PERTURB_PREFIX, is_perturbation_param, validate_sweep
 
 #: Deepest nesting of lists and tables a spec value may have (a grid of groups of vectors
@@ -202,6 +210,34 @@ def resolve(user: Mapping[str, Any], overrides: Mapping[str, Any] | None = None,
     return build(flat)
 
 
+def resolve_robot(user: Mapping[str, Any], overrides: Mapping[str, Any] | None = None, *,
+                  base: Path | None = None, source: Path | None = None) -> Spec:
+    """``resolve`` for what describes the robot alone (``flatcli export-robot``): composed and
+    overridden as ``resolve`` does, every key checked to exist and ``name`` and the
+    ``robot.*`` keys checked, but only they are built (the other sections keep their defaults,
+    unchecked against the robot's N), so a robot file without a maneuver (a URDF, a robot
+    of N != 2 joints) exports."""
+    extra = dict(overrides or {})
+    robot = extra.pop("robot") if "robot" in extra and not isinstance(
+        extra["robot"], Mapping) else None
+    flat = compose(user, base, robot, source)
+    flat.update(extra)
+    checked: dict[str, Any] = {}
+    for dotted, value in flat.items():
+        _scan(dotted, value, 0)
+        if dotted in SCHEMA:
+            raise SpecError(f"{dotted}: expected a table")
+        if not is_perturbation_param(dotted):
+            key = check_value if dotted == "name" or dotted.startswith("robot.") else None
+            if key is None:
+                lookup(dotted)
+            else:
+                checked[dotted] = key(dotted, value)
+    spec = from_values(checked)
+    check_joints(spec.joints)
+    return spec
+
+
 def load_spec(path: Path | None, sets: Iterable[str] = ()) -> Spec:
     """Defaults, then the file (if any, composed: its robot file and includes first), then
     ``--set`` items; validated.
@@ -253,43 +289,55 @@ def parse_set(items: Iterable[str]) -> dict[str, Any]:
     return out
 
 
-def read_toml(path: Path) -> dict[str, Any]:
-    """Parse a TOML file; SpecError for a missing, unreadable, oversized or non-regular file
-    (a FIFO or a device is refused without reading from it), for text that is not UTF-8,
-    and for TOML that is invalid or nested too deeply."""
+def read_text(path: Path, what: str = "spec file", limit: int = MAX_SPEC_BYTES) -> str:
+    """The UTF-8 text of a file a spec names (``what``: "spec file", "URDF file"); SpecError
+    for a missing, unreadable, oversized (> ``limit`` bytes) or non-regular file (a FIFO or
+    a device is refused without reading from it) and for text that is not UTF-8."""
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
     except FileNotFoundError:
-        raise SpecError(f"spec file not found: {path}") from None
+        raise SpecError(f"{what} not found: {path}") from None
     except OSError as exc:
-        raise SpecError(f"cannot read spec file {path}: {exc.strerror}") from None
+        raise SpecError(f"cannot read {what} {path}: {exc.strerror}") from None
     try:
         info = os.fstat(fd)
         if stat.S_ISDIR(info.st_mode):
-            raise SpecError(f"spec file is a directory: {path}")
+            raise SpecError(f"{what} is a directory: {path}")
         if not stat.S_ISREG(info.st_mode):
-            raise SpecError(f"spec file {path} is not a regular file (a FIFO, socket or "
-                            "device); give a TOML file")
-        if info.st_size > MAX_SPEC_BYTES:
-            raise SpecError(f"spec file {path} is {info.st_size} bytes, more than the "
-                            f"{MAX_SPEC_BYTES} a spec may have")
+            raise SpecError(f"{what} {path} is not a regular file (a FIFO, socket or "
+                            "device)")
+        if info.st_size > limit:
+            raise SpecError(f"{what} {path} is {info.st_size} bytes, more than the "
+                            f"{limit} a {what.split()[0]} may have")
         data = b""
-        while len(data) <= MAX_SPEC_BYTES:
-            block = os.read(fd, MAX_SPEC_BYTES + 1 - len(data))
+        while len(data) <= limit:
+            block = os.read(fd, limit + 1 - len(data))
             if not block:
                 break
             data += block
     except OSError as exc:
-        raise SpecError(f"cannot read spec file {path}: {exc.strerror}") from None
+        raise SpecError(f"cannot read {what} {path}: {exc.strerror}") from None
     finally:
         os.close(fd)
-    if len(data) > MAX_SPEC_BYTES:
-        raise SpecError(f"spec file {path} is more than the {MAX_SPEC_BYTES} bytes a spec may "
-                        "have")
+    if len(data) > limit:
+        raise SpecError(f"{what} {path} is more than the {limit} bytes a {what.split()[0]} "
+                        "may have")
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:
-        raise SpecError(f"spec file {path} is not UTF-8 text (byte {exc.start})") from None
+        raise SpecError(f"{what} {path} is not UTF-8 text (byte {exc.start})") from None
+    return text
+
+
+def read_toml(path: Path) -> dict[str, Any]:
+    """Parse a TOML file; SpecError for a missing, unreadable, oversized or non-regular file
+    (a FIFO or a device is refused without reading from it), for text that is not UTF-8,
+    and for TOML that is invalid or nested too deeply; a URDF given as a spec is named as
+    one."""
+    if path.suffix.lower() == ".urdf":
+        raise SpecError(f"{path} is a URDF, a robot rather than a spec: pass it as --robot "
+                        f"{path} (or robot = \"{path.name}\" in a spec)")
+    text = read_text(path)
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:

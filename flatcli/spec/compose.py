@@ -5,7 +5,8 @@ included into a spec.
   name shipped with flatcli (``flatcli/data/robots/<name>.toml``: ``ROBOTS``) or a path to a
   file of one's own (``robot = "my_robot.toml"``, relative to the file that names it). A robot
   file is a spec fragment: its ``[robot]`` and, because the paper's maneuver and gains are for
-  two joints, the ``[plan]`` and ``[track]`` keys that fit that robot.
+  two joints, the ``[plan]`` and ``[track]`` keys that fit that robot. A URDF file
+  (``robot = "arm.urdf"``: ``flatcli.urdf``) gives the ``[robot]`` keys alone.
 * ``include = ["a.toml", "b.toml"]`` merges other spec files, each relative to the file that
   includes it (they may include others).
 
@@ -38,14 +39,15 @@ def robot_names() -> list[str]:
 def is_path(selection: str) -> bool:
     """Whether a robot selection names a file (``my_robot.toml``, ``robots/x``) rather than a
     shipped robot."""
-    return selection.endswith(".toml") or "/" in selection or "\\" in selection
+    return selection.endswith((".toml", ".urdf")) or "/" in selection or "\\" in selection
 
 
 def robot_file(selection: Any, base: Path | None, where: str = "robot") -> Path:
     """The file a robot selection names; SpecError for anything else."""
     if not isinstance(selection, str) or not selection.strip():
         raise SpecError(f"{where}: expected a [robot] table, a robot name "
-                        f"({', '.join(robot_names())}) or a robot file (\"my_robot.toml\"), "
+                        f"({', '.join(robot_names())}) or a robot file (\"my_robot.toml\", "
+                        "\"arm.urdf\"), "
                         f"got {selection!r}")
     if is_path(selection):
         path = Path(selection).expanduser()
@@ -84,11 +86,24 @@ class _Composer:
             raise SpecError(f"{where}: more than {MAX_FILES} spec files in one spec (robot "
                             "files and includes)")
         self.files.append(real)
+        if path.suffix.lower() == ".urdf":
+            return self.urdf(path, chain, where)
         try:
             tree = read_toml(path)
         except SpecError as exc:
             raise SpecError(str(exc) if not chain else f"{where}: {exc}") from None
         return self.tree(tree, path.parent, (*chain, real), str(path), robot)
+
+    def urdf(self, path: Path, chain: tuple[Path, ...], where: str) -> dict[str, Any]:
+        """The ``[robot]`` keys a URDF file gives (``flatcli.urdf``); SpecError naming the
+        file and the joint or element for one that is missing, malformed or not planar."""
+        from flatcli.core.errors import FlatcliError
+        from flatcli.urdf import read_urdf
+
+        try:
+            return read_urdf(path).spec_keys()
+        except FlatcliError as exc:
+            raise SpecError(str(exc) if not chain else f"{where}: {exc}") from None
 
     def tree(self, tree: Mapping[str, Any], base: Path | None, chain: tuple[Path, ...],
              source: str, robot: str | None = None) -> dict[str, Any]:
