@@ -421,10 +421,7 @@ def test_a_sweep_loads_neither_pandas_nor_matplotlib_nor_scipy_unless_asked(
     it loads a compiled function (its BLAS check): the referee is a process that only
     compiles and calls a function with numba. Not even scipy.linalg, which that check
     imports whole: its two extension modules are loaded alone (``_jit``). Nor flatcli's own
-    optimiser, whose package names its contents lazily. The one exception: the main process
-    at its end holds scipy.stats, whose binomtest gives the summary's Wilson intervals
-    (issue 39: scipy's, not hand-written), loaded in a thread once the workers run
-    (``summary.prefetch_statistics``); never before the workers fork, never in them."""
+    optimiser, whose package names its contents lazily."""
     text = SPEC.replace('initial = { dist = "normal", std = 0.02 }',
                         'initial = { dist = "uniform", low = -0.02, high = 0.02 }')
     assert text != SPEC
@@ -441,9 +438,6 @@ def test_a_sweep_loads_neither_pandas_nor_matplotlib_nor_scipy_unless_asked(
     assert len(records) >= 3  # the main process (its warm-up and its end) and a worker
     for record in records:
         loaded = set(json.loads(record.read_text()))
-        if record.name == "modules-main.json":  # the end: the summary's scipy.stats
-            assert "scipy.stats" in loaded
-            loaded = {m for m in loaded if not m.startswith("scipy")}
         assert loaded <= allowed, (record.name, sorted(loaded - allowed))
         assert "scipy.linalg" not in loaded, record.name  # numba's BLAS check, served alone
     assert trials(tmp_path / "d")["status"].isin(["ok", "singular"]).all()

@@ -33,7 +33,6 @@ from flatcli.montecarlo.directory import (
 from flatcli.montecarlo.layout import Chunk, Layout, grid_label, layout, work_pieces
 from flatcli.montecarlo.tally import status_counts, watch
 from flatcli.progress import Progress
-from flatcli.report.summary import prefetch_statistics
 from flatcli.spec import Spec
 from flatcli.spec.limits import check_workers
 from flatcli.storage import Syncer, directory_lock, versions, write_table
@@ -131,12 +130,8 @@ def run_sweep(
                 watcher = watch(progress) if executor_kind == "local" else None
                 syncer = Syncer()  # chunk files flushed to disk in groups, off this thread
                 trials = TrialsAssembly(directory, lay, provenance, done)
-                prefetched = False
                 try:
                     for (chunk, piece), part in executor.run(run_chunk, tasks):
-                        if not prefetched:  # the workers are forked by now
-                            prefetch_statistics()
-                            prefetched = True
                         compute += part.seconds
                         worker_peak = max(worker_peak, part.peak_mib)
                         if progress is not None:

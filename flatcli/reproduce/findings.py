@@ -145,7 +145,7 @@ def outcome_counts(outcomes: Sequence[str] | pd.Series) -> dict[str, int]:
 
 def reached_text(outcomes: Sequence[str] | pd.Series) -> str:
     """"k of n trials reached (p %, 95 % interval a-b %); c collided, m missed, l lost": a
-    study's outcomes in words (the interval: Wilson's, scipy's binomtest), over all its
+    study's outcomes in words (the interval: Wilson's score interval), over all its
     trials."""
     from flatcli.report.summary import wilson_interval
 
