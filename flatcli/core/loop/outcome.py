@@ -195,11 +195,13 @@ REFINE_ROUND = 64
 
 @kernel
 def sample_clearances(theta: Array, moments: Array, length: Array, shift: Array, obs: Array,
-                      out: Array) -> None:
+                      joints: Array, out: Array) -> None:
     """Each link's distance from each disc's surface [m] at every sample, into ``out``
     (T, S, N + 1, K): ``joint_points`` and ``_link_clearances`` in one pass, compiled
     (angles theta (T, S, N + 1) [rad]; moments, length (T, N + 1) [m]; shift (T,) [m]; obs
-    (K, 3) discs x, y, radius [m]; nan where the angles are)."""
+    (K, 3) discs x, y, radius [m]; joints (N + 2, 2) scratch; nan where the angles are).
+    The joints are placed relative to O_0 along the absolute angles, O_0 then follows from
+    the same cosines and sines (one trigonometric evaluation per angle and sample)."""
     count, samples, angles = theta.shape
     discs = obs.shape[0]
     for t in range(count):
@@ -207,29 +209,31 @@ def sample_clearances(theta: Array, moments: Array, length: Array, shift: Array,
             psi = 0.0
             ox = 0.0
             oy = 0.0
-            last_c = 1.0
-            last_s = 0.0
-            for a in range(angles):  # O_0 = -sum_a (F_a / M) e(psi_a) - shift e_perp(psi_N)
+            x = 0.0
+            y = 0.0
+            c = 1.0
+            s_ = 0.0
+            for a in range(angles):
                 psi += theta[t, j, a]
                 c, s_ = math.cos(psi), math.sin(psi)
-                ox -= moments[t, a] * c
+                ox -= moments[t, a] * c  # O_0 = -sum_a (F_a / M) e(psi_a) - shift e_perp
                 oy -= moments[t, a] * s_
-                last_c, last_s = c, s_
-            ox += shift[t] * last_s
-            oy -= shift[t] * last_c
-            psi = 0.0
+                joints[a, 0], joints[a, 1] = x, y  # O_a - O_0
+                x += length[t, a] * c
+                y += length[t, a] * s_
+            joints[angles, 0], joints[angles, 1] = x, y
+            ox += shift[t] * s_
+            oy -= shift[t] * c
             for a in range(angles):  # link a: O_a O_a+1
-                psi += theta[t, j, a]
-                dx = length[t, a] * math.cos(psi)
-                dy = length[t, a] * math.sin(psi)
+                ax, ay = ox + joints[a, 0], oy + joints[a, 1]
+                dx, dy = joints[a + 1, 0] - joints[a, 0], joints[a + 1, 1] - joints[a, 1]
                 length2 = dx * dx + dy * dy
                 for k in range(discs):
                     cx, cy = obs[k, 0], obs[k, 1]
-                    u = ((cx - ox) * dx + (cy - oy) * dy) / (length2 if length2 > 0 else 1.0)
+                    u = ((cx - ax) * dx + (cy - ay) * dy) / (length2 if length2 > 0 else 1.0)
                     u = min(max(u, 0.0), 1.0)
-                    out[t, j, a, k] = math.hypot(cx - (ox + u * dx), cy - (oy + u * dy)) - obs[k, 2]
-                ox += dx
-                oy += dy
+                    ex, ey = cx - (ax + u * dx), cy - (ay + u * dy)
+                    out[t, j, a, k] = math.sqrt(ex * ex + ey * ey) - obs[k, 2]
 
 
 @kernel
@@ -281,7 +285,8 @@ def _batch_clearance(geometry: Geometry, obs: Array, theta: Array, rates: Array,
     every obstacle (most of them)."""
     exact = np.empty((*theta.shape, len(obs)))  # (T, S, L, K)
     sample_clearances(np.ascontiguousarray(theta, dtype=float), geometry.moments,
-                      geometry.length, geometry.shift, obs, exact)
+                      geometry.length, geometry.shift, obs, np.empty((theta.shape[-1] + 1, 2)),
+                      exact)
     sampled, j, link, obstacle = _first_min(exact)
     centres = obs[:, :2]
     a, b = theta[:, :-1], theta[:, 1:]
