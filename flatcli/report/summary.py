@@ -209,6 +209,8 @@ def summary_rows(columns: Columns, cells: Mapping[int, Mapping[str, Any]],
     all_cells = np.asarray(columns["cell"])
     count = len(all_status)
     verified = columns.get("verified", np.zeros(count, dtype=bool))
+    outcomes = (np.asarray(columns["outcome"], dtype=object) if "outcome" in columns
+                else None)
     for cell, values in cells.items():
         in_cell = all_cells == cell
         status = all_status[in_cell]
@@ -223,8 +225,8 @@ def summary_rows(columns: Columns, cells: Mapping[int, Mapping[str, Any]],
             return values_[~np.isnan(values_)]
 
         row: dict[str, Any] = {"cell": cell, **values, "trials": int(in_cell.sum())}
-        if "outcome" in columns:  # the headline: what the robot did (older files lack it)
-            _outcomes(row, columns, in_cell)
+        if outcomes is not None:  # the headline: what the robot did (older files lack it)
+            _outcomes(row, columns, outcomes, in_cell)
         for name in STATUS_NAMES:
             row[name] = int((status == name).sum())
         for metric in ERROR_METRICS:
@@ -271,13 +273,14 @@ def summary_rows(columns: Columns, cells: Mapping[int, Mapping[str, Any]],
     return rows
 
 
-def _outcomes(row: dict[str, Any], columns: Columns, in_cell: NDArray[np.bool_]) -> None:
+def _outcomes(row: dict[str, Any], columns: Columns, outcomes: NDArray[np.object_],
+              in_cell: NDArray[np.bool_]) -> None:
     """The cell's outcomes (``core.outcome``) into ``row``: counts of each, the fraction
     reached with its 95 % Wilson interval and the others' fractions with theirs,
     all of the cell's trials; then the median of each of ``ALL_TRIALS_MEDIANS`` over all its
     trials, one that did not reach T (lost) counted as infinitely wrong
     (``outcome.lost_as_infinite``: inf where more than half did not)."""
-    outcome = np.asarray(columns["outcome"], dtype=object)[in_cell]
+    outcome = outcomes[in_cell]
     total = int(in_cell.sum())
     for name in OUTCOME_NAMES:
         row[name] = int(np.sum(outcome == name))
