@@ -1,6 +1,7 @@
 """One-line mutants of flatcli's guarantees under misuse, and whether the tests catch each.
 
-    python -m benchmarks.mutants [--out runs/mutants] [--only ID ...] [--list] [--work DIR]
+    python -m benchmarks.mutants [--group misuse|proofs|all] [--out runs/mutants] [--only ID ...]
+                                 [--list] [--work DIR]
 
 Each mutant is one plausible one-line bug: a file, the exact text of one line (or part of
 it), its replacement, the kind of guarantee it breaks (docs/failures.md) and the tests that
@@ -212,6 +213,228 @@ MUTANTS = (
 )
 
 
+IV = "flatcli/core/plan/intervals.py"
+CL = "flatcli/core/plan/clearance.py"
+RD = "flatcli/rundirs.py"
+CP = "flatcli/spec/compose.py"
+IN = "flatcli/interrupts.py"
+T_IV = ("tests/test_intervals.py",)
+T_CL = ("tests/test_clearance.py", *(f"tests/test_tasks_core.py::{name}" for name in (
+    "test_a_violation_planted_between_two_samples_is_caught",
+    "test_a_proven_plan_clears_on_a_grid_100x_finer",
+    "test_limits_between_samples_are_proven_or_refuted",
+    "test_candidates_screened_together_have_each_plans_own_least_slack",
+    "test_a_disc_beside_a_slanted_link_inside_its_box_is_proven_clear")))
+T_RD = ("tests/test_rundirs.py", "tests/test_workspace.py::"
+        "test_a_workspace_map_leaves_the_names_latest_plan_or_track_run_alone")
+T_CP = ("tests/test_spec_compose.py",)
+T_IN = ("tests/test_interrupts.py",)
+
+#: Mutants of the proof that obstacles are clear (intervals, clearance) and of the run
+#: directories, composed specs and interrupts (issue 42): one-line bugs a reviewer could miss,
+#: each expected to make its module's tests fail.
+PROOF_MUTANTS = (
+    # interval arithmetic
+    _m("iv-no-outward-rounding", "interval bound", IV,
+       "return np.nextafter(lo, -np.inf), np.nextafter(hi, np.inf)", "return lo, hi", *T_IV),
+    _m("iv-mul-two-corners", "interval bound", IV,
+       "np.fmax(np.fmax(a, b), np.fmax(c, d))))", "np.fmax(a, d)))", *T_IV),
+    _m("iv-mul-nan-wins", "NaN", IV, "np.fmin(np.fmin(a, b), np.fmin(c, d)),",
+       "np.minimum(np.minimum(a, b), np.minimum(c, d)),", *T_IV),
+    _m("iv-reciprocal-zero-inside", "interval bound", IV,
+       "safe = (self.lo > 0) | (self.hi < 0)", "safe = (self.lo >= 0) | (self.hi <= 0)", *T_IV),
+    _m("iv-reciprocal-swapped", "interval bound", IV,
+       "lo = np.where(safe, 1.0 / np.where(safe, self.hi, 1.0), -np.inf)",
+       "lo = np.where(safe, 1.0 / np.where(safe, self.lo, 1.0), -np.inf)", *T_IV),
+    _m("iv-square-no-straddle", "interval bound", IV,
+       "lo = np.where(straddles, 0.0, np.minimum(a, b) ** 2)", "lo = np.minimum(a, b) ** 2",
+       *T_IV),
+    _m("iv-mignitude-no-straddle", "interval bound", IV,
+       "return np.asarray(np.where(straddles, 0.0, np.minimum(np.abs(self.lo),",
+       "return np.asarray(np.where(False, 0.0, np.minimum(np.abs(self.lo),", *T_IV),
+    _m("iv-magnitude-one-end", "interval bound", IV,
+       "return np.asarray(np.maximum(np.abs(self.lo), np.abs(self.hi)), dtype=float)",
+       "return np.asarray(np.abs(self.hi), dtype=float)", *T_IV),
+    _m("iv-hull-narrow", "interval bound", IV,
+       "return Interval(np.minimum(self.lo, other.lo), np.maximum(self.hi, other.hi))",
+       "return Interval(np.maximum(self.lo, other.lo), np.maximum(self.hi, other.hi))", *T_IV),
+    _m("iv-cos-max-always", "interval bound (loose)", IV,
+       "k_max = np.ceil(lo / (2.0 * math.pi))", "k_max = np.floor(lo / (2.0 * math.pi))",
+       *T_IV),
+    _m("iv-cos-min-missed", "interval bound", IV,
+       "has_min = wide | (math.pi + 2.0 * math.pi * k_min <= hi)", "has_min = wide", *T_IV),
+    _m("iv-cos-wide-4pi", "interval bound", IV, "wide = (hi - lo) >= 2.0 * math.pi",
+       "wide = (hi - lo) >= 4.0 * math.pi", *T_IV),
+    _m("iv-sin-shift-sign", "interval bound", IV, "return cos(x - math.pi / 2.0)",
+       "return cos(x + math.pi / 2.0)", *T_IV),
+    _m("iv-poly-no-pad", "rounding", IV,
+       "pad = 8.0 * terms * np.finfo(float).eps * scale", "pad = 0.0 * scale", *T_IV),
+    _m("iv-poly-first-order-only", "interval bound", IV,
+       "spread = np.sum(np.abs(taylor[..., 1:]) * radius[..., 1:], axis=-1)",
+       "spread = np.abs(taylor[..., 1]) * radius[..., 1]", *T_IV),
+    _m("iv-poly-binomial-diagonal", "interval bound", IV,
+       "weight = np.array([[math.comb(a, b) if a >= b else 0 for b in range(terms)]",
+       "weight = np.array([[math.comb(a, b) if a > b else 0 for b in range(terms)]", *T_IV),
+    _m("iv-poly-half-radius", "interval bound", IV, "r = 0.5 * (s_hi - s_lo)",
+       "r = 0.25 * (s_hi - s_lo)", *T_IV),
+    # the proof
+    _m("cl-segment-min-reach", "unsound segment bound", CL,
+       "return np.asarray(gap - np.maximum(ra, rb) - pad, dtype=float)",
+       "return np.asarray(gap - np.minimum(ra, rb) - pad, dtype=float)", *T_CL),
+    _m("cl-segment-no-reach", "unsound segment bound", CL,
+       "return np.asarray(gap - np.maximum(ra, rb) - pad, dtype=float)",
+       "return np.asarray(gap - pad, dtype=float)", *T_CL),
+    _m("cl-box-distance-l1", "unsound box bound", CL,
+       "return np.asarray(np.nextafter(np.hypot(dx, dy), -np.inf), dtype=float)",
+       "return np.asarray(dx + dy, dtype=float)", *T_CL),
+    _m("cl-clearance-ignored", "task.clearance ignored", CL,
+       "worst = np.minimum(worst, clear - constraints.clearance)",
+       "worst = np.minimum(worst, clear)", *T_CL),
+    _m("cl-radius-ignored", "radius ignored", CL,
+       "_segment_distance_bound(near, far, centre)) - radius",
+       "_segment_distance_bound(near, far, centre))", *T_CL),
+    _m("cl-nan-proven", "NaN counted as proven", CL,
+       "worst = np.where(np.isnan(worst) | broken, -np.inf, worst)",
+       "worst = np.nan_to_num(worst, nan=1.0)", *T_CL),
+    _m("cl-empty-proven", "empty interval proven", CL,
+       "broken |= ~(x.lo <= x.hi)  # nan compares false",
+       "broken |= np.isnan(x.lo) | np.isnan(x.hi)", *T_CL),
+    _m("cl-last-piece-skipped", "off by one", CL,
+       "starts += [(i, a, b) for a, b in itertools.pairwise(edges)]",
+       "starts += [(i, a, b) for a, b in itertools.pairwise(edges[:-1])]", *T_CL),
+    _m("cl-first-half-dropped", "bisection", CL,
+       "s_lo, s_hi = (np.column_stack([s_lo, mid]).ravel(),",
+       "s_lo, s_hi = (np.column_stack([mid, mid]).ravel(),", *T_CL),
+    _m("cl-budget-off-by-one", "off by one", CL, "if examined > max_intervals:",
+       "if examined >= max_intervals:", *T_CL),
+    _m("cl-undecided-unreported", "undecided", CL, "        if narrow.any():",
+       "        if False:", *T_CL),
+    _m("cl-lower-bound-max", "reported bound", CL,
+       "lower = min(lower, float(np.min(clear[~open_])))",
+       "lower = max(lower if math.isfinite(lower) else 0.0, float(np.max(clear[~open_])))",
+       *T_CL),
+    _m("cl-angle-limit-ignored", "a key without effect", CL,
+       "worst = np.minimum(worst, lim - th.magnitude())", "worst = worst", *T_CL),
+    _m("cl-rate-limit-other-joint", "a key without effect", CL,
+       "lim = float(constraints.rate_limit[j - 1])",
+       "lim = float(constraints.rate_limit[-j])", *T_CL),
+    _m("cl-min-margin-magnitude", "interval bound", CL,
+       "worst = np.minimum(worst, margin.mignitude() - constraints.min_margin)",
+       "worst = np.minimum(worst, margin.magnitude() - constraints.min_margin)", *T_CL),
+    _m("cl-counterexample-ignored", "counterexample", CL, "        if np.any(exact < 0):",
+       "        if False:", *T_CL),
+    _m("cl-paper-th0-sign", "interval bound", CL, "th0 = y2 + k.c0 * th2 / A",
+       "th0 = y2 - k.c0 * th2 / A", *T_CL),
+    _m("cl-chain-thN-sign", "interval bound", CL, "num = -1.0 * h0 * (S_hat + R * h0)",
+       "num = h0 * (S_hat + R * h0)", *T_CL),
+    _m("cl-chain-grad-half", "interval bound", CL,
+       "acc = acc + (-2.0 * float(K[a, b])) * sn", "acc = acc + (-1.0 * float(K[a, b])) * sn",
+       *T_CL),
+    _m("cl-chain-angle-short", "off by one", CL, "for k in range(b + 2, a + 1):",
+       "for k in range(b + 2, a):", *T_CL),
+    _m("cl-chain-rest-no-derivative", "interval bound", CL,
+       "d = c[i, 1:] * np.arange(1, deg + 1)", "d = c[i, 1:]", *T_CL),
+    _m("cl-paper-rest-no-derivative", "interval bound", CL,
+       "d = c[1:] * np.arange(1, deg + 1)", "d = c[1:]", *T_CL),
+    _m("cl-joint-box-moment-sign", "interval bound", CL, "ox = ox - float(moments[a]) * cx",
+       "ox = ox + float(moments[a]) * cx", *T_CL),
+    _m("cl-chain-margin-sign", "interval bound", CL,
+       "margin = D * (-1.0 / (2.0 * float(K[1, 0])))",
+       "margin = D * (1.0 / (2.0 * float(K[1, 0])))", *T_CL),
+    _m("cl-screen-nan-clear", "NaN counted as clear at samples", CL,
+       "return np.asarray(np.where(np.isnan(worst), -np.inf, worst), dtype=float)",
+       "return np.asarray(worst, dtype=float)", *T_CL),
+    # run directories
+    _m("rd-other-command-accepted", "runs mixed", RD, "        if previous != command:",
+       "        if False:", *T_RD),
+    _m("rd-other-spec-accepted", "runs mixed", RD,
+       "        if recorded_digest(record) != digest:", "        if False:", *T_RD),
+    _m("rd-stamp-not-random", "runs mixed", RD,
+       'return f"{now:%Y%m%d-%H%M%S}-{secrets.token_hex(3)}"',
+       'return f"{now:%Y%m%d-%H%M%S}-000000"', *T_RD),
+    _m("rd-fresh-reused", "runs mixed", RD, "path.mkdir(parents=True, exist_ok=False)",
+       "path.mkdir(parents=True, exist_ok=True)", *T_RD),
+    _m("rd-latest-absolute", "latest", RD,
+       "tmp.symlink_to(directory.name, target_is_directory=True)",
+       "tmp.symlink_to(directory.resolve(), target_is_directory=True)", *T_RD),
+    _m("rd-workspace-takes-latest", "latest", RD,
+       "home = root / name / COMMAND_DIRS[command] if command in COMMAND_DIRS else root / name",
+       "home = root / name", *T_RD),
+    _m("rd-sweep-mixed-with-run", "runs mixed", RD,
+       'if kind(out / SWEEP_MANIFEST) != "missing":  # even with --force: never mix with a '
+       "sweep", "if False:", *T_RD),
+    _m("rd-unreadable-record-accepted", "runs trusts run.json", RD,
+       'if kind(out / RECORD) != "missing" and record is None:', "if False:", *T_RD),
+    _m("rd-legacy-sweep-moved", "resume", RD,
+       'if kind(legacy / SWEEP_MANIFEST) != "missing":', "if False:", *T_RD),
+    _m("rd-missing-count", "partial sweep", RD, "missing = self.total - self.done",
+       "missing = self.total", *T_RD),
+    _m("rd-json-not-object", "runs trusts run.json", RD,
+       "return value if isinstance(value, dict) else None", "return value", *T_RD),
+    _m("rd-tags-repeated", "tags", RD, "        if tag not in out:", "        if True:", *T_RD),
+    _m("rd-tags-one-past", "tags", RD, "if len(out) > MAX_TAGS:",
+       "if len(out) > MAX_TAGS + 1:", *T_RD),
+    # composed specs
+    _m("cp-cycle-undetected", "include cycle", CP, "        if real in chain:",
+       "        if False:", *T_CP),
+    _m("cp-files-one-past", "off by one", CP, "if len(self.files) >= MAX_FILES:",
+       "if len(self.files) > MAX_FILES:", *T_CP),
+    _m("cp-includes-reversed", "merge order", CP, "        for name in include:",
+       "        for name in reversed(include):", *T_CP),
+    _m("cp-cli-robot-loses", "merge order", CP,
+       "selection = chosen if selection is None else selection", "selection = chosen", *T_CP),
+    _m("cp-relative-to-cwd", "relative names", CP,
+       "return path if path.is_absolute() or base is None else base / path", "return path",
+       *T_CP),
+    _m("cp-unset-ignored", "unset", CP,
+       'remove_key(out, dotted, f"{source}: unset")', "pass", *T_CP),
+    _m("cp-unset-unknown-accepted", "unset", CP, "if not known or not dotted:",
+       "if not dotted:", *T_CP),
+    _m("cp-unset-prefix", "unset", CP,
+       'if k == dotted or k.startswith(f"{dotted}.")]', "if k.startswith(dotted)]", *T_CP),
+    _m("cp-named-after-paper", "robot's name", CP,
+       'if "name" in out or self.robot is None or self.robot.stem == "paper":',
+       'if "name" in out or self.robot is None:', *T_CP),
+    _m("cp-name-overridden", "robot's name", CP,
+       'if "name" in out or self.robot is None or self.robot.stem == "paper":',
+       'if self.robot is None or self.robot.stem == "paper":', *T_CP),
+    _m("cp-nul-accepted", "misuse", CP, '    if "\\0" in name:', "    if False:", *T_CP),
+    _m("cp-home-unchecked", "misuse", CP,
+       "    except RuntimeError:  # Python's \"Could not determine home directory\"",
+       "    except KeyError:", *T_CP),
+    _m("cp-loop-unchecked", "misuse", CP,
+       "except (OSError, RuntimeError, ValueError):  # a link loop (RuntimeError before 3.13)",
+       "except (OSError, ValueError):", *T_CP),
+    _m("cp-error-not-named", "misuse", CP,
+       'raise SpecError(str(exc) if where == str(path) else f"{where}: {exc}") from None',
+       "raise SpecError(str(exc)) from None", *T_CP),
+    # interrupts
+    _m("int-check-raises-twice", "interrupts", IN,
+       'if _state["pending"] is not None and not _state["raised"]:',
+       'if _state["pending"] is not None:', *T_IN),
+    _m("int-handlers-not-restored", "interrupts", IN, "            signal.signal(s, handler)",
+       "            signal.signal(s, signal.SIG_DFL)", *T_IN),
+    _m("int-raises-in-locks", "interrupts", IN, '    if _state["immediate"]:',
+       "    if True:", *T_IN),
+    _m("int-second-signal-interrupts", "interrupts", IN, '    if _state["raised"]:\n',
+       "    if False:\n", *T_IN),
+    _m("int-pending-lost-at-end", "interrupts", IN, "        yield\n        check()\n",
+       "        yield\n", *T_IN),
+    _m("int-critical-immediate", "interrupts", IN, '    _state["immediate"] = False',
+       '    _state["immediate"] = True', *T_IN),
+    _m("int-no-check-on-entry", "interrupts", IN,
+       '    check()\n    was = _state["immediate"]\n    _state["immediate"] = True',
+       '    was = _state["immediate"]\n    _state["immediate"] = True', *T_IN),
+    _m("int-signal-forgotten", "interrupts", IN,
+       'return int(_state["signal"] or signal.SIGINT)', "return int(signal.SIGINT)", *T_IN),
+    _m("int-outer-pending-lost", "interrupts", IN,
+       '_state.update(pending=outer["pending"], immediate=outer["immediate"],',
+       '_state.update(pending=None, immediate=outer["immediate"],', *T_IN),
+)
+#: The groups ``--group`` picks.
+GROUPS = {"misuse": MUTANTS, "proofs": PROOF_MUTANTS, "all": MUTANTS + PROOF_MUTANTS}
+
+
 def copy_tree(source: Path, work: Path) -> None:
     """The package, the tests and what they read, into ``work`` (time stamps kept)."""
     if work.exists():
@@ -300,8 +523,11 @@ def main(argv: list[str] | None = None) -> int:
                         default=Path(tempfile.gettempdir()) / "flatcli-mutants")
     parser.add_argument("--only", nargs="+", metavar="ID", help="run these mutants only")
     parser.add_argument("--list", action="store_true", help="list the mutants and stop")
+    parser.add_argument("--group", choices=sorted(GROUPS), default="misuse",
+                        help="misuse (the guarantees under misuse), proofs (intervals, "
+                             "clearance, run directories, composed specs, interrupts) or all")
     args = parser.parse_args(argv)
-    chosen = [m for m in MUTANTS if not args.only or m.ident in args.only]
+    chosen = [m for m in GROUPS[args.group] if not args.only or m.ident in args.only]
     if args.list:
         for m in chosen:
             print(f"{m.ident:30} {m.kind:45} {m.path}")

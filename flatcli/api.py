@@ -34,7 +34,8 @@ from typing import TYPE_CHECKING, Any
 from flatcli.core.errors import FlatcliError
 from flatcli.core.plan.planning import Plan, PlanSamples
 from flatcli.core.plan.workspace import BRANCHES, DEFAULT_ATTITUDES, WorkspaceMap
-from flatcli.experiment import TrackRun, plan_and_optimization, run_track
+from flatcli.experiment import TrackRun as TrackRun  # the type of TrackResult.run
+from flatcli.experiment import plan_from, run_track
 from flatcli.files import is_regular, kind, read_text
 from flatcli.progress import announce_compile
 from flatcli.report import (
@@ -48,6 +49,7 @@ from flatcli.report import (
     plan_text,
     plan_title,
     save_figure,
+    task_text,
     track_figure,
     track_title,
 )
@@ -295,7 +297,7 @@ class PlanResult(Run):
         from flatcli.trajectory import Trajectory
 
         return Trajectory(self.plan if self.plan is not None else
-                          plan_and_optimization(self.spec)[0])
+                          plan_from(self.spec))
 
     @property
     def warnings(self) -> list[str]:
@@ -315,6 +317,8 @@ class PlanResult(Run):
         text = plan_text(self.spec.name, self.plan, self.samples)
         if self.optimization is not None:
             text += "\n\n" + optimization_text(self.optimization)
+        if self.metrics is not None and "task_candidates" in self.metrics:
+            text += "\n\n" + task_text(self.metrics)
         return text
 
     def plot(self) -> Figure:
@@ -371,7 +375,7 @@ class PlanResult(Run):
         s = self.spec
         times = self.frame["t"].to_numpy()
         fine = np.linspace(0.0, float(times[-1]), max(len(times), int(25 * times[-1]) + 1))
-        plan_ = self.plan if self.plan is not None else plan_and_optimization(s)[0]
+        plan_ = self.plan if self.plan is not None else plan_from(s)
         theta = plan_.sample(fine).theta
         return animate(robot_from(s), fine, theta, Path(path), s.task.obstacles,
                        s.task.clearance, s.task.end_effector)
@@ -402,7 +406,7 @@ class TrackResult(Run):
         from flatcli.trajectory import Trajectory
 
         return Trajectory(self.run.plan if self.run is not None else
-                          plan_and_optimization(self.spec)[0])
+                          plan_from(self.spec))
 
     @property
     def warnings(self) -> list[str]:
@@ -531,7 +535,8 @@ class SweepResult(Run):
     command = "sweep"
 
     def __init__(self, state: SweepState, simulated: int | None = None,
-                 wall_seconds: float | None = None, summary_text: str | None = None) -> None:
+                 wall_seconds: float | None = None, summary_text: str | None = None,
+                 headline_text: str | None = None) -> None:
         super().__init__(state.directory, read_json(state.directory / RECORD)
                          if state.complete else {"command": "sweep",
                                                  "spec": state.manifest.get("spec", {})})
@@ -539,6 +544,7 @@ class SweepResult(Run):
         self.simulated = simulated
         self.wall_seconds = wall_seconds
         self._summary_text = summary_text
+        self._headline_text = headline_text
 
     @property
     def complete(self) -> bool:
@@ -586,6 +592,30 @@ class SweepResult(Run):
         if self.complete and is_regular(self.directory / "summary.md"):
             return read_text(self.directory / "summary.md").rstrip("\n")
         return self._partial[1]
+
+    @property
+    def headline_text(self) -> str:
+        """The summary in one screen (what ``flatcli sweep`` and ``summarize`` print): per
+        cell its varying grid values, trials by status and median final error, the most
+        frequent error reasons, and where the full tables are (``summary_text``)."""
+        from flatcli.report.summary import error_reasons, grid_columns_of, headline, totals_text
+
+        if self._headline_text is not None:
+            return self._headline_text
+        assert self.directory is not None
+        records = [{str(k): v for k, v in r.items()} for r in self.summary.to_dict("records")]
+        if self.complete:
+            title = f"sweep {self.spec.name!r}: {totals_text(records)}"
+            files = [self.directory / "trials.parquet"]
+        else:
+            title = (f"{self.state.missing_text()}; the finished trials: "
+                     f"{totals_text(records) if records else 'none'} (run the same flatcli "
+                     "sweep command again to finish it)")
+            files = list(self.state.chunk_files)
+        errors = sum(int(r["error"]) for r in records)
+        return headline(records, grid_columns_of(records), title, str(self.directory),
+                        error_reasons(files) if errors else None,
+                        grid=self.spec.sweep.grid)
 
     @property
     def metrics(self) -> dict[str, int]:
@@ -707,6 +737,8 @@ def plan(spec: SpecLike = None, overrides: Overrides = None) -> PlanResult:
         metrics["clearance_bound"] = bound if math.isfinite(bound) else None
         metrics["certified_intervals"] = task.certificate.intervals
     metrics["task_candidates"] = task.candidates
+    metrics["rate_factor"] = None if s.task.rest else float(task.shape)
+    metrics["rest_skew"] = float(task.shape) if s.task.rest else None
     return PlanResult(s, None, metrics, opt, made, samples)  # the frame on first use
 
 
@@ -996,7 +1028,8 @@ def sweep(spec: SpecLike, out: str | os.PathLike[str] | None = None, *,
                          Progress(s.name, quiet), oversubscribe=oversubscribe, tags=chosen)
         state = sweep_state(directory)
     assert state is not None
-    return SweepResult(state, done.simulated, done.wall_seconds, done.summary_text)
+    return SweepResult(state, done.simulated, done.wall_seconds, done.summary_text,
+                       done.headline or None)
 
 
 @computes

@@ -38,6 +38,7 @@ from flatcli.rundirs import (
     shown,
 )
 from flatcli.spec.keys import SpecError, suggest
+from flatcli.spec.tree import flatten
 
 #: The fields every run has, in the order tables and frames show them.
 FIELDS = ("run", "command", "name", "time", "status", "outcome", "tags")
@@ -52,18 +53,10 @@ TAG_KEYS = ("tag", "tags")
 # ---------------------------------------------------------------------------------------
 # One run's fields.
 
-def flat_spec(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+def flat_spec(tree: Mapping[str, Any]) -> dict[str, Any]:
     """A spec tree as {dotted key: value}, into its tables too (``sweep.perturb.initial.std``,
     ``sweep.grid."plant.com"``)."""
-    out: dict[str, Any] = {}
-    for key, value in tree.items():
-        part = f'"{key}"' if "." in key else key
-        dotted = f"{prefix}.{part}" if prefix else part
-        if isinstance(value, Mapping) and value:
-            out.update(flat_spec(value, dotted))
-        else:
-            out[dotted] = value
-    return out
+    return flatten(tree, quote=True)
 
 
 @dataclass(frozen=True)

@@ -32,6 +32,8 @@ try:  # too little memory to load even these (ulimit -v): one line, not a traceb
     import click
 
     from flatcli import __version__
+    from flatcli.core import OWN_PROCESS_VARIABLE
+    from flatcli.core.names import EXECUTORS, FIGURE_FORMATS, OBJECTIVES
     from flatcli.interrupts import last_signal, raise_interrupt
     from flatcli.startup import library_error_text, probe_libraries, while_importing
     from flatcli.threads import THREAD_VARIABLES
@@ -59,10 +61,6 @@ STDOUT = "standard output"
 #: is EXIT_USAGE, 2): 0 closed-form outputs, 1 flat without them, 3 not flat.
 DESIGN_EXIT = {"closed_form": 0, "flat": 1, "not_flat": 3}
 RESUME_HINT = "finished chunks are kept in {}/trials; run the same command again to resume"
-#: ``flatcli.core.optimize.OBJECTIVES`` and ``flatcli.executors.EXECUTORS``, spelled out here
-#: so that ``--help`` need not import the numerical core (tests/test_cli.py checks they agree).
-OBJECTIVES = ("energy", "peak_rate", "effort", "margin")
-EXECUTORS = ("local", "dask")
 
 
 def fail(message: str) -> NoReturn:
@@ -204,6 +202,9 @@ def run() -> NoReturn:
     every command under a profiler or a tracer (``python -m cProfile``, coverage), which
     write their files at the teardown.
     """
+    # the program is flatcli's own process, and so are the processes it starts: numba tuned
+    # for its kernels (flatcli.core._jit.own_process) when the core is first imported
+    os.environ[OWN_PROCESS_VARIABLE] = "1"
     try:
         main.main()
         status = 0
@@ -245,9 +246,6 @@ OPTION_ORDER = ("robot", "sets", "name", "tags", "objective", "out", "force", "p
                 "quiet")
 #: The one meaning of -q in every command.
 QUIET_HELP = "Print nothing but errors (the exit status says how it went)."
-#: ``figures.format``'s choices (``flatcli.spec.schema.FIGURE_FORMATS``), spelled out so that
-#: --help need not import the numerical core.
-FIGURE_FORMATS = ("png", "pdf", "svg")
 
 
 class TrialId(click.ParamType[int, Any]):
@@ -282,7 +280,8 @@ def robot_option(fn: F) -> F:
              "spec's own keys (shorthand for --set robot=...).")(fn)
 
 
-def set_option(help: str = "Override a spec key (dotted; VALUE in TOML), repeatable."
+def set_option(help: str = "Override a spec key (dotted; VALUE in TOML), or remove one with "
+                             "~KEY (it takes its default again), repeatable."
                ) -> Callable[[F], F]:
     from flatcli.completion import complete_set
 
@@ -733,7 +732,7 @@ def sweep(spec: Path, robot: str | None, sets: tuple[str, ...], name: str | None
         except KeyboardInterrupt:
             click.echo(f"error: interrupted; {RESUME_HINT.format(directory)}", err=True)
             sys.exit(interrupted_status())
-    say(quiet, done.summary_text)
+    say(quiet, done.headline_text)
     say(quiet, f"{done.state.total} trials ({done.simulated} simulated now) in "
                f"{done.wall_seconds:.1f} s; wrote {directory}/trials.parquet, summary.md")
 
@@ -784,8 +783,10 @@ def rerun(directory: Path, trial: int, print_spec: bool, fmt: str | None, dpi: i
         rerun_trial(s, found.state.directory, trial, print_spec, quiet)
 
 
-@main.command(short_help="A sweep's tables again; --plot draws its figures.")
+@main.command(short_help="A sweep's summary again; --full its tables, --plot its figures.")
 @click.argument("directory", type=click.Path(path_type=Path, file_okay=False))
+@click.option("--full", is_flag=True,
+              help="Print every table of summary.md, not the one-screen headline.")
 @plot_option("Also write the summary figures (a finished sweep only).")
 @figure_options
 @click.option("--x", "x", metavar="KEY",
@@ -796,17 +797,19 @@ def rerun(directory: Path, trial: int, print_spec: bool, fmt: str | None, dpi: i
               help="With --plot: the grid key whose values get a colour each (the other grid "
                    "keys a line style), or `outcome`.")
 @quiet_option
-def summarize(directory: Path, plot: bool, fmt: str | None, dpi: int | None, x: str | None,
-              hue: str | None, quiet: bool) -> None:
-    """Print a sweep's summary tables again (and --plot its figures, against any grid key
-    with --x and --hue).
+def summarize(directory: Path, full: bool, plot: bool, fmt: str | None, dpi: int | None,
+              x: str | None, hue: str | None, quiet: bool) -> None:
+    """Print a sweep's summary again: one screen (per cell its grid values, trials by status,
+    median final error; the error reasons; where the full tables are), or with --full every
+    table of summary.md; --plot writes its figures, against any grid key with --x, --hue.
 
-    Of an interrupted sweep: the tables of its finished trials, and how much is missing.
+    Of an interrupted sweep: the finished trials, and how much is missing.
     DIRECTORY may be a sweep's or its name's (runs/<name>, whose sweep/ it reads).
     """
     from flatcli import api
     from flatcli.files import is_regular, kind, read_text
     from flatcli.report import FigureFile
+    from flatcli.report.sweep_figures import check_axes
 
     require_stdout(quiet)
     with user_errors():
@@ -825,6 +828,7 @@ def summarize(directory: Path, plot: bool, fmt: str | None, dpi: int | None, x: 
                     if not is_regular(directory / name):
                         fail(f"--plot: {directory / name} not found: not a finished sweep "
                              "directory")
+                check_axes(directory, x, hue)  # before anything is printed
             say(quiet, read_text(summary_md).rstrip("\n"))
             if plot:
                 from flatcli.report import plot_sweep
@@ -840,7 +844,9 @@ def summarize(directory: Path, plot: bool, fmt: str | None, dpi: int | None, x: 
         if plot and not result.complete:
             fail(f"--plot: {result.state.missing_text()}; the figures need every trial "
                  "(run the sweep again to finish it)")
-        say(quiet, result.summary_text)
+        if plot:
+            check_axes(directory, x, hue)  # before anything is printed
+        say(quiet, result.summary_text if full else result.headline_text)
         if plot:
             paths = result.save_figures(fmt=fmt, dpi=dpi, x=x, hue=hue)
             say(quiet, "wrote " + ", ".join(str(p) for p in paths))
@@ -937,7 +943,8 @@ def export_robot(spec: Path | None, robot: str | None, sets: tuple[str, ...], as
     if not as_urdf:
         fail("export-robot: choose a format: --urdf")
     from flatcli.experiment import robot_from
-    from flatcli.spec.build import read_toml, resolve_robot
+    from flatcli.spec.build import resolve_robot
+    from flatcli.spec.tree import read_toml
     from flatcli.urdf import write_urdf
 
     require_stdout(out is not None)

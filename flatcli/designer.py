@@ -17,7 +17,12 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from flatcli.core.errors import FlatcliError
-from flatcli.core.robots.counterweight import Counterweight, apply, design_counterweight
+from flatcli.core.robots.counterweight import (
+    POSITION_RTOL,
+    Counterweight,
+    apply,
+    design_counterweight,
+)
 from flatcli.core.robots.design import DesignVerdict, design_verdict
 from flatcli.core.robots.params import RobotParams
 from flatcli.experiment import plan_from, robot_from
@@ -74,11 +79,18 @@ def counterweight_text(spec: Spec, segment: ArrayLike, options: tuple[Option, ..
             f"({ends[0, 0]:g}, {ends[0, 1]:g}) to ({ends[1, 0]:g}, {ends[1, 1]:g}) m (x along "
             "the link, y across)")
     rows = [[o.label, o.counterweight.mass, o.counterweight.x, o.counterweight.y,
-             o.counterweight.link_mass, o.counterweight.link_inertia, o.verdict.verdict,
+             o.counterweight.residual, o.counterweight.link_mass,
+             o.counterweight.link_inertia, o.verdict.verdict,
              "-" if o.energy is None else o.energy] for o in options]
+    band = POSITION_RTOL * max(float(np.abs(ends).max()), float(np.hypot(bare.com[n],
+                                                                         bare.com_across)))
     lines = [head, table(["choice", "counterweight [kg]", "x [m]", "y [m]",
-                          f"link {n} mass [kg]", f"link {n} inertia [kg m^2]", "verdict",
-                          "plan energy [rad^2/s]"], rows, 6)]
+                          "centre off joint [m]", f"link {n} mass [kg]",
+                          f"link {n} inertia [kg m^2]", "verdict", "plan energy [rad^2/s]"],
+                         rows, 6),
+             f"positions within {band:.3g} m of the ray count as on it (POSITION_RTOL = "
+             f"{POSITION_RTOL:g} of the link's scale); the verdicts and plans are of the link "
+             "with its centre on the joint"]
     lines += [f"  {o.label}: {o.reason}" for o in options if o.reason]
     return "\n".join(lines)
 

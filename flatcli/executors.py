@@ -30,7 +30,9 @@ from typing import Any, Protocol, TypeVar
 
 import numpy as np
 
+from flatcli.core import OWN_PROCESS_VARIABLE
 from flatcli.core.errors import FlatcliError
+from flatcli.core.names import EXECUTORS
 from flatcli.interrupts import check, interruptible
 from flatcli.machine import cores
 from flatcli.storage import forget_inherited_locks
@@ -38,7 +40,6 @@ from flatcli.threads import limit_process, single_threaded
 
 T = TypeVar("T")
 
-EXECUTORS = ("local", "dask")
 
 #: How long the Dask executor tries to reach a scheduler before giving up.
 CONNECT_TIMEOUT = "10s"
@@ -79,9 +80,10 @@ def worker_timeout() -> float:
 
 def die_with_parent(parent: int) -> None:
     """In a worker process: be killed when the parent process ends (Linux), and end now if
-    it already has. Also: leave Ctrl-C to the parent, drop its directory locks, run one BLAS
-    thread (``flatcli.threads``), and keep numpy's floating-point warnings off the terminal
-    (the metrics say what went wrong)."""
+    it already has. Also: leave Ctrl-C to the parent, drop its directory locks, make the
+    process flatcli's own (``flatcli.core._jit.own_process``), run one BLAS thread
+    (``flatcli.threads``), and keep numpy's floating-point warnings off the terminal (the
+    metrics say what went wrong)."""
     if sys.platform.startswith("linux"):
         with contextlib.suppress(OSError, AttributeError):
             libc = ctypes.CDLL(None, use_errno=True)
@@ -91,6 +93,9 @@ def die_with_parent(parent: int) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     forget_inherited_locks()
+    from flatcli.core._jit import own_process
+
+    own_process()  # a worker is flatcli's own process, whoever started the sweep
     limit_process()
     np.seterr(all="ignore")
     warnings.simplefilter("ignore", RuntimeWarning)
@@ -238,9 +243,9 @@ class DaskExecutor:
         try:
             if scheduler == "local":
                 n = workers or default_workers()
-                self._cluster = LocalCluster(
-                    n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0"
-                )
+                self._cluster = LocalCluster(  # its workers are flatcli's own processes
+                    n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
+                    env={OWN_PROCESS_VARIABLE: "1"})
                 self._client = Client(self._cluster)
             else:
                 self._client = Client(scheduler, timeout=CONNECT_TIMEOUT)

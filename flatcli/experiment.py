@@ -8,7 +8,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -32,6 +32,7 @@ from flatcli.core.plan.task import Task, TaskPlan, plan_task, task_ends
 from flatcli.core.robots.params import RobotParams
 from flatcli.spec import Spec, SpecError
 from flatcli.spec.limits import check_track
+from flatcli.spec.schema import goal_is_derived
 
 if TYPE_CHECKING:  # the optimiser (scipy's SLSQP) loads only for a spec that optimises
     from flatcli.core.optimize import OptimizeResult
@@ -109,87 +110,105 @@ def _is_default(dotted: str, value: object) -> bool:
     return bool(value == lookup(dotted).default)
 
 
-def plan_and_optimization(spec: Spec) -> tuple[Plan, OptimizeResult | None]:
-    """The reference plan of a spec, and the optimiser's report when it optimised one.
+#: What a spec asks to be planned (``task_kind``): a point-to-point maneuver (no active
+#: ``[task]``), an end-effector or obstacle task, or a task that starts and stops at rest.
+TaskKind = Literal["maneuver", "task", "rest"]
+#: How it is planned (``plan_method``): through the closed-form flat outputs, optimised
+#: through them (``plan.optimize.objective``), or exact (``plan.method``, ``exact.method_for``).
+PlanMethod = Literal["flat", "optimized", "exact"]
+#: A planner: (spec, nominal robot) -> (plan, the optimiser's report, the task's plan).
+Planner = Callable[[Spec, RobotParams], "Planned"]
+Planned = tuple[Plan, "OptimizeResult | None", TaskPlan | None]
 
-    One planner for every N (``planning.plan_point_to_point``, or the optimiser); a spec
-    with an active ``[task]`` plans through ``core.task`` (``planned``).
-    """
-    plan, result, _ = planned(spec)
-    return plan, result
 
-
-def planned(spec: Spec) -> tuple[Plan, OptimizeResult | None, TaskPlan | None]:
-    """``plan_and_optimization`` and, for an active ``[task]``, its ``TaskPlan`` (the ends
-    derived from the task, the certificate of its obstacles and limits)."""
-    robot = robot_from(spec)
-    p, opt = spec.plan, spec.plan.optimize
-    start = np.asarray(p.start)
-    goal = np.asarray(p.goal)
+def task_kind(spec: Spec) -> TaskKind:
+    """The spec's kind of task (``TaskKind``; ``Task.active``: anything beyond a plain
+    plan)."""
     task = task_from(spec)
-    if task.active:
-        if method_for(robot, p.method) == "exact":
-            raise SpecError("plan.method: a [task] is planned through the closed-form flat "
-                            "outputs; the exact planner (plan.method \"exact\", or \"auto\" "
-                            "on a design without them) does not plan tasks")
-        if spec.joints > 2 and spec.robot.model != "derived":
-            raise SpecError("robot.model: \"paper\" applies to the paper's robot only")
-        starts, goals = task_ends(robot, task, start, goal, _is_default("plan.start", p.start),
-                                  _is_default("plan.goal", p.goal))
-        if opt.objective is None:
-            angle = np.asarray(opt.angle_limit, dtype=float)
-            rate = np.broadcast_to(np.asarray(opt.rate_limit, dtype=float), (spec.joints,))
-            done = plan_task(robot, task, starts, goals, p.duration,
-                             joint_rates(p.start_rate, spec.joints),
-                             joint_rates(p.goal_rate, spec.joints), checked(spec.robot.model),
-                             None if task.rest else basis_from(spec), angle, rate,
-                             p.rate_warning, p.samples)
-            return done.plan, None, done
-        if task.rest:
-            raise SpecError("task.rest: not with plan.optimize.objective (the optimiser plans "
-                            "with free, non-zero end rates)")
-        start, goal = starts[0], goals[0]
-    model = checked(spec.robot.model)
-    joints = spec.joints
-    if joints > 2 and model != "derived":
-        raise SpecError(f"robot.model: {model!r} (the appendix as printed) applies to the "
-                        f"paper's robot (2 joints) only; a robot of {joints} joints plans with "
-                        "\"derived\"")
-    start_rate = joint_rates(p.start_rate, joints)
-    goal_rate = joint_rates(p.goal_rate, joints)
-    if method_for(robot, p.method) == "exact":
-        return exact_plan_from(spec, robot, start, goal, start_rate, goal_rate), None, None
-    if opt.objective is None:
-        return plan_point_to_point(robot, start, goal, start_rate, goal_rate, p.duration, model,
-                                   basis_from(spec)), None, None
+    if not task.active:
+        return "maneuver"
+    return "rest" if task.rest else "task"
+
+
+def plan_method(spec: Spec, robot: RobotParams) -> PlanMethod:
+    """How the spec's plan is made (``PlanMethod``)."""
+    if method_for(robot, spec.plan.method) == "exact":
+        return "exact"
+    return "flat" if spec.plan.optimize.objective is None else "optimized"
+
+
+def _ends(spec: Spec) -> tuple[Array, Array, Array, Array]:
+    """start, goal (N + 1,) [rad] and start_rate, goal_rate (N - 1,) [rad/s] of the plan."""
+    p, joints = spec.plan, spec.joints
+    return (np.asarray(p.start), np.asarray(p.goal), joint_rates(p.start_rate, joints),
+            joint_rates(p.goal_rate, joints))
+
+
+def _task_ends(spec: Spec, robot: RobotParams) -> tuple[Task, list[Array], list[Array]]:
+    """The task, and the candidate starts and goals (k, N + 1) its ends allow [rad]."""
+    p, task = spec.plan, task_from(spec)
+    starts, goals = task_ends(robot, task, np.asarray(p.start), np.asarray(p.goal),
+                              _is_default("plan.start", p.start),
+                              goal_is_derived(spec))
+    return task, starts, goals
+
+
+def _flat(spec: Spec, robot: RobotParams) -> Planned:
+    start, goal, start_rate, goal_rate = _ends(spec)
+    return plan_point_to_point(robot, start, goal, start_rate, goal_rate, spec.plan.duration,
+                               checked(spec.robot.model), basis_from(spec)), None, None
+
+
+def _exact(spec: Spec, robot: RobotParams) -> Planned:
+    """The exact plan (``exact.plan_exact``): its objective from ``plan.optimize.objective``;
+    its limits are the flat optimiser's, refused here."""
+    opt = spec.plan.optimize
+    for key, value in (("angle_limit", opt.angle_limit), ("rate_limit", opt.rate_limit)):
+        if np.any(np.isfinite(np.asarray(value, dtype=float))):
+            raise SpecError(f"plan.optimize.{key}: limits apply to flat plans only; an exact "
+                            "plan (plan.method) minimises its objective without them")
+    return plan_exact(robot, *_ends(spec), spec.plan.duration, basis_from(spec, "exact"),
+                      checked(opt.objective)), None, None
+
+
+def _optimized(spec: Spec, robot: RobotParams, start: Array | None = None,
+               goal: Array | None = None) -> Planned:
     from flatcli.core.optimize import PlanLimits, optimize_plan
 
+    p, opt, joints = spec.plan, spec.plan.optimize, spec.joints
+    own_start, own_goal, start_rate, goal_rate = _ends(spec)
+    limits = PlanLimits(angle_limit=checked(opt.angle_limit),
+                        rate_limit=checked(opt.rate_limit), min_margin=opt.min_margin)
     result = optimize_plan(
-        robot, start, goal, p.duration,
-        model=model,
-        basis=basis_from(spec),
-        objective=checked(opt.objective),
-        limits=PlanLimits(
-            angle_limit=checked(opt.angle_limit),
-            rate_limit=checked(opt.rate_limit),
-            min_margin=opt.min_margin,
-        ),
-        free_rates=opt.free_rates,
+        robot, own_start if start is None else start, own_goal if goal is None else goal,
+        p.duration, model=checked(spec.robot.model), basis=basis_from(spec),
+        objective=checked(opt.objective), limits=limits, free_rates=opt.free_rates,
         start_rate=checked(float(start_rate[0]) if joints == 2 else start_rate),
         goal_rate=checked(float(goal_rate[0]) if joints == 2 else goal_rate),
-        constraint_samples=opt.constraint_samples,
-        max_iter=opt.max_iter,
-    )
-    if task.active:
-        return result.plan, result, _task_certified(result.plan, task, start, goal)
+        constraint_samples=opt.constraint_samples, max_iter=opt.max_iter)
     return result.plan, result, None
 
 
-def _task_certified(plan: Plan, task: Task, start: Array, goal: Array) -> TaskPlan:
-    """An optimised plan of a task, its obstacles proven clear (FlatcliError if not: the
-    optimiser does not know them)."""
+def _task(spec: Spec, robot: RobotParams) -> Planned:
+    """A task's plan through the closed-form flat outputs: its candidates tried until one is
+    proven clear (``task.plan_task``; a rest task with its rest-to-rest plan)."""
+    task, starts, goals = _task_ends(spec, robot)
+    opt, joints, (_, _, start_rate, goal_rate) = spec.plan.optimize, spec.joints, _ends(spec)
+    done = plan_task(robot, task, starts, goals, spec.plan.duration, start_rate, goal_rate,
+                     checked(spec.robot.model), None if task.rest else basis_from(spec),
+                     np.asarray(opt.angle_limit, dtype=float),
+                     np.broadcast_to(np.asarray(opt.rate_limit, dtype=float), (joints,)),
+                     spec.plan.rate_warning, spec.plan.samples)
+    return done.plan, None, done
+
+
+def _optimized_task(spec: Spec, robot: RobotParams) -> Planned:
+    """A task's optimised plan, from its first candidate ends, its obstacles proven clear
+    afterwards (SpecError if not: the optimiser does not see them)."""
     from flatcli.core.plan.clearance import Constraints, certify
 
+    task, starts, goals = _task_ends(spec, robot)
+    plan, result, _ = _optimized(spec, robot, starts[0], goals[0])
     cert = None
     if task.obstacles:
         cert = certify(plan, Constraints(np.asarray(task.obstacles, dtype=float),
@@ -198,35 +217,49 @@ def _task_certified(plan: Plan, task: Task, start: Array, goal: Array) -> TaskPl
             raise SpecError(f"task.obstacles: the optimised plan is not clear: {cert.reason} "
                             "(the optimiser does not see obstacles; plan without --optimize "
                             "to search for a clear plan)")
-    return TaskPlan(plan, start, goal, cert, 1)
+    return plan, result, TaskPlan(plan, starts[0], goals[0], cert, 1)
 
 
-def exact_plan_from(spec: Spec, robot: RobotParams, start: Array, goal: Array,
-                    start_rate: Array, goal_rate: Array) -> Plan:
-    """The exact plan of a spec (``exact.plan_exact``): its objective from
-    ``plan.optimize.objective``; its limits are the flat optimiser's, refused here."""
-    opt = spec.plan.optimize
-    for key, value in (("angle_limit", opt.angle_limit), ("rate_limit", opt.rate_limit)):
-        if np.any(np.isfinite(np.asarray(value, dtype=float))):
-            raise SpecError(f"plan.optimize.{key}: limits apply to flat plans only; an exact "
-                            "plan (plan.method) minimises its objective without them")
-    return plan_exact(robot, start, goal, start_rate, goal_rate, spec.plan.duration,
-                      basis_from(spec, "exact"), checked(opt.objective))
+#: The planners, by (task kind, method): the one place a spec's plan is chosen.
+PLANNERS: dict[tuple[TaskKind, PlanMethod], Planner] = {
+    ("maneuver", "flat"): _flat,
+    ("maneuver", "optimized"): _optimized,
+    ("maneuver", "exact"): _exact,
+    ("task", "flat"): _task,
+    ("task", "optimized"): _optimized_task,
+    ("rest", "flat"): _task,
+}
+#: Why the other combinations are refused (SpecError).
+REFUSED: dict[tuple[TaskKind, PlanMethod], str] = {
+    **dict.fromkeys((("task", "exact"), ("rest", "exact")), (
+        "plan.method: a [task] is planned through the closed-form flat outputs; the exact "
+        "planner (plan.method \"exact\", or \"auto\" on a design without them) does not plan "
+        "tasks")),
+    ("rest", "optimized"): ("task.rest: not with plan.optimize.objective (the optimiser plans "
+                            "with free, non-zero end rates)"),
+}
+
+
+def planned(spec: Spec) -> Planned:
+    """The spec's plan by its planner (``PLANNERS[task kind, method]``): the plan, the
+    optimiser's report when it optimised one, and for an active ``[task]`` its ``TaskPlan``
+    (the ends derived from the task, the certificate of its obstacles and limits)."""
+    robot = robot_from(spec)
+    model, joints = spec.robot.model, spec.joints
+    if joints > 2 and model != "derived":
+        raise SpecError(f"robot.model: {model!r} (the appendix as printed) applies to the "
+                        f"paper's robot (2 joints) only; a robot of {joints} joints plans with "
+                        "\"derived\"")
+    key = (task_kind(spec), plan_method(spec, robot))
+    planner = PLANNERS.get(key)
+    if planner is None:
+        raise SpecError(REFUSED[key])
+    return planner(spec, robot)
 
 
 def plan_from(spec: Spec) -> Plan:
     """The reference plan of a spec (optimised when ``plan.optimize.objective`` is set)."""
-    return plan_and_optimization(spec)[0]
-
-
-def flat_plan_from(spec: Spec) -> Plan:
-    """``plan_from`` where the paper's robot (N = 2) is required: its analyses (the fold,
-    the actuators, the findings) are about that robot."""
-    plan = plan_from(spec)
-    if plan.n_joints != 2:
-        raise SpecError(f"robot.mass: this needs the paper's robot (3 links, 2 joints), got "
-                        f"{spec.joints + 1} links")
-    return plan
+    return planned(spec)[0]
 
 
 def scenario_from(spec: Spec, plan: Plan) -> Scenario:
@@ -523,7 +556,7 @@ def run_rest_track(spec: Spec, plan: Plan) -> TrackRun:
                        np.asarray(spec.track.initial), times, spec.task.fade,
                        spec.plant.momentum, spec.track.rate_limit)
     ref = plan.sample(times)
-    u = trace.u1[:, None]
+    u = trace.u
     with np.errstate(all="ignore"):
         y, _, sigma = plan.model.outputs(trace.theta, u)
         H = plan.model.momentum(plant, trace.theta, trace.theta_dot)
@@ -545,15 +578,16 @@ def run_rest_track(spec: Spec, plan: Plan) -> TrackRun:
     valid = np.isfinite(trace.theta).all(axis=1)
     row[Metric.CLIPPED_TIME] = clipped_time_of(trace.clipped[valid], scenario.dt)
     ok = trace.finished and finite
-    columns = chain_trace_columns(2)
-    record = np.column_stack([trace.theta, trace.u1, trace.theta_dot])[None, :, :]
+    columns = chain_trace_columns(plan.n_joints)
+    record = np.column_stack([trace.theta, trace.u, trace.theta_dot])[None, :, :]
     clearance = None
     if spec.task.obstacles:
         clearance = motion_clearance(Geometry.of(plant.as_array()[None, :],
                                                  np.array([plant.com_across])),
                                      spec.task.obstacles, trace.theta[None],
                                      trace.theta_dot[None], scenario.dt)
-    final = trace.theta[-1:].copy() if ok else np.full((1, 3), np.nan)
+    final = (trace.theta[-1:].copy() if ok else
+             np.full((1, plan.n_joints + 1), np.nan))
     outcome = Outcome(metrics=metrics,
                       status=np.array([int(Status.OK if ok else Status.DIVERGED)]),
                       event=np.array([int(Event.NONE if ok else Event.BOUND)]),

@@ -23,6 +23,7 @@ text; list and struct values are JSON text.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import re
 from pathlib import Path
@@ -81,7 +82,7 @@ def export_csv(directory: Path, out: Path | None = None) -> list[Path]:
     ``flatcli sweep --force`` knows them as flatcli's.
     """
     def write(path: Path, tmp: Path) -> None:
-        table = csv_ready(pq.read_table(path))
+        table = csv_ready(_read(path))
         pacsv.write_csv(table, tmp, pacsv.WriteOptions(quoting_style="needed"))
 
     return _export(directory, out, "csv", write)
@@ -93,7 +94,7 @@ def export_mat(directory: Path, out: Path | None = None) -> list[Path]:
     from scipy.io import savemat
 
     def write(path: Path, tmp: Path) -> None:
-        contents = mat_contents(pq.read_table(path), path.stem, directory)
+        contents = mat_contents(_read(path), path.stem, directory)
         with tmp.open("wb") as handle:
             savemat(handle, contents, do_compression=True, oned_as="column",
                     long_field_names=True)
@@ -115,14 +116,29 @@ def _export(directory: Path, out: Path | None, suffix: str, write: Any) -> list[
     sweep = _sweep_of(target)
     written = []
     with directory_lock(sweep if sweep is not None else target):
-        for path, name in zip(paths, names, strict=True):
-            out_path = target / name
-            with atomic_path(out_path) as tmp:
+        # every file goes to its temporary file first and all are renamed together at the
+        # end: a table that cannot be read (a damaged trials.parquet) leaves no file of the
+        # others behind
+        with contextlib.ExitStack() as files:
+            for path, name in zip(paths, names, strict=True):
+                out_path = target / name
+                tmp = files.enter_context(atomic_path(out_path))
                 write(path, tmp)
-            written.append(out_path)
+                written.append(out_path)
         if sweep is not None:
             record_outputs(sweep, written)
     return written
+
+
+def _read(path: Path) -> pa.Table:
+    """A Parquet table; FlatcliError naming it if it cannot be read (damaged, truncated, or
+    not Parquet), so that nothing is exported."""
+    try:
+        return pq.read_table(path)
+    except (pa.ArrowException, OSError) as exc:
+        first = (str(exc).splitlines() or [type(exc).__name__])[0]
+        raise FlatcliError(f"{path}: not a readable Parquet table ({first}); nothing "
+                           "exported") from None
 
 
 #: What each of flatcli's tables is, for a MATLAB file's description.

@@ -17,6 +17,8 @@ import stat
 from collections.abc import Iterable
 from pathlib import Path
 
+from flatcli.core.errors import FlatcliError
+
 #: Largest run record (run.json, metrics.json) read back [bytes]: a record holds a spec,
 #: metrics and versions (a few KiB; a plan of a 100-link robot, about 100 KiB).
 MAX_RECORD_BYTES = 8 << 20
@@ -68,15 +70,6 @@ def mode_kind(mode: int) -> str:
 def is_regular(path: Path) -> bool:
     """Whether ``path`` is a regular file itself (not a link to one)."""
     return kind(path) == "file"
-
-
-def require_regular(path: Path) -> None:
-    """UnreadableFileError unless ``path`` is a regular file (it is then safe to open)."""
-    what = kind(path)
-    if what == "missing":
-        raise UnreadableFileError(path, "not found")
-    if what != "file":
-        raise UnreadableFileError(path, f"is {what}, not a regular file")
 
 
 def read_bounded(path: Path, limit: int) -> bytes:
@@ -157,3 +150,44 @@ def not_regular(directory: Path, names: Iterable[str]) -> list[str]:
 def read_text(path: Path, limit: int = MAX_MANIFEST_BYTES) -> str:
     """A regular file's text (``read_bounded``; bytes that are not UTF-8 replaced)."""
     return read_bounded(path, limit).decode("utf-8", "replace")
+
+
+def read_named_text(path: Path, what: str, limit: int) -> str:
+    """The UTF-8 text of a file a user names (``what``: "spec file", "URDF file"), following
+    a symbolic link; FlatcliError naming it for a missing, unreadable, oversized (> ``limit``
+    bytes) or non-regular file (a FIFO or a device is refused without reading from it) and
+    for text that is not UTF-8."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    except FileNotFoundError:
+        raise FlatcliError(f"{what} not found: {path}") from None
+    except OSError as exc:
+        raise FlatcliError(f"cannot read {what} {path}: {exc.strerror}") from None
+    try:
+        info = os.fstat(fd)
+        if stat.S_ISDIR(info.st_mode):
+            raise FlatcliError(f"{what} is a directory: {path}")
+        if not stat.S_ISREG(info.st_mode):
+            raise FlatcliError(f"{what} {path} is not a regular file (a FIFO, socket or "
+                            "device)")
+        if info.st_size > limit:
+            raise FlatcliError(f"{what} {path} is {info.st_size} bytes, more than the "
+                            f"{limit} a {what.split()[0]} may have")
+        data = b""
+        while len(data) <= limit:
+            block = os.read(fd, limit + 1 - len(data))
+            if not block:
+                break
+            data += block
+    except OSError as exc:
+        raise FlatcliError(f"cannot read {what} {path}: {exc.strerror}") from None
+    finally:
+        os.close(fd)
+    if len(data) > limit:
+        raise FlatcliError(f"{what} {path} is more than the {limit} bytes a {what.split()[0]} "
+                        "may have")
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise FlatcliError(f"{what} {path} is not UTF-8 text (byte {exc.start})") from None
+    return text

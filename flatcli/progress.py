@@ -13,19 +13,35 @@ from typing import Any, TextIO
 
 from flatcli.core.loop.metrics import STATUS_NAMES
 
+#: A sweep of more grid cells than this says how its cells' planning goes (``cells``).
+CELLS_SHOWN = 50
 #: What the first simulation prints when numba's cache holds no compiled kernel yet.
 COMPILING = "compiling the simulation kernel (once, ~30 s)"
 
 
 def kernel_cached() -> bool:
-    """Whether numba's on-disk cache (the directory ``flatcli.core._jit`` chose) holds an
-    index of the closed-loop kernel, so a simulation starts without compiling."""
-    import numba
+    """Whether the kernels' on-disk cache (``flatcli.core._jit.CACHE_DIRECTORY``) holds a
+    readable index of the closed-loop kernel, so a simulation starts without compiling (a
+    damaged index is compiled again: ``_jit._RepairingIndexFile``)."""
+    from flatcli.core._jit import CACHE_DIRECTORY
 
-    import flatcli.core._jit  # noqa: F401  (sets numba's cache directory)
+    root = CACHE_DIRECTORY
+    return root is not None and root.is_dir() and any(
+        _readable_index(p) for p in root.glob("**/*kernels.*_batch-*.nbi"))
 
-    root = Path(getattr(numba.config, "CACHE_DIR", "") or "")
-    return root.is_dir() and any(root.glob("**/*kernels.*_batch-*.nbi"))
+
+def _readable_index(path: Path) -> bool:
+    """Whether numba can read a cache index: its version, then its pickled entries (as
+    ``numba.core.caching.IndexDataCacheFile._load_index`` reads them)."""
+    import pickle
+
+    try:
+        with path.open("rb") as f:
+            pickle.load(f)
+            pickle.loads(f.read())
+    except Exception:  # damaged: numba's load raises anything pickle can
+        return False
+    return True
 
 
 def announce_compile(quiet: bool, stream: TextIO | None = None) -> bool:
@@ -77,6 +93,25 @@ class Progress:
 
             self._bar = tqdm(total=total, initial=done, unit="trial", file=self.stream,
                              dynamic_ncols=True, smoothing=0.1)
+
+    def cells(self, done: int, total: int) -> None:
+        """``done`` of the sweep's ``total`` grid cells are checked and planned (before the
+        first trial: each cell's plan and reference tables are made in this process); shown
+        from the first call, every ``interval`` seconds and at the end, for a grid of more
+        than ``CELLS_SHOWN`` cells."""
+        if self.quiet or total <= CELLS_SHOWN:
+            return
+        now = time.perf_counter()
+        if done == 0:
+            self._t0 = self._last = now
+            print(f"sweep {self.name!r}: planning {total} grid cells", file=self.stream,
+                  flush=True)
+            return
+        if now - self._last >= self.interval or done == total:
+            self._last = now
+            rate = done / max(now - self._t0, 1e-9)
+            print(f"  {done}/{total} cells planned ({100 * done / total:.0f}%), ETA "
+                  f"{(total - done) / rate:.0f} s", file=self.stream, flush=True)
 
     @property
     def fresh(self) -> int:

@@ -2,7 +2,9 @@
 
 * Without ``--out`` every ``plan`` or ``track`` run gets a directory of its own,
   ``runs/<name>/<YYYYmmdd-HHMMSS>-<6 hex>/``, and ``runs/<name>/latest`` links to the newest
-  one (the link is replaced atomically). No run ever writes into another's directory.
+  one (the link is replaced atomically). No run ever writes into another's directory. A
+  ``workspace`` map goes to ``runs/<name>/workspace/<stamp>/`` with its own ``latest``
+  (``COMMAND_DIRS``), so ``runs/<name>/latest`` stays the newest plan or track run.
 * With ``--out DIR``, a DIR that holds a different run (another command, or the same command
   with another spec) is refused unless ``--force``, as a sweep directory already is.
 * ``flatcli runs [DIR]`` lists every run below DIR (plan, track, sweep, ``sweep --rerun``,
@@ -56,6 +58,11 @@ ROOT = Path("runs")
 #: A sweep's default directory within ``runs/<name>/``, beside the name's plan and track runs
 #: (a stamp, ``YYYYmmdd-HHMMSS-xxxxxx``, is never this name).
 SWEEP_DIR = "sweep"
+#: Where the fresh runs of a command other than plan and track go within ``runs/<name>/``,
+#: with a ``latest`` of their own: ``runs/<name>/latest`` is the newest plan or track run,
+#: which ``flatcli.load("runs/<name>")`` and ``runs --compare`` read, and a workspace map is
+#: neither.
+COMMAND_DIRS = {"workspace": "workspace"}
 #: The most tags a run may have, and the longest tag [UTF-8 bytes].
 MAX_TAGS = 32
 MAX_TAG_BYTES = 100
@@ -188,8 +195,9 @@ def claim(out: Path | None, command: str, name: str, digest: str, force: bool = 
     files, or mix with a sweep's.
     """
     if out is None:
+        home = root / name / COMMAND_DIRS[command] if command in COMMAND_DIRS else root / name
         while True:
-            path = root / name / stamp()
+            path = home / stamp()
             if not path.exists():
                 return Target(path, fresh=True)
     if out.exists() and not out.is_dir():

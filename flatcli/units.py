@@ -50,7 +50,7 @@ UNITS: dict[str, str] = {
     # a task's metrics (metrics.json of a track run, run.json's summary of a plan)
     "ee_error_final": "m", "ee_error_max": "m", "base_attitude_error_final": _ANGLE,
     "min_clearance": "m", "clearance_bound": "m", "certified_intervals": DIMENSIONLESS,
-    "task_candidates": DIMENSIONLESS,
+    "task_candidates": DIMENSIONLESS, "rate_factor": DIMENSIONLESS, "rest_skew": DIMENSIONLESS,
     "ee_error_bound": "m",  # trials.parquet of a task sweep
     # workspace.parquet: one row per target (flatcli.core.plan.workspace)
     "target_x": "m", "target_y": "m",

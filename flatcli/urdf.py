@@ -450,10 +450,10 @@ def read_urdf(path: str | Path) -> UrdfRobot:
     """The robot a URDF file describes (module docstring); FlatcliError naming the file and
     the joint, link or element for a file that is missing, not a URDF, or not a planar
     serial chain."""
-    from flatcli.spec.build import read_text
+    from flatcli.files import read_named_text
 
     path = Path(path)
-    text = read_text(path, "URDF file", MAX_URDF_BYTES)
+    text = read_named_text(path, "URDF file", MAX_URDF_BYTES)
     return urdf_robot(text, str(path))
 
 

@@ -23,8 +23,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from flatcli.core.controllers.control import Gains
 from flatcli.core.loop.simulate import Scenario, Trials
+from flatcli.core.names import Model
 from flatcli.core.plan.planning import Basis, Plan, plan_point_to_point
-from flatcli.core.robots.params import PAPER_ROBOT, Model, RobotParams
+from flatcli.core.robots.params import PAPER_ROBOT, RobotParams
 
 Array = NDArray[np.float64]
 

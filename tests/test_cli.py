@@ -305,6 +305,16 @@ def test_design_of_the_audits_chain4_is_not_flat_and_the_plant_gets_its_own_verd
         (["sweep", "flat.toml"], "sweep: 1000 identical trials (no [sweep.perturb] and no "
                                  "track.sensor_noise)"),
         (["sweep", "MISSING.toml", "--workers", "abc"], "'abc' is not a valid integer"),
+        (["track", "--set", "robot.com=[0.1,0.1,0.003]", "--set", "track.controller=asbuilt",
+          "--set", "track.lqr_bandwidth=1e12"], "track.lqr_bandwidth = 1e+12 rad/s"),
+        (["plan", "--set", "task.end_effector=[-0.25,0.05]", "--set",
+          "task.obstacles=[" + ",".join(f"[{2 + i / 100},0,0.001]" for i in range(1001)) + "]"],
+         "task.obstacles: 1001 discs, more than the 1000"),
+        (["sweep", "flat.toml", "--set", "sweep.grid={\"plan.goal_rate\" = ["
+          + ",".join(str(0.5 + i / 1e4) for i in range(101)) + "], \"track.kp\" = ["
+          + ",".join(f"[{100 + i}, 110]" for i in range(100)) + "]}"],
+         "sweep.grid: 1.01e+04 cells (101 x 100), more than the 10000"),
+        (["summarize", "nowhere", "--full", "--x", "track.dt"], "only with --plot"),
     ],
 )
 def test_bad_input_is_one_line_exit_2_and_writes_nothing(
@@ -331,15 +341,6 @@ def test_unparsable_spec_file(tmp_path: Path) -> None:
 def test_version() -> None:
     code, out = run("--version")
     assert code == 0 and out.startswith("flatcli, version")
-
-
-def test_choices_spelled_out_for_a_fast_help_match_their_homes() -> None:
-    from flatcli import cli
-    from flatcli.core.optimize import OBJECTIVES
-    from flatcli.executors import EXECUTORS
-
-    assert tuple(OBJECTIVES) == cli.OBJECTIVES
-    assert tuple(EXECUTORS) == cli.EXECUTORS
 
 
 HEAVY = ("numpy", "numba", "scipy", "pandas", "pyarrow", "matplotlib")
@@ -372,18 +373,21 @@ def test_compile_notice_only_on_a_cold_cache(tmp_path: Path,
                                              monkeypatch: pytest.MonkeyPatch) -> None:
     import io
 
-    import numba
-
+    from flatcli.core import _jit
     from flatcli.progress import COMPILING, announce_compile
 
-    monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(_jit, "CACHE_DIRECTORY", tmp_path)
     stream = io.StringIO()
     assert announce_compile(False, stream) is True
     assert stream.getvalue() == COMPILING + "\n"
     assert announce_compile(True, stream) is True and stream.getvalue().count("\n") == 1
     index = tmp_path / "core_0123" / "kernels.paper_kinematic_batch-124.py311.nbi"
     index.parent.mkdir()
-    index.write_bytes(b"")
+    index.write_bytes(b"")  # a damaged index: numba compiles again (tests/test_progress.py)
+    assert announce_compile(False, io.StringIO()) is True
+    import pickle
+
+    index.write_bytes(pickle.dumps("0.68.1") + pickle.dumps((1.0, {})))  # a readable one
     stream = io.StringIO()
     assert announce_compile(False, stream) is False and stream.getvalue() == ""
 
@@ -538,6 +542,7 @@ def test_exported_csv_files_do_not_block_force(tiny_sweep: tuple[Path, Path],
 def test_an_unwritable_out_is_refused_before_any_work(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch, command: str) -> None:
     import flatcli.api
+    import flatcli.experiment
 
     readable = tmp_path / "readable"  # as a directory of mode 0o555 is to a user
     readable.mkdir()
@@ -550,7 +555,7 @@ def test_an_unwritable_out_is_refused_before_any_work(
     def computed(*args: Any, **kwargs: Any) -> Any:
         raise AssertionError("planned before the output was checked")
 
-    monkeypatch.setattr(flatcli.api, "plan_and_optimization", computed)
+    monkeypatch.setattr(flatcli.experiment, "planned", computed)  # every plan's one way
     monkeypatch.setattr(flatcli.api, "run_track", computed)
     for out in (readable, readable / "run"):
         result = CliRunner().invoke(main, [command, "--out", str(out)])
@@ -603,11 +608,12 @@ def test_plan_and_track_refuse_a_directory_another_run_writes_before_any_work(
     import multiprocessing
 
     import flatcli.api
+    import flatcli.experiment
 
     def computed(*args: Any, **kwargs: Any) -> Any:
         raise AssertionError("computed while another run writes there")
 
-    monkeypatch.setattr(flatcli.api, "plan_and_optimization", computed)
+    monkeypatch.setattr(flatcli.experiment, "planned", computed)  # every plan's one way
     monkeypatch.setattr(flatcli.api, "run_track", computed)
     out = tmp_path / "o"
     context = multiprocessing.get_context("spawn")
@@ -728,7 +734,10 @@ def test_sweeps_and_plan_track_runs_are_kept_apart(tmp_path: Path,
     assert isinstance(sweep, api.SweepResult) and sweep.complete
     assert json.loads((tmp_path / "runs/small/sweep/run.json").read_text())["tags"] == [
         "nightly"]
-    code, out = run("summarize", "runs/small")  # the name's sweep
+    code, out = run("summarize", "runs/small")  # the name's sweep: its headline
+    assert code == 0 and out.startswith("sweep 'small': 2 cells, ")
+    assert "full tables: runs/small/sweep/summary.md (flatcli summarize " in out
+    code, out = run("summarize", "runs/small", "--full")
     assert code == 0 and "### Trials by status" in out
     trial = int(pd.read_parquet(tmp_path / "runs/small/sweep/trials.parquet")["trial"][0])
     code, out = run("rerun", "runs/small", str(trial))  # no SPEC: the sweep's own
@@ -811,3 +820,47 @@ def test_the_program_under_a_profiler_ends_the_usual_way_so_the_profile_is_writt
                            "--version"], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0 and done.stdout.startswith("flatcli, version")
     assert profile.stat().st_size > 0
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ('include = ["loop_a.toml"]', "include 'loop_a.toml': cannot read spec file"),
+    ('robot = "loop_a.toml"', "robot 'loop_a.toml': cannot read spec file"),
+    ('include = ["x\\u0000y.toml"]', "a file name must not contain a NUL byte"),
+    ('robot = "~nosuchuser_flatcli/x.toml"', "robot: '~nosuchuser_flatcli/x.toml': no home"),
+    ('robot = "../../x"', "robot '../../x': spec file not found"),
+])
+@pytest.mark.parametrize("command", ["plan", "track", "sweep", "design"])
+def test_misused_robot_files_and_includes_are_one_line_exit_2(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, text: str, message: str,
+        command: str) -> None:
+    monkeypatch.chdir(tmp_path)
+    Path("loop_a.toml").symlink_to("loop_b.toml")
+    Path("loop_b.toml").symlink_to("loop_a.toml")
+    Path("s.toml").write_text(text + "\n")
+    code, out = run(command, "s.toml")
+    assert code == 2 and out.startswith("error: ") and out.count("\n") == 1, out
+    assert message in out and "Traceback" not in out
+    assert not Path("runs").exists()
+
+
+def test_summarize_checks_x_and_hue_before_it_prints_anything(tmp_path: Path) -> None:
+    """A bad --x or --hue is the only line summarize prints (the summary is not printed
+    first), exit 2, no figure written; with and without the sweep's manifest."""
+    from small_sweep import SPEC, write_spec
+
+    spec = write_spec(tmp_path, SPEC.replace("trials = 60", "trials = 4"))
+    directory = tmp_path / "d"
+    code, out = run("sweep", str(spec), "--out", str(directory), "-q")
+    assert code == 0, out
+    for args, message in ((["--x", "track.dt"], "--x: 'track.dt' is not a grid key"),
+                          (["--hue", "track.sensor_noise", "--x", "track.sensor_noise"],
+                           "is the --x key")):
+        for manifest in (True, False):
+            if not manifest:
+                (directory / "sweep.json").rename(tmp_path / "sweep.json")
+            code, out = run("summarize", str(directory), "--plot", *args)
+            assert code == 2 and out.startswith("error: ") and out.count("\n") == 1, out
+            assert message in out
+            assert not list(directory.glob("sweep_*"))
+            if not manifest:
+                (tmp_path / "sweep.json").rename(directory / "sweep.json")

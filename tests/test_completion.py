@@ -7,24 +7,27 @@ import os
 import subprocess
 import sys
 
-from flatcli.completion import SET_KEYS, WORDS, robot_names, set_items
+from flatcli.completion import robot_names, set_items, set_words
 from flatcli.spec import SCHEMA, all_keys
 from flatcli.spec.compose import robot_names as shipped_robots
 
 HEAVY = ("numpy", "numba", "scipy", "pandas", "pyarrow", "matplotlib")
 
 
-def test_the_keys_and_words_spelled_out_are_the_schemas() -> None:
-    assert list(SET_KEYS) == all_keys()
-    words = {}
+def test_the_keys_and_words_offered_are_the_schemas() -> None:
+    """Every key, in the schema's order; a choice's words its choices (the core's
+    enumerations for those the core defines), a flag's true and false."""
+    assert list(set_words()) == all_keys()
+    assert set_words()["plant.model"] == ("kinematic", "dynamic")
+    assert set_words()["track.integrator"] == ("adaptive", "rk4", "dop853")
+    assert set_words()["task.rest"] == ("true", "false")
+    assert set_words()["track.dt"] == ()
     for section, keys in SCHEMA.items():
         for name, key in keys.items():
             dotted = f"{section}.{name}" if section else name
-            if key.kind == "choice":
-                words[dotted] = key.choices
-            elif key.kind == "bool":
-                words[dotted] = ("true", "false")
-    assert words == WORDS
+            assert set(set_words()[dotted]) == (set(key.choices or ()) if key.kind == "choice"
+                                                else {"true", "false"} if key.kind == "bool"
+                                                else set())
     assert robot_names() == shipped_robots()
 
 

@@ -17,10 +17,11 @@ from hypothesis import strategies as st
 from numpy.typing import NDArray
 
 from flatcli.core.controllers.control import Gains, PaperGains, feedback
-from flatcli.core.loop.simulate import Integrator, Scenario, Trials, simulate
+from flatcli.core.loop.simulate import Scenario, Trials, simulate
 from flatcli.core.models.flatness import flat_inputs, flat_outputs
+from flatcli.core.names import MODELS, Integrator, Model
 from flatcli.core.plan.planning import Plan
-from flatcli.core.robots.params import MODELS, PAPER_ROBOT, Model, constraint_coefficients
+from flatcli.core.robots.params import PAPER_ROBOT, constraint_coefficients
 
 Array = NDArray[np.float64]
 

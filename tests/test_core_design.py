@@ -309,6 +309,25 @@ def test_reasons_are_one_line_each_and_name_what_flatcli_does() -> None:
         v = design_verdict(robot(*given))
         assert v.reasons and all("\n" not in line for line in v.reasons)
     flat = design_verdict(robot(*CONTROLLABLE["n3 K_10 = 0, K_12 != 0"][0]))
-    assert "for a nominal robot with d3 = 0 and K_10 != 0" in flat.reasons[-1]
+    assert "need d3 = 0 and K_10 != 0" in flat.reasons[-1]
     closed = design_verdict(robot(*CONTROLLABLE["n3 chain4"][0]))
     assert "flatcli plans it" in closed.reasons[-1]
+
+
+@pytest.mark.parametrize("name", ["n2 d2 = 2 mm", "n3 K_10 = 0, K_12 != 0", "n4 d4 = 5 mm"])
+def test_a_flat_verdict_says_what_each_plan_method_does_and_it_is_so(name: str) -> None:
+    """The verdict's last reason claims plan.method "flat" refuses the design and "auto"
+    plans it exactly: the planners' own choice (``exact.method_for``) and the flat planner's
+    refusal (``model.require_flat``) are the referees."""
+    from flatcli.core.errors import FlatcliError
+    from flatcli.core.plan.exact import method_for
+    from flatcli.core.robots.params import require_flat
+
+    design = robot(*CONTROLLABLE[name][0])
+    text = design_verdict(design).reasons[-1]
+    assert 'plan.method = "flat" refuses' in text
+    assert '"auto" (the default) and "exact" plan it exactly' in text
+    assert "nominal robot with" not in text
+    assert method_for(design, "auto") == "exact"
+    with pytest.raises(FlatcliError):
+        require_flat(design)

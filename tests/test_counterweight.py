@@ -12,11 +12,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import flatcli
 from flatcli.cli import main
 from flatcli.core.errors import FlatcliError
-from flatcli.core.robots.counterweight import apply, design_counterweight
+from flatcli.core.robots.counterweight import POSITION_RTOL, apply, design_counterweight
 from flatcli.core.robots.design import design_verdict
 from flatcli.core.robots.params import RobotParams
 
@@ -37,9 +39,12 @@ def test_least_mass_and_least_inertia_balance_the_link(segment: list[list[float]
     m, inertia, d, e = 0.5, 0.01, 0.05, 0.02 if segment[0][1] != 0 else 0.0
     light, compact = design_counterweight(m, inertia, d, e, segment)
     r = np.array([d, e])
+    band = POSITION_RTOL * max(np.abs(segment).max(), np.hypot(d, e))
     for cw in (light, compact):
         p = np.array([cw.x, cw.y])
-        np.testing.assert_allclose(_balance(m, r, cw.mass, p), 0.0, atol=ROUNDING)
+        centre = _balance(m, r, cw.mass, p)  # within the band's share of the joint
+        assert np.hypot(*centre) == pytest.approx(cw.residual, abs=ROUNDING)
+        assert cw.residual <= band * cw.mass / (m + cw.mass) * (1 + 1e-9)
         want = inertia + m * (r @ r) + cw.mass * (p @ p)
         assert cw.link_inertia == pytest.approx(want, rel=1e-12)
         assert cw.link_mass == pytest.approx(m + cw.mass)
@@ -79,3 +84,60 @@ def test_cli_reports_each_design_its_verdict_and_plan_energy() -> None:
                                          "robot.com": list(robot.com)}).metrics["input_energy"]
         row = next(line for line in result.output.splitlines() if line.startswith(f"| {label}"))
         assert "closed_form" in row and f"{energy:.6g}" in row
+
+
+@settings(deadline=None, max_examples=300)
+@given(angle=st.floats(-3.1, 3.1), reach=st.floats(0.005, 0.2), near=st.floats(0.01, 0.3),
+       extent=st.floats(0.0, 0.3), offset_a=st.floats(-0.5, 0.5), offset_b=st.floats(-0.5, 0.5),
+       swap=st.booleans())
+def test_a_segment_off_the_ray_by_less_than_the_band_gives_the_same_answers(
+        angle: float, reach: float, near: float, extent: float, offset_a: float,
+        offset_b: float, swap: bool) -> None:
+    """The ideal segment along the ray opposite the link's centre, then the same segment
+    with each end moved across the ray by up to half the stated band (POSITION_RTOL of the
+    link's scale; 1e-7 m off a 0.1 m ray is such a move): the same counterweights, to
+    rounding (their mass depends on the distance along the ray only), each off the ray by
+    at most that move. Referee: m_c = m |r| / t at the segment's farthest and nearest
+    distance t along the ray (the module's closed form, from the balance m_c p = -m r)."""
+    m = 0.5
+    r = reach * np.array([np.cos(angle), np.sin(angle)])
+    unit, normal = -r / reach, np.array([np.sin(angle), -np.cos(angle)])
+    ends = [near * unit, (near + extent) * unit]
+    band = POSITION_RTOL * max(float(np.abs(np.array(ends)).max()), reach)
+    moved = [ends[0] + offset_a * band * normal, ends[1] + offset_b * band * normal]
+    segment = [moved[1], moved[0]] if swap else moved
+    light, compact = design_counterweight(m, 0.01, float(r[0]), float(r[1]), segment)
+    assert light.mass == pytest.approx(m * reach / (near + extent), rel=1e-9)
+    assert compact.mass == pytest.approx(m * reach / near, rel=1e-9)
+    for cw in (light, compact):
+        assert cw.residual <= 0.5 * band * cw.mass / (m + cw.mass) * (1 + 1e-6) + 1e-15
+
+
+@settings(deadline=None, max_examples=300)
+@given(tilt=st.floats(-20.0, 20.0), shift=st.floats(-3.0, 3.0), nudge=st.floats(-1.0, 1.0))
+def test_the_answers_change_continuously_with_the_segment(tilt: float, shift: float,
+                                                          nudge: float) -> None:
+    """A segment crossing or running beside the ray at any small angle (up to 20 bands of
+    tilt over its length, shifted up to 3 bands): moving one end by 1e-12 m (a rounding)
+    changes each counterweight by at most 1e-6 of its mass, or the segment is refused both
+    times; a refusal only where the segment misses the band."""
+    m = 0.5
+    band = POSITION_RTOL * 0.1
+    a = np.array([-0.1, (shift + tilt) * band])
+    b = np.array([-0.02, shift * band])
+
+    def answer(p: np.ndarray) -> tuple[float, float] | None:
+        try:
+            light, compact = design_counterweight(m, 0.01, 0.05, 0.0, [p, b])
+        except FlatcliError:
+            return None
+        return light.mass, compact.mass
+
+    first, second = answer(a), answer(a + np.array([0.0, nudge * 1e-12]))
+    misses = min(abs(a[1]), abs(b[1])) > band and a[1] * b[1] > 0
+    assert (first is None) == misses
+    if first is not None and second is not None:
+        assert second[0] == pytest.approx(first[0], rel=1e-6)
+        assert second[1] == pytest.approx(first[1], rel=1e-6)
+    elif abs(abs(a[1]) - band) > 1e-9:  # one refusal: only exactly at the band's edge
+        assert first == second

@@ -170,3 +170,40 @@ def test_the_equation_map_points_to_functions_and_tests_that_exist() -> None:
             if name:
                 assert re.search(rf"^def {name}\b", source, re.M), f"{equation}: {module}::{name}"
 
+
+
+def tour_files(text: str) -> tuple[dict[str, str], str]:
+    """The README tour's files of one's own (a ```toml block whose first line is `# NAME`
+    or `# NAME: what it is`), by name, and its commands (the ```sh block after them)."""
+    tour = text.split("## A tour")[1]
+    head, _, rest = tour.partition("```sh\n")
+    files = {}
+    for block in head.split("```toml\n")[1:]:
+        body = block.split("```", 1)[0]
+        name = body.splitlines()[0].removeprefix("# ").split(":")[0].strip()
+        files[name] = body
+    return files, rest.split("```", 1)[0]
+
+
+def test_the_tour_shows_every_file_of_ones_own_before_it_uses_it(tmp_path: Path) -> None:
+    """Every spec file the tour's commands name is shipped (configs/...) or shown above
+    them; the files shown, saved as the tour says, make a valid spec (my_study.toml includes
+    my_gains.toml: chain4's three joints, the gains of the file). The whole tour runs as a
+    script on a fresh clone in tests/readme_tour.py (minutes: not in CI)."""
+    from flatcli.spec import load_spec
+
+    files, commands = tour_files(README.read_text())
+    used = set(re.findall(r"[\w./-]+\.toml", commands))
+    assert {"my_study.toml"} <= used
+    for name in used:
+        assert name in files or (ROOT / name).is_file(), f"the tour uses {name} unshown"
+    for name, body in files.items():
+        (tmp_path / name).write_text(body)
+    for body in files.values():
+        for included in re.findall(r'"([\w./-]+\.toml)"', body):
+            assert included in files or included.removesuffix(".toml") in (
+                "chain4", "chain6", "paper"), f"{included} is not shown"
+    spec = load_spec(tmp_path / "my_study.toml")
+    assert spec.joints == 3 and spec.track.sensor_noise == 1e-4
+    gains = load_spec(tmp_path / "my_gains.toml", ["robot=chain4"]).track
+    assert (spec.track.kp, spec.track.kv) == (gains.kp, gains.kv)

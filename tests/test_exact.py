@@ -15,8 +15,9 @@ from scipy.optimize import minimize
 
 from flatcli.core.curves.basis import PolynomialBasis
 from flatcli.core.errors import FlatcliError
+from flatcli.core.names import METHODS
 from flatcli.core.plan import exact
-from flatcli.core.plan.exact import METHODS, method_for, plan_exact, problem
+from flatcli.core.plan.exact import method_for, plan_exact, problem
 from flatcli.core.robots.chain import chain_momentum
 from flatcli.core.robots.params import PAPER_ROBOT, RobotParams
 from tests.asbuilt_support import AS_BUILT, GOAL, START, base_rate, momentum, weights
@@ -64,6 +65,11 @@ def test_plan_meets_its_ends_and_conserves_momentum(name: str) -> None:
     assert np.max(np.abs(momentum(robot, s.theta, s.theta_dot))) <= MOMENTUM_GOAL
     np.testing.assert_allclose(s.momentum, momentum(robot, s.theta, s.theta_dot), atol=1e-14)
     np.testing.assert_array_equal(s.y, s.theta[:, 1:])  # the "outputs": the joint paths
+    np.testing.assert_array_equal(s.y_dot, s.theta_dot[:, 1:])  # ... their rates
+    # ... and accelerations: the joint rates' central differences (a referee of their own)
+    h = t[1] - t[0]
+    np.testing.assert_allclose(s.y_ddot[1:-1], (s.theta_dot[2:, 1:] - s.theta_dot[:-2, 1:])
+                               / (2 * h), rtol=1e-4, atol=1e-4)
     assert np.all(np.isnan(s.margin))  # no singular set
 
 

@@ -11,7 +11,7 @@ import numpy as np
 
 from flatcli.core.plan.planning import Plan
 from flatcli.core.robots.chain import chain_momentum
-from flatcli.experiment import plan_and_optimization
+from flatcli.experiment import planned
 from flatcli.reproduce.chains import CHAIN_SPECS
 from flatcli.spec import load_spec
 
@@ -21,7 +21,7 @@ def test_a_chain_spec_is_optimised_with_its_per_joint_limits() -> None:
         "plan.optimize.objective=energy", "plan.optimize.rate_limit=[3,3,10]",
         "plan.optimize.angle_limit=[inf,inf,inf,0.8]", "plan.optimize.constraint_samples=41",
         "plan.start_rate=[0.3,0.2]"))
-    plan, result = plan_and_optimization(spec)
+    plan, result, _ = planned(spec)
     assert isinstance(plan, Plan) and result is not None and result.success
     assert result.objective < result.initial_objective
     s = plan.sample(plan.grid(4001))

@@ -213,3 +213,25 @@ def test_matlab_field_names_are_identifiers_and_unique() -> None:
     import re
 
     assert all(re.fullmatch(r"[A-Za-z]\w*", n, flags=re.ASCII) for n in names)
+
+
+@pytest.mark.parametrize("damage", ["garbage", "truncated"])
+def test_an_unreadable_table_exports_nothing_and_is_one_line(tmp_path: Path,
+                                                              damage: str) -> None:
+    """summary.parquet sorts before trials.parquet: a damaged trials.parquet must not leave
+    summary.csv behind (every CSV is renamed into place only when all were written)."""
+    spec = write_spec(tmp_path, SPEC.replace("trials = 60", "trials = 10"))
+    assert sweep(str(spec), "--out", str(tmp_path / "d"), "-q")[0] == 0
+    trials = tmp_path / "d" / "trials.parquet"
+    data = trials.read_bytes()
+    trials.write_bytes(os.urandom(100) if damage == "garbage" else data[: len(data) // 2])
+    before = sorted(p.name for p in (tmp_path / "d").iterdir())
+    code, out = cli("export", str(tmp_path / "d"), "--csv")
+    assert code == 2 and out.startswith("error: ") and out.count("\n") == 1, out
+    assert f"{trials}: not a readable Parquet table" in out and "nothing exported" in out
+    assert sorted(p.name for p in (tmp_path / "d").iterdir()) == before  # no CSV, no temp
+    code, out = cli("export", str(tmp_path / "d"), "--csv", "--out", str(tmp_path / "csv"))
+    assert code == 2 and not list((tmp_path / "csv").glob("*"))
+    code, out = cli("export", str(tmp_path / "d"), "--mat")  # the same for MATLAB files
+    assert code == 2 and "not a readable Parquet table" in out
+    assert sorted(p.name for p in (tmp_path / "d").iterdir()) == before

@@ -21,14 +21,8 @@ from flatcli.core.models.flatness import (
     signed_margin,
     singularity_margin,
 )
-from flatcli.core.robots.params import (
-    MODELS,
-    PAPER_ROBOT,
-    Coefficients,
-    Model,
-    base_rate,
-    constraint_coefficients,
-)
+from flatcli.core.names import MODELS, Model
+from flatcli.core.robots.params import PAPER_ROBOT, Coefficients, base_rate, constraint_coefficients
 
 #: Distance from the singular set the property tests keep [rad/s].
 MARGIN = 0.05

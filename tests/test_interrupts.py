@@ -93,3 +93,53 @@ def test_a_pool_waiting_for_workers_sees_a_signal_and_stops_them() -> None:
             executor.close(abort=True)
     assert results == [(0, 0.2)]
     assert time.monotonic() - started < 30  # not the minute the other tasks would take
+
+
+def test_check_raises_a_recorded_signal_once() -> None:
+    """After check() raised the recorded signal, the clean-up's own calls of check() (the
+    pool's wait loop) go through: one signal, one interrupt."""
+    with pytest.raises(KeyboardInterrupt), deferred():
+        _signal_self()
+        try:
+            check()
+        except KeyboardInterrupt:
+            check()  # a second call during the clean-up: nothing pending any more
+            check()
+            raise
+        pytest.fail("check() did not raise the recorded signal")
+
+
+def test_a_second_signal_inside_interruptible_does_not_interrupt_its_cleanup() -> None:
+    """The first signal raises at once inside interruptible(); a second one during the
+    clean-up that follows (still inside it) is ignored, so the clean-up finishes."""
+    cleaned = False
+    with pytest.raises(KeyboardInterrupt), deferred(), interruptible():
+        try:
+            _signal_self()
+            time.sleep(5)
+        finally:
+            _signal_self()
+            time.sleep(0.05)
+            cleaned = True
+    assert cleaned
+
+
+def test_interruptible_raises_a_signal_that_arrived_before_it_on_entry() -> None:
+    entered = False
+    with pytest.raises(KeyboardInterrupt), deferred():
+        _signal_self()  # recorded, pending
+        with interruptible():
+            entered = True  # never: the pending signal is raised on entry
+    assert not entered
+
+
+def test_a_nested_deferred_block_keeps_the_outer_blocks_pending_signal() -> None:
+    """A signal recorded in an outer deferred block survives an inner one (which starts with
+    nothing pending and restores the outer state): the outer block raises it at its end."""
+    inner_done = False
+    with pytest.raises(KeyboardInterrupt), deferred():
+        _signal_self()
+        with deferred():
+            inner_done = True
+        reached = True
+    assert inner_done and reached

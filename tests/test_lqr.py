@@ -112,3 +112,39 @@ def test_weights_are_checked() -> None:
         LqrWeights(terminal=float("inf"))
     with pytest.raises(FlatcliError, match=r"track\.lqr_base"):
         LqrWeights(base=-1.0)
+
+
+def test_a_riccati_equation_that_cannot_be_integrated_names_both_weights(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The failure depends on the bandwidth as much as on the terminal weight (a stiff
+    equation at b = 1e12 rad/s): the message names both keys and their values."""
+    import scipy.integrate
+
+    plan = plan_exact(AS_BUILT, START, GOAL, 0.1, 0.5, 2.0)
+
+    def failing(*args: object, **kwargs: object) -> object:
+        class Failed:
+            success, sol = False, None
+            message = "Required step size is less than spacing between numbers."
+        return Failed()
+
+    monkeypatch.setattr(scipy.integrate, "solve_ivp", failing)
+    with pytest.raises(FlatcliError, match=r"^track\.lqr_bandwidth, track\.lqr_terminal: the "
+                                           r"Riccati equation could not be integrated .*lower "
+                                           r"track\.lqr_bandwidth \(1e\+12 rad/s\)"):
+        riccati(constraint_of(AS_BUILT), reference_channels(plan), LqrWeights(bandwidth=1e12))
+
+
+def test_the_riccati_steps_grow_with_the_bandwidth_as_the_limits_assume() -> None:
+    """flatcli.spec.limits prices the design at RICCATI_STEPS_PER_RADIAN x b x T steps: the
+    integration this module does takes at least that many (so a design the limit refuses
+    would not have fitted), here at b = 5, 50 and 500 rad/s (147, 333 and 1,191 steps when
+    measured)."""
+    from flatcli.spec.limits import RICCATI_STEPS_PER_RADIAN
+
+    plan = plan_exact(AS_BUILT, START, GOAL, 0.1, 0.5, 2.0)
+    reference = reference_channels(plan)
+    for bandwidth in (5.0, 50.0, 500.0):
+        solution = riccati(constraint_of(AS_BUILT), reference, LqrWeights(bandwidth=bandwidth))
+        steps = len(solution.ts) - 1
+        assert steps >= RICCATI_STEPS_PER_RADIAN * bandwidth * 2.0, (bandwidth, steps)

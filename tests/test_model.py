@@ -20,9 +20,9 @@ from sympy import QQ
 from sympy.polys.rings import PolyElement, PolyRing, ring
 
 from flatcli.core.errors import FlatcliError
+from flatcli.core.names import MODELS
 from flatcli.core.robots.chain import barycentric_matrix
 from flatcli.core.robots.params import (
-    MODELS,
     PAPER_ROBOT,
     Links,
     RobotParams,

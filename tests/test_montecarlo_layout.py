@@ -6,6 +6,7 @@ import hashlib
 import itertools
 import json
 import math
+from typing import Any
 
 import pytest
 
@@ -158,3 +159,32 @@ def test_work_pieces_tile_every_chunk_and_cut_only_the_last_ones(workers: int,
             assert len(mine) == max(1, min(TAIL_PIECES, chunk.size // TAIL_PIECE_MIN))
             assert len(mine) == 1 or min(p.size for p in mine) >= TAIL_PIECE_MIN
             assert max(p.size for p in mine) - min(p.size for p in mine) <= 1
+
+
+def test_the_cells_cost_linear_time_and_say_how_their_planning_goes(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each cell's spec holds the whole grid: checking it again per cell made N cells cost
+    O(N^2) (1,000 cells: 48 s). The grid is checked once, with the sweep's spec; the cells
+    report their progress (done, total) from 0 to N."""
+    from flatcli.spec import sweeps
+
+    calls: list[str] = []
+    original = sweeps.validate_grid_entry
+
+    def counted(*args: Any, **kwargs: Any) -> None:
+        calls.append(args[1])
+        original(*args, **kwargs)
+
+    monkeypatch.setattr(sweeps, "validate_grid_entry", counted)
+    spec = resolve({"sweep": {"trials": 1, "grid": {
+        "plan.goal_rate": [0.5 + 1e-3 * i for i in range(12)], "track.kp": [[100, 110],
+                                                                            [90, 100]]}}})
+    assert calls == ["plan.goal_rate", "track.kp"]
+    seen: list[tuple[int, int]] = []
+    lay = layout(spec, 1, lambda done, total: seen.append((done, total)))
+    assert len(lay.cells) == 24 and calls == ["plan.goal_rate", "track.kp"]
+    assert seen == [(i, 24) for i in range(25)]
+    # each cell's spec is still checked: a grid value valid alone but not in its cell
+    bad = resolve({"sweep": {"trials": 1, "grid": {"plan.duration": [2.0, 0.001]}}})
+    with pytest.raises(SpecError, match=r"sweep\.grid cell 1 \(plan\.duration = 0\.001\)"):
+        layout(bad, 1)

@@ -19,6 +19,7 @@ import pyarrow.parquet as pq
 import pytest
 from small_sweep import SPEC, sweep, write_spec
 
+from flatcli.core import OWN_PROCESS_VARIABLE
 from flatcli.montecarlo.layout import ID_STRIDE
 from flatcli.storage import read_provenance
 
@@ -420,14 +421,16 @@ def test_a_sweep_loads_neither_pandas_nor_matplotlib_nor_scipy_unless_asked(
     no pandas, no matplotlib and none of scipy's modules but those numba itself loads when
     it loads a compiled function (its BLAS check): the referee is a process that only
     compiles and calls a function with numba. Not even scipy.linalg, which that check
-    imports whole: its two extension modules are loaded alone (``_jit``). Nor flatcli's own
+    imports whole: its two extension modules are loaded alone (``_owned``, as in every
+    process the ``flatcli`` program owns: ``FLATCLI_OWN_PROCESS=1``). Nor flatcli's own
     optimiser, whose package names its contents lazily."""
     text = SPEC.replace('initial = { dist = "normal", std = 0.02 }',
                         'initial = { dist = "uniform", low = -0.02, high = 0.02 }')
     assert text != SPEC
     spec = write_spec(tmp_path, text)
     subprocess.run([sys.executable, "-c", _WATCHED_SWEEP.format(unasked=UNASKED),
-                    str(tmp_path), str(spec)], check=True, timeout=600)
+                    str(tmp_path), str(spec)], check=True, timeout=600,
+                   env={**os.environ, OWN_PROCESS_VARIABLE: "1"})
     numba_alone = subprocess.run(
         [sys.executable, "-c", "import json, sys, numba\nnumba.njit(lambda x: x + 1)(1)\n"
          f"print(json.dumps([m for m in sys.modules if m.split('.')[0] in {UNASKED!r}]))"],

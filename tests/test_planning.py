@@ -13,12 +13,13 @@ from flatcli.core.curves.basis import Basis, BSplineBasis, PolynomialBasis
 from flatcli.core.errors import FlatcliError
 from flatcli.core.models.flatmodel import paper_margin_zeros as margin_zeros
 from flatcli.core.models.flatness import flat_inputs
+from flatcli.core.names import MODELS, Model
 from flatcli.core.plan.planning import (
     Plan,
     PlanSamples,
     plan_point_to_point,
 )
-from flatcli.core.robots.params import MODELS, PAPER_ROBOT, Model, base_rate, momentum
+from flatcli.core.robots.params import PAPER_ROBOT, base_rate, momentum
 
 if TYPE_CHECKING:
     from conftest import Maneuver

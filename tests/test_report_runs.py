@@ -33,3 +33,47 @@ def test_the_optimisers_chosen_end_rates_are_shown_for_every_inner_joint() -> No
     assert "th1'(0), th1'(T) chosen [rad/s]" in paper and "0.1, 0.5" in paper
     chain = optimization_text({**base, "start_rates": [0.1, -0.2], "goal_rates": [0.5, 0.3]})
     assert "th1'..th2' at 0 and T chosen [rad/s]" in chain and "(0.1, -0.2), (0.5, 0.3)" in chain
+
+
+def test_plan_text_names_its_curves_in_words_not_class_names() -> None:
+    """The header says what the curves are (the basis's degree and coefficients, an exact
+    plan's pieces), never a Python class name."""
+    from flatcli.core.curves.basis import BSplineBasis
+    from flatcli.core.plan.exact import plan_exact
+    from flatcli.core.plan.rest import plan_rest_to_rest
+    from flatcli.report.runs import plan_text
+
+    start, goal = np.array([1.8, 1, 0]), np.array([1.2, 2, 0])
+    cubic = plan_point_to_point(PAPER_ROBOT, start, goal, 0.1, 0.5, 2.0)
+    spline = plan_point_to_point(PAPER_ROBOT, start, goal, 0.1, 0.5, 2.0,
+                                 basis=BSplineBasis(12, 2.0, 5))
+    rest = plan_rest_to_rest(PAPER_ROBOT, start, goal, 2.0)
+    built = PAPER_ROBOT.__class__(com=(0.1, 0.1, 0.003))
+    exact = plan_exact(built, start, goal, 0.1, 0.5, 2.0)
+    expected = [(cubic, "flat outputs as cubic polynomials (4 coefficients each)"),
+                (spline, "flat outputs as quintic B-splines (12 coefficients each)"),
+                (rest, "rest to rest, flat outputs as degree-7 polynomials (8 coefficients"),
+                (exact, "exact plan (no flat outputs): joint paths and th0 as piecewise")]
+    for plan, words in expected:
+        text = plan_text("x", plan, plan.sample(plan.grid(11)))
+        head = text.splitlines()[0]
+        assert words in head, head
+        assert "Basis" not in text and "size" not in head
+    exact_text = plan_text("x", exact, exact.sample(exact.grid(11)))
+    assert "th1' [rad/s]" in exact_text and "y1' [rad/s]" not in exact_text
+
+
+def test_track_metrics_are_printed_with_their_units() -> None:
+    """Every metric with a physical unit shows it (the one table of units, flatcli/units.py:
+    its own test checks it against docs/outputs.md); counts and flags show none."""
+    from flatcli.report.runs import metrics_text
+
+    text = metrics_text("x", {"status": "ok", "err_theta_rms": 0.1, "min_margin": 0.2,
+                              "momentum_drift": 1e-15, "first_hit_time": float("nan"),
+                              "peak_torque": 2.0, "singular_hits": 0, "verified": True,
+                              "ee_error_final": 1e-3})
+    rows = {line.split("|")[1].strip(): line.split("|")[3].strip()
+            for line in text.splitlines()[3:]}
+    assert rows == {"err_theta_rms": "rad", "min_margin": "rad/s", "momentum_drift": "kg m^2/s",
+                    "first_hit_time": "s", "peak_torque": "N m", "singular_hits": "",
+                    "verified": "", "ee_error_final": "m"}

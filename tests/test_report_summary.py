@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -203,3 +204,106 @@ def test_outcomes_come_first_counted_over_all_trials_and_lost_ones_are_infinitel
     text = summary_markdown(summary, ["g"])
     assert text.index("### Outcomes") < text.index("### Trials by status")
     assert "ALL the cell's trials" in text and "infinitely wrong" in text
+
+
+def _headline_rows(cells: int, errors: int = 0) -> list[dict[str, object]]:
+    from flatcli.core.loop.metrics import STATUS_NAMES
+
+    rows: list[dict[str, object]] = []
+    for c in range(cells):
+        counts = dict.fromkeys(STATUS_NAMES, 0)
+        counts.update(ok=20 - c % 5 - (errors if c == 1 else 0), diverged=c % 5,
+                      error=errors if c == 1 else 0)
+        rows.append({"cell": c, "plant.com": [0.1, 0.1, 0.001 * c], "gains": "printed",
+                     "track.kp": [10.0, 13.0], "trials": 20, **counts,
+                     "err_y_final_median": 1e-3 * c})
+    return rows
+
+
+def test_the_headline_fits_one_screen_and_says_where_the_tables_are() -> None:
+    """18 cells: every cell on one line (the varying grid component, the statuses any cell
+    has), at most 24 lines and 100 columns; the footer names summary.md and --full."""
+    from flatcli.report.summary import headline, totals_text
+
+    rows = _headline_rows(18)
+    text = headline(rows, ["plant.com", "gains", "track.kp"], f"sweep 's': {totals_text(rows)}",
+                    "runs/s/sweep", grid={"plant.com": [], "gains": [
+                        {"label": "printed", "track.kp": [10.0, 13.0]}]})
+    lines = text.splitlines()
+    assert lines[0] == ("sweep 's': 18 cells, 360 trials: ok 327, singular 0, diverged 33, "
+                        "unresolved 0, error 0")
+    assert lines[1].split("|")[1:-1] == [" cell ", " plant.com[2] ", " ok ", " diverged ",
+                                         " err_y_final med resolved [rad] "]
+    assert len(lines) == 1 + 2 + 18 + 2 and max(len(line) for line in lines) <= 100
+    assert lines[-2:] == ["full tables: runs/s/sweep/summary.md (flatcli summarize runs/s/sweep "
+                          "--full)", "every trial: runs/s/sweep/trials.parquet"]
+
+
+def test_a_large_grid_shows_its_worst_cells_and_the_error_reasons() -> None:
+    from flatcli.report.summary import HEADLINE_CELLS, headline
+
+    rows = _headline_rows(400, errors=3)
+    reasons = {"plan: the margin is zero": 2, "task.end_effector: unreachable": 1,
+               "a": 1, "b": 1}
+    text = headline(rows, ["plant.com"], "t", "d", reasons)
+    lines = text.splitlines()
+    shown = [int(line.split("|")[1]) for line in lines[3:3 + HEADLINE_CELLS]]
+    assert len(shown) == HEADLINE_CELLS and shown == sorted(shown) and 1 in shown
+    assert f"({HEADLINE_CELLS} of 400 cells shown: those with the most trials not ok)" in text
+    assert "error (2 trials like this): plan: the margin is zero" in text
+    assert "error (1 trial): task.end_effector: unreachable" in text
+    assert "(1 more error reason in trials.parquet's reason column)" in text
+    assert "| error |" in lines[1]  # a status any cell has is a column
+    assert len(lines) <= 30
+
+
+def test_the_headline_shows_outcome_counts_when_the_summary_has_them() -> None:
+    """A summary with outcomes (``summarize_trials`` of trials with an outcome column): the
+    headline's title is followed by the outcomes of all trials, counted here from the rows
+    with scipy's binomtest Wilson interval; each cell's outcome counts come after its
+    statuses (reached and missed; lost is its diverged, unresolved and error), counted here
+    from the rows; its median final error of y is over all its trials with the lost ones as
+    inf, and says so. A summary without outcomes keeps the median over the resolved trials,
+    named so."""
+    from flatcli.report.summary import headline
+
+    base = {m: [0.1] * 6 for m in ("err_theta_rms", "err_theta_final", "err_y_rms",
+                                   "min_margin", "momentum_drift", "plan_momentum_residual",
+                                   "peak_rate", "err_estimate")}
+    outcome = ["reached", "missed", "missed", "lost", "lost", "reached"]
+    frame = pd.DataFrame({
+        "cell": [0] * 5 + [1], "status": ["ok", "ok", "singular", "diverged", "error", "ok"],
+        "outcome": outcome, "err_y_final": [1e-4, 2.0, 5.0, math.nan, math.nan, 3e-4],
+        "singular_hits": [0, 0, 1, 0, 0, 0], **base})
+    records = summarize_trials(frame, {0: {"g": "a"}, 1: {"g": "b"}}).to_dict("records")
+    lines = headline(records, ["g"], "t", "d").splitlines()
+    ci = binomtest(outcome.count("reached"), len(outcome)).proportion_ci(
+        confidence_level=0.95, method="wilson")
+    assert lines[1] == (f"outcomes: reached 2 of 6 trials ({100 * 2 / 6:.3g} %, 95 % interval "
+                        f"{100 * ci.low:.2g}-{100 * ci.high:.2g} %), missed 2, lost 2")
+    heads = [h.strip() for h in lines[2].split("|")[1:-1]]
+    assert heads[heads.index("error") + 1:] == ["reached", "missed", "err_y_final med [rad]"]
+    first = [c.strip() for c in lines[4].split("|")[1:-1]]
+    assert first[heads.index("diverged"):] == ["1", "1", "1", "2", "5"]  # and error 1
+    assert first[-1] == "5"  # median(1e-4, 2, 5, inf, inf)
+    assert ("med: over all the cell's trials, a lost one (diverged, unresolved, error) as inf"
+            in lines)
+    old = headline(_headline_rows(2), [], "t", "d").splitlines()
+    assert "err_y_final med resolved [rad]" in old[1] and "reached" not in old[1]
+
+
+def test_error_reasons_that_differ_only_in_numbers_are_one_kind(tmp_path: Path) -> None:
+    """Each trial's own target makes its reason's numbers differ: counted as one kind, shown
+    as the first; ok trials and other reasons apart."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from flatcli.report.summary import error_reasons
+
+    reasons = ["task.end_effector: [-0.3, 0.04] m is unreachable: 0.05 m beyond",
+               "task.end_effector: [0.41, -1e-05] m is unreachable: 0.1 m beyond",
+               "plan: the margin is zero at t = 0.3 s", None, ""]
+    pq.write_table(pa.table({"status": ["error", "error", "error", "ok", "error"],
+                             "reason": reasons}), tmp_path / "trials.parquet")
+    assert error_reasons([tmp_path / "trials.parquet"]) == {
+        reasons[0]: 2, reasons[2]: 1, "(no reason recorded)": 1}

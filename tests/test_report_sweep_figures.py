@@ -198,3 +198,51 @@ def test_a_summary_without_the_failure_shares_is_refused_in_one_line(tmp_path: P
     write_parquet(directory / "summary.parquet", summary.drop(columns=["resolved"]), {})
     with pytest.raises(FlatcliError, match="written by an older flatcli"):
         SweepData.load(directory)
+
+
+@pytest.mark.parametrize("errors", [True, False])
+def test_the_outcome_legend_lies_inside_the_page_beside_the_panels(
+        tmp_path: Path, errors: bool) -> None:
+    """sweep_singular's legend was cut off at both page edges (three columns of long entries
+    centred under the panels): it now fills the empty panel (three panels) or sits under the
+    panels in as many columns as fit (four). Referee: the legend's and the panels' extents
+    as matplotlib's renderer places them, against the page."""
+    cells = _cells()
+    trials = _trials(cells)
+    if not errors:
+        trials.loc[trials["status"] == "error", "status"] = "ok"
+    write_parquet(tmp_path / "trials.parquet", trials, {"spec": TREE})
+    write_parquet(tmp_path / "summary.parquet", summarize_trials(trials, cells), {"spec": TREE})
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    fig = sweep_figure(tmp_path, "singular", x="sweep.perturb.initial.std", hue="gains")
+    canvas = FigureCanvasAgg(fig)  # the PNG's renderer (a PDF places the same layout)
+    canvas.draw()
+    renderer = canvas.get_renderer()
+    page = fig.bbox
+    legends = [*fig.legends, *(ax.get_legend() for ax in fig.axes if ax.get_legend())]
+    assert len(legends) == 1
+    box = legends[0].get_window_extent(renderer)
+    assert page.x0 <= box.x0 and box.x1 <= page.x1 and page.y0 <= box.y0 and box.y1 <= page.y1
+    panels = [ax for ax in fig.axes if ax.get_visible() and ax.axison]
+    assert len(panels) == (4 if errors else 3)
+    for ax in panels:
+        assert not box.overlaps(ax.get_window_extent(renderer))
+    assert len(legends[0].get_texts()) == 4  # (gains) x (the other grid keys that vary)
+
+
+def test_a_sweep_with_error_trials_draws_their_share_not_the_final_error_twice(
+        tmp_path: Path) -> None:
+    """The panel of the final error and the share of error trials were both named "error":
+    a sweep with error trials drew the final-error panel twice and no share of its errors.
+    Referee: the share of error trials of each cell, counted from the trials."""
+    fig = sweep_figure(_sweep_dir(tmp_path), "singular", x="sweep.perturb.initial.std")
+    titles = [ax.get_title() for ax in fig.axes if ax.axison]
+    assert titles.count("resolved trials (ok, singular)") == 1
+    assert "trials that could not run" in titles
+    ax = next(a for a in fig.axes if a.get_title() == "trials that could not run")
+    trials = _trials(_cells())
+    counted = trials.groupby("cell")["status"].apply(lambda s: float((s == "error").mean()))
+    drawn = sorted({round(float(y), 12) for line in ax.get_lines()
+                    for y in line.get_ydata() if line.get_marker() in ("o", "s", "^", "D", "v")})
+    assert drawn == sorted({round(v, 12) for v in counted})

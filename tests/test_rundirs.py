@@ -110,12 +110,15 @@ def test_summarize_a_partial_sweep_says_what_is_missing(tree: Path) -> None:
     code, out = cli("summarize", str(tree / "cut"))
     assert code == 0, out
     assert out.startswith("partial sweep: 95 of 120 trials finished (79%)")
+    assert "the finished trials: 2 cells, 95 trials" in out and "full tables:" in out
+    code, out = cli("summarize", str(tree / "cut"), "--full")
+    assert out.startswith("partial sweep: 95 of 120 trials finished (79%)")
     assert "cells not finished: 0 (of 0-1)" in out and "### Trials by status" in out
     code, out = cli("summarize", str(tree / "cut"), "--plot")
     assert code == 2 and out.startswith("error: --plot: partial sweep") and \
         out.count("\n") == 1
     assert not list((tree / "cut").glob("*.png"))
-    code, out = cli("summarize", str(tree / "small"))
+    code, out = cli("summarize", str(tree / "small"), "--full")
     assert code == 0 and out == (tree / "small" / "summary.md").read_text()
 
 
@@ -223,3 +226,66 @@ def test_a_run_record_in_place_of_a_sweep_manifest_is_not_a_sweep(tmp_path: Path
     assert info.command == "sweep" and info.status == "unreadable"
 
 
+
+
+def test_latest_is_relative_so_a_moved_tree_still_resolves(tmp_path: Path) -> None:
+    """runs/<name>/latest names its run by its directory's name alone: copy or move runs/
+    elsewhere and latest still points into it."""
+    run = tmp_path / "runs" / "demo" / "20240102-030405-abcdef"
+    run.mkdir(parents=True)
+    link_latest(run)
+    assert os.readlink(tmp_path / "runs" / "demo" / LATEST) == run.name
+    (tmp_path / "runs").rename(tmp_path / "moved")
+    assert (tmp_path / "moved" / "demo" / LATEST).resolve() == (
+        tmp_path / "moved" / "demo" / run.name).resolve()
+
+
+def test_a_fresh_target_never_writes_into_a_directory_that_exists(tmp_path: Path) -> None:
+    """Two runs that drew the same stamp: the second gets another directory (made with
+    exist_ok=False), never the first one's."""
+    from flatcli.rundirs import Target
+
+    taken = tmp_path / "demo" / "20240102-030405-abcdef"
+    taken.mkdir(parents=True)
+    (taken / "run.json").write_text("{}")
+    made = Target(taken, fresh=True).open()
+    assert made != taken and made.parent == taken.parent and list(made.iterdir()) == []
+
+
+def test_the_missing_trials_of_a_partial_sweep_are_counted(tree: Path) -> None:
+    state = sweep_state(tree / "cut")
+    assert state is not None
+    assert state.missing_text() == ("partial sweep: 95 of 120 trials finished (79%), 5 of 6 "
+                                    "chunks; 25 trials missing")
+
+
+def test_a_sweep_an_older_flatcli_started_in_the_names_directory_resumes_there(
+        tmp_path: Path) -> None:
+    from flatcli.rundirs import SWEEP_DIR, sweep_directory
+
+    assert sweep_directory("demo", tmp_path) == tmp_path / "demo" / SWEEP_DIR
+    (tmp_path / "demo").mkdir()
+    (tmp_path / "demo" / "sweep.json").write_text("{}")
+    assert sweep_directory("demo", tmp_path) == tmp_path / "demo"
+
+
+def test_tags_are_kept_once_each_and_bounded() -> None:
+    from flatcli.rundirs import MAX_TAGS, check_tags
+    from flatcli.spec import SpecError
+
+    assert check_tags(["a", "b", "a"]) == ["a", "b"]
+    assert len(check_tags([f"t{i}" for i in range(MAX_TAGS)])) == MAX_TAGS
+    with pytest.raises(SpecError, match=f"at most {MAX_TAGS} tags, got {MAX_TAGS + 1}"):
+        check_tags([f"t{i}" for i in range(MAX_TAGS + 1)])
+
+
+def test_a_record_that_is_json_but_not_an_object_is_unreadable(tmp_path: Path) -> None:
+    from flatcli.rundirs import read_json
+
+    (tmp_path / "run.json").write_text("[1, 2]")
+    assert read_json(tmp_path / "run.json") is None
+    (tmp_path / "run.json").write_text('{"command": "plan"}')
+    assert read_json(tmp_path / "run.json") == {"command": "plan"}
+    (tmp_path / "run.json").write_text("[")
+    with pytest.raises(RunDirectoryError, match=r"its run\.json is unreadable"):
+        claim(tmp_path, "plan", "x", "d")

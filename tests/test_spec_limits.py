@@ -53,9 +53,9 @@ def budgets(monkeypatch: pytest.MonkeyPatch) -> None:
                                        r"186 GiB .*lower sweep\.trials"),
         ({"sweep": {"trials": 10**7, "grid": {"track.kp": [[1, 1], [2, 2], [3, 3]]}}},
          r"3e\+07 trials \(10000000 x 3 cells\) would need about 5\.59 GiB"),
-        ({"sweep": {"grid": {"plan.samples": list(range(10, 10010)),
-                             "track.kp": [[i, 1] for i in range(1, 1001)]}}},
-         r"sweep\.grid of 1e\+07 cells would need about .* use fewer grid values"),
+        ({"track": {"dt": 1e-5}, "sweep": {"grid": {"plan.samples": list(range(10, 110)),
+                                                    "track.kp": [[i, 1] for i in range(1, 101)]}}},
+         r"sweep\.grid of 1e\+04 cells would need about .* use fewer grid values"),
         ({"plan": {"basis": "bspline", "size": 10**6}}, r"a flat-output basis of 1000000 terms"),
         ({"plan": {"degree": 10**6}}, r"a flat-output basis of 1000001 terms .*plan\.degree"),
         ({"plan": {"start_rate": 1e14}}, r"plan: th1 may sweep up to 2e\+14 rad .*at most 1e\+05"),
@@ -230,3 +230,35 @@ def test_memory_per_row_grows_with_the_columns_of_n_joints() -> None:
     assert track_step_bytes(2) == BYTES_PER_TRACK_STEP
     assert plan_sample_bytes(10) == pytest.approx(BYTES_PER_PLAN_SAMPLE * 65 / 17)
     assert track_step_bytes(10) == pytest.approx(BYTES_PER_TRACK_STEP * 76 / 20)
+
+
+def test_the_as_built_laws_design_is_priced_by_its_bandwidth() -> None:
+    """track.lqr_bandwidth = 1e12 rad/s failed after 38 s naming track.lqr_terminal: the
+    Riccati equation takes about 0.8 b T steps of at least a millisecond
+    (tests/test_lqr.py checks the steps), so it is refused at once, naming the key."""
+    as_built = {"robot.com": [0.1, 0.1, 0.003], "track.controller": "asbuilt"}
+    with pytest.raises(SpecError, match=r"^track\.lqr_bandwidth = 1e\+12 rad/s .* would take "
+                                        r"at least .* years.*lower track\.lqr_bandwidth"):
+        resolve({}, {**as_built, "track.lqr_bandwidth": 1e12})
+    spec = resolve({}, {**as_built, "track.lqr_bandwidth": 50.0})  # fits
+    assert limits.riccati_seconds(spec) == pytest.approx(0.8 * 50 * 2.0 * 1e-3)
+    assert track_seconds(spec) >= limits.riccati_seconds(spec)
+    # the flat law designs nothing: its bandwidth key is not priced
+    assert limits.riccati_seconds(resolve({}, {"track.lqr_bandwidth": 1e12})) == 0.0
+
+
+def test_grid_cells_and_obstacles_are_bounded_before_any_work() -> None:
+    """A grid of 10^4+ cells was checked and planned cell by cell before any limit (minutes,
+    silently), 8x10^4 discs proven for 5 min at 2.4 GB: both are refused from the spec, in
+    one line naming the key and the limit."""
+    values = [0.5 + 1e-4 * i for i in range(101)]
+    gains = [[100.0 + i, 110.0] for i in range(100)]
+    with pytest.raises(SpecError, match=r"^sweep\.grid: 1\.01e\+04 cells \(101 x 100\), more "
+                                        rf"than the {limits.MAX_GRID_CELLS} "):
+        resolve({"sweep": {"grid": {"plan.goal_rate": values, "track.kp": gains}}})
+    resolve({"sweep": {"grid": {"plan.goal_rate": values[:100], "track.kp": gains}}})  # 10^4
+    far = [[2.0 + 0.01 * i, 0.0, 0.001] for i in range(limits.MAX_OBSTACLES + 1)]
+    with pytest.raises(SpecError, match=rf"^task\.obstacles: {limits.MAX_OBSTACLES + 1} discs, "
+                                        rf"more than the {limits.MAX_OBSTACLES} "):
+        resolve({"task": {"end_effector": [-0.25, 0.05], "obstacles": far}})
+    resolve({"task": {"end_effector": [-0.25, 0.05], "obstacles": far[:-1]}})

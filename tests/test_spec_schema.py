@@ -9,9 +9,8 @@ from dataclasses import fields
 import numpy as np
 import pytest
 
-from flatcli.core.loop.simulate import INTEGRATORS
+from flatcli.core.names import INTEGRATORS, MODELS
 from flatcli.core.optimize import OBJECTIVES
-from flatcli.core.robots.params import MODELS
 from flatcli.spec import (
     GAINS,
     LINKS,

@@ -140,3 +140,90 @@ def test_candidates_refuted_at_samples_skip_the_proof_and_change_nothing(
                                   proven.plan.trajectory.coefficients)
     assert screened.metrics == proven.metrics  # the bound, intervals and candidates tried
     assert screened_proofs == 1 < proofs["n"] == proven.metrics["task_candidates"]
+
+
+TASKS_DOC = Path(__file__).resolve().parents[1] / "docs" / "tasks.md"
+
+
+def _doc_block(first_line: str) -> str:
+    """The fenced block of docs/tasks.md that starts with ``first_line``, as written."""
+    text = TASKS_DOC.read_text()
+    for block in text.split("```toml\n")[1:]:
+        body = block.split("```", 1)[0]
+        if body.startswith(first_line):
+            return body
+    raise AssertionError(f"docs/tasks.md has no block starting {first_line!r}")
+
+
+def test_the_docs_n_link_task_runs_from_the_docs_alone(tmp_path: Path) -> None:
+    """docs/tasks.md's robot of four links (N = 3) and its task (target, base attitude, rest
+    to rest, a disc) as written there, through the command line. Referees: the complex-plane
+    links (tests/task_referees.py) on 20,001 samples of the plan (clearance, end effector,
+    H from the full link kinematics) and the plan's own rates at both ends."""
+    (tmp_path / "my_arm.toml").write_text(_doc_block("# my_arm.toml"))
+    (tmp_path / "my_arm_task.toml").write_text(_doc_block("# my_arm_task.toml"))
+    result = CliRunner().invoke(main, ["plan", str(tmp_path / "my_arm_task.toml"), "--out",
+                                       str(tmp_path / "p")])
+    assert result.exit_code == 0, result.output
+    loaded = api.load(tmp_path / "p")
+    spec = loaded.spec
+    plan = api.plan(tmp_path / "my_arm_task.toml")
+    assert spec.joints == 3 and plan.metrics["task_candidates"] >= 1
+    robot = plan.plan.robot
+    t = np.linspace(0.0, plan.plan.duration, 20_001)
+    s = plan.plan.sample(t)
+    clear = ref.link_clearance(robot, s.theta, np.asarray(spec.task.obstacles))
+    bound = loaded.metrics["clearance_bound"]
+    assert bound >= spec.task.clearance and clear.min() >= bound
+    target = complex(*spec.task.end_effector)
+    assert abs(ref.end_effector(robot, s.theta[-1]) - target) < TARGET_TOL
+    assert s.theta[-1, 0] == pytest.approx(spec.task.base_attitude, abs=1e-12)
+    assert np.max(np.abs(ref.momentum(robot, s.theta, s.theta_dot))) < 1e-12
+    np.testing.assert_array_equal(s.theta_dot[[0, -1]], 0.0)
+    np.testing.assert_allclose(s.theta[0], spec.plan.start, atol=1e-12)
+    # the resolved spec, written out, reads back as the same spec and plans the same
+    shown = CliRunner().invoke(main, ["plan", str(tmp_path / "my_arm_task.toml"), "--cfg"])
+    (tmp_path / "resolved.toml").write_text(shown.output)
+    again = api.plan(tmp_path / "resolved.toml")
+    np.testing.assert_array_equal(again.plan.sample(t).theta, s.theta)
+    # its closed loop from the plan's start (the default track.initial on N joints)
+    result = CliRunner().invoke(main, ["track", str(tmp_path / "my_arm_task.toml"), "--out",
+                                       str(tmp_path / "t")])
+    assert result.exit_code == 0, result.output
+    metrics = api.load(tmp_path / "t").metrics
+    assert metrics["status"] == "ok" and metrics["ee_error_final"] < 1e-8
+    assert metrics["min_clearance"] >= bound
+
+
+def test_a_chain_task_needs_its_goal_unset_and_is_proven_or_refused() -> None:
+    """chain4 (a shipped robot file that sets plan.goal): the target contradicts the goal
+    until the goal is removed; then a disc beside the links' path is proven clear (the
+    referee's dense minimum above the proven bound) and one in its way refused."""
+    base = {"robot": "chain4", "task.end_effector": [0.1, 0.3]}
+    with pytest.raises(FlatcliError, match=r"plan\.goal: puts the end effector .* not both"):
+        api.plan(overrides=base)
+    clear = api.plan(overrides={**base, "~plan.goal": None,
+                                "task.obstacles": [[-0.2, 0.3, 0.04]]})
+    s = clear.plan.sample(np.linspace(0.0, 2.0, 20_001))
+    dense = ref.link_clearance(clear.plan.robot, s.theta, np.array([[-0.2, 0.3, 0.04]]))
+    assert dense.min() >= clear.metrics["clearance_bound"] >= 0.0
+    with pytest.raises(FlatcliError, match=r"task\.obstacles: no plan among .* proven clear"):
+        api.plan(overrides={**base, "~plan.goal": None, "task.obstacles": [[0.3, 0.3, 0.05]]})
+
+
+@pytest.mark.parametrize("which", [0, 3])
+def test_the_rest_fade_table_is_todays(which: int) -> None:
+    """docs/tasks.md's rest-to-rest table is written by benchmarks/rest_fade.py; a row
+    measured again here matches it to the three digits it prints (1 %), off the plan; on
+    the plan every number is rounding (below 1e-9: the loop is exact to the integrator)."""
+    from benchmarks import rest_fade
+
+    start, fade = rest_fade.ROWS[which]
+    measured = rest_fade.row(start, fade)
+    documented = rest_fade.documented()[(rest_fade.label(start), fade)]
+    keys = ["err_theta_max", "err_theta_final", "ee_error_at_T", "rate_at_T"]
+    for key, doc in zip(keys, documented, strict=True):
+        if start == rest_fade.ON_PLAN:
+            assert doc < 1e-9 and measured[key] < 1e-9, key
+        else:
+            assert measured[key] == pytest.approx(doc, rel=0.01), key

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -167,3 +168,24 @@ def test_bad_options_are_one_line_and_write_nothing(tmp_path: Path, args: list[s
     assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
     assert done.stderr.startswith("error: ") and names in done.stderr
     assert not (tmp_path / "w" / "workspace.parquet").exists()
+
+
+def test_a_workspace_map_leaves_the_names_latest_plan_or_track_run_alone(
+        tmp_path: Path) -> None:
+    """runs/<name>/latest is what flatcli.load("runs/<name>") and runs --compare read: the
+    newest plan or track run. A workspace map after a plan goes to runs/<name>/workspace/
+    with its own latest."""
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    plan = subprocess.run([sys.executable, "-m", "flatcli.cli", "plan"], cwd=tmp_path,
+                          capture_output=True, text=True, env=env)
+    assert plan.returncode == 0, plan.stderr
+    planned = (tmp_path / "runs" / "paper_example" / "latest").resolve()
+    done = subprocess.run([sys.executable, "-m", "flatcli.cli", "workspace", "--points", "11",
+                           "--attitudes", "5"], cwd=tmp_path, capture_output=True, text=True,
+                          env=env)
+    assert done.returncode == 0, done.stderr
+    assert (tmp_path / "runs" / "paper_example" / "latest").resolve() == planned
+    mapped = (tmp_path / "runs" / "paper_example" / "workspace" / "latest").resolve()
+    assert mapped.parent.name == "workspace" and (mapped / "workspace.parquet").is_file()
+    assert isinstance(flatcli.load(tmp_path / "runs" / "paper_example"), flatcli.PlanResult)
+    assert isinstance(flatcli.load(mapped), flatcli.WorkspaceResult)

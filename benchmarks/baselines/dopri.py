@@ -32,7 +32,8 @@ from numpy.typing import NDArray
 from benchmarks.baselines.loop import LoopInputs, loop_inputs
 from benchmarks.baselines.problem import PAPER_TRACKING, Tracking
 from benchmarks.baselines.timing import Throughput, throughput
-from flatcli.core.loop.simulate import DEFAULT_ATOL, DEFAULT_RTOL, Trials
+from flatcli.core.loop.simulate import Trials
+from flatcli.core.names import DEFAULT_ATOL, DEFAULT_RTOL
 from flatcli.core.plan.planning import Plan
 
 Array = NDArray[np.float64]

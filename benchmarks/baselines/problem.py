@@ -10,6 +10,7 @@ from numpy.typing import NDArray
 
 from flatcli.core.controllers.control import Gains
 from flatcli.core.loop.simulate import Trials
+from flatcli.core.names import Model
 from flatcli.core.plan.planning import (
     Plan,
     plan_point_to_point,
@@ -17,7 +18,6 @@ from flatcli.core.plan.planning import (
 from flatcli.core.robots.params import (
     PAPER_ROBOT,
     Coefficients,
-    Model,
     RobotParams,
     constraint_coefficients,
 )

@@ -51,13 +51,18 @@ from flatcli.report.summary import (
     SUMMARY_INPUTS,
     Columns,
     ColumnsOf,
+    error_reasons,
+    grid_columns_of,
+    headline,
     summary_markdown,
     summary_rows,
     summary_table,
+    totals_text,
 )
 from flatcli.spec import SpecError
 from flatcli.spec.limits import ID_STRIDE
 from flatcli.spec.schema import experiment
+from flatcli.spec.tree import flatten
 from flatcli.storage import (
     LOCK_NAME,
     PARQUET_META_KEY,
@@ -314,17 +319,9 @@ def _entries(directory: Path) -> list[Path]:
 # ---------------------------------------------------------------------------------------
 # Comparing specs.
 
-def _flat(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for name, value in tree.items():
-        dotted = f"{prefix}{name}"
-        if dotted == "sweep.grid":
-            out[dotted] = value
-        elif isinstance(value, Mapping) and value and dotted != "sweep.grid":
-            out.update(_flat(value, f"{dotted}."))
-        else:
-            out[dotted] = value
-    return out
+def _flat(tree: Mapping[str, Any]) -> dict[str, Any]:
+    """A spec tree's dotted keys, its tables entered but the grid (one value)."""
+    return flatten(tree, lambda dotted, table: bool(table) and dotted != "sweep.grid")
 
 
 def _show(value: Any) -> str:
@@ -605,11 +602,6 @@ def verified_chunks(directory: Path, lay: Layout) -> tuple[set[str], list[str]]:
     return done, problems
 
 
-def finished_chunks(directory: Path, lay: Layout) -> set[str]:
-    """Names of this layout's verified chunk files."""
-    return verified_chunks(directory, lay)[0]
-
-
 def note(text: str) -> None:
     """A line on stderr about the directory (a chunk recomputed, cells reused)."""
     print(text, file=sys.stderr, flush=True)
@@ -736,9 +728,10 @@ def summary_cells(lay: Layout) -> dict[int, dict[str, Any]]:
 
 def finish_sweep(directory: Path, lay: Layout, provenance: Mapping[str, Any], started: float,
                  timing: Mapping[str, Any], trials: TrialsAssembly,
-                 tags: list[str] | None = None) -> str:
+                 tags: list[str] | None = None) -> tuple[str, str]:
     """trials.parquet (``trials``, closed here), summary.parquet, summary.md and run.json from
-    the chunks.
+    the chunks; summary.md's text and the headline the terminal shows
+    (``report.summary.headline``: one screen).
 
     ``timing`` gains the end-to-end figures: ``wall_seconds`` from ``started`` (a
     perf_counter time) to the summary, ``trials_per_second`` over it, and
@@ -754,6 +747,10 @@ def finish_sweep(directory: Path, lay: Layout, provenance: Mapping[str, Any], st
                 provenance)
     text = summary_markdown(rows, list(cells[lay.cells[0].index]))
     write_text(directory / "summary.md", text + "\n")
+    errors = sum(int(r["error"]) for r in rows)
+    short = headline(rows, grid_columns_of(rows), f"sweep {lay.spec.name!r}: {totals_text(rows)}",
+                     str(directory), error_reasons([directory / "trials.parquet"])
+                     if errors else None, grid=lay.spec.sweep.grid)
     statuses, tally = np.unique(np.asarray(columns["status"], dtype=str), return_counts=True)
     counts = {str(s): int(c) for s, c in zip(statuses, tally, strict=True)}
     outcome = np.asarray(columns["outcome"], dtype=object) if "outcome" in columns else \
@@ -773,5 +770,5 @@ def finish_sweep(directory: Path, lay: Layout, provenance: Mapping[str, Any], st
         outcome_counts=outcome_counts, timing=timing,
         **({"tags": tags} if tags else {}),
     ))
-    return text
+    return text, short
 

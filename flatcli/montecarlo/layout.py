@@ -20,7 +20,7 @@ import hashlib
 import itertools
 import json
 import math
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -130,9 +130,7 @@ def grid_in_recorded_order(spec: Spec, grid_cells: Sequence[str] | None) -> Spec
 def cell_digest(spec: Spec, key: int) -> str:
     """What makes two cells the same computation: the cell's spec (its grid values applied)
     without ``name``, ``sweep.grid`` and the figures' format, its key, and ``CHUNK_FORMAT``."""
-    tree = spec.experiment_tree()
-    tree.pop("name", None)
-    tree["sweep"].pop("grid", None)
+    tree = spec.experiment_tree(skip=("name", "sweep.grid"))
     text = json.dumps(to_jsonable({"spec": tree, "key": key, "format": CHUNK_FORMAT}),
                       sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()
@@ -260,14 +258,18 @@ def chunk_name(start: int) -> str:
     return f"chunk-{key:010d}-{i:09d}.parquet"
 
 
-def layout(spec: Spec, workers: int | None = None) -> Layout:
+def layout(spec: Spec, workers: int | None = None,
+           progress: Callable[[int, int], None] | None = None) -> Layout:
     """Expand the grid and plan every cell (SpecError naming the cell if one cannot run, or
     the estimate if the cells would not fit in memory or time on ``workers``, default: one
-    per core)."""
+    per core). ``progress(done, total)``: called as the cells are planned (the spec bounds
+    their number: ``flatcli.spec.limits.MAX_GRID_CELLS``)."""
     grid = spec.sweep.grid
     names = list(grid)
     combos = [dict(zip(names, combo, strict=True))
               for combo in itertools.product(*(grid[k] for k in names))]
+    report = progress if progress is not None else (lambda done, total: None)
+    report(0, len(combos))
     specs = []
     for index, values in enumerate(combos):
         try:
@@ -302,6 +304,7 @@ def layout(spec: Spec, workers: int | None = None) -> Layout:
         except FlatcliError as exc:
             raise SpecError(f"sweep.grid cell {index} ({grid_label(values)}): {exc}") from None
         cells.append(Cell(index, values, applied, scenario, key, cell_digest(applied, key)))
+        report(index + 1, len(combos))
     return Layout(spec, tuple(cells), trials, chunk)
 
 

@@ -51,6 +51,7 @@ class SweepResult:
     simulated: int  # trials simulated by this invocation (the rest were resumed)
     wall_seconds: float
     summary_text: str
+    headline: str = ""  # one screen of it (``report.summary.headline``)
 
 
 def plan_notes(lay: Layout) -> None:
@@ -88,7 +89,8 @@ def run_sweep(
     started = time.perf_counter()
     if executor_kind == "local" or scheduler == "local":
         check_workers(workers if workers is not None else default_workers(), oversubscribe)
-    lay = layout(spec, workers if executor_kind == "local" else None)
+    lay = layout(spec, workers if executor_kind == "local" else None,
+                 None if progress is None else progress.cells)
     with directory_lock(directory):
         plan = plan_directory(directory, lay, force)
         executor = make_executor(executor_kind, workers, scheduler)
@@ -176,7 +178,7 @@ def run_sweep(
             except BaseException:
                 trials.abort()  # the temporary trials.parquet goes with the run
                 raise
-        summary_text = finish_sweep(directory, lay, provenance, started, {
+        summary_text, short = finish_sweep(directory, lay, provenance, started, {
             "setup_seconds": setup,
             "simulate_seconds": running,
             "simulated_trials": simulated,
@@ -188,7 +190,8 @@ def run_sweep(
             "worker_peak_mib": worker_peak,
             "executor": executor.description,
         }, trials, tags)
-    return SweepResult(directory, lay, simulated, time.perf_counter() - started, summary_text)
+    return SweepResult(directory, lay, simulated, time.perf_counter() - started, summary_text,
+                       short)
 
 
 def warm_up(lay: Layout) -> None:

@@ -23,7 +23,8 @@ import pyarrow as pa
 
 from flatcli.core.loop.metrics import STATUS_NAMES, Status
 from flatcli.core.loop.outcome import MotionClearance
-from flatcli.core.loop.simulate import Integrator, Outcome, Scenario, Trials, simulate
+from flatcli.core.loop.simulate import Outcome, Scenario, Trials, simulate
+from flatcli.core.names import Integrator
 from flatcli.interrupts import critical
 
 #: How often the parent reads the counters into the progress bar [s].

@@ -36,6 +36,7 @@ if TYPE_CHECKING:
         optimization_text,
         plan_summary,
         plan_text,
+        task_text,
     )
     from flatcli.report.summary import (
         COMPLETED,
@@ -63,6 +64,7 @@ _LAZY = {
     "new_figure": "flatcli.report.figures",
     "optimization_summary": "flatcli.report.runs",
     "optimization_text": "flatcli.report.runs",
+    "task_text": "flatcli.report.runs",
     "plan_figure": "flatcli.report.figures",
     "plan_summary": "flatcli.report.runs",
     "plan_text": "flatcli.report.runs",
@@ -110,6 +112,7 @@ __all__ = [
     "summary_markdown",
     "sweep_figures",
     "table",
+    "task_text",
     "track_figure",
     "track_title",
 ]

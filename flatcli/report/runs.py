@@ -32,6 +32,33 @@ def plan_summary(plan: Plan, samples: PlanSamples) -> dict[str, float]:
     return out
 
 
+_ORDINAL = {3: "cubic", 5: "quintic", 7: "degree-7"}
+
+
+def curves_text(plan: Plan) -> str:
+    """What a plan's curves are, in words (no class names): the flat outputs' (or an exact
+    plan's joint paths') basis and its coefficients."""
+    from flatcli.core.curves.basis import BSplineBasis, PolynomialBasis
+    from flatcli.core.curves.pieces import PiecewiseBasis
+
+    basis = plan.trajectory.basis
+    if isinstance(basis, PolynomialBasis):
+        kind = f"{_ORDINAL.get(basis.degree, f'degree-{basis.degree}')} polynomials"
+        detail = f"{basis.size} coefficients each"
+    elif isinstance(basis, BSplineBasis):
+        kind = f"{_ORDINAL.get(basis.degree, f'degree-{basis.degree}')} B-splines"
+        detail = f"{basis.size} coefficients each"
+    elif isinstance(basis, PiecewiseBasis):
+        kind = "piecewise polynomials"
+        detail = f"{basis.pieces} pieces of degree {basis.degree}"
+    else:  # a basis of the API's caller
+        kind, detail = "curves", f"{basis.size} coefficients each"
+    if plan.model.kind == "exact":
+        return f"exact plan (no flat outputs): joint paths and th0 as {kind} ({detail})"
+    rest = " rest to rest," if getattr(plan, "start", None) is not None else ""
+    return f"{rest} flat outputs as {kind} ({detail})".lstrip()
+
+
 def plan_text(name: str, plan: Plan, samples: PlanSamples) -> str:
     """Terminal summary of a plan."""
     s = plan_summary(plan, samples)
@@ -40,19 +67,15 @@ def plan_text(name: str, plan: Plan, samples: PlanSamples) -> str:
         ["t = 0", *samples.y[0], *samples.y_dot[0]],
         [f"t = {plan.duration:g} s", *samples.y[-1], *samples.y_dot[-1]],
     ]
-    if plan.model.kind == "exact":  # no flat outputs: its y columns are the joint paths
-        outputs = [f"y{j} = th{j} [rad]" for j in range(1, n + 1)]
-        rates = [f"y{j}' = th{j}' [rad/s]" for j in range(1, n + 1)]
-    else:
-        outputs = [f"y{j} [rad]" for j in range(1, n + 1)]
-        rates = [f"y{j}' [rad/s]" for j in range(1, n + 1)]
+    symbol = "th" if plan.model.kind == "exact" else "y"  # an exact plan: its joint paths
+    outputs = [f"{symbol}{j} [rad]" for j in range(1, n + 1)]
+    rates = [f"{symbol}{j}' [rad/s]" for j in range(1, n + 1)]
     model, margin = plan.model.name, f"min margin {plan.model.margin_label}"
     energy = ("input energy, integral of th1'^2 + th2'^2" if n == 2
               else f"input energy, integral of th1'^2 + ... + th{n}'^2")
     lines = [
-        f"plan {name!r}: {n} joints, model {model}, {type(plan.trajectory.basis).__name__}"
-        f" of size {plan.trajectory.basis.size}, T = {plan.duration:g} s,"
-        f" {len(samples.t)} samples",
+        f"plan {name!r}: {n} joints, model {model}, {curves_text(plan)}, T = "
+        f"{plan.duration:g} s, {len(samples.t)} samples",
         table(["boundary", *outputs, *rates], ends, 6),
         "",
         table(
@@ -116,10 +139,35 @@ def optimization_text(summary: Mapping[str, Any]) -> str:
     return table(["optimisation", ""], rows)
 
 
+#: A planned task's results, in the order ``task_text`` shows them.
+TASK_ROWS = ("ee_error_final", "base_attitude_error_final", "min_clearance", "clearance_bound",
+             "certified_intervals", "task_candidates", "rate_factor", "rest_skew")
+
+
+def task_text(metrics: Mapping[str, object]) -> str:
+    """A planned task's results with their units (those that apply), and a line when the
+    search changed the end rates the spec gave."""
+    from flatcli.units import DIMENSIONLESS, unit_of
+
+    rows = [[k, metrics[k], "" if (unit := unit_of(k)) in (None, DIMENSIONLESS) else unit]
+            for k in TASK_ROWS if metrics.get(k) is not None]
+    text = table(["task", "value", "unit"], rows, 5)
+    factor = metrics.get("rate_factor")
+    if isinstance(factor, float) and factor != 1.0:
+        text += (f"\nnote: the end rates are plan.start_rate and plan.goal_rate x {factor:g} "
+                 "(the search's candidate: the rates as given did not plan, or were not "
+                 "proven clear)")
+    return text
+
+
 def metrics_text(name: str, metrics: Mapping[str, object]) -> str:
-    """Terminal summary of one closed-loop run."""
-    rows = [[k, v] for k, v in metrics.items() if k not in ("status", "reason", "event_time")]
+    """Terminal summary of one closed-loop run: each metric with its unit (``flatcli.units``;
+    blank for a count or a flag)."""
+    from flatcli.units import DIMENSIONLESS, unit_of
+
+    rows = [[k, v, "" if (unit := unit_of(k)) in (None, DIMENSIONLESS) else unit]
+            for k, v in metrics.items() if k not in ("status", "reason", "event_time")]
     head = f"track {name!r}: status {metrics['status']}"
     if metrics.get("reason"):
         head += f" ({metrics['reason']})"
-    return head + "\n" + table(["metric", "value"], rows, 5)
+    return head + "\n" + table(["metric", "value", "unit"], rows, 5)

@@ -13,6 +13,7 @@ interval (``wilson_interval``), so a reader sees how much each statistic leaves 
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
@@ -498,6 +499,165 @@ def outcome_tables(records: Sequence[Mapping[str, Any]],
         "ALL the cell's trials of the final error (th, y [rad]; ee [m]), a trial that did\n"
         "not reach T counted as infinitely wrong (inf: more than half did not).",
     ]
+
+
+#: The most cells a headline lists (one screen); beyond, those with the most trials not ok.
+HEADLINE_CELLS = 20
+#: The most error reasons a headline quotes.
+HEADLINE_REASONS = 3
+
+
+def grid_display(records: Sequence[Mapping[str, Any]], grid_keys: Sequence[str],
+                 grid: Mapping[str, Any] | None = None) -> list[tuple[str, list[str]]]:
+    """The grid columns a headline shows, as (heading, text per cell): keys whose value
+    varies across the cells, a list-valued key by the components that vary (``key[i]``),
+    text cut to 16 characters; the keys of a labelled group (``grid``: the spec's
+    ``sweep.grid``) by its label only."""
+    labelled = {k for values in (grid or {}).values()
+                if isinstance(values, list) and values and all(
+                    isinstance(v, Mapping) and "label" in v for v in values)
+                for table_ in values for k in table_ if k != "label"}
+    out: list[tuple[str, list[str]]] = []
+    for key in grid_keys:
+        if key in labelled and key not in (grid or {}):
+            continue
+        values = [r.get(key) for r in records]
+        if len({repr(v) for v in values}) <= 1:
+            continue
+        lists = [list(v) for v in values if isinstance(v, list | tuple | np.ndarray)]
+        if len(lists) == len(values) and len({len(v) for v in lists}) == 1:
+            stacked = lists
+            for i in range(len(stacked[0])):
+                column = [row[i] for row in stacked]
+                if len({repr(v) for v in column}) > 1:
+                    out.append((f"{short_key(key)}[{i}]", [str(fmt(float(v))) for v in column]))
+            continue
+        texts = [str(cell_text(v)) if not isinstance(v, float) else str(fmt(v))
+                 for v in values]
+        out.append((short_key(key), [t if len(t) <= 16 else t[:15] + "~" for t in texts]))
+    return out
+
+
+def outcome_columns(records: Sequence[Mapping[str, Any]]) -> list[str]:
+    """The per-cell outcome counts a headline shows (after the statuses): the summary's
+    count of each of ``OUTCOME_NAMES`` (``_outcomes``) but lost (the statuses beside them
+    count it: diverged, unresolved, error), ``reached`` and ``missed`` always, ``collided``
+    where any cell has one; none for a summary written before trials had outcomes."""
+    if not records or not all(name in records[0] for name in OUTCOME_NAMES):
+        return []
+    return [n for n in OUTCOME_NAMES if n in ("reached", "missed")
+            or (n == "collided" and any(int(r[n]) for r in records))]
+
+
+def outcome_totals(records: Sequence[Mapping[str, Any]]) -> str:
+    """'outcomes: reached 300 of 360 trials (83.3 %, 95 % interval 79.1-86.8 %), missed 27,
+    lost 33' over all the cells' trials (the interval: Wilson score, ``wilson_interval``); "" for a
+    summary without outcomes."""
+    if not records or not all(name in records[0] for name in OUTCOME_NAMES):
+        return ""
+    counts = {n: sum(int(r[n]) for r in records) for n in OUTCOME_NAMES}
+    trials = sum(int(r["trials"]) for r in records)
+    reached = counts["reached"]
+    text = f"outcomes: reached {reached} of {trials} trials"
+    if trials:
+        low, high = wilson_interval(reached, trials)
+        share, interval = with_interval(reached / trials, float(low), float(high)).split(" (")
+        text += f" ({share} %, 95 % interval {interval.rstrip(')')} %)"
+    return ", ".join([text, *(f"{n} {counts[n]}" for n in OUTCOME_NAMES[1:] if counts[n])])
+
+
+def grid_columns_of(records: Sequence[Mapping[str, Any]]) -> list[str]:
+    """The grid columns of summary rows: those between ``cell`` and ``trials``."""
+    if not records:
+        return []
+    names = list(records[0])
+    return names[names.index("cell") + 1: names.index("trials")]
+
+
+#: Numbers in an error reason (a trial's own target, times, sizes): reasons that differ only
+#: in them are one kind of error in a headline.
+_NUMBER = re.compile(r"[-+]?\d+(\.\d*)?([eE][-+]?\d+)?")
+
+
+def error_reasons(paths: Sequence[Any]) -> dict[str, int]:
+    """reason -> trials, of the error trials in the Parquet files ``paths`` (trials.parquet,
+    or a partial sweep's chunk files), reasons that differ only in their numbers counted as
+    one (shown as the first of them); nothing is read but the two columns."""
+    import pyarrow.compute as pc
+    import pyarrow.parquet as pq
+
+    first: dict[str, str] = {}
+    counts: dict[str, int] = {}
+    for path in paths:
+        table = pq.read_table(path, columns=["status", "reason"])
+        errors = table.filter(pc.equal(table.column("status"), "error"))
+        for reason in errors.column("reason").to_pylist():
+            text = str(reason or "").strip() or "(no reason recorded)"
+            kind = _NUMBER.sub("#", text)
+            first.setdefault(kind, text)
+            counts[kind] = counts.get(kind, 0) + 1
+    return {first[kind]: count for kind, count in counts.items()}
+
+
+def headline(records: Sequence[Mapping[str, Any]], grid_keys: Sequence[str], title: str,
+             where: str, reasons: Mapping[str, int] | None = None,
+             limit: int = HEADLINE_CELLS, grid: Mapping[str, Any] | None = None) -> str:
+    """A sweep's summary in one screen: ``title``, the outcomes of all its trials
+    (``outcome_totals``), one row per cell (its varying grid values, its trials by status
+    (ok, and the others any cell has), by outcome (``outcome_columns``), the median final
+    error of y: over all the cell's trials, a trial that did not reach T as inf, where the
+    summary has outcomes (a line under the table says so), else over its resolved trials
+    (its heading says so)), up to
+    ``limit`` cells (beyond, those with the most trials not ok, in cell order), the most
+    frequent error reasons (``reasons``: reason -> trials), and where the full tables are
+    (``where``: the sweep's directory)."""
+    records = list(records)
+    shown = records
+    if len(records) > limit:
+        worst = sorted(records, key=lambda r: (-(int(r["trials"]) - int(r["ok"])),
+                                               int(r["cell"])))[:limit]
+        keep = {int(r["cell"]) for r in worst}
+        shown = [r for r in records if int(r["cell"]) in keep]
+    columns = grid_display(shown, grid_keys, grid)
+    outcomes = outcome_columns(records)
+    statuses = [n for n in STATUS_NAMES if n == "ok" or any(int(r[n]) for r in records)]
+    over_all = bool(outcomes) and "err_y_final_median_all" in records[0]
+    median = "err_y_final_median_all" if over_all else "err_y_final_median"
+    heads = ["cell", *(h for h, _ in columns), *statuses, *outcomes,
+             "err_y_final med [rad]" if over_all else "err_y_final med resolved [rad]"]
+    rows = []
+    for i, r in enumerate(shown):
+        rows.append([int(r["cell"]), *(texts[i] for _, texts in columns),
+                     *(int(r[n]) for n in statuses), *(int(r[o]) for o in outcomes),
+                     r.get(median, math.nan)])
+    totals = outcome_totals(records)
+    lines = [title, *([totals] if totals else []), table(heads, rows, 3)]
+    if over_all:
+        lines.append("med: over all the cell's trials, a lost one (diverged, unresolved, error) "
+                     "as inf")
+    if len(shown) < len(records):
+        lines.append(f"({len(shown)} of {len(records)} cells shown: those with the most "
+                     "trials not ok)")
+    for reason, count in sorted((reasons or {}).items(), key=lambda kv: -kv[1])[
+            :HEADLINE_REASONS]:
+        lines.append(f"error ({count} trial{'s' if count != 1 else ''}"
+                     f"{' like this' if count != 1 else ''}): {reason}")
+    more = len(reasons or {}) - HEADLINE_REASONS
+    if more > 0:
+        lines.append(f"({more} more error reason{'s' if more != 1 else ''} in "
+                     "trials.parquet's reason column)")
+    lines += [f"full tables: {where}/summary.md (flatcli summarize {where} --full)",
+              f"every trial: {where}/trials.parquet"]
+    return "\n".join(lines)
+
+
+def totals_text(records: Sequence[Mapping[str, Any]]) -> str:
+    """'18 cells, 360 trials: ok 327, singular 1, diverged 32, unresolved 0, error 0'."""
+    counts = {n: sum(int(r[n]) for r in records) for n in STATUS_NAMES}
+    trials = sum(int(r["trials"]) for r in records)
+    cells = len(records)
+    return (f"{cells} cell{'s' if cells != 1 else ''}, {trials} trials: "
+            + ", ".join(f"{n} {counts[n]}" for n in STATUS_NAMES))
 
 
 def cell_text(value: Any) -> object:

@@ -27,6 +27,7 @@ from flatcli.report.figures import PAGE_WIDTH, FigureFile, new_figure, save_figu
 from flatcli.report.summary import FAILURES, short_key
 from flatcli.report.tables import fmt
 from flatcli.spec.keys import suggest
+from flatcli.spec.tree import value_at
 from flatcli.storage import read_provenance
 
 if TYPE_CHECKING:
@@ -59,6 +60,14 @@ def plot_sweep(directory: Path, file: FigureFile | None = None, x: str | None = 
     file = file or FigureFile.of_tree(sweep.tree)
     return [save_figure(fig, directory / file.name(f"sweep_{name}"), file)
             for name, fig in _figures(sweep, x, hue).items()]
+
+
+def check_axes(directory: Path, x: str | None, hue: str | None) -> None:
+    """FlatcliError naming ``--x`` or ``--hue`` if the figures of the finished sweep in
+    ``directory`` cannot be drawn against them (``OutcomeAxis.choose``): asked before
+    anything is printed or drawn."""
+    if x is not None or hue is not None:
+        OutcomeAxis.choose(SweepData.load(directory), x, hue)
 
 
 def sweep_figures(directory: Path, x: str | None = None, hue: str | None = None
@@ -128,9 +137,7 @@ class SweepData:
         (``"inf"`` in the spec's JSON is inf: no limit)."""
         if dotted in self.summary.columns:
             return self.summary[dotted].to_numpy(dtype=np.float64)
-        node: Any = self.tree
-        for part in dotted.split("."):
-            node = node.get(part) if isinstance(node, Mapping) else None
+        node = value_at(self.tree, dotted)
         value = math.nan if node is None else float(node)
         return np.full(len(self.cells), value)
 
@@ -350,13 +357,6 @@ def _finish(fig: Figure, title: str) -> Figure:
 # ---------------------------------------------------------------------------------------
 # What a sweep's title says: the conditions every cell shares, or that they vary.
 
-def _setting(sweep: SweepData, key: str) -> Any:
-    node: Any = sweep.tree
-    for part in key.split("."):
-        node = node.get(part) if isinstance(node, Mapping) else None
-    return node
-
-
 def _varies(sweep: SweepData, key: str) -> bool:
     """Whether a spec key takes more than one value across the sweep's cells (a grid entry
     or a group sets it) or per trial (perturbed)."""
@@ -374,13 +374,13 @@ def conditions(sweep: SweepData) -> str:
             perturbed = key.startswith("plant.") and key.removeprefix("plant.") in \
                 sweep.tree.get("sweep", {}).get("perturb", {})
             return "perturbed" if perturbed else "per cell"
-        raw = _setting(sweep, key)
+        raw = value_at(sweep.tree, key)
         if raw in ("inf", math.inf) or raw is None:
             return "none"
         return f"{raw:g} {unit}" if isinstance(raw, int | float) else str(raw)
 
     model = "per cell" if _varies(sweep, "plant.model") else str(
-        _setting(sweep, "plant.model") or "kinematic")
+        value_at(sweep.tree, "plant.model") or "kinematic")
     plant = f"{model} plant" if model != "per cell" else "plant per cell"
     parts = [plant, f"sensor noise {value('track.sensor_noise', 'rad')}"]
     if model != "kinematic":
@@ -578,7 +578,7 @@ def outcomes_figure(sweep: SweepData, axis: OutcomeAxis) -> Figure:
         ax.legend()
         cell_axis(ax, sweep)
         return _finish(fig, f"{conditions(sweep)}\nsingular hits and failures per cell")
-    panels = ["error", *kinds]
+    panels = ["final error", *kinds]  # not "error": that is a status's share (kinds)
     columns = 2 if len(panels) <= 4 else 3
     rows = math.ceil(len(panels) / columns)
     fig = new_figure(PAGE_WIDTH, 2.3 * rows + 0.9)
@@ -599,7 +599,7 @@ def outcomes_figure(sweep: SweepData, axis: OutcomeAxis) -> Figure:
             look = {"color": f"C{axis.colours[first] % 9}",
                     "ls": styles[axis.styles[first] % len(styles)],
                     "marker": markers[axis.styles[first] % len(markers)]}
-            if kind == "error":
+            if kind == "final error":
                 median = part["err_y_final_median"].to_numpy(dtype=np.float64)
                 p95 = part["err_y_final_p95"].to_numpy(dtype=np.float64)
                 ax.errorbar(xs, median, yerr=[np.zeros_like(median), p95 - median],
@@ -610,7 +610,7 @@ def outcomes_figure(sweep: SweepData, axis: OutcomeAxis) -> Figure:
             high = part[f"{kind}_fraction_high"].to_numpy(dtype=np.float64)
             ax.errorbar(xs, p, yerr=[p - low, high - p], capsize=2, lw=1, ms=3.5,
                         clip_on=False, label=name or "all cells", **look)
-        if kind == "error":
+        if kind == "final error":
             ax.set_yscale("log")
             ax.set_ylabel("final error of $y$ [rad]\n(median to 95th percentile)")
             ax.set_title("resolved trials (ok, singular)")
@@ -631,12 +631,23 @@ def outcomes_figure(sweep: SweepData, axis: OutcomeAxis) -> Figure:
         ax.set_xlabel(axis.label)
         ax.xaxis.set_tick_params(labelbottom=True)
     handles, names = axes[0].get_legend_handles_labels()
-    if any(names) and names != ["all cells"]:
-        fig.legend(handles, names, loc="lower center", ncol=min(3, len(names)))
-    lines = math.ceil(len(names) / 3) if names != ["all cells"] else 0
     fig.suptitle(f"{conditions(sweep)}\noutcomes against {short_key(axis.key)} (points "
                  "slightly spread in x to keep the intervals apart)")
-    fig.tight_layout(rect=(0, 0.03 + 0.04 * lines, 1, 1))
+    shown = any(names) and names != ["all cells"]
+    spare = axes[len(panels)] if len(panels) < len(axes) else None
+    if shown and spare is not None:  # the empty panel holds the legend, inside the page
+        spare.set_visible(True)
+        spare.axis("off")
+        spare.legend(handles, names, loc="center", fontsize=7, frameon=False)
+        fig.tight_layout()
+    elif shown:  # below the panels, in as many columns as fit the page
+        widest = max(len(n) for n in names)
+        ncol = max(1, min(3, int(PAGE_WIDTH * 72 / (7 * 0.6 * widest + 40))))
+        lines = math.ceil(len(names) / ncol)
+        fig.legend(handles, names, loc="lower center", ncol=ncol, fontsize=7, frameon=False)
+        fig.tight_layout(rect=(0, 0.02 + 0.035 * lines, 1, 1))
+    else:
+        fig.tight_layout()
     return fig
 
 

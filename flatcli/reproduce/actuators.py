@@ -21,15 +21,13 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from flatcli import api
 from flatcli.core.loop.metrics import STATUS_NAMES
-from flatcli.core.loop.outcome import GOAL_TOLERANCE
-from flatcli.core.loop.simulate import DEFAULT_SERVO_BANDWIDTH
+from flatcli.core.names import DEFAULT_SERVO_BANDWIDTH, GOAL_TOLERANCE
 from flatcli.core.robots.dynamics import make_chain
-from flatcli.experiment import flat_plan_from, robot_from, run_track
 from flatcli.report import (
     COMPLETED,
     FigureFile,
-    Progress,
     fmt,
     new_figure,
     save_figure,
@@ -38,7 +36,7 @@ from flatcli.report import (
 )
 from flatcli.report.figures import PAGE_WIDTH
 from flatcli.report.summary import wilson_interval
-from flatcli.reproduce.findings import OPTIMIZED_PLANS, reached_text
+from flatcli.reproduce.findings import OPTIMIZED_PLANS, paper_plan, reached_text, track_of
 from flatcli.reproduce.sections import Context, Outcome, Section, Steps
 from flatcli.spec import Spec, load_spec
 from flatcli.storage import run_record, write_parquet
@@ -71,15 +69,15 @@ def plan_demands(base: Spec, plans: Sequence[tuple[str, Mapping[str, Any]]],
     chain_of: dict[Any, Any] = {}
     for label, overrides in (plans if steps is None else steps.each("demands of", plans)):
         spec = base.with_overrides({**overrides, **SWAPPED, "plant.model": "dynamic"})
-        plan = flat_plan_from(spec)
-        robot = robot_from(spec)
+        plan = paper_plan(spec)
+        robot = plan.robot
         if robot not in chain_of:
             chain_of[robot] = make_chain(robot.mass, robot.inertia, robot.length, robot.com)
         t = plan.grid(PLAN_SAMPLES)
         torques = plan.torques(chain_of[robot], t)
         _, rates, _ = plan.motion(t)
-        on_plan = run_track(spec.with_overrides({"track.initial": list(spec.plan.start)}))
-        fig4 = run_track(spec)
+        on_plan = track_of(spec.with_overrides({"track.initial": list(spec.plan.start)}))
+        fig4 = track_of(spec)
         m, f = on_plan.metrics, fig4.metrics
         rows.append([
             label,
@@ -97,7 +95,6 @@ def run_study(out: Path, quiet: bool, workers: int | None, sets: Sequence[str] =
     """The study (``study_path()`` with the ``--set`` items ``sets``) into out/actuators, and
     the same trials on the kinematic plant into out/actuators/kinematic (the limit of
     infinite bandwidth): its spec, both trial tables and the study's wall time [s]."""
-    from flatcli.montecarlo import run_sweep
     from flatcli.montecarlo.directory import record_outputs
     from flatcli.storage import directory_lock
 
@@ -105,17 +102,16 @@ def run_study(out: Path, quiet: bool, workers: int | None, sets: Sequence[str] =
     directory = out / "actuators"
     with directory_lock(directory):
         forget_study(directory)
-        result = run_sweep(spec, directory, "local", workers, None, force=True,
-                           progress=Progress(spec.name, quiet))
+        result = api.sweep(spec, directory, workers=workers, force=True, quiet=quiet)
         kinematic = spec.with_overrides({
             "plant.model": "kinematic",
             "sweep.grid": {MANEUVER: spec.sweep.grid[MANEUVER]},
         })
-        run_sweep(kinematic, directory / "kinematic", "local", workers, None, force=True,
-                  progress=Progress(f"{spec.name} (kinematic)", quiet))
+        api.sweep(kinematic, directory / "kinematic", workers=workers, force=True, quiet=quiet)
         # the kinematic sweep's files are flatcli's too (``flatcli sweep --force`` there)
         record_outputs(directory, (p for p in (directory / "kinematic").rglob("*")
                                    if p.is_file() and not p.is_symlink()))
+    assert result.wall_seconds is not None  # run here, not loaded
     return (spec, pd.read_parquet(directory / "trials.parquet"),
             pd.read_parquet(directory / "kinematic" / "trials.parquet"), result.wall_seconds)
 

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from flatcli.report import FigureFile, Progress, fmt, new_figure, save_figure, styled, table
+from flatcli.report import FigureFile, fmt, new_figure, save_figure, styled, table
 from flatcli.report.figures import PAGE_WIDTH
 from flatcli.reproduce.findings import reached_text
 from flatcli.reproduce.sections import Context, Outcome, Section
@@ -54,12 +54,9 @@ PIPELINES = ("ideal", "asbuilt")
 PIPELINE_NAMES = {"ideal": "ideal-model", "asbuilt": "as-built"}
 #: The paper's Fig. 4 start [rad].
 FIG4 = (1.96, 0.8, -0.1)
-#: The issue's goal: median final error [rad], its ratio to the ideal pipeline's, max |H|
-#: along an exact plan [kg m^2/s], planning time through the API [s].
+#: The issue's goal: median final error [rad] and its ratio to the ideal pipeline's.
 GOAL_ERROR = 1e-4
 GOAL_RATIO = 10.0
-GOAL_MOMENTUM = 1e-9
-GOAL_SECONDS = 0.05
 #: "Keeps tracking": median final error within this [rad].
 TOLERANCE = 1e-3
 #: The maps: counterweight placements [mm], mass errors [%], trials per cell, th(0) std.
@@ -100,10 +97,9 @@ def map_trials(spec: Spec) -> int:
 
 
 def _sweep(spec: Spec, directory: Path, context: Context) -> pd.DataFrame:
-    from flatcli.montecarlo import run_sweep
+    from flatcli import api
 
-    run_sweep(spec, directory, "local", context.workers, None, force=True,
-              progress=Progress(spec.name, context.quiet))
+    api.sweep(spec, directory, workers=context.workers, force=True, quiet=context.quiet)
     return pd.read_parquet(directory / "trials.parquet")
 
 
@@ -147,7 +143,7 @@ def compare(cell: pd.DataFrame) -> dict[str, Any]:
 
 def goal_study(context: Context, out: Path) -> dict[str, Any]:
     """Both pipelines on the goal's sweep and from Fig. 4's start: the numbers of the goal."""
-    from flatcli.experiment import run_track
+    from flatcli.reproduce.findings import track_of
 
     base = goal_spec(context)
     trials = {}
@@ -163,7 +159,7 @@ def goal_study(context: Context, out: Path) -> dict[str, Any]:
     fig4: dict[str, float] = {}
     fig4_outcome: dict[str, str] = {}
     for name in PIPELINES:
-        metrics = run_track(pipeline(base, name).with_overrides(
+        metrics = track_of(pipeline(base, name).with_overrides(
             {"track.initial": list(FIG4)})).metrics
         fig4[name] = as_float(metrics["err_theta_final"])
         fig4_outcome[name] = str(metrics["outcome"])
@@ -359,9 +355,9 @@ def planning_seconds(repeats: int = 7) -> float:
 def dense_momentum(spec: Spec, samples: int = DENSE_SAMPLES) -> float:
     """max |H| [kg m^2/s] along the spec's plan at ``samples`` times, H from the full link
     kinematics of the robot it plans for (``Plan.sample``)."""
-    from flatcli.experiment import plan_from
+    from flatcli.reproduce.findings import plan_of
 
-    plan = plan_from(spec)
+    plan = plan_of(spec)
     return float(np.max(np.abs(plan.sample(np.linspace(0.0, plan.duration, samples))
                                .momentum)))
 
@@ -405,7 +401,7 @@ def placement_table(found: Mapping[str, pd.DataFrame]) -> str:
 
 def run(context: Context) -> Outcome:
     """The studies into OUT/asbuilt, the figure, and the section's lines."""
-    from flatcli.experiment import plan_from
+    from flatcli.reproduce.findings import plan_of
 
     out = context.out / DIRECTORY
     goal = goal_study(context, out)
@@ -415,8 +411,8 @@ def run(context: Context) -> Outcome:
     figure = context.figures.name(FIGURE)
     plot_maps(found, trials, context.out / figure, context.figures)
     base = goal_spec(context)
-    exact = plan_from(base)
-    flat = plan_from(pipeline(base, "ideal"))
+    exact = plan_of(base)
+    flat = plan_of(pipeline(base, "ideal"))
     momentum = dense_momentum(base)
     map_momentum = float(found["placement_asbuilt"]["plan_momentum"].max())
     seconds = planning_seconds()

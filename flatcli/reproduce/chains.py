@@ -18,15 +18,16 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from flatcli import api
+from flatcli.api import TrackRun
 from flatcli.core.models.flatmodel import ChainModel
 from flatcli.core.plan.planning import Plan
 from flatcli.core.robots.chain import chain_momentum, momentum_weights
 from flatcli.core.robots.params import RobotParams, flatness_check
-from flatcli.experiment import TrackRun, plan_from, robot_from, run_track
-from flatcli.outputs import plan_frame, track_frame
-from flatcli.report import FigureFile, Progress, fmt, new_figure, save_figure, styled, table
+from flatcli.outputs import track_frame
+from flatcli.report import FigureFile, fmt, new_figure, save_figure, styled, table
 from flatcli.report.figures import PAGE_WIDTH
-from flatcli.reproduce.findings import reached_text
+from flatcli.reproduce.findings import plan_of, reached_text, track_of
 from flatcli.reproduce.sections import Context, Outcome, Section
 from flatcli.spec import Spec, load_spec
 from flatcli.storage import run_record, write_parquet
@@ -112,7 +113,7 @@ def closed_loop_rows(spec: Spec) -> tuple[list[list[Any]], dict[str, TrackRun]]:
     runs."""
     rows, runs = [], {}
     for plant in ("kinematic", "dynamic"):
-        run = run_track(spec.with_overrides({"plant.model": plant}))
+        run = track_of(spec.with_overrides({"plant.model": plant}))
         runs[plant] = run
         m = run.metrics
         rows.append([spec.name, plant, m["status"], m["err_y_final"], m["err_theta_final"],
@@ -160,11 +161,9 @@ def run_study(spec: Spec, plan: Plan, directory: Path, quiet: bool, workers: int
               sets: Sequence[str]) -> tuple[str, pd.DataFrame, float]:
     """The spec's Monte Carlo study, started around the plan's start, into ``directory``:
     its summary text, trial table and wall time [s]."""
-    from flatcli.montecarlo import run_sweep
-
     study = study_spec(spec, sets)
-    result = run_sweep(study, directory, "local", workers, None, force=True,
-                       progress=Progress(spec.name, quiet))
+    result = api.sweep(study, directory, workers=workers, force=True, quiet=quiet)
+    assert result.wall_seconds is not None  # run here, not loaded
     return result.summary_text, pd.read_parquet(directory / "trials.parquet"), \
         result.wall_seconds
 
@@ -192,7 +191,7 @@ def path_rows(spec: Spec) -> list[list[Any]]:
     rows = []
     for start_rate, goal_rate in path_rates(spec.joints):
         s = spec.with_overrides({"plan.start_rate": start_rate, "plan.goal_rate": goal_rate})
-        plan = plan_from(s)
+        plan = plan_of(s)
         c = plan_checks(plan, s.plan.start, s.plan.goal)
         rows.append([spec.name, ", ".join(fmt(v, 2) for v in start_rate),
                      ", ".join(fmt(v, 2) for v in goal_rate), c["natural_drift"],
@@ -211,7 +210,7 @@ def paper_drift_rows(base: Spec) -> list[list[Any]]:
     rows = []
     for start_rate, goal_rate in ((0.1, 0.5), (1.0, 0.1)):
         s = base.with_overrides({"plan.start_rate": start_rate, "plan.goal_rate": goal_rate})
-        plan = plan_from(s)
+        plan = plan_of(s)
         c = plan_checks(plan, s.plan.start, s.plan.goal)
         rows.append(["paper (N = 2)", fmt(start_rate, 2), fmt(goal_rate, 2),
                      c["natural_drift"], _left(s, c), c["fold"], c["peak_last_rate"]])
@@ -232,15 +231,15 @@ def run(context: Context) -> Outcome:
         spec = load_spec(path)
         steps.step(f"{spec.name}: design, plan, closed loop on both plants, paths")
         directory = out / "chains" / spec.name
-        robot = robot_from(spec)
-        designs.append(design_row(spec.name, robot))
-        plan = plan_from(spec)
+        planned = api.plan(spec)
+        plan = planned.plan
+        assert plan is not None
+        designs.append(design_row(spec.name, plan.robot))
         c = plan_checks(plan, spec.plan.start, spec.plan.goal)
         plan_rows.append([spec.name, c["fold"], c["peak_joint_rate"], c["peak_last_rate"],
                           c["peak_base_rate"], c["min_margin"], c["max_abs_H"], c["end_error"],
                           c["natural_drift"]])
-        write_parquet(directory / "plan.parquet",
-                      plan_frame(plan.sample(plan.grid(spec.plan.samples))),
+        write_parquet(directory / "plan.parquet", planned.frame,
                       run_record("reproduce", spec.tree))
         rows, runs = closed_loop_rows(spec)
         loop_rows += rows

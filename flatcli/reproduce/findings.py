@@ -17,11 +17,12 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from flatcli import api
+from flatcli.api import TrackRun
 from flatcli.core.loop.metrics import OUTCOME_NAMES, RESOLVED, Metric, Status
 from flatcli.core.plan.planning import Plan
-from flatcli.experiment import TrackRun, plan_and_optimization, run_track
 from flatcli.report import cell_text, fmt, table
-from flatcli.spec import Spec
+from flatcli.spec import Spec, SpecError
 
 #: The two readings of the printed gains "kv1 = 100, kp1 = 10, kv2 = 110, kp2 = 13".
 GAIN_READINGS: dict[str, dict[str, list[float]]] = {
@@ -41,6 +42,28 @@ OPTIMIZED_PLANS: tuple[tuple[str, dict[str, Any]], ...] = (
 #: Lower bounds on the signed margin the least-energy plan is re-optimised under, to find
 #: the least that the swapped gains can track from the paper's initial state [rad/s].
 MARGIN_LADDER = (0.02, 0.05, 0.1, 0.2, 0.3, 0.4)
+
+
+def plan_of(spec: Spec) -> Plan:
+    """The spec's plan, through the public API (``flatcli.plan``)."""
+    plan = api.plan(spec).plan
+    assert plan is not None  # computed, not loaded
+    return plan
+
+
+def paper_plan(spec: Spec) -> Plan:
+    """``plan_of`` where the analysis is of the paper's robot (N = 2)."""
+    if spec.joints != 2:
+        raise SpecError(f"robot.mass: this needs the paper's robot (3 links, 2 joints), got "
+                        f"{spec.joints + 1} links")
+    return plan_of(spec)
+
+
+def track_of(spec: Spec) -> TrackRun:
+    """The spec's closed-loop run, through the public API (``flatcli.track``)."""
+    run = api.track(spec, quiet=True).run
+    assert run is not None  # computed, not loaded
+    return run
 
 
 def _metric(run: TrackRun, metric: Metric) -> float:
@@ -86,7 +109,7 @@ def track_plans(base: Spec, plans: Sequence[tuple[str, Mapping[str, Any]]]) -> l
     ``track.initial`` with the printed and the swapped gains (u1(0) = the plan's th1'(0))."""
     out = []
     for label, overrides in plans:
-        runs = {reading: run_track(base.with_overrides({**overrides, **gains}))
+        runs = {reading: track_of(base.with_overrides({**overrides, **gains}))
                 for reading, gains in GAIN_READINGS.items()}
         out.append(TrackedPlan(label, runs["printed"].plan, runs))
     return out
@@ -113,8 +136,8 @@ def margin_ladder(base: Spec) -> tuple[str, str]:
     trackable: float | None = None
     for margin in MARGIN_LADDER:
         overrides = {"plan.optimize.objective": "energy", "plan.optimize.min_margin": margin}
-        plan, _ = plan_and_optimization(base.with_overrides(overrides))
-        run = run_track(base.with_overrides({**overrides, **GAIN_READINGS["swapped"]}))
+        plan = plan_of(base.with_overrides(overrides))
+        run = track_of(base.with_overrides({**overrides, **GAIN_READINGS["swapped"]}))
         status = _status(run)
         if trackable is None and status == "ok":
             trackable = margin

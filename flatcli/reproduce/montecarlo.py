@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 
 from flatcli.core.loop.metrics import RESOLVED
-from flatcli.report import Progress, fmt, plot_sweep
+from flatcli.report import fmt, plot_sweep
 from flatcli.reproduce.findings import reached_text, study_findings
 from flatcli.reproduce.sections import Context, Outcome, Section
 from flatcli.spec import load_spec
@@ -21,14 +21,14 @@ DIRECTORY = "montecarlo"
 
 def run(context: Context) -> Outcome:
     """The study into OUT/montecarlo (its figures too) and the section's lines."""
-    from flatcli.montecarlo import run_sweep
+    from flatcli import api
 
     assert context.montecarlo is not None
     spec = load_spec(context.montecarlo, context.sets)
     directory = context.out / DIRECTORY
     context.steps.step(f"{spec.name}: the sweep")
-    result = run_sweep(spec, directory, "local", context.workers, None, force=True,
-                       progress=Progress(spec.name, context.quiet))
+    result = api.sweep(spec, directory, workers=context.workers, force=True,
+                       quiet=context.quiet)
     context.steps.step("its figures")
     plot_sweep(directory, context.figures)
     summary = pd.read_parquet(directory / "summary.parquet")

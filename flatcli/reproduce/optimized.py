@@ -8,14 +8,15 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from flatcli import api
 from flatcli.core.optimize import required_fold
 from flatcli.core.plan.planning import Plan, PlanSamples
-from flatcli.experiment import flat_plan_from, plan_and_optimization
 from flatcli.report import FigureFile, finish_grid, fmt, new_figure, plan_summary, styled, table
 from flatcli.report.figures import PAGE_WIDTH
 from flatcli.reproduce.findings import (
     OPTIMIZED_PLANS,
     margin_ladder,
+    paper_plan,
     track_plans,
     tracked_plans_table,
 )
@@ -31,12 +32,12 @@ def run(context: Context) -> Outcome:
     base, out, steps = context.base, context.out, context.steps
     rows: list[list[Any]] = []
     curves: list[tuple[str, PlanSamples]] = []
-    cubic = flat_plan_from(base)
+    cubic = paper_plan(base)
     entries: list[tuple[str, Plan, str]] = [("paper's cubic, th1' = 0.1, 0.5", cubic, "-")]
     for label, overrides in steps.each("optimising", OPTIMIZED_PLANS):
-        plan, result = plan_and_optimization(base.with_overrides(overrides))
-        assert result is not None
-        entries.append((label, plan, f"{result.iterations} it."))
+        planned = api.plan(base.with_overrides(overrides))
+        assert planned.plan is not None and planned.optimization is not None
+        entries.append((label, planned.plan, f"{planned.optimization['iterations']} it."))
     for label, plan, note in entries:
         samples = plan.sample(plan.grid(FINE))
         s = plan_summary(plan, samples)

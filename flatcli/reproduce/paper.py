@@ -14,10 +14,11 @@ from typing import Any
 
 import numpy as np
 
+from flatcli import api
+from flatcli.api import TrackRun
 from flatcli.core.plan.planning import Plan, PlanSamples
 from flatcli.core.robots.params import constraint_coefficients
-from flatcli.experiment import TrackRun, plan_from, run_track
-from flatcli.outputs import plan_frame, track_frame, track_limits
+from flatcli.outputs import track_limits
 from flatcli.report import (
     FigureFile,
     fmt,
@@ -123,10 +124,10 @@ def run(context: Context) -> Outcome:
     plans: dict[str, tuple[Plan, PlanSamples]] = {}
     for model in COMPARED_MODELS:
         spec = base.with_overrides({"robot.model": model})
-        plan = plan_from(spec)
-        samples = plan.sample(plan.grid(spec.plan.samples))
-        plans[model] = (plan, samples)
-        write_parquet(out / f"plan_{model}.parquet", plan_frame(samples),
+        planned = api.plan(spec)
+        assert planned.plan is not None and planned.samples is not None
+        plans[model] = (planned.plan, planned.samples)
+        write_parquet(out / f"plan_{model}.parquet", planned.frame,
                       run_record("reproduce", spec.tree))
     figures = context.figures
     plan_figures(plans, out, figures)
@@ -135,9 +136,11 @@ def run(context: Context) -> Outcome:
                                                     for r in GAIN_READINGS]):
         gains = GAIN_READINGS[reading]
         spec = base.with_overrides({"robot.model": model, **gains})
-        run_ = run_track(spec)
+        tracked = api.track(spec, quiet=True)
+        run_ = tracked.run
+        assert run_ is not None
         tracks[(model, reading)] = run_
-        write_parquet(out / f"track_{model}_{reading}.parquet", track_frame(run_),
+        write_parquet(out / f"track_{model}_{reading}.parquet", tracked.frame,
                       run_record("reproduce", spec.tree, metrics=run_.metrics))
         if model == "derived":
             plot_track(run_.columns, out / figures.name(f"fig4_feedback_{reading}"),

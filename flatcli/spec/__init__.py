@@ -8,11 +8,12 @@ example), so an empty spec is the paper.
 * ``schema``: the section records (one line per key) and the ``Spec`` that holds them;
 * ``sweeps``: the rules of ``[sweep.perturb]`` and ``[sweep.grid]``;
 * ``build``: TOML and ``--set`` items to a validated ``Spec``;
+* ``tree``: spec files read, trees and their dotted keys (every such walk, once);
 * ``toml``: a spec back as TOML; ``markdown``: the spec tables of docs/spec.md;
   ``compose``: robot files and includes.
 """
 
-from flatcli.spec.build import build, flatten, load_spec, parse_set, read_toml, resolve
+from flatcli.spec.build import Spec, build, load_spec, parse_set, resolve
 from flatcli.spec.keys import Key, SpecError
 from flatcli.spec.schema import (
     GAINS,
@@ -23,7 +24,6 @@ from flatcli.spec.schema import (
     PlanSpec,
     PlantSpec,
     RobotSpec,
-    Spec,
     SweepSpec,
     TrackSpec,
     all_keys,
@@ -39,6 +39,7 @@ from flatcli.spec.sweeps import (
     perturbations,
 )
 from flatcli.spec.toml import spec_toml
+from flatcli.spec.tree import read_toml
 
 __all__ = [
     "GAINS",
@@ -60,7 +61,6 @@ __all__ = [
     "build",
     "check_value",
     "find_key",
-    "flatten",
     "grid_overrides",
     "load_spec",
     "lookup",

@@ -69,6 +69,12 @@ SECONDS_PER_CHAIN_SAMPLE = 5e-9
 #: O(N^3) each as the core computes it (``flatcli.core.robots.chain.barycentric_matrix``: 0.29 s at
 #: N = 100, 2.2 s at 200, 7.3 s at 300) [s per N^3].
 SECONDS_PER_CHAIN_CHECK = 2.7e-7
+#: The as-built law's Riccati equation (``flatcli.core.controllers.lqr.riccati``) is stiff at the
+#: bandwidth b: scipy's DOP853 takes about 0.85 b T steps over a plan of T seconds (measured
+#: on the paper's maneuver at d2 = 3 mm: 1,191 steps at b T = 1e3, 8,464 at 1e4, 82,602 at
+#: 1e5), each at least this long [s] (measured 4.8 ms per step on this project's machine).
+RICCATI_STEPS_PER_RADIAN = 0.8
+SECONDS_PER_RICCATI_STEP = 1e-3
 #: The most joints a robot may have: beyond it checking one spec (every sweep cell is one)
 #: takes seconds, planning at least minutes and a track run hours (the N-link maps cost
 #: O(N^3) to check and O(N^4) per point; docs/failures.md).
@@ -83,6 +89,17 @@ MIN_RTOL = 100 * 2.220446049250313e-16
 #: The planner looks for the singular set sin th1 = 0 at every multiple of pi that th1 may
 #: pass (``flatcli.core.plan.planning.margin_zeros``), about 10 us each: at most this many.
 MAX_HALF_TURNS = 1e5
+
+#: The most cells a sweep's grid may have. Every cell is checked and planned in the main
+#: process before the first trial (its plan and reference tables: 5-11 ms for the paper's
+#: robot on this project's machine, seconds for an optimised plan or a chain) and is a row of
+#: the summary; a study of more settings than this draws them with [sweep.perturb].
+MAX_GRID_CELLS = 10_000
+#: The most obstacles a task may have. A candidate plan's proof examines every link against
+#: every disc on each interval, and its screening holds (candidates x samples x links x
+#: discs) distances: 0.06 ms and about 25 KiB per disc and candidate on the paper's robot
+#: (1,000 discs: 0.7 s for 12 candidates), up to task.budget candidates.
+MAX_OBSTACLES = 1_000
 
 MEMORY_FRACTION = 0.5
 DEFAULT_TIME_BUDGET = 30 * 86400.0
@@ -190,13 +207,25 @@ def plan_seconds(joints: int) -> float:
     return SECONDS_PER_CHAIN_PLAN * float(joints) ** 4 if joints > 2 else 0.0
 
 
+def riccati_seconds(spec: Any) -> float:
+    """Least time of the as-built law's design (its Riccati equation) [s]; 0 for the flat
+    law."""
+    if spec.track.controller != "asbuilt":
+        return 0.0
+    steps = RICCATI_STEPS_PER_RADIAN * float(spec.track.lqr_bandwidth) * float(
+        spec.plan.duration)
+    return steps * SECONDS_PER_RICCATI_STEP
+
+
 def track_seconds(spec: Any) -> float:
-    """Least time of a ``flatcli track`` run [s]: the plan, the trial's output steps and,
-    on N > 2 joints, the flat outputs of its trace at every sample."""
+    """Least time of a ``flatcli track`` run [s]: the plan, the as-built law's design, the
+    trial's output steps and, on N > 2 joints, the flat outputs of its trace at every
+    sample."""
     steps = output_steps(spec)
     joints = int(spec.joints)
     trace = SECONDS_PER_CHAIN_SAMPLE * float(joints) ** 4 * (steps + 1) if joints > 2 else 0.0
-    return plan_seconds(joints) + steps * SECONDS_PER_STEP + SECONDS_PER_TRIAL + trace
+    return (plan_seconds(joints) + riccati_seconds(spec) + steps * SECONDS_PER_STEP
+            + SECONDS_PER_TRIAL + trace)
 
 
 def check_track(spec: Any) -> None:
@@ -255,6 +284,10 @@ def check_limits(spec: Any) -> None:
     memory(f"plan.optimize.constraint_samples = {plan.optimize.constraint_samples}",
            plan.optimize.constraint_samples * plan_sample_bytes(joints),
            "lower plan.optimize.constraint_samples")
+    require_time(f"track.lqr_bandwidth = {track.lqr_bandwidth:g} rad/s (the as-built law's "
+                 f"Riccati equation takes about {RICCATI_STEPS_PER_RADIAN:g} x bandwidth x "
+                 "plan.duration integration steps)", riccati_seconds(spec),
+                 "lower track.lqr_bandwidth (the default is 5 rad/s)")
     if track.integrator == "adaptive":  # a trial that cannot meet its tolerance spends them
         require_time(f"track.max_steps = {track.max_steps:.3g} attempted steps (one trial "
                      "that cannot meet track.rtol spends them all)",
@@ -277,6 +310,16 @@ def check_limits(spec: Any) -> None:
         raise SpecError(f"sweep.trials: at most {ID_STRIDE:.0e} trials per cell (a trial's id "
                         f"is cell key * {ID_STRIDE:.0e} + i), got {sweep.trials}")
     cells = grid_cells(sweep.grid)
+    if cells > MAX_GRID_CELLS:
+        sizes = " x ".join(str(len(v)) for v in sweep.grid.values() if isinstance(v, list))
+        raise SpecError(f"sweep.grid: {cells:.4g} cells ({sizes}), more than the "
+                        f"{MAX_GRID_CELLS} a sweep plans before its first trial; use fewer "
+                        "grid values, or draw the settings with [sweep.perturb]")
+    if len(spec.task.obstacles) > MAX_OBSTACLES:
+        raise SpecError(f"task.obstacles: {len(spec.task.obstacles)} discs, more than the "
+                        f"{MAX_OBSTACLES} a task's proof takes (it examines every link against "
+                        "every disc on each interval of every candidate); merge nearby discs "
+                        "into larger ones")
     memory(f"sweep.grid of {cells:.3g} cells",
            cells * (BYTES_PER_CELL + steps * cell_step_bytes(joints)),
            "use fewer grid values")

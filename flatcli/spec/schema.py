@@ -4,7 +4,7 @@ A record's docstring starts with the one line the heading of its table in docs/s
 shows.
 
 ``[robot]``, ``[plan]``, ``[plan.optimize]``, ``[track]``, ``[plant]`` and ``[sweep]`` are the
-records below; ``Spec`` holds them and the top-level ``name``. A key is one line: its type,
+records below; ``SpecRecord`` holds them and the top-level ``name``. A key is one line: its type,
 its helper (``number``, ``integer``, ``vector``, ``choice``, ``flag``, ``text``, ``table``
 from ``flatcli.spec.keys``) with default, doc, unit and bounds. ``SCHEMA`` is derived from
 these records, and so are docs/spec.md's tables (``python -m flatcli.spec --markdown``).
@@ -26,27 +26,32 @@ import json
 import math
 from collections.abc import Collection, Iterator, Mapping
 from dataclasses import Field, dataclass, field, fields, is_dataclass
-from typing import Any
+from typing import Any, TypeVar
 
-from flatcli.core.controllers.lqr import DEFAULT_BANDWIDTH, DEFAULT_BASE, DEFAULT_TERMINAL
-from flatcli.core.loop.outcome import GOAL_TOLERANCE, TARGET_TOLERANCE
-from flatcli.core.loop.simulate import (
+from flatcli.core.names import (
+    BASES,
     CONTROLLERS,
     DEFAULT_ACCURACY,
     DEFAULT_ATOL,
+    DEFAULT_BANDWIDTH,
+    DEFAULT_BASE,
     DEFAULT_MAX_STEPS,
     DEFAULT_RTOL,
     DEFAULT_SERVO_BANDWIDTH,
+    DEFAULT_TERMINAL,
+    ELBOWS,
     ERROR_ESTIMATES,
+    FIGURE_FORMATS,
+    GOAL_TOLERANCE,
     INTEGRATORS,
+    METHODS,
+    MODELS,
+    OBJECTIVES,
     PLANT_MODELS,
+    RATE_WARNING,
     SERVO_MODELS,
+    TARGET_TOLERANCE,
 )
-from flatcli.core.optimize import OBJECTIVES
-from flatcli.core.plan.exact import METHODS
-from flatcli.core.plan.inverse import ELBOWS
-from flatcli.core.plan.planning import RATE_WARNING
-from flatcli.core.robots.params import MODELS
 from flatcli.spec.keys import (
     SIZES,
     Key,
@@ -63,23 +68,20 @@ from flatcli.spec.keys import (
     vector,
 )
 from flatcli.spec.limits import MIN_RTOL
-from flatcli.storage import to_jsonable
+from flatcli.spec.tree import flatten
 
 #: Numbers of a per-link vector of the paper's robot: links 0 (base), 1, 2. A robot of N
 #: joints has N + 1 links (``robot.mass`` sets N); the per-link keys follow it.
 LINKS = 3
 #: Numbers of a gain vector of the paper's robot: one per flat output y1, y2 (N on N joints).
 GAINS = 2
-#: Flat-output bases of ``plan.basis``; "auto" picks one (see ``flatcli.experiment``).
-BASES = ("auto", "poly", "bspline")
-#: File formats of ``figures.format`` (``--format``): one raster, two vector.
-FIGURE_FORMATS = ("png", "pdf", "svg")
 #: Sections that say how results are shown, not what is computed: they enter no digest, so
 #: a sweep resumes and a run is "the same run" whatever figures it draws.
 PRESENTATION = ("figures", "summary")
 INF = math.inf
 
 Vector = tuple[float, ...]
+S = TypeVar("S", bound="SpecRecord")
 
 
 @dataclass(frozen=True)
@@ -109,16 +111,17 @@ class OptimizeSpec:
 
     objective: str | None = choice(
         OBJECTIVES, None, "what to optimise (none: the plain plan): \"energy\" (integral of "
-        "th1'^2 + th2'^2), \"peak_rate\" (max of abs th1', abs th2'), \"effort\" (T x energy), "
-        "\"margin\" (maximise the minimum singularity margin)", nullable=True)
+        "th1'^2 + ... + thN'^2), \"peak_rate\" (max of abs th1', ..., abs thN'), \"effort\" (T x "
+        "energy), \"margin\" (maximise the minimum singularity margin)", nullable=True)
     angle_limit: Vector = vector("links", (INF, INF, INF), "bound on abs th_i along the plan (left "
                                  "out: none on every link)", "rad", gt=0, inf=True)
     rate_limit: float | Vector = numbers("joints", INF, "bound on abs th_j' along the plan (one "
                                          "for every joint, or one per joint)", "rad/s", gt=0,
                                          inf=True)
-    min_margin: float = number(0.02, "lower bound on the signed margin sin th1 * th1' along the "
-                               "plan (it never crosses the singular set; 0 would let th2' spike "
-                               "without bound between the check samples)", "rad/s", gt=0)
+    min_margin: float = number(0.02, "lower bound on the signed margin along the plan (sin th1 * "
+                               "th1' for N = 2, -(dh_0/dt) / (2 K_10) beyond: it never crosses the "
+                               "singular set; 0 would let thN' spike without bound between the "
+                               "check samples)", "rad/s", gt=0)
     free_rates: bool = flag(True, "optimise th1'(0) and th1'(T) as well (the plan's start_rate "
                             "and goal_rate are the starting guess)")
     constraint_samples: int = integer(201, "grid points where the limits are imposed", ge=10)
@@ -233,8 +236,9 @@ class TrackSpec:
                                  "the rms, max, singular hits, margin, momentum drift and "
                                  "peak metrics are then over those samples only (docs/outputs.md)",
                                  ge=1)
-    singular_threshold: float = number(1e-2, "a sample whose margin abs(sin th1 * u1) is below "
-                                       "it is a singular hit", "rad/s", ge=0)
+    singular_threshold: float = number(1e-2, "a sample whose margin (abs(sin th1 * u1) for N = 2, "
+                                       "abs(dh_0/dt) / (2 abs(K_10)) beyond) is below it is a "
+                                       "singular hit", "rad/s", ge=0)
     sensor_noise: float = number(0.0, "std of the noise on the measured angles, drawn per "
                                  "output interval dt and held over it", "rad", ge=0)
     rate_limit: float = number(INF, "actuator limit: the joint-rate commands are clipped to "
@@ -336,13 +340,12 @@ class SummarySpec:
 
 
 @dataclass(frozen=True)
-class Spec:
+class SpecRecord:
     """top level
 
-    A resolved, validated spec: every key has a value (defaults filled in).
-
-    Build one with ``flatcli.spec.resolve`` or ``load_spec``; read it by attribute
-    (``spec.track.dt``, ``spec.robot.mass``).
+    The records of a spec, its sections and its name, and what they say of themselves. The
+    spec a program holds is ``flatcli.spec.Spec`` (``flatcli.spec.build``: this record
+    validated, and rebuilt with overrides).
     """
 
     name: str = text("paper_example", "run name; default output directory `runs/<name>/`")
@@ -369,14 +372,17 @@ class Spec:
         """{dotted key: value} of every key."""
         return dict(_values(self, ""))
 
-    def experiment_tree(self) -> dict[str, Any]:
+    def experiment_tree(self, skip: Collection[str] = ()) -> dict[str, Any]:
         """``tree`` without the sections that only say how results are shown
-        (``PRESENTATION``): what the experiment is."""
-        return experiment(self.tree)
+        (``PRESENTATION``): what the experiment is; without the dotted keys ``skip`` too
+        (not copied: a sweep's cells leave out the grid they all share)."""
+        return experiment(_tree(self, skip))
 
     def to_json(self) -> str:
         """Canonical JSON of the experiment (``experiment_tree``; sorted keys, no spaces; inf
         written as the string "inf")."""
+        from flatcli.storage import to_jsonable  # numpy: not for the schema's other readers
+
         return json.dumps(to_jsonable(self.experiment_tree()), sort_keys=True,
                           separators=(",", ":"))
 
@@ -384,12 +390,6 @@ class Spec:
         """SHA-256 of the canonical JSON: what makes two sweeps the same experiment (the
         figures' format is not part of it)."""
         return hashlib.sha256(self.to_json().encode()).hexdigest()
-
-    def with_overrides(self, overrides: Mapping[str, Any]) -> Spec:
-        """A new spec with some dotted keys replaced, validated again."""
-        from flatcli.spec.build import build  # build validates with the sweep's rules
-
-        return build({**self.values(), **overrides})
 
 
 def experiment(tree: Mapping[str, Any]) -> dict[str, Any]:
@@ -402,12 +402,14 @@ def _is_section(f: Field[Any]) -> bool:
     return "key" not in f.metadata
 
 
-def _tree(record: Any) -> dict[str, Any]:
+def _tree(record: Any, skip: Collection[str] = (), prefix: str = "") -> dict[str, Any]:
     out: dict[str, Any] = {}
     for f in fields(record):
         value = getattr(record, f.name)
+        if f"{prefix}{f.name}" in skip:
+            continue
         if _is_section(f):
-            out[f.name] = _tree(value)
+            out[f.name] = _tree(value, skip, f"{prefix}{f.name}.")
         elif isinstance(value, Mapping):
             out[f.name] = copy.deepcopy(dict(value))
         else:
@@ -439,13 +441,19 @@ def _sections(record_type: type, prefix: str) -> Iterator[tuple[str, type]]:
 
 
 #: Section name ('' for the top level) -> its record type, in the order of docs/spec.md.
-SECTIONS: dict[str, type] = dict(_sections(Spec, ""))
+SECTIONS: dict[str, type] = dict(_sections(SpecRecord, ""))
 
 #: Section name -> {key name: Key}: the single list of keys, types, units and defaults.
 SCHEMA: dict[str, dict[str, Key]] = {
     section: {f.name: f.metadata["key"] for f in fields(record) if not _is_section(f)}
     for section, record in SECTIONS.items()
 }
+
+
+def dotted_keys(tree: Mapping[str, Any]) -> dict[str, Any]:
+    """A user's nested spec (a parsed TOML file) as {dotted key: value}, entering its
+    sections only: a table a key takes (``sweep.grid``, ``sweep.perturb``) is one value."""
+    return flatten(tree, lambda dotted, table: dotted in SCHEMA)
 
 
 def all_keys() -> list[str]:
@@ -475,13 +483,14 @@ def check_value(dotted: str, value: Any) -> Any:
     return lookup(dotted).check(dotted, value)
 
 
-def from_values(values: Mapping[str, Any]) -> Spec:
-    """A Spec from {dotted key: checked value}; keys not given keep their defaults.
+def from_values(record_type: type[S], values: Mapping[str, Any]) -> S:
+    """A spec record of ``record_type`` (``SpecRecord`` or a subclass) from {dotted key:
+    checked value}; keys not given keep their defaults.
 
     Only ``flatcli.spec.build`` calls this, after checking every value.
     """
-    spec = _record(Spec, "", values)
-    assert isinstance(spec, Spec)
+    spec = _record(record_type, "", values)
+    assert isinstance(spec, record_type)
     return spec
 
 
@@ -502,18 +511,34 @@ def _record(record_type: type, prefix: str, values: Mapping[str, Any]) -> object
 SIZED_POLE = 5.0
 
 
-def sized_defaults(spec: Spec) -> dict[str, tuple[float, ...]]:
+def sized_defaults(spec: SpecRecord) -> dict[str, tuple[float, ...]]:
     """The defaults of robot-sized keys that follow from the robot and its plan for a robot
     of N != 2 joints (the paper's robot's own defaults do not fit it): the plant starts on
-    the plan (``track.initial = plan.start``) and every flat output gets a double pole at
-    ``-SIZED_POLE``."""
+    the plan (``track.initial = plan.start``), every flat output gets a double pole at
+    ``-SIZED_POLE``, and a task that gives the end effector's target derives the goal from
+    it (``plan.goal`` stands at ``plan.start`` until then: ``goal_is_derived``)."""
     joints = spec.joints
-    return {"track.initial": tuple(spec.plan.start),
-            "track.kp": (SIZED_POLE ** 2,) * joints,
-            "track.kv": (2 * SIZED_POLE,) * joints}
+    out = {"track.initial": tuple(spec.plan.start),
+           "track.kp": (SIZED_POLE ** 2,) * joints,
+           "track.kv": (2 * SIZED_POLE,) * joints}
+    if spec.task.end_effector is not None:
+        out["plan.goal"] = tuple(spec.plan.start)
+    return out
 
 
-def fit_sizes(spec: Spec, given: Collection[str]) -> Spec:
+def goal_is_derived(spec: SpecRecord) -> bool:
+    """Whether ``plan.goal`` was left for the task to derive: its default (the paper's goal),
+    or, on a robot of N != 2 joints with ``task.end_effector`` set, ``plan.start``
+    (``sized_defaults``). Read from the values, so a spec written out (run.json, ``--cfg``)
+    reads back the same; a goal set equal to the start counts as left out."""
+    goal = spec.plan.goal
+    if goal == find_key("plan.goal").default:  # type: ignore[union-attr]
+        return True
+    return (spec.joints != 2 and spec.task.end_effector is not None
+            and goal == spec.plan.start)
+
+
+def fit_sizes(spec: S, given: Collection[str]) -> S:
     """The spec with every robot-sized key checked against N = ``spec.joints``.
 
     A list must have the length its key's size gives for N (``Key.size``); a "numbers" key's
@@ -545,7 +570,7 @@ def fit_sizes(spec: Spec, given: Collection[str]) -> Spec:
             if len(value) != want and dotted not in given and dotted in SIZED_KEYS:
                 if derived is None:
                     derived = sized_defaults(_replaced(spec, replaced) if replaced else spec)
-                if len(derived[dotted]) == want:  # plan.start of the wrong size: said below
+                if dotted in derived and len(derived[dotted]) == want:  # else: said below
                     replaced[dotted] = derived[dotted]
                     continue
             hint = "" if dotted in given else " (the default is the paper's robot's: set it)"
@@ -554,7 +579,7 @@ def fit_sizes(spec: Spec, given: Collection[str]) -> Spec:
 
 
 #: The keys ``sized_defaults`` gives.
-SIZED_KEYS = frozenset({"track.initial", "track.kp", "track.kv"})
+SIZED_KEYS = frozenset({"track.initial", "track.kp", "track.kv", "plan.goal"})
 
 
 def check_size(dotted: str, value: Any, joints: int, hint: str = "") -> None:

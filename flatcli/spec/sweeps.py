@@ -145,15 +145,19 @@ def grid_overrides(key: str, value: Any) -> dict[str, Any]:
 
 
 def validate_sweep(sweep: SweepSpec, joints: int = MIN_JOINTS,
-                   torque_limit: float = math.inf, has_target: bool = True) -> None:
+                   torque_limit: float = math.inf, has_target: bool = True,
+                   grid_checked: bool = False) -> None:
     """Check every perturbation and every grid entry of a ``[sweep]`` (robot of ``joints``,
     plant torque limit ``torque_limit`` [N m], ``has_target``: task.end_effector is set):
     each on its own, then together (no spec key varied by two grid entries; a torque-limit
-    perturbation only on finite torque limits; a target perturbation only of a target)."""
+    perturbation only on finite torque limits; a target perturbation only of a target).
+    ``grid_checked``: the grid's values were checked for this robot already (a cell of the
+    sweep whose spec it is)."""
     for name, table in sweep.perturb.items():
         perturbation(name, table, joints)
-    for dotted, values in sweep.grid.items():
-        validate_grid_entry(sweep.perturb, dotted, values, joints)
+    if not grid_checked:
+        for dotted, values in sweep.grid.items():
+            validate_grid_entry(sweep.perturb, dotted, values, joints)
     setters = grid_setters(sweep.grid)
     if "end_effector" in sweep.perturb and not has_target:
         raise SpecError(f"{PERTURB_PREFIX}end_effector: needs task.end_effector, the nominal "

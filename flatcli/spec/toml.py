@@ -13,7 +13,8 @@ from typing import Any
 
 import tomli_w
 
-from flatcli.spec.schema import Spec
+from flatcli.spec.schema import SpecRecord
+from flatcli.spec.tree import put
 
 _BARE = re.compile(r"[A-Za-z0-9_-]+")
 
@@ -59,7 +60,7 @@ def _is_table(prefix: str, key: str, value: Any) -> bool:
                                            f"{prefix}.{key}" in ("sweep.perturb", "sweep.grid"))
 
 
-def spec_toml(spec: Spec, *, sweep: bool = False, values: Mapping[str, Any] | None = None,
+def spec_toml(spec: SpecRecord, *, sweep: bool = False, values: Mapping[str, Any] | None = None,
               notes: Mapping[str, str] | None = None) -> str:
     """A spec's keys as TOML (keys left unset, None, are left out), without its ``[sweep]``
     table unless ``sweep``; ``values`` replace dotted keys' values as written (a chunk size as
@@ -68,11 +69,7 @@ def spec_toml(spec: Spec, *, sweep: bool = False, values: Mapping[str, Any] | No
     if not sweep:
         tree.pop("sweep", None)
     for dotted, value in (values or {}).items():
-        node = tree
-        *parents, last = dotted.split(".")
-        for part in parents:
-            node = node[part]
-        node[last] = value
+        put(tree, dotted, value)
     out: list[str] = []
     _lines("", tree, out, notes or {})
     return "\n".join(out).lstrip("\n") + "\n"

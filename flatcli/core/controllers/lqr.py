@@ -51,17 +51,12 @@ from numpy.typing import NDArray
 
 from flatcli.core.curves.pieces import PiecewiseCurves, fit, joined, node_times
 from flatcli.core.errors import FlatcliError
+from flatcli.core.names import DEFAULT_BANDWIDTH, DEFAULT_BASE, DEFAULT_TERMINAL
 from flatcli.core.plan.exact import CURVE_DEGREE, Constraint, constraint_of, plan_pieces, rate_terms
 from flatcli.core.plan.planning import Plan
 
 Array = NDArray[np.float64]
 
-#: Default weights of the as-built law: the bandwidth b [rad/s] (``track.lqr_bandwidth``),
-#: the terminal weight p [1/rad^2] (``track.lqr_terminal``) and the running weight q
-#: [1/(rad^2 s)] of the angle errors.
-DEFAULT_BANDWIDTH = 5.0
-DEFAULT_TERMINAL = 1e6
-DEFAULT_BASE = 10.0
 DEFAULT_JOINT = 1.0
 DEFAULT_RATE = 1e-3
 #: Times the last piece of the plan is halved towards T for the gains (``graded``).
@@ -207,8 +202,10 @@ def riccati(constraint: Constraint, reference: PiecewiseCurves,
     sol = solve_ivp(rhs, (0.0, duration), final.ravel(), method="DOP853",
                     rtol=RICCATI_RTOL, atol=RICCATI_ATOL, dense_output=True)
     if not sol.success or sol.sol is None:
-        raise FlatcliError(f"track.lqr_terminal: the Riccati equation could not be "
-                           f"integrated ({sol.message})")
+        raise FlatcliError(f"track.lqr_bandwidth, track.lqr_terminal: the Riccati equation "
+                           f"could not be integrated ({sol.message}); lower track.lqr_bandwidth "
+                           f"({weights.bandwidth:g} rad/s) or track.lqr_terminal "
+                           f"({weights.terminal:g} s)")
     return sol.sol
 
 

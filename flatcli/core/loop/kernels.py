@@ -19,8 +19,8 @@ plant (kinematic or dynamic). Each combination supplies the same few functions, 
 ``make_batch`` builds from them the batch runner every kernel is: trial after trial, RK4 or
 the adaptive Dormand-Prince, metrics and status (``metrics.conclude_trial``); ``make_rhs``
 and ``make_observer`` the single evaluations the scipy reference (``reference``) calls.
-The four kernels of each kind below are those factories' functions, compiled once
-(``KERNELS``, looked up by ``(model kind, plant)``).
+The kernels of each combination are those factories' functions, compiled once
+(``compile_kernels``; ``KERNELS``, looked up by ``(model kind, plant)``).
 
 Every buffer a kernel writes into is made by the caller (``Buffers``): the kernels run
 without numba's reference counting (``_jit.kernel``), which on the N-link loop, whose
@@ -37,7 +37,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from flatcli.core._jit import jitable, jitable_variant, kernel, variant_tag
+from flatcli.core._jit import jitable, jitable_variant, named_kernel, variant_tag
 from flatcli.core.controllers.control import Gains
 from flatcli.core.loop.chaindynamic import (
     ChainDynamicLoop,
@@ -519,179 +519,6 @@ CHAIN_DYNAMIC = Ops(
     chain_dynamic_aux, lambda n: 4 * n + 2, _chain_scratch, chain_dynamic_stage)
 
 
-# --------------------------------------------------------------------------------------
-# The kernels: the factories' functions, compiled (numba caches each on disk)
-
-_paper_kinematic_batch = make_batch(PAPER_KINEMATIC)
-(_paper_kinematic_initial, _paper_kinematic_rhs, _paper_kinematic_observe,
- _paper_kinematic_record) = make_single(PAPER_KINEMATIC)
-_paper_dynamic_batch = make_batch(PAPER_DYNAMIC)
-(_paper_dynamic_initial, _paper_dynamic_rhs, _paper_dynamic_observe,
- _paper_dynamic_record) = make_single(PAPER_DYNAMIC)
-_chain_kinematic_batch = make_batch(CHAIN_KINEMATIC)
-(_chain_kinematic_initial, _chain_kinematic_rhs, _chain_kinematic_observe,
- _chain_kinematic_record) = make_single(CHAIN_KINEMATIC)
-_chain_dynamic_batch = make_batch(CHAIN_DYNAMIC)
-(_chain_dynamic_initial, _chain_dynamic_rhs, _chain_dynamic_observe,
- _chain_dynamic_record) = make_single(CHAIN_DYNAMIC)
-
-
-@kernel
-def paper_kinematic_batch(
-    method: int, shared: PaperShared, trials: TrialArrays, grid: Grid, settings: Settings,
-    tables: Array, buffers: Buffers, results: Results,
-) -> None:
-    _paper_kinematic_batch(method, shared, trials, grid, settings, tables, buffers, results)
-
-
-@kernel
-def paper_kinematic_start(
-    shared: PaperShared, trials: TrialArrays, i: int, grid: Grid, buffers: Buffers, out: Array,
-) -> None:
-    _paper_kinematic_initial(shared, trials, i, grid, buffers, out)
-
-
-@kernel
-def paper_kinematic_derivative(
-    shared: PaperShared, trials: TrialArrays, i: int, grid: Grid, buffers: Buffers, t: float,
-    x: Array, noise: Array, out: Array,
-) -> None:
-    _paper_kinematic_rhs(shared, trials, i, grid, buffers, t, x, noise, out)
-
-
-@kernel
-def paper_kinematic_metrics(
-    shared: PaperShared, trials: TrialArrays, i: int, grid: Grid, settings: Settings,
-    buffers: Buffers, states: Array, rates: Array, last: int, complete: bool, crossings: Array,
-    out: Array,
-) -> float:
-    return _paper_kinematic_observe(
-        shared, trials, i, grid, settings, buffers, states, rates, last, complete, crossings,
-        out)
-
-
-@kernel
-def paper_kinematic_trace(states: Array, rates: Array, last: int, trace: Array) -> None:
-    _paper_kinematic_record(states, rates, last, trace)
-
-
-@kernel
-def paper_dynamic_batch(
-    method: int, shared: PaperShared, trials: TrialArrays, grid: Grid, settings: Settings,
-    tables: Array, buffers: Buffers, results: Results,
-) -> None:
-    _paper_dynamic_batch(method, shared, trials, grid, settings, tables, buffers, results)
-
-
-@kernel
-def paper_dynamic_start(
-    shared: PaperShared, trials: TrialArrays, i: int, grid: Grid, buffers: Buffers, out: Array,
-) -> None:
-    _paper_dynamic_initial(shared, trials, i, grid, buffers, out)
-
-
-@kernel
-def paper_dynamic_derivative(
-    shared: PaperShared, trials: TrialArrays, i: int, grid: Grid, buffers: Buffers, t: float,
-    x: Array, noise: Array, out: Array,
-) -> None:
-    _paper_dynamic_rhs(shared, trials, i, grid, buffers, t, x, noise, out)
-
-
-@kernel
-def paper_dynamic_metrics(
-    shared: PaperShared, trials: TrialArrays, i: int, grid: Grid, settings: Settings,
-    buffers: Buffers, states: Array, rates: Array, last: int, complete: bool, crossings: Array,
-    out: Array,
-) -> float:
-    return _paper_dynamic_observe(
-        shared, trials, i, grid, settings, buffers, states, rates, last, complete, crossings,
-        out)
-
-
-@kernel
-def paper_dynamic_trace(states: Array, rates: Array, last: int, trace: Array) -> None:
-    _paper_dynamic_record(states, rates, last, trace)
-
-
-@kernel
-def chain_kinematic_batch(
-    method: int, shared: ChainShared, trials: TrialArrays, grid: Grid, settings: Settings,
-    tables: Array, buffers: Buffers, results: Results,
-) -> None:
-    _chain_kinematic_batch(method, shared, trials, grid, settings, tables, buffers, results)
-
-
-@kernel
-def chain_kinematic_start(
-    shared: ChainShared, trials: TrialArrays, i: int, grid: Grid, buffers: Buffers, out: Array,
-) -> None:
-    _chain_kinematic_initial(shared, trials, i, grid, buffers, out)
-
-
-@kernel
-def chain_kinematic_derivative(
-    shared: ChainShared, trials: TrialArrays, i: int, grid: Grid, buffers: Buffers, t: float,
-    x: Array, noise: Array, out: Array,
-) -> None:
-    _chain_kinematic_rhs(shared, trials, i, grid, buffers, t, x, noise, out)
-
-
-@kernel
-def chain_kinematic_metrics(
-    shared: ChainShared, trials: TrialArrays, i: int, grid: Grid, settings: Settings,
-    buffers: Buffers, states: Array, rates: Array, last: int, complete: bool, crossings: Array,
-    out: Array,
-) -> float:
-    return _chain_kinematic_observe(
-        shared, trials, i, grid, settings, buffers, states, rates, last, complete, crossings,
-        out)
-
-
-@kernel
-def chain_kinematic_trace(states: Array, rates: Array, last: int, trace: Array) -> None:
-    _chain_kinematic_record(states, rates, last, trace)
-
-
-@kernel
-def chain_dynamic_batch(
-    method: int, shared: ChainShared, trials: TrialArrays, grid: Grid, settings: Settings,
-    tables: Array, buffers: Buffers, results: Results,
-) -> None:
-    _chain_dynamic_batch(method, shared, trials, grid, settings, tables, buffers, results)
-
-
-@kernel
-def chain_dynamic_start(
-    shared: ChainShared, trials: TrialArrays, i: int, grid: Grid, buffers: Buffers, out: Array,
-) -> None:
-    _chain_dynamic_initial(shared, trials, i, grid, buffers, out)
-
-
-@kernel
-def chain_dynamic_derivative(
-    shared: ChainShared, trials: TrialArrays, i: int, grid: Grid, buffers: Buffers, t: float,
-    x: Array, noise: Array, out: Array,
-) -> None:
-    _chain_dynamic_rhs(shared, trials, i, grid, buffers, t, x, noise, out)
-
-
-@kernel
-def chain_dynamic_metrics(
-    shared: ChainShared, trials: TrialArrays, i: int, grid: Grid, settings: Settings,
-    buffers: Buffers, states: Array, rates: Array, last: int, complete: bool, crossings: Array,
-    out: Array,
-) -> float:
-    return _chain_dynamic_observe(
-        shared, trials, i, grid, settings, buffers, states, rates, last, complete, crossings,
-        out)
-
-
-@kernel
-def chain_dynamic_trace(states: Array, rates: Array, last: int, trace: Array) -> None:
-    _chain_dynamic_record(states, rates, last, trace)
-
-
 def paper_shared(model: Any, gains: Gains, rate_limit: float, servo_is_plant: bool,
                  robot: RobotParams) -> PaperShared:
     """What every trial shares in the paper's closed form: its coefficients, gains, the
@@ -759,23 +586,28 @@ class Kernels:
                        np.zeros((0, self.ops.width(n))), self.ops.scratch(n))
 
 
+def compile_kernels(ops: Ops, name: str, shared: Callable[..., Any],
+                    plant: Callable[[Array, str], Array], module: str = __name__) -> Kernels:
+    """The kernels of one combination, generated: ``make_batch``'s runner and ``make_single``'s
+    functions compiled, named ``<name>_batch``, ``_start``, ``_derivative``, ``_metrics`` and
+    ``_trace`` in ``module`` (the one that makes them: numba caches a kernel by its module and
+    name, and links its code by them; a compile child imports that module to find it)."""
+    parts = zip(("batch", "start", "derivative", "metrics", "trace"),
+                (make_batch(ops), *make_single(ops)), strict=True)
+    compiled: list[Callable[..., Any]] = [named_kernel(f"{name}_{part}", module)(fn)
+                                          for part, fn in parts]
+    return Kernels(ops, compiled[0], tuple(compiled[1:]), shared, plant)
+
+
 #: Every kernel, by (model kind, plant model): "paper" is the closed form of the paper's
 #: robot (N = 2), "chain" the general N-link model.
 KERNELS: dict[tuple[str, str], Kernels] = {
-    ("paper", "kinematic"): Kernels(
-        PAPER_KINEMATIC, paper_kinematic_batch,
-        (paper_kinematic_start, paper_kinematic_derivative, paper_kinematic_metrics,
-         paper_kinematic_trace), paper_shared, paper_plant),
-    ("paper", "dynamic"): Kernels(
-        PAPER_DYNAMIC, paper_dynamic_batch,
-        (paper_dynamic_start, paper_dynamic_derivative, paper_dynamic_metrics,
-         paper_dynamic_trace), paper_shared, paper_plant),
-    ("chain", "kinematic"): Kernels(
-        CHAIN_KINEMATIC, chain_kinematic_batch,
-        (chain_kinematic_start, chain_kinematic_derivative, chain_kinematic_metrics,
-         chain_kinematic_trace), chain_shared, chain_plant),
-    ("chain", "dynamic"): Kernels(
-        CHAIN_DYNAMIC, chain_dynamic_batch,
-        (chain_dynamic_start, chain_dynamic_derivative, chain_dynamic_metrics,
-         chain_dynamic_trace), chain_shared, chain_plant),
+    ("paper", "kinematic"): compile_kernels(PAPER_KINEMATIC, "paper_kinematic", paper_shared,
+                                            paper_plant),
+    ("paper", "dynamic"): compile_kernels(PAPER_DYNAMIC, "paper_dynamic", paper_shared,
+                                          paper_plant),
+    ("chain", "kinematic"): compile_kernels(CHAIN_KINEMATIC, "chain_kinematic", chain_shared,
+                                            chain_plant),
+    ("chain", "dynamic"): compile_kernels(CHAIN_DYNAMIC, "chain_dynamic", chain_shared,
+                                          chain_plant),
 }

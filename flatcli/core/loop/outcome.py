@@ -49,15 +49,13 @@ from numpy.typing import ArrayLike, NDArray
 
 from flatcli.core._jit import kernel
 from flatcli.core.loop.metrics import OUTCOME_NAMES, RESOLVED
+from flatcli.core.names import GOAL_TOLERANCE, TARGET_TOLERANCE
 from flatcli.core.plan import intervals as iv
 from flatcli.core.plan.clearance import joint_boxes, link_clearance_bounds
 from flatcli.core.robots.kinematics import moments_of
 
 Array = NDArray[np.float64]
 
-#: Default ``track.goal_tolerance`` [rad] and ``task.goal_tolerance`` [m].
-GOAL_TOLERANCE = 1e-3
-TARGET_TOLERANCE = 1e-3
 #: The closed-loop clearance assumes no rate exceeds this factor times the largest of its
 #: sampled magnitudes at the two ends of an output interval and its mean over it.
 RATE_MARGIN = 2.0

@@ -35,7 +35,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Any, Literal, NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -59,29 +59,24 @@ from flatcli.core.loop.kernels import (
 from flatcli.core.loop.metrics import N_METRICS, Metric, Status
 from flatcli.core.loop.outcome import CLEARANCE_BATCH, Geometry, MotionClearance, motion_clearance
 from flatcli.core.loop.reference import reference_trial
+from flatcli.core.names import (
+    CONTROLLERS,
+    DEFAULT_ACCURACY,
+    DEFAULT_ATOL,
+    DEFAULT_MAX_STEPS,
+    DEFAULT_RTOL,
+    DEFAULT_SERVO_BANDWIDTH,
+    INTEGRATORS,
+    PLANT_MODELS,
+    SERVO_MODELS,
+    Controller,
+    Integrator,
+    PlantModel,
+    ServoModel,
+)
 from flatcli.core.plan.planning import Plan
 
 Array = NDArray[np.float64]
-#: The plant models (``plant.model``): joints that follow their commanded rates exactly, or a
-#: robot with inertia driven by joint torques through rate servos.
-PlantModel = Literal["kinematic", "dynamic"]
-PLANT_MODELS: tuple[PlantModel, ...] = ("kinematic", "dynamic")
-#: What the dynamic plant's servo believes (``plant.servo_model``): the nominal robot, or the
-#: plant itself.
-ServoModel = Literal["robot", "plant"]
-SERVO_MODELS: tuple[ServoModel, ...] = ("robot", "plant")
-#: Default servo bandwidth [rad/s] (``plant.servo_bandwidth``).
-DEFAULT_SERVO_BANDWIDTH = 100.0
-Integrator = Literal["adaptive", "rk4", "dop853"]
-INTEGRATORS: tuple[Integrator, ...] = ("adaptive", "rk4", "dop853")
-#: The feedback laws (``track.controller``): the paper's linearising feedback on the flat
-#: outputs of the nominal model (``control``), or the time-varying LQR of the robot as built
-#: (``lqr``, ``asbuiltloop``).
-Controller = Literal["flat", "asbuilt"]
-CONTROLLERS: tuple[Controller, ...] = ("flat", "asbuilt")
-#: How an adaptive trial's error is estimated (``track.error_estimate``): by a twin at a
-#: hundredth of its tolerances (``Scenario.twin``), or not at all.
-ERROR_ESTIMATES: tuple[str, ...] = ("twin", "none")
 #: The integrators that control their error (``Outcome.verified``).
 ERROR_CONTROLLED: tuple[Integrator, ...] = ("adaptive", "dop853")
 
@@ -116,14 +111,6 @@ def chain_dynamic_trace_columns(n: int) -> tuple[str, ...]:
     return (*(f"theta{i}" for i in range(n + 1)), *(f"theta{i}_dot" for i in range(n + 1)),
             *(f"u{j}" for j in range(1, n)), *(f"tau{j}" for j in range(1, n + 1)), f"u{n}")
 
-#: Default tolerances of the adaptive integrator: 1e-6 rad or better at every output sample
-#: of the paper's example, printed or swapped gains, against a DOP853 at rtol 1e-12
-#: (tests/test_simulate.py measures it).
-DEFAULT_RTOL = 5e-8
-DEFAULT_ATOL = 1e-10
-DEFAULT_MAX_STEPS = 100_000
-#: The largest err_estimate of a verified trial [rad] (``Scenario.accuracy``).
-DEFAULT_ACCURACY = 1e-6
 #: The factor on the tolerances of the twin that estimates a trial's error (``Scenario.twin``).
 TWIN_FACTOR = 0.01
 #: The twin's relative tolerance is not set below this (100 x float64's epsilon, as scipy's

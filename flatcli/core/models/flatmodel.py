@@ -39,8 +39,9 @@ from flatcli.core.errors import FlatcliError
 from flatcli.core.models.chainflat import flag_state as chain_flag_state
 from flatcli.core.models.chainflat import flag_state_given, outputs, terms
 from flatcli.core.models.flatness import flag_state, flat_outputs, flat_state
+from flatcli.core.names import Model
 from flatcli.core.robots.chain import barycentric_matrix, chain_momentum
-from flatcli.core.robots.params import Coefficients, Model, RobotParams, momentum, placed
+from flatcli.core.robots.params import Coefficients, RobotParams, momentum, placed
 
 Array = NDArray[np.float64]
 #: Real or complex arrays (the maps are complex-step safe).

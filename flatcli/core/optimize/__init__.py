@@ -32,6 +32,7 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from flatcli.core.names import OBJECTIVES, Objective
     from flatcli.core.optimize.api import (
         DEFAULT_BSPLINE_DEGREE,
         DEFAULT_BSPLINE_SIZE,
@@ -41,7 +42,6 @@ if TYPE_CHECKING:
     )
     from flatcli.core.optimize.feasibility import required_fold
     from flatcli.core.optimize.limits import PlanLimits
-    from flatcli.core.optimize.objectives import OBJECTIVES, Objective
     from flatcli.core.optimize.quantities import flag_jacobian, flag_quantities
     from flatcli.core.optimize.tuning import TUNING, Tuning
 

@@ -30,16 +30,17 @@ from numpy.typing import ArrayLike, NDArray
 from flatcli.core.curves.basis import Basis, BSplineBasis, FlatTrajectory
 from flatcli.core.errors import FlatcliError
 from flatcli.core.models.flatmodel import flat_model
+from flatcli.core.names import OBJECTIVES, Model, Objective
 from flatcli.core.optimize.assessment import active_limits
 from flatcli.core.optimize.feasibility import check_ends
 from flatcli.core.optimize.limits import PlanLimits
-from flatcli.core.optimize.objectives import OBJECTIVES, Objective, better
+from flatcli.core.optimize.objectives import better
 from flatcli.core.optimize.problem import Request
 from flatcli.core.optimize.quantities import Flat
 from flatcli.core.optimize.search import Candidate, Search
 from flatcli.core.optimize.tuning import TUNING, Tuning
 from flatcli.core.plan.planning import ENERGY_ORDER, ENERGY_PIECES, Plan
-from flatcli.core.robots.params import Model, RobotParams, require_flat
+from flatcli.core.robots.params import RobotParams, require_flat
 
 Array = NDArray[np.float64]
 

@@ -18,9 +18,8 @@ from __future__ import annotations
 
 from typing import Literal
 
-Objective = Literal["energy", "peak_rate", "effort", "margin"]
-#: The objectives ``optimize_plan`` accepts (the spec key ``plan.optimize.objective``).
-OBJECTIVES: tuple[Objective, ...] = ("energy", "peak_rate", "effort", "margin")
+from flatcli.core.names import OBJECTIVES, Objective
+
 #: What a ``Problem`` minimises: an objective, or the largest relative limit violation.
 Goal = Literal["energy", "peak_rate", "effort", "margin", "violation"]
 #: Goals with an epigraph variable s, the last decision variable.

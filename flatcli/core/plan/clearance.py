@@ -41,7 +41,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from flatcli.core.errors import FlatcliError
-from flatcli.core.models.flatmodel import PaperModel
+from flatcli.core.models.flatmodel import ChainModel, PaperModel
 from flatcli.core.plan import intervals as iv
 from flatcli.core.plan.intervals import Interval
 from flatcli.core.plan.planning import Plan
@@ -136,18 +136,36 @@ def _polys(plan: Plan) -> tuple[Array, Array]:
     return plan.trajectory.piecewise()
 
 
+def _deriv(c: Array, order: int) -> Array:
+    """(n, terms) coefficients in s of the ``order``-th s-derivative of polynomials c (n,
+    terms) (a zero row for a constant)."""
+    out = c
+    for _ in range(order):
+        out = out[:, 1:] * np.arange(1, out.shape[1])
+    return out if out.shape[1] else np.zeros((c.shape[0], 1))
+
+
+def _is_rest(plan: Plan, local: Array) -> bool:
+    """Whether a plan rests at both ends (``rest.RestPlan``: its rates are 0/0 there)."""
+    return getattr(plan, "start", None) is not None and local.shape[1] >= 2
+
+
 def _bounds(plan: PlanLike, local: Array, width: Array, s_lo: Array, s_hi: Array
             ) -> tuple[list[Interval], list[Interval], Interval]:
-    """Intervals of th (3) and th' (3) and of the signed margin over [s_lo, s_hi] of pieces
-    of ``width`` [s] with coefficients ``local`` (n, degree + 1, 2) (module docstring)."""
+    """Intervals of th (N + 1) and th' (N + 1) and of the signed margin over [s_lo, s_hi]
+    of pieces of ``width`` [s] with coefficients ``local`` (n, degree + 1, N): the paper's
+    closed forms (``PaperModel``) or the chain's maps (``ChainModel``)."""
+    if isinstance(plan.model, ChainModel):
+        return _chain_bounds(plan.model, local, width, s_lo, s_hi, _is_rest(plan, local))
+    return _paper_bounds(plan, local, width, s_lo, s_hi)
+
+
+def _paper_bounds(plan: PlanLike, local: Array, width: Array, s_lo: Array, s_hi: Array
+                  ) -> tuple[list[Interval], list[Interval], Interval]:
+    """``_bounds`` of the paper's robot (module docstring)."""
     k = plan.model.coefficients  # type: ignore[attr-defined]
     deg = local.shape[1] - 1
-
-    def deriv(c: Array, order: int) -> Array:
-        out = c
-        for _ in range(order):
-            out = out[:, 1:] * np.arange(1, out.shape[1])
-        return out if out.shape[1] else np.zeros((c.shape[0], 1))
+    deriv = _deriv
 
     def bound(c: Array) -> Interval:
         return iv.poly(c, s_lo, s_hi)
@@ -157,8 +175,7 @@ def _bounds(plan: PlanLike, local: Array, width: Array, s_lo: Array, s_hi: Array
     y2 = bound(c2)
     d1 = bound(deriv(c1, 1)) / width
     d2 = bound(deriv(c2, 1)) / width
-    rest = getattr(plan, "start", None) is not None and deg >= 1
-    if rest:
+    if _is_rest(plan, local):
         # y1_s' = 6 dth1 (s - s^2) divides y2_s' exactly: r is a polynomial in s
         pc, qc = _rest_quotient(c1, c2, deg)
         p_, q_ = bound(pc), bound(qc)
@@ -186,6 +203,156 @@ def _bounds(plan: PlanLike, local: Array, width: Array, s_lo: Array, s_hi: Array
 
 
 PlanLike = Plan
+
+
+def _chain_bounds(model: ChainModel, local: Array, width: Array, s_lo: Array, s_hi: Array,
+                  rest: bool) -> tuple[list[Interval], list[Interval], Interval]:
+    """``_bounds`` of a chain of N joints (``chainflat``): q_j = y_j, u_j = y_j' (j < N),
+    and with the weights h_j, grad h_0 (its partials g_k), their slopes and h_0's Hessian
+    at q in interval arithmetic (cos and sin of psi_a - psi_b = th_b+1 + ... + th_a),
+
+        th_N = -h_0 (S + y_N' h_0) / (I_N D),   S = sum h_j u_j,   D = sum g_j u_j = h_0',
+        th_0 = y_N - I_N th_N / h_0,
+
+    and their exact time derivatives (the quotient rule on th_N with S' = sum (h_j' u_j +
+    h_j u_j'), D' = sum (sum_k H_jk u_k) u_j + g_j u_j', h_j' = sum_k (dh_j/dq_k) u_k). For a
+    rest plan every y_j' (in s) is divided exactly by s (1 - s) first (``_rest_quotients``:
+    u_j = w P_j, y_N' = w R, w = s (1 - s) / width), so th_N, which takes u and y_N' only
+    through their ratios, is bounded with P and R and stays finite at the ends. The margin
+    is -D / (2 K_10)."""
+    n = model.n_joints
+    K, inertia = model.K, model.inertia
+
+    def bound(c: Array) -> Interval:
+        return iv.poly(c, s_lo, s_hi)
+
+    columns = [local[:, :, j] for j in range(n)]
+    y = [bound(c) for c in columns]
+    if rest:
+        quotients = _rest_quotients(columns)
+        ratio = [bound(c) / width for c in quotients]  # P_j [rad/s per unit w], R
+        ratio_dot = [bound(_deriv(c, 1)) / (width * width) for c in quotients]
+        s_box = Interval(s_lo, s_hi)
+        w = s_box * (1.0 - s_box)  # s (1 - s), >= 0 on [0, 1]
+    else:
+        ratio = [bound(_deriv(c, 1)) / width for c in columns]  # y_j' itself
+        ratio_dot = [bound(_deriv(c, 2)) / (width * width) for c in columns]
+        w = Interval.point(np.ones_like(s_lo))
+    P, R = ratio[: n - 1], ratio[n - 1]
+    P_dot, R_dot = ratio_dot[: n - 1], ratio_dot[n - 1]
+    u = [w * p for p in P]  # the inner joints' rates
+    zero = Interval.point(np.zeros_like(s_lo))
+    # psi_a - psi_b = th_b+1 + ... + th_a for a > b (th_N enters nothing: K_aN = 0), summed
+    # directly (a difference of two sums would count th_1..th_b twice in its width)
+    angle = {}
+    for a in range(1, n):
+        for b in range(a):
+            total = y[b]
+            for k in range(b + 2, a + 1):
+                total = total + y[k - 1]
+            angle[(a, b)] = total
+    cos = {pair: iv.cos(value) for pair, value in angle.items()}
+    sin = {pair: iv.sin(value) for pair, value in angle.items()}
+
+    def crossing(a: int, b: int, k: int) -> bool:  # th_k in psi_a - psi_b (a > b)
+        return b < k <= a
+
+    # h_j = sum_{b >= j} (I_b + K_bb + sum_{a != b} K_ab cos(psi_a - psi_b)), j = 0..N - 1
+    columns_c = []
+    for b in range(n + 1):
+        c = Interval.point(np.full_like(s_lo, float(inertia[b] + K[b, b])))
+        for a in range(n):
+            if a != b and b < n and K[a, b] != 0.0:
+                c = c + float(K[a, b]) * cos[(max(a, b), min(a, b))]
+        columns_c.append(c)
+    h = [columns_c[n]]
+    for b in range(n - 1, -1, -1):
+        h.insert(0, h[0] + columns_c[b])
+    h0 = h[0]
+    # g_k = dh_0/dth_k = -2 sum_{a > b, b < k <= a} K_ab sin(psi_a - psi_b), k = 1..N - 1
+    g = []
+    for k in range(1, n):
+        acc = zero
+        for (a, b), sn in sin.items():
+            if crossing(a, b, k) and K[a, b] != 0.0:
+                acc = acc + (-2.0 * float(K[a, b])) * sn
+        g.append(acc)
+    # dh_j/dth_k = -sum_{b >= j} sum_{a != b} K_ab sin(psi_a - psi_b) dd(psi_a - psi_b)/dth_k
+    slopes = []
+    for j in range(n):
+        row = []
+        for k in range(1, n):
+            acc = zero
+            for b in range(j, n):
+                for a in range(n):
+                    if a == b or K[a, b] == 0.0:
+                        continue
+                    hi, lo = max(a, b), min(a, b)
+                    if not crossing(hi, lo, k):
+                        continue
+                    # d/dth_k cos(psi_a - psi_b) = -sin(psi_a - psi_b) (+1 for a > b, -1
+                    # for a < b) = -sin(psi_hi - psi_lo) either way
+                    acc = acc + (-float(K[a, b])) * sin[(hi, lo)]
+            row.append(acc)
+        slopes.append(row)
+    # H_kl = d^2 h_0 / dth_k dth_l = -2 sum_{a > b, b < k, l <= a} K_ab cos(psi_a - psi_b)
+    hess = [[zero] * (n - 1) for _ in range(n - 1)]
+    for k in range(1, n):
+        for m in range(k, n):
+            acc = zero
+            for (a, b), cs in cos.items():
+                if crossing(a, b, k) and crossing(a, b, m) and K[a, b] != 0.0:
+                    acc = acc + (-2.0 * float(K[a, b])) * cs
+            hess[k - 1][m - 1] = hess[m - 1][k - 1] = acc
+
+    def dot(xs: list[Interval], ys: list[Interval]) -> Interval:
+        acc = zero
+        for x_, y_ in zip(xs, ys, strict=True):
+            acc = acc + x_ * y_
+        return acc
+
+    i_n = float(inertia[n])
+    S_hat = dot(h[1:n], P)  # S / w
+    D_hat = dot(g, P)  # D / w
+    num = -1.0 * h0 * (S_hat + R * h0)
+    den = i_n * D_hat
+    th_n = num / den
+    th0 = y[n - 1] - i_n * th_n / h0
+    D = w * D_hat
+    # time derivatives along the plan
+    h_dot = [dot(row, u) for row in slopes]  # dh_j/dt, j = 0..N - 1 (h_0' = D)
+    g_dot = [dot(hess[k], u) for k in range(n - 1)]
+    S_hat_dot = dot(h_dot[1:n], P) + dot(h[1:n], P_dot)
+    D_hat_dot = dot(g_dot, P) + dot(g, P_dot)
+    num_dot = -1.0 * D * (S_hat + R * h0) - h0 * (S_hat_dot + R_dot * h0 + R * D)
+    den_dot = i_n * D_hat_dot
+    th_n_dot = (num_dot * den - num * den_dot) / den.square()
+    th0_dot = w * R - i_n * (th_n_dot * h0 - th_n * D) / h0.square()
+    theta = [th0, *y[: n - 1], th_n]
+    rates = [th0_dot, *u, th_n_dot]
+    margin = D * (-1.0 / (2.0 * float(K[1, 0])))
+    return theta, rates, margin
+
+
+def _rest_quotients(columns: list[Array]) -> list[Array]:
+    """(n, degree + 1) each: every y_j_s' / (s - s^2) of rest pieces (they vanish at s = 0
+    and 1), zero-padded; divided once per distinct row."""
+    deg = columns[0].shape[1] - 1
+    out = [np.zeros((len(c), deg + 1)) for c in columns]
+    cache: dict[bytes, list[Array]] = {}
+    factor = np.array([0.0, 1.0, -1.0])
+    for i in range(len(columns[0])):
+        key = b"".join(c[i].tobytes() for c in columns)
+        if key not in cache:
+            rows = []
+            for c in columns:
+                d = c[i, 1:] * np.arange(1, deg + 1)
+                q = np.atleast_1d(np.polynomial.polynomial.polydiv(d, factor)[0])
+                rows.append(np.pad(q, (0, deg + 1 - q.shape[0])))
+            cache[key] = rows
+        for j, row in enumerate(cache[key]):
+            out[j][i] = row
+    return out
 
 
 def _rest_quotient(c1: Array, c2: Array, deg: int) -> tuple[Array, Array]:
@@ -327,7 +494,18 @@ def _slack(plan: Plan, constraints: Constraints, theta: list[Interval],
                 worst = np.minimum(worst, lim - rates[j].magnitude())
     if constraints.min_margin > 0:
         worst = np.minimum(worst, margin.mignitude() - constraints.min_margin)
-    worst = np.where(np.isnan(worst), -np.inf, worst)
+    # an interval with a nan end or lo > hi (empty) bounds nothing: what a constraint reads
+    # from one is never proven
+    used = list(theta) if (len(constraints.obstacles) or constraints.angle_limit is not None) \
+        else []
+    if constraints.rate_limit is not None and np.isfinite(constraints.rate_limit).any():
+        used += rates[1:]
+    if constraints.min_margin > 0:
+        used.append(margin)
+    broken = np.zeros(n, dtype=bool)
+    for x in used:
+        broken |= ~(x.lo <= x.hi)  # nan compares false
+    worst = np.where(np.isnan(worst) | broken, -np.inf, worst)
     return worst, clear
 
 
@@ -391,9 +569,9 @@ def certify(plan: Plan, constraints: Constraints, pieces: int = START_PIECES,
     ------
     FlatcliError for a plan the interval bounds do not cover (N >= 3, or a chain model).
     """
-    if not isinstance(plan.model, PaperModel):
-        raise FlatcliError("task.obstacles: continuous-time checks are implemented for the "
-                           "paper's robot (2 joints, closed-form flat outputs) only")
+    if not isinstance(plan.model, PaperModel | ChainModel):
+        raise FlatcliError("task.obstacles: continuous-time checks need the closed-form flat "
+                           "outputs (an exact plan of a design without them has none)")
     breaks, local = _polys(plan)
     starts = []
     for i in range(len(breaks) - 1):

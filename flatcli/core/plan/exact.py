@@ -47,17 +47,14 @@ from flatcli.core.curves.basis import Basis, BSplineBasis, FlatTrajectory
 from flatcli.core.curves.pieces import PiecewiseCurves, fit, integral, joined, node_times
 from flatcli.core.errors import FlatcliError
 from flatcli.core.models.flatmodel import Boundary, FlatModel, Kind
+from flatcli.core.names import METHODS, Model
 from flatcli.core.plan.planning import Plan, boundary_system
 from flatcli.core.robots.chain import barycentric_matrix, momentum_weights, weight_slopes
-from flatcli.core.robots.params import Model, RobotParams, flatness_check
+from flatcli.core.robots.params import RobotParams, flatness_check
 
 Array = NDArray[np.float64]
 AnyArray = NDArray[Any]
 
-#: How a maneuver is planned (``plan.method``): "flat" through the closed-form flat outputs
-#: (``planning``), "exact" here, "auto" the first where the design has them (``method_for``).
-Method = Literal["auto", "flat", "exact"]
-METHODS: tuple[Method, ...] = ("auto", "flat", "exact")
 #: Joint-path objectives: the derivative whose square is integrated (``None``: the plain
 #: plan, least acceleration; "energy" and "effort", the same minimiser, least joint rate).
 ORDERS: dict[str | None, int] = {None: 2, "energy": 1, "effort": 1}

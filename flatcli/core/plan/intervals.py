@@ -3,7 +3,10 @@
 An ``Interval`` is a pair of arrays (lo, hi) of any common shape; every operation returns an
 interval that contains every value the operation can take on its arguments' intervals
 (the inclusion property), rounded outwards by one ulp per operation (``_out``), so the bounds
-hold in floating point too. Division by an interval containing 0 gives (-inf, inf).
+hold in floating point too. Division by an interval containing 0 gives (-inf, inf); a NaN end
+gives NaN (or (-inf, inf)) through every operation: a bound of nothing, which the proof
+(``clearance``) never counts as proven. Inputs are valid intervals (lo <= hi): an empty one is
+no input (its results are meaningless), and the proof refuses any it finds.
 ``poly`` bounds a polynomial in s over [s_lo, s_hi] by its Taylor expansion at the centre
 (exact coefficients, remainder bounded termwise).
 """

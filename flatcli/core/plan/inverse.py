@@ -27,18 +27,16 @@ cross it, ``flatness``), which can rule out a branch.
 from __future__ import annotations
 
 import math
-from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from flatcli.core.errors import FlatcliError
+from flatcli.core.names import ELBOWS, Elbow
 from flatcli.core.robots.kinematics import end_effector, virtual_links
 from flatcli.core.robots.params import RobotParams
 
 Array = NDArray[np.float64]
-Elbow = Literal["auto", "up", "down"]
-ELBOWS: tuple[Elbow, ...] = ("auto", "up", "down")
 
 #: A target closer than this to the edge of the reachable annulus is "on the boundary" [m].
 BOUNDARY_TOL = 1e-6

@@ -43,8 +43,9 @@ from flatcli.core.models.flatmodel import (
     PaperModel,
     flat_model,
 )
+from flatcli.core.names import RATE_WARNING, Model
 from flatcli.core.robots.dynamics import Chain, inverse_dynamics
-from flatcli.core.robots.params import Coefficients, Model, RobotParams, require_flat
+from flatcli.core.robots.params import Coefficients, RobotParams, require_flat
 
 Array = NDArray[np.float64]
 
@@ -316,10 +317,6 @@ class Plan:
         """Times in (0, T) where the plan meets the singular set [s]
         (``FlatModel.margin_zeros``)."""
         return self.model.margin_zeros(self.trajectory)
-
-
-#: Default ``plan.rate_warning`` [rad/s]: a plan whose joints turn faster says so.
-RATE_WARNING = 50.0
 
 
 def fastest_joint(samples: PlanSamples) -> tuple[int, float, float]:

@@ -41,9 +41,10 @@ from numpy.typing import ArrayLike, NDArray
 from flatcli.core.curves.basis import FlatTrajectory, PolynomialBasis
 from flatcli.core.errors import FlatcliError
 from flatcli.core.models.flatmodel import ChainModel, FlatModel, flat_model
+from flatcli.core.names import Model
 from flatcli.core.plan.planning import Plan, PlanSamples
 from flatcli.core.robots.chain import base_inertia_slopes
-from flatcli.core.robots.params import Model, RobotParams, require_flat
+from flatcli.core.robots.params import RobotParams, require_flat
 
 Array = NDArray[np.float64]
 

@@ -20,8 +20,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from flatcli.core.curves.basis import Basis
 from flatcli.core.errors import FlatcliError
+from flatcli.core.names import Elbow, Model
 from flatcli.core.plan.clearance import Certificate, Constraints, certify, sampled_slack
-from flatcli.core.plan.inverse import Elbow, task_configuration, two_link_task
+from flatcli.core.plan.inverse import task_configuration, two_link_task
 from flatcli.core.plan.planning import Plan, fastest_joint, plan_point_to_point
 from flatcli.core.plan.rest import plan_rest_to_rest
 from flatcli.core.robots.kinematics import (
@@ -30,7 +31,7 @@ from flatcli.core.robots.kinematics import (
     virtual_links,
     virtual_links_of,
 )
-from flatcli.core.robots.params import Model, RobotParams
+from flatcli.core.robots.params import RobotParams
 
 Array = NDArray[np.float64]
 
@@ -78,13 +79,16 @@ class Task:
 @dataclass(frozen=True)
 class TaskPlan:
     """A planned task: the plan, its ends, the certificate of its constraints (None: no
-    obstacles or limits to prove), and how many candidates the search tried."""
+    obstacles or limits to prove), how many candidates the search tried, and the chosen
+    candidate's shape: the factor on the end rates' magnitudes of a plan that does not rest,
+    the skew of a rest plan (``plan_task``)."""
 
     plan: Plan
     start: Array
     goal: Array
     certificate: Certificate | None
     candidates: int
+    shape: float = 1.0
 
 
 def _meets(robot: RobotParams, q: Array, target: tuple[float, float] | None,
@@ -141,11 +145,31 @@ def task_ends(robot: RobotParams, task: Task, start: ArrayLike, goal: ArrayLike,
     return starts, goals
 
 
-def _oriented(rate: ArrayLike, start: Array, goal: Array, n: int) -> Array:
-    """End rates whose signs follow the inner joints' motion (magnitudes as given)."""
+def _oriented(rate: ArrayLike, start: Array, goal: Array, n: int,
+              robot: RobotParams | None = None, end: Array | None = None) -> Array:
+    """End rates (magnitudes as given) whose signs make the plan leave or reach ``end`` moving
+    towards the goal: for N = 2, th1's motion (the margin sin th1 th1' keeps one sign); for
+    N >= 3 (``robot`` given), the signs that make dh_0/dt at ``end`` have the sign of
+    h_0(goal) - h_0(start): along a flat plan h_0 is monotone (its rate is the margin, which
+    may not change sign), so end rates against that change make the plan cross the singular
+    set. A joint whose slope there is 0 follows its own motion."""
     r = np.broadcast_to(np.abs(np.asarray(rate, dtype=float)), (n - 1,)).copy()
     step = goal[1:n] - start[1:n]
-    return np.asarray(np.where(step < 0, -r, r), dtype=float)
+    signs = np.where(step < 0, -1.0, 1.0)
+    if n >= 3 and robot is not None and end is not None:
+        from flatcli.core.models.flatmodel import ChainModel
+        from flatcli.core.robots.chain import base_inertia_slopes
+
+        model = ChainModel.of(robot)
+        grad, hess = np.empty(n), np.empty((n, n))
+        h_start = base_inertia_slopes(model.K, model.inertia, np.asarray(start, float), grad,
+                                      hess)
+        h_goal = base_inertia_slopes(model.K, model.inertia, np.asarray(goal, float), grad,
+                                     hess)
+        base_inertia_slopes(model.K, model.inertia, np.asarray(end, float), grad, hess)
+        wanted = np.sign(h_goal - h_start) * grad[: n - 1]
+        signs = np.where(wanted != 0, np.sign(wanted), signs)
+    return np.asarray(signs * r, dtype=float)
 
 
 #: Samples at which a candidate is checked before its proof is tried: a violation there
@@ -166,9 +190,9 @@ def _candidate(robot: RobotParams, task: Task, start: Array, goal: Array, shape:
     n = robot.n_joints
     if task.rest:
         return plan_rest_to_rest(robot, start, goal, duration, model, skew=shape)
-    return plan_point_to_point(robot, start, goal, _oriented(start_rate, start, goal, n) * shape,
-                               _oriented(goal_rate, start, goal, n) * shape, duration, model,
-                               basis)
+    return plan_point_to_point(
+        robot, start, goal, _oriented(start_rate, start, goal, n, robot, start) * shape,
+        _oriented(goal_rate, start, goal, n, robot, goal) * shape, duration, model, basis)
 
 
 def plan_task(robot: RobotParams, task: Task, starts: list[Array], goals: list[Array],
@@ -181,9 +205,13 @@ def plan_task(robot: RobotParams, task: Task, starts: list[Array], goals: list[A
     of [0, T] (``plan.rate_warning``, ``plan.samples``: ``planning.fastest_joint``).
     Candidates are taken in order (start, goal, then shape) up to ``task.budget``; they are
     checked at ``SCREEN_SAMPLES`` samples in batches (``SCREEN_BATCH``) and proven
-    (``certify``) in order when they pass. Where no proven candidate keeps within
-    ``rate_warning``, the proven one whose fastest joint is slowest (the first of equals) is
-    returned: its plan then carries the warning (``planning.rate_warning_text``).
+    (``certify``) in order when they pass. Without obstacles or limits the first candidate
+    that can be planned is taken, every branch with the end rates as given first (shape 1),
+    then the other shapes: a candidate that crosses the singular set (a chain's end rates,
+    which ``_oriented`` turns towards the goal's h_0, can still) is not the end of the
+    search. Where no accepted candidate keeps within ``rate_warning``, the one whose fastest
+    joint is slowest (the first of equals) is returned: its plan then carries the warning
+    (``planning.rate_warning_text``).
 
     Raises
     ------
@@ -196,10 +224,12 @@ def plan_task(robot: RobotParams, task: Task, starts: list[Array], goals: list[A
                               task.clearance, angle_limit, rate_limit) \
         if (task.obstacles or limits) else None
     shapes: tuple[float, ...] = SKEWS if task.rest else RATE_FACTORS
-    if constraints is None and not math.isfinite(rate_warning):
-        shapes = shapes[:1]
-    candidates = [(start, goal, shape) for start in starts for goal in goals
-                  for shape in shapes][:task.budget]
+    if constraints is None:  # the end rates as given on every branch first, then scaled
+        candidates = [(start, goal, shape) for shape in shapes for start in starts
+                      for goal in goals][:task.budget]
+    else:
+        candidates = [(start, goal, shape) for start in starts for goal in goals
+                      for shape in shapes][:task.budget]
     last_error: FlatcliError | None = None
     best: tuple[float, Certificate] | None = None
     fast: tuple[float, TaskPlan] | None = None  # the slowest accepted one above the warning
@@ -220,7 +250,7 @@ def plan_task(robot: RobotParams, task: Task, starts: list[Array], goals: list[A
     first = 0
     while first < len(candidates):
         size = 1 if first == 0 else SCREEN_BATCH
-        batch: list[tuple[int, Array, Array, Plan]] = []
+        batch: list[tuple[int, Array, Array, float, Plan]] = []
         for index, (start, goal, shape) in enumerate(candidates[first:first + size], first + 1):
             try:
                 plan = _candidate(robot, task, start, goal, shape, duration, start_rate,
@@ -229,23 +259,23 @@ def plan_task(robot: RobotParams, task: Task, starts: list[Array], goals: list[A
                 last_error = exc
                 continue
             if constraints is None:
-                found = TaskPlan(plan, start, goal, None, index)
+                found = TaskPlan(plan, start, goal, None, index, shape)
                 if slow_enough(found):
                     return found
                 continue
-            batch.append((index, start, goal, plan))
+            batch.append((index, start, goal, shape, plan))
         first += size
         if not batch:
             continue
         assert constraints is not None
         slack = sampled_slack([plan for *_, plan in batch], constraints, SCREEN_SAMPLES)
-        for (index, start, goal, plan), least in zip(batch, slack, strict=True):
+        for (index, start, goal, shape, plan), least in zip(batch, slack, strict=True):
             if least < 0:
                 refuted.append(plan)  # a violation at a sample is one: no proof needed
                 continue
             cert = certify(plan, constraints)
             if cert.ok:
-                found = TaskPlan(plan, start, goal, cert, index)
+                found = TaskPlan(plan, start, goal, cert, index, shape)
                 if slow_enough(found):
                     return found
                 continue

@@ -12,10 +12,20 @@ So along that ray the farther the counterweight sits, the less mass it needs (le
 mass: the farthest allowed point), and the added inertia about the joint,
 I_c + m_c |p|^2 = I_c + m |r| |p|, grows with |p| (least added inertia: the nearest allowed
 point; the link's own m |r|^2 is there in both). The allowed positions are a segment in the
-link's frame; where it meets the ray, those two points are its farthest and nearest points on
-it (one point if it crosses the ray). A segment that misses the ray admits no exact placement
-and is refused. The counterweighted link then has mass m + m_c, inertia
-I + m |r|^2 + I_c + m_c |p|^2 about the joint, and d_N = e_N = 0 (``apply``).
+link's frame; the points of it within ``POSITION_RTOL`` of the ray (relative to the larger of
+|r| and the segment's farthest coordinate: 10 um on a 0.1 m link, well inside a machined
+part's tolerance) count as on it, and the
+farthest and nearest of them are the two answers, placed where the segment has them, with
+m_c = m |r| / t for their distance t along the ray. Where the segment lies along the ray those
+are its ends on the ray; where it crosses the ray at an angle, the ends of its short piece
+within the band. So the answers change continuously with the segment, whatever the rounding
+of its ends: a segment 1e-7 m off a 0.1 m ray gives the same counterweights as one on it (to
+1e-7 m), where an exact "on the ray" test took a segment along the ray as crossing it at one
+end (0.34 -> 0.53 kg). A counterweight off the ray by h <= the band leaves the link's centre
+of mass m_c h / (m + m_c) across the joint (``Counterweight.residual``, reported); a segment
+that misses the band is refused. The counterweighted link then has mass m + m_c, inertia
+I + m |r|^2 + I_c + m_c |p|^2 about the joint, and d_N = e_N = 0 (``apply``: the design, to
+that residual).
 """
 
 from __future__ import annotations
@@ -29,8 +39,9 @@ from numpy.typing import ArrayLike
 from flatcli.core.errors import FlatcliError
 from flatcli.core.robots.params import RobotParams
 
-#: Relative tolerance of "on the ray" (a segment collinear with it within it).
-COLLINEAR_RTOL = 1e-12
+#: How far from the ray an allowed position may be and still count as on it, relative to the
+#: larger of |r| and the segment's farthest coordinate (module docstring).
+POSITION_RTOL = 1e-4
 
 
 @dataclass(frozen=True)
@@ -43,6 +54,7 @@ class Counterweight:
     y: float
     link_mass: float
     link_inertia: float
+    residual: float = 0.0  # the link's centre of mass from joint N with it [m]
 
     @property
     def distance(self) -> float:
@@ -86,44 +98,57 @@ def design_counterweight(mass: float, inertia: float, along: float, across: floa
         raise FlatcliError("robot.com: the last link's centre of mass is on its joint already "
                            "(d_N = e_N = 0): it needs no counterweight")
     direction = -np.array([along, across]) / reach  # the ray opposite the link's centre
-    distances = _on_ray(ends, direction, reach)
-    if distances is None:
+    band = POSITION_RTOL * max(float(np.abs(ends).max()), reach)
+    found = _on_ray(ends, direction, band)
+    if found is None:
         raise FlatcliError(
             f"--positions: no allowed position lies on the ray from joint N opposite the link's "
-            f"centre of mass (direction ({direction[0] + 0.0:.4g}, {direction[1] + 0.0:.4g})): no "
-            "counterweight there puts the centre on the joint")
-    far, near = max(distances), min(distances)
+            f"centre of mass (direction ({direction[0] + 0.0:.4g}, {direction[1] + 0.0:.4g}), "
+            f"within {band:.3g} m of it): no counterweight there puts the centre on the joint")
+    far, near = found
     return (_placed(mass, inertia, reach, direction, far, own_inertia),
             _placed(mass, inertia, reach, direction, near, own_inertia))
 
 
-def _on_ray(ends: np.ndarray, direction: np.ndarray, scale: float
-            ) -> tuple[float, ...] | None:
-    """The distances t >= 0 from the joint at which the segment meets the ray t direction
-    (the two ends of the overlap if the segment lies along it), or None."""
+def _on_ray(ends: np.ndarray, direction: np.ndarray, band: float
+            ) -> tuple[np.ndarray, np.ndarray] | None:
+    """The farthest and the nearest point (2,) [m] along the ray of the segment's points
+    within ``band`` [m] of the ray (ahead of the joint: t >= 0), or None."""
     a, b = ends
     normal = np.array([-direction[1], direction[0]])
-    size = max(float(np.abs(ends).max()), scale)
     ha, hb = float(normal @ a), float(normal @ b)  # signed distances from the ray's line
     ta, tb = float(direction @ a), float(direction @ b)  # positions along it
-    if abs(ha) <= COLLINEAR_RTOL * size and abs(hb) <= COLLINEAR_RTOL * size:
-        lo, hi = max(min(ta, tb), 0.0), max(ta, tb)
-        return (lo, hi) if hi > 0 else None
-    if ha * hb > 0:
+    lo, hi = 0.0, 1.0  # the part u of the segment a + u (b - a) in the band
+    if ha == hb:
+        if abs(ha) > band:
+            return None
+    else:
+        u1, u2 = sorted(((-band - ha) / (hb - ha), (band - ha) / (hb - ha)))
+        lo, hi = max(lo, u1), min(hi, u2)
+    if ta != tb:  # ahead of the joint: t(u) >= 0
+        cross = -ta / (tb - ta)
+        lo, hi = (max(lo, cross), hi) if tb > ta else (lo, min(hi, cross))
+    elif ta < 0:
         return None
-    t = ta + (tb - ta) * ha / (ha - hb)
-    return (t,) if t > 0 else None
+    if lo > hi:
+        return None
+    ends_in = [a + u * (b - a) for u in (lo, hi)]
+    far, near = sorted(ends_in, key=lambda p: float(direction @ p), reverse=True)
+    return far, near
 
 
 def _placed(mass: float, inertia: float, reach: float, direction: np.ndarray,
-            distance: float, own_inertia: float) -> Counterweight:
+            point: np.ndarray, own_inertia: float) -> Counterweight:
+    distance = float(direction @ point)  # along the ray
     if not distance > 0:
         raise FlatcliError("--positions: the allowed positions on the ray include the joint "
                            "itself, where no finite counterweight balances the link")
     weight = mass * reach / distance
-    link_inertia = inertia + mass * reach**2 + own_inertia + weight * distance**2
-    x, y = (float(v) for v in direction * distance)
-    return Counterweight(weight, x, y, mass + weight, link_inertia)
+    x, y = (float(v) for v in point)
+    link_inertia = inertia + mass * reach**2 + own_inertia + weight * (x * x + y * y)
+    centre = (-direction * reach * mass + weight * point) / (mass + weight)
+    return Counterweight(weight, x, y, mass + weight, link_inertia,
+                         float(np.hypot(*centre)))
 
 
 def apply(robot: RobotParams, counterweight: Counterweight) -> RobotParams:

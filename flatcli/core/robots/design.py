@@ -38,7 +38,8 @@ The three verdicts (``VERDICTS``):
   d_N = 0, I_N != 0, K_10 != 0; for N = 2 the paper's d2 = 0, c0 a1 != 0): flatcli plans it.
 * ``flat``: controllable, but d_N != 0 or K_10 = 0: flat with outputs not known in closed
   form (for K_10 = 0, N >= 3, h_0 still varies but flatcli's planner normalises by K_10).
-  flatcli plans with the closed-form outputs only, i.e. for a nominal robot that has them.
+  ``plan.method = "flat"`` refuses it; "auto" (the default) and "exact" plan it exactly
+  (``exact``).
 * ``not_flat``: w ^ dw = 0 at every sample: the constraint integrates.
 """
 
@@ -254,8 +255,10 @@ def design_verdict(robot: RobotParams, samples: int = SAMPLES,
     if check.is_flat:
         return replace(base, verdict="closed_form",
                        reasons=(controllable, _closed_form(robot, k10)))
-    plans = (f"flatcli plans with the closed-form outputs only, i.e. for a nominal robot with "
-             f"d{n} = 0 and K_10 != 0; it simulates this design as a [plant]")
+    plans = (f"the closed-form outputs need d{n} = 0 and K_10 != 0, so plan.method = \"flat\" "
+             "refuses this design; plan.method = \"auto\" (the default) and \"exact\" plan it "
+             "exactly (docs/asbuilt.md), and it can be simulated as the [plant] of a nominal "
+             "robot that has them")
     return replace(base, verdict="flat", reasons=(controllable, *check.failures, plans))
 
 

@@ -26,17 +26,15 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass, replace
-from typing import Literal, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from flatcli.core._jit import Real, jitable
 from flatcli.core.errors import FlatcliError
+from flatcli.core.names import MODELS, Model
 from flatcli.core.robots.chain import barycentric_matrix, inertia_scale
-
-Model = Literal["derived", "paper"]
-MODELS: tuple[Model, ...] = ("derived", "paper")
 
 #: Tolerance below which a design quantity counts as zero in the flatness check (relative).
 DESIGN_ZERO_TOL = 1e-12
