@@ -53,10 +53,15 @@ from benchmarks.baselines import (
 from benchmarks.baselines.floor import floor_seconds
 from benchmarks.chains import HEADERS as CHAIN_HEADERS
 from benchmarks.chains import run_all as run_chains
+from benchmarks.front_door import HEADERS as FRONT_HEADERS
+from benchmarks.front_door import compiles as run_compiles
+from benchmarks.front_door import run_all as run_front_door
 from benchmarks.integrators import HEADERS as INTEGRATOR_HEADERS
 from benchmarks.integrators import run_all as run_integrators
 from benchmarks.outcomes import HEADERS as OUTCOME_HEADERS
 from benchmarks.outcomes import run_all as run_outcomes
+from benchmarks.search import HEADERS as SEARCH_HEADERS
+from benchmarks.search import run_all as run_search
 from benchmarks.tasks import HEADERS as TASK_HEADERS
 from benchmarks.tasks import run_all as run_tasks
 from flatcli.core.loop.metrics import METRIC_NAMES
@@ -77,9 +82,11 @@ CLOSED_LOOP = ("Closed loop, the same work: flatcli against a hand-written kerne
 SWEEPS = ("flatcli sweep through the command line: benchmarks/paper_sweep.toml, everything "
           "written")
 SCALING = "Scaling: 2 workers, each process's own peak memory"
-#: The sections ``--sections`` may name, in the order they run.
-SECTIONS = ("planning", "closed_loop", "sweeps", "integrators", "chains", "asbuilt",
-            "optimised", "tasks", "outcomes")
+#: The sections ``make bench`` runs, in this order; ``--sections`` may name them and
+#: ``OPTIONAL`` ones (run only when named: minutes each).
+SECTIONS = ("planning", "closed_loop", "sweeps", "front_door", "integrators", "chains",
+            "asbuilt", "optimised", "tasks", "outcomes", "search")
+OPTIONAL = ("compiles",)
 
 
 def load() -> list[float]:
@@ -558,9 +565,11 @@ HEADERS = {
               "peak memory (VmHWM)"],
     **INTEGRATOR_HEADERS,
     **CHAIN_HEADERS,
+    **FRONT_HEADERS,
     **ASBUILT_HEADERS,
     **TASK_HEADERS,
     **OUTCOME_HEADERS,
+    **SEARCH_HEADERS,
     "Optimised plans: least energy, abs(th2) <= 3, rates <= 20, margin >= 0.05":
         ["plan", "energy [rad^2/s]", "limit violation", "max abs(H)", "time", "note"],
     LADDER: ["limit", "value", "energy [rad^2/s]", "time", "note"],
@@ -599,12 +608,13 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--million", action="store_true", help="also a 10^6-trial sweep")
     parser.add_argument("--quick", action="store_true", help="smaller sizes (a smoke test)")
     parser.add_argument("--sections", default=",".join(SECTIONS),
-                        help=f"comma-separated, of {', '.join(SECTIONS)} (default: all)")
+                        help=f"comma-separated, of {', '.join(SECTIONS + OPTIONAL)} (default: "
+                             f"all but {', '.join(OPTIONAL)})")
     args = parser.parse_args(argv)
     chosen = [s for s in args.sections.split(",") if s]
-    unknown = sorted(set(chosen) - set(SECTIONS))
+    unknown = sorted(set(chosen) - set(SECTIONS + OPTIONAL))
     if unknown:
-        parser.error(f"--sections: unknown {unknown}; choose from {list(SECTIONS)}")
+        parser.error(f"--sections: unknown {unknown}; choose from {list(SECTIONS + OPTIONAL)}")
     limit_process()  # one BLAS thread, as flatcli's own processes run (flatcli.threads)
     bench = Bench(args.out, args.quick)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -613,14 +623,17 @@ def main(argv: list[str] | None = None) -> None:
         "planning": [partial(planning, bench)],
         "closed_loop": [partial(closed_loop, bench), partial(closed_loop_rk4, bench)],
         "sweeps": [partial(sweeps, bench, args.million)],
+        "front_door": [partial(run_front_door, bench, sweep)],
+        "compiles": [partial(run_compiles, bench)],
         "integrators": [partial(run_integrators, bench, sweep)],
         "chains": [partial(run_chains, bench)],
         "asbuilt": [partial(run_asbuilt, bench, sweep)],
         "optimised": [partial(optimised, bench), partial(optimised_ladder, bench)],
         "tasks": [partial(run_tasks, bench)],
         "outcomes": [partial(run_outcomes, bench)],
+        "search": [partial(run_search, bench)],
     }
-    for name in SECTIONS:
+    for name in SECTIONS + OPTIONAL:
         if name in chosen:
             for step in steps[name]:
                 step()

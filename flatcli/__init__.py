@@ -10,6 +10,7 @@ The Python API (``flatcli.api``; each command of the CLI is a thin wrapper over 
     s = flatcli.sweep("study.toml", "runs/study", workers=2)  # s.trials, s.summary
     r = flatcli.load("runs/paper_example/latest")
     flatcli.check("study.toml").text()                    # what a sweep would do
+    d = flatcli.search("design.toml", workers=2)          # d.table, d.best: a design search
     df = flatcli.runs(filters=["plant.model=dynamic"])    # the runs as a DataFrame
     w = flatcli.workspace(attitude=(1.0, 1.4))            # where the end effector can go
     sys = flatcli.flatsystem()                            # a python-control FlatSystem
@@ -46,11 +47,13 @@ if TYPE_CHECKING:
         plan,
         plan_many,
         runs,
+        search,
         sweep,
         track,
         workspace,
     )
     from flatcli.core.errors import FlatcliError
+    from flatcli.designsearch import SearchResult
     from flatcli.pycontrol import flatsystem
     from flatcli.spec import Spec, SpecError
     from flatcli.urdf import read_urdf
@@ -62,6 +65,8 @@ _LAZY = {
     "track": "flatcli.api",
     "workspace": "flatcli.api",
     "sweep": "flatcli.api",
+    "search": "flatcli.api",
+    "SearchResult": "flatcli.designsearch",
     "check": "flatcli.api",
     "load": "flatcli.api",
     "load_spec": "flatcli.api",
@@ -84,6 +89,7 @@ __all__ = [
     "PlanBatch",
     "PlanResult",
     "Run",
+    "SearchResult",
     "Spec",
     "SpecError",
     "SweepResult",
@@ -98,6 +104,7 @@ __all__ = [
     "plan_many",
     "read_urdf",
     "runs",
+    "search",
     "sweep",
     "track",
     "workspace",

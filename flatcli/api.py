@@ -37,7 +37,7 @@ from flatcli.core.plan.workspace import BRANCHES, DEFAULT_ATTITUDES, WorkspaceMa
 from flatcli.experiment import TrackRun as TrackRun  # the type of TrackResult.run
 from flatcli.experiment import plan_from, run_track
 from flatcli.files import is_regular, kind, read_text
-from flatcli.progress import announce_compile
+from flatcli.progress import compile_notices, planner_text, spec_kernel_text
 from flatcli.report import (
     FigureFile,
     Limits,
@@ -82,6 +82,8 @@ if TYPE_CHECKING:  # pandas loads with the first DataFrame, never in a sweep's p
     from matplotlib.figure import Figure
 
     from flatcli.core.optimize import OptimizeResult
+    from flatcli.designsearch import SearchResult
+    from flatcli.designsearch.check import SearchCheckReport
     from flatcli.preflight import CheckReport
     from flatcli.trajectory import Trajectory
 
@@ -544,6 +546,9 @@ class SweepResult(Run):
         self.simulated = simulated
         self.wall_seconds = wall_seconds
         self._summary_text = summary_text
+        #: what the run here did, as the runner reports it (``montecarlo.SweepResult``; of a
+        #: shard: whether it wrote the final tables, what is missing)
+        self.outcome: Any = None
         self._headline_text = headline_text
 
     @property
@@ -566,7 +571,7 @@ class SweepResult(Run):
         in the grid's order, trials in order)."""
         if self.complete:
             return self.table("trials")
-        if not self.state.chunk_files:
+        if not self.state.chunk_files and not self.state.stored:
             import pandas as pd
 
             return pd.DataFrame()
@@ -711,18 +716,21 @@ def _floats(value: Any) -> Any:
 # The functions.
 
 @computes
-def plan(spec: SpecLike = None, overrides: Overrides = None) -> PlanResult:
+def plan(spec: SpecLike = None, overrides: Overrides = None, *,
+         quiet: bool = True) -> PlanResult:
     """Plan the spec's maneuver (optimised when ``plan.optimize.objective`` is set).
 
     Returns a PlanResult (``.frame``, ``.metrics``, ``.optimization``); nothing is written
-    until ``.save()``.
+    until ``.save()``. Not ``quiet`` (as ``flatcli plan``): a planner numba compiles first
+    (the N-link chain's maps, on a cold cache) is announced on stderr.
     """
     from flatcli.experiment import planned as plan_of
     from flatcli.experiment import task_metrics
     from flatcli.spec.limits import require_finite_plan
 
     s = load_spec(spec, overrides)
-    made, optimization, task = plan_of(s)
+    with contextlib.nullcontext() if quiet else compile_notices(planner_text(s), quiet):
+        made, optimization, task = plan_of(s)
     samples = made.sample(made.grid(s.plan.samples))
     require_finite_plan({"theta": samples.theta, "theta_dot": samples.theta_dot,
                          "u_dot": samples.u_dot, "y": samples.y})
@@ -970,13 +978,15 @@ def track(spec: SpecLike = None, overrides: Overrides = None, *,
     """Plan, then simulate the closed loop of the spec's ``[track]`` on its ``[plant]``.
 
     Returns a TrackResult (``.frame``, ``.metrics``); nothing is written until ``.save()``.
-    On a cold numba cache prints one line (the kernel compiles once, ~30 s) unless quiet.
+    On a cold numba cache says on stderr, unless quiet, that its kernel compiles (once),
+    how long that should take, and how far it is (``progress.compile_notices``).
     """
     from flatcli.outputs import track_frame
     from flatcli.spec.limits import require_finite_plan
 
     s = load_spec(spec, overrides)
-    run = run_track(s, lambda: announce_compile(quiet))
+    with compile_notices(spec_kernel_text(s), quiet):  # the planner's and the loop's
+        run = run_track(s)
     require_finite_plan({"the reference": run.scenario.reference,
                          "theta": run.scenario.theta_reference})
     return TrackResult(s, track_frame(run), run.metrics, run)
@@ -987,7 +997,7 @@ def sweep(spec: SpecLike, out: str | os.PathLike[str] | None = None, *,
           overrides: Overrides = None, workers: int | None = None, executor: str = "local",
           scheduler: str | None = None, force: bool = False, fail_fast: bool = False,
           quiet: bool = False, oversubscribe: bool = False,
-          tags: Iterable[str] = ()) -> SweepResult:
+          tags: Iterable[str] = (), shard: str | None = None) -> SweepResult:
     """Run (or resume) a Monte Carlo sweep into ``out`` (default ``runs/<name>/sweep/``,
     apart from the plan and track runs of that name).
 
@@ -1001,9 +1011,13 @@ def sweep(spec: SpecLike, out: str | os.PathLike[str] | None = None, *,
     first trial that errors or diverges; ``oversubscribe``: allow more workers than cores.
     Shows a progress bar on stderr unless quiet. ``tags``: labels of the sweep (run.json).
     Returns the SweepResult of the directory. One run writes into a directory at a time
-    (FlatcliError naming the other run's pid).
+    (FlatcliError naming the other run's pid), except the shards of one study: ``shard``
+    "K/N" computes shard K of N (``montecarlo.layout.Shard``) beside the others, possibly
+    on other machines sharing the directory; the last to finish writes the final tables
+    (docs/cluster.md). A shard's result is ``.complete`` only if it did.
     """
     from flatcli.montecarlo import run_sweep
+    from flatcli.montecarlo.layout import Shard
     from flatcli.report import Progress
     from flatcli.rundirs import check_tags, sweep_directory
     from flatcli.spec.sweeps import identical_trials
@@ -1019,29 +1033,87 @@ def sweep(spec: SpecLike, out: str | os.PathLike[str] | None = None, *,
     if same is not None and s.sweep.trials > 1 and not quiet:
         print(f"note: the {s.sweep.trials} trials of each cell are identical ({same})",
               file=sys.stderr)
+    part = Shard.parse(shard) if shard is not None else None
     directory = Path(out) if out is not None else sweep_directory(s.name)
     check_output_dir(directory)
-    if executor == "local":
-        announce_compile(quiet)
-    with directory_lock(directory):
+    # (a shard takes the directory's lock itself: shared, then alone if it is the last)
+    with directory_lock(directory) if part is None else contextlib.nullcontext():
         done = run_sweep(s, directory, executor, workers, scheduler, force, fail_fast,
-                         Progress(s.name, quiet), oversubscribe=oversubscribe, tags=chosen)
+                         Progress(s.name, quiet), oversubscribe=oversubscribe, tags=chosen,
+                         shard=part)
         state = sweep_state(directory)
     assert state is not None
-    return SweepResult(state, done.simulated, done.wall_seconds, done.summary_text,
-                       done.headline or None)
+    result = SweepResult(state, done.simulated, done.wall_seconds, done.summary_text,
+                         done.headline or None)
+    result.outcome = done
+    return result
+
+
+def search(spec: SpecLike, out: str | os.PathLike[str] | None = None, *,
+           overrides: Overrides = None, workers: int | None = None, executor: str = "local",
+           scheduler: str | None = None, force: bool = False, quiet: bool = False,
+           oversubscribe: bool = False, command: str = "") -> SearchResult:
+    """Run (or resume) the design search of a spec with a ``[search]`` table into ``out``
+    (default ``runs/<name>/search/``): scipy's differential evolution over the design
+    variables of ``[search.vary]``, each candidate studied by the spec's own ``[sweep]``
+    (common random numbers), generation by generation on every core (or Dask); writes
+    search.parquet, summary.md, the convergence figure and the best design as
+    best_robot.toml, best_robot.urdf and best_spec.toml (docs/search.md). Running it again
+    resumes it (the same search.parquet, bit for bit); a larger ``search.candidates``
+    continues it. Progress on stderr unless quiet."""
+    from flatcli.designsearch import SearchResult
+    from flatcli.designsearch.directory import identity
+    from flatcli.designsearch.progress import SearchProgress
+    from flatcli.designsearch.report import write_results, write_table_now
+    from flatcli.designsearch.runner import SearchState, run_search
+
+    s = load_spec(spec, overrides)
+    directory = Path(out) if out is not None else ROOT / s.name / "search"
+    check_output_dir(directory)
+    digest = identity(s)
+    progress = SearchProgress(s.name, quiet)
+
+    def generation(state: SearchState) -> None:
+        write_table_now(state, directory, digest)  # the rows so far, for a reader
+        progress.on_generation(state)
+
+    record: dict[str, Any] = {}
+
+    def finish(state: SearchState, where: Path, items: dict[str, Any]) -> None:
+        record.update(write_results(state, where, items, digest))
+
+    try:
+        run_search(s, directory, executor, workers, scheduler, force, oversubscribe,
+                   command or " ".join(sys.argv), on_generation=generation,
+                   on_candidate=progress.on_candidate, on_start=progress.on_start,
+                   finish=finish, quiet=quiet)
+    finally:
+        progress.close()
+    from flatcli.designsearch.directory import SUMMARY
+
+    return SearchResult(directory, record, read_text(directory / SUMMARY).rstrip("\n"))
 
 
 @computes
 def check(spec: SpecLike, overrides: Overrides = None, *, workers: int | None = None,
-          executor: str = "local", calibrate: bool = True,
-          quiet: bool = False) -> CheckReport:
+          executor: str = "local", calibrate: bool = True, quiet: bool = False,
+          what: str = "auto") -> CheckReport | SearchCheckReport:
     """What a sweep of this spec would do, without doing it: cells, trials, chunks, a time
-    and memory estimate from a short calibration, and warnings (``flatcli.preflight``).
-    Writes nothing. Returns a CheckReport (``.text()``, ``.cells``, ``.warnings``)."""
+    and memory estimate from a short calibration, and warnings (``flatcli.preflight``); for
+    a spec with ``[search.vary]`` (``what`` "auto"; or "search"), what its design search would
+    do and cost (``flatcli.designsearch.check``). Writes nothing. Returns a CheckReport
+    (``.text()``, ``.cells``, ``.warnings``) or a SearchCheckReport (``.text()``,
+    ``.estimate_seconds``)."""
     from flatcli.preflight import check_spec
 
+    if what not in ("auto", "sweep", "search"):
+        raise FlatcliError(f"check: what must be 'auto', 'sweep' or 'search', got {what!r}")
     s = load_spec(spec, overrides)
+    if what == "search" or (what == "auto" and s.search.vary):
+        from flatcli.designsearch.check import check_search_spec
+
+        return check_search_spec(s, workers=workers, executor=executor, calibrate=calibrate,
+                                 quiet=quiet)
     return check_spec(s, workers=workers, executor=executor, calibrate=calibrate, quiet=quiet)
 
 

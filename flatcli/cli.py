@@ -466,7 +466,7 @@ def run_one(command: str, spec: Path | None, robot: str | None, sets: tuple[str,
             if note is not None and not quiet:
                 click.echo(note, err=True)
             result: api.PlanResult | api.TrackResult = (
-                api.plan(s) if command == "plan" else api.track(s, quiet=quiet))
+                api.plan(s, quiet=quiet) if command == "plan" else api.track(s, quiet=quiet))
             if not quiet:
                 for warning in result.warnings:
                     click.echo(warning, err=True)
@@ -645,7 +645,8 @@ def check(spec: Path | None, robot: str | None, sets: tuple[str, ...], workers: 
           executor: str, quiet: bool) -> None:
     """What a sweep of SPEC would do, without doing it: the resolved spec, the cells and
     their grid values, trials, chunks, a time and memory estimate from a short calibration,
-    and warnings. Writes nothing; with -q only the exit status says whether SPEC is valid."""
+    and warnings; for a spec with a [search] table, what its design search would do and
+    cost. Writes nothing; with -q only the exit status says whether SPEC is valid."""
     from flatcli import api
 
     require_stdout(quiet)
@@ -671,7 +672,11 @@ def check(spec: Path | None, robot: str | None, sets: tuple[str, ...], workers: 
               help="Allow more --workers than this machine's cores.")
 @executor_option
 @click.option("--scheduler", metavar="ADDRESS",
-              help="Dask scheduler address (tcp://host:8786), or 'local' for a LocalCluster.")
+              help="Dask scheduler address (tcp://host:8786), 'local' for a LocalCluster, or "
+                   "'slurm' to start workers as SLURM jobs (dask-jobqueue).")
+@click.option("--shard", metavar="K/N",
+              help="Compute shard K of N of the study (machines or array jobs sharing --out); "
+                   "the last shard to finish writes the final tables.")
 @click.option("--fail-fast", is_flag=True,
               help="Stop at the first trial that raises or diverges (exit status 1).")
 @click.option("--rerun", "rerun", type=TrialId(),
@@ -684,8 +689,8 @@ def check(spec: Path | None, robot: str | None, sets: tuple[str, ...], workers: 
 def sweep(spec: Path, robot: str | None, sets: tuple[str, ...], name: str | None,
           tags: tuple[str, ...], out: Path | None, force: bool, plot: bool, fmt: str | None,
           dpi: int | None, workers: int | None, oversubscribe: bool, executor: str,
-          scheduler: str | None, fail_fast: bool, rerun: int | None, print_spec: bool,
-          dry_run: bool, quiet: bool) -> None:
+          scheduler: str | None, shard: str | None, fail_fast: bool, rerun: int | None,
+          print_spec: bool, dry_run: bool, quiet: bool) -> None:
     """Run a Monte Carlo sweep from a TOML spec with a [sweep] table, into
     runs/<name>/sweep/ (or --out); running the same command again resumes it."""
     require_stdout(quiet)
@@ -699,10 +704,13 @@ def sweep(spec: Path, robot: str | None, sets: tuple[str, ...], name: str | None
         s = api.load_spec(spec, spec_overrides(sets, robot=robot, name=name, fmt=fmt,
                                                dpi=dpi))
         directory = out if out is not None else sweep_directory(s.name)
+        if shard is not None and (rerun is not None or dry_run):
+            fail("--shard: not with --rerun or --dry-run")
         if dry_run:
             if rerun is not None or print_spec:
                 fail("--dry-run: not with --rerun or --print-spec")
-            say(quiet, api.check(s, workers=workers, executor=executor, quiet=quiet).text())
+            say(quiet, api.check(s, workers=workers, executor=executor, quiet=quiet,
+                                 what="sweep").text())
             return
         if print_spec and rerun is None:
             fail("--print-spec: only with --rerun TRIAL")
@@ -712,11 +720,13 @@ def sweep(spec: Path, robot: str | None, sets: tuple[str, ...], name: str | None
         chosen = check_tags(tags)
         check_output_dir(directory)
         try:
-            with directory_lock(directory):
+            # (a shard takes the directory's lock itself: with the other shards, then alone)
+            with directory_lock(directory) if shard is None else contextlib.nullcontext():
                 done = api.sweep(s, directory, workers=workers, executor=executor,
                                  scheduler=scheduler, force=force, fail_fast=fail_fast,
-                                 quiet=quiet, oversubscribe=oversubscribe, tags=chosen)
-                if plot:
+                                 quiet=quiet, oversubscribe=oversubscribe, tags=chosen,
+                                 shard=shard)
+                if plot and done.complete:
                     done.save_figures()
         except FailFastError as exc:
             click.echo(f"error: {exc}", err=True)
@@ -732,9 +742,85 @@ def sweep(spec: Path, robot: str | None, sets: tuple[str, ...], name: str | None
         except KeyboardInterrupt:
             click.echo(f"error: interrupted; {RESUME_HINT.format(directory)}", err=True)
             sys.exit(interrupted_status())
+    if not done.complete:  # a shard whose study is not whole yet
+        say(quiet, shard_text(shard or "", done, directory))
+        return
     say(quiet, done.headline_text)
     say(quiet, f"{done.state.total} trials ({done.simulated} simulated now) in "
                f"{done.wall_seconds:.1f} s; wrote {directory}/trials.parquet, summary.md")
+
+
+#: What a search interrupted or failed says: where its work is and how to go on.
+SEARCH_HINT = ("the evaluated candidates are kept in {}/journal.jsonl; run the same command "
+               "again to resume")
+
+
+@main.command(short_help="Search the robot's design against a Monte Carlo study.")
+@spec_argument(required=True)
+@robot_option
+@set_option()
+@name_option
+@out_option(help="Output directory [default: runs/<name>/search/].")
+@force_option("Start over in a directory holding another search.")
+@figure_options
+@workers_option()
+@click.option("--oversubscribe", is_flag=True,
+              help="Allow more --workers than this machine's cores.")
+@executor_option
+@click.option("--scheduler", metavar="ADDRESS",
+              help="Dask scheduler address (tcp://host:8786), or 'local' for a LocalCluster.")
+@click.option("--dry-run", is_flag=True,
+              help="Show what the search would do and cost (as flatcli check) and write "
+                   "nothing.")
+@quiet_option
+def search(spec: Path, robot: str | None, sets: tuple[str, ...], name: str | None,
+           out: Path | None, force: bool, fmt: str | None, dpi: int | None,
+           workers: int | None, oversubscribe: bool, executor: str, scheduler: str | None,
+           dry_run: bool, quiet: bool) -> None:
+    """Search the design variables of SPEC's [search] table (masses, inertias, lengths,
+    centres, a counterweight) for the design whose Monte Carlo study ([sweep], the same draws
+    for every candidate) goes best, into runs/<name>/search/ (or --out): search.parquet, the
+    convergence figure, best_robot.toml and .urdf. Running the same command again resumes it
+    (docs/search.md)."""
+    require_stdout(quiet)
+    from flatcli import api
+    from flatcli.executors import WorkerLostError
+
+    with user_errors():
+        s = api.load_spec(spec, spec_overrides(sets, robot=robot, name=name, fmt=fmt, dpi=dpi))
+        if dry_run:
+            say(quiet, api.check(s, workers=workers, executor=executor, quiet=quiet,
+                                 what="search").text())
+            return
+        directory = out if out is not None else Path("runs") / s.name / "search"
+        try:
+            done = api.search(s, directory, workers=workers, executor=executor,
+                              scheduler=scheduler, force=force, quiet=quiet,
+                              oversubscribe=oversubscribe,
+                              command=shlex.join(["flatcli", *sys.argv[1:]]))
+        except WorkerLostError as exc:
+            click.echo(f"error: {exc}; {SEARCH_HINT.format(directory)}", err=True)
+            sys.exit(EXIT_RUNTIME)
+        except OSError as exc:
+            click.echo(f"error: {os_error_text(exc)}; {SEARCH_HINT.format(directory)}",
+                       err=True)
+            sys.exit(EXIT_RUNTIME)
+        except KeyboardInterrupt:
+            click.echo(f"error: interrupted; {SEARCH_HINT.format(directory)}", err=True)
+            sys.exit(interrupted_status())
+    say(quiet, done.summary_text)
+    say(quiet, f"wrote {directory}/search.parquet, summary.md, best_robot.toml, "
+               "best_robot.urdf")
+def shard_text(shard: str, done: Any, directory: Path) -> str:
+    """What a shard that did not write the study's final tables says of it."""
+    state, outcome = done.state, done.outcome
+    head = (f"shard {shard}: its chunks are done ({done.simulated} trials simulated now, in "
+            f"{done.wall_seconds:.1f} s); the study has {state.done} of {state.total} trials")
+    if outcome is not None and outcome.running:
+        return (f"{head}; other shards are still running: the last one to finish writes "
+                f"{directory}/trials.parquet")
+    return (f"{head} and no other shard is running: run the missing shards again (the same "
+            "command resumes a shard), or the sweep without --shard")
 
 
 def rerun_trial(s: Any, directory: Path, trial: int, print_spec: bool, quiet: bool) -> None:
@@ -962,7 +1048,7 @@ def export_robot(spec: Path | None, robot: str | None, sets: tuple[str, ...], as
 #: The sections of ``flatcli reproduce`` (``flatcli.reproduce.SECTION_NAMES``; the CLI does
 #: not import the numerical libraries to list them).
 REPRODUCE_SECTIONS = ("paper", "optimized", "montecarlo", "actuators", "chains", "capture",
-                      "asbuilt")
+                      "asbuilt", "search")
 
 
 @main.command(short_help="The paper's figures and numbers, and the studies.")

@@ -23,13 +23,14 @@ import sys
 import time
 import uuid
 import warnings
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any, Protocol, TypeVar
 
 import numpy as np
 
+from flatcli.cluster import SLURM, SLURM_WORKER_TIMEOUT
 from flatcli.core import OWN_PROCESS_VARIABLE
 from flatcli.core.errors import FlatcliError
 from flatcli.core.names import EXECUTORS
@@ -48,6 +49,26 @@ CONNECT_TIMEOUT = "10s"
 WORKER_TIMEOUT = 60.0
 #: How often the Dask executor looks at the cluster while it waits for results [s].
 POLL_SECONDS = 1.0
+#: Dask configuration of the LocalCluster flatcli starts (``--scheduler local``): its
+#: processes forked from this one, as the local executor's are (they start with flatcli and
+#: its libraries loaded: 0.7 s against 3.7 s to spawn fresh interpreters, at load 9 on 2
+#: cores); and, on a worker, less of Dask's own work beside a chunk's, which took 7-8 % of
+#: a chunk's CPU time in the worker's other threads (measured on 8 chunks of the paper's
+#: loop, the chunks' own thread CPU equal): no statistical profiler sampling the task's
+#: thread every 10 ms, the event loop's tick and the memory monitor every second instead of
+#: every 20 and 100 ms (then 2 %). ``WORKER_SETTINGS`` are the same as variables.
+CLUSTER_CONFIG = {"distributed.worker.multiprocessing-method": "fork",
+                  "distributed.worker.profile.enabled": False,
+                  "distributed.admin.tick.interval": "1s",
+                  "distributed.worker.memory.monitor-interval": "1s"}
+#: The settings a Dask worker that is not flatcli's own should have (docs/cluster.md; a
+#: SLURM job's script exports them: ``flatcli.cluster``).
+WORKER_SETTINGS = {"DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED": "False",
+                   "DASK_DISTRIBUTED__ADMIN__TICK__INTERVAL": "1s",
+                   "DASK_DISTRIBUTED__WORKER__MEMORY__MONITOR_INTERVAL": "1s"}
+#: Environment of that cluster's worker processes: one BLAS and OpenMP thread from their
+#: start, as flatcli's own workers (``flatcli.threads``).
+WORKER_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 #: How often a local sweep's main thread, waiting for its workers, looks for a Ctrl-C or
 #: SIGTERM recorded meanwhile (``flatcli.interrupts``) [s].
 INTERRUPT_POLL_SECONDS = 0.1
@@ -55,11 +76,15 @@ _PR_SET_PDEATHSIG = 1
 
 
 def quiet_loggers() -> dict[str, int]:
-    """Raise Dask's loggers to ERROR and asyncio's to CRITICAL; their previous levels."""
+    """Raise Dask's loggers to ERROR, and to CRITICAL asyncio's and Tornado's, which report
+    exceptions in Dask's event loop (a SLURM job that sbatch refused: ``flatcli.cluster``
+    says that in one line); their previous levels."""
     names = [n for n in logging.root.manager.loggerDict if n.startswith("distributed")]
-    levels = {name: logging.getLogger(name).level for name in ["distributed", *names]}
+    levels = {name: logging.getLogger(name).level
+              for name in ["distributed", *names, "tornado.application"]}
     for name in levels:
-        logging.getLogger(name).setLevel(logging.ERROR)
+        logging.getLogger(name).setLevel(logging.CRITICAL if name.startswith("tornado")
+                                          else logging.ERROR)
     logging.getLogger("asyncio").setLevel(logging.CRITICAL)  # not restored: see close()
     return levels
 
@@ -71,11 +96,14 @@ def restore_loggers(levels: dict[str, int]) -> None:
         logging.getLogger(name).setLevel(level)
 
 
-def worker_timeout() -> float:
+def worker_timeout(default: float | None = None) -> float:
+    """How long the Dask executor waits for a worker [s]: FLATCLI_DASK_WORKER_TIMEOUT, else
+    ``default`` (else WORKER_TIMEOUT)."""
+    fallback = WORKER_TIMEOUT if default is None else default
     try:
-        return float(os.environ.get("FLATCLI_DASK_WORKER_TIMEOUT", WORKER_TIMEOUT))
+        return float(os.environ.get("FLATCLI_DASK_WORKER_TIMEOUT", fallback))
     except ValueError:
-        return WORKER_TIMEOUT
+        return fallback
 
 
 def die_with_parent(parent: int) -> None:
@@ -106,10 +134,19 @@ class WorkerLostError(RuntimeError):
 
 
 class Executor(Protocol):
-    """Runs tasks, yielding (tag, result) as each completes."""
+    """Runs tasks, yielding (tag, result) as each completes. ``share`` hands objects that
+    many tasks take (a sweep's cells) to the workers once, returning what a task's arguments
+    name them by; ``warm`` makes every worker ready before the work starts (the compiled
+    kernels loaded: start-up, not work)."""
 
     workers: int
     description: str
+
+    def share(self, objects: Sequence[Any]) -> list[Any]: ...
+
+    def warm(self, fn: Callable[..., Any], args: tuple[Any, ...]) -> None:
+        """Make every worker ready to run ``fn(*args)`` as this process is, which has just
+        run it (args: as ``share`` named them)."""
 
     def run(
         self, fn: Callable[..., Any], tasks: Iterable[tuple[T, tuple[Any, ...]]]
@@ -151,6 +188,14 @@ class LocalExecutor:
                 max_workers=workers, mp_context=multiprocessing.get_context(method),
                 initializer=die_with_parent, initargs=(os.getpid(),),
             )
+
+    def share(self, objects: Sequence[Any]) -> list[Any]:
+        """The objects themselves (the pool's forked workers pickle a task's arguments)."""
+        return list(objects)
+
+    def warm(self, fn: Callable[..., Any], args: tuple[Any, ...]) -> None:
+        """Nothing: the pool's workers fork from this process, which has run ``fn(*args)``,
+        and inherit what it loaded."""
 
     def run(
         self, fn: Callable[..., Any], tasks: Iterable[tuple[T, tuple[Any, ...]]]
@@ -222,12 +267,15 @@ class LocalExecutor:
 class DaskExecutor:
     """Tasks on a Dask distributed cluster (``scheduler`` address, or "local").
 
-    "local" starts a LocalCluster with one single-threaded worker process per core. If a
-    worker dies mid-task the scheduler runs the task again elsewhere; the result is the same
-    because a task depends only on its arguments.
+    "local" starts a LocalCluster with one single-threaded worker process per core, as
+    flatcli's own workers run: one BLAS thread (``WORKER_ENV``), and without Dask's
+    statistical profiler (``CLUSTER_CONFIG``). If a worker dies mid-task the scheduler runs
+    the task again elsewhere; the result is the same because a task depends only on its
+    arguments.
     """
 
-    def __init__(self, scheduler: str, workers: int | None = None) -> None:
+    def __init__(self, scheduler: str, workers: int | None = None,
+                 announce: Callable[[str], None] | None = None) -> None:
         try:
             from dask.distributed import Client, LocalCluster
         except ImportError:
@@ -237,18 +285,35 @@ class DaskExecutor:
             ) from None
         self._cluster = None
         self._idle_since: float | None = None
+        requested = 1  # worker threads of a cluster started here
         # a chunk rescheduled after a worker died is not the user's concern: Dask's warnings
         # (and asyncio's about its abandoned gathers) stay off the terminal
         self._levels = quiet_loggers()
         try:
             if scheduler == "local":
-                n = workers or default_workers()
-                self._cluster = LocalCluster(  # its workers are flatcli's own processes
-                    n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
-                    env={OWN_PROCESS_VARIABLE: "1"})
+                import dask
+
+                n = requested = workers or default_workers()
+                with dask.config.set(CLUSTER_CONFIG):  # (the nannies hand it to the workers)
+                    # its workers are flatcli's own processes
+                    self._cluster = LocalCluster(
+                        n_workers=n, threads_per_worker=1, processes=True,
+                        dashboard_address=":0", env={**WORKER_ENV, OWN_PROCESS_VARIABLE: "1"})
                 self._client = Client(self._cluster)
+            elif scheduler == SLURM:
+                from flatcli.cluster import slurm_cluster
+
+                self._cluster, requested = slurm_cluster(workers)
+                self._client = Client(self._cluster)
+                wait = worker_timeout(SLURM_WORKER_TIMEOUT)
+                if announce is not None:
+                    announce(f"waiting for SLURM to start the workers' jobs (at most "
+                             f"{wait:g} s; squeue -n flatcli-worker shows them)")
             else:
                 self._client = Client(scheduler, timeout=CONNECT_TIMEOUT)
+        except FlatcliError:
+            restore_loggers(self._levels)
+            raise
         except (OSError, ValueError, TypeError) as exc:  # unreachable; malformed address
             restore_loggers(self._levels)
             if self._cluster is not None:
@@ -256,20 +321,56 @@ class DaskExecutor:
             reason = f"cannot connect ({exc})" if isinstance(exc, OSError) else str(exc)
             raise FlatcliError(f"--scheduler {scheduler}: {reason}") from None
         self._scheduler = scheduler
+        self._wait = worker_timeout(SLURM_WORKER_TIMEOUT if scheduler == SLURM else None)
         try:
-            self._client.wait_for_workers(1, timeout=worker_timeout())
+            self._client.wait_for_workers(1, timeout=self._wait)
         except (OSError, TimeoutError) as exc:
             self.close(abort=True)
+            start = ("the SLURM jobs did not start (squeue; FLATCLI_DASK_WORKER_TIMEOUT "
+                     "waits longer)" if scheduler == SLURM else
+                     "start workers (dask worker ADDRESS), or use --executor local")
             raise FlatcliError(f"--scheduler {scheduler}: no worker joined within "
-                               f"{worker_timeout():g} s ({type(exc).__name__}); start workers "
-                               "(dask worker ADDRESS), or use --executor local") from None
-        info = self._client.scheduler_info()
+                               f"{self._wait:g} s ({type(exc).__name__}); {start}") from None
+        info = self._client.scheduler_info(n_workers=-1)
         threads = sum(w.get("nthreads", 1) for w in info.get("workers", {}).values())
-        self.workers = max(threads, 1)
+        # a cluster flatcli started will have all it asked for (jobs start one by one)
+        self.workers = max(threads, requested)
         plural = "s" if self.workers > 1 else ""
         self.description = (
             f"dask at {info.get('address', scheduler)}, {self.workers} worker thread{plural}"
         )
+
+    def share(self, objects: Sequence[Any]) -> list[Any]:
+        """The objects sent to the cluster once, as futures a task's arguments may name: a
+        task then carries its piece of work, not its cell's plan and reference tables (250
+        kB for the paper's loop), and a worker fetches each cell once. Each is a task's
+        result (not scattered data), so one lost with its worker is made again from the
+        task, which the scheduler keeps."""
+        return [self._client.submit(_same, item, pure=False, key=f"share-{uuid.uuid4().hex}")
+                for item in objects]
+
+    def warm(self, fn: Callable[..., Any], args: tuple[Any, ...]) -> None:
+        """``fn(*args)`` once on every worker there is now, all at once (a worker that joins
+        later loads the kernel with its first task)."""
+        from distributed import wait as dask_wait
+
+        info = self._client.scheduler_info(n_workers=-1)
+        futures = [self._client.submit(single_threaded, fn, *args, workers=[address],
+                                       allow_other_workers=False, pure=False,
+                                       key=f"warm-{uuid.uuid4().hex}")
+                   for address in info.get("workers", {})]
+        pending = list(futures)
+        while pending:
+            with contextlib.suppress(TimeoutError):
+                dask_wait(pending, timeout=POLL_SECONDS)
+            check()
+            self._watch()
+            pending = [f for f in pending if not f.done()]
+        for future in futures:
+            if future.status == "error":  # a worker that died: its chunks go elsewhere
+                continue
+            future.result()  # (an exception of fn itself is raised here)
+            future.release()
 
     def run(
         self, fn: Callable[..., Any], tasks: Iterable[tuple[T, tuple[Any, ...]]]
@@ -353,8 +454,8 @@ class DaskExecutor:
             self._idle_since = None
         elif self._idle_since is None:
             self._idle_since = now
-        elif now - self._idle_since > worker_timeout():
-            raise WorkerLostError(f"no Dask worker for {worker_timeout():g} s at "
+        elif now - self._idle_since > self._wait:
+            raise WorkerLostError(f"no Dask worker for {self._wait:g} s at "
                                   f"{self._scheduler}")
 
     def close(self, abort: bool = False) -> None:
@@ -369,12 +470,18 @@ class DaskExecutor:
         restore_loggers(self._levels)
 
 
-def make_executor(kind: str, workers: int | None, scheduler: str | None) -> Executor:
-    """The executor a command line asks for; FlatcliError names a bad option."""
+def _same(item: T) -> T:
+    return item
+
+
+def make_executor(kind: str, workers: int | None, scheduler: str | None,
+                  announce: Callable[[str], None] | None = None) -> Executor:
+    """The executor a command line asks for; FlatcliError names a bad option. ``announce``:
+    where a line for the user goes while the executor waits (for SLURM's jobs)."""
     if kind == "local":
         if scheduler is not None:
             raise FlatcliError("--scheduler: only used with --executor dask")
         return LocalExecutor(workers if workers is not None else default_workers())
     if kind == "dask":
-        return DaskExecutor(scheduler or "local", workers)
+        return DaskExecutor(scheduler or "local", workers, announce)
     raise FlatcliError(f"--executor: expected one of {list(EXECUTORS)}, got {kind!r}")

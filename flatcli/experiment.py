@@ -19,6 +19,7 @@ from flatcli.core.curves.basis import Basis, BSplineBasis, PolynomialBasis
 from flatcli.core.loop.metrics import COUNT_METRICS, METRIC_NAMES, describe_status
 from flatcli.core.loop.outcome import Geometry, Goal, Judged, judge
 from flatcli.core.loop.simulate import (
+    FLAT_ON_EXACT,
     TWIN_FACTOR,
     NoiseStreams,
     Outcome,
@@ -520,6 +521,9 @@ def run_track(spec: Spec, before_simulating: Callable[[], object] | None = None)
     any work, if that could not end within the time budget: ``check_track``);
     ``before_simulating`` is called once the plan and scenario are made and valid."""
     check_track(spec)
+    if spec.track.controller == "flat" and not task_from(spec).active and method_for(
+            robot_from(spec), spec.plan.method) == "exact":  # before planning compiles
+        raise SpecError(FLAT_ON_EXACT)
     plan = plan_from(spec)
     if spec.task.rest:
         return run_rest_track(spec, plan)

@@ -1,13 +1,18 @@
 """Progress of a running sweep: a bar on a terminal, plain periodic lines otherwise; and the
-one line that says the simulation kernel is being compiled (``announce_compile``)."""
+notice of a kernel numba compiles (``compile_notices``)."""
 
 from __future__ import annotations
 
+import contextlib
+import functools
+import json
 import math
+import os
 import sys
+import tempfile
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -15,41 +20,235 @@ from flatcli.core.loop.metrics import STATUS_NAMES
 
 #: A sweep of more grid cells than this says how its cells' planning goes (``cells``).
 CELLS_SHOWN = 50
-#: What the first simulation prints when numba's cache holds no compiled kernel yet.
-COMPILING = "compiling the simulation kernel (once, ~30 s)"
+#: The first word of a compile notice (tests strip the notices by it).
+COMPILING = "compiling"
+#: What compiling each group of kernels took on this project's machine (2 cores shared with
+#: other work: measured 2026-12-04 at load 7-11, docs/performance.md; ``make bench
+#: --sections compiles`` measures them again) [s], by what it is (``kernel_text``,
+#: ``planner_text``): the time a notice expects until this machine has compiled it itself
+#: (then its own time, ``compile_record``). The N of a chain changes nothing: its kernels
+#: take any N.
+COMPILE_SECONDS: dict[str, float] = {
+    "the simulation kernel of the paper model, kinematic plant": 40.0,
+    "the simulation kernel of the paper model, dynamic plant": 90.0,
+    "the simulation kernel of the chain model, kinematic plant": 235.0,
+    "the simulation kernel of the chain model, dynamic plant": 175.0,
+    "the simulation kernel of the as-built model, kinematic plant": 250.0,
+    "the simulation kernel of the as-built model, dynamic plant": 580.0,
+    "the planner of the paper model": 10.0,
+    "the planner of the chain model": 30.0,
+    "the planner of the as-built model": 10.0,
+}
+#: A kernel the table does not know (the longest it lists) [s].
+COMPILE_SECONDS_UNKNOWN = max(COMPILE_SECONDS.values())
+#: How often a compile's progress line is refreshed: on a terminal, in place; elsewhere (a
+#: log), as a new line [s].
+COMPILE_TICK_TERMINAL = 1.0
+COMPILE_TICK_LOG = 60.0
 
 
-def kernel_cached() -> bool:
-    """Whether the kernels' on-disk cache (``flatcli.core._jit.CACHE_DIRECTORY``) holds a
-    readable index of the closed-loop kernel, so a simulation starts without compiling (a
-    damaged index is compiled again: ``_jit._RepairingIndexFile``)."""
-    from flatcli.core._jit import CACHE_DIRECTORY
-
-    root = CACHE_DIRECTORY
-    return root is not None and root.is_dir() and any(
-        _readable_index(p) for p in root.glob("**/*kernels.*_batch-*.nbi"))
+def kernel_key(scenario: Any) -> str:
+    """The compiled closed loop a scenario runs, in words: its model (what its controller
+    believes: the paper's closed form, the N-link chain, the as-built robot's exact model)
+    and its plant (``core.simulate.kernel_inputs`` picks the kernel by them)."""
+    model = "as-built" if scenario.controller == "asbuilt" else scenario.plan.model.kind
+    return f"{model} model, {scenario.plant} plant"
 
 
-def _readable_index(path: Path) -> bool:
-    """Whether numba can read a cache index: its version, then its pickled entries (as
-    ``numba.core.caching.IndexDataCacheFile._load_index`` reads them)."""
-    import pickle
+def _spec_model(spec: Any) -> str:
+    """The model a spec's controller believes, from the spec alone (before planning): the
+    paper's closed form for N = 2, the chain beyond (``core.flatmodel.flat_model``), the
+    as-built robot's exact model under the as-built controller."""
+    if spec.track.controller == "asbuilt":
+        return "as-built"
+    return "paper" if spec.joints == 2 else "chain"
 
+
+def kernel_text(scenario: Any) -> str:
+    """What a notice calls the closed loop a scenario runs."""
+    return f"the simulation kernel of the {kernel_key(scenario)}"
+
+
+def spec_kernel_text(spec: Any) -> str:
+    """``kernel_text`` of the loop a spec runs, from the spec alone."""
+    return f"the simulation kernel of the {_spec_model(spec)} model, {spec.plant.model} plant"
+
+
+def planner_text(spec: Any) -> str:
+    """What a notice calls the kernels a spec's planning may compile (the chain's maps)."""
+    return f"the planner of the {_spec_model(spec)} model"
+
+
+def compile_record() -> Path:
+    """Where this machine's compile times are kept: ``compile-seconds.json`` beside
+    flatcli's numba caches (``$XDG_CACHE_HOME/flatcli``, default ``~/.cache/flatcli``)."""
+    root = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(root) / "flatcli" / "compile-seconds.json"
+
+
+def recorded_seconds() -> dict[str, float]:
+    """This machine's compile times by kernel ({} if none, or not a small JSON object of
+    positive numbers: nothing read from disk is trusted)."""
+    path = compile_record()
     try:
-        with path.open("rb") as f:
-            pickle.load(f)
-            pickle.loads(f.read())
-    except Exception:  # damaged: numba's load raises anything pickle can
-        return False
-    return True
+        if path.is_symlink() or not path.is_file() or path.stat().st_size > 65536:
+            return {}
+        data = json.loads(path.read_text())
+    except (OSError, ValueError, RecursionError):
+        return {}
+    if not isinstance(data, dict):
+        return {}
+    return {str(k): float(v) for k, v in data.items()
+            if isinstance(v, int | float) and not isinstance(v, bool)
+            and math.isfinite(v) and 0 < v < 1e6}
 
 
-def announce_compile(quiet: bool, stream: TextIO | None = None) -> bool:
-    """Print the one-line compile notice when the kernel's cache is cold; whether it was."""
-    cold = not kernel_cached()
-    if cold and not quiet:
-        print(COMPILING, file=stream or sys.stderr, flush=True)
-    return cold
+def expected_seconds(key: str) -> tuple[float, bool]:
+    """How long compiling the kernel ``key`` should take here [s], and whether that is this
+    machine's own time (else the table's, ``COMPILE_SECONDS``)."""
+    mine = recorded_seconds().get(key)
+    if mine is not None:
+        return mine, True
+    return COMPILE_SECONDS.get(key, COMPILE_SECONDS_UNKNOWN), False
+
+
+def _record(key: str, seconds: float) -> None:
+    """Keep ``seconds`` as this machine's compile time of ``key`` (best effort: a cache
+    that cannot be written keeps nothing)."""
+    with contextlib.suppress(OSError):
+        path = compile_record()
+        path.parent.mkdir(parents=True, exist_ok=True)
+        data = {**recorded_seconds(), key: round(seconds, 1)}
+        fd, tmp = tempfile.mkstemp(prefix=".compile-seconds.", suffix=".tmp", dir=path.parent)
+        try:
+            with os.fdopen(fd, "w") as fh:
+                json.dump(data, fh, sort_keys=True)
+            os.replace(tmp, path)
+        finally:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+
+
+def duration_text(seconds: float) -> str:
+    """'45 s', '4.2 min'."""
+    return f"{seconds:.0f} s" if seconds < 90 else f"{seconds / 60:.1f} min"
+
+
+class _Notice:
+    """numba's compile events (``numba.core.event``) while one kernel is first run: the
+    first compile of one of flatcli's functions prints the notice, a thread refreshes its
+    progress while any runs, and the block's end says how long they took."""
+
+    def __init__(self, key: str, stream: TextIO, quiet: bool) -> None:
+        self.key, self.stream, self.quiet = key, stream, quiet
+        self.terminal = stream.isatty()
+        self.depth = 0
+        self.started: float | None = None
+        self.compiling = 0.0  # seconds spent in compiles so far
+        self._since = 0.0
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    # numba.core.event.Listener's two methods
+    def on_start(self, event: Any) -> None:
+        if not _flatcli_function(event):
+            return
+        self.depth += 1
+        if self.depth > 1:
+            return
+        self._since = time.perf_counter()
+        if self.started is None:
+            self.started = self._since
+            if self.quiet:
+                return
+            expected, own = expected_seconds(self.key)
+            where = "this machine's last time" if own else "on this project's 2 cores"
+            print(f"{COMPILING} {self.key} (once, then cached; about "
+                  f"{duration_text(expected)}, {where})", file=self.stream, flush=True)
+            self._thread = threading.Thread(target=self._tick, args=(expected,), daemon=True)
+            self._thread.start()
+
+    def on_end(self, event: Any) -> None:
+        if not _flatcli_function(event) or self.depth == 0:
+            return
+        self.depth -= 1
+        if self.depth == 0:
+            self.compiling += time.perf_counter() - self._since
+
+    def _tick(self, expected: float) -> None:
+        tick = COMPILE_TICK_TERMINAL if self.terminal else COMPILE_TICK_LOG
+        while not self._stop.wait(tick):
+            assert self.started is not None
+            elapsed = time.perf_counter() - self.started
+            text = f"  {COMPILING}: {duration_text(elapsed)} of about {duration_text(expected)}"
+            if self.terminal:
+                print(f"\r{text}\033[K", end="", file=self.stream, flush=True)
+            else:
+                print(text, file=self.stream, flush=True)
+
+    @property
+    def compiled(self) -> bool:
+        """Whether numba compiled one of flatcli's functions in the block."""
+        return self.started is not None
+
+    def close(self) -> None:
+        if self.started is None:
+            return
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+        _record(self.key, self.compiling)
+        if self.quiet:
+            return
+        text = f"  compiled in {duration_text(self.compiling)}"
+        print(f"\r{text}\033[K" if self.terminal else text, file=self.stream, flush=True)
+
+
+@functools.cache
+def _listener_class() -> type:
+    """A ``numba.core.event.Listener`` that hands numba's compile events to a ``_Notice``
+    (made once: numba is loaded by then)."""
+    from numba.core import event
+
+    class Listener(event.Listener):
+        def __init__(self, notice: _Notice) -> None:
+            self.notice = notice
+
+        def on_start(self, ev: Any) -> None:
+            self.notice.on_start(ev)
+
+        def on_end(self, ev: Any) -> None:
+            self.notice.on_end(ev)
+
+    return Listener
+
+
+def _flatcli_function(event: Any) -> bool:
+    dispatcher = (event.data or {}).get("dispatcher")
+    module = getattr(getattr(dispatcher, "py_func", None), "__module__", "") or ""
+    return module.startswith("flatcli.")
+
+
+@contextlib.contextmanager
+def compile_notices(key: str, quiet: bool, stream: TextIO | None = None) -> Iterator[_Notice]:
+    """Within: if numba compiles one of flatcli's functions (its cache holds no machine
+    code for it), one line says so, naming what compiles (``key``: ``kernel_text``,
+    ``planner_text``) and how long it should take (``expected_seconds``); a progress line
+    follows while it compiles (in place on a terminal, every minute in a log), and one with
+    its time, which is kept for the next notice. Nothing printed when ``quiet``. Accurate
+    for every kernel, plant, controller and N: it answers numba's own compile events, not a
+    guess from the cache's files. Yields what tells whether a compile happened
+    (``.compiled``)."""
+    from numba.core import event
+
+    notice = _Notice(key, stream or sys.stderr, quiet)
+    listener = _listener_class()(notice)
+    event.register("numba:compile", listener)  # type: ignore[no-untyped-call]
+    try:
+        yield notice
+    finally:
+        event.unregister("numba:compile", listener)  # type: ignore[no-untyped-call]
+        notice.close()
 
 
 class Progress:

@@ -243,6 +243,9 @@ class SweepState:
     done: int  # trials in the finished chunk files
     complete: bool  # trials.parquet, summary and run.json of this spec are written
     chunk_cells: tuple[int, ...] = ()  # the grid position of each chunk file's cell
+    #: chunks of the spec's grid that trials.parquet holds (a finished sweep keeps its rows
+    #: there only; an extended one reuses them from there), each as (name, grid position)
+    stored: tuple[tuple[str, int], ...] = ()
 
     @property
     def digest(self) -> str:
@@ -273,8 +276,8 @@ class SweepState:
         missing = self.total - self.done
         share = 100 * self.done / self.total if self.total else 100.0
         return (f"partial sweep: {self.done} of {self.total} trials finished ({share:.0f}%), "
-                f"{len(self.chunk_files)} of {self.chunks_total} chunks; {missing} trials "
-                "missing")
+                f"{len(self.chunk_files) + len(self.stored)} of {self.chunks_total} chunks; "
+                f"{missing} trials missing")
 
 
 def sweep_state(directory: Path) -> SweepState | None:
@@ -288,7 +291,7 @@ def sweep_state(directory: Path) -> SweepState | None:
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    from flatcli.montecarlo.directory import read_manifest
+    from flatcli.montecarlo.directory import StoredChunks, read_manifest
     from flatcli.spec import SpecError
     from flatcli.storage import read_provenance
 
@@ -336,11 +339,21 @@ def sweep_state(directory: Path) -> SweepState | None:
         positions.append(position)
     if not keyed:  # the cell column of a chunk written before cell keys is its position
         positions = []
+    stored: list[tuple[str, int]] = []
+    held = StoredChunks.of(directory) if keyed else None
+    if held is not None:
+        named = {p.name for p in files}
+        for name, (position, cell_digest) in expected.items():
+            chunk = held.chunks.get(name)
+            if name not in named and chunk is not None and chunk.cell_digest == cell_digest:
+                stored.append((name, position))
+                done += chunk.stop - chunk.start
     record = read_json(directory / RECORD)
     complete = (record is not None and record.get("digest") == digest
                 and is_regular(directory / "trials.parquet")
                 and is_regular(directory / "summary.parquet"))
-    return SweepState(directory, manifest, tuple(files), done, complete, tuple(positions))
+    return SweepState(directory, manifest, tuple(files), done, complete, tuple(positions),
+                      tuple(stored))
 
 
 def chunk_frames(state: SweepState, columns: list[str] | None = None) -> Any:
@@ -349,6 +362,8 @@ def chunk_frames(state: SweepState, columns: list[str] | None = None) -> Any:
     import pandas as pd
     import pyarrow.parquet as pq
 
+    from flatcli.montecarlo.directory import StoredChunks
+
     frames = []
     for i, path in enumerate(state.chunk_files):
         present = None if columns is None else [
@@ -356,6 +371,16 @@ def chunk_frames(state: SweepState, columns: list[str] | None = None) -> Any:
         frame = pd.read_parquet(path, columns=present)
         if state.chunk_cells:
             frame["cell"] = state.chunk_cells[i]
+        frames.append(frame)
+    held = StoredChunks.of(state.directory) if state.stored else None
+    for name, position in state.stored:
+        if held is None or name not in held.chunks:  # (replaced meanwhile by a finished run)
+            continue
+        table = held.read(name)
+        if columns is not None:
+            table = table.select([c for c in columns if c in table.column_names])
+        frame = table.to_pandas()
+        frame["cell"] = position
         frames.append(frame)
     if not frames:
         return pd.DataFrame(columns=columns)

@@ -19,6 +19,7 @@ import json
 import math
 import os
 import platform
+import re
 import socket
 import stat
 import subprocess
@@ -79,7 +80,7 @@ def atomic_path(path: Path, syncer: Syncer | None = None) -> Iterator[Path]:
             tmp.chmod(0o666 & ~_UMASK)  # mkstemp makes 0600; give the file the usual mode
             os.replace(tmp, path)
         if syncer is None:
-            _fsync_directory(path.parent)
+            fsync_directory(path.parent)
         else:
             syncer.add(path)
     finally:
@@ -144,7 +145,7 @@ class Syncer:
                         finally:
                             os.close(fd)
                 for directory in dict.fromkeys(p.parent for p in group):
-                    _fsync_directory(directory)
+                    fsync_directory(directory)
             except OSError as exc:
                 with self._changed:
                     if self._error is None:
@@ -180,7 +181,7 @@ def naming_os_errors(path: Path, tmp: Path | None = None) -> Iterator[None]:
         raise OSError(exc.errno, reason, str(path)) from None
 
 
-def _fsync_directory(directory: Path) -> None:
+def fsync_directory(directory: Path) -> None:
     """Make a rename in ``directory`` durable (where the file system allows it)."""
     try:
         fd = os.open(directory, os.O_RDONLY | os.O_DIRECTORY)
@@ -467,13 +468,27 @@ def check_output_dir(directory: Path, option: str = "--out") -> None:
 
 #: The lock file of an output directory (it holds the writer's pid and host).
 LOCK_NAME = ".flatcli.lock"
+#: Held briefly by a shard of a sweep while it reads and writes the directory's manifest
+#: (``shard_locks``), so that shards starting together agree on one spec.
+SETUP_LOCK_NAME = ".flatcli.setup.lock"
+#: Held by the one run of each shard (``shard_lock_name``).
+SHARD_LOCK = re.compile(r"\.flatcli\.shard-[0-9]{1,9}-of-[0-9]{1,9}\.lock")
+#: What a shard writes into the directory's lock (``_holder`` reads it).
+SHARDS_MARK = "shards"
+#: How long a shard waits for another shard's set-up (a second or so each) [s].
+SETUP_WAIT = 600.0
+
+
+def shard_lock_name(index: int, count: int) -> str:
+    """The lock file of shard ``index`` of ``count`` (1-based)."""
+    return f".flatcli.shard-{index}-of-{count}.lock"
 
 
 class DirectoryBusyError(FlatcliError):
     """Another run holds the directory's lock (a usage error: exit status 2)."""
 
 
-#: Directories this process holds the lock of: resolved path -> [fd, depth].
+#: Locks this process holds: resolved path of the lock file -> [fd, depth, shared].
 _HELD: dict[str, list[int]] = {}
 
 
@@ -490,19 +505,30 @@ def _missing_ancestors(directory: Path) -> list[Path]:
 
 
 def _holder(fd: int) -> str:
-    """The pid (and host) the lock's holder wrote, waiting briefly for a new holder to."""
+    """Who holds the lock, as its holder wrote it ("pid 123", "pid 123 on host", or the
+    shards of a sweep), waiting briefly for a new holder to write."""
     for _ in range(20):
         text = os.pread(fd, 200, 0).decode("utf-8", "replace").split()
         if text:
+            shards = text[0] == SHARDS_MARK
+            if shards:
+                text = text[1:] or ["unknown"]
             pid = text[0]
             host = text[1] if len(text) > 1 else ""
-            return f"pid {pid}" + (f" on {host}" if host and host != socket.gethostname() else "")
+            who = f"pid {pid}" + (f" on {host}" if host and host != socket.gethostname()
+                                  else "")
+            return f"shards of a sweep, one of them {who}" if shards else who
         time.sleep(0.05)
     return "pid unknown"
 
 
-def _acquire(directory: Path) -> int:
-    path = directory / LOCK_NAME
+def _acquire(directory: Path, name: str = LOCK_NAME, shared: bool = False,
+             wait: float = 0.0, busy: str | None = None) -> int:
+    """An open descriptor of ``directory/name`` holding its ``flock`` (shared or exclusive),
+    waiting up to ``wait`` seconds for it; DirectoryBusyError (``busy``, or the standard
+    line naming the holder) if it cannot be had."""
+    path = directory / name
+    deadline = time.monotonic() + wait
     while True:
         try:
             fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW
@@ -520,19 +546,25 @@ def _acquire(directory: Path) -> int:
             raise FlatcliError(f"{path} is {kind(path)}, not flatcli's lock file; remove it "
                                "yourself, or use another --out")
         try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            fcntl.flock(fd, (fcntl.LOCK_SH if shared else fcntl.LOCK_EX) | fcntl.LOCK_NB)
         except OSError as exc:
             if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
                 os.close(fd)
                 raise
+            if time.monotonic() < deadline:
+                os.close(fd)
+                time.sleep(0.05)
+                continue
             holder = _holder(fd)
             os.close(fd)
             raise DirectoryBusyError(
-                f"{directory} is being written by another flatcli run ({holder}); wait for it "
-                "to finish, or use another --out"
+                (busy or "{directory} is being written by another flatcli run ({holder}); "
+                 "wait for it to finish, or use another --out").format(
+                    directory=directory, holder=holder)
             ) from None
         # the file may have been removed (by a run that created the directory and wrote
-        # nothing) between our open and our lock: then lock the new one
+        # nothing, or by the last holder as it ended) between our open and our lock: then
+        # lock the new one
         try:
             now = os.stat(path, follow_symlinks=False)
         except FileNotFoundError:
@@ -542,53 +574,109 @@ def _acquire(directory: Path) -> int:
         if (mine.st_dev, mine.st_ino) != (now.st_dev, now.st_ino):
             os.close(fd)
             continue
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{os.getpid()} {socket.gethostname()}\n".encode(), 0)
+        if not shared:  # (a shard writes its line once it holds its own lock too)
+            _write_holder(fd)
         return fd
 
 
+def _write_holder(fd: int, shards: bool = False) -> None:
+    """Write who holds a lock into it, for a refused run to name (``_holder``)."""
+    line = f"{SHARDS_MARK + ' ' if shards else ''}{os.getpid()} {socket.gethostname()}\n"
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, line.encode(), 0)
+
+
 @contextlib.contextmanager
-def directory_lock(directory: Path) -> Iterator[None]:
+def directory_lock(directory: Path, shared: bool = False) -> Iterator[None]:
     """Hold ``directory``'s lock for the block: the one writer there (``DirectoryBusyError``,
     naming the holder's pid, if another process holds it).
 
-    The directory is created if need be; if the block leaves nothing in a directory it
-    created, the directory is removed again (a refused run writes nothing). The lock file
-    is removed when the block ends if this run created it (one left by a killed run stays,
-    harmless: the kernel released its lock). Nested use in one process is allowed. The lock
-    is an ``flock`` on ``.flatcli.lock``, released by the kernel when the process ends,
-    even by kill -9.
+    ``shared``: held together with other shared holders (the shards of one sweep,
+    ``shard_locks``), never with an exclusive one. The directory is created if need be; if
+    the block leaves nothing in a directory it created, the directory is removed again (a
+    refused run writes nothing). The lock file is removed when the block ends if this run
+    created it (one left by a killed run stays, harmless: the kernel released its lock); a
+    shared holder removes it only when no other holder is left. Nested use in one process is
+    allowed (in the mode held first). The lock is an ``flock`` on ``.flatcli.lock``, released
+    by the kernel when the process ends, even by kill -9.
     """
-    key = os.path.realpath(directory)
+    with _lock(directory, LOCK_NAME, shared):
+        yield
+
+
+@contextlib.contextmanager
+def _lock(directory: Path, name: str, shared: bool = False, wait: float = 0.0,
+          busy: str | None = None, remove: bool = False) -> Iterator[int]:
+    """Hold ``directory/name``'s lock for the block (see ``directory_lock``); yields its
+    descriptor. ``remove``: remove the lock file when the block ends whoever created it (a
+    lock file of a killed run's goes then too)."""
+    key = os.path.realpath(directory / name)
     held = _HELD.get(key)
     if held is not None:
         held[1] += 1
         try:
-            yield
+            yield held[0]
         finally:
             held[1] -= 1
         return
     created = _missing_ancestors(directory)
     directory.mkdir(parents=True, exist_ok=True)
-    new_lock = not os.path.lexists(directory / LOCK_NAME)
+    new_lock = not os.path.lexists(directory / name)
     try:
-        fd = _acquire(directory)
+        fd = _acquire(directory, name, shared, wait, busy)
     except BaseException:
         _remove_empty(created)
         raise
-    _HELD[key] = [fd, 1]
+    _HELD[key] = [fd, 1, int(shared)]
     try:
-        yield
+        yield fd
     finally:
         del _HELD[key]
         try:
-            if new_lock:  # a run leaves no lock file behind (a waiting run re-checks it)
-                (directory / LOCK_NAME).unlink()
+            last = new_lock or remove
+            if shared:  # the last holder removes it (a waiting run re-checks the file)
+                try:
+                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                    last = True
+                except OSError:
+                    last = False
+            if last:  # a run leaves no lock file behind (a waiting run re-checks it)
+                (directory / name).unlink()
             if created and not any(directory.iterdir()):
                 _remove_empty(created)
         except OSError:  # pragma: no cover - best effort; the lock is released below
             pass
         os.close(fd)
+
+
+class ShardLocks:
+    """What ``shard_locks`` yields: ``setup()``, the lock that serialises the shards' reading
+    and writing of the manifest (a context manager), and ``running()``, which writes this
+    shard's pid into the directory's lock once its set-up has passed (a run refused there
+    names one of the shards that are running, not one that was refused)."""
+
+    def __init__(self, directory: Path, fd: int) -> None:
+        self._directory, self._fd = directory, fd
+
+    def setup(self) -> contextlib.AbstractContextManager[int]:
+        return _lock(self._directory, SETUP_LOCK_NAME, wait=SETUP_WAIT, remove=True,
+                     busy=f"{{directory}}: another shard's set-up held its lock for "
+                          f"{SETUP_WAIT:g} s ({{holder}})")
+
+    def running(self) -> None:
+        _write_holder(self._fd, shards=True)  # (over another shard's line: one of them)
+
+
+@contextlib.contextmanager
+def shard_locks(directory: Path, index: int, count: int) -> Iterator[ShardLocks]:
+    """Hold what a shard of a sweep holds while it runs: the directory's lock, shared with
+    the other shards (so no other run writes there meanwhile), and its own shard's lock (so
+    each shard runs once at a time: DirectoryBusyError otherwise)."""
+    with _lock(directory, LOCK_NAME, shared=True) as fd, _lock(
+            directory, shard_lock_name(index, count), remove=True,
+            busy=f"{{directory}}: shard {index}/{count} is being run by another flatcli run "
+                 "({holder}); wait for it to finish"):
+        yield ShardLocks(directory, fd)
 
 
 def _remove_empty(created: list[Path]) -> None:
@@ -602,7 +690,7 @@ def _remove_empty(created: list[Path]) -> None:
 def forget_inherited_locks() -> None:
     """In a forked child: close the lock descriptors inherited from the parent, so that the
     lock is released when the parent ends, whatever the child does."""
-    for fd, _ in _HELD.values():
+    for fd, *_ in _HELD.values():
         with contextlib.suppress(OSError):
             os.close(fd)
     _HELD.clear()

@@ -2,11 +2,10 @@
 finished and an interrupted sweep; and a plan record as flatcli writes one."""
 
 import json
-import shutil
 from pathlib import Path
 
 from click.testing import CliRunner
-from small_sweep import write_spec
+from small_sweep import sweep_without_final_tables, write_spec
 
 from flatcli.cli import main
 from flatcli.rundirs import stamp
@@ -32,9 +31,9 @@ def make_tree(root: Path) -> Path:
     spec = write_spec(root.parent / "specs")
     code, out = cli("sweep", str(spec), "--out", str(root / "small"), "-q", "--workers", "1")
     assert code == 0, out
-    shutil.copytree(root / "small", root / "cut")
-    for name in ("trials.parquet", "summary.parquet", "summary.md", "run.json"):
-        (root / "cut" / name).unlink()
+    code, out = sweep_without_final_tables(str(spec), "--out", str(root / "cut"), "-q",
+                                           "--workers", "1")
+    assert code != 0, out  # (interrupted, as a kill before the final tables)
     manifest = json.loads((root / "cut" / "sweep.json").read_text())
     first = manifest["cells"][manifest["grid_cells"][0]]["chunks"][0]  # cell 0's first chunk
     (root / "cut" / "trials" / first).unlink()

@@ -44,3 +44,19 @@ def sweep(*args: str) -> tuple[int, str]:
     """``flatcli sweep ARGS`` through click's CliRunner: exit code and output."""
     result = CliRunner().invoke(main, ["sweep", *args])
     return result.exit_code, result.output
+
+
+def sweep_without_final_tables(*args: str) -> tuple[int, str]:
+    """``flatcli sweep ARGS`` stopped where a kill -9 after its last chunk and before its
+    final tables would stop it: every chunk file written and flushed, no trials.parquet,
+    summary or run.json (a finished sweep keeps its rows in trials.parquet only)."""
+    import pytest
+
+    from flatcli.montecarlo import runner
+
+    def killed(*_: object, **__: object) -> str:
+        raise KeyboardInterrupt
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(runner, "finish_sweep", killed)
+        return sweep(*args)

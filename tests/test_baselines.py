@@ -319,3 +319,25 @@ def test_the_start_up_floor_runs_its_kernel_and_nothing_of_flatcli_but_its_numba
     assert out[0] == "3.0"
     assert json.loads(out[1]) == ["flatcli", "flatcli.core", "flatcli.core._jit",
                                   "flatcli.floor_probe"]
+
+
+def test_the_kernels_whole_process_runs_its_trials_and_loads_no_other_baseline() -> None:
+    """benchmarks/baselines/kernel_process.py: the same-work kernel as a process of its own
+    (what make bench sets a 10^3-trial sweep beside) prints its trials' count, and loads the
+    kernel's module alone, not the package's other baselines (python-control, scipy's
+    optimisers): a user of a hand-written kernel would not."""
+    import json
+    import subprocess
+    import sys
+
+    from benchmarks.baselines import kernel_process
+
+    assert kernel_process.kernel_process_seconds(5, 1) > 0
+    root = str(Path(kernel_process.__file__).resolve().parents[2])
+    code = (f"import json, runpy, sys; sys.path.insert(0, {root!r}); "
+            f"ns = runpy.run_path({kernel_process.__file__!r}); ns['_package_alone'](); "
+            "n = ns['run'](4, 1); print(json.dumps([n, 'control' in sys.modules, "
+            "'scipy.optimize' in sys.modules, 'benchmarks.baselines.shooting' in sys.modules]))")
+    out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True,
+                         text=True).stdout
+    assert json.loads(out.splitlines()[-1]) == [4, False, False, False]

@@ -369,29 +369,6 @@ def test_help_version_and_completion_load_no_numerics(argv: list[str]) -> None:
     assert completion.stderr.strip().splitlines()[-1] == "[]"
 
 
-def test_compile_notice_only_on_a_cold_cache(tmp_path: Path,
-                                             monkeypatch: pytest.MonkeyPatch) -> None:
-    import io
-
-    from flatcli.core import _jit
-    from flatcli.progress import COMPILING, announce_compile
-
-    monkeypatch.setattr(_jit, "CACHE_DIRECTORY", tmp_path)
-    stream = io.StringIO()
-    assert announce_compile(False, stream) is True
-    assert stream.getvalue() == COMPILING + "\n"
-    assert announce_compile(True, stream) is True and stream.getvalue().count("\n") == 1
-    index = tmp_path / "core_0123" / "kernels.paper_kinematic_batch-124.py311.nbi"
-    index.parent.mkdir()
-    index.write_bytes(b"")  # a damaged index: numba compiles again (tests/test_progress.py)
-    assert announce_compile(False, io.StringIO()) is True
-    import pickle
-
-    index.write_bytes(pickle.dumps("0.68.1") + pickle.dumps((1.0, {})))  # a readable one
-    stream = io.StringIO()
-    assert announce_compile(False, stream) is False and stream.getvalue() == ""
-
-
 def test_summarize_plot_needs_a_finished_sweep(tmp_path: Path) -> None:
     (tmp_path / "summary.md").write_text("a summary\n")
     code, out = run("summarize", str(tmp_path), "--plot")

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import logging
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -16,7 +15,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 from dask.distributed import Client, LocalCluster, get_task_stream
-from small_sweep import SPEC, sweep, write_spec
+from small_sweep import SPEC, sweep, sweep_without_final_tables, write_spec
 
 import flatcli.executors
 from flatcli.montecarlo.layout import ID_STRIDE
@@ -40,12 +39,11 @@ def chunk_files(directory: Path) -> list[str]:
 
 
 def assert_same_sweep(directory: Path, reference: Path) -> None:
-    """Same chunk files with the same rows, same trials.parquet, summary.parquet, summary.md."""
-    assert chunk_files(directory) == chunk_files(reference)
-    for name in chunk_files(reference):
-        pd.testing.assert_frame_equal(pd.read_parquet(directory / "trials" / name),
-                                      pd.read_parquet(reference / "trials" / name),
-                                      check_exact=True, obj=name)
+    """The same trials.parquet to the byte (its rows, its chunks' list and checksums), the
+    same summary.parquet and summary.md; no chunk file left (each result once on disk)."""
+    assert chunk_files(directory) == chunk_files(reference) == []
+    assert (directory / "trials.parquet").read_bytes() == (
+        reference / "trials.parquet").read_bytes()
     for name in ("trials.parquet", "summary.parquet"):
         pd.testing.assert_frame_equal(pd.read_parquet(directory / name),
                                       pd.read_parquet(reference / name),
@@ -82,7 +80,6 @@ def reference(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = base / "out"
     code, text = sweep(str(write_spec(base)), "--out", str(out), "-q", "--workers", "1")
     assert code == 0, text
-    assert len(chunk_files(out)) == 6
     return out
 
 
@@ -124,9 +121,8 @@ def test_a_local_sweep_with_lost_chunks_is_finished_by_dask_identically(
     # What a local sweep killed mid-way leaves: some chunks written, one lost (never renamed
     # into place: only its temp file is there), one torn, and no final tables.
     out = tmp_path / "cut"
-    shutil.copytree(reference, out)
-    for name in ("trials.parquet", "summary.parquet", "summary.md", "run.json"):
-        (out / name).unlink()
+    sweep_without_final_tables(str(write_spec(tmp_path)), "--out", str(out), "-q",
+                               "--workers", "1")
     trials = out / "trials"
     names = chunk_files(out)  # per cell: trials 0-24, 25-49, 50-59
     lost, torn = trials / names[1], trials / names[5]
@@ -143,10 +139,7 @@ def test_a_local_sweep_with_lost_chunks_is_finished_by_dask_identically(
     assert "120 trials" in text and "resuming with 85 done" in text  # 120 - 25 - 10
     assert "(35 simulated now)" in text
     assert_same_sweep(out, reference)
-    assert not list(trials.glob("*.tmp"))
-    for name, before in kept.items():  # finished chunks are kept, not simulated again
-        after = (trials / name).stat()
-        assert (after.st_ino, after.st_mtime_ns) == (before.st_ino, before.st_mtime_ns), name
+    assert not trials.exists()  # the temporary file gone, and the chunks in trials.parquet
 
 
 def test_a_worker_killed_mid_sweep_changes_nothing(
@@ -196,7 +189,6 @@ def test_a_worker_killed_mid_sweep_changes_nothing(
     now = client.run(os.getpid)
     assert pids[victim] not in now.values()
     # the result is complete and identical
-    assert len(chunk_files(out)) == LONG_CHUNKS
     frame = pd.read_parquet(out / "trials.parquet")
     assert (frame["trial"] % ID_STRIDE).tolist() == list(range(LONG_TRIALS)) * 2
     assert_same_sweep(out, whole)
@@ -272,3 +264,76 @@ def test_workers_that_all_leave_mid_sweep_end_it_with_one_line(
                            match=r"^no Dask worker for 3 s at "):
             list(results)
         executor.close()
+
+
+def test_a_cluster_of_separate_processes_as_over_ssh_writes_the_local_bytes(
+        tmp_path: Path, reference: Path) -> None:
+    """What docs/cluster.md tells a user to start on other machines over SSH: a scheduler
+    and a worker host, each a process of its own started by Dask's command line (here on
+    this machine), and the sweep pointed at the scheduler's address."""
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
+    address_file = tmp_path / "scheduler.json"
+    scheduler = subprocess.Popen(
+        [sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1",
+         "--port", "0", "--dashboard-address", ":0", "--scheduler-file", str(address_file)],
+        env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    worker = None
+    try:
+        deadline = time.monotonic() + 120
+        while not address_file.exists() or not address_file.read_text().strip():
+            assert time.monotonic() < deadline and scheduler.poll() is None
+            time.sleep(0.1)
+        worker = subprocess.Popen(
+            [sys.executable, "-m", "distributed.cli.dask_worker", "--scheduler-file",
+             str(address_file), "--nworkers", "2", "--nthreads", "1", "--no-dashboard"],
+            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+            start_new_session=True)
+        import json
+
+        address = json.loads(address_file.read_text())["address"]
+        with Client(address, timeout="30s") as watcher:
+            watcher.wait_for_workers(2, timeout=120)  # both up, as a user would see first
+        out = tmp_path / "ssh"
+        code, text = sweep(str(write_spec(tmp_path)), "--out", str(out), "--executor", "dask",
+                           "--scheduler", address)
+        assert code == 0, text
+        assert f"120 trials on dask at {address}, 2 worker threads" in text
+        assert_same_sweep(out, reference)
+    finally:
+        for process in (worker, scheduler):
+            if process is not None and process.poll() is None:
+                os.killpg(process.pid, signal.SIGTERM)
+                try:
+                    process.wait(timeout=30)
+                except subprocess.TimeoutExpired:
+                    os.killpg(process.pid, signal.SIGKILL)
+                    process.wait()
+
+
+def test_the_cluster_flatcli_starts_runs_its_workers_as_flatclis_own() -> None:
+    """--scheduler local: worker processes forked from flatcli's (its modules already
+    loaded), one BLAS thread, and Dask's own work beside a chunk's cut down (no profiler, a
+    tick and memory monitor every second: flatcli.executors.CLUSTER_CONFIG)."""
+
+    from flatcli.executors import CLUSTER_CONFIG, DaskExecutor
+
+    def settings() -> dict[str, object]:
+        import sys
+
+        import dask
+
+        return {"flatcli loaded": "flatcli.montecarlo.chunks" in sys.modules,
+                "threads": os.environ.get("OPENBLAS_NUM_THREADS"),
+                **{key: dask.config.get(key) for key in CLUSTER_CONFIG}}
+
+    import flatcli.montecarlo.chunks  # noqa: F401  (what a sweep's process has loaded)
+
+    executor = DaskExecutor("local", 2)
+    try:
+        found = executor._client.run(settings)
+    finally:
+        executor.close()
+    assert len(found) == 2
+    for worker in found.values():
+        assert worker["flatcli loaded"] and worker["threads"] == "1", worker
+        assert {k: worker[k] for k in CLUSTER_CONFIG} == CLUSTER_CONFIG

@@ -272,6 +272,11 @@ def test_sweep_verify_re_runs_the_first_trials_of_each_cell_with_dop853() -> Non
             assert max(difference[:3]) > 1e-6  # RK4 at dt = 10 ms, which nothing verifies
         for t in tables:
             assert t.schema.field("reference_difference").metadata[UNIT_KEY] == b"rad"
+        # trials of ids outside the cell's own (flatcli check's same draws in every cell:
+        # ids 0, 1, 2) are never its first: none is re-run
+        assert cell.key != 0
+        other = run_chunk(cell, Chunk(cell.index, 0, 3)).table
+        assert other.column("reference_status").to_pylist() == [None] * 3
 
 
 #: A capture box (docs/tasks.md, "Task sweeps"): three targets near the paper's robot's

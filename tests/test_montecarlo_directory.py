@@ -672,3 +672,120 @@ def test_a_full_disk_while_trials_parquet_grows_is_an_os_error_naming_it(
     assert caught.value.strerror == "No space left on device"
     assembly.abort()
     assert not list(directory.glob(".*.tmp")) and not (directory / "trials.parquet").exists()
+
+
+def _rewrite_trials(path: Path, change: object = None, index: bytes | None = None) -> None:
+    """trials.parquet written again with its row groups and its chunks' list (or ``index``
+    instead), ``change(table) -> table`` applied to its rows."""
+    from flatcli.montecarlo.directory import CHUNKS_META_KEY
+
+    with pq.ParquetFile(path) as file:
+        listed = file.metadata.metadata[CHUNKS_META_KEY] if index is None else index
+        groups = [file.read_row_group(i) for i in range(file.metadata.num_row_groups)]
+    if change is not None:
+        groups = [change(g) for g in groups]  # type: ignore[operator]
+    with pq.ParquetWriter(path, groups[0].schema) as writer:
+        for group in groups:
+            writer.write_table(group, row_group_size=group.num_rows)
+        writer.add_key_value_metadata({CHUNKS_META_KEY.decode(): listed.decode()})
+
+
+@pytest.fixture(scope="module")
+def swept(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Layout]:
+    """A small sweep run to its end: its chunks are in trials.parquet only."""
+    directory = tmp_path_factory.mktemp("swept")
+    spec = small_spec()
+    run_sweep(spec, directory, workers=1)
+    return directory, layout(spec)
+
+
+def test_a_finished_sweep_keeps_each_chunk_once_in_trials_parquet(
+        swept: tuple[Path, Layout]) -> None:
+    from flatcli.montecarlo.directory import StoredChunks
+
+    directory, lay = swept
+    assert not (directory / TRIALS_DIR).exists()
+    stored = StoredChunks.of(directory)
+    assert stored is not None and set(stored.chunks) == {c.name for c in lay.chunks()}
+    whole = pq.read_table(directory / "trials.parquet")
+    for chunk in lay.chunks():  # the referee: the chunk's rows computed again here
+        rows = stored.read(chunk.name)
+        fresh = run_chunk(lay.cells[chunk.cell], chunk).table
+        assert rows.equals(whole.filter(pc.field("trial").isin(range(chunk.start, chunk.stop))))
+        assert rows.select(fresh.column_names).equals(fresh.cast(rows.schema))
+        assert stored.problem(lay.cells[chunk.cell], chunk) is None
+    assert verified_chunks(directory, lay) == ({c.name for c in lay.chunks()}, [])
+
+
+def test_a_changed_value_in_trials_parquet_is_found_and_computed_again(
+        swept: tuple[Path, Layout], tmp_path: Path) -> None:
+    directory, lay = copy_of(swept, tmp_path)
+    path = directory / "trials.parquet"
+    before = path.read_bytes()
+    first = next(lay.chunks())
+
+    def doubled(table: pa.Table) -> pa.Table:
+        if table.column("trial")[0].as_py() != first.start:
+            return table
+        i = table.schema.get_field_index("err_y_rms")
+        return table.set_column(i, "err_y_rms", pc.multiply(table.column(i), 2.0))
+
+    _rewrite_trials(path, doubled)
+    done, problems = verified_chunks(directory, lay)
+    assert done == {c.name for c in lay.chunks()} - {first.name}
+    assert problems == [f"trials.parquet (chunk {first.name}): its content does not match "
+                        "its checksum (the file was changed)"]
+    run_sweep(lay.spec, directory, workers=1)  # computes that chunk again
+    assert path.read_bytes() == before
+
+
+@pytest.mark.parametrize("index", [
+    b"not json", b"[]", b'{"format": 1, "cells": {}, "chunks": []}',
+    b'{"format": 1, "cells": {"0": {"digest": "x"}}, "chunks": [[0, 2, "x"]]}',  # 2 rows of 8
+    b'{"format": 2, "cells": {}, "chunks": []}',
+])
+def test_a_list_of_chunks_not_as_flatcli_writes_it_holds_none(
+        swept: tuple[Path, Layout], tmp_path: Path, index: bytes) -> None:
+    from flatcli.montecarlo.directory import StoredChunks
+
+    directory, lay = copy_of(swept, tmp_path)
+    before = (directory / "trials.parquet").read_bytes()
+    _rewrite_trials(directory / "trials.parquet", index=index)
+    assert StoredChunks.of(directory) is None
+    assert verified_chunks(directory, lay) == (set(), [])
+    run_sweep(lay.spec, directory, workers=1)  # nothing trusted: all computed again
+    assert (directory / "trials.parquet").read_bytes() == before
+
+
+def test_a_full_disk_while_dropped_cells_are_written_back_keeps_the_old_table(
+        swept: tuple[Path, Layout], tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A grid narrowed to one value: the other cell's chunks, held in trials.parquet only,
+    go back to chunk files before the new trials.parquet replaces it. A full disk then (an
+    OSError naming the chunk file) leaves the old trials.parquet as it was; once there is
+    room the run completes, and widening the grid again computes nothing and gives the
+    first file's bytes."""
+    import errno
+
+    from flatcli.montecarlo import directory as module
+
+    folder, lay = copy_of(swept, tmp_path)
+    before = (folder / "trials.parquet").read_bytes()
+    narrow = small_spec(grid={"track.sensor_noise": [0.0]})
+
+    def full(path: Path, *_: object, **__: object) -> None:
+        raise OSError(errno.ENOSPC, "No space left on device", str(path))
+
+    with monkeypatch.context() as patch:
+        patch.setattr(module, "write_table", full)
+        with pytest.raises(OSError, match=r"No space left on device.*chunk-") as caught:
+            run_sweep(narrow, folder, workers=1)
+    assert caught.value.errno == errno.ENOSPC
+    assert (folder / "trials.parquet").read_bytes() == before
+    assert not list(folder.glob(".trials.parquet.*.tmp"))
+    done = run_sweep(narrow, folder, workers=1)
+    assert done.simulated == 0
+    assert len(list((folder / TRIALS_DIR).glob("chunk-*.parquet"))) == 2  # the other cell
+    again = run_sweep(lay.spec, folder, workers=1)
+    assert again.simulated == 0
+    assert (folder / "trials.parquet").read_bytes() == before
+    assert not (folder / TRIALS_DIR).exists()

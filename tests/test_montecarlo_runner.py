@@ -17,11 +17,11 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-from small_sweep import SPEC, sweep, write_spec
+from small_sweep import SPEC, sweep, sweep_without_final_tables, write_spec
 
 from flatcli.core import OWN_PROCESS_VARIABLE
 from flatcli.montecarlo.layout import ID_STRIDE
-from flatcli.storage import read_provenance
+from flatcli.storage import LOCK_NAME, read_provenance
 
 
 def trials(directory: Path) -> pd.DataFrame:
@@ -51,10 +51,12 @@ def test_results_identical_across_workers_and_chunk_sizes(tmp_path: Path) -> Non
     assert (reference["status"] == "ok").mean() > 0.9
     for name, frame in frames.items():
         pd.testing.assert_frame_equal(frame, reference, check_exact=True, obj=name)
-    for path in (tmp_path / "w1c60" / "trials").iterdir():  # a chunk file joined from pieces
-        whole = pq.read_table(path)
-        joined = pq.read_table(tmp_path / "w2c60" / "trials" / path.name)
-        assert joined.equals(whole) and joined.schema.equals(whole.schema, check_metadata=True)
+    # the same chunking gives the same file to the byte, whatever the workers: also where
+    # each chunk was computed in pieces and joined (w2c60)
+    for one, two in (("w1", "w2"), ("w1c60", "w2c60")):
+        assert (tmp_path / one / "trials.parquet").read_bytes() == (
+            tmp_path / two / "trials.parquet").read_bytes(), (one, two)
+    assert not (tmp_path / "w1" / "trials").exists()  # each result once on disk
 
 
 def test_a_killed_sweep_resumes_to_the_uninterrupted_result(tmp_path: Path) -> None:
@@ -314,6 +316,7 @@ def test_a_changed_chunk_is_computed_again_and_the_run_says_so(tmp_path: Path) -
     out_dir = tmp_path / "d"
     assert sweep(str(spec), "--out", str(out_dir), "-q")[0] == 0
     whole = trials(out_dir)
+    sweep_without_final_tables(str(spec), "--out", str(out_dir), "-q", "--force")
     chunk = sorted((out_dir / "trials").glob("chunk-*.parquet"))[2]
     table = pq.read_table(chunk)
     column = table.schema.get_field_index("err_y_rms")
@@ -334,22 +337,27 @@ def test_grid_values_added_or_removed_reuse_finished_cells_with_the_fresh_result
     one = SPEC.replace('"track.sensor_noise" = [0.0, 0.001]', '"track.sensor_noise" = [0.001]')
     out_dir = tmp_path / "d"
     assert sweep(str(write_spec(tmp_path)), "--out", str(out_dir), "-q")[0] == 0
-    before = {p.name: p.stat().st_mtime_ns for p in (out_dir / "trials").iterdir()}
+    assert not (out_dir / "trials").exists()  # the finished cells are in trials.parquet only
     code, out = sweep(str(write_spec(tmp_path, three, "three.toml")), "--out", str(out_dir))
     assert code == 0, out
     assert "sweep.grid.'track.sensor_noise'); 2 of the 3 cells were computed there before" in out
     assert "resuming with 120 done" in out and "(60 simulated now)" in out
-    for name, mtime in before.items():  # reused, not rewritten
-        assert (out_dir / "trials" / name).stat().st_mtime_ns == mtime
     fresh = tmp_path / "fresh"
     assert sweep(str(tmp_path / "three.toml"), "--out", str(fresh), "-q")[0] == 0
-    pd.testing.assert_frame_equal(trials(out_dir), trials(fresh), check_exact=True)
-    # and back to one value: nothing simulated, the same rows as a fresh run of it
+    assert (out_dir / "trials.parquet").read_bytes() == (fresh / "trials.parquet").read_bytes()
+    # and back to one value: nothing simulated, the same rows as a fresh run of it; the two
+    # cells left out go back to chunk files (trials.parquet holds this grid's cells only)
     code, out = sweep(str(write_spec(tmp_path, one, "one.toml")), "--out", str(out_dir))
     assert code == 0 and "(0 simulated now)" in out, out
     alone = tmp_path / "alone"
     assert sweep(str(tmp_path / "one.toml"), "--out", str(alone), "-q")[0] == 0
-    pd.testing.assert_frame_equal(trials(out_dir), trials(alone), check_exact=True)
+    assert (out_dir / "trials.parquet").read_bytes() == (alone / "trials.parquet").read_bytes()
+    assert len(list((out_dir / "trials").glob("chunk-*.parquet"))) == 6  # 2 cells x 3 chunks
+    # and to all three again: nothing simulated, each result still once on disk
+    code, out = sweep(str(tmp_path / "three.toml"), "--out", str(out_dir))
+    assert code == 0 and "(0 simulated now)" in out, out
+    assert (out_dir / "trials.parquet").read_bytes() == (fresh / "trials.parquet").read_bytes()
+    assert not (out_dir / "trials").exists()
 
 
 def test_force_twice_over_a_sweep_and_its_figures(tmp_path: Path) -> None:
@@ -461,9 +469,11 @@ def test_every_chunk_file_is_on_disk_before_the_final_tables(
     monkeypatch.setattr(os, "fsync", recorded)
     spec = write_spec(tmp_path)
     assert sweep(str(spec), "--out", str(tmp_path / "d"), "-q", "--workers", "1")[0] == 0
-    trials_dir = str((tmp_path / "d" / "trials").resolve())
-    chunks = sorted(str(p.resolve()) for p in (tmp_path / "d" / "trials").glob("chunk-*"))
+    trials_dir = str((tmp_path / "d").resolve() / "trials")
+    chunks = sorted({p for p in flushed if Path(p).parent == Path(trials_dir)
+                     and Path(p).name.startswith("chunk-")})
     assert len(chunks) == 6  # two cells of 60 trials, chunks of 25
+    assert not os.path.exists(trials_dir)  # removed once trials.parquet holds them
     final = min(i for i, p in enumerate(flushed) if Path(p).name.startswith(".trials.parquet"))
     for chunk in chunks:
         assert chunk in flushed[:final], chunk
@@ -478,18 +488,18 @@ def test_a_chunk_a_machine_crash_left_unflushed_is_computed_again(tmp_path: Path
     flushed may leave it empty or cut short (the name renamed, its data not on disk); the
     resume computes it again and the result is the uninterrupted one."""
     spec = write_spec(tmp_path)
-    out_dir = tmp_path / "d"
-    assert sweep(str(spec), "--out", str(out_dir), "-q")[0] == 0
-    whole = trials(out_dir)
-    for name in ("trials.parquet", "summary.parquet", "summary.md", "run.json"):
-        (out_dir / name).unlink()  # the crash came before the final tables
+    whole = tmp_path / "whole"
+    assert sweep(str(spec), "--out", str(whole), "-q")[0] == 0
+    out_dir = tmp_path / "d"  # the crash came before the final tables
+    sweep_without_final_tables(str(spec), "--out", str(out_dir), "-q")
+    assert not (out_dir / "trials.parquet").exists()
     chunk = sorted((out_dir / "trials").glob("chunk-*.parquet"))[1]
     data = chunk.read_bytes()
     chunk.write_bytes(b"" if damage == "empty" else data[: len(data) // 2])
     code, out = sweep(str(spec), "--out", str(out_dir), "-q")
     assert code == 0, out
     assert f"trials/{chunk.name}: not a readable chunk file; computing it again" in out
-    pd.testing.assert_frame_equal(trials(out_dir), whole, check_exact=True)
+    assert (out_dir / "trials.parquet").read_bytes() == (whole / "trials.parquet").read_bytes()
 
 
 def test_a_box_sweep_is_identical_across_workers_and_chunk_sizes(tmp_path: Path) -> None:
@@ -513,3 +523,78 @@ def test_a_box_sweep_is_identical_across_workers_and_chunk_sizes(tmp_path: Path)
     assert frames["w1"]["end_effector_0"].nunique() == 24
     assert (frames["w1"]["status"] == "ok").all()
     pd.testing.assert_frame_equal(frames["w2c5"], frames["w1"], check_exact=True)
+
+
+def _same_files(directory: Path, reference: Path) -> None:
+    for name in ("trials.parquet", "summary.parquet", "summary.md"):
+        assert (directory / name).read_bytes() == (reference / name).read_bytes(), name
+    assert not (directory / "trials").exists()  # each result once on disk
+    # no temporary file left (the lock file of a killed run stays: docs/failures.md)
+    assert not [p.name for p in directory.iterdir()
+                if p.name.startswith(".") and p.name != LOCK_NAME]
+
+
+def test_kill_9_at_random_moments_then_resume_gives_the_same_bytes(tmp_path: Path) -> None:
+    """The attack: a sweep killed with SIGKILL (process group) at random moments, from its
+    start-up to its final tables, then resumed; the referee is one uninterrupted run."""
+    import random
+
+    text = SPEC.replace("trials = 60", "trials = 600").replace("chunk = 25", "chunk = 30")
+    spec = write_spec(tmp_path, text)
+    whole = tmp_path / "whole"
+    assert sweep(str(spec), "--out", str(whole), "-q", "--workers", "1")[0] == 0
+    cut = tmp_path / "cut"
+    command = [sys.executable, "-m", "flatcli.cli", "sweep", str(spec), "--out", str(cut),
+               "-q", "--workers", "2", "--oversubscribe"]
+    rng = random.Random(41)
+    kills = 0
+    for _ in range(10):
+        process = subprocess.Popen(command, start_new_session=True, stderr=subprocess.DEVNULL)
+        try:
+            process.wait(timeout=rng.uniform(0.0, 3.0))
+        except subprocess.TimeoutExpired:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.wait()
+            kills += 1
+            continue
+        assert process.returncode == 0
+    assert kills >= 3
+    code, out = sweep(str(spec), "--out", str(cut), "-q", "--workers", "1")
+    assert code == 0, out
+    _same_files(cut, whole)
+
+
+@pytest.mark.parametrize("where", ["before the summary", "while chunks are removed"])
+def test_a_sweep_killed_after_trials_parquet_resumes_to_the_same_bytes(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, where: str) -> None:
+    """The last moments: trials.parquet renamed into place with every chunk file still
+    there (killed before the summary), or some chunk files removed and others not."""
+    from flatcli.montecarlo import directory
+
+    spec = write_spec(tmp_path)
+    whole = tmp_path / "whole"
+    assert sweep(str(spec), "--out", str(whole), "-q", "--workers", "1")[0] == 0
+    real = directory.remove_merged_chunks
+
+    def killed(*_: object, **__: object) -> object:
+        raise KeyboardInterrupt
+
+    def half(folder: Path, lay: object) -> int:
+        for path in sorted((folder / "trials").glob("chunk-*.parquet"))[::2]:
+            path.unlink()
+        raise KeyboardInterrupt
+
+    with monkeypatch.context() as patch:
+        if where == "before the summary":
+            patch.setattr(directory, "summary_rows", killed)
+        else:
+            patch.setattr(directory, "remove_merged_chunks", half)
+        code, _ = sweep(str(spec), "--out", str(tmp_path / "d"), "-q", "--workers", "1")
+    assert code != 0  # (130, or 143 if this process met a SIGTERM before: interrupts.py)
+    cut = tmp_path / "d"
+    assert (cut / "trials.parquet").read_bytes() == (whole / "trials.parquet").read_bytes()
+    assert list((cut / "trials").glob("chunk-*.parquet"))
+    assert directory.remove_merged_chunks is real
+    code, out = sweep(str(spec), "--out", str(cut), "-q", "--workers", "1")
+    assert code == 0 and out == "", out
+    _same_files(cut, whole)

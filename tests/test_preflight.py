@@ -25,6 +25,12 @@ def cli(*args: str) -> tuple[int, str]:
     return result.exit_code, result.output
 
 
+def cli_stdout(*args: str) -> tuple[int, str]:
+    """Exit status and standard output alone (the calibration's progress goes to stderr)."""
+    result = CliRunner().invoke(main, list(args))
+    return result.exit_code, result.stdout
+
+
 def files(root: Path) -> list[Path]:
     return sorted(root.rglob("*"))
 
@@ -52,15 +58,23 @@ def test_layout_counts(report: CheckReport) -> None:
 def test_calibration_and_estimate(report: CheckReport) -> None:
     cal = report.calibration
     assert cal is not None
-    # 1 + ceil(128 / 2) trials per cell, capped at the cell's 60
-    assert (cal.per_cell, cal.trials) == (60, 120)
+    # one kernel: its first cell's 1 and 8 trials, twice; then 8 trials of each of the 2
+    # cells (ceil(128 / 2), capped at CALIBRATION_CHUNK), the same draws in both, and more
+    # of their trials, 8 at a time, for up to CALIBRATION_STEADY_SECONDS
+    kernel_trials = 2 * (1 + 8)
+    assert (cal.per_cell, cal.measured_cells) == (8, 2)
+    assert cal.trials >= kernel_trials + 2 * 8 and (cal.trials - kernel_trials) % 8 == 0
+    assert [k.name for k in cal.kernels] == [
+        "paper model, kinematic plant, flat controller, adaptive, 2 joints"]
     assert sum(cal.statuses.values()) == cal.trials
-    assert cal.per_trial > 0 and cal.per_chunk >= 0
+    assert cal.per_trial > 0 and cal.per_chunk >= 0 and cal.slowdown >= 1
+    assert cal.cell_verify == (0.0, 0.0)  # sweep.verify = 0
     estimate = report.estimate_seconds
     assert estimate is not None
-    # the trials' share: 6 chunks over 2 workers, three chunks' work each at least
-    spread = (6 * cal.per_chunk + 120 * cal.per_trial) / 2
-    assert estimate >= report.planning_seconds + spread
+    # the trials' share: 6 chunks (25, 25, 10 trials of each cell) over 2 workers
+    work = sum(cal.cell_chunk[c] + n * cal.cell_trial[c] for c in (0, 1) for n in (25, 25, 10))
+    assert report.cpu_seconds == pytest.approx(work)
+    assert estimate >= report.planning_seconds + work / 2 * cal.slowdown
     memory = report.memory_mib
     assert memory is not None and memory[0] > 50 and memory[1] > 50
     assert "estimate on 2 local workers" in report.text()
@@ -71,8 +85,8 @@ def test_calibration_and_estimate(report: CheckReport) -> None:
 def test_a_busy_machine_and_too_many_workers_are_warnings(report: CheckReport) -> None:
     busy = replace(report, cores=2, load=5.0, workers=3)
     assert _warnings(busy) == [
-        "this machine is busy (load average 5.0 on 2 cores): the sweep will take longer "
-        "than the estimate, which assumes idle cores",
+        "this machine is busy (load average 5.0 on 2 cores): the estimate allows for the "
+        "share of the cores the calibration got; the sweep's time follows the load",
         "3 workers on 2 cores: no faster than 2",
     ]
     # 3 workers on 2 cores spread the 6 chunks as 2 would
@@ -125,11 +139,11 @@ def test_dry_run_prints_the_check_and_writes_nothing(tmp_path: Path,
     spec = write_spec(tmp_path / "spec")
     monkeypatch.chdir(tmp_path)
     before = files(tmp_path)
-    code, out = cli("sweep", str(spec), "--dry-run", "--workers", "2")
+    code, out = cli_stdout("sweep", str(spec), "--dry-run", "--workers", "2")
     assert code == 0, out
-    out = out.removeprefix(COMPILING + "\n")
+    assert not out.startswith(COMPILING)  # (a compile notice goes to stderr)
     assert "cells (2):" in out and "calibration:" in out and "nothing written" in out
-    code, check_out = cli("check", str(spec), "--workers", "2")
+    code, check_out = cli_stdout("check", str(spec), "--workers", "2")
     assert code == 0
     assert check_out.split("; planning")[0] == out.split("; planning")[0]  # timings differ
     # -q: nothing but errors, in check as in every command (the exit status says it is valid)
@@ -155,7 +169,9 @@ def test_unchanged_key_check_needs_a_simulated_trial() -> None:
                       "grid": {"track.seed": [1, 2]}}}
     result = api.check(spec, workers=1, quiet=True)
     assert result.calibration is not None
-    assert result.calibration.statuses == {"error": 4}
+    # the first cell's 1 and 2 trials, twice, then 2 of each cell and more: all invalid
+    assert set(result.calibration.statuses) == {"error"}
+    assert result.calibration.statuses["error"] >= 2 * (1 + 2) + 2 * 2
     assert not any("changes nothing" in w for w in result.warnings)
     assert np.isfinite(result.calibration.per_trial)
 
@@ -168,9 +184,7 @@ def test_a_machine_at_its_load_is_busy(report: CheckReport) -> None:
     assert not any(w.startswith("this machine is busy") for w in _warnings(below))
 
 
-def test_the_calibration_runs_one_plus_128_over_cells_trials_of_each_cell(
-        tmp_path: Path) -> None:
-    spec = write_spec(tmp_path, """
+SIX_CELLS = """
 [plan]
 duration = 0.5
 [track]
@@ -181,10 +195,92 @@ trials = 50
 initial = { dist = "normal", std = 0.01 }
 [sweep.grid]
 "track.sensor_noise" = [0.0, 0.001, 0.002, 0.003, 0.004, 0.005]
-""")
+"""
+
+
+def test_the_same_draws_run_128_over_cells_trials_of_each_cell_2_to_8(tmp_path: Path) -> None:
+    spec = write_spec(tmp_path, SIX_CELLS)
+    cal = api.check(spec, workers=1, quiet=True).calibration
+    assert cal is not None and (cal.per_cell, cal.measured_cells) == (8, 6)  # 22, capped
+    many = SIX_CELLS.replace('"track.sensor_noise" = [0.0, 0.001, 0.002, 0.003, 0.004, 0.005]',
+                             '"track.sensor_noise" = [' + ", ".join(
+                                 f"{0.0001 * i:.4f}" for i in range(100)) + "]")
+    cal = api.check(write_spec(tmp_path, many, "many.toml"), workers=1, quiet=True).calibration
+    assert cal is not None and cal.per_cell == 2  # ceil(128 / 100) = 2
+    report = api.check(spec, workers=1, quiet=True)
+    assert report.calibration is not None
+    assert f"calibration: {report.calibration.trials} trials in " in report.text()
+
+
+def test_the_calibration_stops_at_its_time_and_extrapolates_the_cells_it_did_not_reach(
+        tmp_path: Path) -> None:
+    """A budget of 0 s: each kernel's first cell is measured (always), no cell's own
+    trials; every cell then costs its kernel's per output step times its own steps, and
+    which keys change nothing is not told (it needs every cell)."""
+    from flatcli.preflight import check_spec
+
+    text = SIX_CELLS.replace('"track.sensor_noise" = [0.0, 0.001, 0.002, 0.003, 0.004, 0.005]',
+                             '"plan.duration" = [0.5, 1.0]\n"track.seed" = [1, 2]')
+    spec = api.load_spec(write_spec(tmp_path, text))
+    report = check_spec(spec, workers=1, quiet=True, budget=0.0)
+    cal = report.calibration
+    assert cal is not None and cal.measured_cells == 0 and cal.unchanged_keys is None
+    (kernel,) = cal.kernels
+    steps = [c.scenario.n_steps for c in report.layout.cells]
+    assert steps == [50, 50, 100, 100]
+    per_step = kernel.per_trial / steps[0]  # its first cell's
+    assert cal.cell_trial == pytest.approx([per_step * n for n in steps])
+    assert not any("changes nothing" in w for w in report.warnings)
+
+
+def test_cells_are_grouped_by_the_kernel_they_run(tmp_path: Path) -> None:
+    text = SIX_CELLS.replace('"track.sensor_noise" = [0.0, 0.001, 0.002, 0.003, 0.004, 0.005]',
+                             '"plant.model" = ["kinematic", "dynamic"]\n'
+                             '"track.sensor_noise" = [0.0, 0.001]')
+    cal = api.check(write_spec(tmp_path, text), workers=1, quiet=True).calibration
+    assert cal is not None
+    assert [(k.name, k.cells) for k in cal.kernels] == [
+        ("paper model, kinematic plant, flat controller, adaptive, 2 joints", 2),
+        ("paper model, dynamic plant, flat controller, adaptive, 2 joints", 2)]
+
+
+def test_the_calibration_says_what_it_does_as_it_goes(tmp_path: Path) -> None:
+    result = CliRunner().invoke(main, ["check", str(write_spec(tmp_path, SIX_CELLS)),
+                                       "--workers", "1"])
+    assert result.exit_code == 0, result.output
+    err = [line for line in result.stderr.splitlines() if not line.startswith(
+        (COMPILING, "  compil"))]
+    assert err[0] == ("calibrating 6 cells of 1 kernel, at most 5 s once loaded, in 1 worker "
+                      "process")
+    assert err[-1].startswith("  paper model, kinematic plant, flat controller, adaptive, "
+                              "2 joints: ") and "ms per trial" in err[-1]
+
+
+def test_calibration_trials_past_the_verified_ones_cost_no_re_run(tmp_path: Path) -> None:
+    """sweep.verify re-runs a cell's first trials with DOP853 (50-500x a trial): the
+    calibration's trials are not those (they once were, and made an estimate 40x too long);
+    the re-runs are counted apart, verify_count of them per cell."""
+    spec = write_spec(tmp_path, SIX_CELLS.replace("trials = 50", "trials = 50\nverify = 2"))
     report = api.check(spec, workers=1, quiet=True)
     cal = report.calibration
     assert cal is not None
-    # 1 + ceil(128 / 6) = 23 of each cell's 50: not capped, so the count itself shows
-    assert (cal.per_cell, cal.trials) == (23, 6 * 23)
-    assert f"calibration: {6 * 23} trials (23 per cell" in report.text()
+    (kernel,) = cal.kernels
+    assert kernel.verify > kernel.per_trial  # one DOP853 re-run costs more than a trial
+    assert cal.cell_verify == pytest.approx([2 * kernel.verify] * 6)
+
+
+def test_the_slowdown_is_the_more_of_the_calibrations_and_the_load_averages(
+        report: CheckReport) -> None:
+    """(other processes + the sweep's busy workers) / cores, or what the calibration's
+    workers met, whichever is more; at least 1; a cluster's workers are not this machine's."""
+    cal = report.calibration
+    assert cal is not None
+    idle = replace(report, calibration=replace(cal, slowdown=1.0, other_load=0.0), cores=2)
+    assert idle.slowdown == 1.0
+    loaded = replace(idle, calibration=replace(cal, slowdown=1.5, other_load=4.0))
+    assert loaded.slowdown == pytest.approx((4.0 + 2) / 2)  # 6 runnable on 2 cores
+    measured = replace(loaded, calibration=replace(cal, slowdown=3.5, other_load=4.0))
+    assert measured.slowdown == 3.5
+    assert replace(measured, executor="dask").slowdown == 1.0
+    assert measured.estimate_seconds is not None and idle.estimate_seconds is not None
+    assert measured.estimate_seconds > idle.estimate_seconds

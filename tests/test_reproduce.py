@@ -11,7 +11,7 @@ import pytest
 from click.testing import CliRunner
 
 from flatcli.cli import REPRODUCE_SECTIONS, main
-from flatcli.reproduce import SECTION_NAMES, STUDY_SPEC, asbuilt
+from flatcli.reproduce import SECTION_NAMES, STUDY_SPEC, asbuilt, search
 from flatcli.reproduce.actuators import STUDY
 from flatcli.reproduce.chains import CHAIN_SPECS
 
@@ -26,6 +26,10 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path,
     monkeypatch.setattr(asbuilt, "ALONG_MM", (0.0, 3.0))
     monkeypatch.setattr(asbuilt, "ACROSS_MM", (0.0, 1.0))
     monkeypatch.setattr(asbuilt, "MASS_PERCENT", (-5.0, 0.0))
+    # the design search: two generations, its re-measurements small
+    monkeypatch.setattr(search, "BUDGET", 50)
+    monkeypatch.setattr(search, "REMEASURE_TRIALS", 12)
+    monkeypatch.setattr(search, "OFFSET_TRIALS", 6)
     result = CliRunner().invoke(main, ["reproduce", "--out", "paper", "--set",
                                        "sweep.trials=8", "-q"])
     assert result.exit_code == 0, result.output
@@ -86,6 +90,15 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path,
                  "asbuilt/goal_ideal/trials.parquet", "asbuilt/placement_asbuilt/trials.parquet",
                  "asbuilt/mass_ideal/trials.parquet"):
         assert (out / name).exists(), name
+    # searching the design: the search, its files, both designs re-measured on fresh seeds
+    assert "## Searching the design" in report and "50 candidates in 2 generations" in report
+    assert "on fresh seeds (sweep.seed = 4002, 12 trials each, the same offset)" in report
+    assert "| -1          | " in report or "| -1 " in report
+    for name in ("search/search.parquet", "search/best_robot.toml", "search/best_robot.urdf",
+                 "search/convergence.png", "search/remeasure_best/trials.parquet",
+                 "search/remeasure_paper/trials.parquet"):
+        assert (out / name).exists(), name
+    assert 'robot = "paper"' in (out / "search/remeasure_paper.toml").read_text()
     assert "Made with `flatcli reproduce --out paper --set sweep.trials=8 -q`" in report
     assert "## Headlines" in report
 
@@ -93,8 +106,8 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path,
     # are the same
     again = CliRunner().invoke(main, ["reproduce", "--out", "paper", "--set", "sweep.trials=8"])
     assert again.exit_code == 0, again.output
-    assert "7 sections (0 computed, 7 reused)" in again.output
-    assert again.output.count("reused: unchanged since") == 7
+    assert "8 sections (0 computed, 8 reused)" in again.output
+    assert again.output.count("reused: unchanged since") == 8
     assert "- paper: the printed b1 is wrong" in again.output  # the headlines, not the report
     assert len(again.output.splitlines()) < 40
     body = report.split("## How this report was made")[0]
@@ -104,7 +117,7 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path,
     (out / "fig2_flat_outputs.png").unlink()
     third = CliRunner().invoke(main, ["reproduce", "--out", "paper", "--set", "sweep.trials=8"])
     assert third.exit_code == 0, third.output
-    assert "7 sections (1 computed, 6 reused)" in third.output
+    assert "8 sections (1 computed, 7 reused)" in third.output
     assert "fig2_flat_outputs.png changed or is missing" in third.output
     assert (out / "fig2_flat_outputs.png").exists()
 
@@ -113,7 +126,7 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path,
     only = CliRunner().invoke(main, ["reproduce", "--out", "paper", "--set", "sweep.trials=8",
                                      "--only", "optimized", "--force"])
     assert only.exit_code == 0, only.output
-    assert "7 sections (1 computed, 6 reused)" in only.output and "(--force)" in only.output
+    assert "8 sections (1 computed, 7 reused)" in only.output and "(--force)" in only.output
     other = CliRunner().invoke(main, ["reproduce", "--out", "paper", "--set", "sweep.trials=9",
                                       "--only", "paper"])
     assert other.exit_code == 0, other.output
@@ -134,6 +147,7 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path,
         (["--only", "figures"], "Invalid value for '--only'"),
         (["--no-montecarlo", "--only", "montecarlo"], "skipped by --no-montecarlo"),
         (["--no-montecarlo", "--only", "asbuilt"], "--only asbuilt: the study is skipped"),
+        (["--no-montecarlo", "--only", "search"], "--only search: the study is skipped"),
     ],
 )
 def test_bad_input_is_refused_before_anything_is_written(
@@ -146,7 +160,8 @@ def test_bad_input_is_refused_before_anything_is_written(
     assert list(tmp_path.iterdir()) == []
 
 
-@pytest.mark.parametrize("spec", [STUDY_SPEC, STUDY, *CHAIN_SPECS, asbuilt.GOAL_SPEC])
+@pytest.mark.parametrize("spec", [STUDY_SPEC, STUDY, *CHAIN_SPECS, asbuilt.GOAL_SPEC,
+                                  search.SEARCH_SPEC])
 def test_the_study_specs_ship_as_package_data(spec: Path) -> None:
     assert spec.is_file() and spec.parent.name == "data"
     assert spec.parent.parent == ROOT / "flatcli"

@@ -160,3 +160,29 @@ def test_plan_demands_of_the_cubic() -> None:
     ideal = max(row[1], row[2])
     assert 0.5 * ideal < row[4] < 1.5 * ideal  # the servo lags: less than the plan's peak
     assert row[6] < 0.05  # final angle error on plan at 100 rad/s [rad]
+
+
+def test_forgetting_the_study_removes_a_finished_kinematic_twin_and_its_folder(
+        tmp_path: object) -> None:
+    """The twin sweep under kinematic/ of an earlier run goes, folder and all, also now that
+    a finished sweep leaves no trials/ folder (its chunks are in trials.parquet); a note of
+    the user's there keeps it (and the sweep then refuses, naming it)."""
+    from pathlib import Path
+
+    from flatcli.montecarlo import run_sweep
+    from flatcli.reproduce.actuators import forget_study
+    from flatcli.spec import resolve
+
+    root = Path(str(tmp_path))
+    spec = resolve({"track": {"dt": 0.01}, "sweep": {
+        "trials": 2, "perturb": {"initial": {"dist": "normal", "std": 0.01}}}})
+    run_sweep(spec, root / "kinematic", workers=1)
+    assert (root / "kinematic" / "trials.parquet").exists()
+    assert not (root / "kinematic" / "trials").exists()
+    forget_study(root)
+    assert not (root / "kinematic").exists()
+    run_sweep(spec, root / "kinematic", workers=1)
+    (root / "kinematic" / "notes.txt").write_text("mine")
+    forget_study(root)
+    assert (root / "kinematic" / "notes.txt").read_text() == "mine"
+    assert (root / "kinematic" / "trials.parquet").exists()

@@ -103,7 +103,34 @@ def test_sweep_state_of_an_interrupted_sweep(tree: Path) -> None:
         (120, 95, 6, 5)
     finished = sweep_state(tree / "small")
     assert finished is not None and finished.complete and finished.done == 120
+    # a finished sweep holds its chunks in trials.parquet alone
+    assert (len(finished.chunk_files), len(finished.stored)) == (0, 6)
     assert sweep_state(tree) is None
+
+
+def test_an_extension_cut_short_counts_what_trials_parquet_holds(tmp_path: Path) -> None:
+    """A finished study extended by a grid value and killed before its final tables: its
+    old cells are in trials.parquet, the new one's chunks in files; the partial trials are
+    both, in the grid's order (the referee: the finished study's own table)."""
+    import pandas as pd
+    from small_sweep import SPEC, sweep_without_final_tables, write_spec
+
+    from flatcli import load
+
+    spec = write_spec(tmp_path)
+    out = tmp_path / "d"
+    assert cli("sweep", str(spec), "--out", str(out), "-q", "--workers", "1")[0] == 0
+    before = pd.read_parquet(out / "trials.parquet")
+    three = write_spec(tmp_path, SPEC.replace('[0.0, 0.001]', '[0.0, 0.001, 0.002]'), "3.toml")
+    sweep_without_final_tables(str(three), "--out", str(out), "-q", "--workers", "1")
+    state = sweep_state(out)
+    assert state is not None and not state.complete
+    assert (state.total, state.done, len(state.chunk_files), len(state.stored)) == \
+        (180, 180, 3, 6)
+    partial = load(out).trials
+    pd.testing.assert_frame_equal(partial.iloc[:120].reset_index(drop=True), before,
+                                  check_exact=True)
+    assert partial["cell"].tolist() == [0] * 60 + [1] * 60 + [2] * 60
 
 
 def test_summarize_a_partial_sweep_says_what_is_missing(tree: Path) -> None:

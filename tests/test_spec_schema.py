@@ -27,7 +27,7 @@ from flatcli.spec import (
 
 def test_sections_are_the_toml_tables() -> None:
     assert list(SECTIONS) == ["", "robot", "plan", "plan.optimize", "task", "track", "plant",
-                              "sweep", "figures", "summary"]
+                              "sweep", "figures", "summary", "search"]
     assert list(SCHEMA) == list(SECTIONS)
 
 

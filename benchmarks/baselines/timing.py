@@ -10,10 +10,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-import control
 import numba
 import numpy as np
-import scipy
 from numpy.typing import NDArray
 
 Array = NDArray[np.float64]
@@ -68,6 +66,9 @@ def machine_info() -> dict[str, Any]:
         usable = len(os.sched_getaffinity(0))
     except AttributeError:  # not on Linux
         usable = os.cpu_count() or 1
+    import control  # (here: the kernel's whole process, kernel_process, loads neither)
+    import scipy
+
     try:
         load: list[float] | None = [round(v, 2) for v in os.getloadavg()]
     except OSError:

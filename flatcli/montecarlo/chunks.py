@@ -150,8 +150,8 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
                         np.ascontiguousarray(servo[valid]),
                         np.full(int(valid.sum()), across))
         rows = np.flatnonzero(valid)
-        chosen = ids[rows] - cell.first_trial < verify_count(spec.sweep.verify,
-                                                              spec.sweep.trials)
+        within = ids[rows] - cell.first_trial  # (a trial of another cell's ids: never)
+        chosen = (within >= 0) & (within < verify_count(spec.sweep.verify, spec.sweep.trials))
         # one batch for the cell's scenario; a trial with its own plan alone
         batches = ([np.arange(len(rows))] if "end_effector" not in drawn
                    else [np.array([k]) for k in range(len(rows))])

@@ -46,7 +46,7 @@ from flatcli.files import (
     real_directory,
 )
 from flatcli.montecarlo.chunks import grid_columns
-from flatcli.montecarlo.layout import KEY_SPACE, Cell, Chunk, Layout
+from flatcli.montecarlo.layout import KEY_SPACE, Cell, Chunk, Layout, chunk_name
 from flatcli.report.summary import (
     SUMMARY_INPUTS,
     Columns,
@@ -66,7 +66,10 @@ from flatcli.spec.tree import flatten
 from flatcli.storage import (
     LOCK_NAME,
     PARQUET_META_KEY,
+    SETUP_LOCK_NAME,
+    SHARD_LOCK,
     atomic_path,
+    fsync_directory,
     naming_os_errors,
     parquet_options,
     peak_memory_mib,
@@ -379,6 +382,12 @@ def _temporary_of(name: str) -> str | None:
     return None
 
 
+def _shard_lock(name: str) -> bool:
+    """Whether ``name`` is one of the lock files of a sweep's shards (one left by a killed
+    shard stays, harmless: ``storage.shard_locks``)."""
+    return name == SETUP_LOCK_NAME or SHARD_LOCK.fullmatch(name) is not None
+
+
 def foreign_entries(directory: Path, owned: Iterable[str]) -> list[str]:
     """Entries under ``directory`` that flatcli did not write (a symbolic link counts as
     one wherever it is, and is never followed), as paths relative to it."""
@@ -393,7 +402,8 @@ def foreign_entries(directory: Path, owned: Iterable[str]) -> list[str]:
             if stat.S_ISDIR(mode) and name in parents:
                 walk(entry, f"{name}/")
             elif stat.S_ISREG(mode) and (name in owned or
-                                         f"{rel}{_temporary_of(entry.name)}" in owned):
+                                         f"{rel}{_temporary_of(entry.name)}" in owned
+                                         or (not rel and _shard_lock(entry.name))):
                 continue
             else:
                 out.append(name + ("/" if stat.S_ISDIR(mode) else ""))
@@ -580,26 +590,51 @@ def chunk_problem(path: Path, cell: Cell, chunk: Chunk) -> str | None:
     return None
 
 
-def verified_chunks(directory: Path, lay: Layout) -> tuple[set[str], list[str]]:
-    """Names of this layout's chunk files that pass every check, and a line per file that
-    does not (it is computed again). Stray temporary files go."""
+def reusable_chunks(directory: Path, lay: Layout, stored: StoredChunks | None = None,
+                    remove_strays: bool = True) -> tuple[dict[str, str], list[str]]:
+    """This layout's finished chunks that pass every check, each with where it is: "file"
+    (its chunk file under trials/) or "stored" (in trials.parquet, ``stored``; a chunk file
+    that passes is preferred); and a line per chunk that does not (it is computed again).
+
+    ``remove_strays``: remove stray temporary chunk files (``.chunk-*.tmp``) of a killed run;
+    only where no other run may be writing chunks (not by a shard: ``shard_locks``)."""
     trials = directory / TRIALS_DIR
-    done: set[str] = set()
+    done: dict[str, str] = {}
     problems: list[str] = []
-    for path in _entries(trials):
-        if path.name.endswith(".tmp") and path.name.startswith(".chunk-") and is_regular(path):
-            path.unlink(missing_ok=True)
+    if remove_strays:
+        for path in _entries(trials):
+            if path.name.endswith(".tmp") and path.name.startswith(".chunk-") \
+                    and is_regular(path):
+                path.unlink(missing_ok=True)
     for cell in lay.cells:
         for chunk in lay.cell_chunks(cell):
             path = trials / chunk.name
-            if not os.path.lexists(path):
-                continue
-            problem = chunk_problem(path, cell, chunk)
-            if problem is None:
-                done.add(chunk.name)
-            else:
-                problems.append(f"{TRIALS_DIR}/{chunk.name}: {problem}")
+            problem = None
+            if os.path.lexists(path):
+                problem = chunk_problem(path, cell, chunk)
+                if problem is None:
+                    done[chunk.name] = "file"
+                    continue
+            if stored is not None and chunk.name in stored.chunks:
+                in_table = stored.problem(cell, chunk)
+                if in_table is None:
+                    done[chunk.name] = "stored"
+                    continue
+                if problem is None:
+                    problem = in_table
+                    path = directory / "trials.parquet"
+            if problem is not None:
+                where = (f"{TRIALS_DIR}/{chunk.name}" if path.name == chunk.name
+                         else f"trials.parquet (chunk {chunk.name})")
+                problems.append(f"{where}: {problem}")
     return done, problems
+
+
+def verified_chunks(directory: Path, lay: Layout) -> tuple[set[str], list[str]]:
+    """Names of this layout's chunk files (and chunks held in trials.parquet) that pass every
+    check, and a line per chunk that does not (``reusable_chunks``)."""
+    done, problems = reusable_chunks(directory, lay, StoredChunks.of(directory))
+    return set(done), problems
 
 
 def note(text: str) -> None:
@@ -614,55 +649,200 @@ def peak_rss_mib(largest_worker: float) -> dict[str, float]:
     return {"main": peak_memory_mib(), "largest_child": largest_worker}
 
 
+#: Key of trials.parquet's Parquet metadata that lists the chunks it holds
+#: (``StoredChunks``).
+CHUNKS_META_KEY = b"flatcli.chunks"
+#: Version of that list's layout.
+STORED_FORMAT = 1
+
+
+@dataclass(frozen=True)
+class StoredChunk:
+    """A chunk held in trials.parquet: trials [start, stop) at rows [offset, offset + stop -
+    start), the checksum of those rows as the file holds them (``storage.table_checksum``,
+    as of a chunk file), its cell's key, digest and grid values."""
+
+    start: int
+    stop: int
+    offset: int
+    checksum: str
+    cell_key: int
+    cell_digest: str
+    values: dict[str, Any]
+
+
+class StoredChunks:
+    """The chunks a finished sweep's trials.parquet holds (its only copy of the results: the
+    chunk files are removed once it is written, ``remove_merged_chunks``), read from the
+    list the file carries in its Parquet metadata (``CHUNKS_META_KEY``), which nothing
+    trusts: a list that is not exactly of the form flatcli writes, or does not add up to the
+    file's rows, makes the file hold no reusable chunk. A chunk is reused only if its rows
+    read back give its checksum (``problem``)."""
+
+    def __init__(self, path: Path, provenance: dict[str, Any],
+                 chunks: dict[str, StoredChunk], row_groups: list[int]) -> None:
+        self.path = path
+        self.provenance = provenance
+        self.chunks = chunks
+        self._starts = np.concatenate([[0], np.cumsum(row_groups)]).astype(np.int64)
+
+    @staticmethod
+    def of(directory: Path) -> StoredChunks | None:
+        """What ``directory``'s trials.parquet holds (None: no such file, not a regular
+        file, not readable, or no valid list of chunks)."""
+        path = directory / "trials.parquet"
+        if not is_regular(path):
+            return None
+        try:
+            with pq.ParquetFile(path) as file:  # the footer only
+                meta = file.metadata.metadata or {}
+                groups = [file.metadata.row_group(i).num_rows
+                          for i in range(file.metadata.num_row_groups)]
+                rows = file.metadata.num_rows
+            index = json.loads(meta.get(CHUNKS_META_KEY, b"null"))
+            provenance = json.loads(meta.get(PARQUET_META_KEY, b"null"))
+        except (OSError, ValueError, RecursionError, pa.ArrowException):
+            return None
+        chunks = _stored_index(index, rows)
+        if chunks is None or not isinstance(provenance, dict):
+            return None
+        return StoredChunks(path, provenance, chunks, groups)
+
+    def read(self, name: str) -> pa.Table:
+        """The rows of chunk ``name`` (``cell``: its cell's position in the grid this file
+        was written for)."""
+        chunk = self.chunks[name]
+        first = int(np.searchsorted(self._starts, chunk.offset, side="right")) - 1
+        last = int(np.searchsorted(self._starts, chunk.offset + chunk.stop - chunk.start,
+                                   side="left"))
+        with pq.ParquetFile(self.path) as file:
+            table = file.read_row_groups(list(range(first, last)))
+        table = table.slice(chunk.offset - int(self._starts[first]), chunk.stop - chunk.start)
+        return table.combine_chunks()
+
+    def problem(self, cell: Cell, chunk: Chunk) -> str | None:
+        """Why the stored chunk of ``chunk``'s name is not that finished chunk of ``cell``
+        (None if it is): another cell or range, or rows that do not give its checksum."""
+        stored = self.chunks[chunk.name]
+        if stored.cell_digest != cell.digest or stored.cell_key != cell.key:
+            return "written for another spec or cell"
+        if (stored.start, stored.stop) != (chunk.start, chunk.stop):
+            return f"holds trials [{stored.start}, {stored.stop}], not [{chunk.start}, " \
+                   f"{chunk.stop}]"
+        try:
+            table = self.read(chunk.name)
+        except (OSError, ValueError, KeyError, pa.ArrowException) as exc:
+            return f"unreadable data ({(str(exc).splitlines() or [''])[0][:80]})"
+        if "trial" not in table.column_names or not np.array_equal(
+                to_numpy(table.column("trial")), np.arange(chunk.start, chunk.stop)):
+            return "its trial ids are not those of its name"
+        if table_checksum(table) != stored.checksum:
+            return "its content does not match its checksum (the file was changed)"
+        return None
+
+
+def _stored_index(index: Any, rows: int) -> dict[str, StoredChunk] | None:
+    """The chunks of a trials.parquet list (``CHUNKS_META_KEY``) by name, or None if it is
+    not exactly of the form ``TrialsAssembly`` writes for a file of ``rows`` rows."""
+    if not isinstance(index, dict) or index.get("format") != STORED_FORMAT:
+        return None
+    cells, listed = index.get("cells"), index.get("chunks")
+    if not isinstance(cells, dict) or not isinstance(listed, list):
+        return None
+    for key, cell in cells.items():
+        if not (isinstance(key, str) and re.fullmatch(r"[0-9]{1,10}", key)
+                and int(key) < KEY_SPACE and isinstance(cell, dict)
+                and isinstance(cell.get("digest"), str)
+                and isinstance(cell.get("values", {}), dict)):
+            return None
+    out: dict[str, StoredChunk] = {}
+    offset = 0
+    for item in listed:
+        if not (isinstance(item, list) and len(item) == 3
+                and all(isinstance(v, int) and not isinstance(v, bool) for v in item[:2])
+                and isinstance(item[2], str)):
+            return None
+        start, stop, checksum = item
+        key = start // ID_STRIDE if start >= 0 else -1
+        if not (0 <= start < stop and (stop - 1) // ID_STRIDE == key and str(key) in cells):
+            return None
+        name = chunk_name(start)
+        if name in out:
+            return None
+        cell = cells[str(key)]
+        out[name] = StoredChunk(start, stop, offset, checksum, key, cell["digest"],
+                                dict(cell.get("values", {})))
+        offset += stop - start
+    return out if offset == rows else None
+
+
 class TrialsAssembly:
     """trials.parquet, written while the sweep runs: the chunks in the grid's order, each
     appended as soon as it and every chunk before it are in (``add``: one finished early
     waits in memory, at most ``HELD_CHUNKS`` of them, the others and those kept from before
-    (``kept``) are read from their files when their turn comes), with ``cell`` the cell's
-    position in this spec's grid (a reused chunk may have been written when it had
-    another). The summary's
+    (``kept``: "file", its chunk file, or "stored", in the directory's trials.parquet,
+    ``stored``) are read when their turn comes), with ``cell`` the cell's position in this
+    spec's grid (a reused chunk may have been written when it had another). The summary's
     columns (``SUMMARY_INPUTS``) are taken as the chunks pass, so the end reads nothing back.
 
-    The file is written under a temporary name beside trials.parquet (``atomic_path``) and
-    renamed over it by ``close`` once every chunk is in; ``abort`` (or a kill) leaves the
-    trials.parquet the directory had, and the next run removes the temporary file
-    (``remove_temporaries``)."""
+    Each chunk is one row group, and the file lists them in its Parquet metadata
+    (``CHUNKS_META_KEY``: trial range, checksum, cell), so that it can stand for the chunk
+    files (``StoredChunks``), which are then removed (``remove_merged_chunks``). The file is
+    written under a temporary name beside trials.parquet (``atomic_path``) and renamed over
+    it by ``close`` once every chunk is in; chunks the old file held for cells this spec no
+    longer has are first written back to their chunk files (``_retire``), so no finished
+    result is lost. ``abort`` (or a kill) leaves the trials.parquet the directory had, and
+    the next run removes the temporary file (``remove_temporaries``)."""
 
     def __init__(self, directory: Path, lay: Layout, provenance: Mapping[str, Any],
-                 kept: Iterable[str]) -> None:
+                 kept: Mapping[str, str] | Iterable[str],
+                 stored: StoredChunks | None = None) -> None:
         self._directory = directory
         self._order = list(lay.chunks())
-        self._kept = set(kept)
+        self._kept = dict(kept) if isinstance(kept, Mapping) else dict.fromkeys(kept, "file")
+        self._stored = stored
         self._next = 0  # the position in _order of the next chunk to append
-        self._held: dict[str, pa.Table] = {}
+        self._held: dict[str, tuple[pa.Table, str | None]] = {}
+        self._checksums: dict[str, str | None] = {}  # of chunks let go to be read back
         self._meta = provenance_metadata(provenance)
+        self._cells = {str(c.key): {"digest": c.digest, "values": to_jsonable(c.values)}
+                       for c in lay.cells}
+        self._index: list[list[Any]] = []  # [start, stop, checksum]
         self._summary = ColumnsOf(SUMMARY_INPUTS)
         self._writer: pq.ParquetWriter | None = None
         self._stack = contextlib.ExitStack()
         self._tmp = self._stack.enter_context(atomic_path(directory / "trials.parquet"))
 
-    def add(self, chunk: Chunk, table: pa.Table) -> None:
-        """A chunk just computed and written to its file (its rows, as the file holds them)."""
-        self._held[chunk.name] = table
+    def add(self, chunk: Chunk, table: pa.Table, checksum: str | None = None) -> None:
+        """A chunk just computed and written to its file (its rows, as the file holds them,
+        and their checksum, if known)."""
+        self._held[chunk.name] = (table, checksum)
         self._append_ready(everything=False)
         if len(self._held) > HELD_CHUNKS:  # read back from its file when its turn comes
             del self._held[chunk.name]
-            self._kept.add(chunk.name)
+            self._kept[chunk.name] = "file"
+            self._checksums[chunk.name] = checksum
 
     def close(self) -> tuple[Path, Columns]:
-        """Append what is left (from the chunk files), flush and rename: trials.parquet's
-        path, and the summary's columns of all its rows."""
+        """Append what is left (from the chunk files), retire what the old file held for
+        other cells, flush and rename: trials.parquet's path, and the summary's columns of
+        all its rows."""
+        target = self._directory / "trials.parquet"
         try:
             self._append_ready(everything=True)
+            self._retire()
             if self._writer is not None:
-                with naming_os_errors(self._directory / "trials.parquet", self._tmp):
+                index = {"format": STORED_FORMAT, "cells": self._cells, "chunks": self._index}
+                with naming_os_errors(target, self._tmp):
+                    self._writer.add_key_value_metadata({CHUNKS_META_KEY.decode(): json.dumps(
+                        index, sort_keys=True, separators=(",", ":"))})
                     self._writer.close()
                 self._writer = None
         except BaseException:
             self.abort()
             raise
         self._stack.close()
-        return self._directory / "trials.parquet", self._summary.columns()
+        return target, self._summary.columns()
 
     def abort(self) -> None:
         """Stop, and remove the temporary file (trials.parquet stays as it was)."""
@@ -675,25 +855,47 @@ class TrialsAssembly:
     def _append_ready(self, everything: bool) -> None:
         while self._next < len(self._order):
             chunk = self._order[self._next]
-            table = self._held.pop(chunk.name, None)
-            if table is None:
-                if not everything and chunk.name not in self._kept:
+            held = self._held.pop(chunk.name, None)
+            if held is None:
+                source = self._kept.get(chunk.name)
+                if not everything and source is None:
                     return  # not computed yet
-                table = read_parquet(self._directory / TRIALS_DIR / chunk.name)
-            self._append(chunk, table)
+                held = self._read(chunk.name, source)
+            self._append(chunk, *held)
             self._next += 1
 
-    def _append(self, chunk: Chunk, table: pa.Table) -> None:
-        table = table.set_column(table.schema.get_field_index("cell"), "cell",
-                                 repeated(chunk.cell, pa.int64(), table.num_rows))
+    def _read(self, name: str, source: str | None) -> tuple[pa.Table, str | None]:
+        """A chunk's rows and checksum from where it is kept."""
+        if source == "stored" and self._stored is not None:
+            return self._stored.read(name), self._stored.chunks[name].checksum
+        path = self._directory / TRIALS_DIR / name
+        if name in self._checksums:
+            return read_parquet(path), self._checksums[name]
+        with pq.ParquetFile(path) as file:
+            raw = (file.schema_arrow.metadata or {}).get(PARQUET_META_KEY)
+            checksum = json.loads(raw).get("checksum") if raw else None
+            return file.read(), checksum if isinstance(checksum, str) else None
+
+    def _append(self, chunk: Chunk, table: pa.Table, checksum: str | None) -> None:
+        """Append a chunk's rows as one row group, ``cell`` its position in this grid, and
+        list it with the checksum of its rows as written (the worker's, unless the rows
+        changed on the way: a reused chunk of a cell that had another position, a cast)."""
+        if table.num_rows == 0 or table.column("cell")[0].as_py() != chunk.cell:
+            table = table.set_column(table.schema.get_field_index("cell"), "cell",
+                                     repeated(chunk.cell, pa.int64(), table.num_rows))
+            checksum = None
         table = table.replace_schema_metadata(self._meta)
         try:  # (cast only where the types differ: pyarrow.compute loads for it)
             with naming_os_errors(self._directory / "trials.parquet", self._tmp):
                 if self._writer is None:
                     self._writer = pq.ParquetWriter(self._tmp, table.schema,
                                                     **parquet_options(table.schema))
-                same = table.schema.equals(self._writer.schema, check_metadata=False)
-                self._writer.write_table(table if same else table.cast(self._writer.schema))
+                if not table.schema.equals(self._writer.schema, check_metadata=False):
+                    table = table.cast(self._writer.schema)
+                    checksum = None
+                if checksum is None:  # the rows as this file holds them
+                    checksum = table_checksum(table)
+                self._writer.write_table(table, row_group_size=max(table.num_rows, 1))
         except OSError:  # a full disk, an I/O error: the file's (never the chunks')
             raise
         except (ValueError, pa.ArrowException) as exc:
@@ -701,7 +903,56 @@ class TrialsAssembly:
                 f"{TRIALS_DIR}/{chunk.name} has other columns than the chunks before it "
                 f"({str(exc).splitlines()[0][:80]}); use --force to start over"
             ) from None
+        self._index.append([chunk.start, chunk.stop, checksum])
         self._summary.add(table)
+
+    def _retire(self) -> None:
+        """Write back to their chunk files the chunks the old trials.parquet held for cells
+        this spec's grid no longer has (and that have no chunk file), so that replacing the
+        file loses none of them: a study whose grid comes back to those cells reuses them.
+        A chunk whose rows do not give its checksum is left out (it would be computed
+        again)."""
+        stored = self._stored
+        if stored is None:
+            return
+        ours = {c.name for c in self._order}
+        trials = self._directory / TRIALS_DIR
+        base = {k: v for k, v in stored.provenance.items() if k in ("digest", "spec",
+                                                                   "versions")}
+        for name, chunk in stored.chunks.items():
+            if name in ours or os.path.lexists(trials / name):
+                continue
+            try:
+                table = stored.read(name)
+            except (OSError, ValueError, pa.ArrowException):
+                continue
+            if table_checksum(table) != chunk.checksum:
+                continue
+            write_table(trials / name, table, {
+                **base, "cell_key": chunk.cell_key, "cell_digest": chunk.cell_digest,
+                "values": chunk.values, "trials": [chunk.start, chunk.stop],
+                "checksum": chunk.checksum})
+
+
+def remove_merged_chunks(directory: Path, lay: Layout) -> int:
+    """After a sweep's final tables are on disk: remove the chunk files of this layout,
+    which trials.parquet now holds (``StoredChunks``), and trials/ if that leaves it empty;
+    how many files went. Only regular files at this layout's chunk names, in a real
+    trials/ directory (never through a link). Each result is then on disk once."""
+    trials = real_directory(directory, TRIALS_DIR)
+    if trials is None:
+        return 0
+    removed = 0
+    for chunk in lay.chunks():
+        path = trials / chunk.name
+        if is_regular(path):
+            path.unlink(missing_ok=True)
+            removed += 1
+    if removed:
+        fsync_directory(trials)
+    with contextlib.suppress(OSError):  # not empty: another cell's chunks, the user's files
+        trials.rmdir()
+    return removed
 
 
 #: Finished chunks held in memory while an earlier one still runs; past them, a chunk is read
@@ -730,7 +981,8 @@ def finish_sweep(directory: Path, lay: Layout, provenance: Mapping[str, Any], st
                  timing: Mapping[str, Any], trials: TrialsAssembly,
                  tags: list[str] | None = None) -> tuple[str, str]:
     """trials.parquet (``trials``, closed here), summary.parquet, summary.md and run.json from
-    the chunks; summary.md's text and the headline the terminal shows
+    the chunks; then the chunk files go (``remove_merged_chunks``: trials.parquet holds
+    them). Returns summary.md's text and the headline the terminal shows
     (``report.summary.headline``: one screen).
 
     ``timing`` gains the end-to-end figures: ``wall_seconds`` from ``started`` (a
@@ -770,5 +1022,6 @@ def finish_sweep(directory: Path, lay: Layout, provenance: Mapping[str, Any], st
         outcome_counts=outcome_counts, timing=timing,
         **({"tags": tags} if tags else {}),
     ))
+    remove_merged_chunks(directory, lay)  # trials.parquet holds them, on disk before them
     return text, short
 

@@ -157,6 +157,16 @@ class Cell:
         return self.key * ID_STRIDE
 
 
+def family(cell: Cell) -> str:
+    """The compiled kernel a cell's trials run, in words: its model and plant
+    (``progress.kernel_key``), controller, integrator and joints. Cells of one family run
+    the same code, and cost alike per output step (their parameters change the steps)."""
+    from flatcli.progress import kernel_key
+
+    return (f"{kernel_key(cell.scenario)}, {cell.scenario.controller} controller, "
+            f"{cell.spec.track.integrator}, {cell.spec.joints} joints")
+
+
 def grid_label(values: Mapping[str, Any]) -> str:
     """A cell's grid values as text."""
     return ", ".join(f"{k} = {_show(v)}" for k, v in values.items()) or "(no grid)"
@@ -250,6 +260,43 @@ def work_pieces(todo: Sequence[Chunk], workers: int) -> list[tuple[Chunk, Chunk]
         bounds = [chunk.start + (chunk.size * k) // count for k in range(count + 1)]
         out.extend((chunk, Chunk(chunk.cell, a, b)) for a, b in itertools.pairwise(bounds))
     return out
+
+
+#: The most shards a sweep may be cut into (``Shard``).
+MAX_SHARDS = 100_000
+
+
+@dataclass(frozen=True)
+class Shard:
+    """Shard ``index`` of ``count`` (1-based, ``--shard K/N``): the chunks at positions p of
+    the layout's ``chunks()`` with p mod count = index - 1 (round robin, so each shard gets
+    a share of every cell's cost). The assignment comes from the spec alone, so shards
+    started on other machines, at other times, with other --workers, compute disjoint sets
+    of chunks that together are the whole study."""
+
+    index: int
+    count: int
+
+    def __post_init__(self) -> None:
+        if not (1 <= self.count <= MAX_SHARDS and 1 <= self.index <= self.count):
+            raise FlatcliError(f"--shard: expected K/N with 1 <= K <= N <= {MAX_SHARDS}, "
+                               f"got {self.index}/{self.count}")
+
+    @staticmethod
+    def parse(text: str) -> Shard:
+        """``K/N`` as a Shard (FlatcliError naming --shard otherwise)."""
+        index, slash, count = text.strip().partition("/")
+        if not slash or not index.isdigit() or not count.isdigit():
+            raise FlatcliError(f"--shard: expected K/N (shard K of N, e.g. 2/8: "
+                               f"${{SLURM_ARRAY_TASK_ID}}/8 in an array job 1-8), got {text!r}")
+        return Shard(int(index), int(count))
+
+    def __str__(self) -> str:
+        return f"{self.index}/{self.count}"
+
+    def chunks(self, lay: Layout) -> list[Chunk]:
+        """This shard's chunks of ``lay``, in the layout's order."""
+        return [c for p, c in enumerate(lay.chunks()) if p % self.count == self.index - 1]
 
 
 def chunk_name(start: int) -> str:

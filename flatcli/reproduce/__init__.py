@@ -3,9 +3,9 @@
 Writes into one directory (``runs/paper`` from ``make reproduce``) the figures, the plans and
 closed-loop runs as Parquet, the sweeps, and REPORT.md, whose every number is computed from
 those runs. The report is made of sections (``SECTIONS``, one module each: ``paper``,
-``optimized``, ``montecarlo``, ``actuators``, ``chains``, ``asbuilt``); a section whose
-inputs and code have not changed since it was last computed into the directory is reused,
-not computed again (``sections``), so a second ``make reproduce`` takes seconds. ``only``
+``optimized``, ``montecarlo``, ``actuators``, ``chains``, ``asbuilt``, ``search``); a
+section whose inputs and code have not changed since it was last computed into the directory
+is reused, not computed again (``sections``), so a second ``make reproduce`` takes seconds. ``only``
 computes some sections and keeps the others' last results; ``force`` computes again
 whatever it runs.
 """
@@ -18,7 +18,16 @@ from pathlib import Path
 
 from flatcli import __version__
 from flatcli.report.figures import FigureFile
-from flatcli.reproduce import actuators, asbuilt, capture, chains, montecarlo, optimized, paper
+from flatcli.reproduce import (
+    actuators,
+    asbuilt,
+    capture,
+    chains,
+    montecarlo,
+    optimized,
+    paper,
+    search,
+)
 from flatcli.reproduce.sections import Context, Result, Section, Steps, compute_or_reuse
 from flatcli.reproduce.sections import stored_result as _stored
 from flatcli.spec import load_spec, resolve
@@ -30,7 +39,7 @@ STUDY_SPEC = Path(str(resources.files("flatcli") / "data" / "paper_montecarlo.to
 #: The report's sections, in its order.
 SECTIONS: tuple[Section, ...] = (paper.SECTION, optimized.SECTION, montecarlo.SECTION,
                                  actuators.SECTION, chains.SECTION, capture.SECTION,
-                                 asbuilt.SECTION)
+                                 asbuilt.SECTION, search.SECTION)
 SECTION_NAMES: tuple[str, ...] = tuple(s.name for s in SECTIONS)
 
 INTRO = (
@@ -54,7 +63,7 @@ def check_inputs(out: Path, montecarlo: Path | None, workers: int | None,
         if name not in SECTION_NAMES:
             raise FlatcliError(f"--only: expected one of {', '.join(SECTION_NAMES)}, "
                                f"got {name!r}")
-    for name in ("montecarlo", "asbuilt"):  # the sections that are studies
+    for name in ("montecarlo", "asbuilt", "search"):  # the sections that are studies
         if montecarlo is None and name in only:
             raise FlatcliError(f"--only {name}: the study is skipped by --no-montecarlo")
     check_output_dir(out)

@@ -140,8 +140,9 @@ def forget_study(directory: Path) -> None:
         clear(nested, previous)
     with contextlib.suppress(OSError):
         (nested / LOCK_NAME).unlink()
-        (nested / TRIALS_DIR).rmdir()
-        nested.rmdir()
+    for folder in (nested / TRIALS_DIR, nested):  # each if it is there and empty (a
+        with contextlib.suppress(OSError):        # finished sweep leaves no trials/)
+            folder.rmdir()
 
 
 def record_cells(directory: Path) -> None:

@@ -28,6 +28,7 @@ from flatcli.spec.schema import (
     from_values,
     lookup,
 )
+from flatcli.spec.searches import validate_search
 from flatcli.spec.sweeps import PERTURB_PREFIX, is_perturbation_param, validate_sweep
 from flatcli.spec.tree import read_toml
 
@@ -88,6 +89,7 @@ def build(values: Mapping[str, Any], parent: Spec | None = None) -> Spec:
                    spec.task.end_effector is not None, grid_checked=grid_checked)
     if not grid_checked:
         check_grid_shapes(spec.sweep.grid)
+    validate_search(spec)
     check_derived(spec)
     check_verify(spec.sweep.verify)
     check_limits(spec)

@@ -68,6 +68,13 @@ from flatcli.spec.keys import (
     vector,
 )
 from flatcli.spec.limits import MIN_RTOL
+from flatcli.spec.searches import (
+    APPLY,
+    CENTRES,
+    QUANTILE_METRICS,
+    SEARCH_OBJECTIVES,
+    VERDICT_REQUIREMENTS,
+)
 from flatcli.spec.tree import flatten
 
 #: Numbers of a per-link vector of the paper's robot: links 0 (base), 1, 2. A robot of N
@@ -78,6 +85,9 @@ GAINS = 2
 #: Sections that say how results are shown, not what is computed: they enter no digest, so
 #: a sweep resumes and a run is "the same run" whatever figures it draws.
 PRESENTATION = ("figures", "summary")
+#: Sections that no trial reads (besides ``PRESENTATION``): a design search's. They enter no
+#: sweep's digest, so ``flatcli sweep`` of a search spec is the sweep it would be without them.
+OUTSIDE_TRIALS = ("search",)
 INF = math.inf
 
 Vector = tuple[float, ...]
@@ -340,6 +350,54 @@ class SummarySpec:
 
 
 @dataclass(frozen=True)
+class SearchSpec:
+    """a design search (used by `flatcli search`; docs/search.md)"""
+
+    vary: Mapping[str, Any] = table("design variables and their bounds: \"robot.mass[1]\" = "
+                                    "[low, high] or { relative = r } (docs/search.md)")
+    counterweight: Mapping[str, Any] = table(
+        "a counterweight on the last link, whose [robot] values are then the bare link's: "
+        "distance (placed by the designer) or mass, x, y; inertia (docs/search.md)")
+    objective: str = choice(SEARCH_OBJECTIVES, "reached", "\"reached\" (maximise the 95 % Wilson "
+                            "lower bound of the fraction of trials reached; between equal "
+                            "counts, minimise the quantile below) or \"quantile\" (minimise "
+                            "the quantile of metric over all trials, a lost trial or one "
+                            "without a value counted as infinite)")
+    metric: str = choice(QUANTILE_METRICS, "err_theta_final", "the trial metric whose "
+                         "quantile the objective reads")
+    quantile: float = number(0.5, "which quantile of metric", gt=0, le=1)
+    energy_weight: float = number(0.0, "w of the secondary term w E / E_0 added to the "
+                                  "objective: E the candidate's plan input energy, E_0 the "
+                                  "spec's own design's", ge=0)
+    candidates: int = integer(200, "budget: designs evaluated at most (whole generations)",
+                              ge=1, le=10_000_000)
+    seconds: float = number(INF, "budget: stop at the first generation boundary after this "
+                            "much time (recorded, so a resume stops there too)", "s", gt=0,
+                            inf=True)
+    population: int | None = integer(None, "designs per generation of the differential "
+                                     "evolution", ge=5, le=100_000, nullable=True,
+                                     default_doc="5 per variable, at least 10")
+    seed: int = integer(0, "seed of the optimiser (the trials' draws come from sweep.seed)",
+                        ge=0)
+    tol: float = number(0.01, "stop when the population's objectives agree: std <= tol x "
+                        "abs(mean) (scipy's differential_evolution tol; 0: run the budget)",
+                        ge=0)
+    max_mass: float = number(INF, "constraint: total mass of a candidate at most this", "kg",
+                             gt=0, inf=True)
+    verdict: str = choice(VERDICT_REQUIREMENTS, "any", "constraint: the least flatness "
+                          "verdict a candidate must have: \"closed_form\", \"flat\" "
+                          "(controllable) or \"any\"")
+    centre: str = choice(CENTRES, "free", "constraint: \"on_joint\" (every candidate's last "
+                         "link has its centre of mass on its joint, d_N = e_N = 0) or "
+                         "\"free\"")
+    apply: str = choice(APPLY, "robot", "what a design is: \"robot\" (what the controller "
+                        "believes and what is built; a [plant] key the spec sets keeps its "
+                        "as-built offset) or \"plant\" (what is built alone; the controller "
+                        "keeps [robot]); variables are named after it (robot.mass[1], "
+                        "plant.mass[1])")
+
+
+@dataclass(frozen=True)
 class SpecRecord:
     """top level
 
@@ -357,6 +415,7 @@ class SpecRecord:
     sweep: SweepSpec = field(default_factory=SweepSpec)
     figures: FiguresSpec = field(default_factory=FiguresSpec)
     summary: SummarySpec = field(default_factory=SummarySpec)
+    search: SearchSpec = field(default_factory=SearchSpec)
 
     @property
     def joints(self) -> int:
@@ -374,8 +433,9 @@ class SpecRecord:
 
     def experiment_tree(self, skip: Collection[str] = ()) -> dict[str, Any]:
         """``tree`` without the sections that only say how results are shown
-        (``PRESENTATION``): what the experiment is; without the dotted keys ``skip`` too
-        (not copied: a sweep's cells leave out the grid they all share)."""
+        (``PRESENTATION``) and those no trial reads (``OUTSIDE_TRIALS``): what the
+        experiment is; without the dotted keys ``skip`` too (not copied: a sweep's cells leave
+        out the grid they all share)."""
         return experiment(_tree(self, skip))
 
     def to_json(self) -> str:
@@ -394,8 +454,8 @@ class SpecRecord:
 
 def experiment(tree: Mapping[str, Any]) -> dict[str, Any]:
     """A spec tree (a Spec's, or one read from a run's record) without its ``PRESENTATION``
-    sections."""
-    return {k: v for k, v in tree.items() if k not in PRESENTATION}
+    and ``OUTSIDE_TRIALS`` sections."""
+    return {k: v for k, v in tree.items() if k not in PRESENTATION + OUTSIDE_TRIALS}
 
 
 def _is_section(f: Field[Any]) -> bool:

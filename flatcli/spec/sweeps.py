@@ -257,6 +257,9 @@ def _validate_grid_value(perturb: Mapping[str, Any], where: str, dotted: str,
     if dotted.startswith("figures."):
         raise SpecError(f"{where}: cannot grid over {dotted!r}: figures are how a sweep is "
                         "drawn, once for all its cells")
+    if dotted.startswith("search."):
+        raise SpecError(f"{where}: cannot grid over {dotted!r}: [search] says how flatcli "
+                        "search varies the design, and no trial reads it")
     if dotted.startswith("summary."):
         raise SpecError(f"{where}: cannot grid over {dotted!r}: [summary] is how a sweep's "
                         "trials are judged, once for all its cells")

@@ -56,18 +56,22 @@ def _lines(prefix: str, table: Mapping[str, Any], out: list[str],
 def _is_table(prefix: str, key: str, value: Any) -> bool:
     """Whether a value is written as a ``[table]`` of its own: a spec section, or the
     sweep's tables (their entries inline)."""
-    return isinstance(value, Mapping) and (prefix in ("", "plan") or
-                                           f"{prefix}.{key}" in ("sweep.perturb", "sweep.grid"))
+    return isinstance(value, Mapping) and (prefix in ("", "plan") or f"{prefix}.{key}" in (
+        "sweep.perturb", "sweep.grid", "search.vary", "search.counterweight"))
 
 
-def spec_toml(spec: SpecRecord, *, sweep: bool = False, values: Mapping[str, Any] | None = None,
+def spec_toml(spec: SpecRecord, *, sweep: bool = False, search: bool = False,
+              values: Mapping[str, Any] | None = None,
               notes: Mapping[str, str] | None = None) -> str:
     """A spec's keys as TOML (keys left unset, None, are left out), without its ``[sweep]``
-    table unless ``sweep``; ``values`` replace dotted keys' values as written (a chunk size as
-    resolved), ``notes`` add a comment to a key's line."""
+    table unless ``sweep`` and its ``[search]`` table unless ``search``; ``values`` replace
+    dotted keys' values as written (a chunk size as resolved), ``notes`` add a comment to a
+    key's line."""
     tree = spec.tree
     if not sweep:
         tree.pop("sweep", None)
+    if not search:
+        tree.pop("search", None)
     for dotted, value in (values or {}).items():
         put(tree, dotted, value)
     out: list[str] = []

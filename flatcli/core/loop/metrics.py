@@ -48,34 +48,10 @@ from numpy.typing import NDArray
 
 from flatcli.core._jit import jitable
 from flatcli.core.models.flatness import chart
+from flatcli.core.names import METRIC_NAMES, Metric
 from flatcli.core.robots.params import Coefficients, Links, momentum
 
 Array = NDArray[np.float64]
-
-
-class Metric(IntEnum):
-    """Column of a trial's metrics row (``Outcome.metrics``); names as in trials.parquet."""
-
-    ERR_THETA_RMS = 0
-    ERR_THETA_MAX = 1
-    ERR_THETA_FINAL = 2
-    ERR_Y_RMS = 3
-    ERR_Y_MAX = 4
-    ERR_Y_FINAL = 5
-    SINGULAR_HITS = 6
-    FIRST_HIT_TIME = 7
-    MIN_MARGIN = 8
-    MOMENTUM_DRIFT = 9
-    PLAN_MOMENTUM_RESIDUAL = 10
-    ERR_ESTIMATE = 11
-    PEAK_RATE = 12
-    PEAK_TORQUE = 13
-    TORQUE_SATURATED = 14
-    STEPS = 15
-    RHS_EVALUATIONS = 16
-    CROSSINGS = 17
-    FIRST_CROSSING_TIME = 18
-    CLIPPED_TIME = 19
 
 
 # the metric columns as plain ints, for the kernels
@@ -100,7 +76,6 @@ _M_CROSSINGS = int(Metric.CROSSINGS)
 _M_FIRST_CROSSING_TIME = int(Metric.FIRST_CROSSING_TIME)
 _M_CLIPPED_TIME = int(Metric.CLIPPED_TIME)
 
-METRIC_NAMES: tuple[str, ...] = tuple(m.name.lower() for m in Metric)
 N_METRICS = len(METRIC_NAMES)
 #: Metrics that count things (integers in the tables).
 COUNT_METRICS: tuple[str, ...] = ("singular_hits", "torque_saturated", "steps",

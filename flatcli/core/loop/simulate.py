@@ -133,6 +133,12 @@ def noise_generator(seed: int, trial: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(trial, NOISE_SLOT)))
 
 
+#: Why the flat controller cannot track an exact plan (``Scenario``; the command line says it
+#: before planning: ``experiment.run_track``).
+FLAT_ON_EXACT = ("track.controller: \"flat\" tracks the closed-form flat outputs, which an "
+                 "exact plan (plan.method) does not have: use track.controller = \"asbuilt\"")
+
+
 @dataclass(frozen=True)
 class Scenario:
     """What every trial of a batch shares: the plan, the controller and the time grid.
@@ -231,9 +237,7 @@ class Scenario:
             raise FlatcliError(f"track.controller: expected one of {list(CONTROLLERS)}, got "
                                f"{self.controller!r}")
         if self.controller == "flat" and self.plan.model.kind == "exact":
-            raise FlatcliError(
-                "track.controller: \"flat\" tracks the closed-form flat outputs, which an "
-                "exact plan (plan.method) does not have: use track.controller = \"asbuilt\"")
+            raise FlatcliError(FLAT_ON_EXACT)
         n = self.plan.n_joints
         if self.gains.n_outputs != n:
             raise FlatcliError(f"track.kp, track.kv: expected {n} gains each (one per flat "

@@ -26,6 +26,10 @@ of mass m_c h / (m + m_c) across the joint (``Counterweight.residual``, reported
 that misses the band is refused. The counterweighted link then has mass m + m_c, inertia
 I + m |r|^2 + I_c + m_c |p|^2 about the joint, and d_N = e_N = 0 (``apply``: the design, to
 that residual).
+
+A counterweight placed anywhere else (``attach``: a design search tries such placements)
+leaves the link's centre of mass at c = (m r + m_c p) / (m + m_c), and the link's inertia about
+that centre is, by the parallel-axis theorem, I + m |r - c|^2 + I_c + m_c |p - c|^2.
 """
 
 from __future__ import annotations
@@ -161,4 +165,44 @@ def apply(robot: RobotParams, counterweight: Counterweight) -> RobotParams:
     return RobotParams(mass, inertia, robot.length, com, 0.0)
 
 
-__all__ = ["Counterweight", "apply", "design_counterweight"]
+def attach(robot: RobotParams, mass: float, x: float, y: float, own_inertia: float = 0.0
+           ) -> RobotParams:
+    """``robot`` whose last link (read as the bare link) carries a counterweight anywhere.
+
+    Parameters
+    ----------
+    robot : the robot with its bare last link: mass m [kg], inertia I about its own centre
+        [kg m^2], that centre at r = (d_N, e_N) (``com[N]``, ``com_across``) [m]
+    mass : m_c, the counterweight's mass [kg] (>= 0; 0: the bare link)
+    x, y : p, its centre in the link's frame (x along the link from joint N, y across) [m]
+    own_inertia : I_c, its inertia about its own centre [kg m^2] (>= 0)
+
+    Returns
+    -------
+    RobotParams whose last link has mass m + m_c, its centre c = (m r + m_c p) / (m + m_c)
+    (``com[N]`` = c_x, ``com_across`` = c_y) and inertia I + m |r - c|^2 + I_c + m_c |p - c|^2
+    about c (the module docstring); exactly ``apply`` of the designer's counterweight when p
+    balances the link (there c = 0 to rounding)
+
+    Raises
+    ------
+    FlatcliError if a value is negative or not finite.
+    """
+    values = (mass, x, y, own_inertia)
+    if not all(math.isfinite(v) for v in values) or mass < 0 or own_inertia < 0:
+        raise FlatcliError(f"counterweight: mass and own inertia must be >= 0 and every value "
+                           f"finite, got mass {mass:g} kg at ({x:g}, {y:g}) m, own inertia "
+                           f"{own_inertia:g} kg m^2")
+    n = robot.n_joints
+    m, inertia = robot.mass[n], robot.inertia[n]
+    r = np.array([robot.com[n], robot.com_across])
+    p = np.array([x, y])
+    total = m + mass
+    centre = (m * r + mass * p) / total
+    link_inertia = (inertia + m * float((r - centre) @ (r - centre)) + own_inertia
+                    + mass * float((p - centre) @ (p - centre)))
+    return RobotParams((*robot.mass[:n], total), (*robot.inertia[:n], link_inertia),
+                       robot.length, (*robot.com[:n], float(centre[0])), float(centre[1]))
+
+
+__all__ = ["Counterweight", "apply", "attach", "design_counterweight"]
