@@ -182,3 +182,4 @@ def test_the_cells_planning_is_shown_for_a_large_grid_only() -> None:
     quiet = io.StringIO()
     Progress("s", quiet=True, stream=quiet).cells(0, 10**4)
     assert quiet.getvalue() == ""
+
