@@ -58,6 +58,8 @@ from benchmarks.front_door import compiles as run_compiles
 from benchmarks.front_door import run_all as run_front_door
 from benchmarks.integrators import HEADERS as INTEGRATOR_HEADERS
 from benchmarks.integrators import run_all as run_integrators
+from benchmarks.outcomes import HEADERS as OUTCOME_HEADERS
+from benchmarks.outcomes import run_all as run_outcomes
 from benchmarks.search import HEADERS as SEARCH_HEADERS
 from benchmarks.search import run_all as run_search
 from benchmarks.tasks import HEADERS as TASK_HEADERS
@@ -83,7 +85,7 @@ SCALING = "Scaling: 2 workers, each process's own peak memory"
 #: The sections ``make bench`` runs, in this order; ``--sections`` may name them and
 #: ``OPTIONAL`` ones (run only when named: minutes each).
 SECTIONS = ("planning", "closed_loop", "sweeps", "front_door", "integrators", "chains",
-            "asbuilt", "optimised", "tasks", "search")
+            "asbuilt", "optimised", "tasks", "outcomes", "search")
 OPTIONAL = ("compiles",)
 
 
@@ -566,6 +568,7 @@ HEADERS = {
     **FRONT_HEADERS,
     **ASBUILT_HEADERS,
     **TASK_HEADERS,
+    **OUTCOME_HEADERS,
     **SEARCH_HEADERS,
     "Optimised plans: least energy, abs(th2) <= 3, rates <= 20, margin >= 0.05":
         ["plan", "energy [rad^2/s]", "limit violation", "max abs(H)", "time", "note"],
@@ -627,6 +630,7 @@ def main(argv: list[str] | None = None) -> None:
         "asbuilt": [partial(run_asbuilt, bench, sweep)],
         "optimised": [partial(optimised, bench), partial(optimised_ladder, bench)],
         "tasks": [partial(run_tasks, bench)],
+        "outcomes": [partial(run_outcomes, bench)],
         "search": [partial(run_search, bench)],
     }
     for name in SECTIONS + OPTIONAL:

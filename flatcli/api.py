@@ -301,6 +301,17 @@ class PlanResult(Run):
         return Trajectory(self.plan if self.plan is not None else
                           plan_from(self.spec))
 
+    @property
+    def warnings(self) -> list[str]:
+        """One line each (``flatcli plan`` prints them on stderr): the plan's fastest joint
+        beyond ``plan.rate_warning`` on its samples (none for a loaded plan)."""
+        if self.samples is None:
+            return []
+        from flatcli.core.plan.planning import rate_warning_text
+
+        text = rate_warning_text(self.samples, self.spec.plan.rate_warning)
+        return [text] if text else []
+
     def text(self) -> str:
         """What ``flatcli plan`` prints."""
         if self.plan is None or self.samples is None:
@@ -398,6 +409,12 @@ class TrackResult(Run):
 
         return Trajectory(self.run.plan if self.run is not None else
                           plan_from(self.spec))
+
+    @property
+    def warnings(self) -> list[str]:
+        """One line each (``flatcli track`` prints them on stderr): the plan's fastest joint
+        beyond ``plan.rate_warning`` (none for a loaded run)."""
+        return [] if self.run is None else self.run.warnings
 
     def text(self) -> str:
         """What ``flatcli track`` prints."""

@@ -3,7 +3,8 @@ one can filter, sort, compare, print as a table that fits the terminal or as JSO
 to pandas (one row per run, its spec keys and metrics as columns, as ``mlflow.search_runs``).
 
 A run's fields: ``run`` (its directory, relative to the root searched), ``command``,
-``name``, ``time``, ``status``, ``tags`` (``--tag``), every number its record holds (a track
+``name``, ``time``, ``status``, ``outcome`` (what the robot did: a track run's outcome, a
+sweep's "reached k/n"), ``tags`` (``--tag``), every number its record holds (a track
 run's metrics, a plan's summary, a sweep's trials by status) and every key of its resolved
 spec, dotted (``plant.model``, ``track.kp``). A filter is ``KEY OP VALUE`` with OP one of
 ``= != < <= > >= ~`` (``~``: contains); VALUE is read as a TOML value (a number, a list, a
@@ -40,7 +41,7 @@ from flatcli.spec.keys import SpecError, suggest
 from flatcli.spec.tree import flatten
 
 #: The fields every run has, in the order tables and frames show them.
-FIELDS = ("run", "command", "name", "time", "status", "tags")
+FIELDS = ("run", "command", "name", "time", "status", "outcome", "tags")
 #: Filter operators, longest first (so "<=" is not read as "<").
 OPERATORS = ("!=", ">=", "<=", "=", "<", ">", "~")
 _FILTER = re.compile(r"^\s*(?P<key>[^!<>=~\s][^!<>=~]*?)\s*(?P<op>!=|>=|<=|=|<|>|~)\s*"
@@ -68,8 +69,8 @@ class Row:
     def fields(self) -> dict[str, Any]:
         info = self.info
         return {"run": self.where, "command": info.command, "name": info.name,
-                "time": info.time, "status": info.status, "tags": list(info.tags),
-                **info.values, **flat_spec(info.spec)}
+                "time": info.time, "status": info.status, "outcome": info.outcome,
+                "tags": list(info.tags), **info.values, **flat_spec(info.spec)}
 
     def get(self, key: str) -> Any:
         """A field's value, or ``_ABSENT``."""
@@ -211,8 +212,8 @@ def select(rows: Sequence[Row], filters: Sequence[Filter], sort: str | None = No
     for key in [*(f.key for f in filters), *([sort] if sort else [])]:
         if rows and key not in known:
             raise SpecError(f"--filter/--sort: no run below has {key!r}{suggest(key, known)} "
-                            "(fields: run, command, name, time, status, tag; metrics such as "
-                            "err_y_final; spec keys such as plant.model)")
+                            "(fields: run, command, name, time, status, outcome, tag; metrics "
+                            "such as err_y_final; spec keys such as plant.model)")
     chosen = [r for r in rows if all(f.holds(r) for f in filters)]
     if sort is None:
         return chosen
@@ -257,18 +258,21 @@ def runs_table(root: Path, rows: Sequence[Row] | None = None, width: int | None 
     ``width`` characters wide where it can be. Narrowed step by step, each only if still
     too wide: shorter times and stamps by their ids (``…439c92``; the time column has the
     rest), the name column where every run's directory says it, fewer key metrics per row
-    (``(+k)`` says how many more), then the name and tags columns; a last line says what was
-    left out (``--json`` has every field)."""
+    (``(+k)`` says how many more), then the name, tags and outcome columns; a last line says
+    what was left out (``--json`` has every field)."""
     rows = rows_below(root) if rows is None else list(rows)
     if not rows:
         return f"no runs in {root}"
     latest = {r for p in root.rglob(LATEST) if p.is_symlink() and (r := followed(p))}
     tagged = any(r.info.tags for r in rows)
+    outcomes = any(r.info.outcome for r in rows)
     redundant = all(r.where.split("/")[0] == r.info.name for r in rows)
 
-    def build(short: bool, most: int | None, name: bool, tags: bool) -> str:
+    def build(short: bool, most: int | None, name: bool, tags: bool,
+              outcomes: bool = outcomes) -> str:
         headers = ["run", "command", *(["name"] if name else []), "time", "status",
-                   *(["tags"] if tags else []), "key metrics"]
+                   *(["outcome"] if outcomes else []), *(["tags"] if tags else []),
+                   "key metrics"]
         body = []
         for row in rows:
             info = row.info
@@ -276,7 +280,8 @@ def runs_table(root: Path, rows: Sequence[Row] | None = None, width: int | None 
                 row.where
             where += " (latest)" if followed(info.path) in latest else ""
             cells = [where, info.command, *([info.name] if name else []),
-                     _when(info.time, short), info.status]
+                     _when(info.time, short), info.status,
+                     *([info.outcome] if outcomes else [])]
             if tags:
                 cells.append(", ".join(info.tags))
             cells.append(info.metrics_text(most))
@@ -287,15 +292,18 @@ def runs_table(root: Path, rows: Sequence[Row] | None = None, width: int | None 
     if width is None or _width(text) <= width:
         return text
     most = max(len(r.info.metrics) for r in rows)
-    layouts = [(most, not redundant, tagged), *((k, not redundant, tagged)
-                                                for k in range(most - 1, 0, -1)),
-               (1, False, tagged), (1, False, False)]
-    for most_, name, tags in layouts:
-        text = build(True, most_, name, tags)
+    layouts = [(most, not redundant, tagged, outcomes),
+               *((k, not redundant, tagged, outcomes) for k in range(most - 1, 0, -1)),
+               (1, False, tagged, outcomes), (1, False, False, outcomes),
+               (1, False, False, False)]
+    for most_, name, tags, shown_outcomes in layouts:
+        text = build(True, most_, name, tags, shown_outcomes)
         if _width(text) <= width:
             break
     dropped = [what for what, shown_ in (("name", name or redundant),
-                                         ("tags", tags or not tagged)) if not shown_]
+                                         ("tags", tags or not tagged),
+                                         ("outcome", shown_outcomes or not outcomes))
+               if not shown_]
     if dropped or most_ < most:
         left = [*dropped, *(["some key metrics"] if most_ < most else [])]
         note = f"(narrowed to {width} columns: {', '.join(left)} left out; --json has all)"
@@ -317,16 +325,16 @@ def runs_json(rows: Sequence[Row]) -> str:
         info = row.info
         items.append({"run": row.where, "path": str(info.path), "command": info.command,
                       "name": info.name, "time": info.time.isoformat() if info.time else None,
-                      "status": info.status, "tags": list(info.tags),
-                      "metrics": info.values, "spec": info.spec})
+                      "status": info.status, "outcome": info.outcome,
+                      "tags": list(info.tags), "metrics": info.values, "spec": info.spec})
     return json.dumps(to_jsonable(items), indent=2, sort_keys=True)
 
 
 def runs_frame(rows: Sequence[Row]) -> Any:
     """The runs as a pandas DataFrame: one row per run; ``run``, ``path``, ``command``,
-    ``name``, ``time`` (a timestamp), ``status``, ``tags`` (a list), then every number of the
-    runs' records (nan where a run has none, or it does not apply), then every spec key,
-    dotted (``plant.model``, ``track.kp``). Times are UTC timestamps."""
+    ``name``, ``time`` (a timestamp), ``status``, ``outcome``, ``tags`` (a list), then every
+    number of the runs' records (nan where a run has none, or it does not apply), then every
+    spec key, dotted (``plant.model``, ``track.kp``). Times are UTC timestamps."""
     import pandas as pd
 
     records = []
@@ -339,10 +347,10 @@ def runs_frame(rows: Sequence[Row]) -> Any:
         keys.update(dict.fromkeys(k for k in spec if k not in FIELDS))
         records.append({"run": row.where, "path": str(info.path), "command": info.command,
                         "name": info.name, "time": info.time, "status": info.status,
-                        "tags": list(info.tags),
+                        "outcome": info.outcome, "tags": list(info.tags),
                         **{k: _cell(v) for k, v in info.values.items()},
                         **{k: _cell(v) for k, v in spec.items() if k not in FIELDS}})
-    columns = ["run", "path", "command", "name", "time", "status", "tags", *numbers,
+    columns = ["run", "path", "command", "name", "time", "status", "outcome", "tags", *numbers,
                *(k for k in keys if k not in numbers)]
     frame = pd.DataFrame.from_records(records, columns=columns)
     frame["time"] = pd.to_datetime(frame["time"], utc=True)  # one time zone: comparable

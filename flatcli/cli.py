@@ -467,6 +467,9 @@ def run_one(command: str, spec: Path | None, robot: str | None, sets: tuple[str,
                 click.echo(note, err=True)
             result: api.PlanResult | api.TrackResult = (
                 api.plan(s, quiet=quiet) if command == "plan" else api.track(s, quiet=quiet))
+            if not quiet:
+                for warning in result.warnings:
+                    click.echo(warning, err=True)
             result.tags = chosen
             directory = result.save(target, plot=plot)
             if animate and isinstance(result, api.PlanResult):
@@ -873,11 +876,12 @@ def rerun(directory: Path, trial: int, print_spec: bool, fmt: str | None, dpi: i
 @plot_option("Also write the summary figures (a finished sweep only).")
 @figure_options
 @click.option("--x", "x", metavar="KEY",
-              help="With --plot: the grid key sweep_singular's x axis shows [default: the "
-                   "perturbation size, or the first numeric grid key].")
+              help="With --plot: the grid key sweep_singular's x axis shows, or `outcome` "
+                   "(each cell split by its trials' outcome) [default: the perturbation "
+                   "size, or the first numeric grid key].")
 @click.option("--hue", "hue", metavar="KEY",
               help="With --plot: the grid key whose values get a colour each (the other grid "
-                   "keys a line style).")
+                   "keys a line style), or `outcome`.")
 @quiet_option
 def summarize(directory: Path, full: bool, plot: bool, fmt: str | None, dpi: int | None,
               x: str | None, hue: str | None, quiet: bool) -> None:

@@ -18,6 +18,7 @@ from flatcli.core.controllers.lqr import LqrWeights
 from flatcli.core.controllers.settings import MpcSettings, settings_from
 from flatcli.core.curves.basis import Basis, BSplineBasis, PolynomialBasis
 from flatcli.core.loop.metrics import COUNT_METRICS, METRIC_NAMES, describe_status
+from flatcli.core.loop.outcome import Geometry, Goal, Judged, judge
 from flatcli.core.loop.simulate import (
     FLAT_ON_EXACT,
     TWIN_FACTOR,
@@ -28,7 +29,7 @@ from flatcli.core.loop.simulate import (
     simulate,
 )
 from flatcli.core.plan.exact import method_for, plan_exact
-from flatcli.core.plan.planning import Plan, plan_point_to_point
+from flatcli.core.plan.planning import Plan, plan_point_to_point, rate_warning_text
 from flatcli.core.plan.task import Task, TaskPlan, plan_task, task_ends
 from flatcli.core.robots.params import RobotParams
 from flatcli.spec import Spec, SpecError
@@ -198,7 +199,8 @@ def _task(spec: Spec, robot: RobotParams) -> Planned:
     done = plan_task(robot, task, starts, goals, spec.plan.duration, start_rate, goal_rate,
                      checked(spec.robot.model), None if task.rest else basis_from(spec),
                      np.asarray(opt.angle_limit, dtype=float),
-                     np.broadcast_to(np.asarray(opt.rate_limit, dtype=float), (joints,)))
+                     np.broadcast_to(np.asarray(opt.rate_limit, dtype=float), (joints,)),
+                     spec.plan.rate_warning, spec.plan.samples)
     return done.plan, None, done
 
 
@@ -356,12 +358,36 @@ class TrackRun:
             theta = np.column_stack([cols[f"theta{i}"] for i in range(n + 1)])
             ref = np.column_stack([cols[f"theta{i}_ref"] for i in range(n + 1)])
             out.update(task_metrics(self.spec, theta, ref, plant_from(self.spec)))
+            clearance = self.outcome.clearance
+            if clearance is not None:  # up to a stop too: the samples the trial reached
+                for key, value in (("min_clearance", clearance.sampled[0]),
+                                   ("clearance_bound", clearance.bound[0])):
+                    out[key] = float(value) if np.isfinite(value) else None
+        judged = self.judged(status, reason)
+        if self.spec.task.end_effector is not None:  # measured as a sweep measures it
+            distance = float(judged.target_error[0])
+            out["ee_error_final"] = distance if np.isfinite(distance) else None
+        for i, value in enumerate(judged.final_error[0]):
+            out[f"err_theta{i}_final"] = float(value) if np.isfinite(value) else None
         out["status"] = status
         out["reason"] = reason
+        out["outcome"] = judged.outcome[0]
+        out["outcome_reason"] = judged.reason[0]
         out["verified"] = bool(self.outcome.verified[0])
         event_time = float(self.outcome.event_time[0])
         out["event_time"] = None if np.isnan(event_time) else event_time
         return out
+
+    def judged(self, status: str, reason: str) -> Judged:
+        """The run's outcome (``judge_trials``) given its status and reason."""
+        plant = plant_from(self.spec)
+        return judge_trials(self.spec, self.scenario, [status], [reason], self.outcome,
+                            plant.as_array()[None, :], np.array([plant.com_across]))
+
+    @property
+    def warnings(self) -> list[str]:
+        """One line each: the plan's fastest joint beyond ``plan.rate_warning``."""
+        return plan_warnings(self.spec, self.plan)
 
     @cached_property
     def columns(self) -> dict[str, Array]:
@@ -421,6 +447,38 @@ class TrackRun:
         with np.errstate(all="ignore"):
             H = model.momentum(plant, theta, rates)
         return y, np.abs(sigma), np.asarray(H)
+
+
+def plan_warnings(spec: Spec, plan: Plan) -> list[str]:
+    """The plan's warnings, one line each: its fastest joint beyond ``plan.rate_warning`` on
+    its own grid (``plan.samples`` points; ``core.planning.rate_warning_text``)."""
+    text = rate_warning_text(plan.sample(plan.grid(spec.plan.samples)), spec.plan.rate_warning)
+    return [text] if text else []
+
+
+def goal_of(spec: Spec, scenario: Scenario, target: Any = None) -> Goal:
+    """What the trials of a scenario were asked: the plan's th(T) (the angles
+    ``err_theta_final`` compares with) within ``track.goal_tolerance``, and for a task its
+    target (``target`` (2,) or (T, 2) [m]: each trial's own; default task.end_effector)
+    within ``task.goal_tolerance``."""
+    if target is None and spec.task.end_effector is not None:
+        target = np.asarray(spec.task.end_effector, dtype=float)
+    return Goal(np.asarray(scenario.theta_reference[-1], dtype=float),
+                float(spec.track.goal_tolerance),
+                None if target is None else np.asarray(target, dtype=float),
+                float(spec.task.goal_tolerance))
+
+
+def judge_trials(spec: Spec, scenario: Scenario, status: list[str], reason: list[str],
+                 outcome: Outcome, links: Array, across: Array, target: Any = None) -> Judged:
+    """The outcome of trials run by ``simulate`` (``core.outcome.judge``): their status words
+    and reasons, the ``Outcome`` (final angles, clearance), the plants' links (T, 4 (N + 1))
+    and e_N (T,) [m], and each trial's own target (None: the task's)."""
+    final = outcome.final
+    if final is None:
+        final = np.full((len(status), spec.joints + 1), np.nan)
+    goal = goal_of(spec, scenario, target)
+    return judge(status, reason, final, goal, Geometry.of(links, across), outcome.clearance)
 
 
 def _positions(robot: RobotParams, theta: Array) -> dict[str, Array]:
@@ -490,7 +548,8 @@ def run_track(spec: Spec, before_simulating: Callable[[], object] | None = None,
     trials = nominal_trials(spec, plan)
     if before_simulating is not None:
         before_simulating()
-    outcome = simulate(scenario, trials, integrator, record=True)
+    outcome = simulate(scenario, trials, integrator, record=True,
+                       obstacles=spec.task.obstacles or None)
     return TrackRun(spec, plan, scenario, outcome)
 
 
@@ -498,7 +557,8 @@ def run_rest_track(spec: Spec, plan: Plan) -> TrackRun:
     """The closed loop of a rest-to-rest task (``core.restloop``: feedforward at the ends,
     feedback faded in between), recorded as a ``TrackRun`` of the reference integrator
     (DOP853): the trace on the output grid and the metrics that apply (the others null)."""
-    from flatcli.core.loop.metrics import N_METRICS, Event, Metric, Status
+    from flatcli.core.loop.metrics import N_METRICS, Event, Metric, Status, clipped_time_of
+    from flatcli.core.loop.outcome import motion_clearance
     from flatcli.core.loop.restloop import track_rest
     from flatcli.core.loop.simulate import chain_trace_columns
     from flatcli.core.plan.rest import RestPlan
@@ -507,12 +567,15 @@ def run_rest_track(spec: Spec, plan: Plan) -> TrackRun:
     if spec.track.integrator != "dop853" and spec.track.integrator != "adaptive":
         raise SpecError("track.integrator: a rest-to-rest task is tracked by DOP853 "
                         "(\"adaptive\" or \"dop853\"), not fixed-step \"rk4\"")
+    if spec.plant.model != "kinematic":
+        raise SpecError("plant.model: a rest-to-rest task (task.rest) is tracked on the "
+                        "kinematic plant only (its loop, core/loop/restloop.py, has no servos)")
     scenario = scenario_from(spec, plan)
     plant = plant_from(spec)
     times = scenario.times
     trace = track_rest(plan, Gains(spec.track.kp, spec.track.kv), plant,
                        np.asarray(spec.track.initial), times, spec.task.fade,
-                       spec.plant.momentum)
+                       spec.plant.momentum, spec.track.rate_limit)
     ref = plan.sample(times)
     u = trace.u
     with np.errstate(all="ignore"):
@@ -533,12 +596,22 @@ def run_rest_track(spec: Spec, plan: Plan) -> TrackRun:
     row[Metric.MIN_MARGIN] = float(np.nanmin(np.abs(sigma)))
     row[Metric.MOMENTUM_DRIFT] = float(np.nanmax(np.abs(H - spec.plant.momentum)))
     row[Metric.PEAK_RATE] = float(np.nanmax(np.abs(trace.theta_dot[:, 1:])))
+    valid = np.isfinite(trace.theta).all(axis=1)
+    row[Metric.CLIPPED_TIME] = clipped_time_of(trace.clipped[valid], scenario.dt)
     ok = trace.finished and finite
     columns = chain_trace_columns(plan.n_joints)
     record = np.column_stack([trace.theta, trace.u, trace.theta_dot])[None, :, :]
+    clearance = None
+    if spec.task.obstacles:
+        clearance = motion_clearance(Geometry.of(plant.as_array()[None, :],
+                                                 np.array([plant.com_across])),
+                                     spec.task.obstacles, trace.theta[None],
+                                     trace.theta_dot[None], scenario.dt)
+    final = (trace.theta[-1:].copy() if ok else
+             np.full((1, plan.n_joints + 1), np.nan))
     outcome = Outcome(metrics=metrics,
                       status=np.array([int(Status.OK if ok else Status.DIVERGED)]),
                       event=np.array([int(Event.NONE if ok else Event.BOUND)]),
                       event_time=np.array([np.nan]), trace=record, columns=columns,
-                      integrator="dop853")
+                      integrator="dop853", final=final, clearance=clearance)
     return TrackRun(spec, plan, scenario, outcome)

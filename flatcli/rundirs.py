@@ -451,7 +451,8 @@ def _ranges(values: list[int]) -> str:
 class RunInfo:
     """One run directory as ``flatcli runs`` shows it: ``metrics`` its key metrics,
     ``values`` every number its record holds (a track run's metrics, a plan's summary, a
-    sweep's trials by status), ``tags`` its labels (``--tag``)."""
+    sweep's trials by status and by outcome), ``tags`` its labels (``--tag``), ``outcome``
+    what the robot did (a track run's ``outcome``; a sweep's "reached k/n"; "" otherwise)."""
 
     path: Path
     command: str
@@ -462,6 +463,7 @@ class RunInfo:
     spec: dict[str, Any]
     tags: tuple[str, ...] = ()
     values: dict[str, Any] = field(default_factory=dict)
+    outcome: str = ""
 
     def metrics_text(self, most: int | None = None) -> str:
         """The key metrics as text (at most ``most`` of them, and how many more)."""
@@ -554,6 +556,7 @@ def run_info(directory: Path) -> RunInfo | None:
     metrics: dict[str, Any] = {}
     values: dict[str, Any] = {}
     status = "done"
+    outcome = ""
     if state is not None:
         command = "sweep"
         if not state.complete:
@@ -564,7 +567,14 @@ def run_info(directory: Path) -> RunInfo | None:
         metrics["trials"] = state.total
         counts = (record or {}).get("status_counts", {})
         metrics.update({k: v for k, v in counts.items() if v})
-        values = {"trials": state.total, "finished": state.done, **counts}
+        outcomes = (record or {}).get("outcome_counts", {})
+        if not (isinstance(outcomes, Mapping) and all(
+                isinstance(v, int) and not isinstance(v, bool) for v in outcomes.values())):
+            outcomes = {}
+        values = {"trials": state.total, "finished": state.done, **counts,
+                  **{str(k): v for k, v in outcomes.items()}}
+        if outcomes:
+            outcome = f"reached {outcomes.get('reached', 0)}/{sum(outcomes.values())}"
     elif record is not None and command == "plan":
         found = _metrics(record.get("summary", {}), PLAN_KEYS)
         if found is None:
@@ -582,13 +592,15 @@ def run_info(directory: Path) -> RunInfo | None:
         if found is None or not isinstance(values.get("status", "done"), str):
             return _unreadable(directory, command, spec)
         status, metrics = str(values.get("status", "done")), found
+        said = values.get("outcome")
+        outcome = said if isinstance(said, str) else ""
         values = _numbers(values)
     elif record is not None and "seconds" in record:
         metrics = {"seconds": _number(record["seconds"])}
         values = dict(metrics)
     name = spec.get("name", "")
     return RunInfo(directory, command, name if isinstance(name, str) else "", when, status,
-                   metrics, spec, tags, values)
+                   metrics, spec, tags, values, outcome)
 
 
 def _numbers(values: Mapping[str, Any]) -> dict[str, Any]:

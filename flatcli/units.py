@@ -18,7 +18,7 @@ from __future__ import annotations
 import re
 from collections.abc import Iterable
 
-from flatcli.core.loop.metrics import STATUS_NAMES
+from flatcli.core.loop.metrics import OUTCOME_NAMES, STATUS_NAMES
 from flatcli.spec import PERTURB_TARGETS, Spec, find_key
 
 #: A pure number: a count, a fraction, a ratio.
@@ -72,6 +72,7 @@ UNITS: dict[str, str] = {
     "rhs_evaluations": DIMENSIONLESS,
     "crossings": DIMENSIONLESS,
     "first_crossing_time": "s",
+    "clipped_time": "s",
     "event_time": "s",
     "reference_difference": _ANGLE,
     # trials.parquet: the realised perturbed quantities
@@ -94,6 +95,7 @@ UNITS: dict[str, str] = {
     "unverified_trials": DIMENSIONLESS,
     "reference_checked": DIMENSIONLESS,
     "reference_status_mismatches": DIMENSIONLESS,
+    **{outcome: DIMENSIONLESS for outcome in OUTCOME_NAMES},
 }
 
 #: The unit of the indexed columns of a robot of any N joints, by their name with the index
@@ -101,6 +103,7 @@ UNITS: dict[str, str] = {
 INDEXED_UNITS: dict[str, str] = {
     "theta#": _ANGLE, "theta#_dot": _RATE, "theta#_ref": _ANGLE,
     "theta#_up": _ANGLE, "theta#_down": _ANGLE,  # workspace.parquet's branches
+    "err_theta#_final": _ANGLE,  # th_i(T) - the plan's goal, signed (outcome)
     "u#": _RATE, "u#_dot": _ACCEL,
     "y#": _ANGLE, "y#_dot": _RATE, "y#_ddot": _ACCEL, "y#_ref": _ANGLE,
     "tau#": _TORQUE,
@@ -110,7 +113,7 @@ INDEXED_UNITS: dict[str, str] = {
 _INDEX = re.compile(r"(?<=[a-z_])\d+")
 
 #: Suffixes of summary.parquet's statistics of a metric (in the metric's unit).
-STATISTICS = ("_median", "_p95", "_max")
+STATISTICS = ("_median_all", "_median", "_p95", "_max")
 #: Suffixes of summary.parquet's fractions and their confidence bounds (dimensionless).
 FRACTIONS = ("_fraction", "_fraction_low", "_fraction_high")
 

@@ -53,10 +53,13 @@ def test_runs_lists_every_run_with_status_tags_and_key_metrics(tree: Path) -> No
     assert all(i.status == "ok" and i.metrics["err_y_final"] < 1e-2 for i in tracks)
     assert infos["small"].status == "done" and infos["small"].metrics["trials"] == 120
     assert infos["cut"].status == "partial 79%"  # 95 of 120 trials: one chunk of 25 lost
+    assert infos["small"].outcome.startswith("reached ") and infos["small"].outcome.endswith(
+        "/120")  # what the robot did, from the sweep's run.json (outcome_counts)
+    assert all(i.outcome in ("reached", "collided", "missed", "lost") for i in tracks)
     code, out = cli("runs", str(tree))
     assert code == 0, out
     assert [c.strip() for c in out.splitlines()[0].split("|")[1:-1]] == [
-        "run", "command", "name", "time", "status", "tags", "key metrics"]
+        "run", "command", "name", "time", "status", "outcome", "tags", "key metrics"]
     assert "partial 79%" in out and "input_energy" in out and "err_y_final" in out
     assert "nightly, dynamic" in out
     assert runs_table(tree) == out.rstrip("\n")
@@ -136,8 +139,8 @@ def test_the_table_fits_the_terminal(tree: Path, monkeypatch: pytest.MonkeyPatch
 def test_runs_returns_a_dataframe_one_row_per_run(tree: Path) -> None:
     frame = flatcli.runs(tree)
     assert isinstance(frame, pd.DataFrame) and len(frame) == len(list_runs(tree))
-    assert list(frame.columns[:7]) == ["run", "path", "command", "name", "time", "status",
-                                       "tags"]
+    assert list(frame.columns[:8]) == ["run", "path", "command", "name", "time", "status",
+                                       "outcome", "tags"]
     assert {"err_y_final", "input_energy", "plant.model", "track.kp", "plan.duration"} <= \
         set(frame.columns)
     dynamic = frame[frame["plant.model"] == "dynamic"]  # a notebook's query

@@ -35,7 +35,8 @@ METRICS = ["err_theta_rms", "err_theta_max", "err_theta_final", "err_y_rms", "er
            "err_y_final", "singular_hits", "first_hit_time", "min_margin", "momentum_drift",
            "plan_momentum_residual", "err_estimate", "peak_rate", "peak_torque",
            "torque_saturated", "steps", "rhs_evaluations", "crossings", "first_crossing_time",
-           "status", "reason", "event_time", "verified"]
+           "clipped_time", "err_theta0_final", "err_theta1_final", "err_theta2_final",
+           "status", "reason", "outcome", "outcome_reason", "event_time", "verified"]
 
 
 def run(*args: str) -> tuple[int, str]:

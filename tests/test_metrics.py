@@ -158,6 +158,11 @@ def expected_metrics(plan: Plan, scenario: Scenario, case: Case, trace: Array,
         "torque_saturated": np.nan,
         "crossings": crossings,
         "first_crossing_time": crossing_times[0] if crossings else np.nan,
+        # the trapezoidal rule (numpy's) over the samples of "a joint turned at the limit":
+        # u1 beyond it (th1' = clip(u1)) or th2' at it (th2' = clip(u2))
+        "clipped_time": float(np.trapezoid(
+            ((np.abs(x[:, 3]) >= case.rate_limit)
+             | (np.abs(rates[:, 2]) >= case.rate_limit)).astype(float), dx=dt)),
     }
     return np.array([values.get(name, np.nan) for name in METRIC_NAMES], dtype=float)
 
@@ -201,6 +206,10 @@ def test_metrics_equal_independent_computation(
             Metric.MOMENTUM_DRIFT, Metric.PLAN_MOMENTUM_RESIDUAL) else METRIC_ATOL
         np.testing.assert_allclose(got[metric], expected[metric], rtol=METRIC_RTOL, atol=atol,
                                    err_msg=metric.name)
+    if name == "limited":  # the limit bites for a while (both sides of clipped_time)
+        assert 0.05 < got[Metric.CLIPPED_TIME] <= plan.duration
+    else:
+        assert got[Metric.CLIPPED_TIME] == 0.0
     status = {"hits": Status.SINGULAR, "singular": Status.DIVERGED, "diverged": Status.DIVERGED,
               "diverged_rk4": Status.DIVERGED}.get(name, Status.OK)  # fmt: skip
     assert outcome.status[0] == status

@@ -183,23 +183,3 @@ def test_the_cells_planning_is_shown_for_a_large_grid_only() -> None:
     Progress("s", quiet=True, stream=quiet).cells(0, 10**4)
     assert quiet.getvalue() == ""
 
-
-def test_a_damaged_kernel_index_counts_as_not_cached(tmp_path: Path,
-                                                     monkeypatch: pytest.MonkeyPatch) -> None:
-    """The compile notice is printed when the kernel's index cannot be read (numba compiles
-    it again: flatcli/core/_jit.py), not only when it is missing."""
-    import pickle
-
-    from flatcli.core import _jit
-    from flatcli.progress import kernel_cached
-
-    monkeypatch.setattr(_jit, "CACHE_DIRECTORY", tmp_path)
-    index = tmp_path / "core" / "kernels.paper_kinematic_batch-532.py311.nbi"
-    index.parent.mkdir()
-    assert not kernel_cached()
-    index.write_bytes(pickle.dumps("0.68.1") + pickle.dumps((1.0, {"key": "data"})))
-    assert kernel_cached()
-    index.write_bytes(bytes(range(7, 207)))
-    assert not kernel_cached()
-    index.write_bytes(b"")
-    assert not kernel_cached()

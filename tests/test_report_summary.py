@@ -148,9 +148,9 @@ def test_a_directory_without_the_accuracy_columns_has_no_verified_trials() -> No
 
 
 def test_a_task_sweep_counts_trials_resolved_within_the_reach_tolerance() -> None:
-    """reached: resolved trials (ok, singular) whose ee_error_bound is within the tolerance,
-    over all of the cell's trials; its interval the Wilson score interval of that count
-    (closed form: scipy's binomtest(...).proportion_ci(method="wilson"))."""
+    """ee_error_bound_within: resolved trials (ok, singular) whose ee_error_bound is within
+    the tolerance, over all of the cell's trials; its interval the Wilson score interval of
+    that count (scipy's binomtest(...).proportion_ci(method="wilson"))."""
     frame = pd.DataFrame({
         "cell": [0] * 5, "status": ["ok", "ok", "singular", "diverged", "ok"],
         "ee_error_bound": [1e-4, 2e-3, 5e-4, math.nan, 1e-3],
@@ -159,17 +159,51 @@ def test_a_task_sweep_counts_trials_resolved_within_the_reach_tolerance() -> Non
                                   "plan_momentum_residual", "peak_rate", "err_estimate")},
         "singular_hits": [0, 0, 1, 0, 0]})
     row = summarize_trials(frame, {0: {}}, reach_tolerance=1e-3).iloc[0]
-    assert row["reached_fraction"] == 3 / 5  # 1e-4, 5e-4 and 1e-3 (at the tolerance)
+    assert row["ee_error_bound_within_fraction"] == 3 / 5  # 1e-4, 5e-4 and 1e-3 (at the tolerance)
     ci = binomtest(3, 5).proportion_ci(confidence_level=0.95, method="wilson")
-    assert row["reached_fraction_low"] == pytest.approx(ci.low, rel=1e-12)
-    assert row["reached_fraction_high"] == pytest.approx(ci.high, rel=1e-12)
+    assert row["ee_error_bound_within_fraction_low"] == pytest.approx(ci.low, rel=1e-12)
+    assert row["ee_error_bound_within_fraction_high"] == pytest.approx(ci.high, rel=1e-12)
     assert row["ee_error_bound_max"] == 2e-3 and row["ee_error_bound_median"] == 7.5e-4
     assert "### The task's target" in summary_markdown(
         summarize_trials(frame, {0: {}}, 1e-3), [])
     tighter = summarize_trials(frame, {0: {}}, reach_tolerance=2e-4).iloc[0]
-    assert tighter["reached_fraction"] == 1 / 5
+    assert tighter["ee_error_bound_within_fraction"] == 1 / 5
     plain = summarize_trials(frame.drop(columns="ee_error_bound"), {0: {}}).iloc[0]
-    assert "reached_fraction" not in plain and "ee_error_bound_max" not in plain
+    assert "ee_error_bound_within_fraction" not in plain and "ee_error_bound_max" not in plain
+    assert "reached_fraction" not in plain  # no outcome column: no outcomes
+
+
+def test_outcomes_come_first_counted_over_all_trials_and_lost_ones_are_infinitely_wrong(
+        ) -> None:
+    """The headline columns on a handmade frame: counts per outcome, the fraction reached of
+    ALL the cell's trials with scipy's Wilson interval (binomtest), and medians of the final
+    errors over all trials with the trials that did not reach T as inf (numpy's median of
+    the column with nan replaced by inf, written out here)."""
+    base = {m: [0.1] * 6 for m in ("err_theta_rms", "err_y_rms", "err_y_final", "min_margin",
+                                   "momentum_drift", "plan_momentum_residual", "peak_rate",
+                                   "err_estimate")}
+    frame = pd.DataFrame({
+        "cell": [0] * 5 + [1], "status": ["ok", "ok", "singular", "diverged", "error", "ok"],
+        "outcome": ["reached", "missed", "missed", "lost", "lost", "reached"],
+        "err_theta_final": [1e-4, 2.0, 5.0, math.nan, math.nan, 3e-4],
+        "singular_hits": [0, 0, 1, 0, 0, 0], **base})
+    summary = summarize_trials(frame, {0: {"g": "a"}, 1: {"g": "b"}})
+    columns = list(summary.columns)
+    assert columns[columns.index("trials") + 1:][:4] == ["reached", "collided", "missed", "lost"]
+    row = summary.iloc[0]
+    assert (row["reached"], row["collided"], row["missed"], row["lost"]) == (1, 0, 2, 2)
+    assert row["reached_fraction"] == 1 / 5 and row["lost_fraction"] == 2 / 5
+    ci = binomtest(1, 5).proportion_ci(confidence_level=0.95, method="wilson")
+    assert (row["reached_fraction_low"], row["reached_fraction_high"]) == (ci.low, ci.high)
+    assert row["err_theta_final_median_all"] == 5.0  # median(1e-4, 2, 5, inf, inf)
+    assert row["err_theta_final_median"] == 2.0  # the resolved trials' (1e-4, 2, 5)
+    assert summary.iloc[1]["err_theta_final_median_all"] == 3e-4
+    lost = summarize_trials(frame.assign(err_theta_final=[math.nan] * 3 + [1.0] * 3),
+                            {0: {}, 1: {}}).iloc[0]
+    assert lost["err_theta_final_median_all"] == math.inf  # 3 of 5 never reached T
+    text = summary_markdown(summary, ["g"])
+    assert text.index("### Outcomes") < text.index("### Trials by status")
+    assert "ALL the cell's trials" in text and "infinitely wrong" in text
 
 
 def _headline_rows(cells: int, errors: int = 0) -> list[dict[str, object]]:
@@ -199,7 +233,7 @@ def test_the_headline_fits_one_screen_and_says_where_the_tables_are() -> None:
     assert lines[0] == ("sweep 's': 18 cells, 360 trials: ok 327, singular 0, diverged 33, "
                         "unresolved 0, error 0")
     assert lines[1].split("|")[1:-1] == [" cell ", " plant.com[2] ", " ok ", " diverged ",
-                                         " err_y_final med [rad] "]
+                                         " err_y_final med resolved [rad] "]
     assert len(lines) == 1 + 2 + 18 + 2 and max(len(line) for line in lines) <= 100
     assert lines[-2:] == ["full tables: runs/s/sweep/summary.md (flatcli summarize runs/s/sweep "
                           "--full)", "every trial: runs/s/sweep/trials.parquet"]
@@ -224,15 +258,38 @@ def test_a_large_grid_shows_its_worst_cells_and_the_error_reasons() -> None:
 
 
 def test_the_headline_shows_outcome_counts_when_the_summary_has_them() -> None:
-    """The hook for per-trial outcomes (issue 39): outcome_<name> count columns appear after
-    the statuses; their fractions do not."""
+    """A summary with outcomes (``summarize_trials`` of trials with an outcome column): the
+    headline's title is followed by the outcomes of all trials, counted here from the rows
+    with scipy's binomtest Wilson interval; each cell's outcome counts come after its
+    statuses (reached and missed; lost is its diverged, unresolved and error), counted here
+    from the rows; its median final error of y is over all its trials with the lost ones as
+    inf, and says so. A summary without outcomes keeps the median over the resolved trials,
+    named so."""
     from flatcli.report.summary import headline
 
-    rows = _headline_rows(2)
-    for r in rows:
-        r.update(outcome_reached=5, outcome_missed=15, outcome_reached_fraction=0.25)
-    head = headline(rows, [], "t", "d").splitlines()[1]
-    assert "| reached | missed |" in head and "fraction" not in head
+    base = {m: [0.1] * 6 for m in ("err_theta_rms", "err_theta_final", "err_y_rms",
+                                   "min_margin", "momentum_drift", "plan_momentum_residual",
+                                   "peak_rate", "err_estimate")}
+    outcome = ["reached", "missed", "missed", "lost", "lost", "reached"]
+    frame = pd.DataFrame({
+        "cell": [0] * 5 + [1], "status": ["ok", "ok", "singular", "diverged", "error", "ok"],
+        "outcome": outcome, "err_y_final": [1e-4, 2.0, 5.0, math.nan, math.nan, 3e-4],
+        "singular_hits": [0, 0, 1, 0, 0, 0], **base})
+    records = summarize_trials(frame, {0: {"g": "a"}, 1: {"g": "b"}}).to_dict("records")
+    lines = headline(records, ["g"], "t", "d").splitlines()
+    ci = binomtest(outcome.count("reached"), len(outcome)).proportion_ci(
+        confidence_level=0.95, method="wilson")
+    assert lines[1] == (f"outcomes: reached 2 of 6 trials ({100 * 2 / 6:.3g} %, 95 % interval "
+                        f"{100 * ci.low:.2g}-{100 * ci.high:.2g} %), missed 2, lost 2")
+    heads = [h.strip() for h in lines[2].split("|")[1:-1]]
+    assert heads[heads.index("error") + 1:] == ["reached", "missed", "err_y_final med [rad]"]
+    first = [c.strip() for c in lines[4].split("|")[1:-1]]
+    assert first[heads.index("diverged"):] == ["1", "1", "1", "2", "5"]  # and error 1
+    assert first[-1] == "5"  # median(1e-4, 2, 5, inf, inf)
+    assert ("med: over all the cell's trials, a lost one (diverged, unresolved, error) as inf"
+            in lines)
+    old = headline(_headline_rows(2), [], "t", "d").splitlines()
+    assert "err_y_final med resolved [rad]" in old[1] and "reached" not in old[1]
 
 
 def test_error_reasons_that_differ_only_in_numbers_are_one_kind(tmp_path: Path) -> None:

@@ -71,7 +71,18 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path,
     # robots as built: the goal's table (Fig. 4's start and the three cells, the same trials
     # in both pipelines), the maps, the figure, the exact plans' momentum
     assert "## Robots as built" in report
-    assert "| Fig. 4's start (1.96, 0.8, -0.1) | 1 / 1 |" in report
+    fig4 = next(line for line in report.splitlines()
+                if line.startswith("| Fig. 4's start (1.96, 0.8, -0.1) | "))
+    assert "| 1 / 1 |" in fig4 and fig4.count("reached") + fig4.count("missed") == 2
+    # conclusions by outcome (issue 39): every study's reached fraction, in its section and
+    # its headline; the actuators' cells say over which trials; the capture pushed collides
+    assert report.count("trials reached (") >= 5  # montecarlo, actuators, 2 x as built, chains
+    headlines = report.split("## Headlines")[1].split("\n## ")[0]
+    for section in ("montecarlo", "actuators", "asbuilt", "chains"):
+        assert any("trials reached (" in x for x in headlines.splitlines()
+                   if x.startswith(f"- **{section}**")), section
+    assert "/8 reached; p95 " in report
+    assert "from [1.9, 1.0, 0.0] collided" in headlines
     assert "th(0) errors of std 0.05 rad | " in report and "0 crossings in 24 trials" in report
     assert "of 4 counterweight placements" in report and "| -5 | " in report
     assert "**Counterweight designer**" in report and "| least inertia | 0.15 |" in report

@@ -1,5 +1,6 @@
 """The actuators section of make reproduce (flatcli/actuators.py): its statistics, its
-finding, and the plans' demands.
+finding (a cell tracks when every trial reached: the outcomes of hand-made trial rows), and
+the plans' demands.
 
 References: statistics recomputed here with numpy from hand-made trial rows; the Wilson
 interval from its closed form (Wilson, J. Am. Stat. Assoc. 22, 1927); the plan's exact rates
@@ -27,6 +28,7 @@ from flatcli.reproduce.actuators import (
     finding,
     limit_text,
     lost_interval,
+    matrix_entry,
     plan_demands,
 )
 from flatcli.spec import resolve
@@ -44,7 +46,7 @@ def trials_frame() -> pd.DataFrame:
                 for i in range(4):
                     lost = maneuver == "b" and limit == 5.0 and i == 0
                     tumbled = maneuver == "a" and limit == 5.0 and bandwidth == 10.0 and i == 3
-                    error = 50.0 if tumbled else 0.1 / bandwidth * (1 + rng.uniform())
+                    error = 50.0 if tumbled else 0.05 / bandwidth * (1 + rng.uniform())
                     rows.append({
                         MANEUVER: maneuver, BANDWIDTH: bandwidth, LIMIT: limit,
                         "status": "diverged" if lost else ("singular" if i == 1 else "ok"),
@@ -56,6 +58,9 @@ def trials_frame() -> pd.DataFrame:
                         "first_crossing_time": 0.05 if tumbled else math.nan,
                         "err_estimate": 3e-3 if tumbled else 1e-9,
                         "verified": not (lost or tumbled),
+                        # the outcome: within track.goal_tolerance (1e-3 rad) or not
+                        "outcome": "lost" if lost else ("reached" if error <= 1e-3
+                                                        else "missed"),
                     })
     return pd.DataFrame(rows)
 
@@ -82,10 +87,18 @@ def test_cell_statistics_are_over_the_right_trials() -> None:
         assert cell["peak_torque_median"] == np.median(done["peak_torque"])
         assert cell["saturated"] == (group["torque_saturated"] > 0).mean()
         assert cell["drift_max"] == done["momentum_drift"].max()
-        assert cell["trackable"] == (cell["lost"] == 0 and cell["unverified"] == 0
-                                     and cell["err_final_p95"] <= TRACKABLE_ERROR)
+        reached = group["outcome"] == "reached"
+        assert cell["reached"] == reached.mean() and cell["reached_count"] == reached.sum()
+        assert cell["trackable"] == reached.all()  # every trial reached
+        assert cell["counted"] == len(done) and cell["crossed_count"] == crossed.sum()
+        # each number of the REPORT's matrix says over which trials it is
+        entry = matrix_entry(cell)
+        assert entry.startswith(f"{int(reached.sum())}/4 reached; p95 ")
+        assert f" of {len(done)}" in entry
+        assert ("/4 crossed" in entry) == bool(crossed.any())
     tumbling = cells[cells["tumbled"] > 0]
     assert len(tumbling) == 1 and tumbling.iloc[0]["err_final_p95"] < 1  # 50 rad left out
+    assert matrix_entry(tumbling.iloc[0]).endswith("; 1/4 crossed")
 
 
 def test_bandwidth_law_range_and_crossing_accounting() -> None:
@@ -107,13 +120,15 @@ def test_bandwidth_law_range_and_crossing_accounting() -> None:
     assert counts["diverged"] == 2 and counts["diverged_limits"] == [5.0]
     text = finding(cell_table(trials_frame()), {}, counts)
     assert "1 trials crossed the controller's singular set" in text
+    assert "0 reached, 1 missed and 0 were lost (outcome)" in text
     assert "0 ended within 0.01 rad of the plan" in text
 
 
 def test_finding_names_the_least_bandwidth_and_torque_that_track() -> None:
     cells = cell_table(trials_frame())
     text = finding(cells, {"a": ["a", 1.5, 2.5, 4.0]})
-    # maneuver a: errors ~0.01-0.02 at 10 rad/s (not trackable), ~1e-3 at 100 rad/s
+    # maneuver a: errors 5e-3-1e-2 at 10 rad/s (missed), 5e-4-1e-3 at 100 rad/s (reached)
+    assert "every one of its trials reached" in text
     assert "the a plan (the plan itself needs 2.5 N m and 4 rad/s) is trackable from a " \
            "bandwidth of 100 rad/s" in text
     assert "the least torque limit that still tracks is 5 N m (at 100 rad/s)" in text

@@ -36,17 +36,25 @@ def test_study_findings_name_the_cells_that_failed(tmp_path: Path) -> None:
         "steps": [300, 320, 150, 20, 1000],
         "momentum_drift": [1e-17, 2e-17, 3e-17, np.nan, np.nan],
         "err_estimate": [1e-5, 2e-5, 3e-5, np.nan, np.nan],
+        "outcome": ["missed", "missed", "reached", "lost", "lost"],
+        "err_theta_final": [0.5, 0.4, 1e-4, np.nan, np.nan],
     })
     path = tmp_path / "trials.parquet"
     trials.to_parquet(path)
     summary = pd.DataFrame({
         "cell": [0, 1], "gains": ["printed", "swapped"], "trials": [2, 3],
         "diverged": [0, 1], "unresolved": [0, 1], "singular_fraction": [0.0, 0.0],
-        "err_y_final_median": [1e-2, 1e-6],
+        "err_y_final_median": [1e-2, 1e-6], "reached_fraction": [0.0, 1 / 3],
+        "err_theta_final_median_all": [0.45, np.inf],
     })
     lines = study_findings(summary, path)
     swapped = next(line for line in lines if line.startswith("- gains swapped"))
     assert "1 of 3 trials resolved" in swapped
     assert "1 diverged and 1 unresolved, in cell 1" in swapped
+    # by outcome, over all the trials (scipy's Wilson interval: binomtest(1, 3))
+    assert swapped.startswith("- gains swapped: 1 of 3 trials reached (33.3 %, 95 % "
+                              "interval 6.15-79.2 %); 0 collided, 0 missed, 2 lost")
+    assert "ALL its trials" in swapped and "to inf rad" in swapped
     printed = next(line for line in lines if line.startswith("- gains printed"))
     assert "2 of 2 trials resolved" in printed and "in cell" not in printed
+    assert "0 of 2 trials reached" in printed and "2 missed" in printed

@@ -7,6 +7,7 @@ command line's ``--help`` and shell completion read them without the numerical l
 
 from __future__ import annotations
 
+from enum import IntEnum
 from typing import Literal
 
 #: The paper's constraint coefficients (``robot.model``): as derived (correct), or the
@@ -68,9 +69,46 @@ DEFAULT_BANDWIDTH = 5.0
 DEFAULT_TERMINAL = 1e6
 DEFAULT_BASE = 10.0
 
+#: Default ``plan.rate_warning`` [rad/s]: a plan whose joints turn faster says so
+#: (``plan.planning.rate_warning_text``).
+RATE_WARNING = 50.0
+#: Default ``track.goal_tolerance`` [rad] and ``task.goal_tolerance`` [m]: how close to its
+#: goal a trial must end to be ``reached`` (``loop.outcome.judge``).
+GOAL_TOLERANCE = 1e-3
+TARGET_TOLERANCE = 1e-3
+
 #: Flat-output bases of ``plan.basis``; "auto" picks one (``flatcli.experiment.basis_from``).
 BASES = ("auto", "poly", "bspline")
 #: File formats of ``figures.format`` (``--format``): one raster, two vector.
 FIGURE_FORMATS = ("png", "pdf", "svg")
 #: Where a sweep's chunks run (``--executor``): this machine's cores, or a Dask cluster.
 EXECUTORS = ("local", "dask")
+
+
+class Metric(IntEnum):
+    """Column of a trial's metrics row (``Outcome.metrics``); names as in trials.parquet."""
+
+    ERR_THETA_RMS = 0
+    ERR_THETA_MAX = 1
+    ERR_THETA_FINAL = 2
+    ERR_Y_RMS = 3
+    ERR_Y_MAX = 4
+    ERR_Y_FINAL = 5
+    SINGULAR_HITS = 6
+    FIRST_HIT_TIME = 7
+    MIN_MARGIN = 8
+    MOMENTUM_DRIFT = 9
+    PLAN_MOMENTUM_RESIDUAL = 10
+    ERR_ESTIMATE = 11
+    PEAK_RATE = 12
+    PEAK_TORQUE = 13
+    TORQUE_SATURATED = 14
+    STEPS = 15
+    RHS_EVALUATIONS = 16
+    CROSSINGS = 17
+    FIRST_CROSSING_TIME = 18
+    CLIPPED_TIME = 19
+
+
+#: The trial metrics' names, as in trials.parquet (``loop.metrics``).
+METRIC_NAMES: tuple[str, ...] = tuple(m.name.lower() for m in Metric)

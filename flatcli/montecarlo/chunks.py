@@ -9,11 +9,12 @@ import json
 import math
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 import pyarrow as pa
+from numpy.typing import NDArray
 
 from flatcli.arrow import flags, numbers, repeated, texts
 from flatcli.core.errors import FlatcliError
@@ -24,8 +25,16 @@ from flatcli.core.loop.metrics import (
     Status,
     describe_status,
 )
+from flatcli.core.loop.outcome import Geometry, Judged, MotionClearance, judge
 from flatcli.core.loop.simulate import NoiseStreams, Scenario, Trials, check_against_reference
-from flatcli.experiment import checked, initial_rates, plan_from, plant_from, scenario_from
+from flatcli.experiment import (
+    checked,
+    goal_of,
+    initial_rates,
+    plan_from,
+    plant_from,
+    scenario_from,
+)
 from flatcli.montecarlo.draws import (
     draw_perturbations,
     invalid_plants,
@@ -130,6 +139,10 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
     why_not: list[str] = [""] * len(ids)
     difference = np.full(len(ids), np.nan)
     reference_status: list[str | None] = [None] * len(ids)
+    final = np.full((len(ids), joints + 1), np.nan)
+    obstacles = spec.task.obstacles or None
+    clearance = np.full((len(ids), 2), np.nan)  # min_clearance, clearance_bound [m]
+    clearances: list[tuple[NDArray[np.intp], MotionClearance]] = []
     if valid.any():
         noise = NoiseStreams(spec.track.sensor_noise, seed, ids[valid].astype(np.int64))
         trials = Trials(np.ascontiguousarray(links[valid]), np.ascontiguousarray(momentum[valid]),
@@ -146,9 +159,15 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
             task = own[rows[batch[0]]]
             sc = scenario if task is None else task.scenario
             part = trials.subset(batch) if len(batches) > 1 else trials
-            outcome = simulate_counted(sc, part, checked(spec.track.integrator))
+            outcome = simulate_counted(sc, part, checked(spec.track.integrator), obstacles)
             where = rows[batch]
             metrics[where] = outcome.metrics
+            if outcome.final is not None:
+                final[where] = outcome.final
+            if outcome.clearance is not None:
+                clearances.append((where, outcome.clearance))
+                clearance[where, 0] = outcome.clearance.sampled
+                clearance[where, 1] = outcome.clearance.bound
             status[where] = outcome.status
             event[where] = outcome.event
             event_time[where] = outcome.event_time
@@ -174,6 +193,8 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
                                        scenario.divergence_bound, why_not[i])
         status_names.append(name)
         reason_texts.append(reason)
+    judged = judge_chunk(spec, scenario, own, status_names, reason_texts, final, links, across,
+                         value.get("end_effector"), clearances)
     # built from buffers (``flatcli.arrow``): pa.array would load pandas in every worker
     columns: dict[str, Any] = {"trial": numbers(ids, pa.int64()),
                                "cell": repeated(chunk.cell, pa.int64(), len(ids))}
@@ -189,8 +210,12 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
         values = metrics[:, METRIC_NAMES.index(metric)]
         columns[metric] = numbers(np.nan_to_num(values, nan=0).astype(np.int64), pa.int64(),
                                   np.isnan(values))
+    for i in range(joints + 1):
+        columns[f"err_theta{i}_final"] = null_where_nan(judged.final_error[:, i])
     columns["status"] = texts(status_names)
     columns["reason"] = texts(reason_texts)
+    columns["outcome"] = texts(judged.outcome)
+    columns["outcome_reason"] = texts(judged.reason)
     columns["event_time"] = null_where_nan(event_time)
     columns["verified"] = flags(verified)
     columns["reference_difference"] = null_where_nan(difference)
@@ -199,9 +224,41 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
         plans = [scenario.plan if task is None else task.scenario.plan for task in own]
         columns["ee_error_bound"] = null_where_nan(
             reach_bounds(spec, plans, value, metrics, valid, across))
+        columns["ee_error_final"] = null_where_nan(judged.target_error)
+    if obstacles is not None:  # over the samples a trial reached, and between them
+        columns["min_clearance"] = null_where_nan(clearance[:, 0])
+        columns["clearance_bound"] = null_where_nan(clearance[:, 1])
     table = with_units(pa.table(columns), units_of(columns, spec))
     return ChunkResult(table, time.perf_counter() - started, peak_memory_mib(),
                        table_checksum(table))
+
+
+def judge_chunk(spec: Spec, scenario: Scenario, own: list[TrialTask | None],
+                status: list[str], reason: list[str], final: NDArray[np.float64],
+                links: NDArray[np.float64], across: float, targets: Any,
+                clearances: list[tuple[NDArray[np.intp], MotionClearance]]) -> Judged:
+    """The outcome of a chunk's trials (``core.outcome.judge``): each against the goal of the
+    plan it tracked (the cell's, or its own task's) and its own target (``targets`` (n, 2)
+    [m], the task's draws; None: no task), with its clearance from the task's obstacles
+    where it ran (``clearances``: (rows, their ``MotionClearance``))."""
+    goals = np.array([(scenario if task is None else task.scenario).theta_reference[-1]
+                      for task in own])
+    goal = goal_of(spec, scenario, None if targets is None or spec.task.end_effector is None
+                   else np.asarray(targets, dtype=float))
+    goal = replace(goal, angles=goals)
+    motion = None
+    if clearances:
+        nan = np.full(len(status), np.nan)
+        zeros = np.zeros(len(status), dtype=np.int64)
+        motion = MotionClearance(nan.copy(), nan.copy(), zeros.copy(), zeros.copy(),
+                                 nan.copy(), np.full((len(status), 2), np.nan), zeros.copy(),
+                                 zeros.copy())
+        for rows, part in clearances:
+            for name in MotionClearance.__dataclass_fields__:
+                getattr(motion, name)[rows] = getattr(part, name)
+    with np.errstate(all="ignore"):  # an error trial's links may be no robot (mass <= 0)
+        geometry = Geometry.of(links, np.full(len(status), across))
+    return judge(status, reason, final, goal, geometry, motion)
 
 
 @dataclass(frozen=True)

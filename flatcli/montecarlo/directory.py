@@ -34,6 +34,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from flatcli.arrow import read_parquet, repeated, to_numpy
+from flatcli.core.loop.metrics import OUTCOME_NAMES
 from flatcli.files import (
     MAX_MANIFEST_BYTES,
     UnreadableFileError,
@@ -1004,6 +1005,9 @@ def finish_sweep(directory: Path, lay: Layout, provenance: Mapping[str, Any], st
                      if errors else None, grid=lay.spec.sweep.grid)
     statuses, tally = np.unique(np.asarray(columns["status"], dtype=str), return_counts=True)
     counts = {str(s): int(c) for s, c in zip(statuses, tally, strict=True)}
+    outcome = np.asarray(columns["outcome"], dtype=object) if "outcome" in columns else \
+        np.zeros(0, dtype=object)
+    outcome_counts = {name: int(np.sum(outcome == name)) for name in OUTCOME_NAMES}
     now = time.perf_counter()
     wall = now - started
     simulated = timing["simulated_trials"]
@@ -1014,7 +1018,8 @@ def finish_sweep(directory: Path, lay: Layout, provenance: Mapping[str, Any], st
               "peak_rss_mib": peak_rss_mib(float(timing.get("worker_peak_mib", 0.0)))}
     write_json(directory / "run.json", run_record(
         "sweep", lay.spec.tree, digest=lay.spec.digest(), cells=len(lay.cells),
-        trials=lay.total, chunk=lay.chunk_size, status_counts=counts, timing=timing,
+        trials=lay.total, chunk=lay.chunk_size, status_counts=counts,
+        outcome_counts=outcome_counts, timing=timing,
         **({"tags": tags} if tags else {}),
     ))
     remove_merged_chunks(directory, lay)  # trials.parquet holds them, on disk before them

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from flatcli.executors import Executor, default_workers, make_executor
+from flatcli.experiment import plan_warnings
 from flatcli.interrupts import check, deferred, interruptible
 from flatcli.montecarlo.chunks import ChunkResult, run_chunk
 from flatcli.montecarlo.directory import (
@@ -37,6 +38,7 @@ from flatcli.montecarlo.layout import (
     Layout,
     Shard,
     family,
+    grid_label,
     layout,
     work_pieces,
 )
@@ -74,6 +76,17 @@ class SweepResult:
     missing: int = 0
     running: bool = False  # (a shard) other shards were still running when it finished
     headline: str = ""  # one screen of it (``report.summary.headline``)
+
+
+def plan_notes(lay: Layout) -> None:
+    """One line for each cell whose plan's joints turn faster than ``plan.rate_warning``
+    (``experiment.plan_warnings``), at most ``SHOWN`` and then how many more."""
+    lines = [f"{warning} (cell {cell.index}: {grid_label(cell.values)})"
+             for cell in lay.cells for warning in plan_warnings(cell.spec, cell.scenario.plan)]
+    for line in lines[:SHOWN]:
+        note(line)
+    if len(lines) > SHOWN:
+        note(f"warning: {len(lines) - SHOWN} more cells' plans exceed plan.rate_warning")
 
 
 def run_sweep(
@@ -162,6 +175,8 @@ class _Run:
                     remove_temporaries(directory)  # of a run killed while writing a table
                 if plan.note:
                     note(plan.note)
+                if self.progress is not None and not self.progress.quiet:  # (-q: none)
+                    plan_notes(lay)
                 keep = plan.previous if plan.mode in ("resume", "extend") else None
                 self.tags = write_manifest(directory, lay, keep, self.tags)
                 stored = StoredChunks.of(directory)

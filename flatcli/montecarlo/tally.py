@@ -22,6 +22,7 @@ import numpy as np
 import pyarrow as pa
 
 from flatcli.core.loop.metrics import STATUS_NAMES, Status
+from flatcli.core.loop.outcome import MotionClearance
 from flatcli.core.loop.simulate import Outcome, Scenario, Trials, simulate
 from flatcli.core.names import Integrator
 from flatcli.interrupts import critical
@@ -61,17 +62,20 @@ def add(status: np.ndarray) -> None:
             counts[i] += n
 
 
-def simulate_counted(scenario: Scenario, trials: Trials, integrator: Integrator) -> Outcome:
-    """``simulate`` in batches whose statuses are counted as they finish (one call when
-    nothing watches); the outcome is the same either way."""
+def simulate_counted(scenario: Scenario, trials: Trials, integrator: Integrator,
+                     obstacles: Any = None) -> Outcome:
+    """``simulate`` (with the clearance from ``obstacles``, if any) in batches whose statuses
+    are counted as they finish (one call when nothing watches); the outcome is the same
+    either way."""
     if not counting():
-        return simulate(scenario, trials, integrator)
+        return simulate(scenario, trials, integrator, obstacles=obstacles)
     parts: list[Outcome] = []
     start, size = 0, FIRST_BATCH
     while start < trials.count:
         stop = min(start + size, trials.count)
         began = time.perf_counter()
-        part = simulate(scenario, trials.subset(slice(start, stop)), integrator)
+        part = simulate(scenario, trials.subset(slice(start, stop)), integrator,
+                        obstacles=obstacles)
         add(part.status)
         parts.append(part)
         took = time.perf_counter() - began
@@ -89,6 +93,11 @@ def simulate_counted(scenario: Scenario, trials: Trials, integrator: Integrator)
         integrator=integrator,
         estimated=parts[0].estimated if parts else False,
         accuracy=parts[0].accuracy if parts else float("inf"),
+        final=np.concatenate([p.final for p in parts if p.final is not None]) if parts
+        else None,
+        clearance=MotionClearance.concatenate([p.clearance for p in parts
+                                               if p.clearance is not None])
+        if parts and parts[0].clearance is not None else None,
     )
 
 

@@ -20,7 +20,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from flatcli.core.loop.metrics import METRIC_NAMES, RESOLVED, STATUS_NAMES
+from flatcli.core.loop.metrics import METRIC_NAMES, OUTCOME_NAMES, RESOLVED, STATUS_NAMES
+from flatcli.core.loop.outcome import lost_as_infinite
 from flatcli.report.tables import fmt, table
 
 if TYPE_CHECKING:  # the statistics are numpy's: a sweep writes them without pandas or scipy
@@ -37,9 +38,13 @@ ERROR_METRICS = ("err_theta_rms", "err_theta_final", "err_y_rms", "err_y_final")
 SUMMARY_INPUTS: tuple[str, ...] = (
     "cell", "status", "singular_hits", *ERROR_METRICS, "min_margin", "momentum_drift",
     "plan_momentum_residual", "peak_rate", "err_estimate", "verified", "reference_difference",
-    "reference_status", "ee_error_bound")
+    "reference_status", "ee_error_bound", "outcome", "ee_error_final", "clipped_time")
 assert set(SUMMARY_INPUTS) <= {"cell", "status", "verified", "reference_difference",
-                               "reference_status", "ee_error_bound", *METRIC_NAMES}
+                               "reference_status", "ee_error_bound", "outcome",
+                               "ee_error_final", *METRIC_NAMES}
+#: The errors whose median over all of a cell's trials is given, lost ones counted as
+#: infinitely wrong (``outcome.lost_as_infinite``): ``{name}_median_all``.
+ALL_TRIALS_MEDIANS = ("err_theta_final", "err_y_final", "ee_error_final")
 #: Statuses of trials that did not run to the end, reported as fractions of a cell's trials.
 FAILURES = ("diverged", "unresolved", "error")
 
@@ -51,8 +56,11 @@ Z95 = 1.959963984540054
 
 def wilson_interval(successes: Any, trials: Any, confidence: float = 0.95
                     ) -> tuple[Array, Array]:
-    """Wilson score interval of a binomial proportion (95 % by default), as scipy's
-    ``scipy.stats.binomtest(k, n).proportion_ci(confidence, method="wilson")``.
+    """Wilson score interval of a binomial proportion (95 % by default): the closed form
+    scipy's ``scipy.stats.binomtest(k, n).proportion_ci(confidence, method="wilson")``
+    computes (scipy.stats itself takes 0.6 s to import on this machine, 1.5-3 s loaded: a
+    2,000-trial sweep ran at half its rate with it; tests/test_report_summary.py and
+    tests/test_outcome.py compare every interval with binomtest's).
 
     With p = k / n and z = Phi^-1((1 + confidence) / 2): (p + z^2 / 2n -+ z sqrt(p (1 - p) /
     n + z^2 / 4n^2)) / (1 + z^2 / n) (Wilson 1927; Brown, Cai, DasGupta, Statist. Sci. 16,
@@ -96,7 +104,7 @@ def _normal_quantile(q: float) -> float:
 #: null; the rest floats, nan for null).
 Columns = Mapping[str, NDArray[Any]]
 #: The columns ``summary_rows`` reads as text and as flags.
-_TEXT = ("status", "reference_status")
+_TEXT = ("status", "reference_status", "outcome")
 _FLAGS = ("verified",)
 
 
@@ -202,6 +210,8 @@ def summary_rows(columns: Columns, cells: Mapping[int, Mapping[str, Any]],
     all_cells = np.asarray(columns["cell"])
     count = len(all_status)
     verified = columns.get("verified", np.zeros(count, dtype=bool))
+    outcomes = (np.asarray(columns["outcome"], dtype=object) if "outcome" in columns
+                else None)
     for cell, values in cells.items():
         in_cell = all_cells == cell
         status = all_status[in_cell]
@@ -216,6 +226,8 @@ def summary_rows(columns: Columns, cells: Mapping[int, Mapping[str, Any]],
             return values_[~np.isnan(values_)]
 
         row: dict[str, Any] = {"cell": cell, **values, "trials": int(in_cell.sum())}
+        if outcomes is not None:  # the headline: what the robot did (older files lack it)
+            _outcomes(row, columns, outcomes, in_cell)
         for name in STATUS_NAMES:
             row[name] = int((status == name).sum())
         for metric in ERROR_METRICS:
@@ -252,10 +264,33 @@ def summary_rows(columns: Columns, cells: Mapping[int, Mapping[str, Any]],
             row["ee_error_bound_max"] = _stat(np.max, bound)
             if reach_tolerance is not None:
                 within = np.asarray(columns["ee_error_bound"], dtype=np.float64)[resolved]
-                _fraction(row, "reached", int(np.sum(within <= reach_tolerance)),
+                _fraction(row, "ee_error_bound_within", int(np.sum(within <= reach_tolerance)),
                           row["trials"])
+        if "clipped_time" in columns:
+            clipped = present("clipped_time", done)
+            row["clipped_time_median"] = _stat(np.median, clipped)
+            row["clipped_time_max"] = _stat(np.max, clipped)
         rows.append(row)
     return rows
+
+
+def _outcomes(row: dict[str, Any], columns: Columns, outcomes: NDArray[np.object_],
+              in_cell: NDArray[np.bool_]) -> None:
+    """The cell's outcomes (``core.outcome``) into ``row``: counts of each, the fraction
+    reached with its 95 % Wilson interval and the others' fractions with theirs,
+    all of the cell's trials; then the median of each of ``ALL_TRIALS_MEDIANS`` over all its
+    trials, one that did not reach T (lost) counted as infinitely wrong
+    (``outcome.lost_as_infinite``: inf where more than half did not)."""
+    outcome = outcomes[in_cell]
+    total = int(in_cell.sum())
+    for name in OUTCOME_NAMES:
+        row[name] = int(np.sum(outcome == name))
+    for name in OUTCOME_NAMES:
+        _fraction(row, name, row[name], total)
+    for metric in ALL_TRIALS_MEDIANS:
+        if metric in columns:
+            values = lost_as_infinite(np.asarray(columns[metric], dtype=np.float64)[in_cell])
+            row[f"{metric}_median_all"] = _stat(np.median, values)
 
 
 def _reference(row: dict[str, Any], columns: Columns, in_cell: NDArray[np.bool_],
@@ -377,6 +412,8 @@ def summary_markdown(summary: pd.DataFrame | Sequence[Mapping[str, Any]],
     if grid_keys:
         parts += ["### Cells\n", table(["cell", *(short_key(k) for k in grid_keys)],
                                        rows(list(grid_keys))), ""]
+    if records and "reached_fraction" in records[0]:
+        parts += [*outcome_tables(records, rows, shares), ""]
     parts += [
         "### Trials by status\n",
         table(["cell", "trials", *STATUS_NAMES, "resolved"],
@@ -424,21 +461,44 @@ def summary_markdown(summary: pd.DataFrame | Sequence[Mapping[str, Any]],
             "of the norm of the angles' difference [rad]; other status: checked trials whose\n"
             "reference ended with another status.",
         ]
-    if records and "reached_fraction" in records[0]:
+    if records and "ee_error_bound_within_fraction" in records[0]:
         parts += [
-            "\n### The task's target (resolved trials)\n",
-            table(["cell", "reached [%, 95 % interval]", "bound med", "bound p95", "bound max"],
+            "\n### The task's target: the bound (resolved trials)\n",
+            table(["cell", "within [%, 95 % interval]", "bound med", "bound p95",
+                   "bound max"],
                   [[line[0], share[1], *line[1:]] for line, share in zip(
                       marked(rows(["ee_error_bound_median", "ee_error_bound_p95",
-                                   "ee_error_bound_max"])), shares(["reached"]), strict=True)],
+                                   "ee_error_bound_max"])),
+                      shares(["ee_error_bound_within"]), strict=True)],
                   3),
             "\nbound: ee_error_bound, an upper bound on the end effector's final distance from\n"
-            "the trial's target [m] (task.end_effector, or its own draw of\n"
-            "sweep.perturb.end_effector; from err_theta_final and the plant's links). reached:\n"
-            "share of the cell's trials (those whose target could not be planned included)\n"
-            "resolved to the end with a bound within summary.reach_tolerance.",
+            "the trial's target [m] from err_theta_final and the plant's links. within: share\n"
+            "of the cell's trials resolved to the end with a bound within\n"
+            "summary.reach_tolerance (the measured distance, ee_error_final, decides reached).",
         ]
     return "\n".join(parts)
+
+
+def outcome_tables(records: Sequence[Mapping[str, Any]],
+                   rows: Callable[[Sequence[str]], list[list[object]]],
+                   shares: Callable[[Sequence[str]], list[list[object]]]) -> list[str]:
+    """summary.md's first table: what the robot did, per cell (``_outcomes``)."""
+    medians = [m for m in ALL_TRIALS_MEDIANS if f"{m}_median_all" in records[0]]
+    heads = {"err_theta_final": "th final med", "err_y_final": "y final med",
+             "ee_error_final": "ee final med"}
+    lines = [[*share, *line[1:]] for share, line in zip(
+        shares(list(OUTCOME_NAMES)), rows([f"{m}_median_all" for m in medians]), strict=True)]
+    return [
+        "### Outcomes [% of trials, 95 % interval]\n",
+        table(["cell", *OUTCOME_NAMES, *(heads[m] for m in medians)], lines, 3),
+        "\nreached: resolved to the end, every angle within track.goal_tolerance of the\n"
+        "plan's goal at T (and a task's end effector within task.goal_tolerance of its\n"
+        "target); collided: entered, or not shown clear of, a task's obstacle; missed:\n"
+        "resolved, not within tolerance; lost: diverged, unresolved or error. Shares of\n"
+        "all the cell's trials, Wilson score intervals (95 %). final med: median over\n"
+        "ALL the cell's trials of the final error (th, y [rad]; ee [m]), a trial that did\n"
+        "not reach T counted as infinitely wrong (inf: more than half did not).",
+    ]
 
 
 #: The most cells a headline lists (one screen); beyond, those with the most trials not ok.
@@ -479,15 +539,31 @@ def grid_display(records: Sequence[Mapping[str, Any]], grid_keys: Sequence[str],
 
 
 def outcome_columns(records: Sequence[Mapping[str, Any]]) -> list[str]:
-    """The per-cell outcome counts a headline shows: the summary's ``outcome_*`` columns.
-
-    ISSUE 39 HOOK: issue 39 adds an outcome per trial; when summary.parquet has a count per
-    outcome (``outcome_<name>`` columns), the headline shows them here, after the statuses.
-    Until then there are none, and the headline shows the statuses and errors only."""
-    if not records:
+    """The per-cell outcome counts a headline shows (after the statuses): the summary's
+    count of each of ``OUTCOME_NAMES`` (``_outcomes``) but lost (the statuses beside them
+    count it: diverged, unresolved, error), ``reached`` and ``missed`` always, ``collided``
+    where any cell has one; none for a summary written before trials had outcomes."""
+    if not records or not all(name in records[0] for name in OUTCOME_NAMES):
         return []
-    return [k for k in records[0] if k.startswith("outcome_") and not k.endswith(
-        ("_fraction", "_low", "_high"))]
+    return [n for n in OUTCOME_NAMES if n in ("reached", "missed")
+            or (n == "collided" and any(int(r[n]) for r in records))]
+
+
+def outcome_totals(records: Sequence[Mapping[str, Any]]) -> str:
+    """'outcomes: reached 300 of 360 trials (83.3 %, 95 % interval 79.1-86.8 %), missed 27,
+    lost 33' over all the cells' trials (the interval: Wilson score, ``wilson_interval``); "" for a
+    summary without outcomes."""
+    if not records or not all(name in records[0] for name in OUTCOME_NAMES):
+        return ""
+    counts = {n: sum(int(r[n]) for r in records) for n in OUTCOME_NAMES}
+    trials = sum(int(r["trials"]) for r in records)
+    reached = counts["reached"]
+    text = f"outcomes: reached {reached} of {trials} trials"
+    if trials:
+        low, high = wilson_interval(reached, trials)
+        share, interval = with_interval(reached / trials, float(low), float(high)).split(" (")
+        text += f" ({share} %, 95 % interval {interval.rstrip(')')} %)"
+    return ", ".join([text, *(f"{n} {counts[n]}" for n in OUTCOME_NAMES[1:] if counts[n])])
 
 
 def grid_columns_of(records: Sequence[Mapping[str, Any]]) -> list[str]:
@@ -526,11 +602,15 @@ def error_reasons(paths: Sequence[Any]) -> dict[str, int]:
 def headline(records: Sequence[Mapping[str, Any]], grid_keys: Sequence[str], title: str,
              where: str, reasons: Mapping[str, int] | None = None,
              limit: int = HEADLINE_CELLS, grid: Mapping[str, Any] | None = None) -> str:
-    """A sweep's summary in one screen: ``title``, one row per cell (its varying grid
-    values, its trials by status (ok, and the others any cell has), any outcomes, the median
-    final error of y), up to ``limit`` cells (beyond, those with the most trials not ok, in
-    cell order), the most frequent error reasons (``reasons``: reason -> trials), and where
-    the full tables are (``where``: the sweep's directory)."""
+    """A sweep's summary in one screen: ``title``, the outcomes of all its trials
+    (``outcome_totals``), one row per cell (its varying grid values, its trials by status
+    (ok, and the others any cell has), by outcome (``outcome_columns``), the median final
+    error of y: over all the cell's trials, a trial that did not reach T as inf, where the
+    summary has outcomes (a line under the table says so), else over its resolved trials
+    (its heading says so)), up to
+    ``limit`` cells (beyond, those with the most trials not ok, in cell order), the most
+    frequent error reasons (``reasons``: reason -> trials), and where the full tables are
+    (``where``: the sweep's directory)."""
     records = list(records)
     shown = records
     if len(records) > limit:
@@ -539,16 +619,22 @@ def headline(records: Sequence[Mapping[str, Any]], grid_keys: Sequence[str], tit
         keep = {int(r["cell"]) for r in worst}
         shown = [r for r in records if int(r["cell"]) in keep]
     columns = grid_display(shown, grid_keys, grid)
-    outcomes = outcome_columns(shown)
+    outcomes = outcome_columns(records)
     statuses = [n for n in STATUS_NAMES if n == "ok" or any(int(r[n]) for r in records)]
-    heads = ["cell", *(h for h, _ in columns), *statuses,
-             *(o.removeprefix("outcome_") for o in outcomes), "err_y_final med [rad]"]
+    over_all = bool(outcomes) and "err_y_final_median_all" in records[0]
+    median = "err_y_final_median_all" if over_all else "err_y_final_median"
+    heads = ["cell", *(h for h, _ in columns), *statuses, *outcomes,
+             "err_y_final med [rad]" if over_all else "err_y_final med resolved [rad]"]
     rows = []
     for i, r in enumerate(shown):
         rows.append([int(r["cell"]), *(texts[i] for _, texts in columns),
-                     *(int(r[n]) for n in statuses), *(r[o] for o in outcomes),
-                     r.get("err_y_final_median", math.nan)])
-    lines = [title, table(heads, rows, 3)]
+                     *(int(r[n]) for n in statuses), *(int(r[o]) for o in outcomes),
+                     r.get(median, math.nan)])
+    totals = outcome_totals(records)
+    lines = [title, *([totals] if totals else []), table(heads, rows, 3)]
+    if over_all:
+        lines.append("med: over all the cell's trials, a lost one (diverged, unresolved, error) "
+                     "as inf")
     if len(shown) < len(records):
         lines.append(f"({len(shown)} of {len(records)} cells shown: those with the most "
                      "trials not ok)")

@@ -22,7 +22,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from flatcli.core.errors import FlatcliError
-from flatcli.core.loop.metrics import RESOLVED
+from flatcli.core.loop.metrics import OUTCOME_NAMES, RESOLVED
 from flatcli.report.figures import PAGE_WIDTH, FigureFile, new_figure, save_figure, styled
 from flatcli.report.summary import FAILURES, short_key
 from flatcli.report.tables import fmt
@@ -36,7 +36,8 @@ if TYPE_CHECKING:
 Array = NDArray[np.float64]
 
 #: Shares drawn beside the error distributions: (summary column prefix, legend, colour).
-SHARES = (("diverged", "diverged", "C3"), ("unresolved", "unresolved", "C1"),
+SHARES = (("reached", "reached (outcome)", "C2"),
+          ("diverged", "diverged", "C3"), ("unresolved", "unresolved", "C1"),
           ("error", "error (did not run)", "C8"),
           ("singular", "singular hit (of simulated trials)", "C0"))
 #: Trial columns the figures read.
@@ -55,7 +56,7 @@ def plot_sweep(directory: Path, file: FigureFile | None = None, x: str | None = 
     """The figures of a finished sweep (``sweep_figures``) written into its directory as
     ``sweep_<name>.png`` (or ``file``'s format; default the sweep spec's ``[figures]``);
     their paths (docs/outputs.md, *Sweep output*, describes them)."""
-    sweep = SweepData.load(directory)
+    sweep = SweepData.load(directory, OUTCOME in (x, hue))
     file = file or FigureFile.of_tree(sweep.tree)
     return [save_figure(fig, directory / file.name(f"sweep_{name}"), file)
             for name, fig in _figures(sweep, x, hue).items()]
@@ -73,13 +74,13 @@ def sweep_figures(directory: Path, x: str | None = None, hue: str | None = None
                   ) -> dict[str, Figure]:
     """The figures of a finished sweep by name (``FIGURE_NAMES``): "errors", "singular"
     (against the grid key ``x``, a colour per value of ``hue``), "margin", "momentum"."""
-    return _figures(SweepData.load(directory), x, hue)
+    return _figures(SweepData.load(directory, OUTCOME in (x, hue)), x, hue)
 
 
 def sweep_figure(directory: Path, which: str, x: str | None = None, hue: str | None = None
                  ) -> Figure:
     """One figure of a finished sweep (``sweep_figures``)."""
-    sweep = SweepData.load(directory)
+    sweep = SweepData.load(directory, OUTCOME in (x, hue))
     outcome = OutcomeAxis.choose(sweep, x, hue)  # checked whichever figure is drawn
     if which == "singular":
         return outcomes_figure(sweep, outcome)
@@ -105,15 +106,21 @@ class SweepData:
         self.axis = grid_axis(summary, tree)
 
     @classmethod
-    def load(cls, directory: Path) -> SweepData:
-        """A finished sweep's tables (FlatcliError if they predate the columns drawn)."""
+    def load(cls, directory: Path, by_outcome: bool = False) -> SweepData:
+        """A finished sweep's tables (FlatcliError if they predate the columns drawn).
+
+        ``by_outcome``: each cell split by its trials' ``outcome`` (``by_outcomes``), so that
+        ``outcome`` is one more column of the grid (``--x outcome``, ``--hue outcome``)."""
         summary = pd.read_parquet(directory / "summary.parquet")
         if "resolved" not in summary.columns:
             raise FlatcliError(
                 f"{directory}/summary.parquet was written by an older flatcli, without the "
                 "failure shares the figures draw; run the sweep again with --force")
-        trials = pd.read_parquet(directory / "trials.parquet", columns=TRIAL_COLUMNS)
         tree = read_provenance(directory / "summary.parquet").get("spec", {})
+        if by_outcome:
+            summary, trials = by_outcomes(directory, summary)
+            return cls(summary, trials[TRIAL_COLUMNS], tree)
+        trials = pd.read_parquet(directory / "trials.parquet", columns=TRIAL_COLUMNS)
         return cls(summary, trials, tree)
 
     def by_cell(self, metric: str) -> list[Array]:
@@ -139,6 +146,46 @@ class SweepData:
         """Figure width [in] for one column per cell: a page's width, wider for many
         cells."""
         return max(PAGE_WIDTH, 0.45 * len(self.cells) + 2.5)
+
+
+#: The trials' column that ``--x`` and ``--hue`` may name beside the grid keys.
+OUTCOME = "outcome"
+
+
+def by_outcomes(directory: Path, summary: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """A sweep's summary and trials with every cell split by outcome: one row per (cell,
+    outcome) that has trials, in the cells' order and then ``OUTCOME_NAMES``' order, its
+    statistics (``summary_rows``) over those trials only, ``outcome`` a column after the
+    grid's; the trials renumbered to those rows (FlatcliError for a sweep written before
+    outcomes)."""
+    from flatcli.report.summary import SUMMARY_INPUTS, frame_columns, summary_rows
+
+    names = pq_columns(directory / "trials.parquet")
+    if OUTCOME not in names:
+        raise FlatcliError(f"{directory}/trials.parquet was written by an older flatcli, "
+                           "without outcomes; run the sweep again with --force")
+    columns = list(summary.columns)
+    grid = columns[columns.index("cell") + 1: columns.index("trials")]
+    wanted = list(dict.fromkeys(c for c in [*SUMMARY_INPUTS, *TRIAL_COLUMNS] if c in names))
+    trials = pd.read_parquet(directory / "trials.parquet", columns=wanted)
+    values = {int(c): {k: v for k, v in row.items() if k in grid}
+              for c, row in zip(summary["cell"], summary.to_dict("records"), strict=True)}
+    rank = {name: i for i, name in enumerate(OUTCOME_NAMES)}
+    pairs = sorted({(int(c), str(o)) for c, o in zip(trials["cell"], trials[OUTCOME],
+                                                     strict=True)},
+                   key=lambda p: (p[0], rank.get(p[1], len(rank))))
+    index = {pair: k for k, pair in enumerate(pairs)}
+    trials = trials.assign(cell=[index[(int(c), str(o))] for c, o in
+                                 zip(trials["cell"], trials[OUTCOME], strict=True)])
+    cells = {k: {**values[c], OUTCOME: o} for (c, o), k in index.items()}
+    return pd.DataFrame(summary_rows(frame_columns(trials), cells)), trials
+
+
+def pq_columns(path: Path) -> list[str]:
+    """The column names of a Parquet file."""
+    import pyarrow.parquet as pq
+
+    return list(pq.read_schema(path).names)
 
 
 # ---------------------------------------------------------------------------------------
@@ -282,7 +329,8 @@ def log_boxes(ax: Any, data: Sequence[Array], floor: float = LOG_FLOOR) -> None:
 def shares(ax: Any, summary: pd.DataFrame, x: Array, names: Sequence[str] | None = None,
            spread: float = 0.15) -> None:
     """Shares of trials with their 95 % Wilson intervals, one marker series per kind."""
-    chosen = [s for s in SHARES if names is None or s[0] in names]
+    chosen = [s for s in SHARES if (names is None or s[0] in names)
+              and f"{s[0]}_fraction" in summary.columns]  # (older summaries: no outcomes)
     offsets = np.linspace(-spread, spread, len(chosen)) if len(chosen) > 1 else [0.0]
     top = 0.0
     for (name, label, colour), dx in zip(chosen, offsets, strict=True):
@@ -365,7 +413,8 @@ def errors_figure(sweep: SweepData) -> Figure:
     cell_axis(ax, sweep)
     return _finish(fig, f"{conditions(sweep)}\ntracking error per cell over resolved trials "
                         "(ok, singular; box: quartiles, whiskers: 5-95 %);\nshares of trials "
-                        "that diverged, were unresolved, could not run, or had a singular hit")
+                        "that reached the goal, diverged, were unresolved, could not run, or "
+                        "had a singular hit")
 
 
 @dataclass(frozen=True)
@@ -503,7 +552,8 @@ def _scale(x: Array) -> str:
 
 #: The panels of ``sweep_singular``: (kind, title); a kind's shares are summary columns
 #: ``{kind}_fraction`` with ``_low`` and ``_high``.
-OUTCOME_TITLES = {"singular": "simulated trials with a singular hit",
+OUTCOME_TITLES = {"reached": "trials that reached the goal (outcome)",
+                  "singular": "simulated trials with a singular hit",
                   "diverged": "trials that diverged", "unresolved": "trials unresolved",
                   "error": "trials that could not run"}
 
@@ -515,7 +565,8 @@ def outcomes_figure(sweep: SweepData, axis: OutcomeAxis) -> Figure:
     one line per value of ``hue`` and of the other grid keys; per cell when no grid key is
     numeric or chosen."""
     summary = sweep.summary
-    kinds = ["singular", "diverged", *(n for n in FAILURES
+    kinds = [*(["reached"] if "reached_fraction" in summary.columns else []),
+             "singular", "diverged", *(n for n in FAILURES
                                        if n != "diverged" and summary[n].sum() > 0)]
     if axis.key is None:
         bottom = _table_height(sweep)

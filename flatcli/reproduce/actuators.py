@@ -23,7 +23,7 @@ import pandas as pd
 
 from flatcli import api
 from flatcli.core.loop.metrics import STATUS_NAMES
-from flatcli.core.names import DEFAULT_SERVO_BANDWIDTH
+from flatcli.core.names import DEFAULT_SERVO_BANDWIDTH, GOAL_TOLERANCE
 from flatcli.core.robots.dynamics import make_chain
 from flatcli.report import (
     COMPLETED,
@@ -36,7 +36,7 @@ from flatcli.report import (
 )
 from flatcli.report.figures import PAGE_WIDTH
 from flatcli.report.summary import wilson_interval
-from flatcli.reproduce.findings import OPTIMIZED_PLANS, paper_plan, track_of
+from flatcli.reproduce.findings import OPTIMIZED_PLANS, paper_plan, reached_text, track_of
 from flatcli.reproduce.sections import Context, Outcome, Section, Steps
 from flatcli.spec import Spec, load_spec
 from flatcli.storage import run_record, write_parquet
@@ -45,8 +45,8 @@ from flatcli.storage import run_record, write_parquet
 STUDY = Path(str(resources.files("flatcli") / "data" / "actuators_montecarlo.toml"))
 #: The feedback of this section: the gains swapped (docs/physics.md, "The gains").
 SWAPPED = {"track.kp": [100.0, 110.0], "track.kv": [10.0, 13.0]}
-#: A cell is trackable when no trial is lost (every one resolved to the end) and the 95th
-#: percentile of the final angle error is at most this [rad].
+#: A crossed trial "tumbled" when it ended farther than this from the plan [rad] (a cell is
+#: trackable when every one of its trials reached: its outcome, ``track.goal_tolerance``).
 TRACKABLE_ERROR = 1e-2
 #: Samples of a plan on which its ideal torques and rates are taken.
 PLAN_SAMPLES = 4001
@@ -169,9 +169,11 @@ def cell_table(trials: pd.DataFrame) -> pd.DataFrame:
     ``TRACKABLE_ERROR`` from the plan (``tumbled``), the fraction of resolved trials not
     verified; the median and 95th percentile of the final angle error and the median peak
     torque over the verified resolved trials (over the unverified ones where a cell has no
-    verified one), the fraction of simulated trials whose torque saturated, the median and max
-    momentum drift. A cell is trackable when no trial is lost or unverified and the 95th
-    percentile of the final error is at most ``TRACKABLE_ERROR``."""
+    verified one; ``counted`` of them), the fraction of simulated trials whose torque
+    saturated, the median and max momentum drift; the trials' outcomes (``reached``,
+    ``missed``, ``collided`` as fractions of the cell's trials, ``reached_count``) and the
+    count that crossed. A cell is trackable when every one of its trials reached (outcome:
+    each angle within track.goal_tolerance of the goal at T)."""
     rows = []
     keys = [MANEUVER, BANDWIDTH, LIMIT]
     for values, group in trials.groupby(keys, sort=False):
@@ -200,15 +202,21 @@ def cell_table(trials: pd.DataFrame) -> pd.DataFrame:
         drift = done["momentum_drift"].to_numpy(dtype=float)
         row["drift_median"] = float(np.median(drift)) if len(drift) else math.nan
         row["drift_max"] = float(drift.max()) if len(drift) else math.nan
-        row["trackable"] = bool(row["lost"] == 0 and row["unverified"] == 0
-                                and row["err_final_p95"] <= TRACKABLE_ERROR)
+        outcome = _column(group, "outcome", "")
+        row["reached_count"] = int((outcome == "reached").sum())
+        for name in ("reached", "missed", "collided"):
+            row[name] = float((outcome == name).mean())
+        row["counted"] = len(done)
+        row["crossed_count"] = int((crossings > 0).sum())
+        row["trackable"] = bool(row["reached_count"] == len(group))
         rows.append(row)
     return pd.DataFrame(rows)
 
 
-def kinematic_levels(trials: pd.DataFrame) -> dict[str, tuple[float, float]]:
+def kinematic_levels(trials: pd.DataFrame) -> dict[str, tuple[float, float, float]]:
     """Per maneuver, the kinematic plant's 95th-percentile final angle error (verified
-    resolved trials; the unverified ones where none is verified) and the fraction lost."""
+    resolved trials; the unverified ones where none is verified), the fraction lost and the
+    fraction reached (outcome, of all its trials)."""
     out = {}
     for label, group in trials.groupby(MANEUVER, sort=False):
         resolved = group[group["status"].isin(COMPLETED)]
@@ -216,7 +224,8 @@ def kinematic_levels(trials: pd.DataFrame) -> dict[str, tuple[float, float]]:
         done = (resolved[sure] if sure.any() else resolved)["err_theta_final"].to_numpy(
             dtype=float)
         out[str(label)] = (float(np.quantile(done, 0.95)) if len(done) else math.nan,
-                           float(group["status"].isin(LOST).mean()))
+                           float(group["status"].isin(LOST).mean()),
+                           float((_column(group, "outcome", "") == "reached").mean()))
     return out
 
 
@@ -232,12 +241,11 @@ def lost_interval(lost: float, trials: int) -> tuple[float, float]:
 
 
 @styled
-def plot_study(cells: pd.DataFrame, kinematic: Mapping[str, tuple[float, float]],
+def plot_study(cells: pd.DataFrame, kinematic: Mapping[str, tuple[float, float, float]],
                path: Path, figures: FigureFile | None = None) -> None:
     """Final angle error (95th percentile, verified resolved trials) and the fraction of
-    trials lost or tumbled (crossed the singular set and ended beyond ``TRACKABLE_ERROR``),
-    with its 95 % Wilson interval, against servo bandwidth, one panel per maneuver, one line
-    per torque limit."""
+    the cell's trials that did not reach the goal (outcome), with its 95 % Wilson interval,
+    against servo bandwidth, one panel per maneuver, one line per torque limit."""
     maneuvers = list(dict.fromkeys(cells[MANEUVER]))
     limits = list(dict.fromkeys(cells[LIMIT]))
     fig = new_figure(max(PAGE_WIDTH, 2.6 * len(maneuvers)), 5.2)
@@ -250,7 +258,7 @@ def plot_study(cells: pd.DataFrame, kinematic: Mapping[str, tuple[float, float]]
                      else f"torque limit {limit_text(limit)} N m")
             ax[0, j].loglog(line[BANDWIDTH], line["err_final_p95"], "o-", color=f"C{k}",
                             label=label, ms=5 - 0.6 * k, lw=1.8 - 0.3 * k)
-            failed = (line["lost"] + line["tumbled"]).to_numpy()
+            failed = (1.0 - line["reached"]).to_numpy()
             bounds = np.array([lost_interval(f, r["trials"])
                                for f, (_, r) in zip(failed, line.iterrows(), strict=True)])
             spread = np.abs(bounds.T - failed)
@@ -258,17 +266,17 @@ def plot_study(cells: pd.DataFrame, kinematic: Mapping[str, tuple[float, float]]
                               fmt="o-", color=f"C{k}", label=label, ms=4, capsize=2,
                               clip_on=False)
             ax[1, j].set_xscale("log")
-        level, lost = kinematic[maneuver]
+        level, _, reached = kinematic[maneuver]
         ax[0, j].axhline(level, color="k", ls=":", label="kinematic plant")
-        ax[0, j].axhline(TRACKABLE_ERROR, color="0.5", ls="--", label="trackable")
-        ax[1, j].axhline(lost, color="k", ls=":", label="kinematic plant")
+        ax[0, j].axhline(GOAL_TOLERANCE, color="0.5", ls="--", label="track.goal_tolerance")
+        ax[1, j].axhline(1.0 - reached, color="k", ls=":", label="kinematic plant")
         ax[0, j].set_title(textwrap.fill(maneuver, 40))
         ax[1, j].set_xlabel("servo bandwidth $b$ [rad/s]")
         ax[1, j].set_ylim(0.0, 1.03)  # a fraction is never below 0
         for a in ax[:, j]:
             a.grid(which="both")
     ax[0, 0].set_ylabel("final angle error,\n95th percentile [rad]")
-    ax[1, 0].set_ylabel("fraction lost or tumbled\n(95 % Wilson interval)")
+    ax[1, 0].set_ylabel("fraction of trials not reached\n(outcome; 95 % Wilson interval)")
     ax[0, -1].legend()
     fig.suptitle("The maneuver on the robot with inertia: tracking against servo bandwidth "
                  "and torque limit\n(dynamic plant, gains swapped, $\\theta(0)$ errors of std "
@@ -278,13 +286,18 @@ def plot_study(cells: pd.DataFrame, kinematic: Mapping[str, tuple[float, float]]
 
 
 def matrix_entry(cell: Mapping[str, Any]) -> str:
-    """A cell of REPORT's bandwidth x torque-limit matrix: the 95th percentile of the final
-    error (``*`` where the cell has no verified trial), and the shares lost and crossed."""
-    text = fmt(cell["err_final_p95"], 2) + ("*" if cell["unverified"] == 1 else "")
-    notes = [f"{cell['lost']:.0%} lost" if cell["lost"] else "",
-             f"{cell['crossed']:.0%} crossed" if cell["crossed"] else ""]
-    notes = [n for n in notes if n]
-    return text + (f" ({', '.join(notes)})" if notes else "")
+    """A cell of REPORT's bandwidth x torque-limit matrix, each number saying over which
+    trials it is: reached k/n (of all the cell's trials); the 95th percentile of the final
+    error over the m trials counted (verified resolved; ``*``: unverified, where the cell has
+    no verified one), "p95 x of m"; crossed c/n (of all its trials)."""
+    n = int(cell["trials"])
+    text = f"{int(cell['reached_count'])}/{n} reached"
+    if cell["counted"]:
+        text += (f"; p95 {fmt(cell['err_final_p95'], 2)} of {int(cell['counted'])}"
+                 + ("*" if cell["unverified"] == 1 else ""))
+    if cell["crossed_count"]:
+        text += f"; {int(cell['crossed_count'])}/{n} crossed"
+    return text
 
 
 def _bandwidths(values: pd.Series) -> str:
@@ -339,6 +352,8 @@ def crossing_accounting(trials: pd.DataFrame) -> dict[str, Any]:
         "estimate_median": float(crossed["err_estimate"].median()) if len(crossed)
         else math.nan,
         "verified": int(_column(crossed, "verified", False).fillna(False).astype(bool).sum()),
+        **{name: int((_column(crossed, "outcome", "") == name).sum())
+           for name in ("reached", "missed", "lost")},
         "diverged": len(diverged),
         "diverged_limits": sorted({float(v) for v in diverged[LIMIT]}),
         "diverged_bandwidth_max": float(diverged[BANDWIDTH].max()) if len(diverged)
@@ -389,8 +404,9 @@ def finding(cells: pd.DataFrame, demands: Mapping[str, list[Any]],
         + (f", against {fmt(below, 2)} one step below" if math.isfinite(below) else "")
         + ")" for name, (low, product, below) in law.items())
     text = (
-        f"**Finding.** A cell counts as trackable when no trial is lost, every resolved trial "
-        f"is verified, and 95 % of the final angle errors are below {TRACKABLE_ERROR:g} rad. "
+        "**Finding.** A cell counts as trackable when every one of its trials reached "
+        f"(outcome: each angle within track.goal_tolerance = {GOAL_TOLERANCE:g} rad of the "
+        "goal at T; the number of trials is the study's per cell). "
         f"With the gains swapped and start errors of 2 mrad, {'; '.join(parts)}. With "
         "unlimited torque the joints lag their commands by about th'' / bandwidth and the "
         "final error falls as 1 / bandwidth, but only over a range of bandwidths (the product "
@@ -408,6 +424,7 @@ def finding(cells: pd.DataFrame, demands: Mapping[str, list[Any]],
         "believes its rates are applied, keeps raising, and the margin reaches zero. Earlier "
         "versions of flatcli stopped every such trial there and called it diverged; the "
         "torque limit bounds the plant at the crossing, so flatcli now simulates on. Of them "
+        f"{a['reached']} reached, {a['missed']} missed and {a['lost']} were lost (outcome); "
         f"{a['recovered']} ended within {TRACKABLE_ERROR:g} rad of the plan; the others ended "
         f"{fmt(a['final_min'], 2)} to {fmt(a['final_max'], 3)} rad from it (median "
         f"{fmt(a['final_median'], 3)} rad): the robot tumbles, a real loss of the maneuver, "
@@ -479,17 +496,19 @@ def run(context: Context) -> Outcome:
     order = {name: i for i, name in enumerate(dict.fromkeys(cells[MANEUVER]))}
     ordered = cells.assign(_m=cells[MANEUVER].map(order), _l=-cells[LIMIT].astype(float))
     ordered = ordered.sort_values(["_m", "_l", BANDWIDTH])
-    full = [[r[MANEUVER], r[BANDWIDTH], limit_text(r[LIMIT]), r["trials"], r["lost"],
+    full = [[r[MANEUVER], r[BANDWIDTH], limit_text(r[LIMIT]), r["trials"], r["reached"],
+             r["lost"],
              r["diverged"], r["unresolved"], r["crossed"], r["tumbled"], r["unverified"],
              r["err_final_median"], r["err_final_p95"], r["peak_torque_median"],
              r["saturated"], r["drift_median"], r["drift_max"]]
             for _, r in ordered.iterrows()]
-    levels = ", ".join(f"{name} {fmt(p95, 2)} rad ({lost:.0%} lost)"
-                       for name, (p95, lost) in kinematic.items())
+    levels = ", ".join(f"{name} {fmt(p95, 2)} rad ({reached:.0%} of its trials reached, "
+                       f"{lost:.0%} lost)" for name, (p95, lost, reached) in kinematic.items())
     trackable = cells[cells["trackable"]]
+    headline.append(f"study: {reached_text(_column(trials, 'outcome', ''))}")
     headline.append(f"{len(trackable)} of {len(cells)} (maneuver, servo bandwidth, torque limit) "
-                    "cells track (no trial lost, 95 % of final errors below "
-                    f"{TRACKABLE_ERROR:g} rad)")
+                    "cells track (every trial reached: each angle within "
+                    f"{GOAL_TOLERANCE:g} rad of the goal at T)")
     return Outcome([
         *lines,
         "",
@@ -503,17 +522,18 @@ def run(context: Context) -> Outcome:
         "`actuators/` (trials.parquet, summary.md, cells.parquet; `kinematic/`), figure "
         f"`{context.figures.name('fig_actuators')}`.",
         "",
-        finding(cells, by_label),
+        finding(cells, by_label, crossing_accounting(trials)),
         "",
-        "95th percentile of the final angle error [rad] over the verified trials resolved to "
-        "the end (marked * where a cell has none and the unverified ones are shown), and in "
-        "brackets the share of trials lost (diverged, unresolved or error) and the share that "
-        "crossed the singular set, by servo bandwidth [rad/s]:",
+        "Each cell, by servo bandwidth [rad/s], says over which trials each number is: "
+        "*k/n reached*, the trials whose outcome is reached of all n of the cell; *p95 x of "
+        "m*, the 95th percentile of the final angle error [rad] over the m trials resolved "
+        "to the end and verified (marked * where a cell has none and its m unverified ones "
+        "are shown); *c/n crossed*, the trials of all n that crossed the singular set:",
         "",
         table(["maneuver", "torque limit [N m]", *(fmt(b) for b in bandwidths)], matrix, 2),
         "",
-        "Every cell: fractions of trials lost (all, diverged, unresolved), that crossed the "
-        "singular set, that crossed and ended beyond "
+        "Every cell: fractions of its trials reached (outcome), lost (all, diverged, "
+        "unresolved), that crossed the singular set, that crossed and ended beyond "
         f"{TRACKABLE_ERROR:g} rad (tumbled), and of the resolved trials not verified; median "
         "and 95th percentile of the final angle error [rad] and median peak torque [N m] "
         "(verified resolved trials), share of simulated trials whose servo hit the torque "
@@ -521,7 +541,7 @@ def run(context: Context) -> Outcome:
         "H from the full link kinematics, conserved by the dynamics alone: the "
         "integration's error).",
         "",
-        table(["maneuver", "bandwidth", "torque limit", "trials", "lost", "diverged",
+        table(["maneuver", "bandwidth", "torque limit", "trials", "reached", "lost", "diverged",
                "unresolved", "crossed", "tumbled", "unverified", "final error median",
                "final error p95", "peak torque median", "saturated", "drift median",
                "drift max"], full, 3),

@@ -18,8 +18,10 @@ from flatcli.reproduce.sections import Context, Outcome, Section
 from flatcli.storage import to_jsonable
 
 CAPTURE_SPEC = resources.files("flatcli") / "data" / "capture.toml"
-#: The perturbed start of the second closed-loop run [rad].
+#: The perturbed start of the second closed-loop run [rad], and the start of the third,
+#: 0.1 rad off in th0: the rest loop carries it open loop through the fade-in into a disc.
 PERTURBED = [1.82, 0.99, 0.01]
+PUSHED = [1.9, 1.0, 0.0]
 #: The workspace map's window of final base attitudes: the task's +- this [rad].
 ATTITUDE_WINDOW = 0.2
 
@@ -44,6 +46,8 @@ def run(context: Context) -> Outcome:
     exact.save(out / "track", force=True)
     moved = track(_spec_path(), {"track.initial": PERTURBED}, quiet=True)
     moved.save(out / "track_perturbed", force=True)
+    pushed = track(_spec_path(), {"track.initial": PUSHED}, quiet=True)
+    pushed.save(out / "track_pushed", force=True)
     frame = p.frame
     theta = frame[[f"theta{i}" for i in range(3)]].to_numpy()
     fig = filmstrip_figure(p.plan.robot if p.plan else None,  # type: ignore[arg-type]
@@ -53,14 +57,13 @@ def run(context: Context) -> Outcome:
     save_figure(fig, context.out / name, context.figures)
     m = p.metrics
     rows = [
-        ["plan", fmt(m["ee_error_final"]), fmt(m["base_attitude_error_final"]),
+        ["plan", "-", fmt(m["ee_error_final"]), fmt(m["base_attitude_error_final"]),
          fmt(m["min_clearance"]), fmt(m["clearance_bound"]), "-"],
-        ["track, from the plan's start", fmt(exact.metrics["ee_error_final"]),
-         fmt(exact.metrics["base_attitude_error_final"]), fmt(exact.metrics["min_clearance"]),
-         "-", fmt(exact.metrics["err_theta_max"])],
-        [f"track, from {PERTURBED}", fmt(moved.metrics["ee_error_final"]),
-         fmt(moved.metrics["base_attitude_error_final"]), fmt(moved.metrics["min_clearance"]),
-         "-", fmt(moved.metrics["err_theta_max"])],
+        *([f"track, from {where}", r.metrics["outcome"], fmt(r.metrics["ee_error_final"]),
+           fmt(r.metrics["base_attitude_error_final"]), fmt(r.metrics["min_clearance"]),
+           fmt(r.metrics["clearance_bound"]), fmt(r.metrics["err_theta_max"])]
+          for where, r in (("the plan's start", exact), (str(PERTURBED), moved),
+                           (str(PUSHED), pushed))),
     ]
     rates = np.abs(frame[["theta0_dot", "theta1_dot", "theta2_dot"]].to_numpy()[[0, -1]]).max()
     lines = [
@@ -71,8 +74,18 @@ def run(context: Context) -> Outcome:
         f"{m['task_candidates']} candidate plans tried). Tracked with the feedback faded in "
         "and out (docs/tasks.md).",
         "",
-        table(["run", "ee_error_final [m]", "base_attitude_error_final [rad]",
-               "min_clearance [m]", "proven clearance [m]", "err_theta_max [rad]"], rows),
+        table(["run", "outcome", "ee_error_final [m]", "base_attitude_error_final [rad]",
+               "min_clearance [m]", "clearance bound [m]", "err_theta_max [rad]"], rows),
+        "",
+        "outcome: reached (every angle within track.goal_tolerance and the end effector "
+        "within task.goal_tolerance at T), collided (a link inside a disc at a sample, or "
+        "not shown clear between two), missed; why: "
+        + "; ".join(f"from {where}: {r.metrics['outcome_reason']}"
+                    for where, r in (("the plan's start", exact), (str(PERTURBED), moved),
+                                     (str(PUSHED), pushed)))
+        + ". Clearance bound: the plan's proven one (interval arithmetic over [0, T]); a "
+        "track run's closed-loop bound over its recorded motion (docs/outputs.md, "
+        "*Outcomes*).",
         "",
         f"![capture]({name})",
     ]
@@ -98,8 +111,10 @@ def run(context: Context) -> Outcome:
         f"![workspace]({wname})",
     ]
     headline = [f"capture: end effector within {fmt(m['ee_error_final'])} m of the target, "
-                f"clearance proven >= {fmt(m['clearance_bound'])} m; closed loop "
-                f"{fmt(exact.metrics['ee_error_final'])} m"]
+                f"clearance proven >= {fmt(m['clearance_bound'])} m; closed loop from the "
+                f"plan's start {exact.metrics['outcome']} "
+                f"({fmt(exact.metrics['ee_error_final'])} m), from {PERTURBED} "
+                f"{moved.metrics['outcome']}, from {PUSHED} {pushed.metrics['outcome']}"]
     return Outcome(lines, headline, ("capture/**/*", "fig_capture.*", "fig_workspace.*"))
 
 

@@ -27,7 +27,7 @@ from flatcli.core.robots.params import RobotParams, flatness_check
 from flatcli.outputs import track_frame
 from flatcli.report import FigureFile, fmt, new_figure, save_figure, styled, table
 from flatcli.report.figures import PAGE_WIDTH
-from flatcli.reproduce.findings import plan_of, track_of
+from flatcli.reproduce.findings import plan_of, reached_text, track_of
 from flatcli.reproduce.sections import Context, Outcome, Section
 from flatcli.spec import Spec, load_spec
 from flatcli.storage import run_record, write_parquet
@@ -226,6 +226,7 @@ def run(context: Context) -> Outcome:
     plan_rows: list[list[Any]] = []
     figures: dict[str, tuple[Plan, TrackRun]] = {}
     studies: list[str] = []
+    reached: dict[str, str] = {}  # each study's outcomes, in words
     for path in CHAIN_SPECS:
         spec = load_spec(path)
         steps.step(f"{spec.name}: design, plan, closed loop on both plants, paths")
@@ -252,8 +253,10 @@ def run(context: Context) -> Outcome:
             text, trials, wall = run_study(spec, plan, directory / "montecarlo", context.quiet,
                                            context.workers, context.sets)
             cells = int(trials["cell"].nunique()) if "cell" in trials else 1
+            reached[spec.name] = reached_text(trials["outcome"])
             studies += ["", f"#### {spec.name}: {len(trials)} trials in {wall:.1f} s "
-                        f"({cells} cells)", "", demoted(text)]
+                        f"({cells} cells)", "", f"**Outcome**: {reached[spec.name]}.", "",
+                        demoted(text)]
     plot_chains(figures, out / context.figures.name("fig_chains"), context.figures)
     lines = [
         "",
@@ -343,7 +346,8 @@ def run(context: Context) -> Outcome:
     drifts = [row for row in drift_rows if row[0] != "paper (N = 2)"]
     headline = [f"robots of N = 3 and 5 joints plan with max abs(H) {fmt(worst_h, 2)} "
                 "kg m^2/s and track on both plants; the base's natural drift depends on the "
-                f"joints' path ({', '.join(fmt(float(r[3]), 3) for r in drifts)} rad)"]
+                f"joints' path ({', '.join(fmt(float(r[3]), 3) for r in drifts)} rad)",
+                *(f"{name} study: {text}" for name, text in reached.items())]
     return Outcome(lines, headline, ("chains/**/*", "fig_chains.*"))
 
 

@@ -19,7 +19,7 @@ import pandas as pd
 
 from flatcli import api
 from flatcli.api import TrackRun
-from flatcli.core.loop.metrics import RESOLVED, Metric, Status
+from flatcli.core.loop.metrics import OUTCOME_NAMES, RESOLVED, Metric, Status
 from flatcli.core.plan.planning import Plan
 from flatcli.report import cell_text, fmt, table
 from flatcli.spec import Spec, SpecError
@@ -160,6 +160,28 @@ def margin_ladder(base: Spec) -> tuple[str, str]:
     return text, sentence
 
 
+def outcome_counts(outcomes: Sequence[str] | pd.Series) -> dict[str, int]:
+    """How many trials had each outcome (``OUTCOME_NAMES``), and ``trials`` in all."""
+    values = [str(o) for o in outcomes]
+    return {"trials": len(values), **{name: values.count(name) for name in OUTCOME_NAMES}}
+
+
+def reached_text(outcomes: Sequence[str] | pd.Series) -> str:
+    """"k of n trials reached (p %, 95 % interval a-b %); c collided, m missed, l lost": a
+    study's outcomes in words (the interval: Wilson's score interval), over all its
+    trials."""
+    from flatcli.report.summary import wilson_interval
+
+    c = outcome_counts(outcomes)
+    n = c["trials"]
+    if not n:
+        return "no trials"
+    low, high = wilson_interval(c["reached"], n)
+    return (f"{c['reached']} of {n} trials reached ({100 * c['reached'] / n:.3g} %, 95 % "
+            f"interval {100 * float(low):.3g}-{100 * float(high):.3g} %); {c['collided']} "
+            f"collided, {c['missed']} missed, {c['lost']} lost")
+
+
 def study_findings(summary: pd.DataFrame, trials_path: Path) -> list[str]:
     """What the Monte Carlo study found, by gain reading: singular hits, final errors of the
     trials resolved to the end, and which cells hold the trials that were not."""
@@ -167,7 +189,8 @@ def study_findings(summary: pd.DataFrame, trials_path: Path) -> list[str]:
     if "gains" not in summary.columns:
         return lines
     frame = pd.read_parquet(trials_path, columns=["cell", "gains", "status", "steps",
-                                                  "momentum_drift", "err_estimate"])
+                                                  "momentum_drift", "err_estimate", "outcome",
+                                                  "err_theta_final"])
     grid = [k for k in summary.columns[1: list(summary.columns).index("trials")] if k != "gains"]
     for label in GAIN_READINGS:
         sel = summary[summary["gains"] == label]
@@ -182,11 +205,20 @@ def study_findings(summary: pd.DataFrame, trials_path: Path) -> list[str]:
             f"cell {int(r['cell'])} ({', '.join(f'{k} = {cell_text(r[k])}' for k in grid)}): "
             f"{int(r['diverged'])} diverged, {int(r['unresolved'])} unresolved"
             for _, r in failing.iterrows())
+        best = sel.sort_values("reached_fraction", ascending=False).iloc[0]
+        worst = sel.sort_values("reached_fraction").iloc[0]
         lines.append(
-            f"- gains {label}: {len(resolved)} of {len(trials)} trials resolved to the end "
-            f"(ok or singular); singular-hit rate {fmt(sel['singular_fraction'].min(), 3)} to "
-            f"{fmt(sel['singular_fraction'].max(), 3)} across cells; median final y error of "
-            f"the resolved trials {fmt(sel['err_y_final_median'].min(), 3)} to "
+            f"- gains {label}: {reached_text(trials['outcome'])} (reached: every angle within "
+            "track.goal_tolerance of the goal at T); per cell from "
+            f"{100 * worst['reached_fraction']:.3g} % (cell {int(worst['cell'])}) to "
+            f"{100 * best['reached_fraction']:.3g} % (cell {int(best['cell'])}). Median final "
+            "angle error over ALL its trials, a lost one counted as infinitely wrong, "
+            f"{fmt(sel['err_theta_final_median_all'].min(), 3)} to "
+            f"{fmt(sel['err_theta_final_median_all'].max(), 3)} rad across cells. "
+            f"{len(resolved)} of {len(trials)} trials resolved to the end (ok or singular); "
+            f"singular-hit rate {fmt(sel['singular_fraction'].min(), 3)} to "
+            f"{fmt(sel['singular_fraction'].max(), 3)} across cells; median final y error "
+            f"over the resolved trials {fmt(sel['err_y_final_median'].min(), 3)} to "
             f"{fmt(sel['err_y_final_median'].max(), 3)} rad; {diverged} diverged and "
             f"{unresolved} unresolved" + (f", in {where}." if where else ".")
         )

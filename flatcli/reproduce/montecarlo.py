@@ -11,7 +11,7 @@ import pandas as pd
 
 from flatcli.core.loop.metrics import RESOLVED
 from flatcli.report import fmt, plot_sweep
-from flatcli.reproduce.findings import study_findings
+from flatcli.reproduce.findings import reached_text, study_findings
 from flatcli.reproduce.sections import Context, Outcome, Section
 from flatcli.spec import load_spec
 
@@ -33,6 +33,7 @@ def run(context: Context) -> Outcome:
     plot_sweep(directory, context.figures)
     summary = pd.read_parquet(directory / "summary.parquet")
     trials = int(summary["trials"].sum())
+    outcomes = pd.read_parquet(directory / "trials.parquet", columns=["outcome"])["outcome"]
     lines = [
         "",
         "## Monte Carlo study",
@@ -43,9 +44,13 @@ def run(context: Context) -> Outcome:
         "believes d2 = 0: such a plant is still flat, being controllable and driftless of "
         "codimension one, but the paper's closed-form outputs no longer apply to it, so "
         f"the controller's model is wrong). {trials} trials in {result.wall_seconds:.1f} s on "
-        "the adaptive integrator; only trials resolved to the end enter the error "
-        "statistics. Files: `montecarlo/` (trials.parquet, summary.md) and "
-        f"`montecarlo/sweep_*.{context.figures.format}`.",
+        "the adaptive integrator. Whether the robot did its job is each trial's outcome "
+        "(reached: every angle within track.goal_tolerance of the goal at T; missed; lost), "
+        "counted over all trials; the error statistics named *resolved* are over the trials "
+        "resolved to the end only, and say so. Files: `montecarlo/` (trials.parquet, "
+        f"summary.md) and `montecarlo/sweep_*.{context.figures.format}`.",
+        "",
+        f"**Outcome**: {reached_text(outcomes)}.",
         "",
         *study_findings(summary, directory / "trials.parquet"),
         *reference_lines(summary, directory / "trials.parquet", spec.sweep.verify),
@@ -54,8 +59,8 @@ def run(context: Context) -> Outcome:
     ]
     resolved = int(summary["resolved"].sum())
     lost = int((summary["diverged"] + summary["unresolved"]).sum())
-    headline = [f"{trials} trials: {resolved} resolved to the end, {lost} lost (diverged or "
-                f"unresolved); median final y error per cell "
+    headline = [f"{reached_text(outcomes)}; {resolved} resolved to the end, {lost} diverged or "
+                f"unresolved; median final y error per cell over its resolved trials "
                 f"{fmt(summary['err_y_final_median'].min(), 2)} to "
                 f"{fmt(summary['err_y_final_median'].max(), 2)} rad"]
     return Outcome(lines, headline, (f"{DIRECTORY}/**/*",))

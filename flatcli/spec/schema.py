@@ -43,12 +43,15 @@ from flatcli.core.names import (
     ELBOWS,
     ERROR_ESTIMATES,
     FIGURE_FORMATS,
+    GOAL_TOLERANCE,
     INTEGRATORS,
     METHODS,
     MODELS,
     OBJECTIVES,
     PLANT_MODELS,
+    RATE_WARNING,
     SERVO_MODELS,
+    TARGET_TOLERANCE,
 )
 from flatcli.spec.keys import (
     SIZES,
@@ -155,6 +158,11 @@ class PlanSpec:
     degree: int | None = integer(None, "polynomial or B-spline degree", ge=3, nullable=True,
                                  default_doc="3 (poly), 5 (bspline)")
     size: int = integer(12, "B-spline coefficients per output", ge=4)
+    rate_warning: float = number(RATE_WARNING, "a plan whose joint rate abs(th_j') exceeds it "
+                                 "on its grid (plan.samples) prints one warning line naming "
+                                 "the joint, the peak and the time; a task plan picks end "
+                                 "rates that keep below it where a candidate does", "rad/s",
+                                 gt=0, inf=True)
     method: str = choice(METHODS, "auto", "how to plan: \"flat\" (the closed-form flat "
                          "outputs; a design without them is refused), \"exact\" (joint paths "
                          "in the basis, the base from the momentum constraint: any "
@@ -190,6 +198,10 @@ class TaskSpec:
     fade: float = number(0.2, "track with rest: the feedback fades in over the first and out "
                          "over the last fade x T (feedforward alone where the margin "
                          "vanishes)", gt=0, le=0.5)
+    goal_tolerance: float = number(TARGET_TOLERANCE, "a trial reaches the task's target "
+                                   "(`outcome` reached) where its end effector ends within "
+                                   "this of task.end_effector at t = T (beside "
+                                   "track.goal_tolerance)", "m", gt=0)
     budget: int = integer(64, "obstacle search: most candidate plans tried (elbow branches, "
                           "the rest plan's skew or the end rates' magnitudes) before saying "
                           "none is proven clear", ge=1)
@@ -245,6 +257,10 @@ class TrackSpec:
     rate_limit: float = number(INF, "actuator limit: the joint-rate commands are clipped to "
                                "it (the kinematic plant turns at them)", "rad/s", gt=0,
                                inf=True)
+    goal_tolerance: float = number(GOAL_TOLERANCE, "a trial resolved to the end is `reached` "
+                                   "(outcome) where every angle th0..thN ends within this of "
+                                   "the plan's goal th(T), else `missed` (docs/outputs.md, "
+                                   "*Outcomes*)", "rad", gt=0)
     divergence_bound: float = number(1e4, "a state component beyond it (or non-finite) stops "
                                      "the trial as diverged", "rad, rad/s", gt=0)
     controller: str = choice(CONTROLLERS, "flat", "the feedback: \"flat\" (the paper's "
@@ -330,10 +346,12 @@ class FiguresSpec:
 class SummarySpec:
     """how a sweep's summary judges its trials (`--set summary.*`; not part of the experiment)"""
 
-    reach_tolerance: float = number(1e-3, "a task sweep's trial counts as reaching its "
-                                    "target (`reached_fraction`) where `ee_error_bound`, an "
-                                    "upper bound on the end effector's final distance from "
-                                    "`task.end_effector`, is at most this", "m", gt=0)
+    reach_tolerance: float = number(1e-3, "a task sweep's summary counts the trials whose "
+                                    "`ee_error_bound`, an upper bound on the end effector's "
+                                    "final distance from its target, is at most this "
+                                    "(`ee_error_bound_within_fraction`; whether a trial "
+                                    "reached is its `outcome`, task.goal_tolerance)", "m",
+                                    gt=0)
 
 
 @dataclass(frozen=True)

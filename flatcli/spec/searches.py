@@ -32,7 +32,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from flatcli.core.loop.metrics import METRIC_NAMES
+from flatcli.core.names import METRIC_NAMES
 from flatcli.spec.keys import SpecError, suggest
 
 #: What a search maximises or minimises (``search.objective``).

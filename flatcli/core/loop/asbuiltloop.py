@@ -56,7 +56,7 @@ from flatcli.core.loop.chaindynamic import (
     same_chain,
     servo_demand,
 )
-from flatcli.core.loop.metrics import observe_errors, observe_torque
+from flatcli.core.loop.metrics import observe_clipped, observe_errors, observe_torque
 from flatcli.core.models.chainflat import Scratch, scratch
 from flatcli.core.robots.chain import (
     chain_momentum_given,
@@ -248,6 +248,8 @@ def observe_kinematic(loop: AsbuiltLoop, obs: Any, acc: Array, j: int, x: Array,
         peak = max(peak, abs(f[i]))
     h = chain_momentum_given(loop.params, loop.rows[_CS], loop.rows[_SN], f[:nb])
     observe_errors(acc, j, et2, ey2, NO_MARGIN, h, loop.h0, peak, NO_THRESHOLD)
+    # the joints turn at the clipped commands: at the limit exactly where one was clipped
+    observe_clipped(acc, j, peak >= loop.shared.rate_limit)
 
 
 @jitable
@@ -386,6 +388,12 @@ def observe_dynamic(loop: AsbuiltLoop, obs: Any, acc: Array, j: int, x: Array, f
     h = chain_momentum_given(loop.params, loop.rows[_CS], loop.rows[_SN], rates)
     observe_errors(acc, j, et2, ey2, NO_MARGIN, h, loop.h0, peak, NO_THRESHOLD)
     observe_torque(acc, torque, 0.0, f[nx + 1 + n])
+    # the servos' set points r_1..r_N (clipped commands): at the limit where one was clipped
+    limit = loop.shared.rate_limit
+    clipped = False
+    for i in range(n):
+        clipped = clipped or abs(f[nx + 2 + n + i]) >= limit
+    observe_clipped(acc, j, clipped)
 
 
 @jitable

@@ -46,6 +46,7 @@ from flatcli.core._jit import jitable
 from flatcli.core.controllers.control import law
 from flatcli.core.loop.chainloop import flat_chain_errors
 from flatcli.core.loop.metrics import (
+    observe_clipped,
     observe_errors,
     observe_torque,
 )
@@ -405,6 +406,12 @@ def observe_chain_dynamic(loop: ChainDynamicLoop, obs: Any, acc: Array, j: int, 
     observe_errors(acc, j, et2, ey2, abs(sigma), chain_dynamic_momentum(loop, x), loop.h0,
                    peak, threshold)
     observe_torque(acc, torque, 0.0, f[nx + 1 + n])
+    # the servos' set points: sat(u_j) (j < N) and r_N, clipped where at or beyond the limit
+    limit = loop.rate_limit
+    clipped = abs(f[nx + 2 + n]) >= limit
+    for i in range(n - 1):
+        clipped = clipped or abs(x[2 * nb + i]) >= limit
+    observe_clipped(acc, j, clipped)
 
 
 @jitable

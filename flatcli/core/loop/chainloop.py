@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 from flatcli.core._jit import jitable
 from flatcli.core.controllers.control import flat_errors, law
 from flatcli.core.loop.metrics import (
+    observe_clipped,
     observe_errors,
 )
 from flatcli.core.models.chainflat import (
@@ -168,6 +169,8 @@ def observe_chain(loop: ChainLoop, obs: Any, acc: Array, j: int, x: Array, f: Ar
     pcs, psn = plant_trig(loop, work.cs, work.sn)
     h = chain_momentum_given(loop.params, pcs, psn, f[: n + 1])
     observe_errors(acc, j, et2, ey2, abs(sigma), h, loop.h0, peak, threshold)
+    # the joints turn at their commands clipped to the limit: at it exactly where clipped
+    observe_clipped(acc, j, peak >= loop.rate_limit)
 
 
 @jitable

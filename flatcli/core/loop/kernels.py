@@ -163,14 +163,16 @@ class TrialArrays(NamedTuple):
 
 class Results(NamedTuple):
     """Written per trial: metrics (T, N_METRICS), status, event (T,), event_time (T,),
-    trace (T, n + 1, width) if recorded (else (0, 0, width)), and extra (T, E) the
-    controller's own columns (``Ops.extra_columns``; E = 0 for a law without)."""
+    trace (T, n + 1, width) if recorded (else (0, 0, width)), final (T, N + 1) the plant's
+    angles th0..thN at t = T [rad] (nan where the trial stopped before T), and extra (T, E)
+    the controller's own columns (``Ops.extra_columns``; E = 0 for a law without)."""
 
     metrics: Array
     status: NDArray[np.int64]
     event: NDArray[np.int64]
     event_time: Array
     trace: Array
+    final: Array
     extra: Array
 
 
@@ -288,37 +290,41 @@ def make_batch(ops: Ops) -> Callable[..., None]:
             reset_accumulator(acc)
             tr = results.trace[i] if settings.record else buffers.no_trace
             estimate = math.nan
+            at_end = results.final[i]
             if method == RK4:
                 last, ev, t_ev, evaluations = rk4_trial(
                     loop, obs, x0, grid.ref, grid.breaks, grid.local, buffers.flag,
                     buffers.flag_end, settings.dt, n, settings.bound, passes, tables[i],
                     settings.record, tr, acc, work, buffers.noise, settings.every)
                 steps = last
-                extras(loop, results.extra[i])
             else:
                 last, ev, t_ev, steps, evaluations = adaptive_trial(
                     loop, obs, x0, grid.breaks, grid.local, settings.dt, n, settings.bound,
                     settings.rtol, settings.atol, settings.max_steps, tables[i],
                     settings.record, tr, acc, work, buffers.noise, buffers.flag, grid.ref,
                     passes, True, settings.every)
-                extras(loop, results.extra[i])  # before a twin starts the controller afresh
-                if ev == EVENT_NONE and settings.twin > 0.0:
-                    final = buffers.final
+            extras(loop, results.extra[i])  # before a twin starts the controller afresh
+            # the angles at T, where the trial got there (both integrators leave their last
+            # state in integrate._X, the first work row); before the twin overwrites it
+            for k in range(angles):
+                at_end[k] = work[0, k] if ev == EVENT_NONE else math.nan
+            if method != RK4 and ev == EVENT_NONE and settings.twin > 0.0:
+                final = buffers.final
+                for k in range(angles):
+                    final[k] = work[0, k]  # the trial's end (integrate._X)
+                reset_accumulator(buffers.twin_acc)
+                _, twin_ev, _, _, twin_evaluations = adaptive_trial(
+                    loop, obs, x0, grid.breaks, grid.local, settings.dt, n,
+                    settings.bound, settings.rtol * settings.twin,
+                    settings.atol * settings.twin, settings.max_steps, tables[i], False,
+                    buffers.no_trace, buffers.twin_acc, work, buffers.noise, buffers.flag,
+                    grid.ref, passes, False, 1)
+                evaluations += twin_evaluations
+                if twin_ev == EVENT_NONE:
+                    gap = 0.0
                     for k in range(angles):
-                        final[k] = work[0, k]  # the trial's end (integrate._X)
-                    reset_accumulator(buffers.twin_acc)
-                    _, twin_ev, _, _, twin_evaluations = adaptive_trial(
-                        loop, obs, x0, grid.breaks, grid.local, settings.dt, n,
-                        settings.bound, settings.rtol * settings.twin,
-                        settings.atol * settings.twin, settings.max_steps, tables[i], False,
-                        buffers.no_trace, buffers.twin_acc, work, buffers.noise, buffers.flag,
-                        grid.ref, passes, False, 1)
-                    evaluations += twin_evaluations
-                    if twin_ev == EVENT_NONE:
-                        gap = 0.0
-                        for k in range(angles):
-                            gap += (work[0, k] - final[k]) ** 2
-                        estimate = math.sqrt(gap) / (1.0 - settings.twin)
+                        gap += (work[0, k] - final[k]) ** 2
+                    estimate = math.sqrt(gap) / (1.0 - settings.twin)
             conclude_trial(i, residual(loop, trials, i, grid.plan_theta, grid.plan_theta_dot),
                            acc, last, n, ev, t_ev, estimate, steps, evaluations, settings.dt,
                            settings.record, tr, results.metrics, results.status,

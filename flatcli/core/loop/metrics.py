@@ -29,6 +29,10 @@ kept per sample unless a trace is recorded, so memory does not grow with n. For 
   applied torque was clipped). Both nan on the kinematic plant.
 * ``steps``, ``rhs_evaluations``: accepted integration steps and right-hand-side
   evaluations, the cost of the trial.
+* ``clipped_time``: how long a joint-rate command was at or beyond the rate limit [s], the
+  trapezoidal integral of that indicator over the observed samples (``observe_clipped``); a
+  clipping shorter than the samples' spacing that falls between two samples is not seen, and
+  each episode's ends are known to half a spacing.
 
 A trial that stops early (``Event``) keeps the metrics of its samples up to that point and
 nan final errors; see ``Status`` for what each status means.
@@ -44,33 +48,10 @@ from numpy.typing import NDArray
 
 from flatcli.core._jit import jitable
 from flatcli.core.models.flatness import chart
+from flatcli.core.names import METRIC_NAMES, Metric
 from flatcli.core.robots.params import Coefficients, Links, momentum
 
 Array = NDArray[np.float64]
-
-
-class Metric(IntEnum):
-    """Column of a trial's metrics row (``Outcome.metrics``); names as in trials.parquet."""
-
-    ERR_THETA_RMS = 0
-    ERR_THETA_MAX = 1
-    ERR_THETA_FINAL = 2
-    ERR_Y_RMS = 3
-    ERR_Y_MAX = 4
-    ERR_Y_FINAL = 5
-    SINGULAR_HITS = 6
-    FIRST_HIT_TIME = 7
-    MIN_MARGIN = 8
-    MOMENTUM_DRIFT = 9
-    PLAN_MOMENTUM_RESIDUAL = 10
-    ERR_ESTIMATE = 11
-    PEAK_RATE = 12
-    PEAK_TORQUE = 13
-    TORQUE_SATURATED = 14
-    STEPS = 15
-    RHS_EVALUATIONS = 16
-    CROSSINGS = 17
-    FIRST_CROSSING_TIME = 18
 
 
 # the metric columns as plain ints, for the kernels
@@ -93,8 +74,8 @@ _M_STEPS = int(Metric.STEPS)
 _M_RHS_EVALUATIONS = int(Metric.RHS_EVALUATIONS)
 _M_CROSSINGS = int(Metric.CROSSINGS)
 _M_FIRST_CROSSING_TIME = int(Metric.FIRST_CROSSING_TIME)
+_M_CLIPPED_TIME = int(Metric.CLIPPED_TIME)
 
-METRIC_NAMES: tuple[str, ...] = tuple(m.name.lower() for m in Metric)
 N_METRICS = len(METRIC_NAMES)
 #: Metrics that count things (integers in the tables).
 COUNT_METRICS: tuple[str, ...] = ("singular_hits", "torque_saturated", "steps",
@@ -127,6 +108,9 @@ class Status(IntEnum):
 STATUS_NAMES: tuple[str, ...] = tuple(s.name.lower() for s in Status)
 #: Statuses of trials resolved to the end.
 RESOLVED: tuple[str, ...] = ("ok", "singular")
+#: What a trial achieved, its ``outcome`` (``flatcli.core.loop.outcome``): reached, collided,
+#: missed, lost.
+OUTCOME_NAMES: tuple[str, ...] = ("reached", "collided", "missed", "lost")
 
 
 class Event(IntEnum):
@@ -152,7 +136,10 @@ class Event(IntEnum):
 _SUM_ET2, _MAX_ET2, _SUM_EY2, _MAX_EY2, _LAST_ET2, _LAST_EY2 = 0, 1, 2, 3, 4, 5
 _HITS, _FIRST, _MIN_MARGIN, _DRIFT, _PEAK_RATE, _COUNT = 6, 7, 8, 9, 10, 11
 _PEAK_TORQUE, _SATURATED, _CROSSINGS, _FIRST_CROSSING = 12, 13, 14, 15
-ACCUMULATOR_SIZE = 16
+#: the clipped time's trapezoidal sum [samples], the last observed sample j (-1: none) and
+#: whether a rate command was clipped there (``observe_clipped``)
+_CLIP_SUM, _CLIP_LAST_J, _CLIP_LAST = 16, 17, 18
+ACCUMULATOR_SIZE = 19
 
 
 @jitable
@@ -164,6 +151,30 @@ def reset_accumulator(acc: Array) -> None:
     acc[_PEAK_TORQUE] = math.nan
     acc[_SATURATED] = math.nan
     acc[_FIRST_CROSSING] = math.nan
+    acc[_CLIP_LAST_J] = -1.0
+
+
+@jitable
+def observe_clipped(acc: Array, j: int, clipped: bool) -> None:
+    """Fold into the running metrics whether a joint-rate command was clipped at output
+    sample j (at or beyond ``track.rate_limit``: the joint turned, or its servo was asked to
+    turn it, at the limit rather than at the command). ``clipped_time`` is the trapezoidal
+    integral over the observed samples of that indicator: each pair of consecutive observed
+    samples j < k adds (k - j) dt times the mean of their two flags (so a trial clipped at
+    every sample is clipped for T, one clipped at one inner sample of every dt for dt)."""
+    flag = 1.0 if clipped else 0.0
+    last = acc[_CLIP_LAST_J]
+    if last >= 0.0:
+        acc[_CLIP_SUM] += 0.5 * (j - last) * (flag + acc[_CLIP_LAST])
+    acc[_CLIP_LAST_J] = j
+    acc[_CLIP_LAST] = flag
+
+
+def clipped_time_of(clipped: NDArray[np.bool_], dt: float) -> float:
+    """``clipped_time`` [s] of flags at the output samples 0..n (every one observed), as
+    ``observe_clipped`` sums them: the trapezoidal integral of the indicator."""
+    flags = np.asarray(clipped, dtype=float)
+    return float(0.5 * dt * np.sum(flags[1:] + flags[:-1])) if len(flags) else math.nan
 
 
 @jitable
@@ -303,6 +314,7 @@ def finish_metrics(
     out[_M_RHS_EVALUATIONS] = evaluations
     out[_M_CROSSINGS] = crossings
     out[_M_FIRST_CROSSING_TIME] = crossed_at if crossings > 0 else math.nan
+    out[_M_CLIPPED_TIME] = acc[_CLIP_SUM] * dt if count else math.nan
     return first_hit
 
 
@@ -388,14 +400,17 @@ __all__ = [
     "COUNT_METRICS",
     "METRIC_NAMES",
     "N_METRICS",
+    "OUTCOME_NAMES",
     "RESOLVED",
     "STATUS_NAMES",
     "Event",
     "Metric",
     "Status",
+    "clipped_time_of",
     "crossings_of",
     "describe_status",
     "finish_metrics",
+    "observe_clipped",
     "observe_crossing",
     "observe_sample",
     "observe_torque",

@@ -47,7 +47,7 @@ from numpy.typing import NDArray
 
 from flatcli.core._jit import jitable
 from flatcli.core.controllers.control import PaperGains, feedback, feedback_at
-from flatcli.core.loop.metrics import observe_sample, observe_torque
+from flatcli.core.loop.metrics import observe_clipped, observe_sample, observe_torque
 from flatcli.core.models.flatness import chart, outputs_at
 from flatcli.core.robots.dynamics import (
     ThreeBody,
@@ -312,6 +312,8 @@ def observe_kinematic(loop: Loop, obs: Any, acc: Array, j: int, x: Array, f: Arr
     theta_ref, ref, threshold = obs
     observe_sample(acc, j, x[0], x[1], x[2], x[3], f[5], f[6], f[1], f[2],
                    kinematic_momentum(loop, x, f), theta_ref, ref, loop.kc, loop.h0, threshold)
+    # the joints turn at sat(u1), sat(u2): at the limit exactly where a command was clipped
+    observe_clipped(acc, j, abs(f[1]) >= loop.rate_limit or abs(f[2]) >= loop.rate_limit)
 
 
 @jitable
@@ -323,6 +325,8 @@ def observe_dynamic(loop: DynamicLoop, obs: Any, acc: Array, j: int, x: Array, f
     observe_sample(acc, j, x[0], x[1], x[2], x[6], f[AUX_C1], f[AUX_S1], x[4], x[5],
                    dynamic_momentum(loop, x, f), theta_ref, ref, loop.kc, loop.h0, threshold)
     observe_torque(acc, f[AUX_TAU1], f[AUX_TAU2], f[AUX_SATURATED])
+    # the servos' set points sat(u1) and r2 = sat(u2): clipped where at or beyond the limit
+    observe_clipped(acc, j, abs(x[6]) >= loop.rate_limit or abs(f[AUX_R2]) >= loop.rate_limit)
 
 
 @jitable

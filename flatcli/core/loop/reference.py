@@ -183,6 +183,8 @@ def reference_trial(scenario: Any, trials: Any, kernels: Kernels, shared: Any,
     if stopped != int(Event.NONE):
         code = Event(stopped).status
     results.status[i] = int(code)
+    angles = results.final.shape[1]
+    results.final[i] = states[n, :angles] if stopped == int(Event.NONE) else math.nan
     results.event[i] = stopped
     results.event_time[i] = when if stopped != int(Event.NONE) else first_hit
     if settings.record:

@@ -13,14 +13,16 @@ Where w = 0 the plant is driven open loop by the plan, so an initial error persi
 the fade-in and whatever error is left when the fade-out begins is carried to T: that is the
 tracking error the scheme costs (docs/tasks.md measures it).
 
-The plant is the kinematic one: th1' = u1, th2' = u2 and th0' from H = H0 with the plant's
-own momentum weights (``chain.momentum_weights``), integrated by scipy's DOP853.
+The plant is the kinematic one: th1' = sat(u1), th2' = sat(u2) (sat clips a joint rate to
++-rate_limit, as ``paperloop.kinematic_rhs``; u1' is 0 while u1 is at or beyond the limit and
+the command pushes it further out, so u1 does not wind up) and th0' from H = H0 with the
+plant's own momentum weights (``chain.momentum_weights``), integrated by scipy's DOP853.
 
 A chain of N joints (``ChainModel``) is blended the same way: u_j' = y_jd'' + w (u_j'_fb -
 y_jd'') for the inner joints and th_N' = th_Nd' + w (th_N'_fb - th_Nd'), the feedback's being
 the chain's linearising inputs for v_j = y_jd'' + kv_j (y_jd' - y_j') + kp_j (y_jd - y_j)
 (``chainflat.inputs``, as the compiled chain loop commands them), on the kinematic plant of
-state (th0..thN, u_1..u_N-1).
+state (th0..thN, u_1..u_N-1), its joint rates clipped as the paper's (``chainloop``).
 """
 
 from __future__ import annotations
@@ -62,7 +64,8 @@ def fade(t: Array | float, duration: float, fraction: float) -> Array:
 class RestTrace:
     """A rest loop's trace on the output grid: times (n,) [s], angles (n, N + 1) [rad], the
     rates the plant applies (n, N + 1) [rad/s], the controller's inner rates u_1..u_N-1
-    (n, N - 1) [rad/s], the fade (n,), and whether the integration reached T."""
+    (n, N - 1) [rad/s], the fade (n,), whether the integration reached T, and per sample
+    whether a rate command was at or beyond the rate limit (n,) (clipped)."""
 
     t: Array
     theta: Array
@@ -70,6 +73,7 @@ class RestTrace:
     u: Array
     weight: Array
     finished: bool
+    clipped: NDArray[np.bool_]
 
     @property
     def u1(self) -> Array:
@@ -78,10 +82,12 @@ class RestTrace:
 
 
 def track_rest(plan: RestPlan, gains: Gains, plant: RobotParams, initial: Array,
-               times: Array, fraction: float, momentum: float = 0.0) -> RestTrace:
+               times: Array, fraction: float, momentum: float = 0.0,
+               rate_limit: float = math.inf) -> RestTrace:
     """The closed loop of a rest plan from angles ``initial`` (N + 1,) [rad] at rest (the
-    inner rates 0), sampled at ``times`` (n,) [s]: the paper's robot in its closed forms,
-    a chain through ``chainflat`` (module docstring).
+    inner rates 0), sampled at ``times`` (n,) [s], its joint rates clipped to ``rate_limit``
+    [rad/s] (inf: none): the paper's robot in its closed forms, a chain through
+    ``chainflat`` (module docstring).
 
     Raises
     ------
@@ -89,7 +95,7 @@ def track_rest(plan: RestPlan, gains: Gains, plant: RobotParams, initial: Array,
     """
     if isinstance(plan.model, ChainModel):
         return _track_rest_chain(plan, plan.model, gains, plant, initial, times, fraction,
-                                 momentum)
+                                 momentum, rate_limit)
     if not isinstance(plan.model, PaperModel):
         raise FlatcliError("task.rest: a rest plan is tracked through its flat outputs; this "
                            "plan has none")
@@ -111,14 +117,20 @@ def track_rest(plan: RestPlan, gains: Gains, plant: RobotParams, initial: Array,
         return (float(flags[4]) + w * (float(u1_dot) - float(flags[4])),
                 ff_rate + w * (float(u2) - ff_rate))
 
-    def rates(t: float, x: Array) -> tuple[Array, float]:
+    limit = float(rate_limit)
+
+    def rates(t: float, x: Array) -> tuple[Array, float, bool]:
         u1_dot, u2 = commands(t, x)
+        w1 = min(max(float(x[3]), -limit), limit)
+        w2 = min(max(u2, -limit), limit)
+        if (x[3] >= limit and u1_dot > 0.0) or (x[3] <= -limit and u1_dot < 0.0):
+            u1_dot = 0.0  # conditional integration: no wind-up while th1' is clipped
         momentum_weights(K, inertia, np.array([x[0], x[1], x[2]]), weights)
-        th0_dot = (momentum - weights[1] * x[3] - weights[2] * u2) / weights[0]
-        return np.array([th0_dot, x[3], u2]), u1_dot
+        th0_dot = (momentum - weights[1] * w1 - weights[2] * w2) / weights[0]
+        return np.array([th0_dot, w1, w2]), u1_dot, abs(w1) >= limit or abs(w2) >= limit
 
     def rhs(t: float, x: Array) -> Array:
-        r, u1_dot = rates(t, x)
+        r, u1_dot, _ = rates(t, x)
         return np.array([r[0], r[1], r[2], u1_dot])
 
     x0 = np.array([*np.asarray(initial, dtype=float)[:3], 0.0])
@@ -128,15 +140,16 @@ def track_rest(plan: RestPlan, gains: Gains, plant: RobotParams, initial: Array,
     states = np.full((n, 4), math.nan)
     states[: sol.y.shape[1]] = sol.y.T
     applied = np.full((n, 3), math.nan)
+    clipped = np.zeros(n, dtype=bool)
     for i in range(sol.y.shape[1]):
-        applied[i] = rates(float(times[i]), states[i])[0]
+        applied[i], _, clipped[i] = rates(float(times[i]), states[i])
     return RestTrace(np.asarray(times, dtype=float), states[:, :3], applied, states[:, 3:4],
-                     fade(times, T, fraction), bool(sol.status == 0))
+                     fade(times, T, fraction), bool(sol.status == 0), clipped)
 
 
 def _track_rest_chain(plan: RestPlan, model: ChainModel, gains: Gains, plant: RobotParams,
-                      initial: Array, times: Array, fraction: float, momentum: float
-                      ) -> RestTrace:
+                      initial: Array, times: Array, fraction: float, momentum: float,
+                      rate_limit: float = math.inf) -> RestTrace:
     """``track_rest`` of a chain of N joints (module docstring)."""
     from flatcli.core.models.chainflat import inputs, outputs
 
@@ -167,14 +180,22 @@ def _track_rest_chain(plan: RestPlan, model: ChainModel, gains: Gains, plant: Ro
         return (ref_ddot[: n - 1] + w * (u_dot - ref_ddot[: n - 1]),
                 ff_rate + w * (th_n_dot - ff_rate))
 
-    def rates(t: float, x: Array) -> tuple[Array, Array]:
+    limit = float(rate_limit)
+
+    def rates(t: float, x: Array) -> tuple[Array, Array, bool]:
         accel, th_n_dot = commands(t, x)
+        inner = np.clip(x[n + 1:], -limit, limit)
+        last = min(max(th_n_dot, -limit), limit)
+        # conditional integration: no wind-up while th_j' is clipped
+        held = ((x[n + 1:] >= limit) & (accel > 0.0)) | ((x[n + 1:] <= -limit) & (accel < 0.0))
+        accel = np.where(held, 0.0, accel)
         momentum_weights(K_plant, inertia_plant, np.ascontiguousarray(x[: n + 1]), weights)
-        th0_dot = (momentum - float(weights[1:n] @ x[n + 1:]) - weights[n] * th_n_dot) / weights[0]
-        return np.array([th0_dot, *x[n + 1:], th_n_dot]), accel
+        th0_dot = (momentum - float(weights[1:n] @ inner) - weights[n] * last) / weights[0]
+        clipped = bool(np.any(np.abs(inner) >= limit)) or abs(last) >= limit
+        return np.array([th0_dot, *inner, last]), accel, clipped
 
     def rhs(t: float, x: Array) -> Array:
-        r, accel = rates(t, x)
+        r, accel, _ = rates(t, x)
         return np.concatenate([r, accel])
 
     x0 = np.concatenate([np.asarray(initial, dtype=float)[: n + 1], np.zeros(n - 1)])
@@ -184,10 +205,12 @@ def _track_rest_chain(plan: RestPlan, model: ChainModel, gains: Gains, plant: Ro
     states = np.full((count, 2 * n), math.nan)
     states[: sol.y.shape[1]] = sol.y.T
     applied = np.full((count, n + 1), math.nan)
+    clipped = np.zeros(count, dtype=bool)
     for i in range(sol.y.shape[1]):
-        applied[i] = rates(float(times[i]), states[i])[0]
+        applied[i], _, clipped[i] = rates(float(times[i]), states[i])
     return RestTrace(np.asarray(times, dtype=float), states[:, : n + 1], applied,
-                     states[:, n + 1:], fade(times, T, fraction), bool(sol.status == 0))
+                     states[:, n + 1:], fade(times, T, fraction), bool(sol.status == 0),
+                     clipped)
 
 
 __all__ = ["RestTrace", "fade", "track_rest"]

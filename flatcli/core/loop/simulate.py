@@ -38,7 +38,7 @@ from functools import cached_property
 from typing import Any, NamedTuple
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from flatcli.core.controllers.control import Gains
 from flatcli.core.controllers.lqr import LqrWeights, tracked
@@ -57,6 +57,7 @@ from flatcli.core.loop.kernels import (
     paper_plant,
 )
 from flatcli.core.loop.metrics import N_METRICS, Metric, Status
+from flatcli.core.loop.outcome import CLEARANCE_BATCH, Geometry, MotionClearance, motion_clearance
 from flatcli.core.loop.reference import reference_trial
 from flatcli.core.loop.table import SAMPLED, kernels_for
 from flatcli.core.names import (
@@ -482,6 +483,10 @@ class Outcome:
     estimated : whether each trial reaching T had its error estimated (the adaptive
         integrator with a twin, ``Scenario.twin``); accuracy : the largest err_estimate of a
         verified trial [rad] (``Scenario.accuracy``)
+    final : (N, N_joints + 1) the plant's angles th0..thN at t = T [rad], nan where a trial
+        stopped before (None: not kept)
+    clearance : the trials' clearance from the obstacles ``simulate`` was given, along their
+        recorded motion (``outcome.motion_clearance``); None without obstacles
     extra : (N, E) the controller's own per-trial columns ``extra_columns`` (the MPC's
         ``mpc.COLUMNS``; E = 0 for the flat and as-built laws); extra_counts: those of
         them that count something (integers)
@@ -496,6 +501,8 @@ class Outcome:
     integrator: Integrator = "adaptive"
     estimated: bool = False
     accuracy: float = math.inf
+    final: Array | None = None
+    clearance: MotionClearance | None = None
     extra: Array | None = None
     extra_columns: tuple[str, ...] = ()
     extra_counts: tuple[str, ...] = ()
@@ -629,6 +636,7 @@ def simulate(
     trials: Trials,
     integrator: Integrator = "adaptive",
     record: bool = False,
+    obstacles: ArrayLike | None = None,
 ) -> Outcome:
     """Run N closed-loop trials of a scenario.
 
@@ -638,6 +646,11 @@ def simulate(
     trials : Trials (N)
     integrator : "adaptive", "rk4" or "dop853" (see the module docstring)
     record : keep each trial's trace
+    obstacles : (K, 3) discs x, y, radius [m]: compute each trial's clearance from them along
+        its recorded motion (``Outcome.clearance``, ``outcome.motion_clearance``). Without
+        ``record`` the trials are then recorded ``outcome.CLEARANCE_BATCH`` at a time and
+        their traces let go (recording changes no number of a trial but ``rhs_evaluations``
+        where ``track.observe_every`` > 1: every sample is then evaluated)
 
     Returns
     -------
@@ -657,36 +670,71 @@ def simulate(
     N = trials.count
     columns = trace_columns(scenario)
     width = len(columns)
+    discs = None if obstacles is None else np.asarray(obstacles, dtype=float).reshape(-1, 3)
+    if discs is not None and not len(discs):
+        discs = None
     kernels, shared, arrays, grid, settings = kernel_inputs(scenario, trials)
     extra_columns = kernels.ops.extra_columns
     results = Results(np.empty((N, N_METRICS)), np.zeros(N, dtype=np.int64),
                       np.zeros(N, dtype=np.int64), np.full(N, math.nan),
                       np.empty((N, n + 1, width)) if record else np.empty((0, 0, width)),
-                      np.full((N, len(extra_columns)), math.nan))
-    settings = settings._replace(record=record)
+                      np.full((N, angles), math.nan), np.full((N, len(extra_columns)), math.nan))
     if scenario.python is not None and integrator != "dop853":
         raise FlatcliError("track.integrator: a controller written in Python runs with "
                            "\"dop853\" only (its steps are Python calls between scipy's "
                            f"segments), got {integrator!r}")
-    if integrator == "dop853":
-        for i in range(N):
-            reference_trial(scenario, trials, kernels, shared, arrays, grid, settings, i,
-                            results)
-    else:
+    buffers = kernels.buffers(joints, grid.ref.shape[1], shared)
+    geometry = Geometry.of(trials.links, trials.across) if discs is not None else None
+    parts: list[MotionClearance] = []
+
+    def run_range(lo: int, hi: int, trace: Array, keep: bool) -> None:
+        """Trials lo..hi - 1, their traces into ``trace`` (hi - lo, n + 1, width) if ``keep``."""
+        run_settings = settings._replace(record=keep)
+        part_trials = trials.subset(slice(lo, hi))
+        if integrator == "dop853":
+            part = Results(results.metrics[lo:hi], results.status[lo:hi],
+                           results.event[lo:hi], results.event_time[lo:hi], trace,
+                           results.final[lo:hi], results.extra[lo:hi])
+            for i in range(hi - lo):
+                reference_trial(scenario, part_trials, kernels, shared,
+                                TrialArrays(*(a[lo:hi] for a in arrays)), grid, run_settings, i,
+                                part)
+            return
         method = RK4 if integrator == "rk4" else ADAPTIVE
-        buffers = kernels.buffers(joints, grid.ref.shape[1], shared)
 
         def run(rows: slice, tables: Array) -> None:
-            part = TrialArrays(*(a[rows] for a in arrays))
-            trace = results.trace[rows] if record else results.trace
-            out = Results(results.metrics[rows], results.status[rows], results.event[rows],
-                          results.event_time[rows], trace, results.extra[rows])
-            kernels.batch(method, shared, part, grid, settings, tables, buffers, out)
+            part = TrialArrays(*(a[lo:hi][rows] for a in arrays))
+            out = Results(results.metrics[lo:hi][rows], results.status[lo:hi][rows],
+                          results.event[lo:hi][rows], results.event_time[lo:hi][rows],
+                          trace[rows] if keep else trace, results.final[lo:hi][rows],
+                          results.extra[lo:hi][rows])
+            kernels.batch(method, shared, part, grid, run_settings, tables, buffers, out)
 
-        _run_with_noise(run, trials, n, angles)
+        _run_with_noise(run, part_trials, n, angles)
+
+    def clearance_of(lo: int, hi: int, trace: Array) -> MotionClearance:
+        assert geometry is not None and discs is not None
+        theta = trace[:, :, [columns.index(f"theta{k}") for k in range(angles)]]
+        rates = trace[:, :, [columns.index(f"theta{k}_dot") for k in range(angles)]]
+        return motion_clearance(geometry.subset(slice(lo, hi)), discs, theta, rates,
+                                float(scenario.dt))
+
+    if record:
+        run_range(0, N, results.trace, True)
+        if discs is not None:
+            parts.append(clearance_of(0, N, results.trace))
+    elif discs is None:
+        run_range(0, N, results.trace, False)
+    else:  # recorded a batch at a time for the clearance, the traces let go
+        scratch = np.empty((min(N, CLEARANCE_BATCH), n + 1, width))
+        for lo in range(0, N, CLEARANCE_BATCH):
+            hi = min(lo + CLEARANCE_BATCH, N)
+            run_range(lo, hi, scratch[: hi - lo], True)
+            parts.append(clearance_of(lo, hi, scratch[: hi - lo]))
     return Outcome(results.metrics, results.status, results.event, results.event_time,
                    results.trace if record else None, columns, integrator,
                    integrator == "adaptive" and settings.twin > 0, float(scenario.accuracy),
+                   results.final, MotionClearance.concatenate(parts) if parts else None,
                    results.extra, extra_columns, kernels.ops.extra_counts)
 
 

@@ -95,6 +95,13 @@ class FlatModel(ABC):
         inputs u' (n, N - 1) [rad/s^2] and the signed margin sigma (n,) [rad/s]; inf/nan on
         the singular set."""
 
+    def flag_outputs(self, flags: Array) -> tuple[Array, Array, Array]:
+        """The plan's outputs y (..., N) [rad] and their first and second time derivatives
+        [rad/s, rad/s^2] from its flag (..., 3 N): the flat outputs y, y', y'' themselves
+        (an exact plan's channels differ: ``exact.ExactModel.flag_outputs``)."""
+        n = self.n_joints
+        return flags[..., :n], flags[..., n:2 * n], flags[..., 2 * n:3 * n]
+
     @abstractmethod
     def flag_values(self, flag: AnyArray) -> AnyArray:
         """The optimiser's pointwise quantities from a flag (3 N, ...), real or complex

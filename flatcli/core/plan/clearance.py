@@ -379,22 +379,60 @@ def _rest_quotient(c1: Array, c2: Array, deg: int) -> tuple[Array, Array]:
 def _joint_boxes(plan: Plan, theta: list[Interval]) -> list[tuple[Interval, Interval]]:
     """Boxes (x, y) of each joint O_0 .. O_N+1 from interval angles (module docstring)."""
     robot = plan.robot
+    moments = mass_moments(robot) / robot.total_mass
+    shift = float(robot.mass[-1] * robot.com_across / robot.total_mass)
+    return joint_boxes(moments, np.asarray(robot.length, dtype=float), shift, theta)
+
+
+def joint_boxes(moments: Array, length: Array, shift: Array | float,
+                theta: list[Interval]) -> list[tuple[Interval, Interval]]:
+    """Boxes (x, y) that contain each joint O_0 .. O_N+1 [m] (``kinematics.joint_positions``)
+    for every angle in the intervals ``theta`` (N + 1 intervals of one shape (...)).
+
+    ``moments`` (..., N + 1) F_a / M [m] and ``length`` (..., N + 1) [m] of the robot (or of
+    one robot per element: they broadcast against the intervals' shape along their last
+    axis), ``shift`` (...) m_N e_N / M [m] (``kinematics.across_shift``; 0 without a centre
+    of mass across the last link). Every operation is rounded outwards (``intervals``)."""
     psi = [theta[0]]
     for a in range(1, len(theta)):
         psi.append(psi[-1] + theta[a])
     e = [(iv.cos(p), iv.sin(p)) for p in psi]
-    moments = mass_moments(robot) / robot.total_mass
+    moments = np.asarray(moments, dtype=float)
+    length = np.asarray(length, dtype=float)
     ox = Interval.point(np.zeros_like(theta[0].lo))
     oy = Interval.point(np.zeros_like(theta[0].lo))
     for a, (cx, sx) in enumerate(e):
-        ox = ox - float(moments[a]) * cx
-        oy = oy - float(moments[a]) * sx
+        ox = ox - cx * moments[..., a]  # (the interval first: numpy's arrays would take it)
+        oy = oy - sx * moments[..., a]
+    shift = np.asarray(shift, dtype=float)
+    if np.any(shift != 0.0):  # O_0 -= shift e_perp(psi_N), e_perp = (-sin, cos)
+        cx, sx = e[-1]
+        ox = ox + sx * shift
+        oy = oy - cx * shift
     joints = [(ox, oy)]
     for a, (cx, sx) in enumerate(e):
-        ox = ox + float(robot.length[a]) * cx
-        oy = oy + float(robot.length[a]) * sx
+        ox = ox + cx * length[..., a]
+        oy = oy + sx * length[..., a]
         joints.append((ox, oy))
     return joints
+
+
+def link_clearance_bounds(joints: list[tuple[Interval, Interval]], obstacles: Array) -> Array:
+    """(..., N + 1, K) lower bounds of each link's distance from each obstacle's surface [m]
+    over boxes of its joints (``joint_boxes``; link a the segment O_a O_a+1, obstacles (K, 3)
+    discs x, y, radius): the larger of the distance from the disc's centre to the link's
+    bounding box and to the segment between its joints' boxes' centres less their reach
+    (module docstring, step 2), less the radius."""
+    out = []
+    for near, far in itertools.pairwise(joints):
+        box = (near[0].hull(far[0]), near[1].hull(far[1]))  # the link lies in it
+        per = []
+        for x, y, radius in np.asarray(obstacles, dtype=float).reshape(-1, 3):
+            centre = np.array([x, y])
+            per.append(np.maximum(_box_distance(box, centre),
+                                  _segment_distance_bound(near, far, centre)) - radius)
+        out.append(np.stack(per, axis=-1))
+    return np.asarray(np.stack(out, axis=-2), dtype=float)
 
 
 def _box_distance(box: tuple[Interval, Interval], centre: Array) -> Array:
@@ -441,14 +479,8 @@ def _slack(plan: Plan, constraints: Constraints, theta: list[Interval],
     worst = np.full(n, np.inf)
     clear = np.full(n, np.inf)
     if len(constraints.obstacles):
-        joints = _joint_boxes(plan, theta)
-        for near, far in itertools.pairwise(joints):
-            box = (near[0].hull(far[0]), near[1].hull(far[1]))  # the link lies in it
-            for x, y, radius in constraints.obstacles:
-                centre = np.array([x, y])
-                d = np.maximum(_box_distance(box, centre),
-                               _segment_distance_bound(near, far, centre)) - radius
-                clear = np.minimum(clear, d)
+        bounds = link_clearance_bounds(_joint_boxes(plan, theta), constraints.obstacles)
+        clear = np.minimum(clear, bounds.min(axis=(-2, -1)))
         worst = np.minimum(worst, clear - constraints.clearance)
     if constraints.angle_limit is not None:
         for a, th in enumerate(theta):
@@ -593,6 +625,8 @@ __all__ = [
     "Constraints",
     "certify",
     "clearances",
+    "joint_boxes",
+    "link_clearance_bounds",
     "point_slack",
     "sampled_slack",
     "segment_distance",

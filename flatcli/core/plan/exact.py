@@ -170,6 +170,14 @@ class ExactModel(FlatModel):
         sigma = np.full(flags.shape[:-1], NO_MARGIN)
         return theta, theta_dot, accel[..., : n - 1], sigma
 
+    def flag_outputs(self, flags: Array) -> tuple[Array, Array, Array]:
+        """An exact plan's "outputs" are its joint paths: y_j = th_j (j = 1..N), their rates
+        th_j' and accelerations th_j'' (the flag's channels are th_1..th_N, th0, each with its
+        two derivatives)."""
+        n = self.n_joints
+        c = n + 1
+        return flags[..., :n], flags[..., c:c + n], flags[..., 2 * c:2 * c + n]
+
     def flag_values(self, flag: AnyArray) -> AnyArray:
         raise FlatcliError("plan.optimize: the flat optimiser does not apply to exact plans")
 

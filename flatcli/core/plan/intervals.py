@@ -103,6 +103,13 @@ def _as(x: Interval | float | Array) -> Interval:
     return x if isinstance(x, Interval) else Interval.point(x)
 
 
+def centred(middle: Array, radius: Array) -> Interval:
+    """[middle - radius, middle + radius] (radius >= 0), rounded outwards."""
+    m = np.asarray(middle, dtype=float)
+    r = np.asarray(radius, dtype=float)
+    return Interval(*_out(m - r, m + r))
+
+
 def cos(x: Interval) -> Interval:
     """cos over [lo, hi]: the ends' values, widened to +-1 where a multiple of pi (a maximum
     or minimum) lies inside."""
@@ -167,4 +174,4 @@ def poly(coefficients: Array, s_lo: Array, s_hi: Array) -> Interval:
     return Interval(*_out(value - spread - pad, value + spread + pad))
 
 
-__all__ = ["Interval", "cos", "poly", "sin"]
+__all__ = ["Interval", "centred", "cos", "poly", "sin"]

@@ -43,7 +43,7 @@ from flatcli.core.models.flatmodel import (
     PaperModel,
     flat_model,
 )
-from flatcli.core.names import Model
+from flatcli.core.names import RATE_WARNING, Model
 from flatcli.core.robots.dynamics import Chain, inverse_dynamics
 from flatcli.core.robots.params import Coefficients, RobotParams, require_flat
 
@@ -58,14 +58,17 @@ __all__ = [
     "COMPLEX_STEP",
     "ENERGY_ORDER",
     "ENERGY_PIECES",
+    "RATE_WARNING",
     "Boundary",
     "FlatTrajectory",
     "Plan",
     "PlanSamples",
     "boundary_system",
+    "fastest_joint",
     "min_acceleration_trajectory",
     "plan_chain",
     "plan_point_to_point",
+    "rate_warning_text",
 ]
 
 
@@ -245,14 +248,13 @@ class Plan:
     def sample(self, t: Array) -> PlanSamples:
         """Evaluate the plan at times t (n,) [s] within [0, duration]."""
         t = np.asarray(t, dtype=float)
-        n = self.n_joints
         flags = self.flags(t)
-        c = flags.shape[-1] // 3  # channels: N flat outputs (an exact plan: N joints and th0)
         theta, theta_dot, u_dot, sigma = self.model.flags_to_states(flags)
+        y, y_dot, y_ddot = self.model.flag_outputs(flags)
         return PlanSamples(
-            t=t, theta=theta, theta_dot=theta_dot, u_dot=u_dot, y=flags[..., :n],
-            y_dot=flags[..., c:c + n], y_ddot=flags[..., 2 * c:2 * c + n],
-            margin=np.abs(np.asarray(sigma)), momentum=self.momentum(theta, theta_dot),
+            t=t, theta=theta, theta_dot=theta_dot, u_dot=u_dot, y=y, y_dot=y_dot,
+            y_ddot=y_ddot, margin=np.abs(np.asarray(sigma)),
+            momentum=self.momentum(theta, theta_dot),
         )
 
     def momentum(self, theta: Array, theta_dot: Array) -> Array:
@@ -315,6 +317,27 @@ class Plan:
         """Times in (0, T) where the plan meets the singular set [s]
         (``FlatModel.margin_zeros``)."""
         return self.model.margin_zeros(self.trajectory)
+
+
+def fastest_joint(samples: PlanSamples) -> tuple[int, float, float]:
+    """(j, peak, t): the joint j in 1..N whose rate abs(th_j') is largest on a plan's samples,
+    that peak [rad/s] (inf if a rate is not finite) and its time [s] (one plan)."""
+    rates = np.abs(np.asarray(samples.theta_dot, dtype=float)[:, 1:])
+    rates = np.where(np.isnan(rates), np.inf, rates)
+    where = int(np.argmax(rates))
+    k, j = divmod(where, rates.shape[1])
+    return j + 1, float(rates[k, j]), float(samples.t[k])
+
+
+def rate_warning_text(samples: PlanSamples, limit: float) -> str:
+    """One line when a plan's fastest joint (``fastest_joint``) exceeds ``limit`` [rad/s]
+    (``plan.rate_warning``) on its samples, naming the joint, the peak and the time; "" when
+    it does not."""
+    joint, peak, when = fastest_joint(samples)
+    if peak <= limit:
+        return ""
+    return (f"warning: the plan's th{joint}' reaches {peak:.4g} rad/s at t = {when:.4g} s, "
+            f"above plan.rate_warning = {limit:g} rad/s")
 
 
 def plan_point_to_point(

@@ -23,7 +23,7 @@ from flatcli.core.errors import FlatcliError
 from flatcli.core.names import Elbow, Model
 from flatcli.core.plan.clearance import Certificate, Constraints, certify, sampled_slack
 from flatcli.core.plan.inverse import task_configuration, two_link_task
-from flatcli.core.plan.planning import Plan, plan_point_to_point
+from flatcli.core.plan.planning import Plan, fastest_joint, plan_point_to_point
 from flatcli.core.plan.rest import plan_rest_to_rest
 from flatcli.core.robots.kinematics import (
     across_shift,
@@ -198,16 +198,20 @@ def _candidate(robot: RobotParams, task: Task, start: Array, goal: Array, shape:
 def plan_task(robot: RobotParams, task: Task, starts: list[Array], goals: list[Array],
               duration: float, start_rate: ArrayLike, goal_rate: ArrayLike,
               model: Model = "derived", basis: Basis | None = None,
-              angle_limit: Array | None = None, rate_limit: Array | None = None
-              ) -> TaskPlan:
+              angle_limit: Array | None = None, rate_limit: Array | None = None,
+              rate_warning: float = math.inf, samples: int = 201) -> TaskPlan:
     """The task's plan (module docstring): the first candidate whose constraints are proven
-    over [0, T]. Candidates are taken in order (start, goal, then shape) up to
-    ``task.budget``; they are checked at ``SCREEN_SAMPLES`` samples in batches
-    (``SCREEN_BATCH``) and proven (``certify``) in order when they pass. Without obstacles or
-    limits the first candidate that can be planned is taken, every branch with the end rates
-    as given first (shape 1), then the other shapes: a candidate that crosses the singular
-    set (a chain's end rates, which ``_oriented`` turns towards the goal's h_0, can still)
-    is not the end of the search.
+    over [0, T] and whose joints stay within ``rate_warning`` [rad/s] on ``samples`` points
+    of [0, T] (``plan.rate_warning``, ``plan.samples``: ``planning.fastest_joint``).
+    Candidates are taken in order (start, goal, then shape) up to ``task.budget``; they are
+    checked at ``SCREEN_SAMPLES`` samples in batches (``SCREEN_BATCH``) and proven
+    (``certify``) in order when they pass. Without obstacles or limits the first candidate
+    that can be planned is taken, every branch with the end rates as given first (shape 1),
+    then the other shapes: a candidate that crosses the singular set (a chain's end rates,
+    which ``_oriented`` turns towards the goal's h_0, can still) is not the end of the
+    search. Where no accepted candidate keeps within ``rate_warning``, the one whose fastest
+    joint is slowest (the first of equals) is returned: its plan then carries the warning
+    (``planning.rate_warning_text``).
 
     Raises
     ------
@@ -228,7 +232,21 @@ def plan_task(robot: RobotParams, task: Task, starts: list[Array], goals: list[A
                       for shape in shapes][:task.budget]
     last_error: FlatcliError | None = None
     best: tuple[float, Certificate] | None = None
+    fast: tuple[float, TaskPlan] | None = None  # the slowest accepted one above the warning
     refuted: list[Plan] = []  # failed at a sample: certify would refute them too
+
+    def slow_enough(found: TaskPlan) -> bool:
+        """Whether an accepted candidate keeps within the warning (else it is remembered)."""
+        nonlocal fast
+        if not math.isfinite(rate_warning):
+            return True
+        peak = fastest_joint(found.plan.sample(found.plan.grid(samples)))[1]
+        if peak <= rate_warning:
+            return True
+        if fast is None or peak < fast[0]:
+            fast = (peak, found)
+        return False
+
     first = 0
     while first < len(candidates):
         size = 1 if first == 0 else SCREEN_BATCH
@@ -241,7 +259,10 @@ def plan_task(robot: RobotParams, task: Task, starts: list[Array], goals: list[A
                 last_error = exc
                 continue
             if constraints is None:
-                return TaskPlan(plan, start, goal, None, index, shape)
+                found = TaskPlan(plan, start, goal, None, index, shape)
+                if slow_enough(found):
+                    return found
+                continue
             batch.append((index, start, goal, shape, plan))
         first += size
         if not batch:
@@ -254,9 +275,14 @@ def plan_task(robot: RobotParams, task: Task, starts: list[Array], goals: list[A
                 continue
             cert = certify(plan, constraints)
             if cert.ok:
-                return TaskPlan(plan, start, goal, cert, index, shape)
+                found = TaskPlan(plan, start, goal, cert, index, shape)
+                if slow_enough(found):
+                    return found
+                continue
             if best is None or cert.lower_bound > best[0]:
                 best = (cert.lower_bound, cert)
+    if fast is not None:
+        return fast[1]
     if constraints is not None:
         for plan in refuted:  # the message names the best of all, as certify ranks them
             cert = certify(plan, constraints)
