@@ -432,9 +432,10 @@ class TrackRun:
         cols["momentum"] = H
         for j in range(1, n + 1):
             cols[f"tau{j}"] = named.get(f"tau{j}", nan)
-        for j in range(1, n + 1):  # the MPC's held correction (``simulate.trace_columns``)
-            if f"dv{j}" in named:
-                cols[f"dv{j}"] = named[f"dv{j}"]
+        for held in ("dv", "dw"):  # the MPC's held correction (``simulate.trace_columns``)
+            for j in range(1, n + 1):
+                if f"{held}{j}" in named:
+                    cols[f"{held}{j}"] = named[f"{held}{j}"]
         cols.update(_positions(plant_from(self.spec), theta))
         return cols
 

@@ -17,6 +17,8 @@ import math
 
 import numba
 import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
 from numpy.typing import NDArray
 from scipy.integrate import solve_ivp
@@ -298,3 +300,26 @@ def test_a_python_controller_that_breaks_the_interface_is_one_clear_error() -> N
         flatcli.track(controller=NoStep(), quiet=True)
     with pytest.raises(FlatcliError, match=r"controller: step\(\) must return 2 finite"):
         flatcli.track(controller=WrongSize(), quiet=True)
+
+
+def test_a_sweep_writes_the_mpc_columns_null_for_the_other_law(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """trials.parquet has qp_iterations, qp_infeasible (integers) and qp_slack_max for every
+    trial, null where the trial's controller is not the MPC; the DOP853 re-run of
+    sweep.verify runs the MPC too and agrees with the adaptive trial."""
+    spec = {"name": "mpc_sweep",
+            "track": {"dt": 0.01, "mpc_sample": 0.2, "mpc_horizon": 4, "kp": [1.0, 1.0],
+                      "kv": [2.0, 2.0]},
+            "sweep": {"trials": 3, "seed": 1, "verify": 1,
+                      "grid": {"track.controller": ["flat", "mpc"]},
+                      "perturb": {"initial": {"dist": "normal", "std": 0.002}}}}
+    trials = flatcli.sweep(spec, tmp_path / "s", workers=1, quiet=True).trials
+    columns = list(mpc.COLUMNS)
+    ours = trials[trials["track.controller"] == "mpc"]
+    other = trials[trials["track.controller"] == "flat"]
+    assert len(ours) == len(other) == 3
+    assert ours[columns].notna().all().all() and (ours["qp_iterations"] > 0).all()
+    assert other[columns].isna().all().all()
+    schema = pq.read_schema(tmp_path / "s" / "trials.parquet")
+    assert schema.field("qp_iterations").type == schema.field("qp_infeasible").type == pa.int64()
+    checked = ours["reference_difference"].dropna()
+    assert len(checked) == 1 and float(checked.iloc[0]) < 1e-6

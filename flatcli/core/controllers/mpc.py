@@ -45,7 +45,6 @@ import math
 from typing import Any, NamedTuple
 
 import numpy as np
-import scipy.linalg
 from numpy.typing import NDArray
 
 from flatcli.core._jit import jitable
@@ -109,6 +108,8 @@ class Design(NamedTuple):
 def discretise(kp: float, kv: float, ts: float) -> tuple[Array, Array]:
     """The exact transition (2, 2) and input response (2,) over ts [s] of e'' = -kp e - kv e'
     + dv with dv held (zero-order hold): the matrix exponential of the augmented system."""
+    import scipy.linalg  # here: a sweep of another controller loads no scipy.linalg
+
     a = np.array([[0.0, 1.0, 0.0], [-kp, -kv, 1.0], [0.0, 0.0, 0.0]])
     m = scipy.linalg.expm(a * ts)
     return np.ascontiguousarray(m[:2, :2]), np.ascontiguousarray(m[:2, 2])

@@ -87,10 +87,12 @@ TRACE_COLUMNS: tuple[str, ...] = (
 )  # fmt: skip
 def trace_columns(scenario: Scenario) -> tuple[str, ...]:
     """The trace columns of a scenario's trials (``Outcome.columns``): the plant's, then for
-    the MPC the correction it holds, dv1..dvN (the flat law's [rad/s^2], added to y'';
-    the as-built law's [rad/s], added to the joint-rate commands)."""
+    a sampled controller (the MPC) the correction it holds: around the flat law dv1..dvN
+    [rad/s^2], added to y''; around the as-built law dw1..dwN [rad/s], added to the
+    joint-rate commands."""
     columns = chain_dynamic_trace_columns if scenario.plant == "dynamic" else chain_trace_columns
-    held = tuple(f"dv{j}" for j in range(1, scenario.n_joints + 1)) \
+    name = "dv" if scenario.law == "flat" else "dw"
+    held = tuple(f"{name}{j}" for j in range(1, scenario.n_joints + 1)) \
         if scenario.sampled is not None else ()
     return (*columns(scenario.n_joints), *held)
 

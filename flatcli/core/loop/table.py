@@ -23,6 +23,14 @@ from flatcli.core.loop.kernels import Kernels, compile_kernels
 SAMPLED: dict[str, SampledPart] = {"mpc": mpc.PART, "python": python.PART}
 
 
+#: Every sampled controller's per-trial columns (a sweep's trials.parquet holds them all, null
+#: where a trial's controller has not that one), and those that are counts.
+CONTROLLER_COLUMNS: tuple[str, ...] = tuple(dict.fromkeys(
+    column for part in SAMPLED.values() for column in part.columns))
+CONTROLLER_COUNTS: tuple[str, ...] = tuple(dict.fromkeys(
+    column for part in SAMPLED.values() for column in part.counts))
+
+
 def _base() -> dict[tuple[str, str, str], Kernels]:
     table = {("flat", model, plant): k for (model, plant), k in FLAT_KERNELS.items()}
     table.update({("asbuilt", model, plant): k for (model, plant), k in ASBUILT_KERNELS.items()})
