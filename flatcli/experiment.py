@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 
 from flatcli.core.controllers.control import Gains
 from flatcli.core.controllers.lqr import LqrWeights
-from flatcli.core.controllers.settings import MpcSettings, settings_from
+from flatcli.core.controllers.settings import settings_of
 from flatcli.core.curves.basis import Basis, BSplineBasis, PolynomialBasis
 from flatcli.core.loop.metrics import COUNT_METRICS, METRIC_NAMES, describe_status
 from flatcli.core.loop.outcome import Geometry, Goal, Judged, judge
@@ -282,7 +282,7 @@ def scenario_from(spec: Spec, plan: Plan) -> Scenario:
         servo_model=checked(spec.plant.servo_model),
         controller=checked(track.controller),
         lqr=LqrWeights(track.lqr_bandwidth, track.lqr_terminal, track.lqr_base),
-        mpc=settings_from(track, MpcSettings, "mpc_"),
+        settings=settings_of(track),
         servo_bandwidth=spec.plant.servo_bandwidth,
         twin=TWIN_FACTOR if track.error_estimate == "twin" else 0.0,
         accuracy=track.accuracy,

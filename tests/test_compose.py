@@ -120,7 +120,8 @@ def test_the_compiled_mpc_loop_is_the_sampled_loop_integrated_by_scipy(plan, lim
     final, held = _referee(plan, settings, dt, limit, x0)
     assert np.abs(held).max() > 1e-3  # the correction acts (else this proves little)
     scenario = Scenario(plan, Gains((1.0, 1.0), (2.0, 2.0)), dt=dt, rate_limit=limit,
-                        controller="mpc", mpc=settings, rtol=KERNEL_RTOL, atol=1e-13, twin=0.0)
+                        controller="mpc", settings={"mpc": settings}, rtol=KERNEL_RTOL,
+                        atol=1e-13, twin=0.0)
     trials = Trials(plan.robot.as_array()[None], np.zeros(1), x0[None])
     out = simulate(scenario, trials, "adaptive", record=True)
     assert out.status[0] == Status.OK
@@ -142,7 +143,8 @@ def test_the_trace_holds_the_corrections_the_loop_applied(plan) -> None:  # type
     dt, limit = 0.002, 40.0
     x0 = _initial(plan, np.array([-2e-3, 1e-3, 3e-3]))
     scenario = Scenario(plan, Gains((1.0, 1.0), (2.0, 2.0)), dt=dt, rate_limit=limit,
-                        controller="mpc", mpc=settings, rtol=KERNEL_RTOL, atol=1e-13, twin=0.0)
+                        controller="mpc", settings={"mpc": settings}, rtol=KERNEL_RTOL,
+                        atol=1e-13, twin=0.0)
     out = simulate(scenario, Trials(plan.robot.as_array()[None], np.zeros(1), x0[None]),
                    "adaptive", record=True)
     assert out.trace is not None
@@ -160,7 +162,7 @@ def test_rk4_samples_where_the_adaptive_integrator_stops(plan) -> None:  # type:
     settings = mpc.MpcSettings(sample=0.1, horizon=8)
     x0 = _initial(plan, np.array([1e-3, 2e-3, -1e-3]))
     scenario = Scenario(plan, Gains((1.0, 1.0), (2.0, 2.0)), dt=0.001, controller="mpc",
-                        mpc=settings, rtol=1e-11, atol=1e-13, twin=0.0)
+                        settings={"mpc": settings}, rtol=1e-11, atol=1e-13, twin=0.0)
     trials = Trials(plan.robot.as_array()[None], np.zeros(1), x0[None])
     adaptive = simulate(scenario, trials, "adaptive")
     rk4 = simulate(scenario, trials, "rk4")
@@ -172,7 +174,7 @@ def test_rk4_samples_where_the_adaptive_integrator_stops(plan) -> None:  # type:
 def test_a_sample_time_that_does_not_fit_names_the_key(plan) -> None:  # type: ignore[no-untyped-def]
     with pytest.raises(FlatcliError, match=r"track\.mpc_sample"):
         Scenario(plan, Gains((1.0, 1.0), (2.0, 2.0)), dt=0.001, controller="mpc",
-                 mpc=mpc.MpcSettings(sample=0.3))
+                 settings={"mpc": mpc.MpcSettings(sample=0.3)})
 
 
 @pytest.mark.parametrize("noise", [False, True])
@@ -184,7 +186,8 @@ def test_the_reference_integrator_runs_the_sampled_loop(plan, noise: bool) -> No
     settings = mpc.MpcSettings(sample=0.1, horizon=6)
     x0 = _initial(plan, np.array([1e-3, -2e-3, 2e-3]))
     scenario = Scenario(plan, Gains((1.0, 1.0), (2.0, 2.0)), dt=0.01, rate_limit=40.0,
-                        controller="mpc", mpc=settings, rtol=1e-11, atol=1e-13, twin=0.0)
+                        controller="mpc", settings={"mpc": settings}, rtol=1e-11,
+                        atol=1e-13, twin=0.0)
     table = np.random.default_rng(4).normal(0.0, 1e-5, (1, scenario.n_steps, 3)) if noise \
         else None
     trials = Trials(plan.robot.as_array()[None], np.zeros(1), x0[None], table)
@@ -227,7 +230,7 @@ def test_the_spec_reaches_the_kernel_through_the_generated_keys() -> None:
     flat = flatcli.track(quiet=True)
     run = flatcli.track(overrides={"track.controller": "mpc", "track.mpc_sample": 0.05,
                                    "track.mpc_horizon": 10}, quiet=True)
-    assert run.run.scenario.mpc == mpc.MpcSettings(sample=0.05, horizon=10)
+    assert run.run.scenario.settings_for("mpc") == mpc.MpcSettings(sample=0.05, horizon=10)
     assert run.metrics["status"] == "ok"
     assert run.metrics["err_theta_final"] < 1e-6 < flat.metrics["err_theta_final"]
 

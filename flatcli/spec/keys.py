@@ -13,7 +13,7 @@ import difflib
 import inspect
 import math
 import unicodedata
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import MISSING, dataclass, field, fields
 from typing import Any
 
@@ -362,33 +362,34 @@ def table(doc: str, default_doc: str = "{}") -> Any:
     return _declare(Key("table", {}, doc, default_doc=default_doc))
 
 
-def settings_keys(settings: type, prefix: str) -> Any:
+def settings_keys(registry: Mapping[str, tuple[type, str]]) -> Any:
     """A class decorator (applied before ``dataclass``) adding to a section's record one key
-    ``<prefix><field>`` per field of a controller's settings record (``core.controllers.
-    settings.setting``): its kind, default, doc, unit and bounds come from the settings'
-    own field, so a controller's keys are generated from its settings alone."""
+    ``<prefix><field>`` per field of each controller's settings record in ``registry``
+    ({controller: (record, prefix)}, ``core.controllers.settings.SETTINGS``; the fields
+    made by ``setting``): kind, default, doc, unit and bounds come from the settings' own
+    field, so a controller's keys are generated from its settings alone."""
+
     def add(record: type) -> type:
         annotations = dict(inspect.get_annotations(record))
-        for f in fields(settings):
-            meta = f.metadata["setting"]
-            default = None if f.default is MISSING else f.default
-            kind = meta["kind"]
-            if kind == "joints":
-                declared = vector("joints", default, meta["doc"], meta["unit"], nullable=True,
-                                  default_doc="the controller's own")
-                annotation = "Vector | None"
-            elif kind == "int":
-                declared = integer(default, meta["doc"], meta["unit"], ge=meta["ge"],
-                                   le=meta["le"])
-                annotation = "int"
-            else:
-                declared = number(default, meta["doc"], meta["unit"], gt=meta["gt"],
-                                  ge=meta["ge"], le=meta["le"])
-                annotation = "float"
-            name = prefix + f.name
-            annotations[name] = annotation
-            setattr(record, name, declared)
+        for settings, prefix in registry.values():
+            for f in fields(settings):
+                name = prefix + f.name
+                annotations[name], declared = _setting_key(f)
+                setattr(record, name, declared)
         record.__annotations__ = annotations
         return record
 
     return add
+
+
+def _setting_key(f: Any) -> tuple[str, Any]:
+    """The annotation and the declared key of one settings field (``settings_keys``)."""
+    meta = f.metadata["setting"]
+    default = None if f.default is MISSING else f.default
+    if meta["kind"] == "joints":
+        return "Vector | None", vector("joints", default, meta["doc"], meta["unit"],
+                                       nullable=True, default_doc="the controller's own")
+    if meta["kind"] == "int":
+        return "int", integer(default, meta["doc"], meta["unit"], ge=meta["ge"], le=meta["le"])
+    return "float", number(default, meta["doc"], meta["unit"], gt=meta["gt"], ge=meta["ge"],
+                           le=meta["le"])

@@ -28,7 +28,7 @@ from collections.abc import Collection, Iterator, Mapping
 from dataclasses import Field, dataclass, field, fields, is_dataclass
 from typing import Any, TypeVar
 
-from flatcli.core.controllers.settings import MpcSettings
+from flatcli.core.controllers.settings import SETTINGS
 from flatcli.core.names import (
     BASES,
     CONTROLLERS,
@@ -208,7 +208,7 @@ class TaskSpec:
 
 
 @dataclass(frozen=True)
-@settings_keys(MpcSettings, "mpc_")  # the keys mpc_*, generated from the MPC's settings
+@settings_keys(SETTINGS)  # mpc_* and every controller's keys, from its settings record
 class TrackSpec:
     """the closed loop"""
 

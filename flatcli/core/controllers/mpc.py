@@ -415,23 +415,24 @@ def extras(s: Scratch, row: Array) -> None:
 COLUMNS = ("qp_iterations", "qp_infeasible", "qp_slack_max")
 
 def design_for(scenario: Any) -> Design:
-    """The MPC's design for a ``loop.simulate.Scenario`` (its ``mpc`` settings): about the
+    """The MPC's design for a ``loop.simulate.Scenario`` (its settings for "mpc"): about the
     flat plan (``flat_design``), or about an exact plan with the as-built law
     (``asbuilt_design``, the dynamic plant's servo bandwidth a state)."""
+    settings = scenario.settings_for("mpc")
     if scenario.law == "asbuilt":
         servo = scenario.servo_bandwidth if scenario.plant == "dynamic" else None
         return asbuilt_design(scenario.plan, scenario.lqr, scenario.dt, scenario.rate_limit,
-                              scenario.mpc, servo)
+                              settings, servo)
     plan = scenario.plan
     return flat_design(plan.model, plan.trajectory, plan.duration, scenario.dt,
-                       scenario.rate_limit, scenario.mpc)
+                       scenario.rate_limit, settings)
 
 
 def inner_gains(scenario: Any) -> Gains:
     """The inner flat law's gains: ``track.mpc_kp``, ``track.mpc_kv`` (``INNER_KP``,
     ``INNER_KV`` unless set)."""
     n = scenario.n_joints
-    settings = scenario.mpc
+    settings = scenario.settings_for("mpc")
     kp = settings.kp if settings.kp is not None else (INNER_KP,) * n
     kv = settings.kv if settings.kv is not None else (INNER_KV,) * n
     return Gains(tuple(kp), tuple(kv))

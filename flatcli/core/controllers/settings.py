@@ -85,6 +85,10 @@ class MpcSettings:
         if not 0 <= self.backoff <= 0.99:
             raise FlatcliError(f"track.mpc_backoff: must be in [0, 0.99], got {self.backoff}")
 
+    def check(self, dt: float, duration: float) -> None:
+        """FlatcliError naming the key unless the sample time fits (``every``)."""
+        self.every(dt, duration)
+
     def every(self, dt: float, duration: float) -> int:
         """Output steps per sample; FlatcliError naming the key unless the sample time is
         a multiple of dt that divides the duration."""
@@ -95,3 +99,14 @@ class MpcSettings:
                                f"track.dt = {dt:g} s that divides plan.duration = "
                                f"{duration:g} s")
         return every
+
+
+#: Every controller's settings record and the prefix of its keys in ``[track]``, by
+#: ``track.controller`` (read by the spec's schema, numba-free, and by the experiment).
+SETTINGS: dict[str, tuple[type, str]] = {"mpc": (MpcSettings, "mpc_")}
+
+
+def settings_of(values: Any) -> dict[str, Any]:
+    """Every registered controller's settings record from a spec's ``[track]`` section."""
+    return {name: settings_from(values, cls, prefix) for name, (cls, prefix) in
+            SETTINGS.items()}

@@ -32,7 +32,7 @@ public API and chooses among them.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any, NamedTuple
@@ -42,7 +42,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from flatcli.core.controllers.control import Gains
 from flatcli.core.controllers.lqr import LqrWeights, tracked
-from flatcli.core.controllers.settings import MpcSettings
+from flatcli.core.controllers.settings import SETTINGS
 from flatcli.core.curves.pieces import PiecewiseCurves
 from flatcli.core.errors import FlatcliError
 from flatcli.core.loop.compose import SampledShared
@@ -170,7 +170,9 @@ class Scenario:
         predictive control with ``mpc`` wrapping the flat law with ``mpc``'s own gains on a
         flat plan, or the as-built law on an exact plan: ``law``; ``gains`` unused)
     lqr : the as-built law's weights (``lqr.LqrWeights``)
-    mpc : the MPC's settings (``mpc.MpcSettings``)
+    settings : controllers' settings records by ``track.controller`` (``controllers.settings.
+        SETTINGS``: the MPC's ``MpcSettings``); one not given has its record's defaults
+        (``settings_for``)
     python : a controller written in Python acting at sample instants around the law
         ``controller`` names ("flat" or "asbuilt"; ``controllers.python``), or None; it runs
         with the "dop853" integrator only
@@ -198,7 +200,7 @@ class Scenario:
     servo_model: ServoModel = "robot"
     controller: Controller = "flat"
     lqr: LqrWeights = field(default_factory=LqrWeights)
-    mpc: MpcSettings = field(default_factory=MpcSettings)
+    settings: Mapping[str, Any] = field(default_factory=dict)
     python: Any = None
     servo_bandwidth: float = DEFAULT_SERVO_BANDWIDTH
     twin: float = TWIN_FACTOR
@@ -253,8 +255,8 @@ class Scenario:
                                f"{self.controller!r}")
         if self.controller == "flat" and self.plan.model.kind == "exact":
             raise FlatcliError(FLAT_ON_EXACT)
-        if self.controller == "mpc":
-            self.mpc.every(self.dt, self.plan.duration)  # FlatcliError naming the key
+        if self.controller in SETTINGS:  # FlatcliError naming the key, if one does not fit
+            self.settings_for(self.controller).check(self.dt, self.plan.duration)
         if self.python is not None and self.controller == "mpc":
             raise FlatcliError("controller: a Python controller wraps track.controller = "
                                "\"flat\" or \"asbuilt\", not \"mpc\"")
@@ -263,6 +265,11 @@ class Scenario:
             raise FlatcliError(f"track.kp, track.kv: expected {n} gains each (one per flat "
                                f"output) for a robot of {n} joints, got {self.gains.n_outputs}")
         object.__setattr__(self, "n_steps", steps)
+
+    def settings_for(self, controller: str) -> Any:
+        """The settings record of a controller (``settings``, else its defaults)."""
+        given = self.settings.get(controller)
+        return SETTINGS[controller][0]() if given is None else given
 
     @property
     def sampled(self) -> str | None:
