@@ -257,9 +257,9 @@ class Scenario:
             raise FlatcliError(FLAT_ON_EXACT)
         if self.controller in SETTINGS:  # FlatcliError naming the key, if one does not fit
             self.settings_for(self.controller).check(self.dt, self.plan.duration)
-        if self.python is not None and self.controller == "mpc":
+        if self.python is not None and self.controller in SAMPLED:
             raise FlatcliError("controller: a Python controller wraps track.controller = "
-                               "\"flat\" or \"asbuilt\", not \"mpc\"")
+                               f"\"flat\" or \"asbuilt\", not {self.controller!r}")
         n = self.plan.n_joints
         if self.gains.n_outputs != n:
             raise FlatcliError(f"track.kp, track.kv: expected {n} gains each (one per flat "
@@ -273,18 +273,19 @@ class Scenario:
 
     @property
     def sampled(self) -> str | None:
-        """The controller acting at sample instants around the law: "mpc", "python" (a
-        Python controller, ``python``) or None."""
-        if self.controller == "mpc":
-            return "mpc"
+        """The controller acting at sample instants around the law: ``controller`` where it
+        is one (``loop.table.SAMPLED``: "mpc"), "python" (a Python controller, ``python``)
+        or None."""
+        if self.controller in SAMPLED:
+            return self.controller
         return "python" if self.python is not None else None
 
     @property
     def law(self) -> str:
         """The law whose reference the kernels track: "flat" (the plan's flat outputs) or
-        "asbuilt" (its angles and the LQR's gains); the MPC wraps the flat law on a flat
-        plan and the as-built law on an exact one."""
-        if self.controller == "mpc":
+        "asbuilt" (its angles and the LQR's gains); a sampled controller (the MPC) wraps the
+        flat law on a flat plan and the as-built law on an exact one."""
+        if self.controller in SAMPLED:
             return "asbuilt" if self.plan.model.kind == "exact" else "flat"
         return self.controller
 
