@@ -248,6 +248,13 @@ class LocalExecutor:
         if abort:
             # the pool has no public way to stop running tasks; its processes are known
             processes = list(getattr(pool, "_processes", {}).values())
+            # the tasks still queued for the killed workers are never read: the queue's feeder
+            # thread may be blocked writing them into a full pipe, and the pool's manager
+            # thread (which the interpreter joins at exit) would join it forever ("error:
+            # interrupted" printed, the process never exiting)
+            call_queue = getattr(pool, "_call_queue", None)
+            with contextlib.suppress(AttributeError, OSError, ValueError):
+                call_queue.cancel_join_thread()  # type: ignore[union-attr]
             for process in processes:
                 with contextlib.suppress(OSError, ValueError):
                     process.kill()
