@@ -164,6 +164,9 @@ class Cli(click.Group):
                 with contextlib.suppress(OSError, ValueError, AttributeError):
                     sys.stderr.flush()
                 os._exit(stop.status)
+            executors = sys.modules.get("flatcli.executors")  # an aborted pool's stuck thread
+            if executors is not None:
+                executors.leave(stop.status)
             sys.exit(stop.status)
         except OSError as exc:  # writing the last lines to stdout
             _silence_stdout()
@@ -695,7 +698,7 @@ def sweep(spec: Path, robot: str | None, sets: tuple[str, ...], name: str | None
     runs/<name>/sweep/ (or --out); running the same command again resumes it."""
     require_stdout(quiet)
     from flatcli import api
-    from flatcli.executors import WorkerLostError
+    from flatcli.executors import WorkerLostError, leave
     from flatcli.montecarlo import FailFastError
     from flatcli.rundirs import check_tags, sweep_directory
     from flatcli.storage import check_output_dir, directory_lock
@@ -741,7 +744,7 @@ def sweep(spec: Path, robot: str | None, sets: tuple[str, ...], name: str | None
             sys.exit(EXIT_RUNTIME)
         except KeyboardInterrupt:
             click.echo(f"error: interrupted; {RESUME_HINT.format(directory)}", err=True)
-            sys.exit(interrupted_status())
+            leave(interrupted_status())
     if not done.complete:  # a shard whose study is not whole yet
         say(quiet, shard_text(shard or "", done, directory))
         return
@@ -784,7 +787,7 @@ def search(spec: Path, robot: str | None, sets: tuple[str, ...], name: str | Non
     (docs/search.md)."""
     require_stdout(quiet)
     from flatcli import api
-    from flatcli.executors import WorkerLostError
+    from flatcli.executors import WorkerLostError, leave
 
     with user_errors():
         s = api.load_spec(spec, spec_overrides(sets, robot=robot, name=name, fmt=fmt, dpi=dpi))
@@ -807,7 +810,7 @@ def search(spec: Path, robot: str | None, sets: tuple[str, ...], name: str | Non
             sys.exit(EXIT_RUNTIME)
         except KeyboardInterrupt:
             click.echo(f"error: interrupted; {SEARCH_HINT.format(directory)}", err=True)
-            sys.exit(interrupted_status())
+            leave(interrupted_status())
     say(quiet, done.summary_text)
     say(quiet, f"wrote {directory}/search.parquet, summary.md, best_robot.toml, "
                "best_robot.urdf")

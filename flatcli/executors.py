@@ -20,13 +20,14 @@ import multiprocessing
 import os
 import signal
 import sys
+import threading
 import time
 import uuid
 import warnings
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from typing import Any, Protocol, TypeVar
+from typing import Any, NoReturn, Protocol, TypeVar
 
 import numpy as np
 
@@ -73,6 +74,13 @@ WORKER_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THRE
 #: SIGTERM recorded meanwhile (``flatcli.interrupts``) [s].
 INTERRUPT_POLL_SECONDS = 0.1
 _PR_SET_PDEATHSIG = 1
+#: How long an aborted pool's manager thread may take to notice its killed workers [s].
+MANAGER_JOIN_SECONDS = 2.0
+#: Manager threads of aborted pools that did not end: a worker killed while it wrote its
+#: result leaves a partial message in the result pipe, which this process holds open too, so
+#: the thread reading it waits forever, and the interpreter joins that (non-daemon) thread at
+#: exit. A program that aborted such a pool ends with ``leave`` (os._exit) instead.
+STUCK_THREADS: list[threading.Thread] = []
 
 
 def quiet_loggers() -> dict[str, int]:
@@ -163,6 +171,18 @@ def _alive(process: Any) -> bool:
         return False
 
 
+def leave(status: int) -> NoReturn:
+    """End the program with ``status``: ``sys.exit``, or, if an aborted pool left a thread
+    that can never end (``STUCK_THREADS``), ``os._exit`` after flushing stdout and stderr
+    (``sys.exit`` would wait for that thread forever)."""
+    if STUCK_THREADS:
+        for stream in (sys.stdout, sys.stderr):
+            with contextlib.suppress(OSError, ValueError, AttributeError):
+                stream.flush()
+        os._exit(status)
+    sys.exit(status)
+
+
 def default_workers() -> int:
     """One worker per core this process may use (``flatcli.machine.cores``)."""
     return cores()
@@ -248,6 +268,14 @@ class LocalExecutor:
         if abort:
             # the pool has no public way to stop running tasks; its processes are known
             processes = list(getattr(pool, "_processes", {}).values())
+            manager = getattr(pool, "_executor_manager_thread", None)  # (shutdown forgets it)
+            # the tasks still queued for the killed workers are never read: the queue's feeder
+            # thread may be blocked writing them into a full pipe, and the pool's manager
+            # thread (which the interpreter joins at exit) would join it forever ("error:
+            # interrupted" printed, the process never exiting)
+            call_queue = getattr(pool, "_call_queue", None)
+            with contextlib.suppress(AttributeError, OSError, ValueError):
+                call_queue.cancel_join_thread()  # type: ignore[union-attr]
             for process in processes:
                 with contextlib.suppress(OSError, ValueError):
                     process.kill()
@@ -260,6 +288,10 @@ class LocalExecutor:
             # join returns before the exit status is recorded): wait until it is
             while any(_alive(p) for p in processes) and time.monotonic() < deadline:
                 time.sleep(0.01)
+            if isinstance(manager, threading.Thread):
+                manager.join(timeout=MANAGER_JOIN_SECONDS)
+                if manager.is_alive():
+                    STUCK_THREADS.append(manager)
             return
         pool.shutdown(wait=True, cancel_futures=True)
 

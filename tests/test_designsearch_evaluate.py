@@ -16,8 +16,9 @@ import pytest
 from scipy.stats import binomtest
 from small_search import SPEC
 
+from flatcli.core.errors import FlatcliError
 from flatcli.designsearch.evaluate import (
-    GOAL_TOLERANCE,
+    OUTCOMES,
     Evaluation,
     judge,
     metric_values,
@@ -27,36 +28,32 @@ from flatcli.designsearch.evaluate import (
 from flatcli.spec import resolve
 
 STATUSES = ["ok", "ok", "singular", "ok", "diverged", "error", "ok", "unresolved"]
-FINAL = [1e-4, 2e-3, 5e-4, GOAL_TOLERANCE, None, None, math.nan, None]
+FINAL = [1e-4, 2e-3, 5e-4, 1e-3, None, None, math.nan, None]
+#: the sweep's own judgement of these trials (``outcome``): 3 reached, 2 missed, 3 lost
+OUTCOME = ["reached", "missed", "reached", "reached", "lost", "lost", "missed", "lost"]
 
 
 def trials_table(statuses: list[str] = STATUSES, final: list[float | None] = FINAL
                  ) -> pa.Table:
     return pa.table({"trial": list(range(len(statuses))), "status": statuses,
                      "err_theta_final": pa.array(final, pa.float64()),
+                     "outcome": OUTCOME[:len(statuses)],
                      "peak_rate": pa.array([3.0, 1.0, 2.0, 5.0, 9.0, None, 4.0, 7.0],
                                            pa.float64())})
 
 
-def test_reached_is_resolved_and_within_the_tolerance() -> None:
-    """The rule, recomputed row by row: resolved (ok, singular) and err_theta_final <= 1e-3
-    reached; resolved otherwise missed; the rest lost."""
-    got = trial_outcomes(trials_table()).tolist()
-    want = []
-    for status, final in zip(STATUSES, FINAL, strict=True):
-        if status not in ("ok", "singular"):
-            want.append("lost")
-        elif final is not None and final <= 1e-3:
-            want.append("reached")
-        else:
-            want.append("missed")
-    assert got == want == ["reached", "missed", "reached", "reached", "lost", "lost", "missed",
-                           "lost"]
-
-
-def test_the_trials_own_outcome_column_wins() -> None:
-    table = trials_table().append_column("outcome", pa.array(["collided"] * len(STATUSES)))
-    assert set(trial_outcomes(table).tolist()) == {"collided"}
+def test_the_outcome_is_the_trials_own_column_and_nothing_else() -> None:
+    """The search counts the sweep's own judgement (the outcome column); a table without one
+    (written before outcomes) or with a word that is no outcome is refused, not guessed."""
+    words = ["collided", "reached", "missed", "lost", "reached", "lost", "missed", "lost"]
+    bare = trials_table().drop_columns(["outcome"])
+    assert trial_outcomes(bare.append_column("outcome", pa.array(words))).tolist() == words
+    assert set(words) == set(OUTCOMES)
+    with pytest.raises(FlatcliError, match="no outcome column"):
+        trial_outcomes(bare)
+    bad = bare.append_column("outcome", pa.array(["reached"] * 7 + ["won"]))
+    with pytest.raises(FlatcliError, match="outcome 'won' is not one of"):
+        trial_outcomes(bad)
 
 
 def test_a_lost_trial_or_a_missing_value_counts_as_infinite() -> None:

@@ -6,8 +6,10 @@ from __future__ import annotations
 import ctypes
 import os
 import signal
+import subprocess
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -126,3 +128,50 @@ def test_a_single_task_runs_in_this_process_and_two_in_the_pool() -> None:
 
 def task_pid() -> int:
     return os.getpid()
+
+
+_HALF_WRITTEN = """
+import os, struct, sys, time
+from flatcli import executors
+from flatcli.executors import LocalExecutor, leave
+
+POOL = None
+
+def half_written_result():
+    # a worker killed while it writes its result: a message's length, then a part of it
+    writer = POOL._result_queue._writer  # inherited through fork
+    os.write(writer.fileno(), struct.pack("!i", 1_000_000) + b"partial")
+    time.sleep(60)
+
+if __name__ == "__main__":
+    ex = LocalExecutor(2)
+    POOL = ex._pool
+    future = POOL.submit(half_written_result)
+    time.sleep(1.0)  # the worker has forked and written its half message
+    ex.close(abort=True)
+    print(len(executors.STUCK_THREADS), flush=True)
+    leave(int(sys.argv[1])) if sys.argv[2] == "leave" else sys.exit(int(sys.argv[1]))
+"""
+
+
+def test_a_pool_aborted_with_a_half_written_result_still_ends_the_program(
+        tmp_path: Path) -> None:
+    """A worker killed while writing its result leaves a partial message in the result pipe,
+    which the parent holds open too: the pool's manager thread waits for the rest forever and
+    the interpreter joins it at exit (an interrupted sweep printed its line and never exited).
+    ``close(abort=True)`` records the stuck thread and ``leave`` ends the program at once with
+    the status and the printed lines. Referee: the same program ending with ``sys.exit``
+    still runs after 5 s (the hang this guards against)."""
+    script = tmp_path / "half.py"
+    script.write_text(_HALF_WRITTEN)
+    done = subprocess.run([sys.executable, str(script), "3", "leave"], capture_output=True,
+                          text=True, timeout=60)
+    assert (done.returncode, done.stdout) == (3, "1\n")
+    hung = subprocess.Popen([sys.executable, str(script), "3", "exit"],
+                            stdout=subprocess.PIPE, text=True)
+    try:
+        with pytest.raises(subprocess.TimeoutExpired):
+            hung.wait(timeout=6)
+    finally:
+        hung.kill()
+        hung.wait()

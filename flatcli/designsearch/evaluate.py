@@ -35,6 +35,7 @@ import numpy as np
 import pyarrow as pa
 from numpy.typing import NDArray
 
+from flatcli.core.errors import FlatcliError
 from flatcli.core.loop.metrics import RESOLVED
 from flatcli.montecarlo.chunks import run_chunk
 from flatcli.montecarlo.layout import Cell, Chunk, Layout
@@ -43,30 +44,23 @@ from flatcli.spec import Spec
 
 #: A trial's outcome words (issue 39's ``outcome`` column; ``trial_outcomes``).
 OUTCOMES = ("reached", "collided", "missed", "lost")
-#: Until the trials carry their own ``outcome`` column: a resolved trial is ``reached`` when
-#: its err_theta_final (the Euclidean norm of the final errors of th0..thN) is at most this
-#: [rad] (which puts every angle within it: no looser than a per-angle rule).
-GOAL_TOLERANCE = 1e-3
 #: Statuses of a candidate's row in search.parquet.
 EVALUATED, INFEASIBLE, ERROR = "evaluated", "infeasible", "error"
 
 
 def trial_outcomes(table: pa.Table) -> NDArray[np.str_]:
-    """(n,) each trial's outcome (``OUTCOMES``).
-
-    The trials' own ``outcome`` column where they have one; otherwise (until it is on every
-    trials table) ``reached`` where the status is resolved and err_theta_final <=
-    ``GOAL_TOLERANCE``, ``missed`` where it is resolved otherwise, ``lost`` elsewhere
-    (``collided`` needs the closed-loop clearance the outcome column brings).
-    """
-    if "outcome" in table.column_names:
-        return np.asarray(table.column("outcome").to_pylist(), dtype=str)
-    status = np.asarray(table.column("status").to_pylist(), dtype=str)
-    final = np.array([np.inf if v is None else v
-                      for v in table.column("err_theta_final").to_pylist()], dtype=float)
-    resolved = np.isin(status, RESOLVED)
-    within = final <= GOAL_TOLERANCE  # nan and inf: not within
-    return np.where(resolved, np.where(within, "reached", "missed"), "lost")
+    """(n,) each trial's outcome (``OUTCOMES``), from the trials' ``outcome`` column (the
+    sweep's judgement: ``flatcli.core.loop.outcome``); FlatcliError for a table without one
+    (written before outcomes existed) or with a word that is not an outcome."""
+    if "outcome" not in table.column_names:
+        raise FlatcliError("trials table: no outcome column (written by a flatcli before "
+                           "outcomes; run its study again)")
+    words = np.asarray(table.column("outcome").to_pylist(), dtype=object)
+    unknown = sorted({str(w) for w in words if w not in OUTCOMES})
+    if unknown:
+        raise FlatcliError(f"trials table: outcome {unknown[0]!r} is not one of "
+                           f"{', '.join(OUTCOMES)}")
+    return words.astype(str)
 
 
 def metric_values(table: pa.Table, metric: str) -> NDArray[np.float64]:
@@ -200,6 +194,6 @@ def dumps(record: Mapping[str, Any]) -> str:
     return json.dumps(record, sort_keys=True, allow_nan=True)
 
 
-__all__ = ["ERROR", "EVALUATED", "GOAL_TOLERANCE", "INFEASIBLE", "KEPT_COLUMNS", "OUTCOMES",
+__all__ = ["ERROR", "EVALUATED", "INFEASIBLE", "KEPT_COLUMNS", "OUTCOMES",
            "Evaluation", "dumps", "failed", "judge", "metric_values", "plan_energy",
            "slim_chunk", "tie_step", "trial_outcomes", "worst"]
