@@ -6,7 +6,7 @@ This is wiring only: every number is computed by ``flatcli.core``.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 from typing import TYPE_CHECKING, Any, Literal
 
@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 
 from flatcli.core.controllers.control import Gains
 from flatcli.core.controllers.lqr import LqrWeights
+from flatcli.core.controllers.settings import settings_of
 from flatcli.core.curves.basis import Basis, BSplineBasis, PolynomialBasis
 from flatcli.core.loop.metrics import COUNT_METRICS, METRIC_NAMES, describe_status
 from flatcli.core.loop.outcome import Geometry, Goal, Judged, judge
@@ -281,6 +282,7 @@ def scenario_from(spec: Spec, plan: Plan) -> Scenario:
         servo_model=checked(spec.plant.servo_model),
         controller=checked(track.controller),
         lqr=LqrWeights(track.lqr_bandwidth, track.lqr_terminal, track.lqr_base),
+        settings=settings_of(track),
         servo_bandwidth=spec.plant.servo_bandwidth,
         twin=TWIN_FACTOR if track.error_estimate == "twin" else 0.0,
         accuracy=track.accuracy,
@@ -336,6 +338,11 @@ class TrackRun:
             value = float(v)
             out[name] = None if np.isnan(value) else (int(value) if name in COUNT_METRICS
                                                       else value)
+        if self.outcome.extra is not None:  # the controller's own (the MPC's qp_*)
+            for name, v in zip(self.outcome.extra_columns, self.outcome.extra[0], strict=True):
+                value = float(v)
+                out[name] = None if np.isnan(value) else (
+                    int(value) if name in self.outcome.extra_counts else value)
         status, reason = describe_status(
             int(self.outcome.status[0]),
             int(self.outcome.event[0]),
@@ -425,6 +432,10 @@ class TrackRun:
         cols["momentum"] = H
         for j in range(1, n + 1):
             cols[f"tau{j}"] = named.get(f"tau{j}", nan)
+        for held in ("dv", "dw"):  # the MPC's held correction (``simulate.trace_columns``)
+            for j in range(1, n + 1):
+                if f"{held}{j}" in named:
+                    cols[f"{held}{j}"] = named[f"{held}{j}"]
         cols.update(_positions(plant_from(self.spec), theta))
         return cols
 
@@ -516,10 +527,13 @@ def task_metrics(spec: Spec, theta: Array, reference: Array | None = None,
     return out
 
 
-def run_track(spec: Spec, before_simulating: Callable[[], object] | None = None) -> TrackRun:
+def run_track(spec: Spec, before_simulating: Callable[[], object] | None = None,
+              controller: Any = None) -> TrackRun:
     """Plan, then simulate the closed loop of a spec, recording the trace (SpecError, before
     any work, if that could not end within the time budget: ``check_track``);
-    ``before_simulating`` is called once the plan and scenario are made and valid."""
+    ``before_simulating`` is called once the plan and scenario are made and valid.
+    ``controller``: a controller written in Python (``core.controllers.python``) acting at
+    its sample instants around the spec's law, integrated by DOP853."""
     check_track(spec)
     if spec.track.controller == "flat" and not task_from(spec).active and method_for(
             robot_from(spec), spec.plan.method) == "exact":  # before planning compiles
@@ -528,10 +542,14 @@ def run_track(spec: Spec, before_simulating: Callable[[], object] | None = None)
     if spec.task.rest:
         return run_rest_track(spec, plan)
     scenario = scenario_from(spec, plan)
+    integrator = checked(spec.track.integrator)
+    if controller is not None:
+        scenario = replace(scenario, python=controller)
+        integrator = "dop853"
     trials = nominal_trials(spec, plan)
     if before_simulating is not None:
         before_simulating()
-    outcome = simulate(scenario, trials, checked(spec.track.integrator), record=True,
+    outcome = simulate(scenario, trials, integrator, record=True,
                        obstacles=spec.task.obstacles or None)
     return TrackRun(spec, plan, scenario, outcome)
 

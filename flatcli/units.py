@@ -73,6 +73,9 @@ UNITS: dict[str, str] = {
     "crossings": DIMENSIONLESS,
     "first_crossing_time": "s",
     "clipped_time": "s",
+    # a sampled controller's own (the MPC's, flatcli.core.controllers.mpc): counts, and the
+    # largest slack of its constraints, joint rates and the margin [rad/s]
+    "qp_iterations": DIMENSIONLESS, "qp_infeasible": DIMENSIONLESS, "qp_slack_max": _RATE,
     "event_time": "s",
     "reference_difference": _ANGLE,
     # trials.parquet: the realised perturbed quantities
@@ -107,6 +110,7 @@ INDEXED_UNITS: dict[str, str] = {
     "u#": _RATE, "u#_dot": _ACCEL,
     "y#": _ANGLE, "y#_dot": _RATE, "y#_ddot": _ACCEL, "y#_ref": _ANGLE,
     "tau#": _TORQUE,
+    "dv#": _ACCEL, "dw#": _RATE,  # the MPC's held correction: of y'' (flat), of w (as built)
     "initial_#": _ANGLE, "initial_rate_#": _RATE,
     "mass_#": "kg", "inertia_#": "kg m^2", "length_#": "m", "com_#": "m",
 }

@@ -27,6 +27,7 @@ from flatcli.core.loop.metrics import (
 )
 from flatcli.core.loop.outcome import Geometry, Judged, MotionClearance, judge
 from flatcli.core.loop.simulate import NoiseStreams, Scenario, Trials, check_against_reference
+from flatcli.core.loop.table import CONTROLLER_COLUMNS, CONTROLLER_COUNTS
 from flatcli.experiment import (
     checked,
     goal_of,
@@ -143,6 +144,7 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
     obstacles = spec.task.obstacles or None
     clearance = np.full((len(ids), 2), np.nan)  # min_clearance, clearance_bound [m]
     clearances: list[tuple[NDArray[np.intp], MotionClearance]] = []
+    extra = np.full((len(ids), len(CONTROLLER_COLUMNS)), np.nan)  # the controller's own
     if valid.any():
         noise = NoiseStreams(spec.track.sensor_noise, seed, ids[valid].astype(np.int64))
         trials = Trials(np.ascontiguousarray(links[valid]), np.ascontiguousarray(momentum[valid]),
@@ -164,6 +166,9 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
             metrics[where] = outcome.metrics
             if outcome.final is not None:
                 final[where] = outcome.final
+            if outcome.extra is not None:
+                for k, name in enumerate(outcome.extra_columns):
+                    extra[where, CONTROLLER_COLUMNS.index(name)] = outcome.extra[:, k]
             if outcome.clearance is not None:
                 clearances.append((where, outcome.clearance))
                 clearance[where, 0] = outcome.clearance.sampled
@@ -212,6 +217,11 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
                                   np.isnan(values))
     for i in range(joints + 1):
         columns[f"err_theta{i}_final"] = null_where_nan(judged.final_error[:, i])
+    for k, name in enumerate(CONTROLLER_COLUMNS):  # null for a controller without it
+        values = extra[:, k]
+        columns[name] = (numbers(np.nan_to_num(values, nan=0).astype(np.int64), pa.int64(),
+                                 np.isnan(values)) if name in CONTROLLER_COUNTS
+                         else null_where_nan(values))
     columns["status"] = texts(status_names)
     columns["reason"] = texts(reason_texts)
     columns["outcome"] = texts(judged.outcome)

@@ -10,10 +10,11 @@ the helpers below, e.g. ``dt: float = number(1e-3, "integration step", "s", gt=0
 from __future__ import annotations
 
 import difflib
+import inspect
 import math
 import unicodedata
-from collections.abc import Iterable
-from dataclasses import dataclass, field
+from collections.abc import Iterable, Mapping
+from dataclasses import MISSING, dataclass, field, fields
 from typing import Any
 
 from flatcli.core.errors import FlatcliError
@@ -359,3 +360,36 @@ def discs(doc: str, unit: str = "m") -> Any:
 def table(doc: str, default_doc: str = "{}") -> Any:
     """A TOML table kept as written (validated by its own rules, see ``flatcli.spec.sweeps``)."""
     return _declare(Key("table", {}, doc, default_doc=default_doc))
+
+
+def settings_keys(registry: Mapping[str, tuple[type, str]]) -> Any:
+    """A class decorator (applied before ``dataclass``) adding to a section's record one key
+    ``<prefix><field>`` per field of each controller's settings record in ``registry``
+    ({controller: (record, prefix)}, ``core.controllers.settings.SETTINGS``; the fields
+    made by ``setting``): kind, default, doc, unit and bounds come from the settings' own
+    field, so a controller's keys are generated from its settings alone."""
+
+    def add(record: type) -> type:
+        annotations = dict(inspect.get_annotations(record))
+        for settings, prefix in registry.values():
+            for f in fields(settings):
+                name = prefix + f.name
+                annotations[name], declared = _setting_key(f)
+                setattr(record, name, declared)
+        record.__annotations__ = annotations
+        return record
+
+    return add
+
+
+def _setting_key(f: Any) -> tuple[str, Any]:
+    """The annotation and the declared key of one settings field (``settings_keys``)."""
+    meta = f.metadata["setting"]
+    default = None if f.default is MISSING else f.default
+    if meta["kind"] == "joints":
+        return "Vector | None", vector("joints", default, meta["doc"], meta["unit"],
+                                       nullable=True, default_doc="the controller's own")
+    if meta["kind"] == "int":
+        return "int", integer(default, meta["doc"], meta["unit"], ge=meta["ge"], le=meta["le"])
+    return "float", number(default, meta["doc"], meta["unit"], gt=meta["gt"], ge=meta["ge"],
+                           le=meta["le"])

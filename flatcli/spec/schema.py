@@ -28,6 +28,7 @@ from collections.abc import Collection, Iterator, Mapping
 from dataclasses import Field, dataclass, field, fields, is_dataclass
 from typing import Any, TypeVar
 
+from flatcli.core.controllers.settings import SETTINGS
 from flatcli.core.names import (
     BASES,
     CONTROLLERS,
@@ -62,6 +63,7 @@ from flatcli.spec.keys import (
     integer,
     number,
     numbers,
+    settings_keys,
     suggest,
     table,
     text,
@@ -206,6 +208,7 @@ class TaskSpec:
 
 
 @dataclass(frozen=True)
+@settings_keys(SETTINGS)  # mpc_* and every controller's keys, from its settings record
 class TrackSpec:
     """the closed loop"""
 
@@ -261,9 +264,11 @@ class TrackSpec:
     divergence_bound: float = number(1e4, "a state component beyond it (or non-finite) stops "
                                      "the trial as diverged", "rad, rad/s", gt=0)
     controller: str = choice(CONTROLLERS, "flat", "the feedback: \"flat\" (the paper's "
-                             "linearising feedback on the flat outputs, gains kp, kv) or "
+                             "linearising feedback on the flat outputs, gains kp, kv), "
                              "\"asbuilt\" (time-varying LQR of the robot as built about the "
-                             "plan, weights lqr_*; docs/asbuilt.md)")
+                             "plan, weights lqr_*; docs/asbuilt.md) or \"mpc\" (a correction "
+                             "chosen at sample instants within the limits, wrapping the flat "
+                             "law, or the as-built law on an exact plan; settings mpc_*)")
     lqr_bandwidth: float = number(DEFAULT_BANDWIDTH, "asbuilt: b, the joint-rate weight R = "
                                   "I / b^2 of the LQR", "rad/s", gt=0)
     lqr_base: float = number(DEFAULT_BASE, "asbuilt: weight of the base angle's error "

@@ -126,3 +126,26 @@ def feedback_at(
     v1 = law(ref, 0, 2, gains.kp1, gains.kv1, th1, u1)
     v2 = law(ref, 1, 2, gains.kp2, gains.kv2, y2, y2_dot)
     return inputs_at(g, h, g_prime, h_prime, th2, u1, v1, v2)
+
+
+@jitable
+def add_to_accelerations(ref: Array, dv: Array, out: Array) -> None:
+    """The flat law's additive input: ``out`` (3 N,) = the plan's flag ``ref`` with dv (N,)
+    [rad/s^2] added to its y'' (``law`` then asks v_j = y_jd'' + dv_j + kv (..) + kp (..):
+    the command of a wrapping law, ``loop.compose``)."""
+    n = dv.shape[0]
+    for c in range(3 * n):
+        out[c] = ref[c]
+    for j in range(n):
+        out[2 * n + j] += dv[j]
+
+
+@jitable
+def flat_errors(ref: Array, y: Array, y_dot: Array, s0: Array) -> None:
+    """The flat outputs' errors from the plan's flag ``ref`` (3 N,) into ``s0`` (2 N,):
+    s0[2 j] = y_j - y_jd [rad], s0[2 j + 1] = y_j' - y_jd' [rad/s] (the state of the MPC's
+    design about a flat plan, ``mpc.flat_design``)."""
+    n = y.shape[0]
+    for j in range(n):
+        s0[2 * j] = y[j] - ref[j]
+        s0[2 * j + 1] = y_dot[j] - ref[n + j]

@@ -42,15 +42,16 @@ QP.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import numpy as np
-import scipy.linalg
 from numpy.typing import NDArray
 
 from flatcli.core._jit import jitable
 from flatcli.core.controllers import qp
+from flatcli.core.controllers.control import Gains
+from flatcli.core.controllers.parts import SampledPart
+from flatcli.core.controllers.settings import MpcSettings as MpcSettings
 from flatcli.core.errors import FlatcliError
 
 Array = NDArray[np.float64]
@@ -62,60 +63,6 @@ SLACK_LINEAR = 1e6
 SLACK_TOLERANCE = 1e-9
 #: Active-set iterations per QP at most, per variable and constraint.
 ITERATIONS_PER_ROW = 3
-
-
-@dataclass(frozen=True)
-class MpcSettings:
-    """The MPC's settings (spec ``track.mpc_*``).
-
-    sample : the sample time [s] (a multiple of track.dt that divides plan.duration)
-    horizon : samples predicted, H >= 2
-    kp, kv : the inner flat law's gains per flat output [1/s^2, 1/s] (None: ``INNER_KP``,
-        ``INNER_KV``); the as-built inner law is the LQR of ``track.lqr_*``
-    weight_state : W's diagonal on the errors (the flat law: e and e' of each output)
-    weight_input : r on the correction dv (> 0)
-    margin : the singularity margin kept [rad/s] (0: none)
-    backoff : the joint-rate limit is kept at R (1 - backoff)
-    """
-
-    sample: float = 0.1
-    horizon: int = 20
-    kp: tuple[float, ...] | None = None
-    kv: tuple[float, ...] | None = None
-    weight_state: float = 0.0
-    weight_input: float = 1.0
-    margin: float = 0.05
-    backoff: float = 0.01
-
-    def __post_init__(self) -> None:
-        if not (self.sample > 0 and math.isfinite(self.sample)):
-            raise FlatcliError(f"track.mpc_sample: must be a finite number > 0 s, got "
-                               f"{self.sample}")
-        if not (isinstance(self.horizon, int) and 2 <= self.horizon <= 200):
-            raise FlatcliError(f"track.mpc_horizon: must be an integer in [2, 200], got "
-                               f"{self.horizon!r}")
-        if not (self.weight_state >= 0 and math.isfinite(self.weight_state)):
-            raise FlatcliError(f"track.mpc_weight_state: must be a finite number >= 0, got "
-                               f"{self.weight_state}")
-        if not (self.weight_input > 0 and math.isfinite(self.weight_input)):
-            raise FlatcliError(f"track.mpc_weight_input: must be a finite number > 0, got "
-                               f"{self.weight_input}")
-        if not (self.margin >= 0 and math.isfinite(self.margin)):
-            raise FlatcliError(f"track.mpc_margin: must be a finite number >= 0 rad/s, got "
-                               f"{self.margin}")
-        if not 0 <= self.backoff < 1:
-            raise FlatcliError(f"track.mpc_backoff: must be in [0, 1), got {self.backoff}")
-
-    def every(self, dt: float, duration: float) -> int:
-        """Output steps per sample; FlatcliError naming the key unless the sample time is
-        a multiple of dt that divides the duration."""
-        every = round(self.sample / dt)
-        steps = round(duration / dt)
-        if every < 1 or not math.isclose(every * dt, self.sample, rel_tol=1e-9) or steps % every:
-            raise FlatcliError(f"track.mpc_sample: {self.sample:g} s must be a multiple of "
-                               f"track.dt = {dt:g} s that divides plan.duration = "
-                               f"{duration:g} s")
-        return every
 
 
 #: The inner flat law's default gains: a double pole at -1 rad/s for every output, slow
@@ -161,6 +108,8 @@ class Design(NamedTuple):
 def discretise(kp: float, kv: float, ts: float) -> tuple[Array, Array]:
     """The exact transition (2, 2) and input response (2,) over ts [s] of e'' = -kp e - kv e'
     + dv with dv held (zero-order hold): the matrix exponential of the augmented system."""
+    import scipy.linalg  # here: a sweep of another controller loads no scipy.linalg
+
     a = np.array([[0.0, 1.0, 0.0], [-kp, -kv, 1.0], [0.0, 0.0, 0.0]])
     m = scipy.linalg.expm(a * ts)
     return np.ascontiguousarray(m[:2, :2]), np.ascontiguousarray(m[:2, 2])
@@ -445,6 +394,53 @@ def sample_step(d: Design, s: Scratch, k: int) -> None:
     for c in range(size):
         s.last[c] = s.x[c]
     s.valid[0] = 1.0
+
+
+@jitable
+def period(d: Design) -> int:
+    """Output steps between samples."""
+    return d.every
+
+
+@jitable
+def extras(s: Scratch, row: Array) -> None:
+    """The trial's ``COLUMNS`` into row (3,): QP iterations, infeasible samples (counts),
+    the largest slack [the quantities' units]."""
+    row[0] = s.counters[QP_ITERATIONS]
+    row[1] = s.counters[QP_INFEASIBLE]
+    row[2] = s.counters[QP_SLACK]
+
+
+#: The per-trial columns the MPC reports (``extras``).
+COLUMNS = ("qp_iterations", "qp_infeasible", "qp_slack_max")
+
+def design_for(scenario: Any) -> Design:
+    """The MPC's design for a ``loop.simulate.Scenario`` (its settings for "mpc"): about the
+    flat plan (``flat_design``), or about an exact plan with the as-built law
+    (``asbuilt_design``, the dynamic plant's servo bandwidth a state)."""
+    settings = scenario.settings_for("mpc")
+    if scenario.law == "asbuilt":
+        servo = scenario.servo_bandwidth if scenario.plant == "dynamic" else None
+        return asbuilt_design(scenario.plan, scenario.lqr, scenario.dt, scenario.rate_limit,
+                              settings, servo)
+    plan = scenario.plan
+    return flat_design(plan.model, plan.trajectory, plan.duration, scenario.dt,
+                       scenario.rate_limit, settings)
+
+
+def inner_gains(scenario: Any) -> Gains:
+    """The inner flat law's gains: ``track.mpc_kp``, ``track.mpc_kv`` (``INNER_KP``,
+    ``INNER_KV`` unless set)."""
+    n = scenario.n_joints
+    settings = scenario.settings_for("mpc")
+    kp = settings.kp if settings.kp is not None else (INNER_KP,) * n
+    kv = settings.kv if settings.kv is not None else (INNER_KV,) * n
+    return Gains(tuple(kp), tuple(kv))
+
+
+#: The MPC's parts for the loop factory (``loop.compose``).
+PART = SampledPart("mpc", scratch, reset, period, sample_step, extras, COLUMNS, COLUMNS[:2],
+                   design_for, inner_gains)
 
 
 def asbuilt_design(plan: Any, weights: Any, dt: float, rate_limit: float,

@@ -13,6 +13,7 @@ from flatcli.core.controllers.control import Gains
 from flatcli.core.loop.asbuiltloop import (
     AsbuiltScratch,
     AsbuiltShared,
+    additive,
     asbuilt_loop,
     asbuilt_scratch,
     dynamic_aux,
@@ -20,6 +21,7 @@ from flatcli.core.loop.asbuiltloop import (
     dynamic_rhs,
     kinematic_initial,
     kinematic_rhs,
+    measure,
     observe_dynamic,
     observe_kinematic,
     plan_residual,
@@ -62,10 +64,12 @@ def _bounded(loop: Any) -> bool:
 
 ASBUILT_KINEMATIC = Ops(_loop, _bounded, kinematic_initial, kinematic_rhs, observe_kinematic,
                         record_kinematic, _residual, lambda n: n + 1, lambda n: 1,
-                        lambda n: 3 * n + 1, asbuilt_scratch)
+                        lambda n: 3 * n + 1, asbuilt_scratch, additive=additive,
+                        measure=measure)
 ASBUILT_DYNAMIC = Ops(_loop, _bounded, dynamic_initial, dynamic_rhs, observe_dynamic,
                       record_dynamic, _residual, lambda n: 2 * n + 2, dynamic_aux,
-                      lambda n: 4 * n + 2, asbuilt_scratch)
+                      lambda n: 4 * n + 2, asbuilt_scratch, additive=additive,
+                      measure=measure)
 
 def asbuilt_shared(model: Any, gains: Gains, rate_limit: float, servo_is_plant: bool,
                    robot: RobotParams) -> AsbuiltShared:

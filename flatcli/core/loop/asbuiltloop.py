@@ -253,7 +253,8 @@ def observe_kinematic(loop: AsbuiltLoop, obs: Any, acc: Array, j: int, x: Array,
 
 
 @jitable
-def record_kinematic(trace: Array, j: int, nx: int, x: Array, f: Array) -> None:
+def record_kinematic(loop: Any, trace: Array, j: int, nx: int, x: Array, f: Array
+                     ) -> None:
     """Trace row j (``simulate.chain_trace_columns``): th, the rate commands of joints
     1..N-1 (in the columns of the flat loop's u_j), then th0'..th_N'."""
     n = nx - 1
@@ -396,7 +397,8 @@ def observe_dynamic(loop: AsbuiltLoop, obs: Any, acc: Array, j: int, x: Array, f
 
 
 @jitable
-def record_dynamic(trace: Array, j: int, nx: int, x: Array, f: Array) -> None:
+def record_dynamic(loop: Any, trace: Array, j: int, nx: int, x: Array, f: Array
+                   ) -> None:
     """Trace row j (``simulate.chain_dynamic_trace_columns``): the state, the rate commands
     r_1..r_N-1 (the flat loop's u_j columns), tau_1..tau_N, r_N."""
     n = (nx - 2) // 2
@@ -425,3 +427,43 @@ __all__ = ["AsbuiltLoop", "AsbuiltScratch", "AsbuiltShared", "asbuilt_loop",
            "asbuilt_scratch", "dynamic_aux", "dynamic_initial", "dynamic_rhs",
            "kinematic_initial", "kinematic_rhs", "observe_dynamic",
            "observe_kinematic", "plan_residual", "record_dynamic", "record_kinematic"]
+
+
+@jitable
+def additive(loop: AsbuiltLoop, ref: Array, dv: Array, out: Array) -> None:
+    """The as-built law's additive input: ``out`` = the tracked flag ``ref`` with dv (N,)
+    [rad/s] added to the joint-rate commands w (``commands``): on the plan's joint rates w_r
+    (the kinematic plant's law), or, where w_r enters the rate errors too (the dynamic
+    plant's, ``AsbuiltShared.lagged``), on the lead's channel a_r as dv / lead (for a law that
+    wraps it, ``loop.compose``)."""
+    nb = loop.Iq.shape[0]
+    n = nb - 1
+    shared = loop.shared
+    width = 2 * n + 1 if shared.lagged else nb
+    c = nb + n * width
+    for k in range(3 * c):
+        out[k] = ref[k]
+    for j in range(1, nb):
+        if shared.lagged:
+            out[2 * c + j - 1] += dv[j - 1] / shared.lead
+        else:
+            out[c + j - 1] += dv[j - 1]
+
+
+@jitable
+def measure(loop: AsbuiltLoop, x: Array, noise: Array, ref: Array, s0: Array) -> None:
+    """What the as-built law measures at state x with noise (N + 1,): the errors its gains
+    act on, from the tracked flag ``ref``, into ``s0``: the measured angles' th0 - th0_r,
+    th_j - th_jr (j = 1..N), and where the law acts on the joint rates (the dynamic plant)
+    th_j' - w_jr (the order of ``lqr.linearisation``; for ``loop.compose``)."""
+    nb = loop.Iq.shape[0]
+    n = nb - 1
+    shared = loop.shared
+    width = 2 * n + 1 if shared.lagged else nb
+    c = nb + n * width
+    s0[0] = x[0] + noise[0] - ref[n]
+    for a in range(1, nb):
+        s0[a] = x[a] + noise[a] - ref[a - 1]
+    if shared.lagged:
+        for k in range(1, nb):
+            s0[n + k] = x[nb + k] - ref[c + k - 1]

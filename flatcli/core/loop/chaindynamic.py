@@ -44,6 +44,7 @@ from numpy.typing import NDArray
 
 from flatcli.core._jit import jitable
 from flatcli.core.controllers.control import law
+from flatcli.core.loop.chainloop import flat_chain_errors
 from flatcli.core.loop.metrics import (
     observe_clipped,
     observe_errors,
@@ -414,7 +415,8 @@ def observe_chain_dynamic(loop: ChainDynamicLoop, obs: Any, acc: Array, j: int, 
 
 
 @jitable
-def record_chain_dynamic(trace: Array, j: int, nx: int, x: Array, f: Array) -> None:
+def record_chain_dynamic(loop: Any, trace: Array, j: int, nx: int, x: Array, f: Array
+                         ) -> None:
     """Trace row j: the state, the torques tau_1..tau_N, the rate command r_N
     (``simulate.chain_dynamic_trace_columns``)."""
     n = (nx - 1) // 3
@@ -430,3 +432,19 @@ def make_scratch(n: int) -> tuple[Array, Array, Array]:
     nb = n + 1
     return (np.zeros((BUFFER_ROWS, nb)), np.zeros((TRIG_ROWS, nb)),
             np.zeros((MATRICES, nb, nb)))
+
+
+@jitable
+def measure_chain_dynamic(loop: ChainDynamicLoop, x: Array, noise: Array, ref: Array,
+                          s0: Array) -> None:
+    """What the flat law measures at the dynamic chain's state x (3 N + 1,) with noise
+    (N + 1,): its flat outputs' errors from the plan's flag ``ref`` (3 N,) into ``s0``
+    (2 N,), for a law that wraps it (``loop.compose``)."""
+    n = loop.Ic.shape[0] - 1
+    nb = n + 1
+    buf = loop.buffers
+    measured = buf[_MEASURED]
+    for i in range(nb):
+        measured[i] = x[i] + noise[i]
+    flat_chain_errors(loop.Kc, loop.Ic, loop.work, measured, x[2 * nb: 3 * n + 1],
+                      buf[_Y, :n], buf[_Y_DOT, :n], ref, s0)

@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from flatcli.core._jit import jitable
-from flatcli.core.controllers.control import law
+from flatcli.core.controllers.control import flat_errors, law
 from flatcli.core.loop.metrics import (
     observe_clipped,
     observe_errors,
@@ -29,6 +29,7 @@ from flatcli.core.loop.metrics import (
 from flatcli.core.models.chainflat import (
     Scratch,
     first_terms_at,
+    first_terms_into,
     inputs_given,
     outputs_given,
     terms_into,
@@ -191,3 +192,28 @@ def chain_matrix(params: Array, n: int) -> Array:
     nb = n + 1
     return np.ascontiguousarray(barycentric_matrix(params[:nb], params[2 * nb: 3 * nb],
                                                    params[3 * nb: 4 * nb]))
+
+
+@jitable
+def flat_chain_errors(Kc: Array, Ic: Array, work: Scratch, measured: Array, u: Array,
+                      y: Array, y_dot: Array, ref: Array, s0: Array) -> None:
+    """The flat outputs' errors (``control.flat_errors``) of a chain's controller at the
+    measured angles (N + 1,) and its integrators u (N - 1,) into ``s0`` (2 N,); y, y_dot
+    (N,) scratch; ``work`` the flat maps' (left holding the terms at ``measured``)."""
+    h0 = first_terms_into(Kc, Ic, measured, work)
+    outputs_given(Kc, Ic, h0, work.h, work.grad, measured, u, y, y_dot)
+    flat_errors(ref, y, y_dot, s0)
+
+
+@jitable
+def measure_chain(loop: ChainLoop, x: Array, noise: Array, ref: Array, s0: Array) -> None:
+    """What the flat law measures at the kinematic chain's state x (2 N,) with noise (N + 1,):
+    its flat outputs' errors from the plan's flag ``ref`` (3 N,) into ``s0`` (2 N,), for a
+    law that wraps it (``loop.compose``)."""
+    n = loop.Ic.shape[0] - 1
+    buf = loop.buffers
+    measured = buf[0]
+    for i in range(n + 1):
+        measured[i] = x[i] + noise[i]
+    flat_chain_errors(loop.Kc, loop.Ic, loop.work, measured, x[n + 1: 2 * n], buf[1, :n],
+                      buf[2, :n], ref, s0)

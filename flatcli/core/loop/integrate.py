@@ -212,7 +212,8 @@ def observed(j: int, n: int, every: int) -> bool:
 
 
 @jitable
-def record_rates(trace: Array, j: int, nx: int, x: Array, f: Array) -> None:
+def record_rates(loop: Any, trace: Array, j: int, nx: int, x: Array, f: Array
+                 ) -> None:
     """Trace row j: the state x (nx,), then the first ``width - nx`` rates f the plant applies
     (th0', th1', ...; the default ``record`` of ``make_trial_integrators``)."""
     for i in range(nx):
@@ -221,16 +222,35 @@ def record_rates(trace: Array, j: int, nx: int, x: Array, f: Array) -> None:
         trace[j, nx + i] = f[i]
 
 
+@jitable
+def no_reset(loop: Any) -> None:
+    """A loop whose controller keeps nothing between trials (``make_trial_integrators``)."""
+
+
+@jitable
+def no_period(loop: Any) -> int:
+    """A loop whose controller acts at no sample instants: 0 (``make_trial_integrators``)."""
+    return 0
+
+
+@jitable
+def no_sample(loop: Any, x: Array, noise: Array, ref: Array, j: int) -> None:
+    """A controller with nothing to do at sample instants (``make_trial_integrators``)."""
+
+
 def make_trial_integrators(
     rhs: Callable[..., None],
     observe: Callable[..., None],
     record_sample: Callable[..., None] = record_rates,
     stage: Callable[..., None] | None = None,
+    reset: Callable[..., None] = no_reset,
+    period: Callable[..., int] = no_period,
+    sample: Callable[..., None] = no_sample,
 ) -> tuple[Callable[..., Any], Callable[..., Any]]:
     """(rk4_trial, adaptive_trial): the two integrators of one trial for a plant, compiled
     inline with its right-hand side ``rhs`` (which writes the state's derivative into
     out[:nx] and the controller's signed margin into out[nx]), its ``observe``r, and
-    ``record_sample(trace, j, nx, x, f)``, which writes trace row j (``record_rates``).
+    ``record_sample(loop, trace, j, nx, x, f)``, which writes trace row j (``record_rates``).
     ``stage`` (default ``rhs``): the right-hand side where nothing after out[nx] is read,
     which must write out[:nx + 1] exactly as ``rhs`` does (the stages of a step and the
     first-step estimate; a step's end only where no output sample falls on it); ``observe``
@@ -243,9 +263,21 @@ def make_trial_integrators(
     or (0, angles), ``gen``, ``std``), ``record`` and ``trace`` (n + 1, width: what
     ``record_sample`` writes per sample), ``acc`` (the observer's accumulator, where crossings
     are counted too) and ``work`` (WORK_ROWS, >= nx + 1: the right-hand side's outputs).
+
+    A controller that acts at sample instants (``loop.compose``) gives three more:
+    ``reset(loop)``, called as each integration starts (a trial, and its twin: the controller
+    starts afresh); ``period(loop)``, the output steps p between its samples (0: none); and
+    ``sample(loop, x, noise, ref, j)``, called at every output sample j = 0, p, 2 p, .. < n
+    with the state there, the noise of interval j and the plan's flag at t_j, before the
+    right-hand side is evaluated there (what it changes holds until its next sample). RK4
+    steps on the output grid; the adaptive integrator never steps across a sample instant
+    (as it does not across a noise interval's end) and starts afresh at each. The defaults
+    do nothing, and the kernels of the laws without samples compute what they did before.
     """
     stage_rhs = rhs if stage is None else stage
-    variant = jitable_variant(variant_tag(rhs, observe, record_sample, stage_rhs))
+    hooks = () if (reset is no_reset and period is no_period and sample is no_sample) else (
+        reset, period, sample)
+    variant = jitable_variant(variant_tag(rhs, observe, record_sample, stage_rhs, *hooks))
 
     @variant
     def rk4_step(loop: Any, nx: int, x: Array, k1: Array, h: float, ref_mid: Array,
@@ -301,9 +333,13 @@ def make_trial_integrators(
         evaluations = 0
         floor = CROSS_STEP * n * dt
         before = 0.0
+        reset(loop)
+        sampling = period(loop)
         for s in range(n + 1):
             if s < n:
                 load_noise(s, table, noise)
+                if sampling > 0 and s % sampling == 0:
+                    sample(loop, x, noise, ref[2 * s], s)
             rhs(loop, x, ref[2 * s], noise, k1)
             evaluations += 1
             if s > 0 and _flipped(before, k1[nx]):
@@ -318,7 +354,7 @@ def make_trial_integrators(
             if observed(s, n, every):
                 observe(loop, obs, acc, s, x, k1)
             if record:
-                record_sample(trace, s, nx, x, k1)
+                record_sample(loop, trace, s, nx, x, k1)
             if s == n:
                 break
             before = k1[nx]
@@ -423,6 +459,10 @@ def make_trial_integrators(
                                       work[_K6], work[_K7])
         duration = n * dt
         noisy = table.shape[0] > 0
+        sampling = period(loop)
+        # output steps between the instants a step may not cross (0: none before T): each
+        # noise interval's end, else each of the controller's sample instants
+        stride = 1 if noisy else sampling
         floor = STEP_FLOOR * duration
         cross_floor = CROSS_STEP * duration
         for i in range(nx):
@@ -430,19 +470,22 @@ def make_trial_integrators(
         noise[:] = 0.0
         load_noise(0, table, noise)
         plan_flag(breaks, local, 0.0, ref)
+        reset(loop)
+        if sampling > 0:
+            sample(loop, x, noise, ref, 0)
         rhs(loop, x, ref, noise, k1)
         evaluations = 1
         if observing:
             observe(loop, obs, acc, 0, x, k1)
             if record:
-                record_sample(trace, 0, nx, x, k1)
+                record_sample(loop, trace, 0, nx, x, k1)
         if not _finite(k1[:nx]):
             return 0, _BOUND, 0.0, 0, evaluations
         last = 0
-        interval = 0  # the noise interval [t_j, t_j+1) in force
+        interval = 0  # the output sample j of the last instant stopped at (t_j)
         t = 0.0
-        h = initial_step(loop, nx, x, k1, ref, noise, rtol, atol, dt if noisy else duration, y,
-                         k2, breaks, local, 0.0)
+        h = initial_step(loop, nx, x, k1, ref, noise, rtol, atol,
+                         stride * dt if stride > 0 else duration, y, k2, breaks, local, 0.0)
         evaluations += 1
         sigma = k1[nx]
         steps = 0
@@ -452,7 +495,7 @@ def make_trial_integrators(
             if attempts >= max_steps:
                 return last, _MAX_STEPS, t, steps, evaluations
             attempts += 1
-            stop = (interval + 1) * dt if noisy else duration
+            stop = (interval + stride) * dt if stride > 0 else duration
             if h >= stop - t or stop - t - h < 1e-10 * (stop - t):
                 h = stop - t
                 t_new = stop
@@ -559,7 +602,7 @@ def make_trial_integrators(
                     if wanted:
                         observe(loop, obs, acc, j, xs, fs)
                     if record:
-                        record_sample(trace, j, nx, xs, fs)
+                        record_sample(loop, trace, j, nx, xs, fs)
                     last = j
                 if beyond:
                     return last, _BOUND, t_new, steps, evaluations
@@ -569,11 +612,15 @@ def make_trial_integrators(
                     x[i] = xn[i]
                     k1[i] = k7[i]
                 sigma = after
-                if noisy and interval + 1 < n and t >= (interval + 1) * dt * (1.0 - 1e-14):
-                    # a new noise interval: the measured angles jump, the rates with them
-                    interval += 1
+                if (stride > 0 and interval + stride < n
+                        and t >= (interval + stride) * dt * (1.0 - 1e-14)):
+                    # a new noise interval or a sample instant: the measured angles or the
+                    # controller's held values jump, the rates with them
+                    interval += stride
                     load_noise(interval, table, noise)
                     plan_flag(breaks, local, t, ref)
+                    if sampling > 0 and interval % sampling == 0:
+                        sample(loop, x, noise, ref, interval)
                     rhs(loop, x, ref, noise, k1)
                     evaluations += 1
                     if not _finite(k1[:nx]):
@@ -591,11 +638,11 @@ def make_trial_integrators(
                     if observed(last, n, every):
                         observe(loop, obs, acc, last, x, k1)
                     if record:
-                        record_sample(trace, last, nx, x, k1)
+                        record_sample(loop, trace, last, nx, x, k1)
                 if (observing and last >= n) or t >= duration * (1.0 - 1e-14):
                     break
                 if passing:  # on the far side the right-hand side is another: start afresh
-                    stop = (interval + 1) * dt if noisy else duration
+                    stop = (interval + stride) * dt if stride > 0 else duration
                     h = initial_step(loop, nx, x, k1, ref, noise, rtol, atol, stop - t, y, k2,
                                      breaks, local, t)
                     evaluations += 1

@@ -38,7 +38,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from flatcli.core._jit import jitable, jitable_variant, named_kernel, variant_tag
-from flatcli.core.controllers.control import Gains
+from flatcli.core.controllers.control import Gains, add_to_accelerations
 from flatcli.core.loop.chaindynamic import (
     ChainDynamicLoop,
     chain_dynamic_aux,
@@ -48,13 +48,23 @@ from flatcli.core.loop.chaindynamic import (
     chain_dynamic_stage,
     chain_dynamic_state,
     make_scratch,
+    measure_chain_dynamic,
     observe_chain_dynamic,
     record_chain_dynamic,
 )
-from flatcli.core.loop.chainloop import ChainLoop, chain_rhs, observe_chain, plan_residual
+from flatcli.core.loop.chainloop import (
+    ChainLoop,
+    chain_rhs,
+    measure_chain,
+    observe_chain,
+    plan_residual,
+)
 from flatcli.core.loop.integrate import (
     WORK_ROWS,
     make_trial_integrators,
+    no_period,
+    no_reset,
+    no_sample,
     observed,
     plan_flag,
     record_rates,
@@ -79,6 +89,8 @@ from flatcli.core.loop.paperloop import (
     dynamic_rhs,
     is_flat_plant,
     kinematic_rhs,
+    measure_dynamic,
+    measure_kinematic,
     observe_dynamic,
     observe_kinematic,
     record_dynamic,
@@ -151,8 +163,9 @@ class TrialArrays(NamedTuple):
 
 class Results(NamedTuple):
     """Written per trial: metrics (T, N_METRICS), status, event (T,), event_time (T,),
-    trace (T, n + 1, width) if recorded (else (0, 0, width)), and final (T, N + 1) the
-    plant's angles th0..thN at t = T [rad] (nan where the trial stopped before T)."""
+    trace (T, n + 1, width) if recorded (else (0, 0, width)), final (T, N + 1) the plant's
+    angles th0..thN at t = T [rad] (nan where the trial stopped before T), and extra (T, E)
+    the controller's own columns (``Ops.extra_columns``; E = 0 for a law without)."""
 
     metrics: Array
     status: NDArray[np.int64]
@@ -160,6 +173,7 @@ class Results(NamedTuple):
     event_time: Array
     trace: Array
     final: Array
+    extra: Array
 
 
 class Buffers(NamedTuple):
@@ -180,13 +194,26 @@ class Buffers(NamedTuple):
     scratch: Any
 
 
+@jitable
+def no_extras(loop: Any, row: Array) -> None:
+    """A law that reports no columns of its own (``Ops.extras``)."""
+
+
 @dataclass(frozen=True)
 class Ops:
     """The functions of one (model, plant) combination (module docstring), and its sizes:
     ``state(n)`` and ``aux(n)`` (what its right-hand side writes after the state's
     derivative, the margin first), ``width(n)`` (a trace row), ``scratch(n)`` (its loop's
-    buffers); ``stage`` (None: ``rhs``), the right-hand side of the integrators' stages,
-    whose outputs after the margin nobody reads (``integrate.make_trial_integrators``)."""
+    buffers; with ``needs_shared_scratch`` ``scratch(n, shared, flag_size)``); ``stage``
+    (None: ``rhs``), the right-hand side of the integrators' stages, whose outputs after the
+    margin nobody reads (``integrate.make_trial_integrators``).
+
+    A controller acting at sample instants (``compose.sampled_ops``) adds ``reset``,
+    ``period`` and ``sample`` (``integrate.make_trial_integrators``), and ``extras(loop,
+    row)`` writing its ``extra_columns`` per trial. A law another can wrap declares
+    ``additive(loop, ref, dv, out)`` (``out`` = its reference ``ref`` with dv (N,) added where
+    its input enters: its command becomes its own plus dv) and ``measure(loop, x, noise, ref,
+    s0)`` (the errors its design is about at the measured state, into ``s0``)."""
 
     make_loop: Callable[..., Any]
     bounded: Callable[..., bool]
@@ -198,14 +225,30 @@ class Ops:
     state: Callable[[int], int]
     aux: Callable[[int], int]
     width: Callable[[int], int]
-    scratch: Callable[[int], Any]
+    scratch: Callable[..., Any]
     stage: Callable[..., None] | None = None
+    reset: Callable[..., None] = no_reset
+    period: Callable[..., int] = no_period
+    sample: Callable[..., None] = no_sample
+    extras: Callable[..., None] = no_extras
+    extra_columns: tuple[str, ...] = ()
+    extra_counts: tuple[str, ...] = ()
+    additive: Callable[..., None] | None = None
+    measure: Callable[..., None] | None = None
+    needs_shared_scratch: bool = False
+
+    @property
+    def sampled(self) -> bool:
+        """Whether a controller acts at sample instants (its hooks are not the defaults)."""
+        return not (self.reset is no_reset and self.period is no_period
+                    and self.sample is no_sample and self.extras is no_extras)
 
 
 def ops_tag(ops: Ops) -> str:
     """``_jit.variant_tag`` of a combination's compiled functions."""
+    hooks = (ops.reset, ops.period, ops.sample, ops.extras) if ops.sampled else ()
     return variant_tag(ops.make_loop, ops.bounded, ops.initial_state, ops.rhs, ops.observe,
-                       ops.record, ops.residual, ops.stage or ops.rhs)
+                       ops.record, ops.residual, ops.stage or ops.rhs, *hooks)
 
 
 def make_batch(ops: Ops) -> Callable[..., None]:
@@ -223,9 +266,11 @@ def make_batch(ops: Ops) -> Callable[..., None]:
     trials; one at a hundredth stayed within 0.70-1.36 of it on 595).
     """
     rk4_trial, adaptive_trial = make_trial_integrators(ops.rhs, ops.observe, ops.record,
-                                                       ops.stage)
+                                                       ops.stage, ops.reset, ops.period,
+                                                       ops.sample)
     make_loop, bounded, initial_state, residual = (ops.make_loop, ops.bounded,
                                                    ops.initial_state, ops.residual)
+    extras = ops.extras
     variant = jitable_variant(ops_tag(ops))
 
     @variant
@@ -258,6 +303,7 @@ def make_batch(ops: Ops) -> Callable[..., None]:
                     settings.rtol, settings.atol, settings.max_steps, tables[i],
                     settings.record, tr, acc, work, buffers.noise, buffers.flag, grid.ref,
                     passes, True, settings.every)
+            extras(loop, results.extra[i])  # before a twin starts the controller afresh
             # the angles at T, where the trial got there (both integrators leave their last
             # state in integrate._X, the first work row); before the twin overwrites it
             for k in range(angles):
@@ -335,12 +381,47 @@ def make_single(ops: Ops) -> tuple[Callable[..., None], Callable[..., None],
                               math.nan, 0, 0)
 
     @variant
-    def record_trace(states: Array, rates: Array, last: int, trace: Array) -> None:
+    def record_trace(shared: Any, trials: TrialArrays, i: int, buffers: Buffers,
+                     states: Array, rates: Array, last: int, trace: Array) -> None:
+        loop = make_loop(shared, trials, i, buffers.scratch)
         nx = states.shape[1]
         for j in range(last + 1):
-            record(trace, j, nx, states[j], rates[j])
+            record(loop, trace, j, nx, states[j], rates[j])
 
     return initial_of, rhs_at, observe_trace, record_trace
+
+
+def make_control_single(ops: Ops) -> tuple[Callable[..., int], Callable[..., None],
+                                           Callable[..., None]]:
+    """(control_start, sample_at, extras_at) of a combination whose controller acts at
+    sample instants (``Ops.sampled``), one trial i at a time (for the scipy reference):
+    start its controller afresh and return its period p [output steps]; its sample at output
+    sample j, state x and noise (before the right-hand side is evaluated there: ``rhs_at``
+    then sees what it holds); its columns into ``row``. The controller's state lives in
+    ``buffers.scratch`` between the calls."""
+    make_loop, reset, period, sample, extras = (ops.make_loop, ops.reset, ops.period,
+                                                ops.sample, ops.extras)
+    variant = jitable_variant(ops_tag(ops))
+
+    @variant
+    def control_start(shared: Any, trials: TrialArrays, i: int, buffers: Buffers) -> int:
+        loop = make_loop(shared, trials, i, buffers.scratch)
+        reset(loop)
+        return period(loop)
+
+    @variant
+    def sample_at(shared: Any, trials: TrialArrays, i: int, grid: Grid, buffers: Buffers,
+                  x: Array, noise: Array, j: int) -> None:
+        loop = make_loop(shared, trials, i, buffers.scratch)
+        sample(loop, x, noise, grid.ref[2 * j], j)
+
+    @variant
+    def extras_at(shared: Any, trials: TrialArrays, i: int, buffers: Buffers,
+                  row: Array) -> None:
+        loop = make_loop(shared, trials, i, buffers.scratch)
+        extras(loop, row)
+
+    return control_start, sample_at, extras_at
 
 
 # --------------------------------------------------------------------------------------
@@ -437,14 +518,23 @@ def _no_scratch(n: int) -> Any:
     return np.zeros(1)
 
 
+@jitable
+def flat_additive(loop: Any, ref: Array, dv: Array, out: Array) -> None:
+    """The flat law's additive input (``Ops.additive``): dv added to the plan's y''
+    (``control.add_to_accelerations``)."""
+    add_to_accelerations(ref, dv, out)
+
+
 PAPER_KINEMATIC = Ops(
     _paper_kinematic_loop, _rates_bounded, _copy_initial, kinematic_rhs, observe_kinematic,
     record_rates, _paper_residual, lambda n: KINEMATIC_STATE, lambda n: KINEMATIC_AUX,
-    lambda n: KINEMATIC_STATE + 3, _no_scratch)
+    lambda n: KINEMATIC_STATE + 3, _no_scratch, additive=flat_additive,
+    measure=measure_kinematic)
 PAPER_DYNAMIC = Ops(
     _paper_dynamic_loop, _rates_or_torques_bounded, dynamic_initial, dynamic_rhs,
     observe_dynamic, record_dynamic, _paper_residual, lambda n: DYNAMIC_STATE,
-    lambda n: DYNAMIC_AUX, lambda n: DYNAMIC_STATE + 3, _no_scratch)
+    lambda n: DYNAMIC_AUX, lambda n: DYNAMIC_STATE + 3, _no_scratch, additive=flat_additive,
+    measure=measure_dynamic)
 
 
 # --------------------------------------------------------------------------------------
@@ -512,11 +602,12 @@ def _chain_residual(loop: Any, trials: TrialArrays, i: int, plan_theta: Array,
 CHAIN_KINEMATIC = Ops(
     _chain_kinematic_loop, _rates_bounded, _copy_initial, chain_rhs, observe_chain,
     record_rates, _chain_residual, lambda n: 2 * n, lambda n: 1, lambda n: 3 * n + 1,
-    _chain_scratch)
+    _chain_scratch, additive=flat_additive, measure=measure_chain)
 CHAIN_DYNAMIC = Ops(
     _chain_dynamic_loop, _rates_or_torques_bounded, chain_dynamic_initial, chain_dynamic_rhs,
     observe_chain_dynamic, record_chain_dynamic, _chain_residual, chain_dynamic_state,
-    chain_dynamic_aux, lambda n: 4 * n + 2, _chain_scratch, chain_dynamic_stage)
+    chain_dynamic_aux, lambda n: 4 * n + 2, _chain_scratch, chain_dynamic_stage,
+    additive=flat_additive, measure=measure_chain_dynamic)
 
 
 def paper_shared(model: Any, gains: Gains, rate_limit: float, servo_is_plant: bool,
@@ -567,8 +658,10 @@ def chain_plant(params: Array, plant: str) -> Array:
 @dataclass(frozen=True)
 class Kernels:
     """The compiled functions of one (model, plant) combination: its batch kernel and its
-    single-trial kernels (initial state, right-hand side, observer of a trace), and how
-    its shared record and per-trial plant arrays are made (``paper_shared``, ...)."""
+    single-trial kernels (initial state, right-hand side, observer of a trace, trace rows:
+    ``make_single``; then, for a controller acting at sample instants, its start, sample and
+    columns: ``make_control_single``), and how its shared record and per-trial plant arrays
+    are made (``paper_shared``, ...)."""
 
     ops: Ops
     batch: Callable[..., None]
@@ -576,14 +669,19 @@ class Kernels:
     shared: Callable[..., Any]
     plant: Callable[[Array, str], Array]
 
-    def buffers(self, n: int, flag_size: int) -> Buffers:
-        """Fresh buffers for a robot of N = ``n`` joints."""
+    def buffers(self, n: int, flag_size: int, shared: Any = None) -> Buffers:
+        """Fresh buffers for a robot of N = ``n`` joints, a reference flag of ``flag_size``
+        and the kernels' shared record ``shared`` (what a sampled controller's scratch is
+        made from, ``Ops.needs_shared_scratch``)."""
+        ops = self.ops
+        scratch = (ops.scratch(n, shared, flag_size) if ops.needs_shared_scratch
+                   else ops.scratch(n))
         nx = self.ops.state(n)
         width = nx + self.ops.aux(n)
         return Buffers(np.zeros((WORK_ROWS, width)), np.zeros(ACCUMULATOR_SIZE),
                        np.zeros(ACCUMULATOR_SIZE), np.zeros(n + 1), np.zeros(flag_size),
                        np.zeros(flag_size), np.zeros(nx), np.zeros(nx),
-                       np.zeros((0, self.ops.width(n))), self.ops.scratch(n))
+                       np.zeros((0, self.ops.width(n))), scratch)
 
 
 def compile_kernels(ops: Ops, name: str, shared: Callable[..., Any],
@@ -592,10 +690,13 @@ def compile_kernels(ops: Ops, name: str, shared: Callable[..., Any],
     functions compiled, named ``<name>_batch``, ``_start``, ``_derivative``, ``_metrics`` and
     ``_trace`` in ``module`` (the one that makes them: numba caches a kernel by its module and
     name, and links its code by them; a compile child imports that module to find it)."""
-    parts = zip(("batch", "start", "derivative", "metrics", "trace"),
-                (make_batch(ops), *make_single(ops)), strict=True)
+    names = ["batch", "start", "derivative", "metrics", "trace"]
+    functions = [make_batch(ops), *make_single(ops)]
+    if ops.sampled:
+        names += ["control_start", "sample", "extras"]
+        functions += make_control_single(ops)
     compiled: list[Callable[..., Any]] = [named_kernel(f"{name}_{part}", module)(fn)
-                                          for part, fn in parts]
+                                          for part, fn in zip(names, functions, strict=True)]
     return Kernels(ops, compiled[0], tuple(compiled[1:]), shared, plant)
 
 

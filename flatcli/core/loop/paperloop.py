@@ -48,6 +48,7 @@ from numpy.typing import NDArray
 from flatcli.core._jit import jitable
 from flatcli.core.controllers.control import PaperGains, feedback, feedback_at
 from flatcli.core.loop.metrics import observe_clipped, observe_sample, observe_torque
+from flatcli.core.models.flatness import chart, outputs_at
 from flatcli.core.robots.dynamics import (
     ThreeBody,
     three_body,
@@ -329,7 +330,8 @@ def observe_dynamic(loop: DynamicLoop, obs: Any, acc: Array, j: int, x: Array, f
 
 
 @jitable
-def record_dynamic(trace: Array, j: int, nx: int, x: Array, f: Array) -> None:
+def record_dynamic(loop: Any, trace: Array, j: int, nx: int, x: Array, f: Array
+                   ) -> None:
     """Trace row j of the dynamic plant (``simulate.DYNAMIC_TRACE_COLUMNS``): the state, the
     torques tau1, tau2 and the rate command r2."""
     for i in range(nx):
@@ -337,3 +339,30 @@ def record_dynamic(trace: Array, j: int, nx: int, x: Array, f: Array) -> None:
     trace[j, nx] = f[AUX_TAU1]
     trace[j, nx + 1] = f[AUX_TAU2]
     trace[j, nx + 2] = f[AUX_R2]
+
+
+@jitable
+def _measure(kc: Coefficients, th0: float, th1: float, th2: float, u1: float, ref: Array,
+             s0: Array) -> None:
+    """The flat outputs' errors (``control.flat_errors``) at measured angles and u1."""
+    inv_A, g, h = chart(kc, np.cos(th1), np.sin(th1))
+    y1, y2, y1_dot, y2_dot = outputs_at(kc, inv_A, g, h, th0, th1, th2, u1)
+    s0[0] = y1 - ref[0]
+    s0[1] = y1_dot - ref[2]
+    s0[2] = y2 - ref[1]
+    s0[3] = y2_dot - ref[3]
+
+
+@jitable
+def measure_kinematic(loop: Loop, x: Array, noise: Array, ref: Array, s0: Array) -> None:
+    """What the flat law measures at the kinematic plant's state x (4,) with noise (3,): its
+    flat outputs' errors from the plan's flag ``ref`` (6,) into ``s0`` (4,) (e1, e1', e2,
+    e2'; ``control.flat_errors``), for a law that wraps it (``loop.compose``)."""
+    _measure(loop.kc, x[0] + noise[0], x[1] + noise[1], x[2] + noise[2], x[3], ref, s0)
+
+
+@jitable
+def measure_dynamic(loop: DynamicLoop, x: Array, noise: Array, ref: Array, s0: Array
+                    ) -> None:
+    """``measure_kinematic`` at the dynamic plant's state x (7,) (u1 = x[6])."""
+    _measure(loop.kc, x[0] + noise[0], x[1] + noise[1], x[2] + noise[2], x[6], ref, s0)

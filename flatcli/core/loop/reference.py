@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from flatcli.core.controllers.python import held_values
 from flatcli.core.loop.integrate import CROSS_STEP, STALL_MARGIN
 from flatcli.core.loop.kernels import Grid, Kernels, Results, Settings, TrialArrays
 from flatcli.core.loop.metrics import Event, Metric, Status
@@ -34,20 +35,34 @@ def reference_trial(scenario: Any, trials: Any, kernels: Kernels, shared: Any,
     integration starts again a step of ``integrate.CROSS_STEP`` T beyond the crossing, as
     the compiled integrators do); its metrics from the same observer as the kernels,
     written into row i of ``results`` (``scenario``, ``trials``: ``simulate.Scenario`` and
-    ``simulate.Trials``)."""
+    ``simulate.Trials``).
+
+    A controller acting at sample instants (``kernels.make_control_single``) starts afresh,
+    the integration stops at each of its samples (as at each noise interval), it samples
+    there (before the right-hand side is evaluated there), and the rates observed at an
+    output sample are those under what it held then; its columns go to ``results.extra``.
+    """
     from scipy.integrate import solve_ivp  # loaded for the reference only: a sweep needs none
 
-    initial_of, rhs_at, observe_trace, record_trace = kernels.single
+    initial_of, rhs_at, observe_trace, record_trace = kernels.single[:4]
+    sampled = kernels.ops.sampled
     n_joints = scenario.n_joints
     n = scenario.n_steps
     times = scenario.times
     nx = kernels.ops.state(n_joints)
     size = nx + kernels.ops.aux(n_joints)
-    buffers = kernels.buffers(n_joints, grid.ref.shape[1])
+    buffers = kernels.buffers(n_joints, grid.ref.shape[1], shared)
     noise = trials.noise_table(i, n)
     bound = settings.bound
     start = np.empty(nx)
     initial_of(shared, arrays, i, grid, buffers, start)
+    period = 0
+    python = scenario.python  # a controller written in Python (``controllers.python``)
+    if sampled:
+        control_start, sample_at, extras_at = kernels.single[4:7]
+        period = control_start(shared, arrays, i, buffers)
+        if python is not None:
+            python.reset()
     out = np.empty(size)
     evaluations = [0]
 
@@ -75,11 +90,36 @@ def reference_trial(scenario: Any, trials: Any, kernels: Kernels, shared: Any,
     stopped, when = int(Event.NONE), math.nan
     steps = 0
     passed: list[float] = []
-    # without noise one integration over the whole grid; with noise one per interval, so the
-    # solver never steps across a jump of the measured angles
-    segments = [(0, n)] if not np.any(noise) else [(s, s + 1) for s in range(n)]
+    rates = np.full((n + 1, size), math.nan)
+    sample = np.empty(size)
+
+    def observed_rates(first: int, end: int) -> None:
+        """The rates the plant applies at samples first..end - 1: the plan's flag tabulated
+        there (row 2 j of grid.ref, as the kernels observe it) and the noise of its
+        interval."""
+        for j in range(first, end):
+            rhs_at(shared, arrays, i, grid, buffers, -(2.0 * j + 1.0),
+                   np.ascontiguousarray(states[j]), noise[min(j, n - 1)], sample)
+            rates[j] = sample
+
+    # without noise one integration over the whole grid (or one per sample of a sampled
+    # controller); with noise one per interval, so the solver never steps across a jump of
+    # the measured angles or of what the controller holds
+    if np.any(noise):
+        segments = [(s, s + 1) for s in range(n)]
+    elif period > 0:
+        segments = [(s, min(s + period, n)) for s in range(0, n, period)]
+    else:
+        segments = [(0, n)]
     x = start
     for begin, stop in segments:
+        if period > 0 and begin % period == 0:
+            sample_at(shared, arrays, i, grid, buffers, np.ascontiguousarray(x),
+                      noise[begin], begin)
+            if python is not None:  # its step, on the errors the compiled loop measured
+                part = buffers.scratch.part
+                part.held[:] = held_values(python.step(begin // period, float(times[begin]),
+                                                       part.s0.copy()), part.held.shape[0])
         t0, filled = float(times[begin]), begin  # samples up to ``filled`` are in states
         while stopped == int(Event.NONE):
             with np.errstate(all="ignore"):
@@ -122,24 +162,22 @@ def reference_trial(scenario: Any, trials: Any, kernels: Kernels, shared: Any,
                 break
             x = got[-1]
             break
+        if sampled:  # under what the controller holds over this segment
+            observed_rates(begin, min(filled, stop + 1 if stop == n else stop))
         if stopped != int(Event.NONE):
             break
     finite = np.isfinite(states).all(axis=1) & (np.abs(states) <= bound).all(axis=1)
     last = int(np.argmin(finite)) - 1 if not finite.all() else n
     if stopped == int(Event.NONE) and last < n:
         stopped, when = int(Event.BOUND), float(times[last + 1])
-    rates = np.full((n + 1, size), math.nan)
-    sample = np.empty(size)
-    for j in range(last + 1):
-        # the rates the plant applies at sample j: the plan's flag tabulated there (row 2 j
-        # of grid.ref, as the kernels observe it) and the noise of its interval
-        rhs_at(shared, arrays, i, grid, buffers, -(2.0 * j + 1.0),
-               np.ascontiguousarray(states[j]), noise[min(j, n - 1)], sample)
-        rates[j] = sample
+    if not sampled:
+        observed_rates(0, last + 1)
     first_hit = observe_trace(shared, arrays, i, grid, settings, buffers, states, rates, last,
                               stopped == int(Event.NONE), np.asarray(passed, dtype=float),
                               results.metrics[i])
     results.metrics[i, Metric.STEPS] = steps
+    if sampled:
+        extras_at(shared, arrays, i, buffers, results.extra[i])
     results.metrics[i, Metric.RHS_EVALUATIONS] = evaluations[0]
     code = Status.OK if math.isnan(first_hit) else Status.SINGULAR
     if stopped != int(Event.NONE):
@@ -152,4 +190,4 @@ def reference_trial(scenario: Any, trials: Any, kernels: Kernels, shared: Any,
     if settings.record:
         trace = results.trace[i]
         trace[:] = math.nan
-        record_trace(states, rates, last, trace)
+        record_trace(shared, arrays, i, buffers, states, rates, last, trace)

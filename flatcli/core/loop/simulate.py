@@ -32,7 +32,7 @@ public API and chooses among them.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any, NamedTuple
@@ -42,12 +42,12 @@ from numpy.typing import ArrayLike, NDArray
 
 from flatcli.core.controllers.control import Gains
 from flatcli.core.controllers.lqr import LqrWeights, tracked
+from flatcli.core.controllers.settings import SETTINGS
 from flatcli.core.curves.pieces import PiecewiseCurves
 from flatcli.core.errors import FlatcliError
-from flatcli.core.loop.asbuiltkernels import KERNELS as ASBUILT_KERNELS
+from flatcli.core.loop.compose import SampledShared
 from flatcli.core.loop.kernels import (
     ADAPTIVE,
-    KERNELS,
     RK4,
     Grid,
     Kernels,
@@ -59,6 +59,7 @@ from flatcli.core.loop.kernels import (
 from flatcli.core.loop.metrics import N_METRICS, Metric, Status
 from flatcli.core.loop.outcome import CLEARANCE_BATCH, Geometry, MotionClearance, motion_clearance
 from flatcli.core.loop.reference import reference_trial
+from flatcli.core.loop.table import SAMPLED, kernels_for
 from flatcli.core.names import (
     CONTROLLERS,
     DEFAULT_ACCURACY,
@@ -85,9 +86,15 @@ TRACE_COLUMNS: tuple[str, ...] = (
     "theta0", "theta1", "theta2", "u1", "theta0_dot", "theta1_dot", "theta2_dot",
 )  # fmt: skip
 def trace_columns(scenario: Scenario) -> tuple[str, ...]:
-    """The trace columns of a scenario's trials (``Outcome.columns``)."""
+    """The trace columns of a scenario's trials (``Outcome.columns``): the plant's, then for
+    a sampled controller (the MPC) the correction it holds: around the flat law dv1..dvN
+    [rad/s^2], added to y''; around the as-built law dw1..dwN [rad/s], added to the
+    joint-rate commands."""
     columns = chain_dynamic_trace_columns if scenario.plant == "dynamic" else chain_trace_columns
-    return columns(scenario.n_joints)
+    name = "dv" if scenario.law == "flat" else "dw"
+    held = tuple(f"{name}{j}" for j in range(1, scenario.n_joints + 1)) \
+        if scenario.sampled is not None else ()
+    return (*columns(scenario.n_joints), *held)
 
 
 def chain_trace_columns(n: int) -> tuple[str, ...]:
@@ -158,9 +165,17 @@ class Scenario:
     plant : "kinematic" or "dynamic" (``PLANT_MODELS``)
     servo_model : what the dynamic plant's servo believes: "robot" (the plan's robot, the
         nominal model) or "plant" (each trial's plant)
-    controller : "flat" (the linearising feedback with ``gains``) or "asbuilt" (the LQR of
-        ``lqr``, designed on the plan's robot with ``lqr``; ``gains`` unused)
+    controller : "flat" (the linearising feedback with ``gains``), "asbuilt" (the LQR of
+        ``lqr``, designed on the plan's robot with ``lqr``; ``gains`` unused) or "mpc" (model
+        predictive control with ``mpc`` wrapping the flat law with ``mpc``'s own gains on a
+        flat plan, or the as-built law on an exact plan: ``law``; ``gains`` unused)
     lqr : the as-built law's weights (``lqr.LqrWeights``)
+    settings : controllers' settings records by ``track.controller`` (``controllers.settings.
+        SETTINGS``: the MPC's ``MpcSettings``); one not given has its record's defaults
+        (``settings_for``)
+    python : a controller written in Python acting at sample instants around the law
+        ``controller`` names ("flat" or "asbuilt"; ``controllers.python``), or None; it runs
+        with the "dop853" integrator only
     servo_bandwidth : the dynamic plant's nominal servo bandwidth [rad/s], the lag the
         as-built law is designed for there
     twin : the adaptive integrator's error estimate: each trial reaching T is integrated a
@@ -185,6 +200,8 @@ class Scenario:
     servo_model: ServoModel = "robot"
     controller: Controller = "flat"
     lqr: LqrWeights = field(default_factory=LqrWeights)
+    settings: Mapping[str, Any] = field(default_factory=dict)
+    python: Any = None
     servo_bandwidth: float = DEFAULT_SERVO_BANDWIDTH
     twin: float = TWIN_FACTOR
     accuracy: float = DEFAULT_ACCURACY
@@ -238,11 +255,59 @@ class Scenario:
                                f"{self.controller!r}")
         if self.controller == "flat" and self.plan.model.kind == "exact":
             raise FlatcliError(FLAT_ON_EXACT)
+        if self.controller in SETTINGS:  # FlatcliError naming the key, if one does not fit
+            self.settings_for(self.controller).check(self.dt, self.plan.duration)
+        if self.python is not None and self.controller in SAMPLED:
+            raise FlatcliError("controller: a Python controller wraps track.controller = "
+                               f"\"flat\" or \"asbuilt\", not {self.controller!r}")
         n = self.plan.n_joints
         if self.gains.n_outputs != n:
             raise FlatcliError(f"track.kp, track.kv: expected {n} gains each (one per flat "
                                f"output) for a robot of {n} joints, got {self.gains.n_outputs}")
         object.__setattr__(self, "n_steps", steps)
+
+    def settings_for(self, controller: str) -> Any:
+        """The settings record of a controller (``settings``, else its defaults)."""
+        given = self.settings.get(controller)
+        return SETTINGS[controller][0]() if given is None else given
+
+    @property
+    def sampled(self) -> str | None:
+        """The controller acting at sample instants around the law: ``controller`` where it
+        is one (``loop.table.SAMPLED``: "mpc"), "python" (a Python controller, ``python``)
+        or None."""
+        if self.controller in SAMPLED:
+            return self.controller
+        return "python" if self.python is not None else None
+
+    @property
+    def law(self) -> str:
+        """The law whose reference the kernels track: "flat" (the plan's flat outputs) or
+        "asbuilt" (its angles and the LQR's gains); a sampled controller (the MPC) wraps the
+        flat law on a flat plan and the as-built law on an exact one."""
+        if self.controller in SAMPLED:
+            return "asbuilt" if self.plan.model.kind == "exact" else "flat"
+        return self.controller
+
+    @cached_property
+    def sampled_design(self) -> Any:
+        """The sampled controller's design (its part's ``design``: the MPC's about the plan,
+        a Python controller's sizes), once per scenario; None for the laws without
+        samples."""
+        if self.sampled is None:
+            return None
+        part = SAMPLED[self.sampled]
+        return None if part.design is None else part.design(self)
+
+    @property
+    def inner_gains(self) -> Gains:
+        """The flat law's gains: ``gains``, or the sampled controller's inner law's
+        (``SampledPart.gains``: the MPC's track.mpc_kp, track.mpc_kv)."""
+        part = SAMPLED[self.sampled] if self.sampled is not None else None
+        if part is None or part.gains is None:
+            return self.gains
+        gains: Gains = part.gains(self)
+        return gains
 
     @property
     def n_joints(self) -> int:
@@ -252,13 +317,14 @@ class Scenario:
     def prepared(self) -> Scenario:
         """This scenario with its reference tables computed (before shipping it to workers)."""
         _ = self.reference, self.theta_reference, self.plan_on_own_grid, self.pieces
+        _ = self.sampled_design
         return self
 
     @cached_property
     def tracked(self) -> Any:
         """What the controller tracks, as curves y(t): the plan's flat outputs (the flat
         law), or the plan's angles and the as-built law's gains (``lqr.tracked``)."""
-        if self.controller == "asbuilt":
+        if self.law == "asbuilt":
             servo = self.servo_bandwidth if self.plant == "dynamic" else None
             curves: PiecewiseCurves = tracked(self.plan, self.lqr, servo)
             return curves
@@ -431,6 +497,9 @@ class Outcome:
         stopped before (None: not kept)
     clearance : the trials' clearance from the obstacles ``simulate`` was given, along their
         recorded motion (``outcome.motion_clearance``); None without obstacles
+    extra : (N, E) the controller's own per-trial columns ``extra_columns`` (the MPC's
+        ``mpc.COLUMNS``; E = 0 for the flat and as-built laws); extra_counts: those of
+        them that count something (integers)
     """
 
     metrics: Array
@@ -444,6 +513,9 @@ class Outcome:
     accuracy: float = math.inf
     final: Array | None = None
     clearance: MotionClearance | None = None
+    extra: Array | None = None
+    extra_columns: tuple[str, ...] = ()
+    extra_counts: tuple[str, ...] = ()
 
     @cached_property
     def verified(self) -> NDArray[np.bool_]:
@@ -504,10 +576,8 @@ def kernel_inputs(scenario: Scenario, trials: Trials) -> tuple[
     """The kernels of a scenario's (model, plant) and everything they take but the noise,
     the buffers and the results."""
     plan = scenario.plan
-    if scenario.controller == "asbuilt":
-        kernels = ASBUILT_KERNELS[("asbuilt", scenario.plant)]
-    else:
-        kernels = KERNELS[(plan.model.kind, scenario.plant)]
+    model = "asbuilt" if scenario.law == "asbuilt" else plan.model.kind
+    kernels = kernels_for(scenario.sampled or scenario.law, model, scenario.plant)
     params, offset = placements(trials.links, trials.across)
     arrays = TrialArrays(params, np.ascontiguousarray(trials.momentum, dtype=float),
                          trials.servo_table(), np.ascontiguousarray(trials.initial, dtype=float),
@@ -520,10 +590,12 @@ def kernel_inputs(scenario: Scenario, trials: Trials) -> tuple[
                         float(scenario.singular_threshold), float(scenario.rtol),
                         float(scenario.atol), int(scenario.max_steps), False,
                         twin_factor(scenario), int(scenario.observe_every))
-    shared = kernels.shared(plan.model, scenario.gains, scenario.rate_limit,
+    shared = kernels.shared(plan.model, scenario.inner_gains, scenario.rate_limit,
                             scenario.servo_model == "plant", plan.robot)
-    if scenario.controller == "asbuilt" and scenario.plant == "dynamic":
+    if scenario.law == "asbuilt" and scenario.plant == "dynamic":
         shared = shared._replace(lead=1.0 / scenario.servo_bandwidth, lagged=True)
+    if scenario.sampled is not None:
+        shared = SampledShared(shared, scenario.sampled_design)
     return kernels, shared, arrays, grid, settings
 
 
@@ -534,7 +606,7 @@ def closed_loop_rhs(scenario: Scenario, trials: Trials, i: int = 0) -> Callable[
     kernels, shared, arrays, grid, _ = kernel_inputs(scenario, trials)
     joints = scenario.n_joints
     nx = kernels.ops.state(joints)
-    buffers = kernels.buffers(joints, grid.ref.shape[1])
+    buffers = kernels.buffers(joints, grid.ref.shape[1], shared)
     out = np.empty(nx + kernels.ops.aux(joints))
     zero = np.zeros(joints + 1)
     rhs_at = kernels.single[1]
@@ -564,7 +636,8 @@ def closed_loop_start(scenario: Scenario, trials: Trials, i: int = 0) -> Array:
     kernels, shared, arrays, grid, _ = kernel_inputs(scenario, trials)
     joints = scenario.n_joints
     out = np.empty(kernels.ops.state(joints))
-    kernels.single[0](shared, arrays, i, grid, kernels.buffers(joints, 3 * joints), out)
+    kernels.single[0](shared, arrays, i, grid,
+                      kernels.buffers(joints, grid.ref.shape[1], shared), out)
     return out
 
 
@@ -610,12 +683,17 @@ def simulate(
     discs = None if obstacles is None else np.asarray(obstacles, dtype=float).reshape(-1, 3)
     if discs is not None and not len(discs):
         discs = None
+    kernels, shared, arrays, grid, settings = kernel_inputs(scenario, trials)
+    extra_columns = kernels.ops.extra_columns
     results = Results(np.empty((N, N_METRICS)), np.zeros(N, dtype=np.int64),
                       np.zeros(N, dtype=np.int64), np.full(N, math.nan),
                       np.empty((N, n + 1, width)) if record else np.empty((0, 0, width)),
-                      np.full((N, angles), math.nan))
-    kernels, shared, arrays, grid, settings = kernel_inputs(scenario, trials)
-    buffers = kernels.buffers(joints, grid.ref.shape[1])
+                      np.full((N, angles), math.nan), np.full((N, len(extra_columns)), math.nan))
+    if scenario.python is not None and integrator != "dop853":
+        raise FlatcliError("track.integrator: a controller written in Python runs with "
+                           "\"dop853\" only (its steps are Python calls between scipy's "
+                           f"segments), got {integrator!r}")
+    buffers = kernels.buffers(joints, grid.ref.shape[1], shared)
     geometry = Geometry.of(trials.links, trials.across) if discs is not None else None
     parts: list[MotionClearance] = []
 
@@ -626,7 +704,7 @@ def simulate(
         if integrator == "dop853":
             part = Results(results.metrics[lo:hi], results.status[lo:hi],
                            results.event[lo:hi], results.event_time[lo:hi], trace,
-                           results.final[lo:hi])
+                           results.final[lo:hi], results.extra[lo:hi])
             for i in range(hi - lo):
                 reference_trial(scenario, part_trials, kernels, shared,
                                 TrialArrays(*(a[lo:hi] for a in arrays)), grid, run_settings, i,
@@ -638,7 +716,8 @@ def simulate(
             part = TrialArrays(*(a[lo:hi][rows] for a in arrays))
             out = Results(results.metrics[lo:hi][rows], results.status[lo:hi][rows],
                           results.event[lo:hi][rows], results.event_time[lo:hi][rows],
-                          trace[rows] if keep else trace, results.final[lo:hi][rows])
+                          trace[rows] if keep else trace, results.final[lo:hi][rows],
+                          results.extra[lo:hi][rows])
             kernels.batch(method, shared, part, grid, run_settings, tables, buffers, out)
 
         _run_with_noise(run, part_trials, n, angles)
@@ -665,7 +744,8 @@ def simulate(
     return Outcome(results.metrics, results.status, results.event, results.event_time,
                    results.trace if record else None, columns, integrator,
                    integrator == "adaptive" and settings.twin > 0, float(scenario.accuracy),
-                   results.final, MotionClearance.concatenate(parts) if parts else None)
+                   results.final, MotionClearance.concatenate(parts) if parts else None,
+                   results.extra, extra_columns, kernels.ops.extra_counts)
 
 
 class ReferenceCheck(NamedTuple):

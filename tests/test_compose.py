@@ -1,0 +1,370 @@
+"""A sampled controller composed with an inner law and a plant (flatcli/core/loop/compose.py),
+and the integrators' sample hooks (flatcli/core/loop/integrate.py): the MPC of
+flatcli/core/controllers/mpc.py as ``track.controller = "mpc"``.
+
+Referee: an independent closed loop in numpy and scipy. The flat outputs and the inputs that
+make y'' = v come from the general N-link chain's maps (``ChainModel``, ``chainflat.inputs``)
+for N = 2, not from the paper's closed form the kernels use; the base's rate from the link
+kinematics' angular momentum (``params.momentum``), solved for th0'; the loop integrated by
+DOP853 at rtol 1e-11 over each sample interval with the correction held, the correction
+computed at each sample instant by the MPC's own step (its QP is refereed by
+tests/test_mpc.py) from the errors measured there.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+from numpy.typing import NDArray
+from scipy.integrate import solve_ivp
+
+import flatcli
+from flatcli.core.controllers import mpc
+from flatcli.core.controllers.control import Gains
+from flatcli.core.errors import FlatcliError
+from flatcli.core.loop.compose import sampled_ops
+from flatcli.core.loop.metrics import Metric, Status
+from flatcli.core.loop.simulate import Scenario, Trials, simulate
+from flatcli.core.models.chainflat import inputs
+from flatcli.core.models.flatmodel import ChainModel
+from flatcli.core.robots.params import Links, momentum
+
+Array = NDArray[np.float64]
+
+#: The referee's and the compiled loop's tolerances, and how close their final angles must be
+#: [rad] (they agreed to 7.7e-12 rad with and without the rate limit, 2026-12-05).
+REFEREE_RTOL = 1e-11
+KERNEL_RTOL = 1e-11
+AGREE = 1e-9
+
+
+@numba.njit(cache=False)
+def _step(d, s, k):  # type: ignore[no-untyped-def]
+    mpc.sample_step(d, s, k)
+
+
+@pytest.fixture(scope="module")
+def plan():  # type: ignore[no-untyped-def]
+    return flatcli.plan().plan
+
+
+def _initial(plan, errors: Array) -> Array:  # type: ignore[no-untyped-def]
+    start = plan.sample(np.array([0.0]))
+    return np.array([*start.theta[0], start.theta_dot[0][1]]) + np.r_[errors, 0.0]
+
+
+def _referee(plan, settings: mpc.MpcSettings, dt: float, limit: float, x0: Array,  # type: ignore[no-untyped-def]
+             given: Array | None = None) -> tuple[Array, Array]:
+    """The final angles (3,) and the corrections held (K, 2) of the referee loop (module
+    docstring) on the kinematic plant of the nominal robot, H0 = 0; with ``given`` (K, 2)
+    those corrections are held instead of the MPC's (a replay)."""
+    model = ChainModel.of(plan.robot)
+    links = Links(*(float(v) for v in plan.robot.links))
+    design = mpc.flat_design(plan.model, plan.trajectory, plan.duration, dt, limit, settings)
+    scratch = mpc.scratch(design)
+    mpc.reset(scratch)
+    kp = np.full(2, mpc.INNER_KP)
+    kv = np.full(2, mpc.INNER_KV)
+    ts = design.every * dt
+    held = np.zeros((design.samples, 2))
+
+    def law(t: float, x: Array, dv: Array) -> tuple[float, float, float]:
+        theta, u = x[:3], x[3:4]
+        y, y_dot, _ = model.outputs(theta[None], u[None])
+        flag = plan.trajectory.flags(np.array([t]))[0]
+        v = flag[4:6] + dv + kv * (flag[2:4] - y_dot[0]) + kp * (flag[0:2] - y[0])
+        u_dot = np.zeros(1)
+        command = inputs(np.array(model.K), np.array(model.inertia), theta, u, v, u_dot)
+        return float(u_dot[0]), float(x[3]), float(command)
+
+    def rhs(t: float, x: Array, dv: Array) -> Array:
+        u1_dot, u1, u2 = law(t, x, dv)
+        w1 = min(max(u1, -limit), limit)
+        w2 = min(max(u2, -limit), limit)
+        if (u1 >= limit and u1_dot > 0) or (u1 <= -limit and u1_dot < 0):
+            u1_dot = 0.0
+        # H = H(0) + th0' (H(1) - H(0)) is linear in th0': H = 0
+        h_zero = momentum(links, x[0], x[1], x[2], 0.0, w1, w2)
+        h_one = momentum(links, x[0], x[1], x[2], 1.0, w1, w2)
+        return np.array([-h_zero / (h_one - h_zero), w1, w2, u1_dot])
+
+    x = x0.copy()
+    for k in range(design.samples):
+        t0 = k * ts
+        y, y_dot, _ = model.outputs(x[None, :3], x[None, 3:4])
+        flag = plan.trajectory.flags(np.array([t0]))[0]
+        scratch.s0[:] = [y[0, 0] - flag[0], y_dot[0, 0] - flag[2], y[0, 1] - flag[1],
+                         y_dot[0, 1] - flag[3]]
+        _step(design, scratch, k)
+        dv = scratch.held.copy() if given is None else given[k]
+        held[k] = dv
+        sol = solve_ivp(rhs, (t0, t0 + ts), x, method="DOP853", rtol=REFEREE_RTOL,
+                        atol=1e-13, args=(dv,))
+        assert sol.success
+        x = sol.y[:, -1]
+    return x[:3], held
+
+
+@pytest.mark.parametrize("limit", [math.inf, 40.0])
+def test_the_compiled_mpc_loop_is_the_sampled_loop_integrated_by_scipy(plan, limit: float  # type: ignore[no-untyped-def]
+                                                                        ) -> None:
+    """Horizon 5 of 10 samples: the correction without (the first half) and with the goal
+    in the horizon; 40 rad/s below the plan's 48.8 rad/s peak: the QP's rate rows bind."""
+    settings = mpc.MpcSettings(sample=0.2, horizon=5)
+    dt = 0.002
+    x0 = _initial(plan, np.array([2e-3, -3e-3, 1e-3]))
+    final, held = _referee(plan, settings, dt, limit, x0)
+    assert np.abs(held).max() > 1e-3  # the correction acts (else this proves little)
+    scenario = Scenario(plan, Gains((1.0, 1.0), (2.0, 2.0)), dt=dt, rate_limit=limit,
+                        controller="mpc", settings={"mpc": settings}, rtol=KERNEL_RTOL,
+                        atol=1e-13, twin=0.0)
+    trials = Trials(plan.robot.as_array()[None], np.zeros(1), x0[None])
+    out = simulate(scenario, trials, "adaptive", record=True)
+    assert out.status[0] == Status.OK
+    assert out.trace is not None
+    np.testing.assert_allclose(out.trace[0, -1, :3], final, atol=AGREE, rtol=0)
+    assert out.extra_columns == mpc.COLUMNS
+    assert out.extra is not None and out.extra[0, 0] > 0  # QP iterations were counted
+    assert out.extra[0, 1] == 0  # no sample needed the slack
+    # the limits are kept at the samples only (mpc's docstring); on this maneuver at every
+    # output sample too: no joint ever turned at the limit (39.58 rad/s, 2026-12-05)
+    assert out.metrics[0, Metric.PEAK_RATE] < limit
+
+
+def test_the_trace_holds_the_corrections_the_loop_applied(plan) -> None:  # type: ignore[no-untyped-def]
+    """Replayed: the corrections dv1, dv2 of the compiled trial's trace at its sample
+    instants, held over each sample by the referee loop (no MPC in it), end where the
+    compiled trial ends."""
+    settings = mpc.MpcSettings(sample=0.2, horizon=5)
+    dt, limit = 0.002, 40.0
+    x0 = _initial(plan, np.array([-2e-3, 1e-3, 3e-3]))
+    scenario = Scenario(plan, Gains((1.0, 1.0), (2.0, 2.0)), dt=dt, rate_limit=limit,
+                        controller="mpc", settings={"mpc": settings}, rtol=KERNEL_RTOL,
+                        atol=1e-13, twin=0.0)
+    out = simulate(scenario, Trials(plan.robot.as_array()[None], np.zeros(1), x0[None]),
+                   "adaptive", record=True)
+    assert out.trace is not None
+    every = settings.every(dt, plan.duration)
+    columns = [out.columns.index("dv1"), out.columns.index("dv2")]
+    held = out.trace[0, :-1:every][:, columns]  # the rows at t_k = k sample
+    assert np.abs(held).max() > 1e-3
+    final, _ = _referee(plan, settings, dt, limit, x0, given=held)
+    np.testing.assert_allclose(out.trace[0, -1, :3], final, atol=AGREE, rtol=0)
+
+
+def test_rk4_samples_where_the_adaptive_integrator_stops(plan) -> None:  # type: ignore[no-untyped-def]
+    """Both integrators sample at the same instants: at dt = 1 ms their final angles agree
+    to RK4's error (the held corrections would differ by a sample's jump otherwise)."""
+    settings = mpc.MpcSettings(sample=0.1, horizon=8)
+    x0 = _initial(plan, np.array([1e-3, 2e-3, -1e-3]))
+    scenario = Scenario(plan, Gains((1.0, 1.0), (2.0, 2.0)), dt=0.001, controller="mpc",
+                        settings={"mpc": settings}, rtol=1e-11, atol=1e-13, twin=0.0)
+    trials = Trials(plan.robot.as_array()[None], np.zeros(1), x0[None])
+    adaptive = simulate(scenario, trials, "adaptive")
+    rk4 = simulate(scenario, trials, "rk4")
+    assert rk4.metrics[0, Metric.ERR_THETA_FINAL] == pytest.approx(
+        adaptive.metrics[0, Metric.ERR_THETA_FINAL], abs=1e-8)
+    assert adaptive.metrics[0, Metric.ERR_THETA_FINAL] < 1e-6  # the terminal condition
+
+
+def test_a_sample_time_that_does_not_fit_names_the_key(plan) -> None:  # type: ignore[no-untyped-def]
+    with pytest.raises(FlatcliError, match=r"track\.mpc_sample"):
+        Scenario(plan, Gains((1.0, 1.0), (2.0, 2.0)), dt=0.001, controller="mpc",
+                 settings={"mpc": mpc.MpcSettings(sample=0.3)})
+
+
+@pytest.mark.parametrize("noise", [False, True])
+def test_the_reference_integrator_runs_the_sampled_loop(plan, noise: bool) -> None:  # type: ignore[no-untyped-def]
+    """DOP853 (``reference``) stops at the samples and samples there as the compiled
+    integrators do: the same trial agrees with the adaptive one at rtol 1e-11 to 1e-9 rad at
+    every output sample, and the controller's columns are written, with and without sensor
+    noise (held per output interval)."""
+    settings = mpc.MpcSettings(sample=0.1, horizon=6)
+    x0 = _initial(plan, np.array([1e-3, -2e-3, 2e-3]))
+    scenario = Scenario(plan, Gains((1.0, 1.0), (2.0, 2.0)), dt=0.01, rate_limit=40.0,
+                        controller="mpc", settings={"mpc": settings}, rtol=1e-11,
+                        atol=1e-13, twin=0.0)
+    table = np.random.default_rng(4).normal(0.0, 1e-5, (1, scenario.n_steps, 3)) if noise \
+        else None
+    trials = Trials(plan.robot.as_array()[None], np.zeros(1), x0[None], table)
+    ours = simulate(scenario, trials, "adaptive", record=True)
+    reference = simulate(scenario, trials, "dop853", record=True)
+    assert ours.trace is not None and reference.trace is not None
+    assert reference.status[0] == Status.OK
+    gap = np.abs(ours.trace[0, :, :3] - reference.trace[0, :, :3]).max()
+    assert gap < 1e-9
+    assert reference.extra is not None and ours.extra is not None
+    assert reference.extra[0, 1] == ours.extra[0, 1] == 0  # infeasible samples
+    assert reference.extra[0, 0] > 0
+
+
+def test_every_generated_kernel_has_closure_names_of_its_own() -> None:
+    """numba links a name two loaded kernels share to one definition (tests/test_kernels.py):
+    each composed combination's closures carry their own tag, the same in every process."""
+    from flatcli.core.loop import table
+    from flatcli.core.loop.integrate import make_trial_integrators
+    from flatcli.core.loop.kernels import make_batch, make_single
+
+    seen: dict[str, tuple[str, str, str]] = {}
+    for key, kernels in table.KERNELS.items():
+        ops = kernels.ops
+        functions = [make_batch(ops), *make_single(ops),
+                     *make_trial_integrators(ops.rhs, ops.observe, ops.record, ops.stage,
+                                             ops.reset, ops.period, ops.sample)]
+        for name in (f.__qualname__ for f in functions):
+            assert name not in seen, (key, seen.get(name), name)
+            seen[name] = key
+    assert {key[0] for key in table.KERNELS} == {"flat", "asbuilt", "mpc", "python"}
+    for sampled in ("mpc", "python"):  # around each of the 6 base combinations
+        assert len([key for key in table.KERNELS if key[0] == sampled]) == 6
+
+
+def test_the_spec_reaches_the_kernel_through_the_generated_keys() -> None:
+    """track.controller = "mpc" and track.mpc_* from the API to the kernel: the MPC's
+    terminal condition brings the paper's maneuver from Fig. 4's start (errors of 0.16 rad)
+    to its goal, where the paper's law (printed gains) ends 0.29 rad off."""
+    flat = flatcli.track(quiet=True)
+    run = flatcli.track(overrides={"track.controller": "mpc", "track.mpc_sample": 0.05,
+                                   "track.mpc_horizon": 10}, quiet=True)
+    assert run.run.scenario.settings_for("mpc") == mpc.MpcSettings(sample=0.05, horizon=10)
+    assert run.metrics["status"] == "ok"
+    assert run.metrics["err_theta_final"] < 1e-6 < flat.metrics["err_theta_final"]
+
+
+def test_a_bad_mpc_key_is_one_line_and_exit_status_2(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    from click.testing import CliRunner
+
+    from flatcli.cli import main
+
+    for bad, named in (("track.mpc_horizon=1", "track.mpc_horizon"),
+                       ("track.mpc_sample=0.3", "track.mpc_sample")):
+        result = CliRunner().invoke(main, ["track", "--set", "track.controller=\"mpc\"",
+                                           "--set", bad, "--out", str(tmp_path / "run")])
+        assert result.exit_code == 2, result.output
+        assert named in result.output and "Traceback" not in result.output
+        assert not (tmp_path / "run").exists()  # no half-written output
+
+
+class PythonMpc:
+    """The MPC's sample step run by the Python interpreter (its compiled functions are plain
+    Python functions too): a controller written in Python, as a researcher would pass one."""
+
+    def __init__(self, design: mpc.Design, sample: float) -> None:
+        self.design = design
+        self.sample = sample
+        self.scratch = mpc.scratch(design)
+
+    def reset(self) -> None:
+        mpc.reset(self.scratch)
+
+    def step(self, k: int, t: float, errors: Array) -> Array:
+        self.scratch.s0[:] = errors
+        mpc.sample_step(self.design, self.scratch, k)
+        return self.scratch.held.copy()
+
+
+def test_a_controller_written_in_python_runs_in_the_same_loop(plan) -> None:  # type: ignore[no-untyped-def]
+    """flatcli.track(..., controller=obj): the MPC's step as Python around the flat law with
+    the MPC's inner gains equals the compiled MPC run by the same DOP853 loop, and the
+    compiled MPC's adaptive trial to 1e-9 rad."""
+    settings = mpc.MpcSettings(sample=0.2, horizon=4)
+    common = {"track.dt": 0.01, "track.rate_limit": 40.0, "track.mpc_sample": 0.2,
+              "track.mpc_horizon": 4}
+    compiled = flatcli.track(overrides={**common, "track.controller": "mpc",
+                                        "track.integrator": "dop853"}, quiet=True)
+    adaptive = flatcli.track(overrides={**common, "track.controller": "mpc",
+                                        "track.rtol": 1e-11, "track.atol": 1e-13}, quiet=True)
+    design = mpc.flat_design(plan.model, plan.trajectory, plan.duration, 0.01, 40.0, settings)
+    ours = flatcli.track(overrides={**common, "track.kp": [1.0, 1.0], "track.kv": [2.0, 2.0]},
+                         controller=PythonMpc(design, 0.2), quiet=True)
+    angles = [f"theta{i}" for i in range(3)]
+    theirs = compiled.frame[angles].to_numpy()
+    assert np.abs(ours.frame[angles].to_numpy() - theirs).max() < 1e-12
+    assert np.abs(ours.frame[angles].to_numpy() - adaptive.frame[angles].to_numpy()).max() < AGREE
+    np.testing.assert_array_equal(ours.frame["dv1"], compiled.frame["dv1"])
+
+
+def test_a_python_controller_that_breaks_the_interface_is_one_clear_error() -> None:
+    class NoStep:
+        sample = 0.1
+
+        def reset(self) -> None:
+            pass
+
+    class WrongSize(NoStep):
+        def step(self, k: int, t: float, errors: Array) -> Array:
+            return np.zeros(3)
+
+    with pytest.raises(FlatcliError, match=r"controller: NoStep has no method step"):
+        flatcli.track(controller=NoStep(), quiet=True)
+    with pytest.raises(FlatcliError, match=r"controller: step\(\) must return 2 finite"):
+        flatcli.track(controller=WrongSize(), quiet=True)
+
+
+def test_a_sweep_writes_the_mpc_columns_null_for_the_other_law(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """trials.parquet has qp_iterations, qp_infeasible (integers) and qp_slack_max for every
+    trial, null where the trial's controller is not the MPC; the DOP853 re-run of
+    sweep.verify runs the MPC too and agrees with the adaptive trial."""
+    spec = {"name": "mpc_sweep",
+            "track": {"dt": 0.01, "mpc_sample": 0.2, "mpc_horizon": 4, "kp": [1.0, 1.0],
+                      "kv": [2.0, 2.0]},
+            "sweep": {"trials": 3, "seed": 1, "verify": 1,
+                      "grid": {"track.controller": ["flat", "mpc"]},
+                      "perturb": {"initial": {"dist": "normal", "std": 0.002}}}}
+    trials = flatcli.sweep(spec, tmp_path / "s", workers=1, quiet=True).trials
+    columns = list(mpc.COLUMNS)
+    ours = trials[trials["track.controller"] == "mpc"]
+    other = trials[trials["track.controller"] == "flat"]
+    assert len(ours) == len(other) == 3
+    assert ours[columns].notna().all().all() and (ours["qp_iterations"] > 0).all()
+    assert other[columns].isna().all().all()
+    schema = pq.read_schema(tmp_path / "s" / "trials.parquet")
+    assert schema.field("qp_iterations").type == schema.field("qp_infeasible").type == pa.int64()
+    checked = ours["reference_difference"].dropna()
+    assert len(checked) == 1 and float(checked.iloc[0]) < 1e-6
+
+
+# registered in loop/table.py (not here) the kernels are made when that module is imported,
+# where a compile child finds them; made in the test they compile in this process
+@pytest.mark.filterwarnings("ignore:flatcli. compiling nudge_paper_kinematic")
+def test_a_new_controller_is_one_module_and_its_registration(plan, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    """docs/development.md's example (tests/example_controller.py, as printed there),
+    registered as the docs say (``table.SAMPLED``, its kernels generated by the same
+    factory, ``CONTROLLERS``), runs as track.controller = "nudge": at every sample it holds
+    dv_j = -4 e_j, e_j = y_j - y_jd; for the paper's robot y1 = th1, so the trace's dv1 at
+    each sample instant is -4 (th1 - th1 of the plan) there, read from the trace's own
+    angles."""
+    import example_controller as nudge
+
+    from flatcli.core.loop import simulate as simulate_module
+    from flatcli.core.loop import table
+    from flatcli.core.loop.kernels import (
+        PAPER_KINEMATIC,
+        compile_kernels,
+        paper_plant,
+        paper_shared,
+    )
+
+    ops = sampled_ops(PAPER_KINEMATIC, nudge.PART)
+    kernels = compile_kernels(ops, "nudge_paper_kinematic", paper_shared, paper_plant,
+                              "example_controller")
+    monkeypatch.setitem(table.SAMPLED, "nudge", nudge.PART)
+    monkeypatch.setitem(table.KERNELS, ("nudge", "paper", "kinematic"), kernels)
+    monkeypatch.setattr(simulate_module, "CONTROLLERS", (*simulate_module.CONTROLLERS, "nudge"))
+    scenario = Scenario(plan, Gains((1.0, 1.0), (2.0, 2.0)), dt=0.01, controller="nudge")
+    x0 = _initial(plan, np.array([2e-3, -3e-3, 1e-3]))
+    out = simulate(scenario, Trials(plan.robot.as_array()[None], np.zeros(1), x0[None]), "rk4",
+                   record=True)
+    assert out.status[0] == Status.OK and out.trace is not None
+    every = round(0.1 / 0.01)
+    rows = out.trace[0, :-1:every]
+    th1 = rows[:, out.columns.index("theta1")]
+    th1_plan = plan.sample(np.arange(len(rows)) * 0.1).theta[:, 1]
+    dv1 = rows[:, out.columns.index("dv1")]
+    np.testing.assert_allclose(dv1, -4.0 * (th1 - th1_plan), rtol=0, atol=1e-12)
+    assert np.abs(dv1).max() > 1e-3
