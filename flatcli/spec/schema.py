@@ -267,8 +267,10 @@ class TrackSpec:
                              "linearising feedback on the flat outputs, gains kp, kv), "
                              "\"asbuilt\" (time-varying LQR of the robot as built about the "
                              "plan, weights lqr_*; docs/asbuilt.md) or \"mpc\" (a correction "
-                             "chosen at sample instants within the limits, wrapping the flat "
-                             "law, or the as-built law on an exact plan; settings mpc_*)")
+                             "chosen at sample instants by a QP that keeps the rate limit "
+                             "and the margin at its predicted samples, wrapping the flat "
+                             "law, or the as-built law on an exact plan; settings mpc_*; "
+                             "what it guarantees: docs/physics.md)")
     lqr_bandwidth: float = number(DEFAULT_BANDWIDTH, "asbuilt: b, the joint-rate weight R = "
                                   "I / b^2 of the LQR", "rad/s", gt=0)
     lqr_base: float = number(DEFAULT_BASE, "asbuilt: weight of the base angle's error "
