@@ -35,6 +35,9 @@ COMPILE_SECONDS: dict[str, float] = {
     "the simulation kernel of the chain model, dynamic plant": 175.0,
     "the simulation kernel of the as-built model, kinematic plant": 250.0,
     "the simulation kernel of the as-built model, dynamic plant": 580.0,
+    # the MPC around each law: 40-60 s each, measured 2026-12-05 at load 3-5 (niced)
+    **{f"the simulation kernel of the {model} model, {plant} plant, mpc controller": 60.0
+       for model in ("paper", "chain", "as-built") for plant in ("kinematic", "dynamic")},
     "the planner of the paper model": 10.0,
     "the planner of the chain model": 30.0,
     "the planner of the as-built model": 10.0,
@@ -52,7 +55,8 @@ def kernel_key(scenario: Any) -> str:
     believes: the paper's closed form, the N-link chain, the as-built robot's exact model)
     and its plant (``core.simulate.kernel_inputs`` picks the kernel by them)."""
     model = "as-built" if scenario.controller == "asbuilt" else scenario.plan.model.kind
-    return f"{model} model, {scenario.plant} plant"
+    law = getattr(scenario, "sampled", None)  # a sampled controller around the law (the MPC)
+    return f"{model} model, {scenario.plant} plant" + (f", {law} controller" if law else "")
 
 
 def _spec_model(spec: Any) -> str:
@@ -71,7 +75,9 @@ def kernel_text(scenario: Any) -> str:
 
 def spec_kernel_text(spec: Any) -> str:
     """``kernel_text`` of the loop a spec runs, from the spec alone."""
-    return f"the simulation kernel of the {_spec_model(spec)} model, {spec.plant.model} plant"
+    law = ", mpc controller" if spec.track.controller == "mpc" else ""
+    return (f"the simulation kernel of the {_spec_model(spec)} model, {spec.plant.model} "
+            f"plant{law}")
 
 
 def planner_text(spec: Any) -> str:

@@ -183,3 +183,23 @@ def test_the_cells_planning_is_shown_for_a_large_grid_only() -> None:
     Progress("s", quiet=True, stream=quiet).cells(0, 10**4)
     assert quiet.getvalue() == ""
 
+
+
+def test_the_mpcs_kernel_has_a_notice_of_its_own() -> None:
+    """The MPC's loop is another kernel than its inner law's: its notice names it, and the
+    table's expected time is the MPC's (40-60 s measured), not the inner loop's."""
+    from types import SimpleNamespace
+
+    from flatcli.progress import kernel_text, spec_kernel_text
+    from flatcli.spec import resolve
+
+    flat, mpc = (resolve({"track": {"controller": c}}) for c in ("flat", "mpc"))
+    assert spec_kernel_text(flat) == "the simulation kernel of the paper model, kinematic plant"
+    assert spec_kernel_text(mpc) == spec_kernel_text(flat) + ", mpc controller"
+    plan = SimpleNamespace(model=SimpleNamespace(kind="paper"))
+    for sampled in (None, "mpc"):
+        scenario = SimpleNamespace(controller="flat", plan=plan, plant="kinematic",
+                                   sampled=sampled)
+        text = kernel_text(scenario)
+        assert text == spec_kernel_text(flat if sampled is None else mpc)
+        assert COMPILE_SECONDS[text] == (40.0 if sampled is None else 60.0)
