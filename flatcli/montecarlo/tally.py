@@ -98,6 +98,10 @@ def simulate_counted(scenario: Scenario, trials: Trials, integrator: Integrator,
         clearance=MotionClearance.concatenate([p.clearance for p in parts
                                                if p.clearance is not None])
         if parts and parts[0].clearance is not None else None,
+        extra=np.concatenate([p.extra for p in parts if p.extra is not None])
+        if parts and parts[0].extra is not None else None,
+        extra_columns=parts[0].extra_columns if parts else (),
+        extra_counts=parts[0].extra_counts if parts else (),
     )
 
 
