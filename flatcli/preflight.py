@@ -305,11 +305,11 @@ class CheckReport:
                               f"workers {cal.slowdown:.1f}x; the load average "
                               f"{cal.other_load:.1f} besides)")
             lines.append(
-                f"estimate on {where}: {_duration(total)} (planning "
+                f"estimate on {where}: {duration_estimate(total)} (planning "
                 f"{self.planning_seconds:.1f} s, loading the kernel {self._load_seconds:.1f} s, "
                 f"trials {self._trial_seconds:.1f} s, final tables "
                 f"{cal.finish_seconds_per_trial * lay.total:.1f} s); the trials take "
-                f"{_duration(self.cpu_seconds or 0.0)} of CPU")
+                f"{duration_estimate(self.cpu_seconds or 0.0)} of CPU")
             memory = self.memory_mib
             assert memory is not None
             main, worker = memory
@@ -323,7 +323,8 @@ class CheckReport:
         return "\n".join(lines)
 
 
-def _duration(seconds: float) -> str:
+def duration_estimate(seconds: float) -> str:
+    """An estimated time in words: '45 s', '4.2 min', '3.1 h'."""
     if seconds < 120:
         return f"{seconds:.0f} s"
     if seconds < 7200:

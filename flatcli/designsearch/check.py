@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 from flatcli.designsearch.design import Design, violation_text
 from flatcli.designsearch.runner import check_search, own_study
-from flatcli.preflight import CheckReport, check_spec
+from flatcli.preflight import CheckReport, check_spec, duration_estimate
 from flatcli.report import table
 from flatcli.spec import Spec, spec_toml
 
@@ -115,7 +115,7 @@ class SearchCheckReport:
                              f"{1e3 * cal.per_trial:.3g} ms per trial")
                 where = f"{report.workers} {report.executor} worker" + (
                     "s" if report.workers > 1 else "")
-                lines.append(f"estimate on {where}: {_duration(total)} for "
+                lines.append(f"estimate on {where}: {duration_estimate(total)} for "
                              f"{self.candidates * lay.total} trials "
                              f"({self.candidates} candidates x {lay.total}), if every "
                              "candidate is feasible and costs what the spec's own design does")
@@ -125,14 +125,6 @@ class SearchCheckReport:
             lines += ["", "no warnings"]
         lines += ["", "nothing written"]
         return "\n".join(lines)
-
-
-def _duration(seconds: float) -> str:
-    if seconds < 120:
-        return f"{seconds:.0f} s"
-    if seconds < 7200:
-        return f"{seconds / 60:.1f} min"
-    return f"{seconds / 3600:.1f} h"
 
 
 def check_search_spec(spec: Spec, workers: int | None = None, executor: str = "local",
