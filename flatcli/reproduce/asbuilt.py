@@ -32,10 +32,11 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from flatcli.core.loop.metrics import RESOLVED
 from flatcli.report import FigureFile, fmt, new_figure, save_figure, styled, table
 from flatcli.report.figures import PAGE_WIDTH
 from flatcli.reproduce.findings import reached_text
-from flatcli.reproduce.sections import Context, Outcome, Section
+from flatcli.reproduce.sections import Context, Outcome, Section, with_shared_sets
 from flatcli.spec import Spec, load_spec
 
 #: The goal study's spec (package data; configs/ links to it).
@@ -71,19 +72,12 @@ DESIGNER_POSITIONS = (-0.02, 0.0, -0.10, 0.0)
 #: Samples of the dense check of |H| along the goal's exact plan.
 DENSE_SAMPLES = 20001
 #: ``--set`` items of ``make reproduce`` that apply to the goal study.
-SHARED_SETS = ("sweep.trials=", "sweep.seed=")
-RESOLVED = ("ok", "singular")
 STD_KEY = "sweep.perturb.initial.std"
 
 
 def goal_spec(context: Context) -> Spec:
     """The goal study's spec with the --set items that apply (``SHARED_SETS``)."""
-    spec = load_spec(GOAL_SPEC)
-    for item in context.sets:
-        if item.startswith(SHARED_SETS):
-            key, _, value = item.partition("=")
-            spec = spec.with_overrides({key: int(value)})
-    return spec
+    return with_shared_sets(load_spec(GOAL_SPEC), context.sets)
 
 
 def pipeline(spec: Spec, name: str) -> Spec:

@@ -28,7 +28,7 @@ from flatcli.outputs import track_frame
 from flatcli.report import FigureFile, fmt, new_figure, save_figure, styled, table
 from flatcli.report.figures import PAGE_WIDTH
 from flatcli.reproduce.findings import plan_of, reached_text, track_of
-from flatcli.reproduce.sections import Context, Outcome, Section
+from flatcli.reproduce.sections import Context, Outcome, Section, with_shared_sets
 from flatcli.spec import Spec, load_spec
 from flatcli.storage import run_record, write_parquet
 
@@ -54,7 +54,6 @@ def path_rates(joints: int) -> tuple[tuple[list[float], list[float]], ...]:
 
 
 #: ``--set`` items of ``make reproduce`` that also apply to these studies.
-SHARED_SETS = ("sweep.trials=", "sweep.seed=")
 
 
 def natural_drift(plan: Plan, samples: int = DENSE_SAMPLES) -> float:
@@ -171,12 +170,8 @@ def run_study(spec: Spec, plan: Plan, directory: Path, quiet: bool, workers: int
 def study_spec(spec: Spec, sets: Sequence[str]) -> Spec:
     """A robot's Monte Carlo study: its spec started on the plan's start, with the --set items
     of ``make reproduce`` that apply here (``SHARED_SETS``)."""
-    study = spec.with_overrides({"track.initial": [float(v) for v in spec.plan.start]})
-    for item in sets:
-        if item.startswith(SHARED_SETS):
-            key, _, value = item.partition("=")
-            study = study.with_overrides({key: int(value)})
-    return study
+    return with_shared_sets(
+        spec.with_overrides({"track.initial": [float(v) for v in spec.plan.start]}), sets)
 
 
 def demoted(markdown: str) -> str:

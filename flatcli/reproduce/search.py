@@ -19,7 +19,7 @@ import numpy as np
 import pyarrow.parquet as pq
 
 from flatcli.report import fmt, table
-from flatcli.reproduce.sections import Context, Outcome, Section
+from flatcli.reproduce.sections import Context, Outcome, Section, with_shared_sets
 from flatcli.spec import Spec, load_spec
 from flatcli.spec.toml import toml_key, toml_value
 
@@ -34,18 +34,13 @@ REMEASURE_SEED = 4002
 OFFSETS_MM = (-1.0, 0.0, 0.5, 1.0, 2.0)
 OFFSET_TRIALS = 500
 #: ``--set`` items of ``make reproduce`` that reach the search (as they reach the studies).
-SHARED_SETS = ("sweep.trials=", "sweep.seed=")
 #: search.candidates, if not the spec's (None: the spec's).
 BUDGET: int | None = None
 
 
 def search_spec(context: Context) -> Spec:
     """The shipped search spec with the --set items that apply (``SHARED_SETS``)."""
-    spec = load_spec(SEARCH_SPEC)
-    for item in context.sets:
-        if item.startswith(SHARED_SETS):
-            key, _, value = item.partition("=")
-            spec = spec.with_overrides({key: int(value)})
+    spec = with_shared_sets(load_spec(SEARCH_SPEC), context.sets)
     if BUDGET is not None:
         spec = spec.with_overrides({"search.candidates": BUDGET})
     return spec

@@ -44,6 +44,20 @@ RECORD_VERSION = 1
 _PACKAGE = Path(__file__).resolve().parents[1]
 
 
+#: The --set items of ``make reproduce`` that the sections' own studies take too.
+SHARED_SETS = ("sweep.trials=", "sweep.seed=")
+
+
+def with_shared_sets(spec: Spec, sets: Sequence[str]) -> Spec:
+    """``spec`` with the --set items of ``make reproduce`` that apply to a section's own
+    study (``SHARED_SETS``: its trials and seed)."""
+    for item in sets:
+        if item.startswith(SHARED_SETS):
+            key, _, value = item.partition("=")
+            spec = spec.with_overrides({key: int(value)})
+    return spec
+
+
 @dataclass(frozen=True)
 class Context:
     """What every section is computed from.
