@@ -315,12 +315,15 @@ class CheckReport:
             main, worker = memory
             lines.append(f"peak memory: ~{main:.0f} MiB main process, ~{worker:.0f} MiB per "
                          f"worker process (resident, shared pages counted in each)")
-        if self.warnings:
-            lines += ["", "warnings:", *(f"- {w}" for w in self.warnings)]
-        else:
-            lines += ["", "no warnings"]
-        lines += ["", "nothing written"]
+        lines += closing_lines(self.warnings)
         return "\n".join(lines)
+
+
+def closing_lines(warnings: Sequence[str]) -> list[str]:
+    """The last lines of a check's text: its warnings (or that there are none), and that it
+    wrote nothing."""
+    said = ["warnings:", *(f"- {w}" for w in warnings)] if warnings else ["no warnings"]
+    return ["", *said, "", "nothing written"]
 
 
 def duration_estimate(seconds: float) -> str:

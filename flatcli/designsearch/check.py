@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 from flatcli.designsearch.design import Design, violation_text
 from flatcli.designsearch.runner import check_search, own_study
-from flatcli.preflight import CheckReport, check_spec, duration_estimate
+from flatcli.preflight import CheckReport, check_spec, closing_lines, duration_estimate
 from flatcli.report import table
 from flatcli.spec import Spec, spec_toml
 
@@ -119,11 +119,7 @@ class SearchCheckReport:
                              f"{self.candidates * lay.total} trials "
                              f"({self.candidates} candidates x {lay.total}), if every "
                              "candidate is feasible and costs what the spec's own design does")
-        if self.warnings:
-            lines += ["", "warnings:", *(f"- {w}" for w in self.warnings)]
-        else:
-            lines += ["", "no warnings"]
-        lines += ["", "nothing written"]
+        lines += closing_lines(self.warnings)
         return "\n".join(lines)
 
 
