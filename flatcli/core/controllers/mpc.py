@@ -239,9 +239,8 @@ class Scratch(NamedTuple):
     solution (n,), the sample it was solved at plus one (valid[0]; 0: none), the QP's rows
     C (m, n), their bounds lo, hi (m,), widths (m,) and softness (m,) (``qp.solve``), its
     gradient (n,) and solution (n,), the measured errors s0 (S,), a row (n,) and a row of
-    state slopes (S,) being
-    propagated, the QP's buffers, and counters: QP iterations, infeasible samples, largest
-    slack."""
+    state slopes (S,) being propagated, the QP's buffers, and counters: QP iterations,
+    infeasible samples, largest slack."""
 
     held: Array
     last: Array
