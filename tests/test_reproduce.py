@@ -3,6 +3,7 @@ written; its study spec shipped with the package."""
 
 from __future__ import annotations
 
+import math
 import tomllib
 from fnmatch import fnmatch
 from pathlib import Path
@@ -30,6 +31,12 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path,
     monkeypatch.setattr(search, "BUDGET", 50)
     monkeypatch.setattr(search, "REMEASURE_TRIALS", 12)
     monkeypatch.setattr(search, "OFFSET_TRIALS", 6)
+    # within the actuators: two rate limits (each limit the cubic exceeds is a re-plan; the
+    # six of make reproduce's grid are wired alike)
+    study_spec = within.study_spec
+    monkeypatch.setattr(within, "study_spec", lambda context: study_spec(context).with_overrides(
+        {"sweep.grid": {"track.rate_limit": [math.inf, 4.0],
+                        "track.controller": ["flat", "mpc"]}}))
     result = CliRunner().invoke(main, ["reproduce", "--out", "paper", "--set",
                                        "sweep.trials=8", "-q"])
     assert result.exit_code == 0, result.output
