@@ -11,8 +11,8 @@ angular momentum H0). The kinematic plant's state is x = (th0, th1, th2, u1):
 where (u1', u2) come from the controller at the measured angles th + noise, and sat clips a
 joint rate to +-rate_limit (an actuator limit; infinite by default). While th1' is clipped
 the controller's integrator does not wind up: u1' is set to 0 whenever u1 is at or beyond
-the limit and v1 would push it further out (conditional integration), so u1 never runs away
-from the rate the joint actually turns at.
+the limit and v1 would push it further out (conditional integration, ``control.unwound``), so
+u1 never runs away from the rate the joint actually turns at.
 
 The dynamic plant (``plant.model = "dynamic"``) is the robot with inertia: free-floating
 multibody dynamics (``dynamics``, the plant's own parameters, any d2) driven by joint torques
@@ -46,7 +46,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from flatcli.core._jit import jitable
-from flatcli.core.controllers.control import PaperGains, feedback, feedback_at
+from flatcli.core.controllers.control import PaperGains, feedback, feedback_at, unwound
 from flatcli.core.loop.metrics import observe_clipped, observe_sample, observe_torque
 from flatcli.core.models.flatness import chart, outputs_at
 from flatcli.core.robots.dynamics import (
@@ -133,9 +133,7 @@ def kinematic_rhs(loop: Loop, x: Array, ref: Array, noise: Array, out: Array) ->
     else:
         c2, c12 = np.cos(x2 + loop.offset), np.cos(x1 + x2 + loop.offset)
     w0 = base_rate_at(loop.kq, loop.total_mass, loop.h0, c1, c2, c12, w1, w2)
-    if (x3 >= limit and u1_dot > 0.0) or (x3 <= -limit and u1_dot < 0.0):
-        u1_dot = 0.0  # conditional integration: no wind-up while th1' is clipped
-    out[0], out[1], out[2], out[3] = w0, w1, w2, u1_dot
+    out[0], out[1], out[2], out[3] = w0, w1, w2, unwound(x3, u1_dot, limit)
     out[4], out[5], out[6], out[7] = sm1 * x3, c1, s1, c12
 
 
@@ -255,11 +253,9 @@ def dynamic_rhs(loop: DynamicLoop, x: Array, ref: Array, noise: Array, out: Arra
     q1_ddot = (a22 * rhs1 - a12 * rhs2) * inv_det
     q2_ddot = (a11 * rhs2 - a12 * rhs1) * inv_det
     q0_ddot = -(m01 * q1_ddot + m02 * q2_ddot + h0) / m00
-    if (u1 >= limit and u1_dot > 0.0) or (u1 <= -limit and u1_dot < 0.0):
-        u1_dot = 0.0  # conditional integration: no wind-up while the command is clipped
     out[0], out[1], out[2] = x[3], x[4], x[5]
     out[3], out[4], out[5] = q0_ddot, q1_ddot, q2_ddot
-    out[6] = u1_dot
+    out[6] = unwound(u1, u1_dot, limit)
     out[7] = sm1 * u1
     out[AUX_TAU1], out[AUX_TAU2] = tau1, tau2
     out[AUX_R2], out[AUX_SATURATED] = r2, saturated
