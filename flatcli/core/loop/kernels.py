@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -85,6 +85,7 @@ from flatcli.core.loop.paperloop import (
     KINEMATIC_STATE,
     DynamicLoop,
     Loop,
+    command_rhs,
     dynamic_initial,
     dynamic_rhs,
     is_flat_plant,
@@ -465,7 +466,7 @@ def _paper_kinematic_loop(shared: PaperShared, trials: TrialArrays, i: int,
     p = _links_row(trials.params, i)
     kq = _coefficients_row(trials.plant, i)
     return Loop(shared.kc, shared.gains, kq, p, p.m0 + p.m1 + p.m2, trials.h0[i],
-                shared.rate_limit, is_flat_plant(kq), trials.offset[i])
+                shared.rate_limit, is_flat_plant(kq), trials.offset[i], scratch)
 
 
 @jitable
@@ -537,6 +538,10 @@ PAPER_KINEMATIC = Ops(
     record_rates, _paper_residual, lambda n: KINEMATIC_STATE, lambda n: KINEMATIC_AUX,
     lambda n: KINEMATIC_STATE + 3, _no_scratch, additive=flat_additive,
     measure=measure_kinematic)
+#: The paper's kinematic plant under commands a controller written in Python gives
+#: (``paperloop.command_rhs``; the reference loop writes them into the loop's scratch).
+PAPER_COMMAND = replace(PAPER_KINEMATIC, rhs=command_rhs, scratch=lambda n: np.zeros(n),
+                        additive=None, measure=None)
 PAPER_DYNAMIC = Ops(
     _paper_dynamic_loop, _rates_or_torques_bounded, dynamic_initial, dynamic_rhs,
     observe_dynamic, record_dynamic, _paper_residual, lambda n: DYNAMIC_STATE,

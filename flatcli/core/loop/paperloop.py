@@ -45,7 +45,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from flatcli.core._jit import jitable
+from flatcli.core._jit import Real, jitable
 from flatcli.core.controllers.control import PaperGains, feedback, feedback_at, unwound
 from flatcli.core.loop.metrics import observe_clipped, observe_sample, observe_torque
 from flatcli.core.models.flatness import chart, outputs_at
@@ -88,6 +88,7 @@ class Loop(NamedTuple):
     offset : the turn alpha [rad] of link 2 that a centre of mass across it adds (its
         coefficients and links are those of its equivalent placement,
         ``model.RobotParams.placement``): th2 + alpha enters its physics
+    command : the law's commands where they are given (``command_rhs``; else unused)
     """
 
     kc: Coefficients
@@ -98,7 +99,8 @@ class Loop(NamedTuple):
     h0: float
     rate_limit: float
     flat_plant: bool
-    offset: float = 0.0
+    offset: float
+    command: Array
 
 
 @jitable
@@ -125,16 +127,39 @@ def kinematic_rhs(loop: Loop, x: Array, ref: Array, noise: Array, out: Array) ->
         cm1, sm1 = np.cos(x1 + noise[1]), np.sin(x1 + noise[1])
     u1_dot, u2 = feedback_at(loop.kc, loop.gains, x0 + noise[0], x1 + noise[1], x2 + noise[2],
                              x3, cm1, sm1, ref)
+    kinematic_plant(loop, x, c1, s1, x3, u2, out)
+    out[3] = unwound(x3, u1_dot, loop.rate_limit)
+    out[4] = sm1 * x3
+
+
+@jitable
+def kinematic_plant(loop: Loop, x: Array, c1: float, s1: float, r1: float, r2: Real,
+                    out: Array) -> None:
+    """The kinematic plant of the paper's robot (closed form) under the joint-rate commands
+    r1, r2 [rad/s]: th0', th1', th2' (sat(r1), sat(r2), the base from its momentum) into
+    out[:3] and its cos th1, sin th1, cos(th1 + th2) (0 for a flat plant) into out[5:8];
+    c1, s1 the cos and sin of its th1 (shared with a law that measures th1 exactly)."""
     limit = loop.rate_limit
-    w1 = min(max(x3, -limit), limit)
-    w2 = min(max(u2, -limit), limit)
+    w1 = min(max(r1, -limit), limit)
+    w2 = min(max(r2, -limit), limit)
     if loop.flat_plant:
         c2 = c12 = 0.0
     else:
-        c2, c12 = np.cos(x2 + loop.offset), np.cos(x1 + x2 + loop.offset)
-    w0 = base_rate_at(loop.kq, loop.total_mass, loop.h0, c1, c2, c12, w1, w2)
-    out[0], out[1], out[2], out[3] = w0, w1, w2, unwound(x3, u1_dot, limit)
-    out[4], out[5], out[6], out[7] = sm1 * x3, c1, s1, c12
+        c2, c12 = np.cos(x[2] + loop.offset), np.cos(x[1] + x[2] + loop.offset)
+    out[0] = base_rate_at(loop.kq, loop.total_mass, loop.h0, c1, c2, c12, w1, w2)
+    out[1], out[2] = w1, w2
+    out[5], out[6], out[7] = c1, s1, c12
+
+
+@jitable
+def command_rhs(loop: Loop, x: Array, ref: Array, noise: Array, out: Array) -> None:
+    """``kinematic_rhs`` with the law's commands given: u1' [rad/s^2] and u2 [rad/s] in
+    ``loop.command`` (2,), written before each evaluation by a controller written in Python
+    (``loop.reference``); the margin is the flat law's, sin(measured th1) u1 [rad/s]."""
+    c1, s1 = np.cos(x[1]), np.sin(x[1])
+    kinematic_plant(loop, x, c1, s1, x[3], loop.command[1], out)
+    out[3] = unwound(x[3], loop.command[0], loop.rate_limit)
+    out[4] = np.sin(x[1] + noise[1]) * x[3]
 
 
 @jitable

@@ -21,9 +21,12 @@ from flatcli.core.loop.compose import sampled_ops
 from flatcli.core.loop.kernels import Kernels, compile_kernels
 
 #: The base laws' combinations, by (law, model kind, plant): their ``kernels.Ops``, how their
-#: shared record and per-trial plant arrays are made.
+#: shared record and per-trial plant arrays are made ("command": the commands of a controller
+#: written in Python, ``controllers.python``, given to the plant).
 BASE = {
     ("flat", "paper", "kinematic"): (flat.PAPER_KINEMATIC, flat.paper_shared, flat.paper_plant),
+    ("command", "paper", "kinematic"): (flat.PAPER_COMMAND, flat.paper_shared,
+                                        flat.paper_plant),
     ("flat", "paper", "dynamic"): (flat.PAPER_DYNAMIC, flat.paper_shared, flat.paper_plant),
     ("flat", "chain", "kinematic"): (flat.CHAIN_KINEMATIC, flat.chain_shared, flat.chain_plant),
     ("flat", "chain", "dynamic"): (flat.CHAIN_DYNAMIC, flat.chain_shared, flat.chain_plant),
