@@ -40,6 +40,7 @@ from numpy.typing import NDArray
 
 from flatcli.core._jit import jitable
 from flatcli.core.controllers.control import Gains
+from flatcli.core.loop.chainloop import plan_residual
 from flatcli.core.loop.kernels import Ops, TrialArrays
 from flatcli.core.loop.metrics import observe_clipped, observe_errors, observe_torque
 from flatcli.core.plan.exact import constraint_of
@@ -317,20 +318,6 @@ def record_dynamic(loop: Any, trace: Array, j: int, nx: int, x: Array, f: Array
 
 
 @jitable
-def plan_residual(loop: AsbuiltLoop, plan_theta: Array, plan_theta_dot: Array) -> float:
-    """max_j |H - H0| of the plan's own samples with the plant's parameters [kg m^2/s]."""
-    residual = 0.0
-    for j in range(plan_theta.shape[0]):
-        plant_trig(loop, plan_theta[j])
-        h = chain_momentum_given(loop.params, loop.rows[_CS], loop.rows[_SN],
-                                 plan_theta_dot[j])
-        residual = max(residual, abs(h - loop.h0))
-    return residual
-
-
-
-
-@jitable
 def additive(loop: AsbuiltLoop, ref: Array, dv: Array, out: Array) -> None:
     """The as-built law's additive input: ``out`` = the tracked flag ``ref`` with dv (N,)
     [rad/s] added to the joint-rate commands w (``commands``): on the plan's joint rates w_r
@@ -380,7 +367,8 @@ def _loop(shared: AsbuiltShared, trials: TrialArrays, i: int, scratch: AsbuiltSc
 @jitable
 def _residual(loop: Any, trials: TrialArrays, i: int, plan_theta: Array,
               plan_theta_dot: Array) -> float:
-    return plan_residual(loop, plan_theta, plan_theta_dot)
+    return plan_residual(plan_theta, plan_theta_dot, loop.params, loop.h0, loop.rows[_CS],
+                         loop.rows[_SN], loop.cos_p, loop.sin_p)
 
 
 @jitable

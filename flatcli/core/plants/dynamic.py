@@ -13,7 +13,6 @@ of the *servo's model* (the plant itself, or a nominal chain with its own turn o
 link) at the true joint angles and rates. Where the servo's model is the plant's and no
 torque is clipped, each joint rate follows its command as the first-order lag
 th_j'' = bandwidth (r_j - th_j'); the base turns as momentum conservation makes it.
-
 """
 
 from __future__ import annotations
