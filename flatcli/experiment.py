@@ -35,6 +35,7 @@ from flatcli.core.robots.params import RobotParams
 from flatcli.spec import Spec, SpecError
 from flatcli.spec.limits import check_track
 from flatcli.spec.schema import goal_is_derived
+from flatcli.spec.unread import unread_keys
 
 if TYPE_CHECKING:  # the optimiser (scipy's SLSQP) loads only for a spec that optimises
     from flatcli.core.optimize import OptimizeResult
@@ -386,8 +387,9 @@ class TrackRun:
 
     @property
     def warnings(self) -> list[str]:
-        """One line each: the plan's fastest joint beyond ``plan.rate_warning``."""
-        return plan_warnings(self.spec, self.plan)
+        """One line each: the plan's fastest joint beyond ``plan.rate_warning``, and each
+        controller setting no trial reads (``spec.unread.unread_keys``)."""
+        return unread_keys(self.spec) + plan_warnings(self.spec, self.plan)
 
     @cached_property
     def columns(self) -> dict[str, Array]:

@@ -213,6 +213,31 @@ def test_every_cached_kernel_was_compiled_by_a_process_flatcli_owns(
     assert (warm["hits"], warm["misses"]) == (1, 0)  # rewritten whole
 
 
+def test_the_compile_child_imports_the_flatcli_its_parent_imported(tmp_path: Path) -> None:
+    """A script that imports flatcli through ``PYTHONPATH`` while its working directory holds
+    another ``flatcli`` (a checkout one stands in) gets its kernel compiled by a child that
+    imports the parent's flatcli, not the directory's: the kernel is read from the cache (a
+    hit, no miss), where before the child imported the other package, failed, and the
+    kernel was compiled in the parent without flatcli's inliner setting (a miss). Referee:
+    numba's own hit and miss counters, and the numbers of a run without the decoy."""
+    decoy = tmp_path / "checkout" / "flatcli"
+    decoy.mkdir(parents=True)
+    (decoy / "__init__.py").write_text('raise ImportError("the decoy flatcli was imported")\n')
+    script = tmp_path / "scripts" / "probe.py"
+    script.parent.mkdir()
+    script.write_text(_STREAM_PROBE)
+    base = {k: v for k, v in os.environ.items() if k != OWN_PROCESS_VARIABLE}
+    env = {**base, "NUMBA_CACHE_DIR": str(tmp_path / "c"), "PYTHONPATH": str(PACKAGE.parent)}
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                          check=True, timeout=600, env=env, cwd=decoy.parent)
+    out = json.loads(done.stdout.splitlines()[-1])
+    assert "decoy" not in done.stderr
+    assert out["owned"] is False
+    assert (out["hits"], out["misses"]) == (1, 0)
+    plain = _fresh_process(_STREAM_PROBE, {"NUMBA_CACHE_DIR": str(tmp_path / "c2")})
+    assert out["values"] == plain["values"]
+
+
 @pytest.mark.parametrize(("damage", "owned"), [("garbage", True), ("garbage", False),
                                                ("truncated", True), ("empty", False)])
 def test_a_damaged_cache_index_is_compiled_again_once(tmp_path: Path, damage: str,

@@ -282,9 +282,11 @@ def compile_in_child(py_func: Callable[..., Any], sig: Any) -> bool:
         payload = pickle.dumps((module, name, sig))
     except (pickle.PicklingError, TypeError, AttributeError):
         return False
+    # The child imports what this process imported: its path is this one's, and ``-P`` keeps
+    # ``-m`` from putting the working directory first (a checkout one stands in would win).
     path = os.pathsep.join(p or os.getcwd() for p in sys.path)
     try:
-        done = subprocess.run([sys.executable, "-m", CHILD_MODULE], input=payload,
+        done = subprocess.run([sys.executable, "-P", "-m", CHILD_MODULE], input=payload,
                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, check=False,
                               env={**os.environ, "PYTHONPATH": path, OWN_PROCESS_VARIABLE: "1"})
     except OSError as exc:
