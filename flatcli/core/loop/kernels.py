@@ -83,6 +83,7 @@ from flatcli.core.loop.paperloop import (
     DYNAMIC_STATE,
     KINEMATIC_AUX,
     KINEMATIC_STATE,
+    CommandLoop,
     DynamicLoop,
     Loop,
     command_rhs,
@@ -92,6 +93,7 @@ from flatcli.core.loop.paperloop import (
     kinematic_rhs,
     measure_dynamic,
     measure_kinematic,
+    observe_command,
     observe_dynamic,
     observe_kinematic,
     record_dynamic,
@@ -466,7 +468,7 @@ def _paper_kinematic_loop(shared: PaperShared, trials: TrialArrays, i: int,
     p = _links_row(trials.params, i)
     kq = _coefficients_row(trials.plant, i)
     return Loop(shared.kc, shared.gains, kq, p, p.m0 + p.m1 + p.m2, trials.h0[i],
-                shared.rate_limit, is_flat_plant(kq), trials.offset[i], scratch)
+                shared.rate_limit, is_flat_plant(kq), trials.offset[i])
 
 
 @jitable
@@ -485,6 +487,17 @@ def _paper_dynamic_loop(shared: PaperShared, trials: TrialArrays, i: int,
 def _rates_bounded(loop: Any) -> bool:
     """The kinematic plant: the joint rates are clipped to a finite rate limit."""
     return not math.isinf(loop.rate_limit)
+
+
+@jitable
+def _command_loop(shared: PaperShared, trials: TrialArrays, i: int, scratch: Any
+                  ) -> CommandLoop:
+    return CommandLoop(_paper_kinematic_loop(shared, trials, i, scratch), scratch)
+
+
+@jitable
+def _command_bounded(loop: CommandLoop) -> bool:
+    return _rates_bounded(loop.loop)
 
 
 @jitable
@@ -540,8 +553,9 @@ PAPER_KINEMATIC = Ops(
     measure=measure_kinematic)
 #: The paper's kinematic plant under commands a controller written in Python gives
 #: (``paperloop.command_rhs``; the reference loop writes them into the loop's scratch).
-PAPER_COMMAND = replace(PAPER_KINEMATIC, rhs=command_rhs, scratch=lambda n: np.zeros(n),
-                        additive=None, measure=None)
+PAPER_COMMAND = replace(PAPER_KINEMATIC, make_loop=_command_loop, bounded=_command_bounded,
+                        rhs=command_rhs, observe=observe_command,
+                        scratch=lambda n: np.zeros(n), additive=None, measure=None)
 PAPER_DYNAMIC = Ops(
     _paper_dynamic_loop, _rates_or_torques_bounded, dynamic_initial, dynamic_rhs,
     observe_dynamic, record_dynamic, _paper_residual, lambda n: DYNAMIC_STATE,

@@ -88,7 +88,6 @@ class Loop(NamedTuple):
     offset : the turn alpha [rad] of link 2 that a centre of mass across it adds (its
         coefficients and links are those of its equivalent placement,
         ``model.RobotParams.placement``): th2 + alpha enters its physics
-    command : the law's commands where they are given (``command_rhs``; else unused)
     """
 
     kc: Coefficients
@@ -99,8 +98,7 @@ class Loop(NamedTuple):
     h0: float
     rate_limit: float
     flat_plant: bool
-    offset: float
-    command: Array
+    offset: float = 0.0
 
 
 @jitable
@@ -151,15 +149,29 @@ def kinematic_plant(loop: Loop, x: Array, c1: float, s1: float, r1: float, r2: R
     out[5], out[6], out[7] = c1, s1, c12
 
 
+class CommandLoop(NamedTuple):
+    """The kinematic plant's ``Loop`` and the law's commands (2,) u1' [rad/s^2], u2 [rad/s],
+    given by a controller written in Python before each evaluation (``loop.reference``)."""
+
+    loop: Loop
+    command: Array
+
+
 @jitable
-def command_rhs(loop: Loop, x: Array, ref: Array, noise: Array, out: Array) -> None:
-    """``kinematic_rhs`` with the law's commands given: u1' [rad/s^2] and u2 [rad/s] in
-    ``loop.command`` (2,), written before each evaluation by a controller written in Python
-    (``loop.reference``); the margin is the flat law's, sin(measured th1) u1 [rad/s]."""
+def command_rhs(loop: CommandLoop, x: Array, ref: Array, noise: Array, out: Array) -> None:
+    """``kinematic_rhs`` with the law's commands given (``CommandLoop``); the margin is the
+    flat law's, sin(measured th1) u1 [rad/s]."""
     c1, s1 = np.cos(x[1]), np.sin(x[1])
-    kinematic_plant(loop, x, c1, s1, x[3], loop.command[1], out)
-    out[3] = unwound(x[3], loop.command[0], loop.rate_limit)
+    kinematic_plant(loop.loop, x, c1, s1, x[3], loop.command[1], out)
+    out[3] = unwound(x[3], loop.command[0], loop.loop.rate_limit)
     out[4] = np.sin(x[1] + noise[1]) * x[3]
+
+
+@jitable
+def observe_command(loop: CommandLoop, obs: Any, acc: Array, j: int, x: Array, f: Array
+                    ) -> None:
+    """``observe_kinematic`` of a ``CommandLoop``."""
+    observe_kinematic(loop.loop, obs, acc, j, x, f)
 
 
 @jitable

@@ -47,9 +47,10 @@ CONTROLLER_COUNTS: tuple[str, ...] = tuple(dict.fromkeys(
 
 
 def _generate() -> dict[tuple[str, str, str], Kernels]:
-    table = {(law, model, plant): compile_kernels(ops, f"{model}_{plant}", shared, arrays,
-                                                  __name__)
-             for (law, model, plant), (ops, shared, arrays) in BASE.items()}
+    # each kernel its own name: numba caches, and a compile child finds, a kernel by its name
+    table = {(law, model, plant): compile_kernels(
+        ops, f"{model}_{plant}" if law in ("flat", "asbuilt") else f"{law}_{model}_{plant}",
+        shared, arrays, __name__) for (law, model, plant), (ops, shared, arrays) in BASE.items()}
     for name, part in SAMPLED.items():
         for (law, model, plant), base in list(table.items()):
             if law not in ("flat", "asbuilt"):
