@@ -66,3 +66,30 @@ def base_rate(robot: RobotParams, q: Sequence[float] | Array, w: Sequence[float]
     """th0' [rad/s] with H = 0 at joint angles q (N,) and rates w (N,)."""
     h = weights(robot, np.r_[0.0, q])
     return float(-(h[1:] @ np.asarray(w, dtype=float)) / h[0])
+
+
+#: The maneuver of a random design (``random_as_built``): the paper's for N = 2, and for
+#: N >= 3 the base turned by -0.75 rad while joint 1 goes 1 -> 2 rad and the inner joints
+#: 0.3 -> 0.6 rad (the last joint, the counterweight's, starts and ends at 0).
+def maneuver(n: int) -> tuple[Array, Array]:
+    """Start and goal th0..thN (N + 1,) [rad] of a random design's maneuver (above)."""
+    if n == 2:
+        return np.array(START), np.array(GOAL)
+    start = np.r_[0.0, 1.0, np.full(n - 2, 0.3), 0.0]
+    goal = np.r_[-0.75, 2.0, np.full(n - 2, 0.6), 0.0]
+    return start, goal
+
+
+def random_as_built(rng: np.random.Generator, n: int) -> RobotParams:
+    """A design of N joints drawn from ``rng``, its counterweight 2 to 5 mm off the last joint
+    (either side, along the link): base 2-10 kg, links 0.5-3 kg, lengths 0.15-0.5 m (base
+    0.2-0.5 m), centres of mass at 20-80 % of the inner links, inertias m l^2 / 12 (the
+    base's m l^2 / 6) times 0.5-2."""
+    mass = np.r_[rng.uniform(2.0, 10.0), rng.uniform(0.5, 3.0, n)]
+    length = np.r_[rng.uniform(0.2, 0.5), rng.uniform(0.15, 0.5, n)]
+    com = np.r_[rng.uniform(0.2, 0.8, n) * length[:n], 0.0]
+    inertia = mass * length**2 / 12 * rng.uniform(0.5, 2.0, n + 1)
+    inertia[0] = mass[0] * length[0] ** 2 / 6 * rng.uniform(0.5, 2.0)
+    com[-1] = rng.uniform(0.002, 0.005) * rng.choice([-1.0, 1.0])
+    return RobotParams(mass=tuple(mass), inertia=tuple(inertia), length=tuple(length),
+                       com=tuple(com))

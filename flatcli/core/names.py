@@ -62,9 +62,14 @@ DEFAULT_MAX_STEPS = 100_000
 #: The largest err_estimate of a verified trial [rad] (``Scenario.accuracy``).
 DEFAULT_ACCURACY = 1e-6
 
-#: Default weights of the as-built law: the bandwidth b [rad/s] (``track.lqr_bandwidth``),
-#: the terminal weight p [1/rad^2] (``track.lqr_terminal``) and the running weight q
-#: [1/(rad^2 s)] of the angle errors.
+#: Default weights of the as-built law, scaled by the plan's duration T [s]
+#: (``controllers.lqr``): the bandwidth b = DEFAULT_BANDWIDTH_PERIODS / T [rad/s]
+#: (``track.lqr_bandwidth``) and the terminal weight t_f = DEFAULT_TERMINAL_PERIODS T [s]
+#: (``track.lqr_terminal``), which at the paper's T = 2 s are the former fixed defaults
+#: DEFAULT_BANDWIDTH and DEFAULT_TERMINAL; and the running weight q_0 of the base's angle
+#: error against a joint's (dimensionless, ``track.lqr_base``).
+DEFAULT_BANDWIDTH_PERIODS = 10.0
+DEFAULT_TERMINAL_PERIODS = 5e5
 DEFAULT_BANDWIDTH = 5.0
 DEFAULT_TERMINAL = 1e6
 DEFAULT_BASE = 10.0

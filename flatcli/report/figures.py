@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any, ParamSpec, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
+from flatcli.core.names import DEFAULT_BANDWIDTH_PERIODS, DEFAULT_TERMINAL_PERIODS
 from flatcli.storage import atomic_path
 
 if TYPE_CHECKING:
@@ -226,6 +227,11 @@ def track_title(spec: Spec, metrics: Mapping[str, Any] | None = None) -> str:
     track, plant = spec.track, spec.plant
     torque = limit_text(plant.torque_limit, "N m") if plant.model == "dynamic" else \
         "n/a (no torques)"
+    duration = float(spec.plan.duration)  # the as-built law's default weights scale with it
+    bandwidth = (DEFAULT_BANDWIDTH_PERIODS / duration if track.lqr_bandwidth is None
+                 else track.lqr_bandwidth)
+    terminal = (DEFAULT_TERMINAL_PERIODS * duration if track.lqr_terminal is None
+                else track.lqr_terminal)
     status = ""
     if metrics is not None and metrics.get("status"):
         status = f"; status {metrics['status']}"
@@ -233,8 +239,8 @@ def track_title(spec: Spec, metrics: Mapping[str, Any] | None = None) -> str:
             status += f" at $t$ = {float(metrics['event_time']):.4g} s"
     law = (f"$k_p$ = {_numbers(track.kp)}, $k_v$ = {_numbers(track.kv)}"
            if track.controller != "asbuilt" else
-           f"as-built LQR: $b$ = {track.lqr_bandwidth:g} rad/s, lqr_base = "
-           f"{track.lqr_base:g}, lqr_terminal = {track.lqr_terminal:g} s")
+           f"as-built LQR: $b$ = {bandwidth:g} rad/s, lqr_base = {track.lqr_base:g}, "
+           f"lqr_terminal = {terminal:g} s")
     return (f"track {spec.name!r}: {plant_text(spec)}\n"
             f"sensor noise {limit_text(track.sensor_noise, 'rad')}, rate limit "
             f"{limit_text(track.rate_limit, 'rad/s')}, torque limit {torque}\n"

@@ -19,6 +19,7 @@ import os
 from collections.abc import Mapping
 from typing import Any
 
+from flatcli.core.names import DEFAULT_BANDWIDTH_PERIODS
 from flatcli.machine import cores, physical_memory
 from flatcli.spec.keys import SpecError
 
@@ -212,8 +213,11 @@ def riccati_seconds(spec: Any) -> float:
     law."""
     if spec.track.controller != "asbuilt":
         return 0.0
-    steps = RICCATI_STEPS_PER_RADIAN * float(spec.track.lqr_bandwidth) * float(
-        spec.plan.duration)
+    bandwidth = spec.track.lqr_bandwidth
+    duration = float(spec.plan.duration)
+    periods = (DEFAULT_BANDWIDTH_PERIODS if bandwidth is None
+               else float(bandwidth) * duration)  # b T: the default's is fixed
+    steps = RICCATI_STEPS_PER_RADIAN * periods
     return steps * SECONDS_PER_RICCATI_STEP
 
 
@@ -284,10 +288,11 @@ def check_limits(spec: Any) -> None:
     memory(f"plan.optimize.constraint_samples = {plan.optimize.constraint_samples}",
            plan.optimize.constraint_samples * plan_sample_bytes(joints),
            "lower plan.optimize.constraint_samples")
-    require_time(f"track.lqr_bandwidth = {track.lqr_bandwidth:g} rad/s (the as-built law's "
-                 f"Riccati equation takes about {RICCATI_STEPS_PER_RADIAN:g} x bandwidth x "
-                 "plan.duration integration steps)", riccati_seconds(spec),
-                 "lower track.lqr_bandwidth (the default is 5 rad/s)")
+    if track.lqr_bandwidth is not None:  # the default's b T is fixed: its cost is small
+        require_time(f"track.lqr_bandwidth = {track.lqr_bandwidth:g} rad/s (the as-built "
+                     f"law's Riccati equation takes about {RICCATI_STEPS_PER_RADIAN:g} x "
+                     "bandwidth x plan.duration integration steps)", riccati_seconds(spec),
+                     "lower track.lqr_bandwidth (the default is 10 / plan.duration)")
     if track.integrator == "adaptive":  # a trial that cannot meet its tolerance spends them
         require_time(f"track.max_steps = {track.max_steps:.3g} attempted steps (one trial "
                      "that cannot meet track.rtol spends them all)",

@@ -34,12 +34,10 @@ from flatcli.core.names import (
     CONTROLLERS,
     DEFAULT_ACCURACY,
     DEFAULT_ATOL,
-    DEFAULT_BANDWIDTH,
     DEFAULT_BASE,
     DEFAULT_MAX_STEPS,
     DEFAULT_RTOL,
     DEFAULT_SERVO_BANDWIDTH,
-    DEFAULT_TERMINAL,
     ELBOWS,
     ERROR_ESTIMATES,
     FIGURE_FORMATS,
@@ -271,13 +269,16 @@ class TrackSpec:
                              "and the margin at its predicted samples, wrapping the flat "
                              "law, or the as-built law on an exact plan; settings mpc_*; "
                              "what it guarantees: docs/physics.md)")
-    lqr_bandwidth: float = number(DEFAULT_BANDWIDTH, "asbuilt: b, the joint-rate weight R = "
-                                  "I / b^2 of the LQR", "rad/s", gt=0)
+    lqr_bandwidth: float | None = number(None, "asbuilt: b, the joint-rate weight R = I / b^2 "
+                                         "of the LQR (none: 10 / plan.duration, 5 rad/s at "
+                                         "the paper's 2 s; docs/physics.md)", "rad/s", gt=0,
+                                         nullable=True)
     lqr_base: float = number(DEFAULT_BASE, "asbuilt: weight of the base angle's error "
                              "relative to a joint angle's (Q = diag(lqr_base, 1, .., 1))", gt=0)
-    lqr_terminal: float = number(DEFAULT_TERMINAL, "asbuilt: t_f, the weight of the error at "
-                                 "t = T as t_f seconds of running error (P_T = t_f Q)", "s",
-                                 gt=0)
+    lqr_terminal: float | None = number(None, "asbuilt: t_f, the weight of the error at t = T "
+                                        "as t_f seconds of running error (P_T = t_f Q; none: "
+                                        "5e5 x plan.duration, 1e6 s at the paper's 2 s)", "s",
+                                        gt=0, nullable=True)
     seed: int = integer(0, "seed of the sensor-noise stream SeedSequence(seed, (trial, 1))", ge=0)
     trial: int = integer(0, "noise stream within the seed (a sweep trial's id, to re-run it)",
                          ge=0)

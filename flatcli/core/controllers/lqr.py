@@ -11,16 +11,28 @@ whose state is the N + 1 angles and whose inputs are the joint rates. About a pl
     base's rate, through dg_0/dq_k; nothing depends on th0),   B = G(q_r).
 
 The law minimises the integral of e^T Q e + v^T R v over [0, T] plus e(T)^T P_T e(T), with
-Q = diag(q_0, 1, .., 1) [1/rad^2] (q_0 = ``track.lqr_base``: the base angle's error
-against a joint's), R = I / b^2 [s^2/rad^2] (b = ``track.lqr_bandwidth`` [rad/s]: for a
-joint alone, the bandwidth of its error decay) and P_T = t_f Q [s/rad^2]
-(t_f = ``track.lqr_terminal`` [s]: the final error weighs as t_f seconds of running
-error). The defaults (b = 5 rad/s, q_0 = 10, t_f = 1e6 s) were chosen on the goal study of
-issue 22 (d2 = 3 mm, the Monte Carlo study's initial errors; docs/asbuilt.md), trying b in
-2..20, q_0 in 1..1000 and t_f in 1e3..1e7: on 400 trials per cell they leave median final
-errors of 1.2e-6 and 2.1e-5 rad from errors of std 0.01 and 0.05 rad, every trial verified
-(q_0 = 100, t_f = 2e5 s: 1.1e-5 and 9.1e-5 rad on 100 trials; t_f = 1e7 s: smaller medians, trials
-the twin estimate could not verify). The Riccati equation
+Q = diag(q_0, 1, .., 1) [1/(rad^2 s)] (q_0 = ``track.lqr_base``: the base angle's error
+against a joint's), R = I / b^2 [s/rad^2 per (rad/s)^2] (b = ``track.lqr_bandwidth``
+[rad/s]: for a joint alone, the bandwidth of its error decay) and P_T = t_f Q
+(t_f = ``track.lqr_terminal`` [s]: the final error weighs as t_f seconds of running error).
+
+How the defaults are chosen (``LqrWeights.resolved``; docs/physics.md, "The as-built law's
+weights"). A and B are ratios of the momentum weights (g_0 = -h / h_0) and the plan's rates,
+so the masses, inertias and the scale of the lengths cancel: the robot's size needs no
+normalising. What sets the problem's scale is the plan's duration T: in the time
+tau = t / T every rate scales by T and the cost above by T, so the design is the same for
+every T exactly when b T and t_f / T are. The defaults are therefore b = 10 / T
+(``DEFAULT_BANDWIDTH_PERIODS``) and t_f = 5e5 T (``DEFAULT_TERMINAL_PERIODS``), q_0 = 10: at the
+paper's T = 2 s the weights chosen on the goal study of issue 22 (d2 = 3 mm, the Monte Carlo
+study's initial errors; docs/asbuilt.md), trying b in 2..20, q_0 in 1..1000 and t_f in
+1e3..1e7: on 400 trials per cell they leave median final errors of 1.2e-6 and 2.1e-5 rad from
+errors of std 0.01 and 0.05 rad, every trial verified. An explicit ``track.lqr_bandwidth`` or
+``track.lqr_terminal`` is used as given. What the weights cannot change is how strongly the
+plan's motion couples the joints to the base at first order (the law's linearisation
+corrects a base error only through it): on random designs (tests/test_lqr.py) the median
+final error stays below 1e-4 rad, but on designs where that coupling is weak some trials
+swing far from the plan and fail near T, where the gains grow large (docs/physics.md). The
+Riccati equation
 
     -P' = A^T P + P A - P B R^-1 B^T P + Q,   P(T) = P_T,
 
@@ -51,7 +63,13 @@ from numpy.typing import NDArray
 
 from flatcli.core.curves.pieces import PiecewiseCurves, fit, joined, node_times
 from flatcli.core.errors import FlatcliError
-from flatcli.core.names import DEFAULT_BANDWIDTH, DEFAULT_BASE, DEFAULT_TERMINAL
+from flatcli.core.names import (
+    DEFAULT_BANDWIDTH,
+    DEFAULT_BANDWIDTH_PERIODS,
+    DEFAULT_BASE,
+    DEFAULT_TERMINAL,
+    DEFAULT_TERMINAL_PERIODS,
+)
 from flatcli.core.plan.exact import CURVE_DEGREE, Constraint, constraint_of, plan_pieces, rate_terms
 from flatcli.core.plan.planning import Plan
 
@@ -148,10 +166,11 @@ class LqrWeights:
     """The as-built law's weights (module docstring): ``bandwidth`` b [rad/s] (R = I / b^2),
     ``base`` q_0 and ``joint`` q_j on the angle errors (Q = diag(q_0, q_j, .., q_j)),
     ``terminal`` t_f [s] (P_T = t_f Q), and ``rate`` on the joint-rate errors when the servo's
-    lag is a state (the dynamic plant)."""
+    lag is a state (the dynamic plant). ``bandwidth`` and ``terminal`` None: from the plan's
+    duration (``resolved``)."""
 
-    bandwidth: float = DEFAULT_BANDWIDTH
-    terminal: float = DEFAULT_TERMINAL
+    bandwidth: float | None = None
+    terminal: float | None = None
     base: float = DEFAULT_BASE
     joint: float = DEFAULT_JOINT
     rate: float = DEFAULT_RATE
@@ -160,12 +179,36 @@ class LqrWeights:
         for name, key in (("bandwidth", "track.lqr_bandwidth"),
                           ("terminal", "track.lqr_terminal"), ("base", "track.lqr_base")):
             value = getattr(self, name)
+            if value is None and name != "base":
+                continue
             if not (value > 0 and math.isfinite(value)):
                 raise FlatcliError(f"{key}: must be a finite number > 0, got {value}")
         for name in ("joint", "rate"):
             value = getattr(self, name)
             if not (value >= 0 and math.isfinite(value)):
                 raise FlatcliError(f"{name} weight: must be a finite number >= 0, got {value}")
+
+    def resolved(self, duration: float) -> LqrWeights:
+        """These weights for a plan of ``duration`` T [s]: b = ``DEFAULT_BANDWIDTH_PERIODS`` / T
+        and t_f = ``DEFAULT_TERMINAL_PERIODS`` T where not given (module docstring)."""
+        bandwidth = (DEFAULT_BANDWIDTH_PERIODS / duration if self.bandwidth is None
+                     else self.bandwidth)
+        terminal = DEFAULT_TERMINAL_PERIODS * duration if self.terminal is None else self.terminal
+        return LqrWeights(bandwidth, terminal, self.base, self.joint, self.rate)
+
+    @property
+    def b(self) -> float:
+        """The bandwidth [rad/s] of resolved weights."""
+        if self.bandwidth is None:
+            raise ValueError("LqrWeights: resolve the weights for a plan first")
+        return self.bandwidth
+
+    @property
+    def t_f(self) -> float:
+        """The terminal weight [s] of resolved weights."""
+        if self.terminal is None:
+            raise ValueError("LqrWeights: resolve the weights for a plan first")
+        return self.terminal
 
     def running(self, n: int, lagged: bool) -> Array:
         """Q (S, S): the angles' [1/(rad^2 s)], then (lagged) the joint rates' [s/rad^2]."""
@@ -185,9 +228,10 @@ def riccati(constraint: Constraint, reference: PiecewiseCurves,
 
     n = constraint.n_joints
     duration = reference.basis.duration
+    weights = weights.resolved(duration)
     Q = weights.running(n, servo is not None)
     size = Q.shape[0]
-    r_inv = weights.bandwidth**2  # R^-1 = b^2 I
+    r_inv = weights.b**2  # R^-1 = b^2 I
 
     def rhs(s: float, p: Array) -> Array:
         t = np.array([duration - s])
@@ -198,14 +242,14 @@ def riccati(constraint: Constraint, reference: PiecewiseCurves,
         dP = A[0].T @ P + P @ A[0] - r_inv * PB @ PB.T + Q
         return np.asarray(0.5 * (dP + dP.T)).ravel()
 
-    final = Q * weights.terminal
+    final = Q * weights.t_f
     sol = solve_ivp(rhs, (0.0, duration), final.ravel(), method="DOP853",
                     rtol=RICCATI_RTOL, atol=RICCATI_ATOL, dense_output=True)
     if not sol.success or sol.sol is None:
         raise FlatcliError(f"track.lqr_bandwidth, track.lqr_terminal: the Riccati equation "
                            f"could not be integrated ({sol.message}); lower track.lqr_bandwidth "
-                           f"({weights.bandwidth:g} rad/s) or track.lqr_terminal "
-                           f"({weights.terminal:g} s)")
+                           f"({weights.b:g} rad/s) or track.lqr_terminal "
+                           f"({weights.t_f:g} s)")
     return sol.sol
 
 
@@ -219,13 +263,14 @@ def riccati_gains(constraint: Constraint, reference: PiecewiseCurves,
     size = 2 * n + 1 if servo is not None else n + 1
     solution = riccati(constraint, reference, weights, servo)
     duration = reference.basis.duration
+    weights = weights.resolved(duration)
     edges = reference.basis.breakpoints
     times = node_times(edges, CURVE_DEGREE)
     flat = times.ravel()
     P = solution(duration - flat).T.reshape(-1, size, size)
     _, B = linearisation(constraint, reference.derivative(flat, 0)[:, :n],
                          reference.derivative(flat, 1)[:, :n], servo)
-    L = weights.bandwidth**2 * np.swapaxes(B, 1, 2) @ P  # (count, N, S)
+    L = weights.b**2 * np.swapaxes(B, 1, 2) @ P  # (count, N, S)
     return fit(edges, CURVE_DEGREE, L.reshape(*times.shape, n * size))
 
 
@@ -256,7 +301,7 @@ def tracked(plan: Plan, weights: LqrWeights = LqrWeights(), servo: float | None 
     return curves
 
 
-__all__ = ["DEFAULT_BANDWIDTH", "DEFAULT_BASE", "DEFAULT_JOINT", "DEFAULT_RATE",
-           "DEFAULT_TERMINAL", "LqrWeights",
+__all__ = ["DEFAULT_BANDWIDTH", "DEFAULT_BANDWIDTH_PERIODS", "DEFAULT_BASE", "DEFAULT_JOINT",
+           "DEFAULT_RATE", "DEFAULT_TERMINAL", "DEFAULT_TERMINAL_PERIODS", "LqrWeights",
            "TrackedLayout", "linearisation", "reference_channels",
            "riccati", "riccati_gains", "tracked"]
