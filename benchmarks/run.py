@@ -58,6 +58,8 @@ from benchmarks.front_door import compiles as run_compiles
 from benchmarks.front_door import run_all as run_front_door
 from benchmarks.integrators import HEADERS as INTEGRATOR_HEADERS
 from benchmarks.integrators import run_all as run_integrators
+from benchmarks.mpc import HEADERS as MPC_HEADERS
+from benchmarks.mpc import run_all as run_mpc
 from benchmarks.outcomes import HEADERS as OUTCOME_HEADERS
 from benchmarks.outcomes import run_all as run_outcomes
 from benchmarks.search import HEADERS as SEARCH_HEADERS
@@ -85,7 +87,7 @@ SCALING = "Scaling: 2 workers, each process's own peak memory"
 #: The sections ``make bench`` runs, in this order; ``--sections`` may name them and
 #: ``OPTIONAL`` ones (run only when named: minutes each).
 SECTIONS = ("planning", "closed_loop", "sweeps", "front_door", "integrators", "chains",
-            "asbuilt", "optimised", "tasks", "outcomes", "search")
+            "asbuilt", "optimised", "tasks", "outcomes", "search", "mpc")
 OPTIONAL = ("compiles",)
 
 
@@ -569,6 +571,7 @@ HEADERS = {
     **ASBUILT_HEADERS,
     **TASK_HEADERS,
     **OUTCOME_HEADERS,
+    **MPC_HEADERS,
     **SEARCH_HEADERS,
     "Optimised plans: least energy, abs(th2) <= 3, rates <= 20, margin >= 0.05":
         ["plan", "energy [rad^2/s]", "limit violation", "max abs(H)", "time", "note"],
@@ -632,6 +635,7 @@ def main(argv: list[str] | None = None) -> None:
         "tasks": [partial(run_tasks, bench)],
         "outcomes": [partial(run_outcomes, bench)],
         "search": [partial(run_search, bench)],
+        "mpc": [partial(run_mpc, bench)],
     }
     for name in SECTIONS + OPTIONAL:
         if name in chosen:

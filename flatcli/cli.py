@@ -1050,8 +1050,8 @@ def export_robot(spec: Path | None, robot: str | None, sets: tuple[str, ...], as
 
 #: The sections of ``flatcli reproduce`` (``flatcli.reproduce.SECTION_NAMES``; the CLI does
 #: not import the numerical libraries to list them).
-REPRODUCE_SECTIONS = ("paper", "optimized", "montecarlo", "actuators", "chains", "capture",
-                      "asbuilt", "search")
+REPRODUCE_SECTIONS = ("paper", "optimized", "montecarlo", "actuators", "within", "chains",
+                      "capture", "asbuilt", "search")
 
 
 @main.command(short_help="The paper's figures and numbers, and the studies.")

@@ -17,6 +17,7 @@ from flatcli.core.controllers.control import Gains
 from flatcli.core.controllers.lqr import LqrWeights
 from flatcli.core.controllers.settings import settings_of
 from flatcli.core.curves.basis import Basis, BSplineBasis, PolynomialBasis
+from flatcli.core.errors import FlatcliError
 from flatcli.core.loop.metrics import COUNT_METRICS, METRIC_NAMES, describe_status
 from flatcli.core.loop.outcome import Geometry, Goal, Judged, judge
 from flatcli.core.loop.simulate import (
@@ -29,7 +30,12 @@ from flatcli.core.loop.simulate import (
     simulate,
 )
 from flatcli.core.plan.exact import method_for, plan_exact
-from flatcli.core.plan.planning import Plan, plan_point_to_point, rate_warning_text
+from flatcli.core.plan.planning import (
+    Plan,
+    fastest_joint,
+    plan_point_to_point,
+    rate_warning_text,
+)
 from flatcli.core.plan.task import Task, TaskPlan, plan_task, task_ends
 from flatcli.core.robots.params import RobotParams
 from flatcli.spec import Spec, SpecError
@@ -265,6 +271,72 @@ def plan_from(spec: Spec) -> Plan:
     return planned(spec)[0]
 
 
+#: Why a plan the MPC cannot keep within ``track.rate_limit`` is not re-planned, by task kind
+#: and plan method (the re-plan is the flat optimiser's, for a maneuver).
+NOT_REPLANNED: dict[tuple[TaskKind, PlanMethod], str] = {
+    ("maneuver", "exact"): "an exact plan (plan.method) is not re-planned",
+    ("task", "flat"): "a task's plan is not re-planned (its obstacles are not re-proven)",
+    ("task", "optimized"): "a task's plan is not re-planned (its obstacles are not re-proven)",
+}
+
+
+def peak_joint_rate(plan: Plan, samples: int) -> float:
+    """The plan's largest abs(th_j') over its joints j = 1..N on its own grid of ``samples``
+    points [rad/s] (``planning.fastest_joint``; inf if a rate is not finite)."""
+    return fastest_joint(plan.sample(plan.grid(samples)))[1]
+
+
+def mpc_kept_limit(spec: Spec) -> float:
+    """The joint-rate limit the MPC keeps [rad/s]: ``track.rate_limit`` (1 -
+    ``track.mpc_backoff``); inf without a limit."""
+    limit = float(spec.track.rate_limit)
+    if not np.isfinite(limit):
+        return float("inf")
+    return limit * (1.0 - float(settings_of(spec.track)["mpc"].backoff))
+
+
+def mpc_reference(spec: Spec, plan: Plan) -> tuple[Plan, bool | None]:
+    """The plan the MPC tracks, and whether it was re-planned (None: the controller is not
+    the MPC). The spec's plan, unless its peak joint rate (``peak_joint_rate``) exceeds
+    the limit the MPC keeps (``mpc_kept_limit``): then the plan of least peak joint rate
+    between the same ends in the same duration (``optimize_plan``, objective "peak_rate",
+    its end rates free, its margin >= max(``plan.optimize.min_margin``,
+    ``track.mpc_margin``), the spec's angle limits kept), which the MPC tracks even when
+    its peak is still beyond the limit (``plan_warnings`` says so). The paper's feedback
+    and the as-built law track the spec's plan as it is. A plan the optimiser cannot
+    improve (an exact plan, a task's; ``NOT_REPLANNED``), or whose re-plan fails, is
+    tracked as it is, with the warning."""
+    if spec.track.controller != "mpc":
+        return plan, None
+    kept = mpc_kept_limit(spec)
+    if peak_joint_rate(plan, spec.plan.samples) <= kept:
+        return plan, False
+    robot = robot_from(spec)
+    if (task_kind(spec), plan_method(spec, robot)) in NOT_REPLANNED:
+        return plan, False
+    from flatcli.core.optimize import PlanLimits, optimize_plan
+
+    opt, joints = spec.plan.optimize, spec.joints
+    start, goal, start_rate, goal_rate = _ends(spec)
+    margin = max(opt.min_margin, float(settings_of(spec.track)["mpc"].margin))
+    limits = PlanLimits(angle_limit=checked(opt.angle_limit), min_margin=margin)
+    try:
+        result = optimize_plan(
+            robot, start, goal, spec.plan.duration, model=checked(spec.robot.model),
+            objective="peak_rate", limits=limits, free_rates=True,
+            start_rate=checked(float(start_rate[0]) if joints == 2 else start_rate),
+            goal_rate=checked(float(goal_rate[0]) if joints == 2 else goal_rate),
+            constraint_samples=opt.constraint_samples, max_iter=opt.max_iter)
+    except FlatcliError:  # no plan meets the margin: the spec's, with its warning
+        return plan, False
+    return result.plan, True
+
+
+def tracked_plan(spec: Spec) -> tuple[Plan, bool | None]:
+    """The plan a spec's controller tracks (``plan_from``, then ``mpc_reference``)."""
+    return mpc_reference(spec, plan_from(spec))
+
+
 def scenario_from(spec: Spec, plan: Plan) -> Scenario:
     track = spec.track
     kp, kv = track.kp, track.kv
@@ -328,6 +400,8 @@ class TrackRun:
     plan: Plan
     scenario: Scenario
     outcome: Outcome
+    #: the MPC tracks a re-plan of the spec's plan (``mpc_reference``); None: not the MPC
+    replanned: bool | None = None
 
     @property
     def metrics(self) -> dict[str, float | int | str | None]:
@@ -370,6 +444,8 @@ class TrackRun:
             out["ee_error_final"] = distance if np.isfinite(distance) else None
         for i, value in enumerate(judged.final_error[0]):
             out[f"err_theta{i}_final"] = float(value) if np.isfinite(value) else None
+        if self.replanned is not None:
+            out["replanned"] = self.replanned
         out["status"] = status
         out["reason"] = reason
         out["outcome"] = judged.outcome[0]
@@ -453,10 +529,23 @@ class TrackRun:
 
 
 def plan_warnings(spec: Spec, plan: Plan) -> list[str]:
-    """The plan's warnings, one line each: its fastest joint beyond ``plan.rate_warning`` on
-    its own grid (``plan.samples`` points; ``core.planning.rate_warning_text``)."""
-    text = rate_warning_text(plan.sample(plan.grid(spec.plan.samples)), spec.plan.rate_warning)
-    return [text] if text else []
+    """The warnings of the plan a spec's controller tracks, one line each: its fastest joint
+    beyond ``plan.rate_warning`` on its own grid (``plan.samples`` points;
+    ``core.planning.rate_warning_text``); with the MPC, its fastest joint beyond the limit
+    the MPC keeps (``mpc_kept_limit``): no plan within the limit was found."""
+    samples = plan.sample(plan.grid(spec.plan.samples))
+    text = rate_warning_text(samples, spec.plan.rate_warning)
+    lines = [text] if text else []
+    kept = mpc_kept_limit(spec) if spec.track.controller == "mpc" else float("inf")
+    joint, peak, when = fastest_joint(samples)
+    if peak > kept:
+        why = NOT_REPLANNED.get((task_kind(spec), plan_method(spec, robot_from(spec))),
+                                "no plan between the same ends within it was found (the MPC "
+                                "tracks the one of least peak rate)")
+        lines.append(f"warning: the MPC's reference turns th{joint}' at {peak:.4g} rad/s at "
+                     f"t = {when:.4g} s, above the {kept:.4g} rad/s it keeps of "
+                     f"track.rate_limit = {spec.track.rate_limit:g} rad/s: {why}")
+    return lines
 
 
 def goal_of(spec: Spec, scenario: Scenario, target: Any = None) -> Goal:
@@ -540,7 +629,7 @@ def run_track(spec: Spec, before_simulating: Callable[[], object] | None = None,
     if spec.track.controller == "flat" and not task_from(spec).active and method_for(
             robot_from(spec), spec.plan.method) == "exact":  # before planning compiles
         raise SpecError(FLAT_ON_EXACT)
-    plan = plan_from(spec)
+    plan, replanned = tracked_plan(spec)
     if spec.task.rest:
         return run_rest_track(spec, plan)
     scenario = scenario_from(spec, plan)
@@ -553,7 +642,7 @@ def run_track(spec: Spec, before_simulating: Callable[[], object] | None = None,
         before_simulating()
     outcome = simulate(scenario, trials, integrator, record=True,
                        obstacles=spec.task.obstacles or None)
-    return TrackRun(spec, plan, scenario, outcome)
+    return TrackRun(spec, plan, scenario, outcome, replanned)
 
 
 def run_rest_track(spec: Spec, plan: Plan) -> TrackRun:

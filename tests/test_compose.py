@@ -279,13 +279,16 @@ def test_a_controller_written_in_python_runs_in_the_same_loop(plan) -> None:  # 
     the MPC's inner gains equals the compiled MPC run by the same DOP853 loop, and the
     compiled MPC's adaptive trial to 1e-9 rad."""
     settings = mpc.MpcSettings(sample=0.2, horizon=4)
-    common = {"track.dt": 0.01, "track.rate_limit": 40.0, "track.mpc_sample": 0.2,
+    # a limit the cubic (48.8 rad/s) keeps with the MPC's backoff: the MPC tracks the flat
+    # law's plan (one beyond the limit kept would be re-planned for the MPC alone)
+    common = {"track.dt": 0.01, "track.rate_limit": 51.0, "track.mpc_sample": 0.2,
               "track.mpc_horizon": 4}
     compiled = flatcli.track(overrides={**common, "track.controller": "mpc",
                                         "track.integrator": "dop853"}, quiet=True)
     adaptive = flatcli.track(overrides={**common, "track.controller": "mpc",
                                         "track.rtol": 1e-11, "track.atol": 1e-13}, quiet=True)
-    design = mpc.flat_design(plan.model, plan.trajectory, plan.duration, 0.01, 40.0, settings)
+    assert compiled.metrics["replanned"] is False
+    design = mpc.flat_design(plan.model, plan.trajectory, plan.duration, 0.01, 51.0, settings)
     ours = flatcli.track(overrides={**common, "track.kp": [1.0, 1.0], "track.kv": [2.0, 2.0]},
                          controller=PythonMpc(design, 0.2), quiet=True)
     angles = [f"theta{i}" for i in range(3)]

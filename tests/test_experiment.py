@@ -1,13 +1,17 @@
 """Spec -> core objects (flatcli/experiment.py): a robot of N links through the optimiser.
 
 References: the plan's angular momentum from the full link kinematics
-(``chain.chain_momentum``, positions and velocities of every centre of mass) and its limits
-on 4,001 samples, independent of the optimiser's own check grid.
+(``chain.chain_momentum``, positions and velocities of every centre of mass; sympy's
+tests/referees.py::link_momentum for the paper's robot) and its limits on 4,001 samples (the
+MPC's re-plan: 20,001, its rates by finite differences of the angles), independent of the
+optimiser's own check grid.
 """
 
 from __future__ import annotations
 
 import numpy as np
+import pytest
+from numpy.typing import NDArray
 
 from flatcli.core.plan.planning import Plan
 from flatcli.core.robots.chain import chain_momentum
@@ -35,3 +39,83 @@ def test_a_chain_spec_is_optimised_with_its_per_joint_limits() -> None:
         s.theta, s.theta_dot)
     assert np.abs(h).max() < 1e-12
     assert len(result.start_rates) == 2 and len(result.goal_rates) == 2
+
+
+#: Brute-force grid for the re-planned plan's rates: 20,001 points on [0, T] (100x the
+#: plan's own grid), central differences of the sampled angles; their error is h^2/6 th'''
+#: (below 1e-5 rad/s for this plan), far below the headroom the test asks.
+DENSE = 20_001
+#: The finite differences' error bound allowed against the limit kept [rad/s].
+DIFFERENCE_TOLERANCE = 1e-4
+
+
+def _rates_by_differences(plan: Plan) -> tuple[NDArray[np.float64], NDArray[np.float64],
+                                                 NDArray[np.float64]]:
+    """(t, th, th') on the dense grid: th' by central differences of th (one-sided at the
+    ends), not the flat model's rate formulas."""
+    t = np.linspace(0.0, plan.duration, DENSE)
+    theta = plan.sample(t).theta
+    return t, theta, np.gradient(theta, t, axis=0, edge_order=2)
+
+
+def test_the_mpc_tracks_a_replan_within_the_rate_limit() -> None:
+    """The paper's cubic peaks at 48.8 rad/s; with the MPC at 4 rad/s its reference is the
+    re-plan of least peak rate: referee, the angles sampled 100x finer than the plan's grid,
+    differentiated numerically, and H from sympy's full link kinematics
+    (tests/referees.py::link_momentum). Its joints turn within the limit the MPC keeps, its
+    motion keeps H = 0 (a motion of the free-floating robot), its ends are the spec's, and
+    the flat law still tracks the paper's plan."""
+    import sympy as sp
+
+    from flatcli.experiment import mpc_kept_limit, mpc_reference, plan_from
+    from tests.referees import link_momentum
+
+    spec = load_spec(None, ("track.controller=\"mpc\"", "track.rate_limit=4.0"))
+    paper = plan_from(spec)
+    _, _, paper_rates = _rates_by_differences(paper)
+    assert np.abs(paper_rates[:, 1:]).max() > 48.0
+    plan, replanned = mpc_reference(spec, paper)
+    assert replanned is True
+    _, theta, rates = _rates_by_differences(plan)
+    kept = mpc_kept_limit(spec)
+    assert kept == pytest.approx(4.0 * (1 - 0.03))
+    peak = np.abs(rates[:, 1:]).max()
+    assert peak <= kept + DIFFERENCE_TOLERANCE
+    assert peak == pytest.approx(3.75, abs=0.02)  # the least peak with margin 0.05 rad/s
+    np.testing.assert_allclose(theta[[0, -1]], [spec.plan.start, spec.plan.goal], atol=1e-10)
+    assert plan.duration == spec.plan.duration
+    h, th, w = link_momentum(plan.robot)
+    momentum = sp.lambdify((*th, *w), h, "numpy")(*theta.T, *rates.T)
+    assert np.abs(momentum).max() < 1e-6  # the differences' error, times the inertias
+    # the flat law keeps the spec's plan; no limit or a plan within it: no re-plan
+    flat = load_spec(None, ("track.rate_limit=4.0",))
+    assert mpc_reference(flat, paper) == (paper, None)
+    unlimited = load_spec(None, ("track.controller=\"mpc\"",))
+    assert mpc_reference(unlimited, paper) == (paper, False)
+    assert mpc_reference(spec, plan) == (plan, False)
+
+
+def test_no_plan_within_the_limit_is_said_and_the_least_peak_is_tracked() -> None:
+    """At 3 rad/s no plan of the paper's maneuver keeps the limit (the least peak is 3.69
+    rad/s at margin 0.02): the MPC tracks the least-peak re-plan, and the plan's warning
+    names the joint and the limit kept; a plan the optimiser does not re-plan (a robot as
+    built, planned exactly) is tracked as it is, with the warning saying why."""
+    from flatcli.experiment import mpc_reference, plan_from, plan_warnings
+
+    spec = load_spec(None, ("track.controller=\"mpc\"", "track.rate_limit=3.0"))
+    plan, replanned = mpc_reference(spec, plan_from(spec))
+    assert replanned is True
+    _, _, rates = _rates_by_differences(plan)
+    assert np.abs(rates[:, 1:]).max() > 3.0
+    lines = [w for w in plan_warnings(spec, plan) if "MPC" in w]
+    assert len(lines) == 1 and "th2'" in lines[0] and "track.rate_limit = 3" in lines[0]
+    assert "no plan between the same ends within it" in lines[0]
+    assert not [w for w in plan_warnings(load_spec(None, ("track.rate_limit=3.0",)), plan)
+                if "MPC" in w]
+    built = load_spec(None, ("track.controller=\"mpc\"", "track.rate_limit=0.5",
+                             "robot.com=[0.1, 0.1, 0.003]", "plant.com=[0.1, 0.1, 0.003]",
+                             "plan.method=\"exact\""))
+    exact = plan_from(built)
+    assert mpc_reference(built, exact) == (exact, False)
+    (line,) = [w for w in plan_warnings(built, exact) if "MPC" in w]
+    assert "an exact plan (plan.method) is not re-planned" in line

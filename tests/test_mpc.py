@@ -268,3 +268,44 @@ def test_the_as_built_discretisation_is_the_nonlinear_loop_to_second_order() -> 
         misses.append(np.abs(e1 - (d.A[k] @ e0 + d.B[k] @ dv)).max())
     assert misses[0] < 1e-2 * 1e-3  # small against the error itself
     assert 3.0 < misses[0] / misses[1] < 5.0  # second order: halving the size quarters it
+
+
+def test_the_as_built_dynamic_mpc_solves_every_sample() -> None:
+    """The as-built law with a servo has S = 2 N + 1 = 5 error states and N = 2 corrections
+    a sample: two samples before T the terminal condition s(T) = 0 would be 5 equalities on
+    4 unknowns, a QP with no solution once the measured error is off the last prediction
+    (counted as ``qp_infeasible`` with no slack before). Stepping the design's own
+    recursion s_k+1 = A_k s_k + B_k dv_k (numpy, here) plus a disturbance of 1e-6 (what the
+    nonlinear plant adds to the linear prediction) through every sample: no sample is
+    counted infeasible; without disturbances the error at T is 0 (to the QP's tolerance),
+    and with them the last two samples hold what the QP three samples before T planned."""
+    from asbuilt_support import AS_BUILT
+
+    import flatcli
+    from flatcli.core.controllers.lqr import LqrWeights
+
+    plan = flatcli.plan(overrides={"robot.com": list(AS_BUILT.com)}).plan
+    settings = mpc.MpcSettings(sample=0.1, horizon=20)
+    d = mpc.asbuilt_design(plan, LqrWeights(), 0.001, math.inf, settings, servo=50.0)
+    states, inputs = d.A.shape[1], d.B.shape[2]
+    assert (states, inputs) == (5, 2)
+    for disturbance in (0.0, 1e-6):
+        rng = np.random.default_rng(3)
+        s = mpc.scratch(d)
+        mpc.reset(s)
+        error = np.array([1e-3, -2e-3, 1.5e-3, 0.0, 0.0])
+        held = []
+        planned = np.zeros(0)
+        for k in range(d.samples):
+            s.s0[:] = error
+            _step(d, s, k)
+            held.append(s.held.copy())
+            if k == d.samples - 3:  # the last sample whose QP can meet s(T) = 0
+                planned = s.x.copy()
+            error = (d.A[k] @ error + d.B[k] @ s.held
+                     + disturbance * rng.standard_normal(states))
+        assert s.counters[mpc.QP_INFEASIBLE] == 0.0
+        np.testing.assert_array_equal(held[-2], planned[inputs: 2 * inputs])
+        np.testing.assert_array_equal(held[-1], planned[2 * inputs: 3 * inputs])
+        if disturbance == 0.0:
+            np.testing.assert_allclose(error, 0.0, atol=1e-9 * 2e-3)

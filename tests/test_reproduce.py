@@ -3,6 +3,7 @@ written; its study spec shipped with the package."""
 
 from __future__ import annotations
 
+import math
 import tomllib
 from fnmatch import fnmatch
 from pathlib import Path
@@ -11,7 +12,7 @@ import pytest
 from click.testing import CliRunner
 
 from flatcli.cli import REPRODUCE_SECTIONS, main
-from flatcli.reproduce import SECTION_NAMES, STUDY_SPEC, asbuilt, search
+from flatcli.reproduce import SECTION_NAMES, STUDY_SPEC, asbuilt, search, within
 from flatcli.reproduce.actuators import STUDY
 from flatcli.reproduce.chains import CHAIN_SPECS
 
@@ -30,6 +31,12 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path,
     monkeypatch.setattr(search, "BUDGET", 50)
     monkeypatch.setattr(search, "REMEASURE_TRIALS", 12)
     monkeypatch.setattr(search, "OFFSET_TRIALS", 6)
+    # within the actuators: two rate limits (each limit the cubic exceeds is a re-plan; the
+    # six of make reproduce's grid are wired alike)
+    study_spec = within.study_spec
+    monkeypatch.setattr(within, "study_spec", lambda context: study_spec(context).with_overrides(
+        {"sweep.grid": {"track.rate_limit": [math.inf, 4.0],
+                        "track.controller": ["flat", "mpc"]}}))
     result = CliRunner().invoke(main, ["reproduce", "--out", "paper", "--set",
                                        "sweep.trials=8", "-q"])
     assert result.exit_code == 0, result.output
@@ -57,6 +64,11 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path,
     assert "## What the maneuver asks of the actuators" in report and "**Finding.**" in report
     assert "120 cells of 8 trials" in report
     assert (out / "fig_actuators.png").exists() and (out / "actuators/cells.parquet").exists()
+    # within the actuators: both controllers over the rate limits, by outcome, and the figure
+    assert "## Within the actuators: the paper's feedback against the MPC" in report
+    assert "| 4 | MPC | re-planned | " in report and "| none | paper's feedback | - | " in report
+    assert "With no limit and initial errors of std 20 mrad" in report
+    assert (out / "fig_within.png").exists() and (out / "within/grid/trials.parquet").exists()
     # beyond three links: both robots, the closed loop on both plants, the studies
     assert "## Beyond three links" in report and "| chain6 | dynamic " in report
     assert "#### chain4: 32 trials" in report and "#### chain6: 32 trials" in report
@@ -78,7 +90,7 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path,
     # its headline; the actuators' cells say over which trials; the capture pushed collides
     assert report.count("trials reached (") >= 5  # montecarlo, actuators, 2 x as built, chains
     headlines = report.split("## Headlines")[1].split("\n## ")[0]
-    for section in ("montecarlo", "actuators", "asbuilt", "chains"):
+    for section in ("montecarlo", "actuators", "within", "asbuilt", "chains"):
         assert any("trials reached (" in x for x in headlines.splitlines()
                    if x.startswith(f"- **{section}**")), section
     assert "/8 reached; p95 " in report
@@ -106,8 +118,8 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path,
     # are the same
     again = CliRunner().invoke(main, ["reproduce", "--out", "paper", "--set", "sweep.trials=8"])
     assert again.exit_code == 0, again.output
-    assert "8 sections (0 computed, 8 reused)" in again.output
-    assert again.output.count("reused: unchanged since") == 8
+    assert "9 sections (0 computed, 9 reused)" in again.output
+    assert again.output.count("reused: unchanged since") == 9
     assert "- paper: the printed b1 is wrong" in again.output  # the headlines, not the report
     assert len(again.output.splitlines()) < 40
     body = report.split("## How this report was made")[0]
@@ -117,7 +129,7 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path,
     (out / "fig2_flat_outputs.png").unlink()
     third = CliRunner().invoke(main, ["reproduce", "--out", "paper", "--set", "sweep.trials=8"])
     assert third.exit_code == 0, third.output
-    assert "8 sections (1 computed, 7 reused)" in third.output
+    assert "9 sections (1 computed, 8 reused)" in third.output
     assert "fig2_flat_outputs.png changed or is missing" in third.output
     assert (out / "fig2_flat_outputs.png").exists()
 
@@ -126,7 +138,7 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path,
     only = CliRunner().invoke(main, ["reproduce", "--out", "paper", "--set", "sweep.trials=8",
                                      "--only", "optimized", "--force"])
     assert only.exit_code == 0, only.output
-    assert "8 sections (1 computed, 7 reused)" in only.output and "(--force)" in only.output
+    assert "9 sections (1 computed, 8 reused)" in only.output and "(--force)" in only.output
     other = CliRunner().invoke(main, ["reproduce", "--out", "paper", "--set", "sweep.trials=9",
                                       "--only", "paper"])
     assert other.exit_code == 0, other.output
@@ -161,7 +173,7 @@ def test_bad_input_is_refused_before_anything_is_written(
 
 
 @pytest.mark.parametrize("spec", [STUDY_SPEC, STUDY, *CHAIN_SPECS, asbuilt.GOAL_SPEC,
-                                  search.SEARCH_SPEC])
+                                  search.SEARCH_SPEC, within.STUDY])
 def test_the_study_specs_ship_as_package_data(spec: Path) -> None:
     assert spec.is_file() and spec.parent.name == "data"
     assert spec.parent.parent == ROOT / "flatcli"

@@ -172,7 +172,7 @@ PAPER_CANONICAL = {
               "goal_tolerance": 0.001,
               "initial": [1.96, 0.8, -0.1], "initial_rate": None, "integrator": "adaptive",
               "kp": [10.0, 13.0], "kv": [100.0, 110.0], "lqr_bandwidth": None, "lqr_base": 10.0,
-              "lqr_terminal": None, "max_steps": 100000, "mpc_backoff": 0.01,
+              "lqr_terminal": None, "max_steps": 100000, "mpc_backoff": 0.03,
               "mpc_horizon": 20, "mpc_kp": None, "mpc_kv": None, "mpc_margin": 0.05,
               "mpc_sample": 0.1, "mpc_weight_input": 1.0, "mpc_weight_state": 0.0,
               "observe_every": 1, "rate_limit": "inf", "rtol": 5e-08, "seed": 0,

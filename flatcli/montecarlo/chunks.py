@@ -32,9 +32,9 @@ from flatcli.experiment import (
     checked,
     goal_of,
     initial_rates,
-    plan_from,
     plant_from,
     scenario_from,
+    tracked_plan,
 )
 from flatcli.montecarlo.draws import (
     draw_perturbations,
@@ -227,6 +227,7 @@ def run_chunk(cell: Cell, chunk: Chunk) -> ChunkResult:
     columns["outcome"] = texts(judged.outcome)
     columns["outcome_reason"] = texts(judged.reason)
     columns["event_time"] = null_where_nan(event_time)
+    columns["replanned"] = repeated(cell.replanned, pa.bool_(), len(ids))
     columns["verified"] = flags(verified)
     columns["reference_difference"] = null_where_nan(difference)
     columns["reference_status"] = texts(reference_status)
@@ -284,7 +285,7 @@ def trial_task(spec: Spec, target: Any) -> TrialTask:
     """The task of one trial whose target is ``target`` (2,) [m]: planned and prepared as a
     track run of the same spec would (FlatcliError: the planner's reason)."""
     applied = spec.with_overrides({"task.end_effector": [float(v) for v in target]})
-    plan = plan_from(applied)
+    plan = tracked_plan(applied)[0]
     return TrialTask(applied, scenario_from(applied, plan).prepared())
 
 

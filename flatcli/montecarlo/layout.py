@@ -24,10 +24,11 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from flatcli.core.controllers.settings import settings_of
 from flatcli.core.errors import FlatcliError
 from flatcli.core.loop.simulate import Scenario
 from flatcli.core.plan.planning import Plan
-from flatcli.experiment import plan_from, plant_from, scenario_from
+from flatcli.experiment import mpc_kept_limit, mpc_reference, plan_from, plant_from, scenario_from
 from flatcli.machine import cores
 from flatcli.spec import PERTURB_TARGETS, Spec, SpecError, grid_overrides
 from flatcli.spec.limits import (
@@ -150,6 +151,9 @@ class Cell:
     scenario: Scenario
     key: int = 0
     digest: str = ""
+    #: the MPC tracks a re-plan of the spec's plan (``experiment.mpc_reference``); None: the
+    #: cell's controller is not the MPC
+    replanned: bool | None = None
 
     @property
     def first_trial(self) -> int:
@@ -332,6 +336,7 @@ def layout(spec: Spec, workers: int | None = None,
     check_sweep([output_steps(s) for s in specs], trials, min(chunk, trials),
                 workers if workers is not None else cores(), spec.joints)
     plans: dict[Any, Plan] = {}
+    references: dict[Any, tuple[Plan, bool | None]] = {}
     cells = []
     for index, (values, applied, key) in enumerate(zip(combos, specs, cell_keys(combos),
                                                        strict=True)):
@@ -344,13 +349,20 @@ def layout(spec: Spec, workers: int | None = None,
             shared = (applied.robot, applied.plan, applied.task)
             if shared not in plans:
                 plans[shared] = plan_from(applied)
-            scenario = scenario_from(applied, plans[shared]).prepared()
+            # the MPC's reference within its rate limit, once per plan and limit kept
+            tracked = (shared, applied.track.controller, mpc_kept_limit(applied),
+                       settings_of(applied.track)["mpc"].margin)
+            if tracked not in references:
+                references[tracked] = mpc_reference(applied, plans[shared])
+            plan, replanned = references[tracked]
+            scenario = scenario_from(applied, plan).prepared()
             require_finite_plan({"the reference": scenario.reference,
                                  "theta": scenario.theta_reference})
             plant_from(applied)
         except FlatcliError as exc:
             raise SpecError(f"sweep.grid cell {index} ({grid_label(values)}): {exc}") from None
-        cells.append(Cell(index, values, applied, scenario, key, cell_digest(applied, key)))
+        cells.append(Cell(index, values, applied, scenario, key, cell_digest(applied, key),
+                          replanned))
         report(index + 1, len(combos))
     return Layout(spec, tuple(cells), trials, chunk)
 

@@ -3,7 +3,8 @@
 Writes into one directory (``runs/paper`` from ``make reproduce``) the figures, the plans and
 closed-loop runs as Parquet, the sweeps, and REPORT.md, whose every number is computed from
 those runs. The report is made of sections (``SECTIONS``, one module each: ``paper``,
-``optimized``, ``montecarlo``, ``actuators``, ``chains``, ``asbuilt``, ``search``); a
+``optimized``, ``montecarlo``, ``actuators``, ``within``, ``chains``, ``asbuilt``,
+``search``); a
 section whose inputs and code have not changed since it was last computed into the directory
 is reused, not computed again (``sections``), so a second ``make reproduce`` takes seconds. ``only``
 computes some sections and keeps the others' last results; ``force`` computes again
@@ -27,6 +28,7 @@ from flatcli.reproduce import (
     optimized,
     paper,
     search,
+    within,
 )
 from flatcli.reproduce.sections import Context, Result, Section, Steps, compute_or_reuse
 from flatcli.reproduce.sections import stored_result as _stored
@@ -38,8 +40,8 @@ STUDY_SPEC = Path(str(resources.files("flatcli") / "data" / "paper_montecarlo.to
 
 #: The report's sections, in its order.
 SECTIONS: tuple[Section, ...] = (paper.SECTION, optimized.SECTION, montecarlo.SECTION,
-                                 actuators.SECTION, chains.SECTION, capture.SECTION,
-                                 asbuilt.SECTION, search.SECTION)
+                                 actuators.SECTION, within.SECTION, chains.SECTION,
+                                 capture.SECTION, asbuilt.SECTION, search.SECTION)
 SECTION_NAMES: tuple[str, ...] = tuple(s.name for s in SECTIONS)
 
 INTRO = (
@@ -63,7 +65,7 @@ def check_inputs(out: Path, montecarlo: Path | None, workers: int | None,
         if name not in SECTION_NAMES:
             raise FlatcliError(f"--only: expected one of {', '.join(SECTION_NAMES)}, "
                                f"got {name!r}")
-    for name in ("montecarlo", "asbuilt", "search"):  # the sections that are studies
+    for name in ("montecarlo", "within", "asbuilt", "search"):  # the sections that are studies
         if montecarlo is None and name in only:
             raise FlatcliError(f"--only {name}: the study is skipped by --no-montecarlo")
     check_output_dir(out)

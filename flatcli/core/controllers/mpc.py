@@ -24,9 +24,12 @@ margin) is a function of the state and the input, linearised about the plan at e
 quantity = value + slope_s . s_i + slope_v . dv_i (``Design``). Its bounds are soft: one
 slack s >= 0 widens each, at a cost ``SLACK_QUADRATIC`` s^2 / 2 + ``SLACK_LINEAR`` s, so a
 state from which the limits cannot all be kept still gets the correction that violates them
-least, and the sample is counted (``qp_infeasible``); the terminal equalities are hard (with
-two samples or more to go they can be met; in the last sample the correction planned one
-sample earlier is held).
+least, and the sample is counted (``qp_infeasible``); the terminal equalities are hard,
+and imposed only while the corrections left can meet them (N r >= S with r samples to go:
+two samples for the flat law's S = 2 N errors, three for the as-built law's S = 2 N + 1
+with a servo); in the samples after that the corrections the last solved QP planned for
+them are held (with S equalities on fewer than S unknowns the QP has no solution: the
+as-built dynamic MPC's second-to-last sample counted as ``qp_infeasible`` before).
 
 What it guarantees and what it does not: the limits hold at the predicted samples for the
 controller's model and the linearisation about the plan, not between samples, not for a
@@ -233,11 +236,11 @@ def rows(d: Design) -> int:
 
 class Scratch(NamedTuple):
     """One trial's MPC state and buffers (``scratch``): the correction held dv (N,), the last
-    solution (n,), whether it exists (valid[0]), the QP's rows C (m, n), their bounds lo, hi
-    (m,), widths (m,) and softness (m,) (``qp.solve``), its gradient (n,) and solution
-    (n,), the measured errors s0 (S,), a row (n,) and a row of state slopes (S,) being
-    propagated, the QP's buffers, and counters: QP iterations, infeasible samples, largest
-    slack."""
+    solution (n,), the sample it was solved at plus one (valid[0]; 0: none), the QP's rows
+    C (m, n), their bounds lo, hi (m,), widths (m,) and softness (m,) (``qp.solve``), its
+    gradient (n,) and solution (n,), the measured errors s0 (S,), a row (n,) and a row of
+    state slopes (S,) being propagated, the QP's buffers, and counters: QP iterations,
+    infeasible samples, largest slack."""
 
     held: Array
     last: Array
@@ -339,9 +342,11 @@ def sample_step(d: Design, s: Scratch, k: int) -> None:
     quantities = d.value.shape[1]
     size = s.row.shape[0]
     remaining = d.samples - k
-    if remaining <= 1:  # the last sample: hold what was planned for it one sample ago
+    if remaining * inputs < states:  # too few samples left to meet s(T) = 0: hold the plan
+        ahead = k - int(s.valid[0]) + 1  # samples since the last QP solved (valid: its k + 1)
         for v in range(inputs):
-            s.held[v] = s.last[inputs + v] if s.valid[0] != 0.0 else 0.0
+            at = ahead * inputs + v
+            s.held[v] = s.last[at] if s.valid[0] != 0.0 and at < size - 1 else 0.0
         return
     costed = min(d.horizon, remaining)
     gradient = d.gradients[k]
@@ -393,7 +398,7 @@ def sample_step(d: Design, s: Scratch, k: int) -> None:
         s.held[v] = s.x[v]
     for c in range(size):
         s.last[c] = s.x[c]
-    s.valid[0] = 1.0
+    s.valid[0] = k + 1.0
 
 
 @jitable

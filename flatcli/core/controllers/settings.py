@@ -49,7 +49,10 @@ class MpcSettings:
     weight_state : W's diagonal on the errors (the flat law: e and e' of each output)
     weight_input : r on the correction dv (> 0)
     margin : the singularity margin kept [rad/s] (0: none)
-    backoff : the joint-rate limit is kept at R (1 - backoff)
+    backoff : the joint-rate limit is kept at R (1 - backoff): 3 % leaves the limits kept
+        at the samples room for what they are not kept between them (on the paper's
+        maneuver at 4 rad/s, 1000 trials of 2 mrad errors: 994 reached at 1 %, 994 at 2 %,
+        998 at 3 %, 997 at 4 %)
     """
 
     sample: float = setting(0.1, "mpc: the sample time, a multiple of dt dividing the "
@@ -63,7 +66,7 @@ class MpcSettings:
     weight_state: float = setting(0.0, "mpc: the weight of the errors at every sample", ge=0)
     weight_input: float = setting(1.0, "mpc: the weight of the correction dv", gt=0)
     margin: float = setting(0.05, "mpc: the singularity margin kept (0: none)", "rad/s", ge=0)
-    backoff: float = setting(0.01, "mpc: the rate limit is kept at rate_limit (1 - backoff)",
+    backoff: float = setting(0.03, "mpc: the rate limit is kept at rate_limit (1 - backoff)",
                              ge=0, le=0.99)
 
     def __post_init__(self) -> None:

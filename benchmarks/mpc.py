@@ -1,0 +1,142 @@
+"""make bench: what the MPC (``track.controller = "mpc"``, issue 40) costs.
+
+* an MPC trial against a paper-feedback trial of the same sweep: the paper's maneuver (gains
+  swapped), the same 200 trials (th(0) off by up to 2 mrad), ``simulate`` on the default
+  adaptive integrator in this process (one thread), the two controllers timed alternately
+  (A B A B ...) and the ratio taken pair by pair (its median): with no rate limit, and at
+  4 rad/s (the paper's feedback on the cubic, the MPC on its re-plan, ``replanned``);
+* one MPC step (``controllers.mpc.sample_step``: the QP built and solved) at horizon 20,
+  compiled, called in a compiled loop from the errors of real samples: the first sample of
+  the maneuver (all 20 samples ahead and the terminal condition), and the mean over the
+  maneuver's samples.
+
+The issue's goals: an MPC trial at most 20x a paper-feedback trial in the same sweep; one
+step at horizon 20 at most 50 us on one core.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numba
+import numpy as np
+
+from flatcli.core.controllers import mpc
+
+SECTION = "The MPC (issue 40): a trial against the paper's feedback, and one step"
+HEADERS = {SECTION: ["what", "time", "ratio", "goal", "note"]}
+SWAPPED = {"track.kp": [100, 110], "track.kv": [10, 13], "track.initial": [1.8, 1.0, 0.0]}
+#: The goals of issue 40.
+TRIAL_RATIO_GOAL = 20.0
+STEP_GOAL_SECONDS = 50e-6
+
+
+def _scenario(controller: str, rate_limit: float) -> tuple[Any, Any]:
+    """The scenario and spec of the paper's maneuver with ``controller`` at ``rate_limit``
+    (the MPC's re-plan when the cubic exceeds it, as a sweep makes it)."""
+    from flatcli.api import load_spec
+    from flatcli.experiment import scenario_from, tracked_plan
+
+    spec = load_spec(None, {**SWAPPED, "track.controller": controller,
+                            "track.rate_limit": rate_limit})
+    plan, _ = tracked_plan(spec)
+    return scenario_from(spec, plan).prepared(), spec
+
+
+def _trials(spec: Any, plan: Any, count: int) -> Any:
+    from benchmarks.outcomes import _perturbed
+
+    return _perturbed(spec, plan, count)
+
+
+def trial_ratio(bench: Any, rate_limit: float, count: int, pairs: int) -> dict[str, float]:
+    """Seconds per trial of each controller on the same ``count`` trials, timed in ``pairs``
+    alternating pairs; the median ratio."""
+    from flatcli.core.loop.simulate import simulate
+
+    timed: dict[str, list[float]] = {"flat": [], "mpc": []}
+    cases = {name: _scenario(name, rate_limit) for name in timed}
+    trials = {name: _trials(spec, scenario.plan, count)
+              for name, (scenario, spec) in cases.items()}
+    for name, (scenario, _) in cases.items():  # compiled and warm
+        simulate(scenario, trials[name].subset(slice(0, 2)))
+    for _ in range(pairs):
+        for name, (scenario, _) in cases.items():
+            started = time.perf_counter()
+            simulate(scenario, trials[name])
+            timed[name].append((time.perf_counter() - started) / count)
+    ratios = np.array(timed["mpc"]) / np.array(timed["flat"])
+    ratio = float(np.median(ratios))
+    flat, per_mpc = float(np.median(timed["flat"])), float(np.median(timed["mpc"]))
+    limit = "no rate limit" if not np.isfinite(rate_limit) else f"rate limit {rate_limit:g} rad/s"
+    bench.row(SECTION, f"an MPC trial / a paper-feedback trial, {limit} ({count} trials, "
+              f"{pairs} alternating pairs)", f"{per_mpc * 1e3:.2f} ms",
+              f"{ratio:.1f}x", f"<= {TRIAL_RATIO_GOAL:g}x: "
+              + ("met" if ratio <= TRIAL_RATIO_GOAL else
+                 f"missed by {ratio / TRIAL_RATIO_GOAL:.2f}x"),
+              f"paper's feedback {flat * 1e3:.2f} ms a trial; pair ratios "
+              f"{ratios.min():.1f}-{ratios.max():.1f}x")
+    return {"flat_seconds": flat, "mpc_seconds": per_mpc, "ratio": ratio}
+
+
+@numba.njit(cache=False)
+def _steps(d: Any, s: Any, errors: Any, ks: Any, repeats: int) -> float:
+    """Calls ``sample_step`` at samples ks with errors (len(ks), S), ``repeats`` times;
+    returns a checksum (so the work is not dropped)."""
+    total = 0.0
+    for _ in range(repeats):
+        for i in range(ks.shape[0]):
+            mpc.reset(s)
+            for c in range(errors.shape[1]):
+                s.s0[c] = errors[i, c]
+            mpc.sample_step(d, s, ks[i])
+            total += s.held[0]
+    return total
+
+
+def step_time(bench: Any, repeats: int, rate_limit: float) -> dict[str, float]:
+    """Seconds per MPC step at horizon 20 on the paper's maneuver (at 4 rad/s the MPC's
+    re-plan, every joint rate and the margin as constraints; with no limit the cubic and
+    the margin alone), from errors of 2 mrad (and 2 mrad/s) drawn at random."""
+    scenario, _ = _scenario("mpc", rate_limit)
+    d = scenario.sampled_design
+    assert d.horizon == 20
+    rng = np.random.default_rng(40)
+    states = d.A.shape[1]
+    s = mpc.scratch(d)
+    out = {}
+    for label, ks in (("the first sample (20 ahead, the terminal condition)",
+                       np.zeros(64, dtype=np.int64)),
+                      (f"mean over the maneuver's {d.samples} samples",
+                       np.repeat(np.arange(d.samples, dtype=np.int64), 4))):
+        errors = rng.normal(0.0, 2e-3, (len(ks), states))
+        _steps(d, s, errors, ks, 1)  # compiled
+        best = np.inf
+        for _ in range(5):
+            started = time.perf_counter()
+            _steps(d, s, errors, ks, repeats)
+            best = min(best, (time.perf_counter() - started) / (repeats * len(ks)))
+        iterations = s.counters[mpc.QP_ITERATIONS]  # the last step's
+        limit = ("no rate limit" if not np.isfinite(rate_limit)
+                 else f"rate limit {rate_limit:g} rad/s")
+        bench.row(SECTION, f"one MPC step at horizon 20, {limit}: {label}",
+                  f"{best * 1e6:.1f} us",
+                  "", f"<= {STEP_GOAL_SECONDS * 1e6:g} us: "
+                  + ("met" if best <= STEP_GOAL_SECONDS else
+                     f"missed by {best / STEP_GOAL_SECONDS:.2f}x"),
+                  f"{mpc.rows(d)} rows at most, {d.factors.shape[1]} variables; the last "
+                  f"step's QP took {iterations:g} iterations; best of 5")
+        out["first" if ks[-1] == 0 else "mean"] = float(best)
+    return out
+
+
+def run_all(bench: Any) -> None:
+    quick = bench.quick
+    count, pairs = (50, 3) if quick else (200, 7)
+    bench.raw["mpc"] = {
+        "unlimited": trial_ratio(bench, float("inf"), count, pairs),
+        "limit_4": trial_ratio(bench, 4.0, count, pairs),
+        "step_limit_4": step_time(bench, 20 if quick else 200, 4.0),
+        "step_unlimited": step_time(bench, 20 if quick else 200, float("inf")),
+    }
