@@ -984,12 +984,15 @@ def track(spec: SpecLike = None, overrides: Overrides = None, *,
     ``controller``: your own controller, written in Python, acting at its sample instants
     around the law ``track.controller`` names ("flat": add to y''; "asbuilt": add to the
     joint-rate commands): an object with ``sample`` [s], ``reset()`` and ``step(k, t,
-    errors) -> held`` (``flatcli.core.controllers.python``; docs/api.md has an example). The
-    plant, the inner law and the metrics stay compiled, but its steps are Python calls
-    between scipy's DOP853 segments (the run is DOP853's whatever ``track.integrator``
-    says): slower than a compiled controller (the MPC's step in Python on the paper's
-    maneuver, dt 0.01 s, 10 samples: 0.11 s a trial against 0.004 s for the compiled MPC's
-    adaptive trial, 27x; the cost grows with the samples and the step's own work).
+    errors) -> held`` (``flatcli.core.controllers.python``). The plant, the inner law and
+    the metrics stay compiled, but its steps are Python calls between scipy's DOP853
+    segments (the run is DOP853's whatever ``track.integrator`` says): slower than a
+    compiled controller (the MPC's step in Python on the paper's maneuver, dt 0.01 s, 10
+    samples: 0.11 s a trial against 0.004 s for the compiled MPC's adaptive trial, 27x; the
+    cost grows with the samples and the step's own work). Or an object with ``command(t,
+    theta, u, flag) -> (u_dot, rate)``, called at every evaluation in place of the flat law
+    (the paper's robot, kinematic plant; docs/development.md has the paper's law written so:
+    1.1 s for the paper's maneuver, 0.05 s compiled).
     """
     from flatcli.outputs import track_frame
     from flatcli.spec.limits import require_finite_plan

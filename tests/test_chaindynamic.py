@@ -295,7 +295,7 @@ def test_rhs_solves_the_equations_of_motion_and_the_servo_law(n: int) -> None:
             assert out[nx] == sigma
             np.testing.assert_array_equal(out[2 * nb:nx], u_dot)
             r = np.clip(np.r_[u, command], -4.0, 4.0)
-            assert out[nx + 2 + n] == r[-1]
+            assert out[nx + 1 + 2 * n] == r[-1]
             plant_chain = robot_chain(plant)
             Q = mass_matrix(plant_chain, q) @ qdd + bias_forces(plant_chain, q, qd)
             scale = np.abs(Q).max() + np.abs(tau).max()
@@ -345,7 +345,7 @@ def test_a_stage_derivative_is_the_right_hand_sides_bit_for_bit(n: int) -> None:
             stage[:] = 7.0  # what a stage row held before
             chain_dynamic_stage(loop_for(*args, **kw), x, ref, noise, stage)  # type: ignore[arg-type]
             np.testing.assert_array_equal(stage[:nx + 1], full[:nx + 1])
-            assert stage[nx + 2 + n] == full[nx + 2 + n]
+            assert stage[nx + 1 + 2 * n] == full[nx + 1 + 2 * n]
             if exact:
                 assert np.isnan(stage[nx + 1:nx + 2 + n]).all()
             else:
@@ -402,7 +402,7 @@ def test_the_servo_is_a_first_order_lag() -> None:
     commands = []
     for x in sol.y.T:
         rhs(0.0, x)
-        commands.append(out[nx + 2 + n])
+        commands.append(out[nx + 1 + 2 * n])
     assert np.all(np.array(commands) == limit)  # the last joint's command, clipped throughout
     assert np.all(sol.y[2 * nb:] > limit)  # u_1, u_2 beyond the limit throughout
     r = np.array([limit, limit, limit])

@@ -26,14 +26,14 @@ import json
 import subprocess
 import sys
 
-from flatcli.core.loop import asbuiltkernels, kernels
+from flatcli.core.loop import asbuiltloop, kernels
 from flatcli.core.loop.integrate import make_trial_integrators
 
 COMBINATIONS = {
     "paper kinematic": kernels.PAPER_KINEMATIC, "paper dynamic": kernels.PAPER_DYNAMIC,
     "chain kinematic": kernels.CHAIN_KINEMATIC, "chain dynamic": kernels.CHAIN_DYNAMIC,
-    "as-built kinematic": asbuiltkernels.ASBUILT_KINEMATIC,
-    "as-built dynamic": asbuiltkernels.ASBUILT_DYNAMIC,
+    "as-built kinematic": asbuiltloop.ASBUILT_KINEMATIC,
+    "as-built dynamic": asbuiltloop.ASBUILT_DYNAMIC,
 }
 
 

@@ -129,6 +129,16 @@ def feedback_at(
 
 
 @jitable
+def unwound(u: Real, u_dot: Real, limit: float) -> Real:
+    """The rate of the law's integrator u_j [rad/s^2] under a plant that clips its command
+    u_j to +-limit [rad/s]: 0 while u_j is at or beyond the limit and u_dot would push it
+    further out (conditional integration: no wind-up), else u_dot."""
+    if (u >= limit and u_dot > 0.0) or (u <= -limit and u_dot < 0.0):
+        return 0.0
+    return u_dot
+
+
+@jitable
 def add_to_accelerations(ref: Array, dv: Array, out: Array) -> None:
     """The flat law's additive input: ``out`` (3 N,) = the plan's flag ``ref`` with dv (N,)
     [rad/s^2] added to its y'' (``law`` then asks v_j = y_jd'' + dv_j + kv (..) + kp (..):

@@ -11,13 +11,23 @@ A research controller is an object with (``PythonController``):
   input enters (the flat law: to y_d'', so v_j = y_jd'' + dv_j + kv (..) + kp (..); the
   as-built law: to the joint-rate commands).
 
-It runs where the MPC of ``mpc`` runs (``loop.compose``: the inner law, the plant and the
-observer compiled), but its steps are Python calls, so the loop is the scipy reference
-(DOP853 at rtol 1e-10, ``loop.reference``), one trial at a time: slower than a compiled
-controller (27x for the MPC's step run as Python on a 10-sample trial, tests/test_compose.py;
-more with more samples), for trying an idea, not for sweeps. ``PART`` is its
-``SampledPart``: compiled no-ops around the Python calls the reference makes. The MPC's
-step run by the Python interpreter gives the compiled MPC's trial to the bit in that loop.
+A controller with a ``command(t, theta, u, flag) -> (u_dot, rate)`` method instead acts at
+every evaluation of the right-hand side, in place of the flat law on the paper's robot (the
+kinematic plant; ``continuous``): given the measured angles theta (N + 1,) [rad], its
+integrators u (N - 1,) [rad/s] (the commanded rates of joints 1..N-1, the prolonged state of
+the flat law) and the plan's flat flag y, y', y'' (3 N,) at t, it returns their rates u_dot
+(N - 1,) [rad/s^2] and the commanded rate of joint N [rad/s]. The plant (``loop.paperloop.
+kinematic_plant``: rates clipped to the limit, the base from its momentum) and the rule
+against wind-up (``control.unwound``) are compiled; each evaluation is a Python call.
+
+A sampled controller runs where the MPC of ``mpc`` runs (``loop.compose``: the inner law,
+the plant and the observer compiled), but its steps are Python calls. Either kind runs in the
+scipy reference loop (DOP853 at rtol 1e-10, ``loop.reference``), one trial at a time: slower
+than a compiled controller (27x for the MPC's step run as Python on a 10-sample trial,
+tests/test_compose.py; more with more samples), for trying an idea, not for sweeps. ``PART``
+is the sampled kind's ``SampledPart``: compiled no-ops around the Python calls the reference
+makes. The MPC's step run by the Python interpreter gives the compiled MPC's trial to the bit
+in that loop.
 """
 
 from __future__ import annotations
@@ -80,6 +90,28 @@ def design(controller: Any, dt: float, duration: float, errors: int, inputs: int
             raise FlatcliError(f"controller: {type(controller).__name__} has no method "
                                f"{name}() (flatcli.core.controllers.python)")
     return Design(int(every), int(errors), int(inputs))
+
+
+def continuous(controller: Any) -> bool:
+    """Whether a controller written in Python gives the law's commands at every evaluation
+    (it has a ``command`` method) rather than acting at sample instants."""
+    return controller is not None and callable(getattr(controller, "command", None))
+
+
+def commands(value: Any, joints: int) -> Array:
+    """What a controller's ``command`` returned, (u_dot (N - 1,), rate), as the (N,) floats
+    u_dot..., rate (inf or nan pass, as the compiled law's do on the singular set);
+    FlatcliError if they are not that many numbers."""
+    try:
+        u_dot, rate = value
+        out = np.append(np.asarray(u_dot, dtype=float).reshape(-1), float(rate))
+    except (TypeError, ValueError):
+        out = np.empty(0)
+    if out.shape != (joints,):
+        raise FlatcliError(f"controller: command() must return (u_dot, rate): {joints - 1} "
+                           f"rates of its integrators and one of joint {joints}, got "
+                           f"{value!r}")
+    return out
 
 
 def scratch(d: Design) -> Scratch:

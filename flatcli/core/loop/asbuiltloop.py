@@ -39,39 +39,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 from flatcli.core._jit import jitable
-from flatcli.core.loop.chaindynamic import (
-    _C,
-    _C_S,
-    _CHAT_S,
-    _M,
-    _M_S,
-    _MHAT,
-    _MHAT_S,
-    _Q_DDOT,
-    _R,
-    _RHS,
-    _TAU,
-    ChainDynamicLoop,
-    make_scratch,
-    same_chain,
-    servo_demand,
-)
+from flatcli.core.controllers.control import Gains
+from flatcli.core.loop.chainloop import plan_residual
+from flatcli.core.loop.kernels import Ops, TrialArrays
 from flatcli.core.loop.metrics import observe_clipped, observe_errors, observe_torque
-from flatcli.core.models.chainflat import Scratch, scratch
-from flatcli.core.robots.chain import (
-    chain_momentum_given,
-    link_trig,
-    momentum_weights_given,
-    turn_last,
-)
-from flatcli.core.robots.dynamics import (
-    Chain,
-    absolute_motion,
-    chain_terms,
-    free_floating_accelerations,
-    joint_accelerations,
-    joint_space,
-)
+from flatcli.core.plan.exact import constraint_of
+from flatcli.core.plants import dynamic
+from flatcli.core.plants.dynamic import R, ServoPlant, servo_plant, servo_rates
+from flatcli.core.plants.kinematic import kinematic_rates
+from flatcli.core.robots.chain import chain_momentum_given, link_trig, turn_last
+from flatcli.core.robots.params import RobotParams
 
 Array = NDArray[np.float64]
 
@@ -103,28 +80,24 @@ class AsbuiltShared(NamedTuple):
 
 
 class AsbuiltScratch(NamedTuple):
-    """A loop's buffers: rows (ROWS, N + 1), the servo model's trig (TRIG_ROWS, N + 1),
-    the dynamic plant's (``chaindynamic.make_scratch``) and a flat-map scratch its record
-    carries (unused)."""
+    """A loop's buffers: rows (ROWS, N + 1) and the dynamic plant's
+    (``plants.dynamic.make_scratch``)."""
 
     rows: Array
-    servo_trig: Array
-    dynamic_rows: Array
+    plant_rows: Array
     trig: Array
+    servo_trig: Array
     matrices: Array
-    maps: Scratch
 
 
 def asbuilt_scratch(n: int) -> AsbuiltScratch:
-    nb = n + 1
-    return AsbuiltScratch(np.zeros((ROWS, nb)), np.zeros((3, nb)), *make_scratch(n),
-                          scratch(n))
+    return AsbuiltScratch(np.zeros((ROWS, n + 1)), *dynamic.make_scratch(n))
 
 
 class AsbuiltLoop(NamedTuple):
     """One trial: the plant's K, inertias, parameters (4 (N + 1),) of its equivalent
     placement and cos, sin of its offset; H0 [kg m^2/s]; the shared record; the buffers; the
-    dynamic plant's record (``chaindynamic.ChainDynamicLoop``: its servo and matrices)."""
+    dynamic plant (``plants.dynamic.ServoPlant``: its servo, limits and matrices)."""
 
     Kq: Array
     Iq: Array
@@ -134,35 +107,30 @@ class AsbuiltLoop(NamedTuple):
     h0: float
     shared: AsbuiltShared
     rows: Array
-    servo_trig: Array
-    dyn: ChainDynamicLoop
+    dyn: ServoPlant
 
 
 @jitable
 def asbuilt_loop(shared: AsbuiltShared, Kq: Array, params: Array, offset: float, h0: float,
                  bandwidth: float, torque_limit: float, work: AsbuiltScratch) -> AsbuiltLoop:
-    """Trial's loop record (``offset``: its plant's turn of the last link [rad])."""
+    """Trial's loop record (``offset``: its plant's turn of the last link [rad]); the servo's
+    model is the plant or the controller's robot, turned by the robot's own offset. Its
+    dynamic plant solves for the accelerations even where the servo's model is the plant's
+    (``ServoPlant.lag_shortcut`` off: the as-built loop's numbers as they were)."""
     nb = shared.Ic.shape[0]
     Iq = params[nb: 2 * nb]
-    cos_p, sin_p = np.cos(offset), np.sin(offset)
-    plant = Chain(Kq, Iq)
-    servo = plant if shared.servo_is_plant else Chain(shared.Kc, shared.Ic)
-    same = shared.servo_is_plant or (same_chain(plant, servo) and cos_p == shared.cos_c
-                                     and sin_p == shared.sin_c)
-    # the flat law's fields of the record (its gains, its maps) are not used here, nor its
-    # turn (``_servo_terms`` turns the plant's and the servo model's trigonometry itself)
-    dyn = ChainDynamicLoop(shared.Kc, shared.Ic, shared.Ic, shared.Ic, plant, servo, same,
-                           params, h0, shared.rate_limit, bandwidth, torque_limit,
-                           work.dynamic_rows, work.trig, work.matrices, work.maps, 1.0, 0.0)
-    return AsbuiltLoop(Kq, Iq, params, cos_p, sin_p, h0, shared, work.rows, work.servo_trig,
-                       dyn)
+    dyn = servo_plant(Kq, Iq, shared.Kc, shared.Ic, shared.servo_is_plant, offset,
+                      shared.cos_c, shared.sin_c, h0, shared.rate_limit, bandwidth,
+                      torque_limit, work.plant_rows, work.trig, work.servo_trig, work.matrices,
+                      False)
+    return AsbuiltLoop(Kq, Iq, params, dyn.cos_p, dyn.sin_p, h0, shared, work.rows, dyn)
 
 
 @jitable
-def commands(loop: AsbuiltLoop, x: Array, ref: Array, noise: Array) -> None:
-    """The rate commands r_j (N,) into rows[_CMD, :N]: the law at the measured angles
-    x[:N + 1] + noise (and, lagged, the joints' rates x[N + 2:]), plus the lead times the
-    plan's joint accelerations, clipped to the rate limit (``lqr.TrackedLayout``)."""
+def commands(loop: AsbuiltLoop, x: Array, ref: Array, noise: Array, cmd: Array) -> None:
+    """The rate commands r_j (N,) into ``cmd``: the law at the measured angles x[:N + 1] +
+    noise (and, lagged, the joints' rates x[N + 2:]), plus the lead times the plan's joint
+    accelerations (``lqr.TrackedLayout``); the plant clips them to its rate limit."""
     nb = loop.Iq.shape[0]
     n = nb - 1
     shared = loop.shared
@@ -171,8 +139,6 @@ def commands(loop: AsbuiltLoop, x: Array, ref: Array, noise: Array) -> None:
     meas = loop.rows[_MEAS]
     for a in range(nb):
         meas[a] = x[a] + noise[a]
-    limit = shared.rate_limit
-    cmd = loop.rows[_CMD]
     for j in range(1, nb):
         w = ref[c + j - 1] + shared.lead * ref[2 * c + j - 1]
         base = nb + (j - 1) * width
@@ -182,7 +148,7 @@ def commands(loop: AsbuiltLoop, x: Array, ref: Array, noise: Array) -> None:
         if shared.lagged:
             for k in range(1, nb):
                 w -= ref[base + n + k] * (x[nb + k] - ref[c + k - 1])
-        cmd[j - 1] = min(max(w, -limit), limit)
+        cmd[j - 1] = w
 
 
 @jitable
@@ -205,16 +171,11 @@ def kinematic_rhs(loop: AsbuiltLoop, x: Array, ref: Array, noise: Array, out: Ar
     out : (>= N + 2,) written: th0'..th_N' [rad/s] (the applied rates), then 1.0
     """
     nb = loop.Iq.shape[0]
-    commands(loop, x, ref, noise)
-    plant_trig(loop, x[:nb])
-    h = loop.rows[_H]
-    momentum_weights_given(loop.Kq, loop.Iq, loop.rows[_CS], loop.rows[_SN], h)
     cmd = loop.rows[_CMD]
-    base = loop.h0
-    for j in range(1, nb):
-        out[j] = cmd[j - 1]
-        base -= h[j] * cmd[j - 1]
-    out[0] = base / h[0]
+    commands(loop, x, ref, noise, cmd)
+    plant_trig(loop, x[:nb])
+    kinematic_rates(loop.Kq, loop.Iq, loop.h0, loop.shared.rate_limit, loop.rows[_CS],
+                    loop.rows[_SN], loop.rows[_H], cmd, out)
     out[nb] = 1.0
 
 
@@ -274,27 +235,6 @@ def kinematic_initial(loop: AsbuiltLoop, initial: Array, ref: Array, x0: Array) 
 
 
 @jitable
-def _servo_terms(loop: AsbuiltLoop, theta: Array, rates: Array) -> None:
-    """The plant's M, C q' (and the servo model's Mhat, chat) at (theta, rates) into the
-    dynamic record's buffers."""
-    dyn = loop.dyn
-    trig = dyn.trig
-    absolute_motion(theta, rates, trig)
-    turn_last(trig[0], trig[1], loop.cos_p, loop.sin_p)
-    M, c = dyn.matrices[_M], dyn.buffers[_C]
-    chain_terms(dyn.plant, trig, M, c)
-    if dyn.same_model:
-        joint_space(M, c, dyn.matrices[_MHAT_S], dyn.buffers[_CHAT_S])
-        return
-    servo = loop.servo_trig
-    absolute_motion(theta, rates, servo)
-    turn_last(servo[0], servo[1], loop.shared.cos_c, loop.shared.sin_c)
-    chain_terms(dyn.servo, servo, dyn.matrices[_M_S], dyn.buffers[_C_S])
-    joint_space(dyn.matrices[_M_S], dyn.buffers[_C_S], dyn.matrices[_MHAT_S],
-                dyn.buffers[_CHAT_S])
-
-
-@jitable
 def dynamic_rhs(loop: AsbuiltLoop, x: Array, ref: Array, noise: Array, out: Array) -> None:
     """Rates of the dynamic plant under the as-built law and the rate servos.
 
@@ -305,45 +245,16 @@ def dynamic_rhs(loop: AsbuiltLoop, x: Array, ref: Array, noise: Array, out: Arra
         tau_1..tau_N [N m], 1.0 if a torque was clipped (else 0.0), r_1..r_N [rad/s]
     """
     nb = loop.Iq.shape[0]
-    n = nb - 1
     nx = 2 * nb
-    dyn = loop.dyn
-    theta, rates = x[:nb], x[nb:nx]
-    commands(loop, x, ref, noise)
-    cmd = loop.rows[_CMD]
-    r = dyn.buffers[_R]
-    for j in range(n):
-        r[j] = cmd[j]
-    _servo_terms(loop, theta, rates)
-    saturated = servo_demand(dyn, rates[1:])
-    M, c = dyn.matrices[_M], dyn.buffers[_C]
-    tau = dyn.buffers[_TAU, :n]
-    q_ddot = dyn.buffers[_Q_DDOT]
-    if dyn.same_model:
-        hat, chat, scratch_hat, rhs = (dyn.matrices[_MHAT_S], dyn.buffers[_CHAT_S],
-                                       dyn.matrices[_MHAT], dyn.buffers[_RHS])
-        for j in range(n):
-            rhs[j] = chat[j]
-            for k in range(n):
-                scratch_hat[j, k] = hat[j, k]
-        joint_accelerations(M, c, tau, scratch_hat, rhs, q_ddot)
-    else:
-        free_floating_accelerations(M, c, tau, dyn.matrices[_MHAT], dyn.buffers[_RHS], q_ddot)
-    for i in range(nb):
-        out[i] = rates[i]
-        out[nb + i] = q_ddot[i]
+    commands(loop, x, ref, noise, loop.dyn.rows[R])
+    servo_rates(loop.dyn, x[:nb], x[nb:nx], out, nx + 1, True, False)
     out[nx] = 1.0
-    for j in range(n):
-        out[nx + 1 + j] = tau[j]
-    out[nx + 1 + n] = saturated
-    for j in range(n):
-        out[nx + 2 + n + j] = r[j]
 
 
 def dynamic_aux(n: int) -> int:
-    """Values ``dynamic_rhs`` writes after the state's derivative: 1.0, tau (N), the
-    saturation flag, r (N)."""
-    return 2 * n + 2
+    """Values ``dynamic_rhs`` writes after the state's derivative: 1.0, then the plant's
+    (``plants.dynamic.aux``: tau (N), the saturation flag, r (N))."""
+    return 1 + dynamic.aux(n)
 
 
 @jitable
@@ -361,12 +272,7 @@ def dynamic_initial(loop: AsbuiltLoop, initial: Array, ref: Array, x0: Array) ->
     for j in range(1, n):
         x0[nb + j] = initial[nb + j - 1]
     x0[nb + n] = ref[c + n - 1]
-    _servo_terms(loop, x0[:nb], x0[nb:])
-    M = loop.dyn.matrices[_M]
-    acc = loop.h0
-    for k in range(1, nb):
-        acc -= M[0, k] * x0[nb + k]
-    x0[nb] = acc / M[0, 0]
+    dynamic.initial_base_rate(loop.dyn, x0)
 
 
 @jitable
@@ -412,24 +318,6 @@ def record_dynamic(loop: Any, trace: Array, j: int, nx: int, x: Array, f: Array
 
 
 @jitable
-def plan_residual(loop: AsbuiltLoop, plan_theta: Array, plan_theta_dot: Array) -> float:
-    """max_j |H - H0| of the plan's own samples with the plant's parameters [kg m^2/s]."""
-    residual = 0.0
-    for j in range(plan_theta.shape[0]):
-        plant_trig(loop, plan_theta[j])
-        h = chain_momentum_given(loop.params, loop.rows[_CS], loop.rows[_SN],
-                                 plan_theta_dot[j])
-        residual = max(residual, abs(h - loop.h0))
-    return residual
-
-
-__all__ = ["AsbuiltLoop", "AsbuiltScratch", "AsbuiltShared", "asbuilt_loop",
-           "asbuilt_scratch", "dynamic_aux", "dynamic_initial", "dynamic_rhs",
-           "kinematic_initial", "kinematic_rhs", "observe_dynamic",
-           "observe_kinematic", "plan_residual", "record_dynamic", "record_kinematic"]
-
-
-@jitable
 def additive(loop: AsbuiltLoop, ref: Array, dv: Array, out: Array) -> None:
     """The as-built law's additive input: ``out`` = the tracked flag ``ref`` with dv (N,)
     [rad/s] added to the joint-rate commands w (``commands``): on the plan's joint rates w_r
@@ -467,3 +355,49 @@ def measure(loop: AsbuiltLoop, x: Array, noise: Array, ref: Array, s0: Array) ->
     if shared.lagged:
         for k in range(1, nb):
             s0[n + k] = x[nb + k] - ref[c + k - 1]
+
+
+@jitable
+def _loop(shared: AsbuiltShared, trials: TrialArrays, i: int, scratch: AsbuiltScratch
+          ) -> Any:
+    return asbuilt_loop(shared, trials.plant[i], trials.params[i], trials.offset[i],
+                        trials.h0[i], trials.servo[i, 0], trials.servo[i, 1], scratch)
+
+
+@jitable
+def _residual(loop: Any, trials: TrialArrays, i: int, plan_theta: Array,
+              plan_theta_dot: Array) -> float:
+    return plan_residual(plan_theta, plan_theta_dot, loop.params, loop.h0, loop.rows[_CS],
+                         loop.rows[_SN], loop.cos_p, loop.sin_p)
+
+
+@jitable
+def _bounded(loop: Any) -> bool:
+    """The as-built law has no singular set: its commands are bounded everywhere (finite
+    gains about a finite plan), and its margin (1.0) never changes sign, so no trial meets
+    a crossing to stop at or to pass (``crossings`` is 0)."""
+    return True
+
+
+#: The as-built law on the kinematic and the dynamic plant (``kernels.Ops``; compiled by
+#: ``table``), any N.
+ASBUILT_KINEMATIC = Ops(_loop, _bounded, kinematic_initial, kinematic_rhs, observe_kinematic,
+                        record_kinematic, _residual, lambda n: n + 1, lambda n: 1,
+                        lambda n: 3 * n + 1, asbuilt_scratch, additive=additive,
+                        measure=measure)
+ASBUILT_DYNAMIC = Ops(_loop, _bounded, dynamic_initial, dynamic_rhs, observe_dynamic,
+                      record_dynamic, _residual, lambda n: 2 * n + 2, dynamic_aux,
+                      lambda n: 4 * n + 2, asbuilt_scratch, additive=additive,
+                      measure=measure)
+
+
+def asbuilt_shared(model: Any, gains: Gains, rate_limit: float, servo_is_plant: bool,
+                   robot: RobotParams) -> AsbuiltShared:
+    """What every trial shares: the controller's robot (``exact.Constraint`` of ``robot``,
+    writable copies), the rate limit, the servo's model (``gains`` and ``model`` are the
+    flat law's: the as-built law's gains are in the tracked flag)."""
+    constraint = constraint_of(robot)
+    return AsbuiltShared(np.array(constraint.K, dtype=float),
+                         np.array(constraint.inertia, dtype=float),
+                         float(np.cos(constraint.offset)), float(np.sin(constraint.offset)),
+                         float(rate_limit), servo_is_plant)

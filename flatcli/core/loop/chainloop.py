@@ -3,10 +3,11 @@
 The prolonged state is x = (th0 .. th_N, u_1 .. u_N-1), 2 N numbers. The controller measures
 the angles (+ noise), computes the flat outputs with its model (``chainflat.outputs``), asks
 for v_j = y_jd'' + kv_j (y_jd' - y_j') + kp_j (y_jd - y_j), j = 1..N, and commands the inputs
-that make y'' = v (``chainflat.inputs``): u_j' and th_N'. The kinematic plant applies the
-joint rates th_j' = sat(u_j) (j < N) and th_N' = sat(command), clipped to +-rate_limit (with
-the same conditional integration of u_j as ``plant``), and th0' from its own momentum
-H0 = sum_j h_j th_j' with its own K (any d_N: an imperfect counterweight included).
+that make y'' = v (``chainflat.inputs``): u_j' and th_N'. The kinematic plant
+(``plants.kinematic``) turns the joints at the rate commands u_j (j < N) and th_N', clipped
+to +-rate_limit, and the base from its own momentum H0 = sum_j h_j th_j' with its own K (any
+d_N: an imperfect counterweight included); u_j does not wind up against the limit
+(``control.unwound``).
 
 ``chain_rhs`` writes the state's derivative into out[:2N] and the controller's signed margin
 sigma into out[2N], like ``paperloop.kinematic_rhs``, so the same compiled integrators
@@ -21,7 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from flatcli.core._jit import jitable
-from flatcli.core.controllers.control import flat_errors, law
+from flatcli.core.controllers.control import flat_errors, law, unwound
 from flatcli.core.loop.metrics import (
     observe_clipped,
     observe_errors,
@@ -34,11 +35,11 @@ from flatcli.core.models.chainflat import (
     outputs_given,
     terms_into,
 )
+from flatcli.core.plants.kinematic import kinematic_rates
 from flatcli.core.robots.chain import (
     barycentric_matrix,
     chain_momentum_given,
     link_trig,
-    momentum_weights_given,
     turn_last,
 )
 
@@ -119,25 +120,17 @@ def chain_rhs(loop: ChainLoop, x: Array, ref: Array, noise: Array, out: Array) -
     for j in range(n):
         v[j] = law(ref, j, n, loop.kp[j], loop.kv[j], y[j], y_dot[j])
     command = inputs_given(loop.Ic, h0, h_c, grad, hess, slopes, measured, u, v, u_dot)
-    limit = loop.rate_limit
     if noisy:  # the plant's own angles (without noise the controller's trigonometry is theirs)
         link_trig(x[: n + 1], work.cs, work.sn)
         work.at[n + 1] = 0.0  # the terms in ``work`` are no longer all at one state
     pcs, psn = plant_trig(loop, work.cs, work.sn)
-    momentum_weights_given(loop.Kq, loop.Iq, pcs, psn, h)
-    base = loop.h0
+    r = buf[3]  # v is spent: the rate commands u_j (j < N), th_N'
     for j in range(1, n):
-        rate = min(max(x[n + j], -limit), limit)
-        out[j] = rate
-        base -= h[j] * rate
-        step = u_dot[j - 1]
-        if (x[n + j] >= limit and step > 0.0) or (x[n + j] <= -limit and step < 0.0):
-            step = 0.0  # conditional integration: no wind-up while th_j' is clipped
-        out[n + j] = step
-    last = min(max(command, -limit), limit)
-    out[n] = last
-    base -= h[n] * last
-    out[0] = base / h[0]
+        r[j - 1] = x[n + j]
+    r[n - 1] = command
+    kinematic_rates(loop.Kq, loop.Iq, loop.h0, loop.rate_limit, pcs, psn, h, r, out)
+    for j in range(1, n):
+        out[n + j] = unwound(x[n + j], u_dot[j - 1], loop.rate_limit)
     out[2 * n] = sigma
 
 

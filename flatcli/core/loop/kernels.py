@@ -20,7 +20,7 @@ plant (kinematic or dynamic). Each combination supplies the same few functions, 
 the adaptive Dormand-Prince, metrics and status (``metrics.conclude_trial``); ``make_rhs``
 and ``make_observer`` the single evaluations the scipy reference (``reference``) calls.
 The kernels of each combination are those factories' functions, compiled once
-(``compile_kernels``; ``KERNELS``, looked up by ``(model kind, plant)``).
+(``compile_kernels``; ``table.KERNELS`` generates them all, by (controller, model, plant)).
 
 Every buffer a kernel writes into is made by the caller (``Buffers``): the kernels run
 without numba's reference counting (``_jit.kernel``), which on the N-link loop, whose
@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -83,14 +83,17 @@ from flatcli.core.loop.paperloop import (
     DYNAMIC_STATE,
     KINEMATIC_AUX,
     KINEMATIC_STATE,
+    CommandLoop,
     DynamicLoop,
     Loop,
+    command_rhs,
     dynamic_initial,
     dynamic_rhs,
     is_flat_plant,
     kinematic_rhs,
     measure_dynamic,
     measure_kinematic,
+    observe_command,
     observe_dynamic,
     observe_kinematic,
     record_dynamic,
@@ -487,10 +490,28 @@ def _rates_bounded(loop: Any) -> bool:
 
 
 @jitable
+def _command_loop(shared: PaperShared, trials: TrialArrays, i: int, scratch: Any
+                  ) -> CommandLoop:
+    return CommandLoop(_paper_kinematic_loop(shared, trials, i, scratch), scratch)
+
+
+@jitable
+def _command_bounded(loop: CommandLoop) -> bool:
+    return _rates_bounded(loop.loop)
+
+
+@jitable
 def _rates_or_torques_bounded(loop: Any) -> bool:
     """The dynamic plant: its servos' commands clipped to a finite rate limit, or their
     torques to a finite torque limit (0 included: no torque at all)."""
     return not (math.isinf(loop.rate_limit) and math.isinf(loop.torque_limit))
+
+
+@jitable
+def _plant_bounded(loop: Any) -> bool:
+    """``_rates_or_torques_bounded`` of a loop whose dynamic plant is a part
+    (``plants.dynamic.ServoPlant``)."""
+    return _rates_or_torques_bounded(loop.plant)
 
 
 @jitable
@@ -530,6 +551,11 @@ PAPER_KINEMATIC = Ops(
     record_rates, _paper_residual, lambda n: KINEMATIC_STATE, lambda n: KINEMATIC_AUX,
     lambda n: KINEMATIC_STATE + 3, _no_scratch, additive=flat_additive,
     measure=measure_kinematic)
+#: The paper's kinematic plant under commands a controller written in Python gives
+#: (``paperloop.command_rhs``; the reference loop writes them into the loop's scratch).
+PAPER_COMMAND = replace(PAPER_KINEMATIC, make_loop=_command_loop, bounded=_command_bounded,
+                        rhs=command_rhs, observe=observe_command,
+                        scratch=lambda n: np.zeros(n), additive=None, measure=None)
 PAPER_DYNAMIC = Ops(
     _paper_dynamic_loop, _rates_or_torques_bounded, dynamic_initial, dynamic_rhs,
     observe_dynamic, record_dynamic, _paper_residual, lambda n: DYNAMIC_STATE,
@@ -555,13 +581,16 @@ class ChainShared(NamedTuple):
 
 
 class ChainScratch(NamedTuple):
-    """A chain loop's buffers: the kinematic loop's rows (6, N + 1) and the flat maps'
-    (``chainflat.Scratch``); the dynamic plant's rows, trigonometry and matrices."""
+    """A chain loop's buffers: the kinematic loop's rows (8, N + 1) and the flat maps'
+    (``chainflat.Scratch``); the dynamic loop's rows and its plant's rows, trigonometry
+    (the plant's and the servo model's) and matrices (``chaindynamic.make_scratch``)."""
 
     rows: Array
     maps: Scratch
     dynamic_rows: Array
+    plant_rows: Array
     trig: Array
+    servo_trig: Array
     matrices: Array
 
 
@@ -588,8 +617,9 @@ def _chain_dynamic_loop(shared: ChainShared, trials: TrialArrays, i: int,
     return chain_dynamic_loop(shared.Kc, shared.Ic, shared.kp, shared.kv, trials.plant[i],
                               p[nb: 2 * nb], shared.servo_is_plant, p, trials.h0[i],
                               shared.rate_limit, trials.servo[i, 0], trials.servo[i, 1],
-                              scratch.dynamic_rows, scratch.trig, scratch.matrices,
-                              scratch.maps, trials.offset[i])
+                              scratch.dynamic_rows, scratch.plant_rows, scratch.trig,
+                              scratch.servo_trig, scratch.matrices, scratch.maps,
+                              trials.offset[i])
 
 
 @jitable
@@ -599,13 +629,20 @@ def _chain_residual(loop: Any, trials: TrialArrays, i: int, plan_theta: Array,
                          loop.work.cs, loop.work.sn, loop.cos_p, loop.sin_p)
 
 
+@jitable
+def _chain_dynamic_residual(loop: Any, trials: TrialArrays, i: int, plan_theta: Array,
+                            plan_theta_dot: Array) -> float:
+    return plan_residual(plan_theta, plan_theta_dot, trials.params[i], trials.h0[i],
+                         loop.work.cs, loop.work.sn, loop.plant.cos_p, loop.plant.sin_p)
+
+
 CHAIN_KINEMATIC = Ops(
     _chain_kinematic_loop, _rates_bounded, _copy_initial, chain_rhs, observe_chain,
     record_rates, _chain_residual, lambda n: 2 * n, lambda n: 1, lambda n: 3 * n + 1,
     _chain_scratch, additive=flat_additive, measure=measure_chain)
 CHAIN_DYNAMIC = Ops(
-    _chain_dynamic_loop, _rates_or_torques_bounded, chain_dynamic_initial, chain_dynamic_rhs,
-    observe_chain_dynamic, record_chain_dynamic, _chain_residual, chain_dynamic_state,
+    _chain_dynamic_loop, _plant_bounded, chain_dynamic_initial, chain_dynamic_rhs,
+    observe_chain_dynamic, record_chain_dynamic, _chain_dynamic_residual, chain_dynamic_state,
     chain_dynamic_aux, lambda n: 4 * n + 2, _chain_scratch, chain_dynamic_stage,
     additive=flat_additive, measure=measure_chain_dynamic)
 
@@ -698,17 +735,3 @@ def compile_kernels(ops: Ops, name: str, shared: Callable[..., Any],
     compiled: list[Callable[..., Any]] = [named_kernel(f"{name}_{part}", module)(fn)
                                           for part, fn in zip(names, functions, strict=True)]
     return Kernels(ops, compiled[0], tuple(compiled[1:]), shared, plant)
-
-
-#: Every kernel, by (model kind, plant model): "paper" is the closed form of the paper's
-#: robot (N = 2), "chain" the general N-link model.
-KERNELS: dict[tuple[str, str], Kernels] = {
-    ("paper", "kinematic"): compile_kernels(PAPER_KINEMATIC, "paper_kinematic", paper_shared,
-                                            paper_plant),
-    ("paper", "dynamic"): compile_kernels(PAPER_DYNAMIC, "paper_dynamic", paper_shared,
-                                          paper_plant),
-    ("chain", "kinematic"): compile_kernels(CHAIN_KINEMATIC, "chain_kinematic", chain_shared,
-                                            chain_plant),
-    ("chain", "dynamic"): compile_kernels(CHAIN_DYNAMIC, "chain_dynamic", chain_shared,
-                                          chain_plant),
-}

@@ -11,8 +11,8 @@ angular momentum H0). The kinematic plant's state is x = (th0, th1, th2, u1):
 where (u1', u2) come from the controller at the measured angles th + noise, and sat clips a
 joint rate to +-rate_limit (an actuator limit; infinite by default). While th1' is clipped
 the controller's integrator does not wind up: u1' is set to 0 whenever u1 is at or beyond
-the limit and v1 would push it further out (conditional integration), so u1 never runs away
-from the rate the joint actually turns at.
+the limit and v1 would push it further out (conditional integration, ``control.unwound``), so
+u1 never runs away from the rate the joint actually turns at.
 
 The dynamic plant (``plant.model = "dynamic"``) is the robot with inertia: free-floating
 multibody dynamics (``dynamics``, the plant's own parameters, any d2) driven by joint torques
@@ -45,8 +45,8 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from flatcli.core._jit import jitable
-from flatcli.core.controllers.control import PaperGains, feedback, feedback_at
+from flatcli.core._jit import Real, jitable
+from flatcli.core.controllers.control import PaperGains, feedback, feedback_at, unwound
 from flatcli.core.loop.metrics import observe_clipped, observe_sample, observe_torque
 from flatcli.core.models.flatness import chart, outputs_at
 from flatcli.core.robots.dynamics import (
@@ -125,18 +125,53 @@ def kinematic_rhs(loop: Loop, x: Array, ref: Array, noise: Array, out: Array) ->
         cm1, sm1 = np.cos(x1 + noise[1]), np.sin(x1 + noise[1])
     u1_dot, u2 = feedback_at(loop.kc, loop.gains, x0 + noise[0], x1 + noise[1], x2 + noise[2],
                              x3, cm1, sm1, ref)
+    kinematic_plant(loop, x, c1, s1, x3, u2, out)
+    out[3] = unwound(x3, u1_dot, loop.rate_limit)
+    out[4] = sm1 * x3
+
+
+@jitable
+def kinematic_plant(loop: Loop, x: Array, c1: float, s1: float, r1: float, r2: Real,
+                    out: Array) -> None:
+    """The kinematic plant of the paper's robot (closed form) under the joint-rate commands
+    r1, r2 [rad/s]: th0', th1', th2' (sat(r1), sat(r2), the base from its momentum) into
+    out[:3] and its cos th1, sin th1, cos(th1 + th2) (0 for a flat plant) into out[5:8];
+    c1, s1 the cos and sin of its th1 (shared with a law that measures th1 exactly)."""
     limit = loop.rate_limit
-    w1 = min(max(x3, -limit), limit)
-    w2 = min(max(u2, -limit), limit)
+    w1 = min(max(r1, -limit), limit)
+    w2 = min(max(r2, -limit), limit)
     if loop.flat_plant:
         c2 = c12 = 0.0
     else:
-        c2, c12 = np.cos(x2 + loop.offset), np.cos(x1 + x2 + loop.offset)
-    w0 = base_rate_at(loop.kq, loop.total_mass, loop.h0, c1, c2, c12, w1, w2)
-    if (x3 >= limit and u1_dot > 0.0) or (x3 <= -limit and u1_dot < 0.0):
-        u1_dot = 0.0  # conditional integration: no wind-up while th1' is clipped
-    out[0], out[1], out[2], out[3] = w0, w1, w2, u1_dot
-    out[4], out[5], out[6], out[7] = sm1 * x3, c1, s1, c12
+        c2, c12 = np.cos(x[2] + loop.offset), np.cos(x[1] + x[2] + loop.offset)
+    out[0] = base_rate_at(loop.kq, loop.total_mass, loop.h0, c1, c2, c12, w1, w2)
+    out[1], out[2] = w1, w2
+    out[5], out[6], out[7] = c1, s1, c12
+
+
+class CommandLoop(NamedTuple):
+    """The kinematic plant's ``Loop`` and the law's commands (2,) u1' [rad/s^2], u2 [rad/s],
+    given by a controller written in Python before each evaluation (``loop.reference``)."""
+
+    loop: Loop
+    command: Array
+
+
+@jitable
+def command_rhs(loop: CommandLoop, x: Array, ref: Array, noise: Array, out: Array) -> None:
+    """``kinematic_rhs`` with the law's commands given (``CommandLoop``); the margin is the
+    flat law's, sin(measured th1) u1 [rad/s]."""
+    c1, s1 = np.cos(x[1]), np.sin(x[1])
+    kinematic_plant(loop.loop, x, c1, s1, x[3], loop.command[1], out)
+    out[3] = unwound(x[3], loop.command[0], loop.loop.rate_limit)
+    out[4] = np.sin(x[1] + noise[1]) * x[3]
+
+
+@jitable
+def observe_command(loop: CommandLoop, obs: Any, acc: Array, j: int, x: Array, f: Array
+                    ) -> None:
+    """``observe_kinematic`` of a ``CommandLoop``."""
+    observe_kinematic(loop.loop, obs, acc, j, x, f)
 
 
 @jitable
@@ -255,11 +290,9 @@ def dynamic_rhs(loop: DynamicLoop, x: Array, ref: Array, noise: Array, out: Arra
     q1_ddot = (a22 * rhs1 - a12 * rhs2) * inv_det
     q2_ddot = (a11 * rhs2 - a12 * rhs1) * inv_det
     q0_ddot = -(m01 * q1_ddot + m02 * q2_ddot + h0) / m00
-    if (u1 >= limit and u1_dot > 0.0) or (u1 <= -limit and u1_dot < 0.0):
-        u1_dot = 0.0  # conditional integration: no wind-up while the command is clipped
     out[0], out[1], out[2] = x[3], x[4], x[5]
     out[3], out[4], out[5] = q0_ddot, q1_ddot, q2_ddot
-    out[6] = u1_dot
+    out[6] = unwound(u1, u1_dot, limit)
     out[7] = sm1 * u1
     out[AUX_TAU1], out[AUX_TAU2] = tau1, tau2
     out[AUX_R2], out[AUX_SATURATED] = r2, saturated

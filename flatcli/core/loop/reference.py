@@ -12,8 +12,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from flatcli.core.controllers.python import held_values
-from flatcli.core.loop.integrate import CROSS_STEP, STALL_MARGIN
+from flatcli.core.controllers.python import commands, continuous, held_values
+from flatcli.core.loop.integrate import CROSS_STEP, STALL_MARGIN, plan_flag
 from flatcli.core.loop.kernels import Grid, Kernels, Results, Settings, TrialArrays
 from flatcli.core.loop.metrics import Event, Metric, Status
 
@@ -61,14 +61,27 @@ def reference_trial(scenario: Any, trials: Any, kernels: Kernels, shared: Any,
     if sampled:
         control_start, sample_at, extras_at = kernels.single[4:7]
         period = control_start(shared, arrays, i, buffers)
-        if python is not None:
-            python.reset()
+    if python is not None and callable(getattr(python, "reset", None)):
+        python.reset()
+    command: Any = python if continuous(python) else None
+    flag = np.empty(grid.ref.shape[1])
     out = np.empty(size)
     evaluations = [0]
 
+    def commanded(t: float, ref: Array, x: Array, noise_row: Array) -> None:
+        """The Python controller's commands at time t, the plan's flag ``ref`` and the
+        measured state, into the loop's scratch (``paperloop.command_rhs`` reads them)."""
+        theta = x[: n_joints + 1] + noise_row
+        buffers.scratch[:] = commands(command.command(t, theta, x[n_joints + 1: 2 * n_joints],
+                                                      ref.copy()), n_joints)
+
     def full(t: float, x: Array, noise_row: Array) -> Array:
         evaluations[0] += 1
-        rhs_at(shared, arrays, i, grid, buffers, t, np.ascontiguousarray(x), noise_row, out)
+        x = np.ascontiguousarray(x)
+        if command is not None:
+            plan_flag(grid.breaks, grid.local, t, flag)
+            commanded(t, flag, x, noise_row)
+        rhs_at(shared, arrays, i, grid, buffers, t, x, noise_row, out)
         return out
 
     def rhs(t: float, x: Array, noise_row: Array) -> Array:
@@ -98,8 +111,11 @@ def reference_trial(scenario: Any, trials: Any, kernels: Kernels, shared: Any,
         there (row 2 j of grid.ref, as the kernels observe it) and the noise of its
         interval."""
         for j in range(first, end):
-            rhs_at(shared, arrays, i, grid, buffers, -(2.0 * j + 1.0),
-                   np.ascontiguousarray(states[j]), noise[min(j, n - 1)], sample)
+            x_j = np.ascontiguousarray(states[j])
+            if command is not None:
+                commanded(float(times[j]), grid.ref[2 * j], x_j, noise[min(j, n - 1)])
+            rhs_at(shared, arrays, i, grid, buffers, -(2.0 * j + 1.0), x_j,
+                   noise[min(j, n - 1)], sample)
             rates[j] = sample
 
     # without noise one integration over the whole grid (or one per sample of a sampled

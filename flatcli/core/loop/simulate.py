@@ -42,6 +42,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from flatcli.core.controllers.control import Gains
 from flatcli.core.controllers.lqr import LqrWeights, tracked
+from flatcli.core.controllers.python import continuous
 from flatcli.core.controllers.settings import SETTINGS
 from flatcli.core.curves.pieces import PiecewiseCurves
 from flatcli.core.errors import FlatcliError
@@ -173,9 +174,10 @@ class Scenario:
     settings : controllers' settings records by ``track.controller`` (``controllers.settings.
         SETTINGS``: the MPC's ``MpcSettings``); one not given has its record's defaults
         (``settings_for``)
-    python : a controller written in Python acting at sample instants around the law
-        ``controller`` names ("flat" or "asbuilt"; ``controllers.python``), or None; it runs
-        with the "dop853" integrator only
+    python : a controller written in Python (``controllers.python``), or None: acting at
+        sample instants around the law ``controller`` names ("flat" or "asbuilt"), or, with a
+        ``command`` method, in place of the flat law at every evaluation (the paper's robot,
+        kinematic plant); it runs with the "dop853" integrator only
     servo_bandwidth : the dynamic plant's nominal servo bandwidth [rad/s], the lag the
         as-built law is designed for there
     twin : the adaptive integrator's error estimate: each trial reaching T is integrated a
@@ -260,6 +262,11 @@ class Scenario:
         if self.python is not None and self.controller in SAMPLED:
             raise FlatcliError("controller: a Python controller wraps track.controller = "
                                f"\"flat\" or \"asbuilt\", not {self.controller!r}")
+        if continuous(self.python) and (self.controller != "flat" or self.plant != "kinematic"
+                                        or self.plan.model.kind != "paper"):
+            raise FlatcliError("controller: a controller with command() runs in place of the "
+                               "flat law on the paper's robot (N = 2) and the kinematic plant "
+                               "(track.controller = \"flat\", plant.model = \"kinematic\")")
         n = self.plan.n_joints
         if self.gains.n_outputs != n:
             raise FlatcliError(f"track.kp, track.kv: expected {n} gains each (one per flat "
@@ -278,16 +285,17 @@ class Scenario:
         or None."""
         if self.controller in SAMPLED:
             return self.controller
-        return "python" if self.python is not None else None
+        return "python" if self.python is not None and not continuous(self.python) else None
 
     @property
     def law(self) -> str:
         """The law whose reference the kernels track: "flat" (the plan's flat outputs) or
         "asbuilt" (its angles and the LQR's gains); a sampled controller (the MPC) wraps the
-        flat law on a flat plan and the as-built law on an exact one."""
+        flat law on a flat plan and the as-built law on an exact one; "command": a
+        controller written in Python with ``command`` gives the flat law's commands."""
         if self.controller in SAMPLED:
             return "asbuilt" if self.plan.model.kind == "exact" else "flat"
-        return self.controller
+        return "command" if continuous(self.python) else self.controller
 
     @cached_property
     def sampled_design(self) -> Any:

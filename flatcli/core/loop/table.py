@@ -1,10 +1,11 @@
 """The table of compiled kernels, generated: one entry per (controller, model kind, plant).
 
-The base laws' combinations are written once each (``kernels``: the flat law on the paper's
-closed form and on chains; ``asbuiltkernels``: the as-built law); every controller that acts
-at sample instants (``SAMPLED``: a ``controllers.parts.SampledPart``) is composed with each
-of them by ``compose.sampled_ops`` and compiled here, so a new sampled controller is its
-module plus one line in ``SAMPLED``. The kernels are made when this module is imported
+The base laws' combinations (``BASE``: the flat law on the paper's closed form and on chains,
+``kernels``; the as-built law, ``asbuiltloop``; each on the kinematic and the dynamic plant,
+``plants``) are compiled here; every controller that acts at sample instants (``SAMPLED``:
+a ``controllers.parts.SampledPart``) is composed with each of them by ``compose.sampled_ops``
+and compiled here too, so a new sampled controller is its module plus one line in
+``SAMPLED``. The kernels are made when this module is imported
 (numba compiles each on its first call, or loads it from the cache; a compile child imports
 this module to find one by name).
 """
@@ -14,10 +15,24 @@ from __future__ import annotations
 from flatcli.core.controllers import mpc, python
 from flatcli.core.controllers.parts import SampledPart
 from flatcli.core.errors import FlatcliError
-from flatcli.core.loop.asbuiltkernels import KERNELS as ASBUILT_KERNELS
+from flatcli.core.loop import kernels as flat
+from flatcli.core.loop.asbuiltloop import ASBUILT_DYNAMIC, ASBUILT_KINEMATIC, asbuilt_shared
 from flatcli.core.loop.compose import sampled_ops
-from flatcli.core.loop.kernels import KERNELS as FLAT_KERNELS
 from flatcli.core.loop.kernels import Kernels, compile_kernels
+
+#: The base laws' combinations, by (law, model kind, plant): their ``kernels.Ops``, how their
+#: shared record and per-trial plant arrays are made ("command": the commands of a controller
+#: written in Python, ``controllers.python``, given to the plant).
+BASE = {
+    ("flat", "paper", "kinematic"): (flat.PAPER_KINEMATIC, flat.paper_shared, flat.paper_plant),
+    ("command", "paper", "kinematic"): (flat.PAPER_COMMAND, flat.paper_shared,
+                                        flat.paper_plant),
+    ("flat", "paper", "dynamic"): (flat.PAPER_DYNAMIC, flat.paper_shared, flat.paper_plant),
+    ("flat", "chain", "kinematic"): (flat.CHAIN_KINEMATIC, flat.chain_shared, flat.chain_plant),
+    ("flat", "chain", "dynamic"): (flat.CHAIN_DYNAMIC, flat.chain_shared, flat.chain_plant),
+    ("asbuilt", "asbuilt", "kinematic"): (ASBUILT_KINEMATIC, asbuilt_shared, flat.chain_plant),
+    ("asbuilt", "asbuilt", "dynamic"): (ASBUILT_DYNAMIC, asbuilt_shared, flat.chain_plant),
+}
 
 #: The controllers that act at sample instants, by ``track.controller``.
 SAMPLED: dict[str, SampledPart] = {"mpc": mpc.PART, "python": python.PART}
@@ -31,14 +46,11 @@ CONTROLLER_COUNTS: tuple[str, ...] = tuple(dict.fromkeys(
     column for part in SAMPLED.values() for column in part.counts))
 
 
-def _base() -> dict[tuple[str, str, str], Kernels]:
-    table = {("flat", model, plant): k for (model, plant), k in FLAT_KERNELS.items()}
-    table.update({("asbuilt", model, plant): k for (model, plant), k in ASBUILT_KERNELS.items()})
-    return table
-
-
 def _generate() -> dict[tuple[str, str, str], Kernels]:
-    table = _base()
+    # each kernel its own name: numba caches, and a compile child finds, a kernel by its name
+    table = {(law, model, plant): compile_kernels(
+        ops, f"{model}_{plant}" if law in ("flat", "asbuilt") else f"{law}_{model}_{plant}",
+        shared, arrays, __name__) for (law, model, plant), (ops, shared, arrays) in BASE.items()}
     for name, part in SAMPLED.items():
         for (law, model, plant), base in list(table.items()):
             if law not in ("flat", "asbuilt"):

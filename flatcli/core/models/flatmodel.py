@@ -54,7 +54,7 @@ COMPLEX_STEP = 1e-30
 ROOT_IMAG_TOL = 1e-7
 #: Samples per unit of (pieces x degree) in a chain's scan for sign changes of the margin.
 MARGIN_SCAN = 64
-#: Which compiled closed loop a model runs in (``kernels.KERNELS``); "exact" is an exact
+#: Which compiled closed loop a model runs in (``table.KERNELS``); "exact" is an exact
 #: plan's model (``exact.ExactModel``), which only the as-built law tracks.
 Kind = Literal["paper", "chain", "exact"]
 

@@ -1,3 +1,4 @@
-"""Plants: what the robot does with a controller's commands (kinematic, dynamic). Empty for
-now: the loops' plants still live in ``flatcli.core.loop``.
+"""Plants: what the robot does with a controller's joint-rate commands, knowing nothing of the
+controller (``kinematic``, ``dynamic``; the paper's N = 2 closed form of both stays in
+``loop.paperloop``, the paper model's speed).
 """
