@@ -411,3 +411,85 @@ def test_a_new_controller_is_one_module_and_its_registration(plan, monkeypatch) 
     dv1 = rows[:, out.columns.index("dv1")]
     np.testing.assert_allclose(dv1, -4.0 * (th1 - th1_plan), rtol=0, atol=1e-12)
     assert np.abs(dv1).max() > 1e-3
+
+
+def _lagged_referee(plan, settings: mpc.MpcSettings, dt: float, bandwidth: float,  # type: ignore[no-untyped-def]
+                    x0: Array) -> Array:
+    """The final angles (3,) of the flat-law MPC on a robot whose joint rates w lag the
+    commanded ones r as a first-order servo, w' = bandwidth (r - w) (what the dynamic plant
+    does when the servo's model is the plant and no torque is clipped: paperloop's
+    docstring), w(0) = r(0); the base from H = 0 at the actual rates; the law measures y'
+    from its own commanded u1 (as the compiled loop does). The referee's own loop (the
+    chain's maps, DOP853 at rtol 1e-11), the MPC's step at each sample."""
+    model = ChainModel.of(plan.robot)
+    links = Links(*(float(v) for v in plan.robot.links))
+    offsets = mpc.servo_offsets(plan, dt, settings, bandwidth)
+    design = mpc.flat_design(plan.model, plan.trajectory, plan.duration, dt, math.inf,
+                             settings, offsets)
+    scratch = mpc.scratch(design)
+    mpc.reset(scratch)
+    kp = np.asarray(settings.kp, dtype=float)
+    kv = np.asarray(settings.kv, dtype=float)
+    ts = design.every * dt
+
+    def command(t: float, x: Array, dv: Array) -> tuple[float, float]:
+        theta, u = x[:3], x[3:4]
+        y, y_dot, _ = model.outputs(theta[None], u[None])
+        flag = plan.trajectory.flags(np.array([t]))[0]
+        v = flag[4:6] + dv + kv * (flag[2:4] - y_dot[0]) + kp * (flag[0:2] - y[0])
+        u_dot = np.zeros(1)
+        u2 = inputs(np.array(model.K), np.array(model.inertia), theta, u, v, u_dot)
+        return float(u_dot[0]), float(u2)
+
+    def rhs(t: float, x: Array, dv: Array) -> Array:
+        u1_dot, u2 = command(t, x, dv)
+        h_zero = momentum(links, x[0], x[1], x[2], 0.0, x[4], x[5])
+        h_one = momentum(links, x[0], x[1], x[2], 1.0, x[4], x[5])
+        return np.array([-h_zero / (h_one - h_zero), x[4], x[5], u1_dot,
+                         bandwidth * (x[3] - x[4]), bandwidth * (u2 - x[5])])
+
+    x = np.r_[x0, x0[3], command(0.0, np.r_[x0, 0.0, 0.0], np.zeros(2))[1]]
+    for k in range(design.samples):
+        t0 = k * ts
+        y, y_dot, _ = model.outputs(x[None, :3], x[None, 3:4])
+        flag = plan.trajectory.flags(np.array([t0]))[0]
+        scratch.s0[:4] = [y[0, 0] - flag[0], y_dot[0, 0] - flag[2], y[0, 1] - flag[1],
+                          y_dot[0, 1] - flag[3]]
+        _step(design, scratch, k)
+        sol = solve_ivp(rhs, (t0, t0 + ts), x, method="DOP853", rtol=REFEREE_RTOL,
+                        atol=1e-13, args=(scratch.held.copy(),))
+        assert sol.success
+        x = sol.y[:, -1]
+    return x[:3]
+
+
+def test_the_dynamic_mpc_is_the_lagged_loop_integrated_by_scipy(plan) -> None:  # type: ignore[no-untyped-def]
+    """The flat-law MPC on the dynamic plant (its servo's model the plant, no torque limit:
+    each joint rate a first-order lag of bandwidth 100 rad/s) ends where the referee's
+    lagged loop ends (``_lagged_referee``), within the goal's 1e-3 rad (the inner gains of
+    docs/physics.md's dynamic MPC: poles at -4 rad/s)."""
+    settings = mpc.MpcSettings(sample=0.2, horizon=5, kp=(16.0, 16.0), kv=(8.0, 8.0))
+    dt, bandwidth = 0.002, 100.0
+    x0 = _initial(plan, np.array([2e-3, -3e-3, 1e-3]))
+    final = _lagged_referee(plan, settings, dt, bandwidth, x0)
+    scenario = Scenario(plan, Gains((1.0, 1.0), (2.0, 2.0)), dt=dt, controller="mpc",
+                        settings={"mpc": settings}, rtol=KERNEL_RTOL, atol=1e-13, twin=0.0,
+                        plant="dynamic", servo_model="plant", servo_bandwidth=bandwidth)
+    trials = Trials(plan.robot.as_array()[None], np.zeros(1), x0[None],
+                    servo=np.array([[bandwidth, np.inf]]))
+    out = simulate(scenario, trials, "adaptive", record=True)
+    assert out.status[0] == Status.OK
+    assert out.trace is not None
+    np.testing.assert_allclose(out.trace[0, -1, :3], final, atol=1e-6, rtol=0)
+    goal = plan.sample(np.array([plan.duration])).theta[0]
+    assert np.abs(final - goal).max() < 1e-3
+
+
+def test_the_kinematic_design_carries_no_offset(plan) -> None:  # type: ignore[no-untyped-def]
+    """On the kinematic plant the design is the one without the servo's offset: no constant
+    state, the same tables (so the same numbers to the bit)."""
+    settings = mpc.MpcSettings(sample=0.2, horizon=5)
+    scenario = Scenario(plan, Gains((1.0, 1.0), (2.0, 2.0)), dt=0.002, controller="mpc",
+                        settings={"mpc": settings})
+    d = mpc.design_for(scenario)
+    assert d.offset == 0 and d.A.shape[1:] == (4, 4)

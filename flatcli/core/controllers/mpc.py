@@ -73,6 +73,12 @@ ITERATIONS_PER_ROW = 3
 #: gains, with poles at -10 rad/s and beyond, ask rates far beyond a 4 rad/s limit).
 INNER_KP = 1.0
 INNER_KV = 2.0
+#: On the dynamic plant: a double pole at -4 rad/s. The design's servo offset is the lag
+#: along the plan; the lag of the inner law's own corrections it does not model, and with
+#: the poles at -1 rad/s they leave up to 2.6 mrad at T (paper's cubic, 100 rad/s servo,
+#: 2 mrad initial errors: 79/100 reached; at -4 rad/s 100/100, 2026-12-05).
+DYNAMIC_INNER_KP = 16.0
+DYNAMIC_INNER_KV = 8.0
 
 
 class Design(NamedTuple):
@@ -89,6 +95,8 @@ class Design(NamedTuple):
     lo, hi : (K + 1, Q) their bounds (-inf, inf: none)
     endpoint : (Q,) 1.0 for a quantity also bounded at the end of each sample interval (it
         depends on dv, so it jumps at the next sample), 0.0 for one continuous in time
+    offset : 1 if the last error state is the constant 1 that carries a known per-sample
+        offset c_k (A[k, :, -1]; weight 0, no terminal condition: ``servo_offsets``), else 0
     """
 
     A: Array
@@ -106,6 +114,7 @@ class Design(NamedTuple):
     horizon: int
     samples: int
     every: int
+    offset: int = 0
 
 
 def discretise(kp: float, kv: float, ts: float) -> tuple[Array, Array]:
@@ -146,7 +155,7 @@ def condensed_cost(A: Array, B: Array, weights: Array, weight_input: float, star
 
 def design(A: Array, B: Array, weights: Array, weight_input: float, value: Array,
            slope_s: Array, slope_v: Array, lo: Array, hi: Array, endpoint: Array,
-           horizon: int, every: int) -> Design:
+           horizon: int, every: int, offset: int = 0) -> Design:
     """A ``Design`` from its tables (see there): the cost's factors are computed here."""
     samples = A.shape[0]
     factors = []
@@ -160,11 +169,11 @@ def design(A: Array, B: Array, weights: Array, weight_input: float, value: Array
 
     return Design(c(A), c(B), c(weights), float(weight_input), c(np.stack(factors)),
                   c(np.stack(gradients)), c(value), c(slope_s), c(slope_v), c(lo), c(hi),
-                  c(endpoint), int(horizon), int(samples), int(every))
+                  c(endpoint), int(horizon), int(samples), int(every), int(offset))
 
 
 def flat_design(model: Any, trajectory: Any, duration: float, dt: float, rate_limit: float,
-                settings: MpcSettings) -> Design:
+                settings: MpcSettings, offsets: Any = None) -> Design:
     """The MPC about a flat plan (module docstring): per flat output j the errors
     (e_j, e_j') under the inner law e'' = -kp e - kv e' + dv; the quantities are the joint
     rates th1'..thN' [rad/s] (bounded by the rate limit) and the signed margin [rad/s] (kept
@@ -178,6 +187,9 @@ def flat_design(model: Any, trajectory: Any, duration: float, dt: float, rate_li
     trajectory : the plan's flat outputs (``basis.FlatTrajectory``)
     duration : T [s]; dt : the output step [s]
     rate_limit : the joint-rate limit [rad/s] (inf: none)
+    offsets : (K, 2 N) or None: a known offset c_k of the errors over each sample
+        (s_k+1 = A s_k + B dv_k + c_k; ``servo_offsets``), carried by a constant error state
+        1 appended last (weight 0, no terminal condition, no slope of any quantity)
     """
     n = model.n_joints
     every = settings.every(dt, duration)
@@ -222,14 +234,93 @@ def flat_design(model: Any, trajectory: Any, duration: float, dt: float, rate_li
         lo[0, n], hi[0, n] = -np.inf, np.inf  # the measured state: nothing to choose
     endpoint = (np.abs(slope_v).max(axis=(0, 2)) > 0.0).astype(float)
     weights = np.full(size, settings.weight_state)
-    return design(A, B, weights, settings.weight_input, value, slope_s, slope_v, lo, hi,
-                  endpoint, settings.horizon, every)
+    if offsets is None:
+        return design(A, B, weights, settings.weight_input, value, slope_s, slope_v, lo, hi,
+                      endpoint, settings.horizon, every)
+    A = np.concatenate([np.concatenate([A, np.asarray(offsets)[:, :, None]], axis=2),
+                        np.zeros((samples, 1, size + 1))], axis=1)
+    A[:, size, size] = 1.0
+    B = np.concatenate([B, np.zeros((samples, 1, n))], axis=1)
+    slope_s = np.concatenate([slope_s, np.zeros((samples + 1, n + 1, 1))], axis=2)
+    return design(A, B, np.append(weights, 0.0), settings.weight_input, value, slope_s,
+                  slope_v, lo, hi, endpoint, settings.horizon, every, 1)
+
+
+def servo_offsets(plan: Any, dt: float, settings: MpcSettings, bandwidth: float) -> Array:
+    """The offsets c_k (K, 4) of the flat law's measured errors over each sample that the
+    dynamic plant's servo lag makes along the plan, for ``flat_design``: the inner law
+    (``inner_gains``, dv = 0) from the plan's start with no error, on the robot whose joint
+    rates w follow the commanded ones r as the servo does when its model is right and no
+    torque is clipped, w' = bandwidth (r - w) (w(0) = r(0)), the base turning as momentum
+    conservation makes it (H = 0); the law measures y' from its own commanded rates (as the
+    dynamic loop's does), so its errors differ from zero by the lag alone. Integrated by
+    DOP853 (rtol ``DISCRETE_RTOL``); c_k = s_k+1 - A s_k with the measured errors s_k at
+    the samples. The paper's N = 2 only (the base rate from ``params.momentum``)."""
+    from scipy.integrate import solve_ivp
+
+    from flatcli.core.models.chainflat import inputs
+    from flatcli.core.models.flatmodel import ChainModel
+    from flatcli.core.robots.params import Links, momentum
+
+    n = plan.n_joints
+    if n != 2:
+        raise FlatcliError("track.controller = \"mpc\" on the dynamic plant: the servo's "
+                           "offset is modelled for N = 2 only")
+    model = ChainModel.of(plan.robot)
+    links = Links(*(float(v) for v in plan.robot.links))
+    every = settings.every(dt, plan.duration)
+    samples = round(plan.duration / dt) // every
+    ts = every * dt
+    kp = np.full(n, INNER_KP) if settings.kp is None else np.asarray(settings.kp, dtype=float)
+    kv = np.full(n, INNER_KV) if settings.kv is None else np.asarray(settings.kv, dtype=float)
+    K, inertia = np.array(model.K), np.array(model.inertia)
+
+    def measured(x: Array, t: float) -> tuple[Array, Array]:
+        y, y_dot, _ = model.outputs(x[None, :3], x[None, 3:4])
+        flag = plan.trajectory.flags(np.array([t]))[0]
+        s = np.array([y[0, 0] - flag[0], y_dot[0, 0] - flag[2], y[0, 1] - flag[1],
+                      y_dot[0, 1] - flag[3]])
+        return s, flag
+
+    def law(t: float, x: Array) -> tuple[float, float]:
+        s, flag = measured(x, t)
+        v = flag[4:6] - kp * s[0::2] - kv * s[1::2]
+        u_dot = np.zeros(1)
+        u2 = inputs(K, inertia, x[:3], x[3:4], v, u_dot)
+        return float(u_dot[0]), float(u2)
+
+    def rhs(t: float, x: Array) -> Array:
+        u1_dot, u2 = law(t, x)
+        w1, w2 = x[4], x[5]
+        h_zero = momentum(links, x[0], x[1], x[2], 0.0, w1, w2)
+        h_one = momentum(links, x[0], x[1], x[2], 1.0, w1, w2)
+        return np.array([-h_zero / (h_one - h_zero), w1, w2, u1_dot,
+                         bandwidth * (x[3] - w1), bandwidth * (u2 - w2)])
+
+    start = plan.sample(np.array([0.0]))
+    x = np.array([*start.theta[0], start.theta_dot[0][1], *start.theta_dot[0][1:]])
+    a = np.zeros((4, 4))
+    for j in range(n):
+        a[2 * j: 2 * j + 2, 2 * j: 2 * j + 2] = discretise(float(kp[j]), float(kv[j]), ts)[0]
+    offsets = np.zeros((samples, 4))
+    s_k = measured(x, 0.0)[0]
+    for k in range(samples):
+        sol = solve_ivp(rhs, (k * ts, (k + 1) * ts), x, method="DOP853", rtol=DISCRETE_RTOL,
+                        atol=DISCRETE_ATOL)
+        if not sol.success:
+            raise FlatcliError(f"track.mpc_sample: the servo's offset could not be "
+                               f"integrated over sample {k} ({sol.message})")
+        x = sol.y[:, -1]
+        s_next = measured(x, (k + 1) * ts)[0]
+        offsets[k] = s_next - a @ s_k
+        s_k = s_next
+    return offsets
 
 
 def rows(d: Design) -> int:
     """The QP's constraints at most: S terminal equalities, per sample a two-sided row of
     each quantity (and of each endpoint one at its interval's end), and the slack's own."""
-    size = int(d.A.shape[1])
+    size = int(d.A.shape[1]) - d.offset
     quantities = int(d.value.shape[1])
     return size + d.horizon * (quantities + int(d.endpoint.sum())) + 1
 
@@ -341,8 +432,11 @@ def sample_step(d: Design, s: Scratch, k: int) -> None:
     states = d.A.shape[1]
     quantities = d.value.shape[1]
     size = s.row.shape[0]
+    terminal = states - d.offset  # the errors s(T) = 0 is about (not the constant 1)
+    if d.offset != 0:
+        s.s0[states - 1] = 1.0
     remaining = d.samples - k
-    if remaining * inputs < states:  # too few samples left to meet s(T) = 0: hold the plan
+    if remaining * inputs < terminal:  # too few samples left to meet s(T) = 0: hold the plan
         ahead = k - int(s.valid[0]) + 1  # samples since the last QP solved (valid: its k + 1)
         for v in range(inputs):
             at = ahead * inputs + v
@@ -358,7 +452,7 @@ def sample_step(d: Design, s: Scratch, k: int) -> None:
     s.g[size - 1] += SLACK_LINEAR
     count = 0
     if remaining <= d.horizon:  # the goal: s(T) = 0
-        for c in range(states):
+        for c in range(terminal):
             value = _row(d, s, k, remaining, k + remaining, -c - 1, -1)
             count = _append(s, count, remaining * inputs, -value, -value, False)
     meq = count
@@ -423,24 +517,42 @@ def design_for(scenario: Any) -> Design:
     """The MPC's design for a ``loop.simulate.Scenario`` (its settings for "mpc"): about the
     flat plan (``flat_design``), or about an exact plan with the as-built law
     (``asbuilt_design``, the dynamic plant's servo bandwidth a state)."""
-    settings = scenario.settings_for("mpc")
+    settings = _settings(scenario)
     if scenario.law == "asbuilt":
         servo = scenario.servo_bandwidth if scenario.plant == "dynamic" else None
         return asbuilt_design(scenario.plan, scenario.lqr, scenario.dt, scenario.rate_limit,
                               settings, servo)
     plan = scenario.plan
+    offsets = None
+    if scenario.plant == "dynamic" and plan.n_joints == 2:
+        offsets = servo_offsets(plan, scenario.dt, settings, scenario.servo_bandwidth)
     return flat_design(plan.model, plan.trajectory, plan.duration, scenario.dt,
-                       scenario.rate_limit, settings)
+                       scenario.rate_limit, settings, offsets)
 
 
 def inner_gains(scenario: Any) -> Gains:
     """The inner flat law's gains: ``track.mpc_kp``, ``track.mpc_kv`` (``INNER_KP``,
     ``INNER_KV`` unless set)."""
     n = scenario.n_joints
-    settings = scenario.settings_for("mpc")
+    settings = _settings(scenario)
     kp = settings.kp if settings.kp is not None else (INNER_KP,) * n
     kv = settings.kv if settings.kv is not None else (INNER_KV,) * n
     return Gains(tuple(kp), tuple(kv))
+
+
+def _settings(scenario: Any) -> MpcSettings:
+    """The scenario's MPC settings; the flat law's on the dynamic plant with its inner
+    gains ``DYNAMIC_INNER_KP``, ``DYNAMIC_INNER_KV`` unless ``track.mpc_kp``, ``mpc_kv``
+    are set."""
+    import dataclasses
+
+    settings: MpcSettings = scenario.settings_for("mpc")
+    if scenario.law == "asbuilt" or scenario.plant != "dynamic":
+        return settings
+    n = scenario.n_joints
+    kp = settings.kp if settings.kp is not None else (DYNAMIC_INNER_KP,) * n
+    kv = settings.kv if settings.kv is not None else (DYNAMIC_INNER_KV,) * n
+    return dataclasses.replace(settings, kp=tuple(kp), kv=tuple(kv))
 
 
 #: The MPC's parts for the loop factory (``loop.compose``).
