@@ -477,6 +477,11 @@ SHARD_LOCK = re.compile(r"\.flatcli\.shard-[0-9]{1,9}-of-[0-9]{1,9}\.lock")
 SHARDS_MARK = "shards"
 #: How long a shard waits for another shard's set-up (a second or so each) [s].
 SETUP_WAIT = 600.0
+#: How long a shard waits for the directory's lock when another run holds it alone: a shard
+#: that has finished its chunks holds it while it checks whether it is the last (and, if it
+#: is and the study is whole, writes the final tables), so a shard starting at that moment
+#: waits instead of being refused as if a sweep without shards were writing there [s].
+SHARD_WAIT = 30.0
 
 
 def shard_lock_name(index: int, count: int) -> str:
@@ -670,9 +675,10 @@ class ShardLocks:
 @contextlib.contextmanager
 def shard_locks(directory: Path, index: int, count: int) -> Iterator[ShardLocks]:
     """Hold what a shard of a sweep holds while it runs: the directory's lock, shared with
-    the other shards (so no other run writes there meanwhile), and its own shard's lock (so
-    each shard runs once at a time: DirectoryBusyError otherwise)."""
-    with _lock(directory, LOCK_NAME, shared=True) as fd, _lock(
+    the other shards (so no other run writes there meanwhile; held alone by another run, it
+    is waited for up to ``SHARD_WAIT``: a finishing shard's check), and its own shard's lock
+    (so each shard runs once at a time: DirectoryBusyError otherwise)."""
+    with _lock(directory, LOCK_NAME, shared=True, wait=SHARD_WAIT) as fd, _lock(
             directory, shard_lock_name(index, count), remove=True,
             busy=f"{{directory}}: shard {index}/{count} is being run by another flatcli run "
                  "({holder}); wait for it to finish"):

@@ -97,10 +97,14 @@ def test_two_shards_at_once_merge_to_the_bytes_of_one_local_run(tmp_path: Path,
     spec = write_spec(tmp_path, LONG)
     out = tmp_path / "study"
     first = started(spec, out, "--shard", "1/2")
-    second = subprocess.Popen(command(spec, out, "--shard", "2/2"), stdout=subprocess.PIPE,
-                              stderr=subprocess.PIPE, text=True)
-    assert first.poll() is None  # both running at once
-    texts = [finished(first), finished(second)]
+    os.kill(first.pid, signal.SIGSTOP)  # both running at once, whatever the machine's speed
+    try:
+        second = subprocess.Popen(command(spec, out, "--shard", "2/2"),
+                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        second_text = finished(second)  # its chunks done while the first still runs
+    finally:
+        os.kill(first.pid, signal.SIGCONT)
+    texts = [finished(first), second_text]
     # one of them (the last to finish) wrote the final tables, the other its chunks only
     assert sum("trials.parquet, summary.md" in t for t in texts) == 1, texts
     assert sum("its chunks are done" in t for t in texts) == 1, texts
@@ -169,6 +173,42 @@ def test_what_would_step_on_a_running_shard_is_refused_in_one_line(tmp_path: Pat
     code, text = sweep(str(spec), "--out", str(out), "--workers", "1", "--shard", "2/2")
     assert code == 0, text
     assert_same_study(out, local)
+
+
+def test_a_shard_starting_while_another_checks_whether_it_is_last_waits(
+        tmp_path: Path) -> None:
+    """A shard that has finished its chunks holds the directory's lock alone for a moment (is
+    it the last? then it writes the final tables): a shard starting then waits for it
+    (``SHARD_WAIT``) instead of being refused as if a sweep without shards ran there; held
+    longer, the refusal names the holder. (Here this process holds the lock alone.)"""
+    from flatcli import storage
+
+    out = tmp_path / "study"
+    # another process holds the lock alone for 1.5 s: the shard's lock is had once released
+    code = ("import sys, time\nfrom pathlib import Path\nfrom flatcli import storage\n"
+            "with storage.directory_lock(Path(sys.argv[1])):\n"
+            "    print('held', flush=True)\n    time.sleep(float(sys.argv[2]))\n")
+    holder = subprocess.Popen([sys.executable, "-c", code, str(out), "1.5"],
+                              stdout=subprocess.PIPE, text=True)
+    assert holder.stdout is not None and holder.stdout.readline().strip() == "held"
+    begun = time.monotonic()
+    with storage.shard_locks(out, 1, 2):
+        waited = time.monotonic() - begun
+    holder.communicate(timeout=60)
+    assert waited > 0.5  # it waited for the holder rather than being refused at once
+    holder = subprocess.Popen([sys.executable, "-c", code, str(out), "60"],
+                              stdout=subprocess.PIPE, text=True)
+    assert holder.stdout is not None and holder.stdout.readline().strip() == "held"
+    try:
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setattr(storage, "SHARD_WAIT", 0.3)
+            busy = f"being written by another flatcli run \\(pid {holder.pid}"
+            with pytest.raises(storage.DirectoryBusyError, match=busy), \
+                    storage.shard_locks(out, 1, 2):
+                pass
+    finally:
+        holder.kill()
+        holder.communicate(timeout=60)
 
 
 def test_a_shard_waits_for_another_shards_set_up(tmp_path: Path, local: Path) -> None:
