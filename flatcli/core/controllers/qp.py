@@ -209,7 +209,7 @@ def _bound_value(lo: Array, hi: Array, bound: int) -> float:
     """The right-hand side b of a bound as GI's n' x >= b: lo[k] for 2 k, -hi[k] for
     2 k + 1."""
     k = bound // 2
-    return lo[k] if bound % 2 == 0 else -hi[k]
+    return float(lo[k]) if bound % 2 == 0 else float(-hi[k])
 
 
 @jitable
@@ -219,11 +219,12 @@ def _warm(g: Array, C: Array, lo: Array, hi: Array, width: NDArray[np.int64],
     """GI's starting point from a guessed active set: J, R factored for the equalities and
     the guessed bounds (each lower 2 k or upper 2 k + 1 of an inequality row k; a bound
     that is infinite, repeated, of a row out of range or dependent on those before it is
-    skipped), x the minimiser with them all as equalities, then the guessed bound of most
-    negative multiplier dropped (and x, u recomputed) until every inequality's multiplier
-    is >= 0: x is then optimal for its active set, the invariant ``solve``'s iterations
-    keep. Returns (q, factor updates), or (-1, 0) if an equality is dependent on those
-    before it (``solve`` then starts cold, as without a guess).
+    skipped), x the minimiser with them all as equalities, then every guessed bound of
+    negative multiplier dropped (and x, u recomputed, and again) until every inequality's
+    multiplier is >= 0: x is then optimal for its active set, the invariant ``solve``'s
+    iterations keep (the set shrinks at every round, so the rounds end). Returns (q,
+    factor updates), or (-1, 0) if an equality is dependent on those before it (``solve``
+    then starts cold, as without a guess).
 
     x = J y with y[:q] = R^-T b (the active bounds' right-hand sides) and y[q:] = -(J' g)[q:],
     u = R^-1 (y[:q] + (J' g)[:q]) (from G x + g = N_A u, J' G = J^-1 and J' N_A = [R; 0]).
@@ -288,21 +289,20 @@ def _warm(g: Array, C: Array, lo: Array, hi: Array, width: NDArray[np.int64],
             x[i] = acc
         for i in range(q):
             z[i] = r[i] + d[i]
-        worst = 0.0
-        drop = -1
         for i in range(q - 1, -1, -1):  # u = R^-1 (y[:q] + d[:q])
             acc = z[i]
             for j in range(i + 1, q):
                 acc -= R[i, j] * u[j]
             u[i] = acc / R[i, i]
-            if active[i] >= 2 * meq and u[i] < worst:
-                worst = u[i]
-                drop = i
-        if drop < 0:
+        dropped = 0
+        for i in range(q - 1, -1, -1):  # every negative one at once, the last first
+            if active[i] >= 2 * meq and u[i] < 0.0:
+                _drop(w, i, q)
+                q -= 1
+                dropped += 1
+        if dropped == 0:
             return q, updates
-        _drop(w, drop, q)
-        q -= 1
-        updates += 1
+        updates += dropped
 
 
 @jitable
