@@ -338,7 +338,9 @@ class Scratch(NamedTuple):
     infeasible samples, largest slack, the bounds the last QP was started from; for the
     warm start (``sample_step``): each row's key (m,) (its quantity, sample and end, -1 for
     none), the bounds guessed active (m,), and per key the bound active in the last QP
-    solved (0 none, 1 lower, 2 upper)."""
+    solved (0 none, 1 lower, 2 upper); the predicted state's response to the corrections
+    gamma (2, S, n - 1) and to s0 free (2, S) at horizon samples i and i + 1
+    (``_forward``)."""
 
     held: Array
     last: Array
@@ -359,6 +361,8 @@ class Scratch(NamedTuple):
     keys: NDArray[np.int64]
     guess: NDArray[np.int64]
     marks: NDArray[np.int64]
+    gamma: Array
+    free: Array
 
 
 def scratch(d: Design) -> Scratch:
@@ -372,7 +376,8 @@ def scratch(d: Design) -> Scratch:
                    np.zeros(size), np.zeros(size), np.zeros(states), np.zeros(size),
                    np.zeros(states), np.zeros(states), qp.work(size, m), np.zeros(4),
                    np.full(m, -1, dtype=np.int64), np.zeros(m, dtype=np.int64),
-                   np.zeros(_keys(d), dtype=np.int64))
+                   np.zeros(_keys(d), dtype=np.int64), np.zeros((2, states, size - 1)),
+                   np.zeros((2, states)))
 
 
 def _keys(d: Design) -> int:
@@ -440,6 +445,58 @@ def _row(d: Design, s: Scratch, k: int, i: int, at: int, q: int, direct: int) ->
 
 
 @jitable
+def _forward(d: Design, s: Scratch, k: int, i: int, now: int) -> None:
+    """The predicted state at horizon sample i + 1 from that at i (s.gamma[now],
+    s.free[now] into s.gamma[1 - now], s.free[1 - now]): gamma_i+1 = A_k+i gamma_i with
+    B_k+i as the columns of dv_i, free_i+1 = A_k+i free_i (s_i = free_i + gamma_i dv)."""
+    inputs = d.B.shape[2]
+    states = d.A.shape[1]
+    kk = k + i
+    a = d.A[kk]
+    g0, g1 = s.gamma[now], s.gamma[1 - now]
+    f0, f1 = s.free[now], s.free[1 - now]
+    width = i * inputs
+    for r in range(states):
+        acc = 0.0
+        for c in range(states):
+            acc += a[r, c] * f0[c]
+        f1[r] = acc
+        for v in range(width):
+            g1[r, v] = 0.0
+        for c in range(states):
+            arc = a[r, c]
+            for v in range(width):
+                g1[r, v] += arc * g0[c, v]
+        for v in range(inputs):
+            g1[r, width + v] = d.B[kk, r, v]
+
+
+@jitable
+def _forward_row(d: Design, s: Scratch, now: int, j: int, at: int, q: int,
+                 direct: int) -> float:
+    """``_row`` from the predicted state at horizon sample j (s.gamma[now], s.free[now]):
+    into s.row[:(direct + 1) N] quantity q's coefficients on the corrections at sample
+    ``at``, its slope along dv_direct added; returns its deviation from s0 alone."""
+    inputs = d.B.shape[2]
+    states = d.A.shape[1]
+    g, f = s.gamma[now], s.free[now]
+    width = j * inputs
+    for v in range(width):
+        s.row[v] = 0.0
+    for v in range(width, (direct + 1) * inputs):
+        s.row[v] = 0.0
+    value = 0.0
+    for c in range(states):
+        slope = d.slope_s[at, q, c]
+        value += slope * f[c]
+        for v in range(width):
+            s.row[v] += slope * g[c, v]
+    for v in range(inputs):
+        s.row[direct * inputs + v] += d.slope_v[at, q, v]
+    return value
+
+
+@jitable
 def _append(s: Scratch, count: int, width: int, lo: float, hi: float, slack: bool,
             key: int = -1) -> int:
     """Row ``count`` of the QP: lo <= s.row[:width] x (+- the slack) <= hi, its key
@@ -497,7 +554,11 @@ def sample_step(d: Design, s: Scratch, k: int) -> None:
     meq = count
     previous = k > 0 and s.valid[0] == k  # sample k - 1's QP solved: guess its active set
     guessed = 0
+    now = 0  # s.gamma[now], s.free[now]: the state at horizon sample i
+    for c in range(states):
+        s.free[now, c] = s.s0[c]
     for i in range(costed):
+        _forward(d, s, k, i, now)
         for q in range(quantities):
             for end in range(2):  # at the interval's start; an endpoint also at its end
                 if end == 1 and d.endpoint[q] == 0.0 and i < costed - 1:
@@ -507,7 +568,8 @@ def sample_step(d: Design, s: Scratch, k: int) -> None:
                 hi = d.hi[at, q]
                 if math.isinf(lo) and math.isinf(hi):
                     continue
-                deviation = _row(d, s, k, i + end, at, q, i)
+                deviation = _forward_row(d, s, now if end == 0 else 1 - now, i + end, at,
+                                         q, i)
                 value = d.value[at, q] + deviation
                 width = (i + 1) * inputs
                 if end == 0 and d.endpoint[q] == 0.0:
@@ -527,6 +589,7 @@ def sample_step(d: Design, s: Scratch, k: int) -> None:
                         s.guess[guessed] = 2 * count + side
                         guessed += 1
                 count = _append(s, count, width, lo - value, hi - value, True, key)
+        now = 1 - now
     if d.warm_start != 0:  # the slack at 0
         s.guess[guessed] = 2 * count
         guessed += 1
