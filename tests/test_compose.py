@@ -493,3 +493,58 @@ def test_the_kinematic_design_carries_no_offset(plan) -> None:  # type: ignore[n
                         settings={"mpc": settings})
     d = mpc.design_for(scenario)
     assert d.offset == 0 and d.A.shape[1:] == (4, 4)
+
+
+def test_the_warm_started_mpc_ends_where_the_cold_one_does(replan) -> None:  # type: ignore[no-untyped-def]
+    """The MPC's QPs started from the last sample's active set (the design's default) and
+    from the unconstrained minimiser (``warm_start = 0``) have the same minimisers (each QP
+    is strictly convex; tests/test_qp.py checks the warm start against quadprog): the same
+    trials end at the same angles, to the QPs' rounding (the referee: the cold loop, itself
+    refereed by scipy above). On the re-plan for 4 rad/s (``replan``) the rate rows bind at
+    many samples, so the guesses matter; every applied joint rate at every recorded output
+    sample is within the limit in both."""
+    plan = replan
+    settings = mpc.MpcSettings()  # sample 0.1 s, horizon 20
+    dt, limit = 0.002, 4.0
+    rng = np.random.default_rng(40)
+    x0 = np.array([_initial(plan, rng.uniform(-2e-3, 2e-3, 3)) for _ in range(3)])
+    trials = Trials(np.repeat(plan.robot.as_array()[None], 3, axis=0), np.zeros(3), x0)
+    outs = []
+    for warm in (1, 0):
+        scenario = Scenario(plan, Gains((1.0, 1.0), (2.0, 2.0)), dt=dt, rate_limit=limit,
+                            controller="mpc", settings={"mpc": settings},
+                            rtol=KERNEL_RTOL, atol=1e-13, twin=0.0)
+        # the design with its warm start switched (a frozen scenario caches it here)
+        scenario.__dict__["sampled_design"] = scenario.sampled_design._replace(
+            warm_start=warm)
+        out = simulate(scenario, trials, "adaptive", record=True)
+        assert out.trace is not None and out.extra is not None
+        assert np.all(out.status == Status.OK)
+        assert np.all(out.extra[:, 1] == 0)  # no sample needed the slack
+        rates = out.trace[:, :, [out.columns.index("theta1_dot"),
+                                 out.columns.index("theta2_dot")]]
+        # never clipped by the plant (which would hold them at the limit exactly)
+        assert np.nanmax(np.abs(rates)) < limit
+        assert np.nanmax(np.abs(rates)) > 0.9 * limit  # the limit binds
+        outs.append(out)
+    warm_out, cold_out = outs
+    assert warm_out.extra is not None and cold_out.extra is not None
+    # the warm start's own use is tested in tests/test_mpc.py: the iterations here are equal
+    # (a right guess costs one factor update a bound, as adding it cold does)
+    assert np.all(warm_out.extra[:, 0] > 0)
+    np.testing.assert_allclose(warm_out.trace[:, -1, :3], cold_out.trace[:, -1, :3],
+                               atol=1e-10, rtol=0)
+
+
+@pytest.fixture(scope="module")
+def replan():  # type: ignore[no-untyped-def]
+    """The plan the MPC tracks at 4 rad/s: the paper's maneuver re-planned to the least peak
+    joint rate (th2' at 3.5-3.75 rad/s for long stretches: the rate rows bind at many
+    samples)."""
+    from flatcli.api import load_spec
+    from flatcli.experiment import tracked_plan
+
+    plan, replanned = tracked_plan(load_spec(None, {"track.controller": "mpc",
+                                                   "track.rate_limit": 4.0}))
+    assert replanned
+    return plan

@@ -309,3 +309,50 @@ def test_the_as_built_dynamic_mpc_solves_every_sample() -> None:
         np.testing.assert_array_equal(held[-1], planned[2 * inputs: 3 * inputs])
         if disturbance == 0.0:
             np.testing.assert_allclose(error, 0.0, atol=1e-9 * 2e-3)
+
+
+def test_the_warm_start_changes_no_correction(replan) -> None:  # type: ignore[no-untyped-def]
+    """Every sample of the maneuver re-planned for 4 rad/s (``replan``: the rate rows bind),
+    the error stepped through the design's own recursion plus a disturbance of 1e-5 (so the
+    active set moves): the corrections with the warm start (each QP from the last
+    sample's active set) are the cold ones (from the unconstrained minimiser, the
+    referee: its QP is checked against quadprog in tests/test_qp.py) to 1e-9 of their
+    size; the warm QPs were started from guessed bounds after the first sample."""
+    settings = mpc.MpcSettings(sample=0.1, horizon=8)
+    d = _design(replan, 4.0, settings)
+    runs = []
+    for warm in (1, 0):
+        design = d._replace(warm_start=warm)
+        rng = np.random.default_rng(7)
+        s = mpc.scratch(design)
+        mpc.reset(s)
+        error = np.array([2e-3, -1e-3, -1.5e-3, 2e-3])
+        held, guessed = [], []
+        for k in range(design.samples):
+            s.s0[:] = error
+            _step(design, s, k)
+            held.append(s.held.copy())
+            guessed.append(s.counters[mpc.QP_GUESSED])
+            error = (design.A[k] @ error + design.B[k] @ s.held
+                     + 1e-5 * rng.standard_normal(4))
+        runs.append((np.array(held), np.array(guessed), s.counters[mpc.QP_INFEASIBLE]))
+    (warm_held, warm_guessed, warm_slacked), (cold_held, cold_guessed, cold_slacked) = runs
+    assert warm_slacked == cold_slacked  # samples that needed the slack: the same
+    assert np.abs(cold_held).max() > 1e-2  # the corrections act
+    np.testing.assert_allclose(warm_held, cold_held, atol=1e-9 * np.abs(cold_held).max(),
+                               rtol=0)
+    assert np.all(cold_guessed == 0) and warm_guessed[1:].max() > 1  # beyond the slack
+
+
+@pytest.fixture(scope="module")
+def replan():  # type: ignore[no-untyped-def]
+    """The plan the MPC tracks at 4 rad/s: the paper's maneuver re-planned to the least peak
+    joint rate (th2' at 3.5-3.75 rad/s for long stretches: the rate rows bind at many
+    samples)."""
+    from flatcli.api import load_spec
+    from flatcli.experiment import tracked_plan
+
+    plan, replanned = tracked_plan(load_spec(None, {"track.controller": "mpc",
+                                                   "track.rate_limit": 4.0}))
+    assert replanned
+    return plan

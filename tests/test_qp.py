@@ -222,3 +222,73 @@ def test_compiled_without_numbas_runtime_gives_the_same_bits() -> None:
                                  p.meq, p.m, x2, w2, 10_000)
         assert status2 == status
         assert np.array_equal(x, x2)
+
+
+def _guesses(p: Problem, right: NDArray[np.int64], kind: str, rng: np.random.Generator
+             ) -> NDArray[np.int64]:
+    """A guessed active set of ``kind``: the cold solve's own inequality bounds ("right"),
+    random bounds of inequality rows ("wrong": either side, some infinite, some repeated),
+    or half of the right ones with as many wrong ones, shuffled ("partly")."""
+    right = right[right >= 2 * p.meq]
+    rows = p.m - p.meq
+    count = int(rng.integers(1, p.n + 3)) if rows > 0 else 0
+    wrong = 2 * (p.meq + rng.integers(0, max(rows, 1), size=count)) + rng.integers(0, 2, count)
+    if kind == "right":
+        guess = right
+    elif kind == "wrong":
+        guess = wrong
+    else:
+        guess = np.concatenate([rng.permutation(right)[: (len(right) + 1) // 2], wrong])
+        guess = rng.permutation(guess)
+    return np.ascontiguousarray(guess, dtype=np.int64)
+
+
+@settings(max_examples=300, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(1, 12), m=st.integers(0, 24),
+       soft=st.booleans(), feasible=st.booleans(),
+       kind=st.sampled_from(["right", "wrong", "partly"]), data=st.data())
+def test_warm_started_solutions_equal_quadprogs_whatever_the_guess(
+        seed: int, n: int, m: int, soft: bool, feasible: bool, kind: str,
+        data: st.DataObject) -> None:
+    """``solve_warm`` from a guessed active set, right, wrong or partly right, finds the same
+    minimiser as quadprog (the problem is strictly convex: one minimiser whatever the start)
+    and meets the KKT conditions; infeasible problems are still found infeasible."""
+    meq = data.draw(st.integers(0, min(m, n, 4)))
+    p = Problem(seed, n, m, meq, soft, feasible)
+    _, _, w_cold, q_cold = p.solve()
+    guess = _guesses(p, w_cold.active[:q_cold].copy(), kind, np.random.default_rng(seed))
+    x = np.zeros(p.n)
+    w = qp.work(p.n, p.m)
+    status, _, q = qp.solve_warm(qp.factor(p.G), p.g, p.C, p.lo, p.hi, p.width, p.soft,
+                                 p.meq, p.m, x, w, 10_000, guess, len(guess))
+    if not is_feasible(p):
+        assert status == qp.INFEASIBLE
+        return
+    assert status == qp.OPTIMAL
+    check_kkt(p, x, w, q)
+    reference = quadprog_solution(p) if p.m else np.linalg.solve(p.G, -p.g)
+    if reference is not None:
+        np.testing.assert_allclose(x, reference, atol=AGREE * (1.0 + np.abs(reference).max()))
+
+
+def test_a_right_guess_needs_no_iteration_beyond_its_own_factoring() -> None:
+    """Started from the cold solve's own active set, the warm solve adds each guessed bound
+    once (the equalities too) and drops none: its iterations are the active set's size,
+    fewer than the cold solve's (which also tries bounds that leave again), with
+    quadprog's minimiser."""
+    p = Problem(11, 12, 24, 2, True, True)
+    _, _, w_cold, q_cold = p.solve()
+    x = np.zeros(p.n)
+    w = qp.work(p.n, p.m)
+    cold = qp.solve(qp.factor(p.G), p.g, p.C, p.lo, p.hi, p.width, p.soft, p.meq, p.m,
+                    np.zeros(p.n), qp.work(p.n, p.m), 10_000)
+    active = w_cold.active[:q_cold]
+    guess = np.ascontiguousarray(active[active >= 2 * p.meq])
+    status, iterations, q = qp.solve_warm(qp.factor(p.G), p.g, p.C, p.lo, p.hi, p.width,
+                                          p.soft, p.meq, p.m, x, w, 10_000, guess,
+                                          len(guess))
+    assert status == qp.OPTIMAL and q == q_cold and len(guess) > 2
+    assert iterations == q_cold < cold[1]
+    reference = quadprog_solution(p)
+    assert reference is not None
+    np.testing.assert_allclose(x, reference, atol=AGREE * (1.0 + np.abs(reference).max()))

@@ -19,7 +19,11 @@ where its multiplier would turn negative, so that every iterate is optimal for t
 constraints active so far: the dual objective rises monotonically and the method ends in
 finitely many steps. It works with J = L^-T (G = L L', L lower triangular: J J' = G^-1),
 rotated by Givens rotations as constraints enter and leave, and R upper triangular with
-J' N_A = [R; 0] for the normals N_A of the active constraints.
+J' N_A = [R; 0] for the normals N_A of the active constraints. J is kept transposed (its
+columns as rows): the rotations, most of an iteration's work, then run along contiguous
+memory (the MPC's step at horizon 20, 41 variables, 4 rad/s: 57 us at its first sample and
+22 us on average, against 67 and 26 us with J's columns strided, alternately at load 3,
+2026-12-05).
 
 Model predictive control solves one such problem per sample with the same G (``mpc``):
 ``factor`` computes J once, and ``solve`` copies it. ``solve`` allocates nothing (every
@@ -57,7 +61,8 @@ TOLERANCE = 1e-10
 class Work(NamedTuple):
     """A solver's buffers for n variables and up to m constraints (``work``).
 
-    J (n, n), R (n, n): the factors (module docstring); d, z, r (n,): the step's
+    J (n, n): the factor J' (row j is J's column j), R (n, n) (module docstring); d, z,
+    r (n,): the step's
     directions; u (n,): the active constraints' multipliers; active (n,): their rows, as
     2 k for the lower bound of row k (and equalities) and 2 k + 1 for its upper bound;
     norms (m,): the rows' Euclidean norms.
@@ -80,20 +85,24 @@ def work(n: int, m: int) -> Work:
 
 
 def factor(G: Array) -> Array:
-    """J = L^-T (n, n) of a symmetric positive definite G = L L' (``solve``'s first factor);
-    numpy's Cholesky (LinAlgError if G is not positive definite)."""
+    """J' = L^-1 (n, n) of a symmetric positive definite G = L L' (``solve``'s first factor,
+    J = L^-T, transposed as ``Work.J`` keeps it); numpy's Cholesky (LinAlgError if G is not
+    positive definite)."""
     L = np.linalg.cholesky(np.asarray(G, dtype=float))
-    return np.ascontiguousarray(np.linalg.inv(L).T)
+    return np.ascontiguousarray(np.linalg.inv(L))
 
 
 @jitable
 def _rotate_columns(J: Array, a: int, b: int, c: float, s: float) -> None:
-    """Columns a, b of J replaced by c J[:, a] + s J[:, b] and -s J[:, a] + c J[:, b]."""
-    for i in range(J.shape[0]):
-        ja = J[i, a]
-        jb = J[i, b]
-        J[i, a] = c * ja + s * jb
-        J[i, b] = -s * ja + c * jb
+    """Columns a, b of J replaced by c J[:, a] + s J[:, b] and -s J[:, a] + c J[:, b]: rows
+    a, b of the transposed J that ``Work.J`` holds."""
+    ra = J[a]
+    rb = J[b]
+    for i in range(J.shape[1]):
+        ja = ra[i]
+        jb = rb[i]
+        ra[i] = c * ja + s * jb
+        rb[i] = -s * ja + c * jb
 
 
 @jitable
@@ -161,15 +170,16 @@ def _directions(w: Work, C: Array, p: int, sign: float, soft: float, width: int,
     for j in range(n):
         acc = 0.0
         for i in range(width):
-            acc += J[i, j] * C[p, i]
-        acc = sign * acc + soft * J[n - 1, j]
+            acc += J[j, i] * C[p, i]
+        acc = sign * acc + soft * J[j, n - 1]
         d[j] = acc
         dd += acc * acc
     for i in range(n):
-        acc = 0.0
-        for j in range(q, n):
-            acc += J[i, j] * d[j]
-        z[i] = acc
+        z[i] = 0.0
+    for j in range(q, n):
+        dj = d[j]
+        for i in range(n):
+            z[i] += J[j, i] * dj
     for i in range(q - 1, -1, -1):
         acc = d[i]
         for j in range(i + 1, q):
@@ -190,10 +200,142 @@ def _row_value(C: Array, k: int, width: int, x: Array) -> float:
 
 
 @jitable
+def _unconstrained(J: Array, g: Array, x: Array, d: Array, n: int) -> None:
+    """x = -J J' g, the unconstrained minimiser (d: scratch; J transposed, ``Work.J``)."""
+    for j in range(n):
+        acc = 0.0
+        for i in range(n):
+            acc += J[j, i] * g[i]
+        d[j] = acc
+    for i in range(n):
+        x[i] = 0.0
+    for j in range(n):
+        dj = d[j]
+        for i in range(n):
+            x[i] -= J[j, i] * dj
+
+
+@jitable
+def _bound_value(lo: Array, hi: Array, bound: int) -> float:
+    """The right-hand side b of a bound as GI's n' x >= b: lo[k] for 2 k, -hi[k] for
+    2 k + 1."""
+    k = bound // 2
+    return float(lo[k]) if bound % 2 == 0 else float(-hi[k])
+
+
+@jitable
+def _warm(g: Array, C: Array, lo: Array, hi: Array, width: NDArray[np.int64],
+          soft: Array, meq: int, m: int, x: Array, w: Work, guess: NDArray[np.int64],
+          guessed: int) -> tuple[int, int]:
+    """GI's starting point from a guessed active set: J, R factored for the equalities and
+    the guessed bounds (each lower 2 k or upper 2 k + 1 of an inequality row k; a bound
+    that is infinite, repeated, of a row out of range or dependent on those before it is
+    skipped), x the minimiser with them all as equalities, then every guessed bound of
+    negative multiplier dropped (and x, u recomputed, and again) until every inequality's
+    multiplier is >= 0: x is then optimal for its active set, the invariant ``solve``'s
+    iterations keep (the set shrinks at every round, so the rounds end). Returns (q,
+    factor updates), or (-1, 0) if an equality is dependent on those before it (``solve``
+    then starts cold, as without a guess).
+
+    x = J y with y[:q] = R^-T b (the active bounds' right-hand sides) and y[q:] = -(J' g)[q:],
+    u = R^-1 (y[:q] + (J' g)[:q]) (from G x + g = N_A u, J' G = J^-1 and J' N_A = [R; 0]).
+    """
+    n = g.shape[0]
+    J, R, d, z, r, u, active = w.J, w.R, w.d, w.z, w.r, w.u, w.active
+    q = 0
+    updates = 0
+    for e in range(meq + guessed):
+        if e < meq:
+            bound = 2 * e
+            row_soft = 0.0
+        else:
+            bound = guess[e - meq]
+            p = bound // 2
+            if bound < 0 or p < meq or p >= m or math.isinf(_bound_value(lo, hi, bound)):
+                continue
+            repeated = False
+            for j in range(q):
+                if active[j] // 2 == p:
+                    repeated = True
+            if repeated:
+                continue
+            row_soft = soft[p]
+        p = bound // 2
+        sign = 1.0 if bound % 2 == 0 else -1.0
+        dd = 0.0
+        tail = 0.0
+        for j in range(n):
+            acc = 0.0
+            for i in range(width[p]):
+                acc += J[j, i] * C[p, i]
+            acc = sign * acc + row_soft * J[j, n - 1]
+            d[j] = acc
+            dd += acc * acc
+            if j >= q:
+                tail += acc * acc
+        if tail <= DEPENDENT * dd or not _add(w, q, n):
+            if e < meq:
+                return -1, 0
+            continue
+        active[q] = bound
+        q += 1
+        updates += 1
+    while True:
+        for j in range(n):  # d = J' g
+            acc = 0.0
+            for i in range(n):
+                acc += J[j, i] * g[i]
+            d[j] = acc
+        for i in range(q):  # R' y[:q] = b (R' lower triangular)
+            acc = _bound_value(lo, hi, active[i])
+            for j in range(i):
+                acc -= R[j, i] * r[j]
+            r[i] = acc / R[i, i]
+        for i in range(q, n):
+            r[i] = -d[i]
+        for i in range(n):  # x = J y
+            x[i] = 0.0
+        for j in range(n):
+            rj = r[j]
+            for i in range(n):
+                x[i] += J[j, i] * rj
+        for i in range(q):
+            z[i] = r[i] + d[i]
+        for i in range(q - 1, -1, -1):  # u = R^-1 (y[:q] + d[:q])
+            acc = z[i]
+            for j in range(i + 1, q):
+                acc -= R[i, j] * u[j]
+            u[i] = acc / R[i, i]
+        dropped = 0
+        for i in range(q - 1, -1, -1):  # every negative one at once, the last first
+            if active[i] >= 2 * meq and u[i] < 0.0:
+                _drop(w, i, q)
+                q -= 1
+                dropped += 1
+        if dropped == 0:
+            return q, updates
+        updates += dropped
+
+
+@jitable
 def solve(J0: Array, g: Array, C: Array, lo: Array, hi: Array, width: NDArray[np.int64],
           soft: Array, meq: int, m: int, x: Array, w: Work, max_iterations: int
           ) -> tuple[int, int, int]:
-    """Minimise 1/2 x' G x + g' x subject to the m rows of C (module docstring).
+    """Minimise 1/2 x' G x + g' x subject to the m rows of C (module docstring), from the
+    unconstrained minimiser (``solve_warm`` with no guess)."""
+    return solve_warm(J0, g, C, lo, hi, width, soft, meq, m, x, w, max_iterations,
+                      w.active, 0)
+
+
+@jitable
+def solve_warm(J0: Array, g: Array, C: Array, lo: Array, hi: Array,
+               width: NDArray[np.int64], soft: Array, meq: int, m: int, x: Array, w: Work,
+               max_iterations: int, guess: NDArray[np.int64], guessed: int
+               ) -> tuple[int, int, int]:
+    """Minimise 1/2 x' G x + g' x subject to the m rows of C (module docstring), started
+    from the bounds guess[:guessed] taken as active (``_warm``): the same minimiser as
+    from no guess (the problem is strictly convex), in fewer iterations where the guess is
+    close to the final active set.
 
     Parameters
     ----------
@@ -208,7 +350,9 @@ def solve(J0: Array, g: Array, C: Array, lo: Array, hi: Array, width: NDArray[np
     w : ``work(n, >= m)`` buffers; on return w.active[:q] are the active bounds (2 k: row
         k's lower bound, 2 k + 1 its upper bound; an equality as either, the side its
         multiplier belongs to) and w.u[:q] their multipliers (>= 0 for inequalities)
-    max_iterations : most constraints added and dropped in all
+    max_iterations : most constraints added and dropped in all (the guess's included)
+    guess : (>= guessed,) bounds guessed active (as w.active's: 2 k lower, 2 k + 1 upper
+        bound of inequality row k; not w.active itself unless ``guessed`` is 0)
 
     Returns
     -------
@@ -220,16 +364,6 @@ def solve(J0: Array, g: Array, C: Array, lo: Array, hi: Array, width: NDArray[np
     for i in range(n):
         for j in range(n):
             J[i, j] = J0[i, j]
-    for j in range(n):  # x = -J J' g
-        acc = 0.0
-        for i in range(n):
-            acc += J[i, j] * g[i]
-        d[j] = acc
-    for i in range(n):
-        acc = 0.0
-        for j in range(n):
-            acc += J[i, j] * d[j]
-        x[i] = -acc
     for k in range(m):
         acc = soft[k] * soft[k]
         for i in range(width[k]):
@@ -238,6 +372,18 @@ def solve(J0: Array, g: Array, C: Array, lo: Array, hi: Array, width: NDArray[np
     q = 0
     iterations = 0
     added_equalities = 0
+    if guessed > 0:
+        q, iterations = _warm(g, C, lo, hi, width, soft, meq, m, x, w, guess, guessed)
+        if q >= 0:
+            added_equalities = meq
+        else:  # an equality dependent on those before it: from the start, as cold
+            q = 0
+            iterations = 0
+            for i in range(n):
+                for j in range(n):
+                    J[i, j] = J0[i, j]
+    if guessed <= 0 or added_equalities < meq:
+        _unconstrained(J, g, x, d, n)
     while True:
         # the bound to add: the next equality, else the most violated inequality bound
         if added_equalities < meq:
