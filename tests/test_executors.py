@@ -141,13 +141,16 @@ def half_written_result():
     # a worker killed while it writes its result: a message's length, then a part of it
     writer = POOL._result_queue._writer  # inherited through fork
     os.write(writer.fileno(), struct.pack("!i", 1_000_000) + b"partial")
+    open(sys.argv[3], "w").close()  # written: the parent may abort now
     time.sleep(60)
 
 if __name__ == "__main__":
     ex = LocalExecutor(2)
     POOL = ex._pool
     future = POOL.submit(half_written_result)
-    time.sleep(1.0)  # the worker has forked and written its half message
+    deadline = time.monotonic() + 50  # the worker has forked and written its half message
+    while not os.path.exists(sys.argv[3]) and time.monotonic() < deadline:
+        time.sleep(0.01)
     ex.close(abort=True)
     print(len(executors.STUCK_THREADS), flush=True)
     leave(int(sys.argv[1])) if sys.argv[2] == "leave" else sys.exit(int(sys.argv[1]))
@@ -161,15 +164,17 @@ def test_a_pool_aborted_with_a_half_written_result_still_ends_the_program(
     the interpreter joins it at exit (an interrupted sweep printed its line and never exited).
     ``close(abort=True)`` records the stuck thread and ``leave`` ends the program at once with
     the status and the printed lines. Referee: the same program ending with ``sys.exit``
-    still runs after 5 s (the hang this guards against)."""
+    still runs 6 s after its abort (the hang this guards against)."""
     script = tmp_path / "half.py"
     script.write_text(_HALF_WRITTEN)
-    done = subprocess.run([sys.executable, str(script), "3", "leave"], capture_output=True,
-                          text=True, timeout=60)
+    done = subprocess.run([sys.executable, str(script), "3", "leave", str(tmp_path / "a")],
+                          capture_output=True, text=True, timeout=60)
     assert (done.returncode, done.stdout) == (3, "1\n")
-    hung = subprocess.Popen([sys.executable, str(script), "3", "exit"],
+    # the abort waits for the worker's half message (a machine under load forks slowly)
+    hung = subprocess.Popen([sys.executable, str(script), "3", "exit", str(tmp_path / "b")],
                             stdout=subprocess.PIPE, text=True)
     try:
+        assert hung.stdout is not None and hung.stdout.readline() == "1\n"  # aborted
         with pytest.raises(subprocess.TimeoutExpired):
             hung.wait(timeout=6)
     finally:
