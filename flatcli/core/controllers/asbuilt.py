@@ -60,10 +60,9 @@ class AsbuiltShared(NamedTuple):
 
 
 class AsbuiltLaw(NamedTuple):
-    """One trial's law: the shared record and the measured angles' row (N + 1,)."""
+    """One trial's law: the shared record (it needs no buffers)."""
 
     shared: AsbuiltShared
-    measured: Array
 
 
 def asbuilt_shared(model: Any, gains: Gains, rate_limit: float, servo_is_plant: bool,
@@ -79,17 +78,17 @@ def asbuilt_shared(model: Any, gains: Gains, rate_limit: float, servo_is_plant: 
 
 
 def scratch(n: int) -> Array:
-    return np.zeros(n + 1)
+    return np.zeros(1)
 
 
 @jitable
-def make(shared: AsbuiltShared, measured: Array) -> AsbuiltLaw:
-    return AsbuiltLaw(shared, measured)
+def make(shared: AsbuiltShared, unused: Array) -> AsbuiltLaw:
+    return AsbuiltLaw(shared)
 
 
 @jitable
 def joints(law: AsbuiltLaw) -> int:
-    return law.measured.shape[0] - 1  # type: ignore[no-any-return]
+    return law.shared.Ic.shape[0] - 1  # type: ignore[no-any-return]
 
 
 @jitable
@@ -114,17 +113,14 @@ def _layout(shared: AsbuiltShared, n: int) -> tuple[int, int]:
 
 
 @jitable
-def command(law: AsbuiltLaw, theta: Array, rates: Array, noise: Array, z: Array, ref: Array,
-            r: Array, z_dot: Array) -> float:
+def command(law: AsbuiltLaw, meas: Array, rates: Array, z: Array, ref: Array, r: Array,
+            z_dot: Array) -> float:
     """The rate commands r_j (N,): the law at the measured angles (and, lagged, the joints'
     rates), plus the lead times the plan's joint accelerations; the margin 1.0."""
-    meas = law.measured
-    nb = meas.shape[0]
-    n = nb - 1
     shared = law.shared
+    nb = shared.Ic.shape[0]
+    n = nb - 1
     width, c = _layout(shared, n)
-    for a in range(nb):
-        meas[a] = theta[a] + noise[a]
     for j in range(1, nb):
         w = ref[c + j - 1] + shared.lead * ref[2 * c + j - 1]
         base = nb + (j - 1) * width
@@ -147,7 +143,7 @@ def start(law: AsbuiltLaw, initial: Array, z0: Array) -> None:
 def start_rates(law: AsbuiltLaw, initial: Array, ref: Array, r: Array) -> None:
     """u_j(0) of joints j < N from ``initial``, joint N at the plan's rate (the law acts on
     the rate errors from there)."""
-    nb = law.measured.shape[0]
+    nb = law.shared.Ic.shape[0]
     n = nb - 1
     _, c = _layout(law.shared, n)
     for j in range(1, n):
@@ -158,7 +154,7 @@ def start_rates(law: AsbuiltLaw, initial: Array, ref: Array, r: Array) -> None:
 @jitable
 def trig(law: AsbuiltLaw) -> tuple[Array, Array]:
     """None of its own (``shares_trig`` is false)."""
-    return law.measured, law.measured
+    return law.shared.Ic, law.shared.Ic
 
 
 @jitable
@@ -168,7 +164,7 @@ def observed(law: AsbuiltLaw, obs: Any, j: int, theta: Array, z: Array
     margin, no threshold."""
     ref = obs[1]
     ey2 = 0.0
-    for i in range(1, law.measured.shape[0]):
+    for i in range(1, law.shared.Ic.shape[0]):
         e = theta[i] - ref[2 * j, i - 1]
         ey2 += e * e
     return ey2, NO_MARGIN, NO_THRESHOLD
@@ -179,8 +175,8 @@ def additive(law: AsbuiltLaw, ref: Array, dv: Array, out: Array) -> None:
     """``out`` = the tracked flag ``ref`` with dv (N,) [rad/s] added to the joint-rate
     commands w: on the plan's joint rates w_r, or, where w_r enters the rate errors too
     (``AsbuiltShared.lagged``), on the lead's channel a_r as dv / lead."""
-    nb = law.measured.shape[0]
     shared = law.shared
+    nb = shared.Ic.shape[0]
     _, c = _layout(shared, nb - 1)
     for k in range(3 * c):
         out[k] = ref[k]
@@ -192,18 +188,18 @@ def additive(law: AsbuiltLaw, ref: Array, dv: Array, out: Array) -> None:
 
 
 @jitable
-def measure(law: AsbuiltLaw, theta: Array, rates: Array, z: Array, noise: Array, ref: Array,
-            s0: Array) -> None:
+def measure(law: AsbuiltLaw, measured: Array, rates: Array, z: Array, ref: Array, s0: Array
+            ) -> None:
     """The errors its gains act on, from the tracked flag ``ref``, into ``s0``: the measured
     angles' th0 - th0_r, th_j - th_jr (j = 1..N), and where it acts on the joint rates
     th_j' - w_jr (the order of ``lqr.linearisation``)."""
-    nb = law.measured.shape[0]
-    n = nb - 1
     shared = law.shared
+    nb = shared.Ic.shape[0]
+    n = nb - 1
     _, c = _layout(shared, n)
-    s0[0] = theta[0] + noise[0] - ref[n]
+    s0[0] = measured[0] - ref[n]
     for a in range(1, nb):
-        s0[a] = theta[a] + noise[a] - ref[a - 1]
+        s0[a] = measured[a] - ref[a - 1]
     if shared.lagged:
         for k in range(1, nb):
             s0[n + k] = rates[k] - ref[c + k - 1]

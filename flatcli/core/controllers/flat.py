@@ -41,9 +41,9 @@ from flatcli.core.robots.params import RobotParams
 
 Array = NDArray[np.float64]
 
-#: Rows of ``FlatLaw.rows`` (each N + 1 long): measured angles, y, y', v, u'.
-_MEASURED, _Y, _Y_DOT, _V, _U_DOT = range(5)
-ROWS = 5
+#: Rows of ``FlatLaw.rows`` (each N + 1 long): y, y', v, u'.
+_Y, _Y_DOT, _V, _U_DOT = range(4)
+ROWS = 4
 
 
 class ChainShared(NamedTuple):
@@ -112,38 +112,23 @@ def servo(shared: ChainShared, offset: float) -> Any:
 
 
 @jitable
-def commands_at(law_: FlatLaw, measured: Array, u: Array, ref: Array, r: Array) -> float:
-    """The feedback at the measured angles (N + 1,) and u (N - 1,): the rate commands (N,)
-    (u_j, then th_N') into r and the inputs u' (N - 1,) into rows[_U_DOT]; returns sigma
-    [rad/s]. ``ref`` (3 N,): the plan's y, y', y''."""
+def command(law_: FlatLaw, measured: Array, rates: Array, z: Array, ref: Array, r: Array,
+            z_dot: Array) -> float:
+    """``LawPart.command``: at the measured angles (N + 1,) and u = z (N - 1,), the rate
+    commands (u_j, then th_N'; the plant clips them) into r (N,), u' unwound against the
+    plant's clip into z_dot; returns sigma [rad/s]. ``ref`` (3 N,): the plan's y, y', y''."""
     n = law_.Ic.shape[0] - 1
     buf = law_.rows
-    y, y_dot, v = buf[_Y, :n], buf[_Y_DOT, :n], buf[_V, :n]
+    y, y_dot, v, u_dot = buf[_Y, :n], buf[_Y_DOT, :n], buf[_V, :n], buf[_U_DOT, : n - 1]
     work = law_.work
     h0 = terms_into(law_.Kc, law_.Ic, measured, work)  # once for both maps
     h_c, grad, hess, slopes = work.h, work.grad, work.hess, work.slopes
-    sigma = outputs_given(law_.Kc, law_.Ic, h0, h_c, grad, measured, u, y, y_dot)
+    sigma = outputs_given(law_.Kc, law_.Ic, h0, h_c, grad, measured, z, y, y_dot)
     for j in range(n):
         v[j] = law(ref, j, n, law_.kp[j], law_.kv[j], y[j], y_dot[j])
-    r[n - 1] = inputs_given(law_.Ic, h0, h_c, grad, hess, slopes, measured, u, v,
-                            buf[_U_DOT, : n - 1])
+    r[n - 1] = inputs_given(law_.Ic, h0, h_c, grad, hess, slopes, measured, z, v, u_dot)
     for j in range(n - 1):
-        r[j] = u[j]
-    return sigma
-
-
-@jitable
-def command(law_: FlatLaw, theta: Array, rates: Array, noise: Array, z: Array, ref: Array,
-            r: Array, z_dot: Array) -> float:
-    """``LawPart.command``: ``commands_at`` the measured angles, u' unwound against the
-    plant's clip."""
-    nb = law_.Ic.shape[0]
-    measured = law_.rows[_MEASURED]
-    for i in range(nb):
-        measured[i] = theta[i] + noise[i]
-    sigma = commands_at(law_, measured, z, ref, r)
-    u_dot = law_.rows[_U_DOT]
-    for j in range(nb - 2):
+        r[j] = z[j]
         z_dot[j] = unwound(z[j], u_dot[j], law_.rate_limit)
     return sigma
 
@@ -160,7 +145,8 @@ def start(law_: FlatLaw, initial: Array, z0: Array) -> None:
 def start_rates(law_: FlatLaw, initial: Array, ref: Array, r: Array) -> None:
     """The commands at t = 0 at the true angles, clipped to the rate limit."""
     nb = law_.Ic.shape[0]
-    commands_at(law_, initial[:nb], initial[nb: 2 * nb - 2], ref, r)
+    u_dot = law_.rows[_U_DOT, : nb - 2]
+    command(law_, initial[:nb], initial[nb:nb], initial[nb: 2 * nb - 2], ref, r, u_dot)
     limit = law_.rate_limit
     for j in range(nb - 1):
         r[j] = min(max(r[j], -limit), limit)
@@ -207,14 +193,11 @@ def flat_chain_errors(Kc: Array, Ic: Array, work: Scratch, measured: Array, u: A
 
 
 @jitable
-def measure(law_: FlatLaw, theta: Array, rates: Array, z: Array, noise: Array, ref: Array,
-            s0: Array) -> None:
+def measure(law_: FlatLaw, measured: Array, rates: Array, z: Array, ref: Array, s0: Array
+            ) -> None:
     """Its flat outputs' errors at the measured angles from the plan's flag ``ref`` (3 N,)
     into ``s0`` (2 N,)."""
     n = law_.Ic.shape[0] - 1
-    measured = law_.rows[_MEASURED]
-    for i in range(n + 1):
-        measured[i] = theta[i] + noise[i]
     flat_chain_errors(law_.Kc, law_.Ic, law_.work, measured, z, law_.rows[_Y, :n],
                       law_.rows[_Y_DOT, :n], ref, s0)
 

@@ -66,10 +66,10 @@ class LawPart:
     servo : servo(shared, offset) -> (K, inertia, cos, sin, is_plant, lag_shortcut): the
         robot a dynamic plant's rate servo believes (``plants.dynamic.make``), for a plant
         whose last link is turned by ``offset`` [rad]
-    command : command(law, theta, rates, noise, z, ref, r, z_dot) -> its signed margin:
-        at the true angles theta (N + 1,) + noise (N + 1,) [rad] (the sensor's), the
-        plant's joint rates (N + 1,) or none, its states z and the plan's flag ``ref`` at t,
-        the commands into r (N,) [rad/s] and its states' rates into z_dot
+    command : command(law, measured, rates, z, ref, r, z_dot) -> its signed margin: at the
+        measured angles (N + 1,) [rad] (the true ones plus the sensor's noise), the plant's
+        joint rates (N + 1,) or none, its states z and the plan's flag ``ref`` at t, the
+        commands into r (N,) [rad/s] and its states' rates into z_dot
     start : start(law, initial, z0): its states at t = 0 from the trial's ``initial`` (2 N,)
     start_rates : start_rates(law, initial, ref, r): the commands at t = 0 a plant with rate
         states starts from (the servo in equilibrium)
@@ -80,7 +80,7 @@ class LawPart:
         ``obs`` = (theta_ref, ref, threshold) as the kernels pass it
     additive : additive(law, ref, dv, out): ``out`` = ``ref`` with dv (N,) added where its
         input enters (``kernels.Ops.additive``)
-    measure : measure(law, theta, rates, z, noise, ref, s0): the errors its design is about
+    measure : measure(law, measured, rates, z, ref, s0): the errors its design is about
         into s0 (``kernels.Ops.measure``)
     shares_trig : ``trig`` holds the true angles' trigonometry where said (the plant reuses it)
     bounded : its commands are bounded everywhere (no singular set: its margin never changes

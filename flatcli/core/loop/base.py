@@ -22,6 +22,8 @@ from __future__ import annotations
 
 from typing import Any, NamedTuple
 
+import numpy as np
+
 from flatcli.core._jit import jitable_variant, variant_tag
 from flatcli.core.controllers.parts import LawPart
 from flatcli.core.loop.kernels import Ops
@@ -30,17 +32,20 @@ from flatcli.core.plants.part import PlantPart
 
 
 class BaseScratch(NamedTuple):
-    """A batch's buffers: the law's and the plant's (their ``scratch(n)``)."""
+    """A batch's buffers: the law's and the plant's (their ``scratch(n)``), the measured
+    angles (N + 1,)."""
 
     law: Any
     plant: Any
+    measured: Any
 
 
 class BaseLoop(NamedTuple):
-    """One trial: the law's record and the plant's."""
+    """One trial: the law's record and the plant's, the measured angles' row."""
 
     law: Any
     plant: Any
+    measured: Any
 
 
 def base_ops(law: LawPart, plant: PlantPart) -> Ops:
@@ -60,7 +65,8 @@ def base_ops(law: LawPart, plant: PlantPart) -> Ops:
     def make_loop(shared: Any, trials: Any, i: int, scratch: BaseScratch) -> BaseLoop:
         return BaseLoop(make_law(shared, scratch.law),
                         make_plant(trials, i, shared.rate_limit,
-                                   servo(shared, trials.offset[i]), scratch.plant))
+                                   servo(shared, trials.offset[i]), scratch.plant),
+                        scratch.measured)
 
     @variant
     def bounded(loop: BaseLoop) -> bool:
@@ -78,32 +84,29 @@ def base_ops(law: LawPart, plant: PlantPart) -> Ops:
             start_rates(loop.law, initial, ref0, r)
         start_plant(loop.plant, initial, r, x0)
 
-    @variant
-    def evaluate(loop: BaseLoop, x: Any, ref: Any, noise: Any, out: Any, full: bool) -> None:
-        n = joints(loop.law)
-        nb = n + 1
-        ps = plant_state(n)
-        nx = ps + law_states(n)
-        r, rates = io(loop.plant, x)
-        margin = command(loop.law, x[:nb], rates, noise, x[ps:nx], ref, r, out[ps:nx])
-        given = shares
-        if given:
+    def evaluator(full: bool) -> Any:
+        """The right-hand side (``full``) or an integrator's stage, whose aux values nobody
+        observes (the same derivative and margin, bit for bit: ``plants.dynamic``)."""
+
+        @jitable_variant(variant_tag(law.command, plant.rates) + ("" if full else "_stage"))
+        def rhs(loop: BaseLoop, x: Any, ref: Any, noise: Any, out: Any) -> None:
+            n = joints(loop.law)
+            nb = n + 1
+            ps = plant_state(n)
+            nx = ps + law_states(n)
+            measured = loop.measured
+            given = shares
             for i in range(nb):
+                measured[i] = x[i] + noise[i]
                 if noise[i] != 0.0:
                     given = False
-        cs, sn = law_trig(loop.law)
-        plant_rates(loop.plant, x, cs, sn, given, out, nx + 1, full)
-        out[nx] = margin
+            r, rates = io(loop.plant, x)
+            margin = command(loop.law, measured, rates, x[ps:nx], ref, r, out[ps:nx])
+            cs, sn = law_trig(loop.law)
+            plant_rates(loop.plant, x, cs, sn, given, out, nx + 1, full)
+            out[nx] = margin
 
-    @variant
-    def rhs(loop: BaseLoop, x: Any, ref: Any, noise: Any, out: Any) -> None:
-        evaluate(loop, x, ref, noise, out, True)
-
-    @variant
-    def stage(loop: BaseLoop, x: Any, ref: Any, noise: Any, out: Any) -> None:
-        """``rhs`` for an integrator's stage, whose aux values nobody observes: the same
-        derivative and margin, bit for bit (``plants.dynamic.servo_rates``)."""
-        evaluate(loop, x, ref, noise, out, False)
+        return rhs
 
     @variant
     def observe(loop: BaseLoop, obs: Any, acc: Any, j: int, x: Any, f: Any) -> None:
@@ -145,13 +148,16 @@ def base_ops(law: LawPart, plant: PlantPart) -> Ops:
     def measure(loop: BaseLoop, x: Any, noise: Any, ref: Any, s0: Any) -> None:
         n = joints(loop.law)
         ps = plant_state(n)
-        law_measure(loop.law, x[: n + 1], io(loop.plant, x)[1], x[ps: ps + law_states(n)],
-                    noise, ref, s0)
+        measured = loop.measured
+        for i in range(n + 1):
+            measured[i] = x[i] + noise[i]
+        law_measure(loop.law, measured, io(loop.plant, x)[1], x[ps: ps + law_states(n)], ref,
+                    s0)
 
     law_scratch, plant_scratch = law.scratch, plant.scratch
 
     def scratch(n: int) -> BaseScratch:
-        return BaseScratch(law_scratch(n), plant_scratch(n))
+        return BaseScratch(law_scratch(n), plant_scratch(n), np.zeros(n + 1))
 
     def state(n: int) -> int:
         return plant.state(n) + law.states(n)
@@ -162,5 +168,6 @@ def base_ops(law: LawPart, plant: PlantPart) -> Ops:
     def width(n: int) -> int:
         return plant.state(n) + n - 1 + plant.columns(n)
 
-    return Ops(make_loop, bounded, initial_state, rhs, observe, record, residual, state, aux,
-               width, scratch, stage if torques else None, additive=additive, measure=measure)
+    return Ops(make_loop, bounded, initial_state, evaluator(True), observe, record, residual,
+               state, aux, width, scratch, evaluator(False) if torques else None,
+               additive=additive, measure=measure)

@@ -298,7 +298,7 @@ def io(plant: DynamicPlant, x: Array) -> tuple[Array, Array]:
 @jitable
 def rates(plant: DynamicPlant, x: Array, cs: Array, sn: Array, given: bool, out: Array,
           at: int, torques: bool) -> None:
-    """th', th'' into out[:2 N + 2], the aux values at out[at:] (``servo_rates``)."""
+    """th', th'' into out[:2 N + 2], its aux values at out[at:] (``servo_rates``)."""
     sp = plant.servo
     nb = plant.rows.shape[1]
     theta, q_dot = x[:nb], x[nb: 2 * nb]

@@ -17,7 +17,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from flatcli.core._jit import jitable
+from flatcli.core._jit import inlined, jitable
 from flatcli.core.plants.part import PlantPart, plant_trig
 from flatcli.core.robots.chain import chain_momentum_given, momentum_weights_given, plan_residual
 
@@ -81,7 +81,7 @@ def io(plant: KinematicPlant, x: Array) -> tuple[Array, Array]:
     return plant.rows[_R], x[nb:nb]
 
 
-@jitable
+@inlined
 def rates(plant: KinematicPlant, x: Array, cs: Array, sn: Array, given: bool, out: Array,
           at: int, torques: bool) -> None:
     """th_j' = sat(r_j) into out[1..N], th0' from the plant's momentum into out[0]."""
