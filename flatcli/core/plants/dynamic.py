@@ -27,7 +27,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from flatcli.core._jit import jitable
+from flatcli.core._jit import inlined, jitable
 from flatcli.core.plants.part import PlantPart, plant_trig
 from flatcli.core.robots.chain import chain_momentum_given, plan_residual, turn_last
 from flatcli.core.robots.dynamics import (
@@ -295,7 +295,7 @@ def io(plant: DynamicPlant, x: Array) -> tuple[Array, Array]:
     return plant.servo.rows[R], x[nb: 2 * nb]
 
 
-@jitable
+@inlined
 def rates(plant: DynamicPlant, x: Array, cs: Array, sn: Array, given: bool, out: Array,
           at: int, torques: bool) -> None:
     """th', th'' into out[:2 N + 2], its aux values at out[at:] (``servo_rates``)."""
