@@ -1,4 +1,4 @@
-"""Tests of the as-built controller in closed loop (flatcli.core.loop.asbuiltloop)
+"""Tests of the as-built controller in closed loop (flatcli.core.controllers.asbuilt)
 and of every plant's centre of mass across its last link.
 
 Referees: scipy's DOP853 (rtol 1e-10) of a closed loop written here, its plant's th0' from the

@@ -1,4 +1,6 @@
-"""Tests of flatcli.core.loop.chaindynamic: the dynamic plant of an N-link chain in closed loop.
+"""Tests of the flat law on the dynamic plant of an N-link chain in closed loop
+(flatcli.core.plants.dynamic and flatcli.core.controllers.flat, composed by
+flatcli.core.loop.base).
 
 References, none of them the code under test:
 
@@ -12,8 +14,8 @@ References, none of them the code under test:
 * the angular momentum from the full link kinematics (``chain.chain_momentum``) and the
   kinetic energy summed over the links' velocities (``link_kinetic_energy`` below);
 * the closed form of a first-order lag, q' = r + (q'(0) - r) e^{-b t};
-* the kinematic N-link closed loop (``chainloop``, checked against DOP853 and the closed-form
-  error dynamics in tests/test_chainloop.py) as the limit of infinite servo bandwidth.
+* the kinematic N-link closed loop (checked against DOP853 and the closed-form error
+  dynamics in tests/test_chainloop.py) as the limit of infinite servo bandwidth.
 """
 
 from __future__ import annotations
@@ -22,18 +24,9 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 from scipy.integrate import solve_ivp
-from test_chainloop import example
+from test_chainloop import chain_loop, example
 
 from flatcli.core.controllers.control import Gains
-from flatcli.core.loop.chaindynamic import (
-    chain_dynamic_aux,
-    chain_dynamic_loop,
-    chain_dynamic_rhs,
-    chain_dynamic_stage,
-    chain_dynamic_state,
-    make_scratch,
-)
-from flatcli.core.loop.chainloop import chain_matrix
 from flatcli.core.loop.metrics import Metric, Status
 from flatcli.core.loop.simulate import (
     DYNAMIC_TRACE_COLUMNS,
@@ -45,7 +38,8 @@ from flatcli.core.loop.simulate import (
     noise_generator,
     simulate,
 )
-from flatcli.core.models.chainflat import inputs, outputs, scratch
+from flatcli.core.loop.table import BASE
+from flatcli.core.models.chainflat import inputs, outputs
 from flatcli.core.plan.planning import Plan, plan_chain, plan_point_to_point
 from flatcli.core.robots.chain import chain_momentum
 from flatcli.core.robots.dynamics import (
@@ -59,6 +53,10 @@ from flatcli.core.robots.dynamics import (
 from flatcli.core.robots.params import PAPER_ROBOT, RobotParams
 
 Array = NDArray[np.float64]
+
+#: The flat law on the dynamic chain plant (``loop.base``): its right-hand side and stage.
+DYNAMIC = BASE[("flat", "chain", "dynamic")][0]
+STAGE = DYNAMIC.stage
 
 #: Tight tolerances for the checks of invariants: far below what they check.
 TIGHT = {"rtol": 1e-12, "atol": 1e-14}
@@ -248,13 +246,8 @@ def test_two_joints_agree_with_the_three_body_plant(servo_model: str, noise: flo
 def loop_for(plan: Plan, plant: RobotParams, servo_is_plant: bool, h0: float = 0.0,
              rate_limit: float = np.inf, bandwidth: float = 100.0,
              torque_limit: float = np.inf, kp: float = 100.0, kv: float = 20.0) -> object:
-    n = plan.n_joints
-    params = plant.as_array()
-    nb = n + 1
-    return chain_dynamic_loop(plan.model.K, plan.model.inertia, np.full(n, kp), np.full(n, kv),
-                              chain_matrix(params, n), params[nb:2 * nb].copy(),
-                              servo_is_plant, params, h0, rate_limit, bandwidth, torque_limit,
-                              *make_scratch(n), scratch(n))
+    return chain_loop("dynamic", plan, plant, servo_is_plant, h0, rate_limit, bandwidth,
+                      torque_limit, kp, kv)[1]
 
 
 @pytest.mark.parametrize("n", [3, 5])
@@ -271,7 +264,7 @@ def test_rhs_solves_the_equations_of_motion_and_the_servo_law(n: int) -> None:
     com = np.array(robot.com)
     com[-1] = 0.004
     plant = robot.with_(mass=np.array(robot.mass) * rng.uniform(0.95, 1.05, nb), com=com)
-    out = np.empty(chain_dynamic_state(n) + chain_dynamic_aux(n))
+    out = np.empty(DYNAMIC.state(n) + DYNAMIC.aux(n))
     ref = plan.flags(np.array([0.3]))[0]
     clipped = 0
     for servo_is_plant, torque_limit in ((True, np.inf), (False, np.inf), (True, 0.05)):
@@ -281,7 +274,7 @@ def test_rhs_solves_the_equations_of_motion_and_the_servo_law(n: int) -> None:
             bandwidth = float(rng.uniform(5, 500))
             loop = loop_for(plan, plant, servo_is_plant, rate_limit=4.0, bandwidth=bandwidth,
                             torque_limit=torque_limit)
-            chain_dynamic_rhs(loop, x, ref, np.zeros(nb), out)  # type: ignore[arg-type]
+            DYNAMIC.rhs(loop, x, ref, np.zeros(nb), out)  # type: ignore[arg-type]
             q, qd, qdd = x[:nb], x[nb:2 * nb], out[nb:2 * nb]
             nx = 3 * n + 1
             tau = out[nx + 1:nx + 1 + n]
@@ -316,8 +309,8 @@ def test_rhs_solves_the_equations_of_motion_and_the_servo_law(n: int) -> None:
 
 @pytest.mark.parametrize("n", [3, 5])
 def test_a_stage_derivative_is_the_right_hand_sides_bit_for_bit(n: int) -> None:
-    """``chain_dynamic_stage`` (what the integrators' stages call) against the full
-    ``chain_dynamic_rhs`` (checked above against the numpy chain) at random states, sensor
+    """The loop's ``stage`` (what the integrators' stages call) against its full ``rhs``
+    (checked above against the numpy chain) at random states, sensor
     noise and the three regimes: the state's derivative, sigma and r_N are the same bit for
     bit; the torques and the saturation flag too where they enter the derivative (a torque
     limit, or a servo that believes another robot), and nan, not stale numbers, where they
@@ -330,7 +323,7 @@ def test_a_stage_derivative_is_the_right_hand_sides_bit_for_bit(n: int) -> None:
     com[-1] = 0.004
     plant = robot.with_(mass=np.array(robot.mass) * rng.uniform(0.95, 1.05, nb), com=com)
     ref = plan.flags(np.array([0.7]))[0]
-    full = np.empty(chain_dynamic_state(n) + chain_dynamic_aux(n))
+    full = np.empty(DYNAMIC.state(n) + DYNAMIC.aux(n))
     stage = np.empty_like(full)
     for servo_is_plant, torque_limit, exact in ((True, np.inf, True), (False, np.inf, False),
                                                 (True, 0.05, False)):
@@ -341,9 +334,9 @@ def test_a_stage_derivative_is_the_right_hand_sides_bit_for_bit(n: int) -> None:
             args = (plan, plant, servo_is_plant)
             kw = {"rate_limit": 4.0, "bandwidth": float(rng.uniform(5, 500)),
                   "torque_limit": torque_limit}
-            chain_dynamic_rhs(loop_for(*args, **kw), x, ref, noise, full)  # type: ignore[arg-type]
+            DYNAMIC.rhs(loop_for(*args, **kw), x, ref, noise, full)  # type: ignore[arg-type]
             stage[:] = 7.0  # what a stage row held before
-            chain_dynamic_stage(loop_for(*args, **kw), x, ref, noise, stage)  # type: ignore[arg-type]
+            STAGE(loop_for(*args, **kw), x, ref, noise, stage)  # type: ignore[arg-type]
             np.testing.assert_array_equal(stage[:nx + 1], full[:nx + 1])
             assert stage[nx + 1 + 2 * n] == full[nx + 1 + 2 * n]
             if exact:
@@ -389,11 +382,11 @@ def test_the_servo_is_a_first_order_lag() -> None:
     nb = n + 1
     loop = loop_for(plan, robot, True, rate_limit=limit, bandwidth=bandwidth, kp=0.0, kv=0.0)
     noise = np.zeros(nb)
-    out = np.empty(chain_dynamic_state(n) + chain_dynamic_aux(n))
+    out = np.empty(DYNAMIC.state(n) + DYNAMIC.aux(n))
     nx = 3 * n + 1
 
     def rhs(t: float, x: Array) -> Array:
-        chain_dynamic_rhs(loop, x, plan.flags(np.array([t]))[0], noise, out)  # type: ignore[arg-type]
+        DYNAMIC.rhs(loop, x, plan.flags(np.array([t]))[0], noise, out)  # type: ignore[arg-type]
         return out[:nx].copy()
 
     x0 = np.r_[start, 0.4, -2.0, 0.5, 3.0, 5.0, 5.0]

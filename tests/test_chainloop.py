@@ -15,12 +15,12 @@ from numpy.typing import NDArray
 from scipy.integrate import solve_ivp
 
 from flatcli.core.controllers.control import Gains
-from flatcli.core.loop.chainloop import ChainLoop, chain_matrix, chain_rhs
+from flatcli.core.controllers.flat import chain_shared
 from flatcli.core.loop.integrate import plan_flag
+from flatcli.core.loop.kernels import Ops, TrialArrays, chain_plant
 from flatcli.core.loop.metrics import Metric, Status
 from flatcli.core.loop.simulate import NoiseStreams, Scenario, Trials, simulate
-from flatcli.core.models.chainflat import scratch
-from flatcli.core.plan.planning import plan_chain, plan_point_to_point
+from flatcli.core.plan.planning import Plan, plan_chain, plan_point_to_point
 from flatcli.core.robots.params import PAPER_ROBOT, RobotParams
 
 Array = NDArray[np.float64]
@@ -72,17 +72,33 @@ def test_the_closed_loop_converges_from_perturbed_starts(n: int) -> None:
     assert np.all(out.metrics[:, Metric.MOMENTUM_DRIFT] < 1e-11)
 
 
+def chain_loop(plant_name: str, plan: Plan, plant: RobotParams, servo_is_plant: bool = True,
+               h0: float = 0.0, rate_limit: float = np.inf, bandwidth: float = 100.0,
+               torque_limit: float = np.inf, kp: float = 100.0, kv: float = 20.0
+               ) -> tuple[Ops, object]:
+    """The flat law's loop on a chain plant ("kinematic", "dynamic"), one trial's record as
+    the kernels make it (``loop.base``), and its ``Ops`` (whose functions run as Python)."""
+    from flatcli.core.loop.table import BASE
+
+    ops = BASE[("flat", "chain", plant_name)][0]
+    n = plan.n_joints
+    params = plant.as_array()
+    shared = chain_shared(plan.model, Gains((kp,) * n, (kv,) * n), rate_limit, servo_is_plant,
+                          plant)
+    trials = TrialArrays(params[None], np.array([h0]), np.array([[bandwidth, torque_limit]]),
+                         np.zeros((1, 2 * n)), chain_plant(params[None], plant_name),
+                         np.zeros(1))
+    return ops, ops.make_loop(shared, trials, 0, ops.scratch(n))
+
+
 @pytest.mark.parametrize("n", [3, 5])
 def test_the_compiled_integrators_agree_with_dop853(n: int) -> None:
     sc, robot, start = scenario(n)
     x0 = np.r_[start + 0.02, np.full(n - 1, 0.3)]
     trials = Trials(robot.as_array()[None], np.zeros(1), x0[None])
     plan = sc.plan
-    params = robot.as_array()
     nb = n + 1
-    loop = ChainLoop(plan.model.K, plan.model.inertia, np.full(n, 100.0), np.full(n, 20.0),
-                     chain_matrix(params, n), params[nb:2 * nb], params, 0.0, np.inf,
-                     np.zeros((6, nb)), scratch(n))
+    ops, loop = chain_loop("kinematic", plan, robot)
     breaks, local = sc.pieces
     zero = np.zeros(nb)
 
@@ -90,7 +106,7 @@ def test_the_compiled_integrators_agree_with_dop853(n: int) -> None:
         ref = np.empty(3 * n)
         plan_flag(breaks, local, t, ref)
         out = np.empty(2 * n + 1)
-        chain_rhs(loop, x, ref, zero, out)
+        ops.rhs(loop, x, ref, zero, out)
         return out[: 2 * n]
 
     reference = solve_ivp(rhs, (0.0, 2.0), x0, method="DOP853", t_eval=sc.times, rtol=1e-11,

@@ -26,14 +26,19 @@ import json
 import subprocess
 import sys
 
-from flatcli.core.loop import asbuiltloop, kernels
+from flatcli.core.controllers import flat
+from flatcli.core.loop import kernels
+from flatcli.core.loop.base import base_ops
 from flatcli.core.loop.integrate import make_trial_integrators
+from flatcli.core.loop.table import BASE
+from flatcli.core.plants import dynamic
 
 COMBINATIONS = {
     "paper kinematic": kernels.PAPER_KINEMATIC, "paper dynamic": kernels.PAPER_DYNAMIC,
-    "chain kinematic": kernels.CHAIN_KINEMATIC, "chain dynamic": kernels.CHAIN_DYNAMIC,
-    "as-built kinematic": asbuiltloop.ASBUILT_KINEMATIC,
-    "as-built dynamic": asbuiltloop.ASBUILT_DYNAMIC,
+    "chain kinematic": BASE[("flat", "chain", "kinematic")][0],
+    "chain dynamic": BASE[("flat", "chain", "dynamic")][0],
+    "as-built kinematic": BASE[("asbuilt", "asbuilt", "kinematic")][0],
+    "as-built dynamic": BASE[("asbuilt", "asbuilt", "dynamic")][0],
 }
 
 
@@ -58,7 +63,8 @@ def test_no_two_combinations_share_a_closure_name() -> None:
             assert name not in seen, (label, seen.get(name), name)
             seen[name] = label
     # the same combination made again is the same code under the same names
-    assert closure_names(kernels.CHAIN_DYNAMIC) == closure_names(kernels.CHAIN_DYNAMIC)
+    assert closure_names(base_ops(flat.LAW, dynamic.PLANT)) == closure_names(
+        COMBINATIONS["chain dynamic"])
 
 
 def test_the_names_are_the_same_in_a_fresh_process() -> None:

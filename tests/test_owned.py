@@ -222,7 +222,7 @@ import flatcli.core._jit as jit
 from flatcli.core.robots.chain import barycentric_matrices, barycentric_matrix
 rng = np.random.default_rng(5)
 params = rng.uniform(0.05, 2.0, (20, 16))  # 20 chains of N = 3: mass, inertia, length, com
-pending = sorted(f.__name__ for f in jit._PENDING)
+pending = sorted(f.__name__ for f, _ in jit._PENDING)
 compiled = barycentric_matrices(params)
 same = all(barycentric_matrix(p[:4], p[8:12], p[12:]).tobytes() == compiled[i].tobytes()
            for i, p in enumerate(params))

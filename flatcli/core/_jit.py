@@ -131,8 +131,9 @@ def own_process() -> None:
 
     _owned.install(OWNERSHIP, CACHING)
 
-#: ``jitable`` functions not yet registered with numba (``Ownership.defer``).
-_PENDING: list[Callable[..., Any]] = []
+#: ``jitable`` functions not yet registered with numba (``Ownership.defer``), with numba's
+#: ``inline`` option for each.
+_PENDING: list[tuple[Callable[..., Any], str]] = []
 _PENDING_LOCK = threading.Lock()
 
 
@@ -141,19 +142,25 @@ def register_pending() -> int:
     with _PENDING_LOCK:
         functions = list(_PENDING)
         _PENDING.clear()
-    for fn in functions:
-        register_jitable(fn)
+    for fn, inline in functions:
+        register_jitable(inline=inline)(fn)
     return len(functions)
 
 
-def jitable(fn: F) -> F:
+def jitable(fn: F, inline: str = "never") -> F:
     """Mark a float/array function as callable from compiled kernels; behaviour is unchanged
     (registered with numba now, or before numba's first compile where ``Ownership.defer``)."""
     if OWNERSHIP.defer:
         with _PENDING_LOCK:
-            _PENDING.append(fn)
+            _PENDING.append((fn, inline))
         return fn
-    return register_jitable(fn)
+    return register_jitable(inline=inline)(fn)
+
+
+def inlined(fn: F) -> F:
+    """``jitable``, its body inlined into its callers by numba (a part's function that takes
+    whole records, which a call would pass by value, word by word: ``loop.base``)."""
+    return jitable(fn, "always")
 
 
 def variant_tag(*functions: Callable[..., Any]) -> str:

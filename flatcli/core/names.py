@@ -45,7 +45,7 @@ Integrator = Literal["adaptive", "rk4", "dop853"]
 INTEGRATORS: tuple[Integrator, ...] = ("adaptive", "rk4", "dop853")
 #: The feedback laws (``track.controller``): the paper's linearising feedback on the flat
 #: outputs of the nominal model (``controllers.control``), or the time-varying LQR of the
-#: robot as built (``controllers.lqr``, ``loop.asbuiltloop``), or model predictive control
+#: robot as built (``controllers.lqr``, ``controllers.asbuilt``), or model predictive control
 #: wrapping either (the flat law on a flat plan, the as-built law on an exact one) with a
 #: correction chosen at sample instants within the actuators' limits (``controllers.mpc``).
 Controller = Literal["flat", "asbuilt", "mpc"]

@@ -1,9 +1,9 @@
 """The compiled closed loop: one kernel factory, one kernel per (model, plant).
 
-A closed loop is the controller's model (the paper's closed form for N = 2, ``plant``'s
-right-hand sides, or the general chain of ``chainloop`` and ``chaindynamic``) driving a
-plant (kinematic or dynamic). Each combination supplies the same few functions, its
-``Ops``:
+A closed loop is the controller's model (the paper's closed form for N = 2, ``paperloop``'s
+right-hand sides, here; or a base law's part and a chain plant's part, composed by
+``base.base_ops``) driving a plant (kinematic or dynamic). Each combination supplies the
+same few functions, its ``Ops``:
 
 * ``make_loop(shared, trials, i, scratch)``: trial i's loop record (its plant, its H0, its
   servo; the controller's model and gains in ``shared``);
@@ -39,26 +39,6 @@ from numpy.typing import NDArray
 
 from flatcli.core._jit import jitable, jitable_variant, named_kernel, variant_tag
 from flatcli.core.controllers.control import Gains, add_to_accelerations
-from flatcli.core.loop.chaindynamic import (
-    ChainDynamicLoop,
-    chain_dynamic_aux,
-    chain_dynamic_initial,
-    chain_dynamic_loop,
-    chain_dynamic_rhs,
-    chain_dynamic_stage,
-    chain_dynamic_state,
-    make_scratch,
-    measure_chain_dynamic,
-    observe_chain_dynamic,
-    record_chain_dynamic,
-)
-from flatcli.core.loop.chainloop import (
-    ChainLoop,
-    chain_rhs,
-    measure_chain,
-    observe_chain,
-    plan_residual,
-)
 from flatcli.core.loop.integrate import (
     WORK_ROWS,
     make_trial_integrators,
@@ -98,7 +78,6 @@ from flatcli.core.loop.paperloop import (
     observe_kinematic,
     record_dynamic,
 )
-from flatcli.core.models.chainflat import Scratch, scratch
 from flatcli.core.robots.chain import barycentric_matrices, barycentric_matrix
 from flatcli.core.robots.dynamics import ThreeBody
 from flatcli.core.robots.params import (
@@ -508,13 +487,6 @@ def _rates_or_torques_bounded(loop: Any) -> bool:
 
 
 @jitable
-def _plant_bounded(loop: Any) -> bool:
-    """``_rates_or_torques_bounded`` of a loop whose dynamic plant is a part
-    (``plants.dynamic.ServoPlant``)."""
-    return _rates_or_torques_bounded(loop.plant)
-
-
-@jitable
 def _copy_initial(loop: Any, initial: Array, ref0: Array, x0: Array) -> None:
     for k in range(x0.shape[0]):
         x0[k] = initial[k]
@@ -563,90 +535,6 @@ PAPER_DYNAMIC = Ops(
     measure=measure_dynamic)
 
 
-# --------------------------------------------------------------------------------------
-# Chains of N links: the general model of ``chainloop`` and ``chaindynamic``
-
-
-class ChainShared(NamedTuple):
-    """The controller of a chain: its K (N + 1, N + 1) and inertias (N + 1,), gains kp, kv
-    (N,), the joint-rate limit [rad/s], and whether the dynamic plant's servo knows the
-    plant (else it believes the controller's chain)."""
-
-    Kc: Array
-    Ic: Array
-    kp: Array
-    kv: Array
-    rate_limit: float
-    servo_is_plant: bool
-
-
-class ChainScratch(NamedTuple):
-    """A chain loop's buffers: the kinematic loop's rows (8, N + 1) and the flat maps'
-    (``chainflat.Scratch``); the dynamic loop's rows and its plant's rows, trigonometry
-    (the plant's and the servo model's) and matrices (``chaindynamic.make_scratch``)."""
-
-    rows: Array
-    maps: Scratch
-    dynamic_rows: Array
-    plant_rows: Array
-    trig: Array
-    servo_trig: Array
-    matrices: Array
-
-
-def _chain_scratch(n: int) -> ChainScratch:
-    return ChainScratch(np.zeros((8, n + 1)), scratch(n), *make_scratch(n))
-
-
-@jitable
-def _chain_kinematic_loop(shared: ChainShared, trials: TrialArrays, i: int,
-                          scratch: ChainScratch) -> ChainLoop:
-    p = trials.params[i]
-    nb = shared.Ic.shape[0]
-    offset = trials.offset[i]
-    return ChainLoop(shared.Kc, shared.Ic, shared.kp, shared.kv, trials.plant[i],
-                     p[nb: 2 * nb], p, trials.h0[i], shared.rate_limit, scratch.rows,
-                     scratch.maps, np.cos(offset), np.sin(offset))
-
-
-@jitable
-def _chain_dynamic_loop(shared: ChainShared, trials: TrialArrays, i: int,
-                        scratch: ChainScratch) -> ChainDynamicLoop:
-    p = trials.params[i]
-    nb = shared.Ic.shape[0]
-    return chain_dynamic_loop(shared.Kc, shared.Ic, shared.kp, shared.kv, trials.plant[i],
-                              p[nb: 2 * nb], shared.servo_is_plant, p, trials.h0[i],
-                              shared.rate_limit, trials.servo[i, 0], trials.servo[i, 1],
-                              scratch.dynamic_rows, scratch.plant_rows, scratch.trig,
-                              scratch.servo_trig, scratch.matrices, scratch.maps,
-                              trials.offset[i])
-
-
-@jitable
-def _chain_residual(loop: Any, trials: TrialArrays, i: int, plan_theta: Array,
-                    plan_theta_dot: Array) -> float:
-    return plan_residual(plan_theta, plan_theta_dot, trials.params[i], trials.h0[i],
-                         loop.work.cs, loop.work.sn, loop.cos_p, loop.sin_p)
-
-
-@jitable
-def _chain_dynamic_residual(loop: Any, trials: TrialArrays, i: int, plan_theta: Array,
-                            plan_theta_dot: Array) -> float:
-    return plan_residual(plan_theta, plan_theta_dot, trials.params[i], trials.h0[i],
-                         loop.work.cs, loop.work.sn, loop.plant.cos_p, loop.plant.sin_p)
-
-
-CHAIN_KINEMATIC = Ops(
-    _chain_kinematic_loop, _rates_bounded, _copy_initial, chain_rhs, observe_chain,
-    record_rates, _chain_residual, lambda n: 2 * n, lambda n: 1, lambda n: 3 * n + 1,
-    _chain_scratch, additive=flat_additive, measure=measure_chain)
-CHAIN_DYNAMIC = Ops(
-    _chain_dynamic_loop, _plant_bounded, chain_dynamic_initial, chain_dynamic_rhs,
-    observe_chain_dynamic, record_chain_dynamic, _chain_dynamic_residual, chain_dynamic_state,
-    chain_dynamic_aux, lambda n: 4 * n + 2, _chain_scratch, chain_dynamic_stage,
-    additive=flat_additive, measure=measure_chain_dynamic)
-
-
 def paper_shared(model: Any, gains: Gains, rate_limit: float, servo_is_plant: bool,
                  robot: RobotParams) -> PaperShared:
     """What every trial shares in the paper's closed form: its coefficients, gains, the
@@ -665,16 +553,6 @@ def paper_shared(model: Any, gains: Gains, rate_limit: float, servo_is_plant: bo
                        ThreeBody(K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2], K[2, 2],
                                  links.i0, links.i1, links.i2),
                        links, servo_is_plant)
-
-
-def chain_shared(model: Any, gains: Gains, rate_limit: float, servo_is_plant: bool,
-                 robot: RobotParams) -> ChainShared:
-    """What every trial shares in the general chain: the controller's K and inertias,
-    gains, the rate limit, whether the servo knows the plant (writable copies: the model's
-    arrays are read-only, a type the kernels' plant records do not share)."""
-    return ChainShared(np.array(model.K, dtype=float), np.array(model.inertia, dtype=float),
-                       np.asarray(gains.kp, dtype=float), np.asarray(gains.kv, dtype=float),
-                       float(rate_limit), servo_is_plant)
 
 
 def paper_plant(params: Array, plant: str) -> Array:

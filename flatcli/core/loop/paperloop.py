@@ -1,6 +1,7 @@
 """The paper's robot (N = 2) in closed loop, in closed form: the right-hand sides of its
 kinematic and dynamic plants under the controller (``simulate`` runs them for a flat plan of
-three links; ``chainloop`` and ``chaindynamic`` are the same loops for any N).
+three links; ``controllers.flat`` on ``plants``, composed by ``base``, are the same loops for
+any N).
 
 The controller (``control.feedback``) believes the nominal model; the plant always obeys the
 true physics (the derived constraint for its own parameters, d2 of any value, and its own

@@ -22,7 +22,7 @@ A chain of N joints (``ChainModel``) is blended the same way: u_j' = y_jd'' + w 
 y_jd'') for the inner joints and th_N' = th_Nd' + w (th_N'_fb - th_Nd'), the feedback's being
 the chain's linearising inputs for v_j = y_jd'' + kv_j (y_jd' - y_j') + kp_j (y_jd - y_j)
 (``chainflat.inputs``, as the compiled chain loop commands them), on the kinematic plant of
-state (th0..thN, u_1..u_N-1), its joint rates clipped as the paper's (``chainloop``).
+state (th0..thN, u_1..u_N-1), its joint rates clipped as the paper's (``plants.kinematic``).
 """
 
 from __future__ import annotations

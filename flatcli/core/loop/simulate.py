@@ -25,7 +25,7 @@ torque limit may differ per trial (``Trials.servo``).
 Every trial is integrated alone by the same compiled code, so its result does not depend on
 which other trials share the batch, the order, the worker or the executor (bit for bit).
 The compiled batch kernels are made by ``kernels`` (the paper's robot's closed forms from
-``plant``; N-link chains from ``chainloop`` and ``chaindynamic``); this module holds the
+``paperloop``; N-link chains from a law's part and a plant's, ``base``); this module holds the
 public API and chooses among them.
 """
 

@@ -1,8 +1,9 @@
 """The table of compiled kernels, generated: one entry per (controller, model kind, plant).
 
-The base laws' combinations (``BASE``: the flat law on the paper's closed form and on chains,
-``kernels``; the as-built law, ``asbuiltloop``; each on the kinematic and the dynamic plant,
-``plants``) are compiled here; every controller that acts at sample instants (``SAMPLED``:
+The base laws' combinations (``BASE``: the flat law on the paper's closed form, ``kernels``;
+the flat law on chains and the as-built law, ``controllers.flat`` and ``controllers.asbuilt``,
+each composed with the kinematic and the dynamic plant, ``plants``, by ``base.base_ops``) are
+compiled here; every controller that acts at sample instants (``SAMPLED``:
 a ``controllers.parts.SampledPart``) is composed with each of them by ``compose.sampled_ops``
 and compiled here too, so a new sampled controller is its module plus one line in
 ``SAMPLED``. The kernels are made when this module is imported
@@ -12,26 +13,34 @@ this module to find one by name).
 
 from __future__ import annotations
 
-from flatcli.core.controllers import mpc, python
+from flatcli.core.controllers import asbuilt, flat, mpc, python
 from flatcli.core.controllers.parts import SampledPart
 from flatcli.core.errors import FlatcliError
-from flatcli.core.loop import kernels as flat
-from flatcli.core.loop.asbuiltloop import ASBUILT_DYNAMIC, ASBUILT_KINEMATIC, asbuilt_shared
+from flatcli.core.loop import kernels as paper
+from flatcli.core.loop.base import base_ops
 from flatcli.core.loop.compose import sampled_ops
-from flatcli.core.loop.kernels import Kernels, compile_kernels
+from flatcli.core.loop.kernels import Kernels, chain_plant, compile_kernels
+from flatcli.core.plants import dynamic, kinematic
 
 #: The base laws' combinations, by (law, model kind, plant): their ``kernels.Ops``, how their
 #: shared record and per-trial plant arrays are made ("command": the commands of a controller
 #: written in Python, ``controllers.python``, given to the plant).
+#: A chain's combinations are a law's part and a plant's (``base.base_ops``): a new plant
+#: is its module (a ``plants.part.PlantPart``) and a line per law here.
 BASE = {
-    ("flat", "paper", "kinematic"): (flat.PAPER_KINEMATIC, flat.paper_shared, flat.paper_plant),
-    ("command", "paper", "kinematic"): (flat.PAPER_COMMAND, flat.paper_shared,
-                                        flat.paper_plant),
-    ("flat", "paper", "dynamic"): (flat.PAPER_DYNAMIC, flat.paper_shared, flat.paper_plant),
-    ("flat", "chain", "kinematic"): (flat.CHAIN_KINEMATIC, flat.chain_shared, flat.chain_plant),
-    ("flat", "chain", "dynamic"): (flat.CHAIN_DYNAMIC, flat.chain_shared, flat.chain_plant),
-    ("asbuilt", "asbuilt", "kinematic"): (ASBUILT_KINEMATIC, asbuilt_shared, flat.chain_plant),
-    ("asbuilt", "asbuilt", "dynamic"): (ASBUILT_DYNAMIC, asbuilt_shared, flat.chain_plant),
+    ("flat", "paper", "kinematic"): (paper.PAPER_KINEMATIC, paper.paper_shared,
+                                     paper.paper_plant),
+    ("command", "paper", "kinematic"): (paper.PAPER_COMMAND, paper.paper_shared,
+                                        paper.paper_plant),
+    ("flat", "paper", "dynamic"): (paper.PAPER_DYNAMIC, paper.paper_shared, paper.paper_plant),
+    ("flat", "chain", "kinematic"): (base_ops(flat.LAW, kinematic.PLANT), flat.LAW.shared,
+                                     chain_plant),
+    ("flat", "chain", "dynamic"): (base_ops(flat.LAW, dynamic.PLANT), flat.LAW.shared,
+                                   chain_plant),
+    ("asbuilt", "asbuilt", "kinematic"): (base_ops(asbuilt.LAW, kinematic.PLANT),
+                                          asbuilt.LAW.shared, chain_plant),
+    ("asbuilt", "asbuilt", "dynamic"): (base_ops(asbuilt.LAW, dynamic.PLANT),
+                                        asbuilt.LAW.shared, chain_plant),
 }
 
 #: The controllers that act at sample instants, by ``track.controller``.

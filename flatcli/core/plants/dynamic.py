@@ -13,18 +13,23 @@ of the *servo's model* (the plant itself, or a nominal chain with its own turn o
 link) at the true joint angles and rates. Where the servo's model is the plant's and no
 torque is clipped, each joint rate follows its command as the first-order lag
 th_j'' = bandwidth (r_j - th_j'); the base turns as momentum conservation makes it.
+
+Its state is (th0..th_N, th0'..th_N'); it writes tau_1..tau_N [N m], 1.0 if a torque was
+clipped (else 0.0) and the clipped commands r_1..r_N [rad/s] as aux values; its trace columns
+are tau_1..tau_N and r_N (``PLANT``).
 """
 
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
-from flatcli.core._jit import jitable
-from flatcli.core.robots.chain import turn_last
+from flatcli.core._jit import inlined, jitable
+from flatcli.core.plants.part import PlantPart, plant_trig
+from flatcli.core.robots.chain import chain_momentum_given, plan_residual, turn_last
 from flatcli.core.robots.dynamics import (
     TRIG_ROWS,
     Chain,
@@ -95,29 +100,6 @@ def same_chain(a: Chain, b: Chain) -> bool:
             if a.coupling[i, k] != b.coupling[i, k]:
                 return False
     return True
-
-
-def make_scratch(n: int) -> tuple[Array, Array, Array, Array]:
-    """Scratch arrays of a ``ServoPlant`` of N joints: rows, trig, servo_trig, matrices."""
-    nb = n + 1
-    return (np.zeros((ROWS, nb)), np.zeros((TRIG_ROWS, nb)), np.zeros((TRIG_ROWS, nb)),
-            np.zeros((MATRICES, nb, nb)))
-
-
-@jitable
-def servo_plant(Kq: Array, Iq: Array, Ks: Array, Is: Array, servo_is_plant: bool,
-                offset: float, cos_s: float, sin_s: float, h0: float, rate_limit: float,
-                bandwidth: float, torque_limit: float, rows: Array, trig: Array,
-                servo_trig: Array, matrices: Array, lag_shortcut: bool) -> ServoPlant:
-    """A ``ServoPlant``: the plant's K ``Kq`` and inertias ``Iq``, its last link turned by
-    ``offset`` [rad]; the servo's model the plant (``servo_is_plant``) or the chain (Ks, Is)
-    turned by (cos_s, sin_s)."""
-    plant = Chain(Kq, Iq)
-    servo = plant if servo_is_plant else Chain(Ks, Is)
-    cos_p, sin_p = np.cos(offset), np.sin(offset)
-    same = servo_is_plant or (same_chain(plant, servo) and cos_p == cos_s and sin_p == sin_s)
-    return ServoPlant(plant, servo, same, h0, rate_limit, bandwidth, torque_limit, rows,
-                      trig, servo_trig, matrices, cos_p, sin_p, cos_s, sin_s, lag_shortcut)
 
 
 @jitable
@@ -257,3 +239,137 @@ def initial_base_rate(sp: ServoPlant, x0: Array) -> None:
     for k in range(1, nb):
         acc -= Mq[0, k] * x0[nb + k]
     x0[nb] = acc / Mq[0, 0]
+
+
+class DynamicPlant(NamedTuple):
+    """One trial's dynamic plant: its servo plant (``ServoPlant``), its (4 (N + 1),)
+    parameters (H from the full kinematics), rows (2, N + 1): its cos and sin for H."""
+
+    servo: ServoPlant
+    params: Array
+    rows: Array
+
+
+def scratch(n: int) -> tuple[Array, Array, Array, Array, Array]:
+    """A dynamic plant's buffers for N joints: its servo plant's rows, trig, servo_trig,
+    matrices (``ServoPlant``), then its rows for H."""
+    nb = n + 1
+    return (np.zeros((ROWS, nb)), np.zeros((TRIG_ROWS, nb)), np.zeros((TRIG_ROWS, nb)),
+            np.zeros((MATRICES, nb, nb)), np.zeros((2, nb)))
+
+
+@jitable
+def make(trials: Any, i: int, rate_limit: float, servo: Any, scratch: Any) -> DynamicPlant:
+    """Trial i's plant (``PlantPart.make``): its K, inertias, last link turned by its offset;
+    ``servo`` = (K, inertia, cos, sin of its turn, is_plant, lag_shortcut): the servo's model
+    the plant itself (is_plant) or that chain."""
+    Ks, Is, cos_s, sin_s, servo_is_plant, lag_shortcut = servo
+    p = trials.params[i]
+    Kq = trials.plant[i]
+    nb = Kq.shape[0]
+    plant = Chain(Kq, p[nb: 2 * nb])
+    model = plant if servo_is_plant else Chain(Ks, Is)
+    cos_p, sin_p = np.cos(trials.offset[i]), np.sin(trials.offset[i])
+    same = servo_is_plant or (same_chain(plant, model) and cos_p == cos_s and sin_p == sin_s)
+    sp = ServoPlant(plant, model, same, trials.h0[i], rate_limit, trials.servo[i, 0],
+                    trials.servo[i, 1], scratch[0], scratch[1], scratch[2], scratch[3], cos_p,
+                    sin_p, cos_s, sin_s, lag_shortcut)
+    return DynamicPlant(sp, p, scratch[4])
+
+
+@jitable
+def state(n: int) -> int:
+    """th0..th_N, th0'..th_N'."""
+    return 2 * n + 2
+
+
+def columns(n: int) -> int:
+    """tau_1..tau_N, r_N in a trace row."""
+    return n + 1
+
+
+@jitable
+def io(plant: DynamicPlant, x: Array) -> tuple[Array, Array]:
+    """Its commands' row; th0'..th_N'."""
+    nb = plant.rows.shape[1]
+    return plant.servo.rows[R], x[nb: 2 * nb]
+
+
+@inlined
+def rates(plant: DynamicPlant, x: Array, cs: Array, sn: Array, given: bool, out: Array,
+          at: int, torques: bool) -> None:
+    """th', th'' into out[:2 N + 2], its aux values at out[at:] (``servo_rates``)."""
+    sp = plant.servo
+    nb = plant.rows.shape[1]
+    theta, q_dot = x[:nb], x[nb: 2 * nb]
+    if given:  # the controller's trigonometry is the plant's (the same sums)
+        trig_given(sp, cs, sn, q_dot)
+    servo_rates(sp, theta, q_dot, out, at, torques, given)
+
+
+@jitable
+def start(plant: DynamicPlant, initial: Array, r: Array, x0: Array) -> None:
+    """th(0), th_j'(0) = r_j (the servo in equilibrium), th0'(0) such that H = (M q')_0 = H0
+    (``initial_base_rate``)."""
+    nb = plant.rows.shape[1]
+    for a in range(nb):
+        x0[a] = initial[a]
+    for j in range(nb - 1):
+        x0[nb + 1 + j] = r[j]
+    initial_base_rate(plant.servo, x0)
+
+
+@jitable
+def observed(plant: DynamicPlant, x: Array, f: Array, at: int, cs: Array, sn: Array,
+             given: bool) -> tuple[float, float, float, bool, float, float]:
+    """H with its own rates, the largest joint rate and torque; clipped where a servo's set
+    point (a clipped command r_j) is at the limit."""
+    sp = plant.servo
+    nb = plant.rows.shape[1]
+    n = nb - 1
+    peak = 0.0
+    torque = 0.0
+    for i in range(n):
+        peak = max(peak, abs(x[nb + 1 + i]))
+        torque = max(torque, abs(f[at + i]))
+    pcs, psn = plant_trig(x[:nb], cs, sn, given, plant.rows[0], plant.rows[1], sp.cos_p,
+                          sp.sin_p)
+    h = chain_momentum_given(plant.params, pcs, psn, x[nb: 2 * nb])
+    clipped = False
+    for i in range(n):
+        clipped = clipped or abs(f[at + n + 1 + i]) >= sp.rate_limit
+    return h, sp.h0, peak, clipped, torque, f[at + n]
+
+
+@jitable
+def record(plant: DynamicPlant, trace: Array, j: int, col: int, x: Array, f: Array,
+           at: int, commands: bool) -> None:
+    """[r_1..r_N-1,] tau_1..tau_N, r_N."""
+    n = plant.rows.shape[1] - 1
+    if commands:
+        for i in range(n - 1):
+            trace[j, col + i] = f[at + n + 1 + i]
+        col += n - 1
+    for i in range(n):
+        trace[j, col + i] = f[at + i]
+    trace[j, col + n] = f[at + 2 * n]
+
+
+@jitable
+def residual(plant: DynamicPlant, trials: Any, i: int, plan_theta: Array,
+             plan_theta_dot: Array) -> float:
+    sp = plant.servo
+    return plan_residual(plan_theta, plan_theta_dot, plant.params, sp.h0, plant.rows[0],
+                         plant.rows[1], sp.cos_p, sp.sin_p)
+
+
+@jitable
+def bounded(plant: DynamicPlant) -> bool:
+    """Its servos' commands clipped to a finite rate limit, or their torques to a finite
+    torque limit (0 included: no torque at all)."""
+    sp = plant.servo
+    return not (math.isinf(sp.rate_limit) and math.isinf(sp.torque_limit))
+
+
+PLANT = PlantPart("dynamic", scratch, make, state, aux, columns, io, rates, start,
+                  observed, record, residual, bounded, rate_states=True, torques=True)

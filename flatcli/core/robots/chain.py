@@ -347,3 +347,18 @@ def chain_momentum_given(params: Array, cs: Array, sn: Array, theta_dot: Array) 
         px, py = px + length * c, py + length * s
         qx, qy = qx - length * w * s, qy + length * w * c
     return h - (mx * mvy - my * mvx) / total  # type: ignore[no-any-return]  # complex-safe
+
+
+@jitable
+def plan_residual(plan_theta: Array, plan_theta_dot: Array, params: Array, h0: float,
+                  cs: Array, sn: Array, cos_p: float = 1.0, sin_p: float = 0.0) -> float:
+    """max_j |H - H0| of a plan's own samples (p, N + 1) with a plant's (4 (N + 1),)
+    parameters [kg m^2/s] (cs, sn: scratch (N + 1,); cos_p, sin_p: the plant's turn of its
+    last link)."""
+    residual = 0.0
+    for j in range(plan_theta.shape[0]):
+        link_trig(plan_theta[j], cs, sn)
+        turn_last(cs, sn, cos_p, sin_p)
+        residual = max(residual, abs(chain_momentum_given(params, cs, sn, plan_theta_dot[j])
+                                     - h0))
+    return residual
