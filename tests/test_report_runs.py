@@ -77,3 +77,20 @@ def test_track_metrics_are_printed_with_their_units() -> None:
     assert rows == {"err_theta_rms": "rad", "min_margin": "rad/s", "momentum_drift": "kg m^2/s",
                     "first_hit_time": "s", "peak_torque": "N m", "singular_hits": "",
                     "verified": "", "ee_error_final": "m"}
+
+
+def test_a_tracks_first_line_says_its_outcome_before_its_status() -> None:
+    """A trial integrated to T (status ok) that ended off its goal reads "missed" first, with
+    the reason, so "ok" is never the headline of a robot that did not do its job; without an
+    outcome (a plan's text) the line is the status alone."""
+    from flatcli.report.runs import metrics_text
+
+    missed = {"status": "ok", "outcome": "missed",
+              "outcome_reason": "at T th2 off by 0.0119 rad (track.goal_tolerance 0.001 rad)"}
+    assert metrics_text("x", missed).splitlines()[0] == (
+        "track 'x': missed (at T th2 off by 0.0119 rad (track.goal_tolerance 0.001 rad)); "
+        "status ok")
+    lost = {"status": "diverged", "reason": "beyond the bound at 0.5 s", "outcome": "lost"}
+    assert metrics_text("x", lost).splitlines()[0] == (
+        "track 'x': lost; status diverged (beyond the bound at 0.5 s)")
+    assert metrics_text("x", {"status": "ok"}).splitlines()[0] == "track 'x': status ok"

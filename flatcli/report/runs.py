@@ -161,13 +161,21 @@ def task_text(metrics: Mapping[str, object]) -> str:
 
 
 def metrics_text(name: str, metrics: Mapping[str, object]) -> str:
-    """Terminal summary of one closed-loop run: each metric with its unit (``flatcli.units``;
-    blank for a count or a flag)."""
+    """Terminal summary of one closed-loop run: its outcome first (whether the robot did its
+    job, and why not), then the integration's status, then each metric with its unit
+    (``flatcli.units``; blank for a count or a flag). A status ``ok`` says only that the
+    trial was integrated to T; the outcome says whether it ended at its goal."""
     from flatcli.units import DIMENSIONLESS, unit_of
 
     rows = [[k, v, "" if (unit := unit_of(k)) in (None, DIMENSIONLESS) else unit]
             for k, v in metrics.items() if k not in ("status", "reason", "event_time")]
-    head = f"track {name!r}: status {metrics['status']}"
+    head = f"track {name!r}: "
+    if metrics.get("outcome"):
+        head += str(metrics["outcome"])
+        if metrics.get("outcome_reason"):
+            head += f" ({metrics['outcome_reason']})"
+        head += "; "
+    head += f"status {metrics['status']}"
     if metrics.get("reason"):
         head += f" ({metrics['reason']})"
     return head + "\n" + table(["metric", "value", "unit"], rows, 5)
