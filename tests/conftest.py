@@ -128,6 +128,20 @@ def paper_gains(request: pytest.FixtureRequest) -> Gains:
 
 
 @pytest.fixture(scope="session")
+def replan() -> Plan:
+    """The plan the MPC tracks at 4 rad/s: the paper's maneuver re-planned to the least peak
+    joint rate (th2' at 3.5-3.75 rad/s for long stretches: the rate rows bind at many
+    samples)."""
+    from flatcli.api import load_spec
+    from flatcli.experiment import tracked_plan
+
+    plan, replanned = tracked_plan(load_spec(None, {"track.controller": "mpc",
+                                                   "track.rate_limit": 4.0}))
+    assert replanned
+    return plan
+
+
+@pytest.fixture(scope="session")
 def printed_gains() -> Gains:
     return PRINTED_GAINS
 

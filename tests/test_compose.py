@@ -568,17 +568,3 @@ def test_the_warm_started_mpc_ends_where_the_cold_one_does(replan) -> None:  # t
     assert np.all(warm_out.extra[:, 0] > 0)
     np.testing.assert_allclose(warm_out.trace[:, -1, :3], cold_out.trace[:, -1, :3],
                                atol=1e-10, rtol=0)
-
-
-@pytest.fixture(scope="module")
-def replan():  # type: ignore[no-untyped-def]
-    """The plan the MPC tracks at 4 rad/s: the paper's maneuver re-planned to the least peak
-    joint rate (th2' at 3.5-3.75 rad/s for long stretches: the rate rows bind at many
-    samples)."""
-    from flatcli.api import load_spec
-    from flatcli.experiment import tracked_plan
-
-    plan, replanned = tracked_plan(load_spec(None, {"track.controller": "mpc",
-                                                   "track.rate_limit": 4.0}))
-    assert replanned
-    return plan

@@ -342,17 +342,3 @@ def test_the_warm_start_changes_no_correction(replan) -> None:  # type: ignore[n
     np.testing.assert_allclose(warm_held, cold_held, atol=1e-9 * np.abs(cold_held).max(),
                                rtol=0)
     assert np.all(cold_guessed == 0) and warm_guessed[1:].max() > 1  # beyond the slack
-
-
-@pytest.fixture(scope="module")
-def replan():  # type: ignore[no-untyped-def]
-    """The plan the MPC tracks at 4 rad/s: the paper's maneuver re-planned to the least peak
-    joint rate (th2' at 3.5-3.75 rad/s for long stretches: the rate rows bind at many
-    samples)."""
-    from flatcli.api import load_spec
-    from flatcli.experiment import tracked_plan
-
-    plan, replanned = tracked_plan(load_spec(None, {"track.controller": "mpc",
-                                                   "track.rate_limit": 4.0}))
-    assert replanned
-    return plan
