@@ -1,4 +1,5 @@
-"""Tests of flatcli.core.loop.chainloop: the closed loop of an N-link chain.
+"""Tests of flatcli.core.controllers.flat: the flat law of an N-link chain in closed loop with
+the kinematic plant (flatcli.core.plants.kinematic, composed by flatcli.core.loop.base).
 
 References: for N = 2 the paper's closed-loop kernel (``simulate`` with ``plant``, itself
 checked against scipy's DOP853 and the closed-form error dynamics); for N >= 3, scipy's

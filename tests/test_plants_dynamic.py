@@ -15,7 +15,7 @@ References, none of them the code under test:
   kinetic energy summed over the links' velocities (``link_kinetic_energy`` below);
 * the closed form of a first-order lag, q' = r + (q'(0) - r) e^{-b t};
 * the kinematic N-link closed loop (checked against DOP853 and the closed-form error
-  dynamics in tests/test_chainloop.py) as the limit of infinite servo bandwidth.
+  dynamics in tests/test_controllers_flat.py) as the limit of infinite servo bandwidth.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 from scipy.integrate import solve_ivp
-from test_chainloop import chain_loop, example
+from test_controllers_flat import chain_loop, example
 
 from flatcli.core.controllers.control import Gains
 from flatcli.core.loop.metrics import Metric, Status
@@ -85,7 +85,7 @@ FIG4 = (1.96, 0.8, -0.1, 0.1)
 
 
 def chain_plan(n: int) -> tuple[Plan, RobotParams, Array]:
-    """The maneuver of tests/test_chainloop.py for n joints: plan, robot, start."""
+    """The maneuver of tests/test_controllers_flat.py for n joints: plan, robot, start."""
     robot, start, goal = example(n)
     return plan_chain(robot, start, goal, np.full(n - 1, 0.3), np.full(n - 1, 0.5), 2.0), \
         robot, start
