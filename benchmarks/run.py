@@ -45,6 +45,7 @@ from benchmarks.baselines import (
     pc_optimal,
     pc_point_to_point,
     plan_quality,
+    rhs_nanoseconds,
     robot_flat_system,
     shooting_plan,
     solve_ivp_trials_per_second,
@@ -313,10 +314,17 @@ def closed_loop(bench: Bench) -> None:
     bench.row(section, "same-work kernel, samples at t = 0 and T only, 1 thread",
               f"{m['kernel_ends']:.0f}", "", f"{1e6 / m['kernel_ends']:.0f} us/trial: the floor "
               "without outputs")
+    ns = rhs_nanoseconds(plan, trials)
+    floor_us = rhs * ns / 1000.0
+    bench.row(section, "arithmetic floor: right-hand sides x one right-hand side's cost",
+              f"{1e6 / floor_us:.0f}", f"flatcli {1e6 / m['flatcli'] / floor_us:.2f}x it",
+              f"{floor_us:.0f} us/trial = {rhs:.0f} x {ns:.1f} ns (the plan's flag and the loop "
+              "at a state, benchmarks/baselines/dopri.py: rhs_nanoseconds)")
     bench.raw["closed_loop"] = {"trials": n, "rounds": rounds, "trials_per_second": rates,
                                 "medians": m, "ratio_flatcli_to_kernel_1_thread": ratio,
                                 "ratio_every10": ratio10, "steps_median": steps,
-                                "rhs_median": rhs}
+                                "rhs_median": rhs, "rhs_ns": ns, "floor_us": floor_us,
+                                "ratio_flatcli_to_floor": 1e6 / m["flatcli"] / floor_us}
 
 
 def closed_loop_rk4(bench: Bench) -> None:

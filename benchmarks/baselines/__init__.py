@@ -35,6 +35,7 @@ from benchmarks.baselines.dopri import (
     dopri_inputs,
     dopri_metrics,
     dopri_trials_per_second,
+    rhs_nanoseconds,
 )
 from benchmarks.baselines.ivp import IvpRun, solve_ivp_trials_per_second
 from benchmarks.baselines.loop import LoopInputs, loop_inputs, plant_coefficients
@@ -101,6 +102,7 @@ __all__ = [
     "pc_point_to_point",
     "plan_quality",
     "plant_coefficients",
+    "rhs_nanoseconds",
     "robot_flat_system",
     "shooting_plan",
     "solve_ivp_trials_per_second",

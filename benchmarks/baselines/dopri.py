@@ -458,6 +458,55 @@ def dopri_metrics(plan: Plan, trials: Trials, tracking: Tracking = PAPER_TRACKIN
     return out
 
 
+@njit(cache=True, error_model="numpy")
+def _rhs_loop(poly: Array, duration: float, controller: Array, gains: Array, plant: Array,
+              states: Array, times: Array, lim: float) -> float:
+    """Every state (M, 4) at its time (M,) through the plan's flag and the closed loop's
+    right-hand side, one after another; a sum of the rates (so nothing is skipped)."""
+    total = 0.0
+    degree = poly.shape[2] - 1
+    for i in range(states.shape[0]):
+        s = times[i] / duration
+        f0 = f1 = f2 = f3 = f4 = f5 = 0.0  # Horner, in registers (``_plan`` builds a list)
+        for c in range(degree, -1, -1):
+            f0 = f0 * s + poly[0, 0, c]
+            f1 = f1 * s + poly[0, 1, c]
+            f2 = f2 * s + poly[1, 0, c]
+            f3 = f3 * s + poly[1, 1, c]
+            f4 = f4 * s + poly[2, 0, c]
+            f5 = f5 * s + poly[2, 1, c]
+        ref = (f0, f1, f2, f3, f4, f5)
+        r = _rates(states[i, 0], states[i, 1], states[i, 2], states[i, 3], ref, controller,
+                   gains, plant[0], 0.0, lim)
+        total += r[0] + r[1] + r[2] + r[3]
+    return total
+
+
+def rhs_nanoseconds(plan: Plan, trials: Trials, tracking: Tracking = PAPER_TRACKING,
+                    count: int = 1_000_000, repeat: int = 5) -> float:
+    """The arithmetic floor of one right-hand side [ns]: the plan's flag and the closed loop
+    at one state (``_plan``, ``_rates``: what each Dormand-Prince stage evaluates), over
+    ``count`` states near the trials' starts, one thread, the least of ``repeat`` runs.
+    The states are independent, so the processor may overlap them; the integrator's stages
+    depend on each other, so this is a floor, not the integrator's cost."""
+    import time
+
+    li = loop_inputs(plan, tracking, trials)
+    rng = np.random.default_rng(0)
+    start = li.initial[rng.integers(0, li.initial.shape[0], count)]
+    states = np.ascontiguousarray(start + rng.normal(0.0, 1e-3, start.shape))
+    times = rng.uniform(0.0, li.duration, count)
+    args = (li.poly, li.duration, li.controller, li.gains, li.plant, states, times,
+            li.rate_limit)
+    _rhs_loop(*args)
+    best = math.inf
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        _rhs_loop(*args)
+        best = min(best, time.perf_counter() - t0)
+    return 1e9 * best / count
+
+
 def dopri_trials_per_second(plan: Plan, trials: Trials, tracking: Tracking = PAPER_TRACKING,
                             threads: int = 2, repeat: int = 3, every: int = 1) -> Throughput:
     """Throughput of ``dopri_metrics`` after a warm-up (compilation, thread pool)."""
