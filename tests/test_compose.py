@@ -519,6 +519,99 @@ def test_the_dynamic_mpc_reaches_the_goal_within_4_rad_s(replan, monkeypatch) ->
     assert np.abs(_lagged_referee(replan, settings, dt, bandwidth, x0, limit) - goal).max() > 3e-3
 
 
+def _lagged_chain_referee(plan, settings: mpc.MpcSettings, dt: float, bandwidth: float,  # type: ignore[no-untyped-def]
+                          x0: Array, offsets: Array | None = None) -> Array:
+    """The final angles (N + 1,) of the flat-law MPC on a chain of N joints whose joint rates
+    w lag the commanded ones r as a first-order servo, w' = bandwidth (r - w), w(0) = r(0)
+    (the dynamic plant with the servo's model right and no torque clipped), no rate limit;
+    the base from H = 0 by the base's row of the Lagrangian mass matrix (``dynamics.
+    mass_matrix``, checked against sympy in tests/test_dynamics.py: h_0 th0' = -sum_j M_0j
+    w_j), not the momentum weights flatcli's loops use; the law on the chain's maps, y'
+    measured from its commanded u (as the loop measures). DOP853 at rtol 1e-11 between the
+    samples, the MPC's step at each on the design with ``offsets`` (default: the MPC's own,
+    ``mpc.tracked_offsets``)."""
+    from flatcli.core.robots.dynamics import make_chain, mass_matrix
+
+    n = plan.n_joints
+    robot = plan.robot
+    chain = make_chain(robot.mass, robot.inertia, robot.length, robot.com)
+    model = ChainModel.of(robot)
+    K, inertia = np.array(model.K), np.array(model.inertia)
+    if offsets is None:
+        offsets = mpc.tracked_offsets(plan, dt, settings, bandwidth, math.inf)
+    design = mpc.flat_design(plan.model, plan.trajectory, plan.duration, dt, math.inf,
+                             settings, offsets)
+    scratch = mpc.scratch(design)
+    mpc.reset(scratch)
+    kp = np.asarray(settings.kp, dtype=float)
+    kv = np.asarray(settings.kv, dtype=float)
+    ts = design.every * dt
+
+    def errors(t: float, x: Array) -> tuple[Array, Array, Array]:
+        y, y_dot, _ = model.outputs(x[None, : n + 1], x[None, n + 1: 2 * n])
+        flag = plan.trajectory.flags(np.array([t]))[0]
+        return y[0] - flag[:n], y_dot[0] - flag[n: 2 * n], flag
+
+    def command(t: float, x: Array, dv: Array) -> Array:
+        e, e_dot, flag = errors(t, x)
+        v = flag[2 * n:] + dv - kv * e_dot - kp * e
+        u_dot = np.zeros(n - 1)
+        last = inputs(K, inertia, x[: n + 1], x[n + 1: 2 * n], v, u_dot)
+        return np.r_[u_dot, x[n + 1: 2 * n], last]  # u', then the commands r (N,)
+
+    def rhs(t: float, x: Array, dv: Array) -> Array:
+        out = command(t, x, dv)
+        u_dot, r, w = out[: n - 1], out[n - 1:], x[2 * n:]
+        row = mass_matrix(chain, x[: n + 1])[0]
+        return np.r_[-(row[1:] @ w) / row[0], w, u_dot, bandwidth * (r - w)]
+
+    x = np.r_[x0, command(0.0, x0, np.zeros(n))[n - 1:]]
+    for k in range(design.samples):
+        e, e_dot, _ = errors(k * ts, x)
+        scratch.s0[0: 2 * n: 2], scratch.s0[1: 2 * n: 2] = e, e_dot
+        _step(design, scratch, k)
+        sol = solve_ivp(rhs, (k * ts, (k + 1) * ts), x, method="DOP853", rtol=REFEREE_RTOL,
+                        atol=1e-13, args=(scratch.held.copy(),))
+        assert sol.success
+        x = sol.y[:, -1]
+    return x[: n + 1]
+
+
+def test_the_dynamic_mpc_of_a_chain_is_its_lagged_loop_integrated_by_scipy() -> None:
+    """A chain of 3 joints (tests/test_controllers_flat.py's) on the dynamic plant (servo
+    100 rad/s, its model the plant, no torque limit): the flat-law MPC ends where the
+    referee's lagged chain ends (``_lagged_chain_referee``: the base from the Lagrangian's
+    momentum) to 1e-6 rad (3.7e-13, measured), and there within the goal's 1e-3 rad (2.1e-5);
+    with no servo offsets in its design (as before 2026-12-06 for N > 2) the referee's loop
+    ends beyond 1e-3 rad (0.015)."""
+    from test_controllers_flat import example
+
+    from flatcli.core.plan.planning import plan_chain
+
+    n = 3
+    robot, start, goal = example(n)
+    chain_plan = plan_chain(robot, start, goal, np.full(n - 1, 0.3), np.full(n - 1, 0.5), 2.0)
+    settings = mpc.MpcSettings(sample=0.2, horizon=5, kp=(16.0,) * n, kv=(8.0,) * n)
+    dt, bandwidth = 0.002, 100.0
+    x0 = np.r_[start + np.array([2e-3, -3e-3, 1e-3, 2e-3]), np.full(n - 1, 0.3)]
+    final = _lagged_chain_referee(chain_plan, settings, dt, bandwidth, x0)
+    scenario = Scenario(chain_plan, Gains((1.0,) * n, (2.0,) * n), dt=dt, controller="mpc",
+                        settings={"mpc": settings}, rtol=KERNEL_RTOL, atol=1e-13, twin=0.0,
+                        plant="dynamic", servo_model="plant", servo_bandwidth=bandwidth)
+    trials = Trials(robot.as_array()[None], np.zeros(1), x0[None],
+                    servo=np.array([[bandwidth, np.inf]]))
+    out = simulate(scenario, trials, "dop853", record=True)
+    assert out.status[0] == Status.OK
+    assert out.trace is not None
+    end = chain_plan.sample(np.array([chain_plan.duration])).theta[0]
+    np.testing.assert_allclose(out.trace[0, -1, : n + 1], final, atol=1e-6, rtol=0)
+    assert np.abs(final - end).max() < 1e-3
+    samples = round(chain_plan.duration / dt) // settings.every(dt, chain_plan.duration)
+    none = _lagged_chain_referee(chain_plan, settings, dt, bandwidth, x0,
+                                 np.zeros((samples, 2 * n)))
+    assert np.abs(none - end).max() > 1e-3
+
+
 def test_the_kinematic_design_carries_no_offset(plan) -> None:  # type: ignore[no-untyped-def]
     """On the kinematic plant the design is the one without the servo's offset: no constant
     state, the same tables (so the same numbers to the bit)."""

@@ -201,8 +201,7 @@ def flat_design(model: Any, trajectory: Any, duration: float, dt: float, rate_li
     every = settings.every(dt, duration)
     samples = round(duration / dt) // every
     ts = every * dt
-    kp = np.full(n, INNER_KP) if settings.kp is None else np.asarray(settings.kp, dtype=float)
-    kv = np.full(n, INNER_KV) if settings.kv is None else np.asarray(settings.kv, dtype=float)
+    kp, kv = _inner_gains_of(n, settings)
     if kp.shape != (n,) or kv.shape != (n,):
         raise FlatcliError(f"track.mpc_kp, track.mpc_kv: expected {n} gains each, one per "
                            "flat output")
@@ -253,74 +252,35 @@ def flat_design(model: Any, trajectory: Any, duration: float, dt: float, rate_li
 
 
 def servo_offsets(plan: Any, dt: float, settings: MpcSettings, bandwidth: float) -> Array:
-    """The offsets c_k (K, 4) of the flat law's measured errors over each sample that the
+    """The offsets c_k (K, 2 N) of the flat law's measured errors over each sample that the
     dynamic plant's servo lag makes along the plan, for ``flat_design``: the inner law
     (``inner_gains``, dv = 0) from the plan's start with no error, on the robot whose joint
     rates w follow the commanded ones r as the servo does when its model is right and no
     torque is clipped, w' = bandwidth (r - w) (w(0) = r(0)), the base turning as momentum
     conservation makes it (H = 0); the law measures y' from its own commanded rates (as the
-    dynamic loop's does), so its errors differ from zero by the lag alone. Integrated by
-    DOP853 (rtol ``DISCRETE_RTOL``); c_k = s_k+1 - A s_k with the measured errors s_k at
-    the samples. The paper's N = 2 only (the base rate from ``params.momentum``)."""
-    from scipy.integrate import solve_ivp
-
-    from flatcli.core.models.chainflat import inputs
-    from flatcli.core.models.flatmodel import ChainModel
-    from flatcli.core.robots.params import Links, momentum
-
-    n = plan.n_joints
-    if n != 2:
-        raise FlatcliError("track.controller = \"mpc\" on the dynamic plant: the servo's "
-                           "offset is modelled for N = 2 only")
-    model = ChainModel.of(plan.robot)
-    links = Links(*(float(v) for v in plan.robot.links))
+    dynamic loop's does), so its errors differ from zero by the lag alone (``lagged_run``).
+    c_k = s_k+1 - A s_k with the measured errors s_k at the samples."""
     every = settings.every(dt, plan.duration)
     samples = round(plan.duration / dt) // every
-    ts = every * dt
+    s, _ = lagged_run(plan, every * dt, samples, settings, bandwidth, math.inf, None)
+    a = _inner_transition(plan.n_joints, settings, every * dt)
+    return np.asarray(s[1:] - s[:-1] @ a.T)
+
+
+def _inner_gains_of(n: int, settings: MpcSettings) -> tuple[Array, Array]:
+    """The inner law's kp, kv (N,) of ``settings`` (``INNER_KP``, ``INNER_KV`` unless set)."""
     kp = np.full(n, INNER_KP) if settings.kp is None else np.asarray(settings.kp, dtype=float)
     kv = np.full(n, INNER_KV) if settings.kv is None else np.asarray(settings.kv, dtype=float)
-    K, inertia = np.array(model.K), np.array(model.inertia)
+    return kp, kv
 
-    def measured(x: Array, t: float) -> tuple[Array, Array]:
-        y, y_dot, _ = model.outputs(x[None, :3], x[None, 3:4])
-        flag = plan.trajectory.flags(np.array([t]))[0]
-        s = np.array([y[0, 0] - flag[0], y_dot[0, 0] - flag[2], y[0, 1] - flag[1],
-                      y_dot[0, 1] - flag[3]])
-        return s, flag
 
-    def law(t: float, x: Array) -> tuple[float, float]:
-        s, flag = measured(x, t)
-        v = flag[4:6] - kp * s[0::2] - kv * s[1::2]
-        u_dot = np.zeros(1)
-        u2 = inputs(K, inertia, x[:3], x[3:4], v, u_dot)
-        return float(u_dot[0]), float(u2)
-
-    def rhs(t: float, x: Array) -> Array:
-        u1_dot, u2 = law(t, x)
-        w1, w2 = x[4], x[5]
-        h_zero = momentum(links, x[0], x[1], x[2], 0.0, w1, w2)
-        h_one = momentum(links, x[0], x[1], x[2], 1.0, w1, w2)
-        return np.array([-h_zero / (h_one - h_zero), w1, w2, u1_dot,
-                         bandwidth * (x[3] - w1), bandwidth * (u2 - w2)])
-
-    start = plan.sample(np.array([0.0]))
-    x = np.array([*start.theta[0], start.theta_dot[0][1], *start.theta_dot[0][1:]])
-    a = np.zeros((4, 4))
+def _inner_transition(n: int, settings: MpcSettings, ts: float) -> Array:
+    """(2 N, 2 N): the inner law's errors (e_j, e_j') over one sample of ``ts`` [s]."""
+    kp, kv = _inner_gains_of(n, settings)
+    a = np.zeros((2 * n, 2 * n))
     for j in range(n):
         a[2 * j: 2 * j + 2, 2 * j: 2 * j + 2] = discretise(float(kp[j]), float(kv[j]), ts)[0]
-    offsets = np.zeros((samples, 4))
-    s_k = measured(x, 0.0)[0]
-    for k in range(samples):
-        sol = solve_ivp(rhs, (k * ts, (k + 1) * ts), x, method="DOP853", rtol=DISCRETE_RTOL,
-                        atol=DISCRETE_ATOL)
-        if not sol.success:
-            raise FlatcliError(f"track.mpc_sample: the servo's offset could not be "
-                               f"integrated over sample {k} ({sol.message})")
-        x = sol.y[:, -1]
-        s_next = measured(x, (k + 1) * ts)[0]
-        offsets[k] = s_next - a @ s_k
-        s_k = s_next
-    return offsets
+    return a
 
 
 #: ``tracked_offsets``: at most this many passes along the MPC's own path, stopping once the
@@ -361,66 +321,92 @@ def tracked_offsets(plan: Any, dt: float, settings: MpcSettings, bandwidth: floa
 
 def lagged_path(plan: Any, d: Design, dt: float, settings: MpcSettings, bandwidth: float,
                 rate_limit: float) -> tuple[Array, Array]:
-    """The MPC (design ``d``, with a servo offset) from the plan's start with no error on
-    the robot whose joint rates w follow the commands r clipped at ``rate_limit`` [rad/s],
-    w' = bandwidth (sat(r) - w), the law's integrator u1 held while its command is clipped
-    and pushed further (the dynamic plant's rule, ``control.unwound``), the base from H = 0
-    (``params.momentum``), each sample's correction from ``sample_step``. DOP853 at rtol
-    ``DISCRETE_RTOL``. Returns the errors measured at the samples (K + 1, 4) (e1, e1', e2,
-    e2'; y' from the commanded u1, as the loop measures) and the corrections held (K, 2)
-    [rad/s^2]. The paper's N = 2 only."""
+    """The MPC (design ``d``, with a servo offset) from the plan's start with no error on the
+    lagged robot (``lagged_run``) with its joint-rate commands clipped at ``rate_limit``
+    [rad/s], each sample's correction from ``sample_step``. Returns the errors measured at
+    the samples (K + 1, 2 N) (e_j, e_j' per flat output; y' from the commanded rates, as the
+    loop measures) and the corrections held (K, N) [rad/s^2]."""
+    s = scratch(d)
+    reset(s)
+    size = 2 * plan.n_joints
+
+    def step(k: int, errors: Array) -> Array:
+        s.s0[:size] = errors
+        sample_step(d, s, k)
+        return np.asarray(s.held, dtype=float).copy()
+
+    return lagged_run(plan, d.every * dt, d.samples, settings, bandwidth, rate_limit, step)
+
+
+def lagged_run(plan: Any, ts: float, samples: int, settings: MpcSettings, bandwidth: float,
+               rate_limit: float, step: Any) -> tuple[Array, Array]:
+    """The inner flat law (``settings``' gains) from the plan's start with no error, N joints,
+    on the robot whose joint rates w follow the commands r clipped at ``rate_limit``
+    [rad/s] as a first-order servo, w' = bandwidth (sat(r) - w) (what the dynamic plant does
+    when the servo's model is right and no torque is clipped), w(0) = r(0); the law's
+    integrators u_j held while their command is clipped and pushed further (the dynamic
+    plant's rule, ``control.unwound``); the base from H = 0 with the robot's momentum
+    weights (``chain.momentum_weights``: h_0 th0' = -sum_j h_j w_j); dv_k = step(k, s_k)
+    added to the law's y'' over sample k (``step`` None: dv = 0). State (th0..thN,
+    u_1..u_N-1, w_1..w_N), DOP853 at rtol ``DISCRETE_RTOL`` over each sample of ``ts`` [s].
+    Returns the errors measured at the samples (K + 1, 2 N) (e_j = y_j - y_jd, then e_j';
+    y' from the commanded u, as the loop measures) and the corrections held (K, N)."""
     from scipy.integrate import solve_ivp
 
     from flatcli.core.models.chainflat import inputs
     from flatcli.core.models.flatmodel import ChainModel
-    from flatcli.core.robots.params import Links, momentum
+    from flatcli.core.robots.chain import momentum_weights
 
+    n = plan.n_joints
     model = ChainModel.of(plan.robot)
-    links = Links(*(float(v) for v in plan.robot.links))
-    kp = np.asarray(settings.kp if settings.kp is not None else (INNER_KP,) * 2, dtype=float)
-    kv = np.asarray(settings.kv if settings.kv is not None else (INNER_KV,) * 2, dtype=float)
+    kp, kv = _inner_gains_of(n, settings)
     K, inertia = np.array(model.K), np.array(model.inertia)
-    ts = d.every * dt
     limit = rate_limit if math.isfinite(rate_limit) else math.inf
+    nb = n + 1
+    weights = np.zeros(nb)
 
     def measured(x: Array, t: float) -> tuple[Array, Array]:
-        y, y_dot, _ = model.outputs(x[None, :3], x[None, 3:4])
-        flag = plan.trajectory.flags(np.array([t]))[0]
-        return np.array([y[0, 0] - flag[0], y_dot[0, 0] - flag[2], y[0, 1] - flag[1],
-                         y_dot[0, 1] - flag[3]]), flag
+        y, y_dot, _ = model.outputs(x[None, :nb], x[None, nb: nb + n - 1])
+        flag = plan.trajectory.flags(np.array([t]))[0]  # y, y', y'' (3 N,)
+        s = np.empty(2 * n)
+        s[0::2] = y[0] - flag[:n]
+        s[1::2] = y_dot[0] - flag[n: 2 * n]
+        return s, flag
 
     def rhs(t: float, x: Array, dv: Array) -> Array:
         s, flag = measured(x, t)
-        v = flag[4:6] + dv - kp * s[0::2] - kv * s[1::2]
-        u_dot = np.zeros(1)
-        u2 = inputs(K, inertia, x[:3], x[3:4], v, u_dot)
-        u1_dot = float(u_dot[0])
-        if (x[3] >= limit and u1_dot > 0.0) or (x[3] <= -limit and u1_dot < 0.0):
-            u1_dot = 0.0
-        r1, r2 = min(max(x[3], -limit), limit), min(max(float(u2), -limit), limit)
-        h_zero = momentum(links, x[0], x[1], x[2], 0.0, x[4], x[5])
-        h_one = momentum(links, x[0], x[1], x[2], 1.0, x[4], x[5])
-        return np.array([-h_zero / (h_one - h_zero), x[4], x[5], u1_dot,
-                         bandwidth * (r1 - x[4]), bandwidth * (r2 - x[5])])
+        v = flag[2 * n:] + dv - kp * s[0::2] - kv * s[1::2]
+        theta, u, w = x[:nb], x[nb: nb + n - 1], x[nb + n - 1:]
+        u_dot = np.zeros(n - 1)
+        r_last = float(inputs(K, inertia, theta, u, v, u_dot))
+        out = np.empty_like(x)
+        for j in range(n - 1):
+            if (u[j] >= limit and u_dot[j] > 0.0) or (u[j] <= -limit and u_dot[j] < 0.0):
+                u_dot[j] = 0.0
+        r = np.clip(np.append(u, r_last), -limit, limit)
+        momentum_weights(K, inertia, theta, weights)
+        out[0] = -float(weights[1:] @ w) / weights[0]
+        out[1:nb] = w
+        out[nb: nb + n - 1] = u_dot
+        out[nb + n - 1:] = bandwidth * (r - w)
+        return out
 
     start = plan.sample(np.array([0.0]))
-    x = np.array([*start.theta[0], start.theta_dot[0][1], *start.theta_dot[0][1:]])
-    s = scratch(d)
-    reset(s)
-    errors = np.zeros((d.samples + 1, 4))
-    held = np.zeros((d.samples, 2))
-    for k in range(d.samples):
+    rates = start.theta_dot[0][1:]  # th1'..thN' of the plan at t = 0
+    x = np.concatenate([start.theta[0], rates[:n - 1], rates])
+    errors = np.zeros((samples + 1, 2 * n))
+    held = np.zeros((samples, n))
+    for k in range(samples):
         errors[k] = measured(x, k * ts)[0]
-        s.s0[:4] = errors[k]
-        sample_step(d, s, k)
-        held[k] = s.held
+        if step is not None:
+            held[k] = step(k, errors[k])
         sol = solve_ivp(rhs, (k * ts, (k + 1) * ts), x, method="DOP853", rtol=DISCRETE_RTOL,
                         atol=DISCRETE_ATOL, args=(held[k].copy(),))
         if not sol.success:
-            raise FlatcliError(f"track.mpc_sample: the MPC's path on the lagged robot could "
-                               f"not be integrated over sample {k} ({sol.message})")
+            raise FlatcliError(f"track.mpc_sample: the servo's lag could not be integrated "
+                               f"over sample {k} ({sol.message})")
         x = sol.y[:, -1]
-    errors[-1] = measured(x, d.samples * ts)[0]
+    errors[-1] = measured(x, samples * ts)[0]
     return errors, held
 
 
@@ -753,7 +739,7 @@ def design_for(scenario: Any) -> Design:
                               settings, servo)
     plan = scenario.plan
     offsets = None
-    if scenario.plant == "dynamic" and plan.n_joints == 2:
+    if scenario.plant == "dynamic":
         offsets = tracked_offsets(plan, scenario.dt, settings, scenario.servo_bandwidth,
                                   scenario.rate_limit)
     return flat_design(plan.model, plan.trajectory, plan.duration, scenario.dt,
