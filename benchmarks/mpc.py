@@ -9,7 +9,10 @@
   compiled, called in a compiled loop from the errors measured at the samples of recorded
   trials: the first sample of the maneuver (all 20 samples ahead and the terminal
   condition), and the mean over the maneuver's samples (each trial's samples in turn, as
-  the loop calls them), with the warm start (the default) and without.
+  the loop calls them), with the warm start (the default) and without;
+* on the dynamic plant at a 10 N m torque limit (b = 100 rad/s): the cubic tracked as it is
+  against the MPC's re-plan within the torque limit (the plan of largest margin): the torque
+  each asks, the re-plan's and the designs' seconds, seconds per trial and reached.
 
 The issue's goals: an MPC trial at most 20x a paper-feedback trial in the same sweep; one
 step at horizon 20 at most 50 us on one core.
@@ -191,6 +194,79 @@ def step_time(bench: Any, repeats: int, rate_limit: float) -> dict[str, float]:
     return out
 
 
+#: The torque limit of the re-plan's bench [N m] (below the cubic's 32.6 N m peak) and the
+#: dynamic plant's servo (docs/physics.md's torque table: b = 100 rad/s, its model right).
+TORQUE_LIMIT = 10.0
+DYNAMIC = {"plant.model": "dynamic", "plant.servo_bandwidth": 100.0,
+           "track.initial": [1.8, 1.0, 0.0]}
+
+
+def torque_replan(bench: Any, count: int, repeats: int) -> dict[str, float]:
+    """The MPC on the dynamic plant at ``TORQUE_LIMIT``: the spec's cubic tracked as it is (as
+    before the torque re-plan) against the re-plan of largest margin
+    (``experiment.mpc_reference``), both on the same trials at the limit: what
+    each plan asks (``peak_joint_torque``), the re-plan's and each design's seconds
+    (``mpc_reference``; ``mpc.design_for`` with the servo offsets on the MPC's own path),
+    seconds per trial (``simulate``, the same ``count`` trials, th(0) off by up to 2 mrad,
+    best of ``repeats``), reached (within 1e-3 rad at T) and the median peak torque
+    applied."""
+    from flatcli.api import load_spec
+    from flatcli.core.controllers.mpc import design_for
+    from flatcli.core.loop.metrics import Metric, Status
+    from flatcli.core.loop.simulate import simulate
+    from flatcli.experiment import (
+        mpc_reference,
+        peak_joint_torque,
+        plan_from,
+        scenario_from,
+    )
+
+    spec = load_spec(None, {"track.controller": "mpc", **DYNAMIC,
+                            "plant.torque_limit": TORQUE_LIMIT})
+    cubic = plan_from(spec)
+    seconds = []
+    for _ in range(repeats):
+        started = time.perf_counter()
+        replan, replanned = mpc_reference(spec, cubic)
+        seconds.append(time.perf_counter() - started)
+    assert replanned
+    out: dict[str, float] = {"replan_seconds": float(min(seconds))}
+    rows = []
+    for name, plan in (("cubic", cubic), ("replan", replan)):
+        scenario = scenario_from(spec, plan)
+        started = time.perf_counter()
+        design_for(scenario)
+        out[f"{name}_design_seconds"] = time.perf_counter() - started
+        scenario = scenario.prepared()
+        trials = _trials(spec, plan, count)
+        simulate(scenario, trials.subset(slice(0, 2)))  # compiled, warm
+        best = np.inf
+        for _ in range(repeats):
+            started = time.perf_counter()
+            result = simulate(scenario, trials)
+            best = min(best, time.perf_counter() - started)
+        assert result.final is not None
+        goal = plan.sample(np.array([plan.duration])).theta[0]
+        miss = np.abs(result.final - goal).max(axis=1)
+        reached = int(np.sum((result.status == Status.OK) & (miss <= 1e-3)))
+        peak = float(np.median(result.metrics[:, Metric.PEAK_TORQUE]))
+        need = peak_joint_torque(spec, plan)[1]
+        out.update({f"{name}_trial_seconds": best / count, f"{name}_reached": reached,
+                    f"{name}_need": need, f"{name}_peak_torque": peak})
+        rows.append((name, need, peak, reached, best / count))
+    for name, need, peak, reached, per in rows:
+        what = ("the cubic (not re-planned)" if name == "cubic" else
+                "the re-plan of largest margin")
+        design = out[f"{name}_design_seconds"]
+        bench.row(SECTION, f"the MPC at {TORQUE_LIMIT:g} N m on the dynamic plant: {what} "
+                  f"({count} trials)", f"{per * 1e3:.2f} ms a trial",
+                  f"{per / out['cubic_trial_seconds']:.2f}x", f"reached {reached}/{count}",
+                  f"plan asks {need:.3g} N m, trials apply {peak:.3g} N m (median peak); "
+                  f"design {design:.1f} s"
+                  + (f", re-plan {out['replan_seconds']:.2f} s" if name == "replan" else ""))
+    return out
+
+
 def run_all(bench: Any) -> None:
     quick = bench.quick
     count, pairs = (50, 3) if quick else (200, 7)
@@ -199,4 +275,5 @@ def run_all(bench: Any) -> None:
         "limit_4": trial_ratio(bench, 4.0, count, pairs),
         "step_limit_4": step_time(bench, 20 if quick else 200, 4.0),
         "step_unlimited": step_time(bench, 20 if quick else 200, float("inf")),
+        "torque_replan": torque_replan(bench, 20 if quick else 100, 1 if quick else 3),
     }

@@ -29,6 +29,7 @@ from flatcli.core.loop.simulate import (
     Trials,
     simulate,
 )
+from flatcli.core.names import Objective
 from flatcli.core.plan.exact import method_for, plan_exact
 from flatcli.core.plan.planning import (
     Plan,
@@ -295,21 +296,58 @@ def mpc_kept_limit(spec: Spec) -> float:
     return limit * (1.0 - float(settings_of(spec.track)["mpc"].backoff))
 
 
+def mpc_kept_torque(spec: Spec) -> float:
+    """The joint-torque limit the MPC keeps [N m]: on the dynamic plant ``plant.torque_limit``
+    (1 - ``track.mpc_backoff``); inf on the kinematic plant or without a limit. The cell's
+    limit: a limit drawn per trial (``[sweep.perturb] torque_limit``) is not seen."""
+    limit = float(spec.plant.torque_limit)
+    if spec.plant.model != "dynamic" or not np.isfinite(limit):
+        return float("inf")
+    return limit * (1.0 - float(settings_of(spec.track)["mpc"].backoff))
+
+
+def peak_joint_torque(spec: Spec, plan: Plan) -> tuple[int, float, float]:
+    """(j, peak, t): the joint j in 1..N whose torque abs(tau_j) is largest of those the plan
+    asks of the plant (``plant_from``; inverse dynamics, ``Plan.torques``: exact tracking, no
+    servo lag) on the plan's own grid of ``plan.samples`` points, that peak [N m] (inf if a
+    torque is not finite) and its time [s]."""
+    from flatcli.core.robots.dynamics import make_chain
+
+    plant = plant_from(spec)
+    t = plan.grid(spec.plan.samples)
+    torques = np.abs(plan.torques(make_chain(plant.mass, plant.inertia, plant.length,
+                                             plant.com), t)[:, 1:])
+    if not np.all(np.isfinite(torques)):
+        return 1, float("inf"), float("nan")
+    k, j = np.unravel_index(int(np.argmax(torques)), torques.shape)
+    return int(j) + 1, float(torques[k, j]), float(t[k])
+
+
 def mpc_reference(spec: Spec, plan: Plan) -> tuple[Plan, bool | None]:
     """The plan the MPC tracks, and whether it was re-planned (None: the controller is not
-    the MPC). The spec's plan, unless its peak joint rate (``peak_joint_rate``) exceeds
-    the limit the MPC keeps (``mpc_kept_limit``): then the plan of least peak joint rate
-    between the same ends in the same duration (``optimize_plan``, objective "peak_rate",
-    its end rates free, its margin >= max(``plan.optimize.min_margin``,
-    ``track.mpc_margin``), the spec's angle limits kept), which the MPC tracks even when
-    its peak is still beyond the limit (``plan_warnings`` says so). The paper's feedback
-    and the as-built law track the spec's plan as it is. A plan the optimiser cannot
-    improve (an exact plan, a task's; ``NOT_REPLANNED``), or whose re-plan fails, is
-    tracked as it is, with the warning."""
+    the MPC). The spec's plan, unless
+    - its peak joint rate (``peak_joint_rate``) exceeds the limit the MPC keeps
+      (``mpc_kept_limit``): then the plan of least peak joint rate (objective "peak_rate");
+    - else, on the dynamic plant, the peak joint torque it asks of the plant
+      (``peak_joint_torque``) exceeds the torque limit the MPC keeps (``mpc_kept_torque``):
+      then the plan of largest singularity margin (objective "margin": the least peak rate
+      plan runs along its margin bound, where the corrections of small errors turn the joints
+      fast and ask the torque again; docs/physics.md);
+    each between the same ends in the same duration (``optimize_plan``, its end rates free,
+    its margin >= max(``plan.optimize.min_margin``, ``track.mpc_margin``), the spec's angle
+    limits kept), which the MPC tracks even when it is still beyond the limit
+    (``plan_warnings`` says so). The paper's feedback and the as-built law track the spec's
+    plan as it is. A plan the optimiser cannot improve (an exact plan, a task's;
+    ``NOT_REPLANNED``), or whose re-plan fails, is tracked as it is, with the warning."""
     if spec.track.controller != "mpc":
         return plan, None
-    kept = mpc_kept_limit(spec)
-    if peak_joint_rate(plan, spec.plan.samples) <= kept:
+    kept, kept_torque = mpc_kept_limit(spec), mpc_kept_torque(spec)
+    objective: Objective
+    if peak_joint_rate(plan, spec.plan.samples) > kept:
+        objective = "peak_rate"
+    elif np.isfinite(kept_torque) and peak_joint_torque(spec, plan)[1] > kept_torque:
+        objective = "margin"
+    else:
         return plan, False
     robot = robot_from(spec)
     if (task_kind(spec), plan_method(spec, robot)) in NOT_REPLANNED:
@@ -323,7 +361,7 @@ def mpc_reference(spec: Spec, plan: Plan) -> tuple[Plan, bool | None]:
     try:
         result = optimize_plan(
             robot, start, goal, spec.plan.duration, model=checked(spec.robot.model),
-            objective="peak_rate", limits=limits, free_rates=True,
+            objective=objective, limits=limits, free_rates=True,
             start_rate=checked(float(start_rate[0]) if joints == 2 else start_rate),
             goal_rate=checked(float(goal_rate[0]) if joints == 2 else goal_rate),
             constraint_samples=opt.constraint_samples, max_iter=opt.max_iter)
@@ -532,7 +570,8 @@ def plan_warnings(spec: Spec, plan: Plan) -> list[str]:
     """The warnings of the plan a spec's controller tracks, one line each: its fastest joint
     beyond ``plan.rate_warning`` on its own grid (``plan.samples`` points;
     ``core.planning.rate_warning_text``); with the MPC, its fastest joint beyond the limit
-    the MPC keeps (``mpc_kept_limit``): no plan within the limit was found."""
+    the MPC keeps (``mpc_kept_limit``): no plan within the limit was found; on the dynamic
+    plant, the torque it asks beyond the torque limit the MPC keeps (``mpc_kept_torque``)."""
     samples = plan.sample(plan.grid(spec.plan.samples))
     text = rate_warning_text(samples, spec.plan.rate_warning)
     lines = [text] if text else []
@@ -545,6 +584,17 @@ def plan_warnings(spec: Spec, plan: Plan) -> list[str]:
         lines.append(f"warning: the MPC's reference turns th{joint}' at {peak:.4g} rad/s at "
                      f"t = {when:.4g} s, above the {kept:.4g} rad/s it keeps of "
                      f"track.rate_limit = {spec.track.rate_limit:g} rad/s: {why}")
+    kept_torque = mpc_kept_torque(spec) if spec.track.controller == "mpc" else float("inf")
+    if np.isfinite(kept_torque):
+        joint, peak, when = peak_joint_torque(spec, plan)
+        if peak > kept_torque:
+            why = NOT_REPLANNED.get((task_kind(spec), plan_method(spec, robot_from(spec))),
+                                    "the re-plan between the same ends (docs/physics.md, "
+                                    "\"Re-planning within the limit\") asks more")
+            lines.append(f"warning: the MPC's reference asks tau{joint} = {peak:.4g} N m at "
+                         f"t = {when:.4g} s of the plant, above the {kept_torque:.4g} N m it "
+                         f"keeps of plant.torque_limit = {spec.plant.torque_limit:g} N m: "
+                         f"{why}")
     return lines
 
 

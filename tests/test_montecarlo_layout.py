@@ -188,3 +188,21 @@ def test_the_cells_cost_linear_time_and_say_how_their_planning_goes(
     bad = resolve({"sweep": {"trials": 1, "grid": {"plan.duration": [2.0, 0.001]}}})
     with pytest.raises(SpecError, match=r"sweep\.grid cell 1 \(plan\.duration = 0\.001\)"):
         layout(bad, 1)
+
+
+def test_the_mpc_is_replanned_per_torque_limit_of_the_dynamic_plant() -> None:
+    """Cells that share a plan but not the torque limit get each its own MPC reference: the
+    cubic (32.6 N m, tests/test_experiment.py's sympy referee) where the limit kept is above
+    it or absent (the spec's plan object itself), a re-plan where below; the kinematic plant
+    ignores the limit."""
+    spec = resolve({"track": {"controller": "mpc"}, "plant": {"model": "dynamic"},
+                    "sweep": {"trials": 2, "grid": {"plant.torque_limit": [math.inf, 100.0,
+                                                                            10.0, 5.0]}}})
+    lay = layout(spec)
+    assert [c.replanned for c in lay.cells] == [False, False, True, True]
+    cubic, replan = lay.cells[0].scenario.plan, lay.cells[2].scenario.plan
+    assert lay.cells[1].scenario.plan is cubic and lay.cells[3].scenario.plan is not cubic
+    assert replan is not cubic
+    kinematic = layout(resolve({"track": {"controller": "mpc"}, "sweep": {
+        "trials": 2, "grid": {"plant.torque_limit": [math.inf, 10.0]}}}))
+    assert [c.replanned for c in kinematic.cells] == [False, False]

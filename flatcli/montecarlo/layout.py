@@ -28,7 +28,14 @@ from flatcli.core.controllers.settings import settings_of
 from flatcli.core.errors import FlatcliError
 from flatcli.core.loop.simulate import Scenario
 from flatcli.core.plan.planning import Plan
-from flatcli.experiment import mpc_kept_limit, mpc_reference, plan_from, plant_from, scenario_from
+from flatcli.experiment import (
+    mpc_kept_limit,
+    mpc_kept_torque,
+    mpc_reference,
+    plan_from,
+    plant_from,
+    scenario_from,
+)
 from flatcli.machine import cores
 from flatcli.spec import PERTURB_TARGETS, Spec, SpecError, grid_overrides
 from flatcli.spec.limits import (
@@ -349,9 +356,12 @@ def layout(spec: Spec, workers: int | None = None,
             shared = (applied.robot, applied.plan, applied.task)
             if shared not in plans:
                 plans[shared] = plan_from(applied)
-            # the MPC's reference within its rate limit, once per plan and limit kept
+            # the MPC's reference within its rate and torque limits, once per plan and
+            # limits kept (the torque the plan asks depends on the plant)
+            torque = mpc_kept_torque(applied)
             tracked = (shared, applied.track.controller, mpc_kept_limit(applied),
-                       settings_of(applied.track)["mpc"].margin)
+                       settings_of(applied.track)["mpc"].margin, torque,
+                       applied.plant if math.isfinite(torque) else None)
             if tracked not in references:
                 references[tracked] = mpc_reference(applied, plans[shared])
             plan, replanned = references[tracked]
