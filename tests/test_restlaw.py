@@ -74,3 +74,15 @@ def test_the_rest_reference_is_the_plans_own(fraction: float) -> None:
         np.testing.assert_allclose(values[inside, n + 1], rates, rtol=0, atol=3e-10)
         margin = plan.sample(np.array([0.5 * T])).margin[0]
         assert np.all(values[:, n + 2] == np.sign(margin))
+
+
+@pytest.mark.parametrize(("sets", "key"), [({"plant.model": "dynamic"}, r"plant\.model"),
+                                           ({"track.controller": "mpc"}, r"track\.controller"),
+                                           ({"track.controller": "asbuilt"},
+                                            r"track\.controller")])
+def test_a_rest_task_is_refused_where_the_rest_law_does_not_run(sets: dict[str, str],
+                                                                key: str) -> None:
+    """The dynamic plant (the law meets its singular set before T there) and the other
+    controllers: one error naming the key, before any trial runs."""
+    with pytest.raises(flatcli.FlatcliError, match=key):
+        flatcli.track("flatcli/data/capture.toml", overrides=sets, quiet=True)
