@@ -4,8 +4,9 @@
     .venv/bin/python -m benchmarks.rest_fade --update   # and write it into docs/tasks.md
 
 The paper's robot, maneuver (1.8, 1, 0) -> (1.2, 2, 0) rad in T = 2 s at rest at both ends,
-gains kp = (100, 110), kv = (10, 13), tracked by ``flatcli.track`` (``core.restloop``: the
-feedback faded in and out over ``task.fade`` x T, DOP853 at rtol 1e-10) from the plan's start
+gains kp = (100, 110), kv = (10, 13), tracked by ``flatcli.track`` (``controllers.rest``: the
+flat law's feedback faded in and out over ``task.fade`` x T; track.integrator "dop853", scipy's
+DOP853 at rtol 1e-10 on the compiled right-hand side) from the plan's start
 and from (1.82, 0.99, 0.01) rad. Per row: err_theta_max and err_theta_final (the run's
 metrics), the end effector's distance at T from the plan's end effector at T, and the
 largest abs th_i'(T) (the plant's rates when it should be at rest).
@@ -26,7 +27,8 @@ import numpy as np
 #: The maneuver and gains of the table.
 BASE: dict[str, Any] = {"task.rest": True, "plan.start": [1.8, 1.0, 0.0],
                         "plan.goal": [1.2, 2.0, 0.0], "plan.duration": 2.0,
-                        "track.kp": [100.0, 110.0], "track.kv": [10.0, 13.0]}
+                        "track.kp": [100.0, 110.0], "track.kv": [10.0, 13.0],
+                        "track.integrator": "dop853"}
 ON_PLAN = (1.8, 1.0, 0.0)
 OFF_PLAN = (1.82, 0.99, 0.01)
 #: The rows: (start, fade).

@@ -398,6 +398,7 @@ def scenario_from(spec: Spec, plan: Plan) -> Scenario:
         twin=TWIN_FACTOR if track.error_estimate == "twin" else 0.0,
         accuracy=track.accuracy,
         observe_every=track.observe_every,
+        fade=spec.task.fade,
     )
 
 
@@ -680,8 +681,6 @@ def run_track(spec: Spec, before_simulating: Callable[[], object] | None = None,
             robot_from(spec), spec.plan.method) == "exact":  # before planning compiles
         raise SpecError(FLAT_ON_EXACT)
     plan, replanned = tracked_plan(spec)
-    if spec.task.rest:
-        return run_rest_track(spec, plan)
     scenario = scenario_from(spec, plan)
     integrator = checked(spec.track.integrator)
     if controller is not None:
@@ -695,65 +694,3 @@ def run_track(spec: Spec, before_simulating: Callable[[], object] | None = None,
     return TrackRun(spec, plan, scenario, outcome, replanned)
 
 
-def run_rest_track(spec: Spec, plan: Plan) -> TrackRun:
-    """The closed loop of a rest-to-rest task (``core.restloop``: feedforward at the ends,
-    feedback faded in between), recorded as a ``TrackRun`` of the reference integrator
-    (DOP853): the trace on the output grid and the metrics that apply (the others null)."""
-    from flatcli.core.loop.metrics import N_METRICS, Event, Metric, Status, clipped_time_of
-    from flatcli.core.loop.outcome import motion_clearance
-    from flatcli.core.loop.restloop import track_rest
-    from flatcli.core.loop.simulate import chain_trace_columns
-    from flatcli.core.plan.rest import RestPlan
-
-    assert isinstance(plan, RestPlan)
-    if spec.track.integrator != "dop853" and spec.track.integrator != "adaptive":
-        raise SpecError("track.integrator: a rest-to-rest task is tracked by DOP853 "
-                        "(\"adaptive\" or \"dop853\"), not fixed-step \"rk4\"")
-    if spec.plant.model != "kinematic":
-        raise SpecError("plant.model: a rest-to-rest task (task.rest) is tracked on the "
-                        "kinematic plant only (its loop, core/loop/restloop.py, has no servos)")
-    scenario = scenario_from(spec, plan)
-    plant = plant_from(spec)
-    times = scenario.times
-    trace = track_rest(plan, Gains(spec.track.kp, spec.track.kv), plant,
-                       np.asarray(spec.track.initial), times, spec.task.fade,
-                       spec.plant.momentum, spec.track.rate_limit)
-    ref = plan.sample(times)
-    u = trace.u
-    with np.errstate(all="ignore"):
-        y, _, sigma = plan.model.outputs(trace.theta, u)
-        H = plan.model.momentum(plant, trace.theta, trace.theta_dot)
-    e_theta = np.linalg.norm(trace.theta - ref.theta, axis=1)
-    e_y = np.linalg.norm(y - ref.y, axis=1)
-    metrics = np.full((1, N_METRICS), np.nan)
-    row = metrics[0]
-    finite = np.isfinite(e_theta).all()
-    row[Metric.ERR_THETA_RMS] = float(np.sqrt(np.mean(e_theta**2)))
-    row[Metric.ERR_THETA_MAX] = float(np.max(e_theta))
-    row[Metric.ERR_THETA_FINAL] = float(e_theta[-1])
-    row[Metric.ERR_Y_RMS] = float(np.sqrt(np.nanmean(e_y**2)))
-    row[Metric.ERR_Y_MAX] = float(np.nanmax(e_y))
-    row[Metric.ERR_Y_FINAL] = float(e_y[-1])
-    row[Metric.SINGULAR_HITS] = 0.0
-    row[Metric.MIN_MARGIN] = float(np.nanmin(np.abs(sigma)))
-    row[Metric.MOMENTUM_DRIFT] = float(np.nanmax(np.abs(H - spec.plant.momentum)))
-    row[Metric.PEAK_RATE] = float(np.nanmax(np.abs(trace.theta_dot[:, 1:])))
-    valid = np.isfinite(trace.theta).all(axis=1)
-    row[Metric.CLIPPED_TIME] = clipped_time_of(trace.clipped[valid], scenario.dt)
-    ok = trace.finished and finite
-    columns = chain_trace_columns(plan.n_joints)
-    record = np.column_stack([trace.theta, trace.u, trace.theta_dot])[None, :, :]
-    clearance = None
-    if spec.task.obstacles:
-        clearance = motion_clearance(Geometry.of(plant.as_array()[None, :],
-                                                 np.array([plant.com_across])),
-                                     spec.task.obstacles, trace.theta[None],
-                                     trace.theta_dot[None], scenario.dt)
-    final = (trace.theta[-1:].copy() if ok else
-             np.full((1, plan.n_joints + 1), np.nan))
-    outcome = Outcome(metrics=metrics,
-                      status=np.array([int(Status.OK if ok else Status.DIVERGED)]),
-                      event=np.array([int(Event.NONE if ok else Event.BOUND)]),
-                      event_time=np.array([np.nan]), trace=record, columns=columns,
-                      integrator="dop853", final=final, clearance=clearance)
-    return TrackRun(spec, plan, scenario, outcome)

@@ -328,9 +328,35 @@ def test_a_task_sweep_plans_every_target_and_bounds_the_end_effectors_final_erro
     assert checked_trials == 12
 
 
-def test_a_task_sweep_with_ends_at_rest_is_refused() -> None:
-    with pytest.raises(SpecError, match=r"task\.rest: a sweep.s closed loop has no fade"):
-        layout(resolve({**TASK_SWEEP, "task": {**TASK_SWEEP["task"], "rest": True}}))
+def test_a_task_sweep_with_ends_at_rest_runs_the_rest_law() -> None:
+    """task.rest in a sweep (refused before 2026-12-06, when only flatcli track faded the
+    feedback): each trial's row is flatcli track of its exact spec (``rerun_spec``) to the
+    bit, and that run's final angles are the referee's (tests/rest_referee.py: the rest law
+    by DOP853 at rtol 1e-11 on the full link kinematics, the trial's own plant and start)
+    within 1e-6 rad (the adaptive integrator at its default rtol 5e-8)."""
+    from flatcli.api import track
+    from flatcli.core.controllers.control import Gains
+    from flatcli.experiment import plant_from
+    from flatcli.montecarlo.rerun import rerun_spec
+    from tests.rest_referee import track_rest
+
+    sweep = {k: v for k, v in TASK_SWEEP["sweep"].items() if k != "grid"}
+    spec = resolve({**TASK_SWEEP, "task": {**TASK_SWEEP["task"], "rest": True},
+                    "sweep": sweep})
+    lay = layout(spec)
+    (cell,) = lay.cells
+    rows = run_chunk(cell, Chunk(0, 0, 4)).table.to_pylist()
+    for row in rows:
+        assert row["status"] == "ok", row["reason"]
+        alone = rerun_spec(lay, row)
+        run = track(alone)
+        assert run.metrics["err_theta_final"] == row["err_theta_final"]
+        theta = run.frame[["theta0", "theta1", "theta2"]].to_numpy()
+        referee = track_rest(run.run.plan, Gains(alone.track.kp, alone.track.kv),
+                             plant_from(alone), np.asarray(alone.track.initial),
+                             run.run.scenario.times, alone.task.fade, alone.plant.momentum)
+        assert referee.finished
+        assert np.max(np.abs(theta[-1] - referee.theta[-1])) < 1e-6
 
 
 #: A box of capture points: each trial draws its own target within 2 cm of the nominal one

@@ -244,11 +244,13 @@ def test_collided_is_the_complex_plane_clearance_sampled_100x_finer(
 
 
 def test_the_rest_loops_capture_pushed_into_a_disc_collides() -> None:
-    """make_reproduce's capture maneuver (rest to rest, the rest loop of core/restloop.py)
-    from the plan's start is clear; started 0.1 rad off in th0 it swings link 2 into a disc:
-    collided, as the referee finds on a grid 100x finer (the rest loop at dt / 100)."""
+    """make_reproduce's capture maneuver (rest to rest, the flat law faded at the ends,
+    controllers/rest.py) from the plan's start is clear; started 0.1 rad off in th0 it swings
+    link 2 into a disc: collided, as the referee finds on a grid 100x finer (the rest law
+    integrated by DOP853, tests/rest_referee.py, at dt / 100)."""
+    from rest_referee import track_rest
+
     from flatcli.core.controllers.control import Gains
-    from flatcli.core.loop.restloop import track_rest
 
     for initial, collides in (([1.8, 1.0, 0.0], False), ([1.9, 1.0, 0.0], True)):
         result = flatcli.track("flatcli/data/capture.toml",
@@ -333,7 +335,7 @@ def test_judge_both_sides_of_each_outcome_by_hand() -> None:
 
 def test_peaks_and_clipped_time_of_every_loop_are_its_traces() -> None:
     """peak_rate, peak_torque and clipped_time of the paper's, a chain's and the as-built
-    loops, kinematic and dynamic, and of the rest loop, recomputed from track.parquet: the
+    loops, kinematic and dynamic, and of the rest law, recomputed from track.parquet: the
     largest abs(th_j') and abs(tau_j), and the trapezoidal integral (numpy's) of "a rate
     command at or beyond track.rate_limit", with a limit (> 0) and without (0)."""
     setups = {"paper": (None, SWAPPED), "chain4": ({"robot": "chain4"}, {}),

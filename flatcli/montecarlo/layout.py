@@ -348,10 +348,6 @@ def layout(spec: Spec, workers: int | None = None,
     for index, (values, applied, key) in enumerate(zip(combos, specs, cell_keys(combos),
                                                        strict=True)):
         try:
-            if applied.task.rest:
-                raise SpecError("task.rest: a sweep's closed loop has no fade for the ends "
-                                "at rest (flatcli track has: docs/tasks.md); sweep a task "
-                                "with non-zero plan.start_rate and plan.goal_rate")
             # cells that differ only outside [robot], [plan] and [task] share one plan
             shared = (applied.robot, applied.plan, applied.task)
             if shared not in plans:

@@ -75,8 +75,9 @@ class PaperGains(NamedTuple):
 @jitable
 def law(ref: Sequence[Real] | Array, j: int, n: int, kp: float, kv: float, y: Real,
         y_dot: Real) -> Real:
-    """v_j = y_jd'' + kv (y_jd' - y_j') + kp (y_jd - y_j) for output j of N = ``n``, the plan's
-    flag ``ref`` (3 N,) y, y', y'' at this instant; y, y_dot (...) [rad, rad/s]."""
+    """v_j = y_jd'' + kv (y_jd' - y_j') + kp (y_jd - y_j) for output j, the plan's flag ``ref``
+    (3 n,) y, y', y'' of its n channels at this instant (the N flat outputs first: n = N, or
+    N + ``rest.CHANNELS`` on a rest plan); y, y_dot (...) [rad, rad/s]."""
     return ref[2 * n + j] + kv * (ref[n + j] - y_dot) + kp * (ref[j] - y)
 
 
@@ -98,7 +99,8 @@ def feedback(
     gains : Gains
     th0, th1, th2 : measured angles [rad], (...)
     u1 : the controller's th1' [rad/s], (...)
-    ref : y1, y2, y1', y2', y1'', y2'' of the plan at this instant [rad, rad/s, rad/s^2]
+    ref : y1, y2, y1', y2', y1'', y2'' of the plan at this instant [rad, rad/s, rad/s^2] (a
+        rest plan's flag: its channels' values, then rates, then accelerations, ``rest``)
 
     Returns
     -------
@@ -123,8 +125,9 @@ def feedback_at(
     inv_A, g, h = chart(k, c1, s1)
     g_prime, h_prime = chart_slopes(k, c1, s1, inv_A, g)
     _, y2, _, y2_dot = outputs_at(k, inv_A, g, h, th0, th1, th2, u1)
-    v1 = law(ref, 0, 2, gains.kp1, gains.kv1, th1, u1)
-    v2 = law(ref, 1, 2, gains.kp2, gains.kv2, y2, y2_dot)
+    c = len(ref) // 3  # 2, or a rest plan's channels (``rest``)
+    v1 = law(ref, 0, c, gains.kp1, gains.kv1, th1, u1)
+    v2 = law(ref, 1, c, gains.kp2, gains.kv2, y2, y2_dot)
     return inputs_at(g, h, g_prime, h_prime, th2, u1, v1, v2)
 
 

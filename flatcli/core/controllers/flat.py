@@ -7,7 +7,8 @@ y_j') + kp_j (y_jd - y_j), j = 1..N, and the inputs that make y'' = v (``chainfl
 u_j' and th_N'. Its rate commands are r_j = u_j (j < N) and r_N = th_N' (the plant clips
 them to +-rate_limit); u_j' is 0 while u_j is at or beyond the limit and the command pushes it
 further out (``control.unwound``: no wind-up). Its signed margin sigma (``chainflat``)
-changes sign on its singular set.
+changes sign on its singular set. On a rest plan it reads the fade w and the plan's th_N'
+from the flag and blends its commands with the plan's (``rest``).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from flatcli.core.controllers.control import (
     unwound,
 )
 from flatcli.core.controllers.parts import LawPart
+from flatcli.core.controllers.rest import faded_chain, observed_margin
 from flatcli.core.models.chainflat import (
     Scratch,
     first_terms_at,
@@ -116,7 +118,8 @@ def command(law_: FlatLaw, measured: Array, rates: Array, z: Array, ref: Array, 
             z_dot: Array) -> float:
     """``LawPart.command``: at the measured angles (N + 1,) and u = z (N - 1,), the rate
     commands (u_j, then th_N'; the plant clips them) into r (N,), u' unwound against the
-    plant's clip into z_dot; returns sigma [rad/s]. ``ref`` (3 N,): the plan's y, y', y''."""
+    plant's clip into z_dot; returns sigma [rad/s]. ``ref`` (3 N,): the plan's y, y', y''
+    (a rest plan's channels: blended, ``rest``)."""
     n = law_.Ic.shape[0] - 1
     buf = law_.rows
     y, y_dot, v, u_dot = buf[_Y, :n], buf[_Y_DOT, :n], buf[_V, :n], buf[_U_DOT, : n - 1]
@@ -124,9 +127,12 @@ def command(law_: FlatLaw, measured: Array, rates: Array, z: Array, ref: Array, 
     h0 = terms_into(law_.Kc, law_.Ic, measured, work)  # once for both maps
     h_c, grad, hess, slopes = work.h, work.grad, work.hess, work.slopes
     sigma = outputs_given(law_.Kc, law_.Ic, h0, h_c, grad, measured, z, y, y_dot)
+    c = ref.shape[0] // 3  # N, or a rest plan's channels (``rest``)
     for j in range(n):
-        v[j] = law(ref, j, n, law_.kp[j], law_.kv[j], y[j], y_dot[j])
+        v[j] = law(ref, j, c, law_.kp[j], law_.kv[j], y[j], y_dot[j])
     r[n - 1] = inputs_given(law_.Ic, h0, h_c, grad, hess, slopes, measured, z, v, u_dot)
+    if c > n:  # a rest plan's flag: the feedback faded at the ends
+        sigma = faded_chain(ref, n, u_dot, r, sigma)
     for j in range(n - 1):
         r[j] = z[j]
         z_dot[j] = unwound(z[j], u_dot[j], law_.rate_limit)
@@ -172,7 +178,7 @@ def observed(law_: FlatLaw, obs: Any, j: int, theta: Array, z: Array
     for i in range(n):
         e = y[i] - ref[2 * j, i]
         ey2 += e * e
-    return ey2, abs(sigma), threshold
+    return ey2, observed_margin(ref, j, n, abs(sigma)), threshold
 
 
 @jitable

@@ -47,6 +47,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from flatcli.core._jit import jitable
+from flatcli.core.controllers.rest import observed_margin
 from flatcli.core.models.flatness import chart
 from flatcli.core.names import METRIC_NAMES, Metric
 from flatcli.core.robots.params import Coefficients, Links, momentum
@@ -223,7 +224,8 @@ def observe_sample(
     rate1, rate2 : joint rates th1', th2' the plant applies [rad/s]
     h : angular momentum of the plant at this sample from its full kinematics [kg m^2/s]
     theta_ref : (n + 1, 3) plan angles on the grid [rad]
-    ref : (2 n + 1, 6) plan y1, y2, y1', y2', y1'', y2'' at half steps (row 2 j is t_j)
+    ref : (2 n + 1, 6) plan y1, y2, y1', y2', y1'', y2'' at half steps (row 2 j is t_j); a
+        rest plan's channels (``controllers.rest``: the margin observed is |sigma| / w)
     kc : the controller's coefficients; h0 : the plant's H0 [kg m^2/s]
     threshold : singularity threshold on the margin [rad/s]
     """
@@ -235,8 +237,8 @@ def observe_sample(
     e1 = th1 - ref[2 * j, 0]
     e2 = th0 - kc.c0 * th2 * inv_A - ref[2 * j, 1]
     ey2 = e1 * e1 + e2 * e2
-    observe_errors(acc, j, et2, ey2, abs(s1 * u1), h, h0, max(abs(rate1), abs(rate2)),
-                   threshold)
+    observe_errors(acc, j, et2, ey2, observed_margin(ref, j, 2, abs(s1 * u1)), h, h0,
+                   max(abs(rate1), abs(rate2)), threshold)
 
 
 @jitable

@@ -48,6 +48,7 @@ from numpy.typing import NDArray
 
 from flatcli.core._jit import Real, jitable
 from flatcli.core.controllers.control import PaperGains, feedback, feedback_at, unwound
+from flatcli.core.controllers.rest import faded_paper
 from flatcli.core.loop.metrics import observe_clipped, observe_sample, observe_torque
 from flatcli.core.models.flatness import chart, outputs_at
 from flatcli.core.robots.dynamics import (
@@ -110,7 +111,8 @@ def kinematic_rhs(loop: Loop, x: Array, ref: Array, noise: Array, out: Array) ->
     ----------
     loop : Loop
     x : (4,) th0, th1, th2 [rad], u1 [rad/s]
-    ref : (6,) plan y1, y2, y1', y2', y1'', y2'' at this instant
+    ref : (6,) plan y1, y2, y1', y2', y1'', y2'' at this instant (a rest plan's flag: its
+        channels, the feedback faded at the ends, ``controllers.rest``)
     noise : (3,) sensor noise on the three measured angles [rad]
     out : (>= 4 + KINEMATIC_AUX,) written: th0', th1', th2' [rad/s] (the applied joint rates),
         u1' [rad/s^2]; then the controller's signed margin sin(measured th1) * u1 [rad/s]
@@ -126,9 +128,12 @@ def kinematic_rhs(loop: Loop, x: Array, ref: Array, noise: Array, out: Array) ->
         cm1, sm1 = np.cos(x1 + noise[1]), np.sin(x1 + noise[1])
     u1_dot, u2 = feedback_at(loop.kc, loop.gains, x0 + noise[0], x1 + noise[1], x2 + noise[2],
                              x3, cm1, sm1, ref)
+    margin = sm1 * x3
+    if ref.shape[0] > 6:  # a rest plan's flag: the feedback faded (``rest``)
+        u1_dot, u2, margin = faded_paper(ref, u1_dot, u2, margin)
     kinematic_plant(loop, x, c1, s1, x3, u2, out)
     out[3] = unwound(x3, u1_dot, loop.rate_limit)
-    out[4] = sm1 * x3
+    out[4] = margin
 
 
 @jitable

@@ -40,6 +40,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from flatcli.core.controllers import rest
 from flatcli.core.controllers.control import Gains
 from flatcli.core.controllers.lqr import LqrWeights, tracked
 from flatcli.core.controllers.python import continuous
@@ -77,6 +78,7 @@ from flatcli.core.names import (
     ServoModel,
 )
 from flatcli.core.plan.planning import Plan
+from flatcli.core.plan.rest import RestPlan
 
 Array = NDArray[np.float64]
 #: The integrators that control their error (``Outcome.verified``).
@@ -147,6 +149,15 @@ FLAT_ON_EXACT = ("track.controller: \"flat\" tracks the closed-form flat outputs
                  "exact plan (plan.method) does not have: use track.controller = \"asbuilt\"")
 
 
+#: Why a rest task is not tracked on the dynamic plant (``Scenario``): measured 2026-12-06 on
+#: capture.toml from 2e-3 rad off its start (servo 100 rad/s knowing the plant): the law met
+#: its singular set at t = 1.9926 s of 2 s, where a DOP853 of the same law stalls too.
+REST_ON_DYNAMIC = ("plant.model: a rest-to-rest task (task.rest) is tracked on the kinematic "
+                   "plant only: on the dynamic plant the servos' lag leaves u1 off the plan's "
+                   "where the fade-out begins, and the faded law meets its singular set just "
+                   "before T (u1 reaches 0 while w > 0)")
+
+
 @dataclass(frozen=True)
 class Scenario:
     """What every trial of a batch shares: the plan, the controller and the time grid.
@@ -186,6 +197,9 @@ class Scenario:
     accuracy : the largest err_estimate of a verified trial [rad] (``Outcome.verified``)
     observe_every : the metrics observe every k-th output sample and the last (1: every one;
         ``integrate.observed``); the trace, when recorded, keeps every sample
+    fade : a rest plan's (``RestPlan``) fade f in (0, 1/2] (``task.fade``): the flat law's
+        feedback fades in over the first f T and out over the last (``controllers.rest``;
+        the kinematic plant only, ``REST_ON_DYNAMIC``)
     """
 
     plan: Plan
@@ -208,6 +222,7 @@ class Scenario:
     twin: float = TWIN_FACTOR
     accuracy: float = DEFAULT_ACCURACY
     observe_every: int = 1
+    fade: float = 0.2
     n_steps: int = field(init=False)
 
     def __post_init__(self) -> None:
@@ -257,6 +272,16 @@ class Scenario:
                                f"{self.controller!r}")
         if self.controller == "flat" and self.plan.model.kind == "exact":
             raise FlatcliError(FLAT_ON_EXACT)
+        if isinstance(self.plan, RestPlan):
+            if self.controller != "flat" or self.python is not None:
+                raise FlatcliError("track.controller: a rest-to-rest task (task.rest) is "
+                                   "tracked by the flat law faded at the ends (\"flat\"), got "
+                                   + (repr(self.controller) if self.python is None
+                                      else "a controller written in Python"))
+            if self.plant != "kinematic":
+                raise FlatcliError(REST_ON_DYNAMIC)
+            if not 0.0 < self.fade <= 0.5:
+                raise FlatcliError(f"task.fade: must be in (0, 0.5], got {self.fade}")
         if self.controller in SETTINGS:  # FlatcliError naming the key, if one does not fit
             self.settings_for(self.controller).check(self.dt, self.plan.duration)
         if self.python is not None and self.controller in SAMPLED:
@@ -331,11 +356,14 @@ class Scenario:
     @cached_property
     def tracked(self) -> Any:
         """What the controller tracks, as curves y(t): the plan's flat outputs (the flat
-        law), or the plan's angles and the as-built law's gains (``lqr.tracked``)."""
+        law; a rest plan's with the fade and its last joint's rate, ``rest.reference``), or
+        the plan's angles and the as-built law's gains (``lqr.tracked``)."""
         if self.law == "asbuilt":
             servo = self.servo_bandwidth if self.plant == "dynamic" else None
             curves: PiecewiseCurves = tracked(self.plan, self.lqr, servo)
             return curves
+        if isinstance(self.plan, RestPlan):  # its outputs, the fade, th_N's own rate
+            return rest.reference(self.plan, self.fade)
         return self.plan.trajectory
 
     @property
