@@ -66,7 +66,7 @@ from flatcli.progress import compile_notices, kernel_text, planner_text
 from flatcli.report import fmt, short_key, table
 from flatcli.report.summary import SUMMARY_INPUTS, ColumnsOf, summary_rows
 from flatcli.spec import Spec, spec_toml
-from flatcli.spec.unread import unread_keys
+from flatcli.spec.unread import unread_keys, unseen_draws
 from flatcli.storage import parquet_options, peak_memory_mib
 
 #: Trials the same-draws calibration runs in all, at best (at least ``SAME_DRAWS_MIN`` per
@@ -654,7 +654,8 @@ def _freeze(value: Any) -> str:
 def _warnings(report: CheckReport) -> list[str]:
     lay = report.layout
     spec = lay.spec
-    out: list[str] = [w.removeprefix("warning: ") for w in unread_keys(spec)]
+    out: list[str] = [w.removeprefix("warning: ")
+                      for w in unread_keys(spec) + unseen_draws(spec)]
     noiseless = all(c.spec.track.sensor_noise == 0 for c in lay.cells)
     if not spec.sweep.perturb and noiseless and lay.trials_per_cell > 1:
         where = "the" if not lay.grid_keys else "each cell's"

@@ -80,3 +80,23 @@ def test_the_warning_is_true_the_run_does_not_read_the_key() -> None:
     np.testing.assert_equal(metrics('track.controller="mpc"', "track.kp=[1.0, 2.0]"), mpc)
     assert metrics("track.kp=[1.0, 2.0]") != plain
     assert metrics('track.controller="mpc"', "track.mpc_horizon=5") != mpc
+
+
+def test_a_torque_limit_drawn_per_trial_under_the_mpc_is_named() -> None:
+    """The MPC on the dynamic plant re-plans for the cell's plant.torque_limit
+    (experiment.mpc_reference, called once per cell by the sweep's layout): a limit drawn per
+    trial is named in one line; with the paper's feedback, on the kinematic plant or with no
+    draw there is nothing to name; a grid with a dynamic cell names it once."""
+    from flatcli.spec.unread import unseen_draws
+
+    draw = 'sweep.perturb={torque_limit={dist="uniform", low=-5.0, high=5.0}}'
+    dynamic = ('plant.model="dynamic"', "plant.torque_limit=10.0")
+    lines = unseen_draws(load_spec(None, ('track.controller="mpc"', *dynamic, draw)))
+    assert len(lines) == 1 and "sweep.perturb.torque_limit" in lines[0]
+    assert unseen_draws(load_spec(None, ('track.controller="flat"', *dynamic, draw))) == []
+    assert unseen_draws(load_spec(None, ('track.controller="mpc"', *dynamic))) == []
+    assert unseen_draws(load_spec(None, ('track.controller="mpc"', draw,
+                                         "plant.torque_limit=10.0"))) == []
+    grid = 'sweep.grid={"plant.model"=["kinematic", "dynamic"]}'
+    assert len(unseen_draws(load_spec(None, ('track.controller="mpc"', draw, grid,
+                                             "plant.torque_limit=10.0")))) == 1

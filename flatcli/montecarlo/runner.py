@@ -46,7 +46,7 @@ from flatcli.montecarlo.tally import status_counts, watch
 from flatcli.progress import Progress, compile_notices, kernel_text, planner_text
 from flatcli.spec import Spec, SpecError
 from flatcli.spec.limits import check_workers
-from flatcli.spec.unread import unread_keys
+from flatcli.spec.unread import unread_keys, unseen_draws
 from flatcli.storage import (
     DirectoryBusyError,
     ShardLocks,
@@ -80,10 +80,11 @@ class SweepResult:
 
 
 def plan_notes(lay: Layout) -> None:
-    """One line for each controller setting no cell reads (``spec.unread.unread_keys``), then
+    """One line for each controller setting no cell reads (``spec.unread.unread_keys``) and
+    each draw a controller does not see (``unseen_draws``), then
     one for each cell whose plan's joints turn faster than ``plan.rate_warning``
     (``experiment.plan_warnings``), at most ``SHOWN`` and then how many more."""
-    for line in unread_keys(lay.spec):
+    for line in unread_keys(lay.spec) + unseen_draws(lay.spec):
         note(line)
     lines = [f"{warning} (cell {cell.index}: {grid_label(cell.values)})"
              for cell in lay.cells for warning in plan_warnings(cell.spec, cell.scenario.plan)]

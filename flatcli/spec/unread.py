@@ -7,6 +7,10 @@ exact plan), ``track.lqr_*`` too (its inner flat law's gains are ``track.mpc_kp`
 choose the MPC would otherwise get the flat law's numbers and believe them the MPC's; a
 sweep whose grid varies such a key would run identical cells. ``unread_keys`` names them
 (one warning line each); nothing is refused, since a spec may keep settings for later.
+
+``unseen_draws`` names the one perturbation a controller does not see although the plant
+does: a ``torque_limit`` drawn per trial under the MPC on the dynamic plant (the MPC re-plans
+within the cell's ``plant.torque_limit``; each trial's plant clips at its own draw).
 """
 
 from __future__ import annotations
@@ -69,3 +73,20 @@ def unread_keys(spec: SpecRecord) -> list[str]:
             lines.append(f"warning: {dotted} is set but no trial reads it: track.controller "
                          f"is {chosen} (it is read with {wanted})")
     return lines
+
+
+def unseen_draws(spec: SpecRecord) -> list[str]:
+    """One warning line where a sweep draws ``torque_limit`` per trial and the MPC runs on
+    the dynamic plant: the MPC's re-plan within the torque limit (and its design) is made
+    once per cell, for the cell's ``plant.torque_limit``; each trial's plant clips its
+    torques at its own draw, which the MPC does not know (docs/physics.md, "Within the
+    torque limit")."""
+    if "mpc" not in controllers_used(spec) or "torque_limit" not in spec.sweep.perturb:
+        return []
+    grid = spec.sweep.grid.get("plant.model")
+    models = {str(v) for v in grid} if isinstance(grid, list) else {spec.plant.model}
+    if "dynamic" not in models:
+        return []
+    return ["warning: sweep.perturb.torque_limit: each trial's plant clips its torques at "
+            "its own draw, but the MPC re-plans within the cell's plant.torque_limit only "
+            "(docs/physics.md, \"Within the torque limit\")"]
