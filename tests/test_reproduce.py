@@ -37,6 +37,8 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path,
     monkeypatch.setattr(within, "study_spec", lambda context: study_spec(context).with_overrides(
         {"sweep.grid": {"track.rate_limit": [math.inf, 4.0],
                         "track.controller": ["flat", "mpc"]}}))
+    # and on the dynamic plant, one torque limit below the cubic's 32.6 N m (a re-plan)
+    monkeypatch.setattr(within, "TORQUE_LIMITS", (math.inf, 10.0))
     result = CliRunner().invoke(main, ["reproduce", "--out", "paper", "--set",
                                        "sweep.trials=8", "-q"])
     assert result.exit_code == 0, result.output
@@ -69,6 +71,9 @@ def test_reproduce_writes_figures_tables_and_report(tmp_path: Path,
     assert "| 4 | MPC | re-planned | " in report and "| none | paper's feedback | - | " in report
     assert "With no limit and initial errors of std 20 mrad" in report
     assert (out / "fig_within.png").exists() and (out / "within/grid/trials.parquet").exists()
+    assert "**On the dynamic plant, within the torque limit.**" in report
+    assert "| 10 | MPC | re-planned | " in report
+    assert (out / "within/dynamic/trials.parquet").exists()
     # beyond three links: both robots, the closed loop on both plants, the studies
     assert "## Beyond three links" in report and "| chain6 | dynamic " in report
     assert "#### chain4: 32 trials" in report and "#### chain6: 32 trials" in report

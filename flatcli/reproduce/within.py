@@ -128,6 +128,11 @@ def cell_rows(trials: pd.DataFrame, key: str = LIMIT) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def gains(values: Any) -> str:
+    """Gains in a sentence: "[100, 110]"."""
+    return "[" + ", ".join(f"{float(v):g}" for v in values) + "]"
+
+
 def limit_text(limit: float) -> str:
     """A rate limit for a table: "none" for inf, else its value [rad/s]."""
     return "none" if math.isinf(limit) else f"{limit:g}"
@@ -344,11 +349,14 @@ def run(context: Context) -> Outcome:
         f"plant (joint rates from servos of bandwidth {BANDWIDTH:g} rad/s, the servo's model "
         "right; no rate limit), the joint torques clipped at `plant.torque_limit` (files "
         f"`{DIRECTORY}/dynamic`, {int(dyn.sweep.trials)} trials per cell, th(0) errors of std "
-        f"{std * 1000:g} mrad; `benchmarks/mpc_torque.toml`'s settings). The paper's cubic "
-        "asks 32.6 N m; below a limit it asks above, the MPC tracks the plan of largest "
-        "singularity margin between the same ends (0.325 N m; docs/physics.md, \"Within the "
-        "torque limit\"), the paper's feedback the cubic. Singular: trials whose margin "
-        "crossed or came near the singular set (status `singular`, among the outcomes).",
+        f"{std * 1000:g} mrad, the study's gains kp = {gains(dyn.track.kp)}, kv = "
+        f"{gains(dyn.track.kv)}; else `benchmarks/mpc_torque.toml`'s settings). The paper's "
+        "cubic "
+        "asks 32.6 N m; at a limit below that (less `mpc_backoff`) the MPC tracks the plan "
+        "of largest singularity margin between the same ends, which asks 0.325 N m "
+        "(docs/physics.md, \"Within the torque limit\"); the paper's feedback the cubic. "
+        "Singular: trials whose margin crossed or came near the singular set (status "
+        "`singular`, among the outcomes).",
         "",
         torque_table(dynamic),
         "",
