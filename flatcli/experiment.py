@@ -5,6 +5,7 @@ This is wiring only: every number is computed by ``flatcli.core``.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from functools import cached_property
@@ -375,7 +376,10 @@ def tracked_plan(spec: Spec) -> tuple[Plan, bool | None]:
     return mpc_reference(spec, plan_from(spec))
 
 
-def scenario_from(spec: Spec, plan: Plan) -> Scenario:
+def scenario_from(spec: Spec, plan: Plan, replanned: bool | None = None) -> Scenario:
+    """The scenario of a spec tracking ``plan``; ``replanned`` as ``mpc_reference`` says
+    (a plan re-planned within the torque limit slows the MPC's inner poles:
+    ``Scenario.torque_replanned``)."""
     track = spec.track
     kp, kv = track.kp, track.kv
     return Scenario(
@@ -395,6 +399,8 @@ def scenario_from(spec: Spec, plan: Plan) -> Scenario:
         lqr=LqrWeights(track.lqr_bandwidth, track.lqr_terminal, track.lqr_base),
         settings=settings_of(track),
         servo_bandwidth=spec.plant.servo_bandwidth,
+        torque_replanned=bool(replanned) and math.isfinite(mpc_kept_torque(spec))
+        and not math.isfinite(spec.track.rate_limit),
         twin=TWIN_FACTOR if track.error_estimate == "twin" else 0.0,
         accuracy=track.accuracy,
         observe_every=track.observe_every,
@@ -681,7 +687,7 @@ def run_track(spec: Spec, before_simulating: Callable[[], object] | None = None,
             robot_from(spec), spec.plan.method) == "exact":  # before planning compiles
         raise SpecError(FLAT_ON_EXACT)
     plan, replanned = tracked_plan(spec)
-    scenario = scenario_from(spec, plan)
+    scenario = scenario_from(spec, plan, replanned)
     integrator = checked(spec.track.integrator)
     if controller is not None:
         scenario = replace(scenario, python=controller)

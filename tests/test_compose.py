@@ -762,3 +762,47 @@ def test_the_warm_started_mpc_ends_where_the_cold_one_does(replan) -> None:  # t
     assert np.all(warm_out.extra[:, 0] > 0)
     np.testing.assert_allclose(warm_out.trace[:, -1, :3], cold_out.trace[:, -1, :3],
                                atol=1e-10, rtol=0)
+
+
+def test_on_a_torque_replan_the_inner_poles_slow_and_1_n_m_is_kept() -> None:
+    """At a 1 N m torque limit the MPC tracks the re-plan of largest margin and, with no rate
+    limit, its inner poles default to -2 rad/s (``mpc.TORQUE_INNER_KP``,
+    ``Scenario.torque_replanned``): from a start 2.7 mrad off (a trial the poles at -4 rad/s
+    lost in docs/physics.md's table) the referee's full dynamics with the torque clipped
+    (``_dynamic_referee``) end within the goal's 1e-3 rad, and the compiled trial there to
+    1e-6 rad; with the poles at -4 rad/s the referee ends beyond 1e-2 rad (the torque its
+    inner law asks clipped). The other side: with no limit, at 100 N m (the cubic kept) and
+    with a rate limit the inner poles stay at -4 rad/s."""
+    from flatcli.api import load_spec
+    from flatcli.experiment import scenario_from, tracked_plan
+
+    def scenario_of(*sets: str) -> Scenario:
+        spec = load_spec(None, ("track.controller=\"mpc\"", "plant.model=\"dynamic\"", *sets))
+        plan, replanned = tracked_plan(spec)
+        return scenario_from(spec, plan, replanned)
+
+    for sets in ((), ("plant.torque_limit=100.0",),
+                 ("plant.torque_limit=1.0", "track.rate_limit=10.0")):
+        assert mpc.inner_gains(scenario_of(*sets)).kp == (mpc.DYNAMIC_INNER_KP,) * 2
+    scenario = scenario_of("plant.torque_limit=1.0")
+    assert scenario.torque_replanned
+    assert mpc.inner_gains(scenario) == Gains((4.0, 4.0), (4.0, 4.0))
+    replan = scenario.plan
+    dt, bandwidth, limit = 0.002, 100.0, 1.0
+    x0 = _initial(replan, np.array([-2.722e-3, -1.69e-3, -2.501e-3]))
+    goal = replan.sample(np.array([replan.duration])).theta[0]
+    fast = mpc.MpcSettings(kp=(16.0, 16.0), kv=(8.0, 8.0))
+    final, _ = _dynamic_referee(replan, fast, dt, bandwidth, x0, limit)
+    assert np.abs(final - goal).max() > 1e-2
+    slow = mpc.MpcSettings(kp=(4.0, 4.0), kv=(4.0, 4.0))
+    final, _ = _dynamic_referee(replan, slow, dt, bandwidth, x0, limit)
+    assert np.abs(final - goal).max() < 1e-3
+    run = Scenario(replan, Gains((1.0, 1.0), (2.0, 2.0)), dt=dt, controller="mpc",
+                   settings={"mpc": slow}, rtol=KERNEL_RTOL, atol=1e-13, twin=0.0,
+                   plant="dynamic", servo_model="plant", servo_bandwidth=bandwidth,
+                   torque_replanned=True)
+    trials = Trials(replan.robot.as_array()[None], np.zeros(1), x0[None],
+                    servo=np.array([[bandwidth, limit]]))
+    out = simulate(run, trials, "adaptive", record=True)
+    assert out.status[0] == Status.OK and out.trace is not None
+    np.testing.assert_allclose(out.trace[0, -1, :3], final, atol=1e-6, rtol=0)

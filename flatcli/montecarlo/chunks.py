@@ -285,8 +285,8 @@ def trial_task(spec: Spec, target: Any) -> TrialTask:
     """The task of one trial whose target is ``target`` (2,) [m]: planned and prepared as a
     track run of the same spec would (FlatcliError: the planner's reason)."""
     applied = spec.with_overrides({"task.end_effector": [float(v) for v in target]})
-    plan = tracked_plan(applied)[0]
-    return TrialTask(applied, scenario_from(applied, plan).prepared())
+    plan, replanned = tracked_plan(applied)
+    return TrialTask(applied, scenario_from(applied, plan, replanned).prepared())
 
 
 def reach_bounds(spec: Spec, plans: list[Any], value: dict[str, Any], metrics: Any,

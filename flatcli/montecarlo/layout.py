@@ -361,7 +361,7 @@ def layout(spec: Spec, workers: int | None = None,
             if tracked not in references:
                 references[tracked] = mpc_reference(applied, plans[shared])
             plan, replanned = references[tracked]
-            scenario = scenario_from(applied, plan).prepared()
+            scenario = scenario_from(applied, plan, replanned).prepared()
             require_finite_plan({"the reference": scenario.reference,
                                  "theta": scenario.theta_reference})
             plant_from(applied)

@@ -81,6 +81,16 @@ INNER_KV = 2.0
 #: 2 mrad initial errors: 79/100 reached; at -4 rad/s 100/100, 2026-12-05).
 DYNAMIC_INNER_KP = 16.0
 DYNAMIC_INNER_KV = 8.0
+#: On the dynamic plant, tracking a plan re-planned within the torque limit with no rate
+#: limit (``Scenario.torque_replanned``): a double pole at -2 rad/s. The torque the inner
+#: law asks to correct a trial's own errors grows with its gains, and the design does not
+#: bound it (no torque rows): the cubic's re-plan, 2 mrad errors, 100 trials a cell (seed
+#: 2003; docs/physics.md, "Within the torque limit"): at 1 N m 90 reached with the poles at
+#: -4 rad/s, 100 at -2; at 0.5 N m 45 and 98; from 3 to 30 N m 100 and 100. On the cubic
+#: (no limit) 100 and 99, so not there; with a rate limit the faster poles keep more
+#: (4, 6, 10 rad/s: 99, 98, 54 at -4; 75, 28, 23 at -2).
+TORQUE_INNER_KP = 4.0
+TORQUE_INNER_KV = 4.0
 
 
 class Design(NamedTuple):
@@ -758,16 +768,19 @@ def inner_gains(scenario: Any) -> Gains:
 
 def _settings(scenario: Any) -> MpcSettings:
     """The scenario's MPC settings; the flat law's on the dynamic plant with its inner
-    gains ``DYNAMIC_INNER_KP``, ``DYNAMIC_INNER_KV`` unless ``track.mpc_kp``, ``mpc_kv``
-    are set."""
+    gains ``DYNAMIC_INNER_KP``, ``DYNAMIC_INNER_KV`` (``TORQUE_INNER_KP``,
+    ``TORQUE_INNER_KV`` on a plan re-planned within the torque limit, no rate limit) unless
+    ``track.mpc_kp``, ``mpc_kv`` are set."""
     import dataclasses
 
     settings: MpcSettings = scenario.settings_for("mpc")
     if scenario.law == "asbuilt" or scenario.plant != "dynamic":
         return settings
     n = scenario.n_joints
-    kp = settings.kp if settings.kp is not None else (DYNAMIC_INNER_KP,) * n
-    kv = settings.kv if settings.kv is not None else (DYNAMIC_INNER_KV,) * n
+    kp0, kv0 = ((TORQUE_INNER_KP, TORQUE_INNER_KV) if scenario.torque_replanned
+                else (DYNAMIC_INNER_KP, DYNAMIC_INNER_KV))
+    kp = settings.kp if settings.kp is not None else (kp0,) * n
+    kv = settings.kv if settings.kv is not None else (kv0,) * n
     return dataclasses.replace(settings, kp=tuple(kp), kv=tuple(kv))
 
 

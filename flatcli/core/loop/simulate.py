@@ -191,6 +191,9 @@ class Scenario:
         kinematic plant); it runs with the "dop853" integrator only
     servo_bandwidth : the dynamic plant's nominal servo bandwidth [rad/s], the lag the
         as-built law is designed for there
+    torque_replanned : the MPC tracks a plan re-planned within the dynamic plant's torque
+        limit (``experiment.mpc_reference``) with no rate limit: its inner gains are then
+        ``mpc.TORQUE_INNER_KP``, ``TORQUE_INNER_KV``
     twin : the adaptive integrator's error estimate: each trial reaching T is integrated a
         second time at its tolerances times this factor in (0, 1) (``kernels.make_batch``;
         not below ``TWIN_RTOL_FLOOR``); 0 for no estimate (``err_estimate`` null)
@@ -219,6 +222,7 @@ class Scenario:
     settings: Mapping[str, Any] = field(default_factory=dict)
     python: Any = None
     servo_bandwidth: float = DEFAULT_SERVO_BANDWIDTH
+    torque_replanned: bool = False
     twin: float = TWIN_FACTOR
     accuracy: float = DEFAULT_ACCURACY
     observe_every: int = 1
