@@ -342,3 +342,34 @@ def test_the_warm_start_changes_no_correction(replan) -> None:  # type: ignore[n
     np.testing.assert_allclose(warm_held, cold_held, atol=1e-9 * np.abs(cold_held).max(),
                                rtol=0)
     assert np.all(cold_guessed == 0) and warm_guessed[1:].max() > 1  # beyond the slack
+
+
+def test_a_design_is_made_once_for_what_it_is_made_of() -> None:
+    """``design_for`` gives the same design again for a scenario made of the same things (a
+    sweep's cells that differ in a torque limit the same re-plan keeps), and a new one when
+    the plan's model, the output step or the settings differ; a reused design equals one
+    made afresh (``_design_for``, no reuse) array by array."""
+    from flatcli.api import load_spec
+    from flatcli.core.loop.simulate import Scenario
+    from flatcli.experiment import scenario_from, tracked_plan
+
+    mpc._DESIGNS.clear()
+
+    def scenario_of(*sets: str) -> Scenario:
+        spec = load_spec(None, ("track.controller=\"mpc\"", *sets))
+        plan, replanned = tracked_plan(spec)
+        return scenario_from(spec, plan, replanned)
+
+    a = scenario_of("track.rate_limit=4.0", "track.dt=0.002")
+    b = scenario_of("track.rate_limit=4.0", "track.dt=0.002", "plant.torque_limit=5.0")
+    first = mpc.design_for(a)
+    assert mpc.design_for(b) is first  # the kinematic plant reads no torque limit
+    fresh = mpc._design_for(a, mpc._settings(a))
+    for name, value in first._asdict().items():
+        np.testing.assert_array_equal(np.asarray(value), np.asarray(getattr(fresh, name)))
+    for other in (scenario_of("track.rate_limit=4.0", "track.dt=0.004"),
+                  scenario_of("track.rate_limit=4.0", "track.dt=0.002",
+                              "track.mpc_horizon=10"),
+                  scenario_of("track.rate_limit=4.0", "track.dt=0.002",
+                              "robot.model=\"paper\"")):
+        assert mpc.design_for(other) is not first
