@@ -59,6 +59,34 @@ def _initial(plan, errors: Array) -> Array:  # type: ignore[no-untyped-def]
     return np.array([*start.theta[0], start.theta_dot[0][1]]) + np.r_[errors, 0.0]
 
 
+def _sampled(plan, design, rhs, x: Array, ts: float, u_at: int,  # type: ignore[no-untyped-def]
+             given: Array | None = None) -> tuple[Array, Array]:
+    """The referees' loop in time: at each sample the flat outputs' errors (e_j, e_j') of the
+    angles x[:N + 1] and the integrators x[u_at:u_at + N - 1] (y' from the commanded u, as the
+    compiled loop measures) into the MPC's s0, its step (``_step``) on ``design``, then
+    ``rhs(t, x, dv)`` by DOP853 at rtol ``REFEREE_RTOL`` over the sample with dv held (or
+    ``given`` (K, N) held instead: a replay). Returns the final state and the corrections
+    held (K, N)."""
+    n = plan.n_joints
+    model = ChainModel.of(plan.robot)
+    scratch = mpc.scratch(design)
+    mpc.reset(scratch)
+    held = np.zeros((design.samples, n))
+    for k in range(design.samples):
+        t0 = k * ts
+        y, y_dot, _ = model.outputs(x[None, : n + 1], x[None, u_at: u_at + n - 1])
+        flag = plan.trajectory.flags(np.array([t0]))[0]
+        scratch.s0[0: 2 * n: 2] = y[0] - flag[:n]
+        scratch.s0[1: 2 * n: 2] = y_dot[0] - flag[n: 2 * n]
+        _step(design, scratch, k)
+        held[k] = scratch.held if given is None else given[k]
+        sol = solve_ivp(rhs, (t0, t0 + ts), x, method="DOP853", rtol=REFEREE_RTOL,
+                        atol=1e-13, args=(held[k].copy(),))
+        assert sol.success
+        x = sol.y[:, -1]
+    return x, held
+
+
 def _referee(plan, settings: mpc.MpcSettings, dt: float, limit: float, x0: Array,  # type: ignore[no-untyped-def]
              given: Array | None = None) -> tuple[Array, Array]:
     """The final angles (3,) and the corrections held (K, 2) of the referee loop (module
@@ -67,12 +95,9 @@ def _referee(plan, settings: mpc.MpcSettings, dt: float, limit: float, x0: Array
     model = ChainModel.of(plan.robot)
     links = Links(*(float(v) for v in plan.robot.links))
     design = mpc.flat_design(plan.model, plan.trajectory, plan.duration, dt, limit, settings)
-    scratch = mpc.scratch(design)
-    mpc.reset(scratch)
     kp = np.full(2, mpc.INNER_KP)
     kv = np.full(2, mpc.INNER_KV)
     ts = design.every * dt
-    held = np.zeros((design.samples, 2))
 
     def law(t: float, x: Array, dv: Array) -> tuple[float, float, float]:
         theta, u = x[:3], x[3:4]
@@ -94,20 +119,7 @@ def _referee(plan, settings: mpc.MpcSettings, dt: float, limit: float, x0: Array
         h_one = momentum(links, x[0], x[1], x[2], 1.0, w1, w2)
         return np.array([-h_zero / (h_one - h_zero), w1, w2, u1_dot])
 
-    x = x0.copy()
-    for k in range(design.samples):
-        t0 = k * ts
-        y, y_dot, _ = model.outputs(x[None, :3], x[None, 3:4])
-        flag = plan.trajectory.flags(np.array([t0]))[0]
-        scratch.s0[:] = [y[0, 0] - flag[0], y_dot[0, 0] - flag[2], y[0, 1] - flag[1],
-                         y_dot[0, 1] - flag[3]]
-        _step(design, scratch, k)
-        dv = scratch.held.copy() if given is None else given[k]
-        held[k] = dv
-        sol = solve_ivp(rhs, (t0, t0 + ts), x, method="DOP853", rtol=REFEREE_RTOL,
-                        atol=1e-13, args=(dv,))
-        assert sol.success
-        x = sol.y[:, -1]
+    x, held = _sampled(plan, design, rhs, x0.copy(), ts, 3, given)
     return x[:3], held
 
 
@@ -428,8 +440,6 @@ def _lagged_referee(plan, settings: mpc.MpcSettings, dt: float, bandwidth: float
     offsets = mpc.tracked_offsets(plan, dt, settings, bandwidth, limit)
     design = mpc.flat_design(plan.model, plan.trajectory, plan.duration, dt, limit,
                              settings, offsets)
-    scratch = mpc.scratch(design)
-    mpc.reset(scratch)
     kp = np.asarray(settings.kp, dtype=float)
     kv = np.asarray(settings.kv, dtype=float)
     ts = design.every * dt
@@ -454,18 +464,7 @@ def _lagged_referee(plan, settings: mpc.MpcSettings, dt: float, bandwidth: float
                          bandwidth * (r1 - x[4]), bandwidth * (r2 - x[5])])
 
     r0 = np.clip([x0[3], command(0.0, np.r_[x0, 0.0, 0.0], np.zeros(2))[1]], -limit, limit)
-    x = np.r_[x0, r0]
-    for k in range(design.samples):
-        t0 = k * ts
-        y, y_dot, _ = model.outputs(x[None, :3], x[None, 3:4])
-        flag = plan.trajectory.flags(np.array([t0]))[0]
-        scratch.s0[:4] = [y[0, 0] - flag[0], y_dot[0, 0] - flag[2], y[0, 1] - flag[1],
-                          y_dot[0, 1] - flag[3]]
-        _step(design, scratch, k)
-        sol = solve_ivp(rhs, (t0, t0 + ts), x, method="DOP853", rtol=REFEREE_RTOL,
-                        atol=1e-13, args=(scratch.held.copy(),))
-        assert sol.success
-        x = sol.y[:, -1]
+    x, _ = _sampled(plan, design, rhs, np.r_[x0, r0], ts, 3)
     return x[:3]
 
 
@@ -538,8 +537,6 @@ def _dynamic_referee(plan, settings: mpc.MpcSettings, dt: float, bandwidth: floa
     offsets = mpc.tracked_offsets(plan, dt, settings, bandwidth, math.inf)
     design = mpc.flat_design(plan.model, plan.trajectory, plan.duration, dt, math.inf,
                              settings, offsets)
-    scratch = mpc.scratch(design)
-    mpc.reset(scratch)
     kp = np.asarray(settings.kp, dtype=float)
     kv = np.asarray(settings.kv, dtype=float)
     ts = design.every * dt
@@ -569,18 +566,7 @@ def _dynamic_referee(plan, settings: mpc.MpcSettings, dt: float, bandwidth: floa
     w = np.array([0.0, x0[3], command(0.0, x0[:3], x0[3], np.zeros(2))[1]])
     M0 = np.asarray(f_M(x0[:3], w, *body), dtype=float)
     w[0] = -(M0[0, 1:] @ w[1:]) / M0[0, 0]  # H = 0
-    x = np.r_[x0[:3], w, x0[3]]
-    for k in range(design.samples):
-        t0 = k * ts
-        y, y_dot, _ = model.outputs(x[None, :3], x[None, 6:7])
-        flag = plan.trajectory.flags(np.array([t0]))[0]
-        scratch.s0[:4] = [y[0, 0] - flag[0], y_dot[0, 0] - flag[2], y[0, 1] - flag[1],
-                          y_dot[0, 1] - flag[3]]
-        _step(design, scratch, k)
-        sol = solve_ivp(rhs, (t0, t0 + ts), x, method="DOP853", rtol=REFEREE_RTOL,
-                        atol=1e-13, args=(scratch.held.copy(),))
-        assert sol.success
-        x = sol.y[:, -1]
+    x, _ = _sampled(plan, design, rhs, np.r_[x0[:3], w, x0[3]], ts, 6)
     return x[:3], asked[0]
 
 
@@ -642,8 +628,6 @@ def _lagged_chain_referee(plan, settings: mpc.MpcSettings, dt: float, bandwidth:
         offsets = mpc.tracked_offsets(plan, dt, settings, bandwidth, math.inf)
     design = mpc.flat_design(plan.model, plan.trajectory, plan.duration, dt, math.inf,
                              settings, offsets)
-    scratch = mpc.scratch(design)
-    mpc.reset(scratch)
     kp = np.asarray(settings.kp, dtype=float)
     kv = np.asarray(settings.kv, dtype=float)
     ts = design.every * dt
@@ -666,15 +650,8 @@ def _lagged_chain_referee(plan, settings: mpc.MpcSettings, dt: float, bandwidth:
         row = mass_matrix(chain, x[: n + 1])[0]
         return np.r_[-(row[1:] @ w) / row[0], w, u_dot, bandwidth * (r - w)]
 
-    x = np.r_[x0, command(0.0, x0, np.zeros(n))[n - 1:]]
-    for k in range(design.samples):
-        e, e_dot, _ = errors(k * ts, x)
-        scratch.s0[0: 2 * n: 2], scratch.s0[1: 2 * n: 2] = e, e_dot
-        _step(design, scratch, k)
-        sol = solve_ivp(rhs, (k * ts, (k + 1) * ts), x, method="DOP853", rtol=REFEREE_RTOL,
-                        atol=1e-13, args=(scratch.held.copy(),))
-        assert sol.success
-        x = sol.y[:, -1]
+    x, _ = _sampled(plan, design, rhs, np.r_[x0, command(0.0, x0, np.zeros(n))[n - 1:]], ts,
+                    n + 1)
     return x[: n + 1]
 
 
