@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import numba
 import numpy as np
@@ -468,6 +469,25 @@ def _lagged_referee(plan, settings: mpc.MpcSettings, dt: float, bandwidth: float
     return x[:3]
 
 
+def _dynamic_final(plan, settings: mpc.MpcSettings, dt: float, bandwidth: float,  # type: ignore[no-untyped-def]
+                   x0: Array, rate_limit: float = math.inf, torque_limit: float = math.inf,
+                   integrator: str = "adaptive", **extra: Any) -> Array:
+    """The final angles (N + 1,) of one compiled MPC trial on the dynamic plant (the servo's
+    model the plant, bandwidth ``bandwidth`` [rad/s], the joint torques clipped at
+    ``torque_limit``) from ``x0``, the loop at rtol ``KERNEL_RTOL``; it must end ``ok``."""
+    n = plan.n_joints
+    scenario = Scenario(plan, Gains((1.0,) * n, (2.0,) * n), dt=dt, controller="mpc",
+                        settings={"mpc": settings}, rate_limit=rate_limit, rtol=KERNEL_RTOL,
+                        atol=1e-13, twin=0.0, plant="dynamic", servo_model="plant",
+                        servo_bandwidth=bandwidth, **extra)
+    trials = Trials(plan.robot.as_array()[None], np.zeros(1), x0[None],
+                    servo=np.array([[bandwidth, torque_limit]]))
+    out = simulate(scenario, trials, integrator, record=True)  # type: ignore[arg-type]
+    assert out.status[0] == Status.OK
+    assert out.trace is not None
+    return np.asarray(out.trace[0, -1, : n + 1])
+
+
 def test_the_dynamic_mpc_is_the_lagged_loop_integrated_by_scipy(plan) -> None:  # type: ignore[no-untyped-def]
     """The flat-law MPC on the dynamic plant (its servo's model the plant, no torque limit:
     each joint rate a first-order lag of bandwidth 100 rad/s) ends where the referee's
@@ -477,15 +497,8 @@ def test_the_dynamic_mpc_is_the_lagged_loop_integrated_by_scipy(plan) -> None:  
     dt, bandwidth = 0.002, 100.0
     x0 = _initial(plan, np.array([2e-3, -3e-3, 1e-3]))
     final = _lagged_referee(plan, settings, dt, bandwidth, x0)
-    scenario = Scenario(plan, Gains((1.0, 1.0), (2.0, 2.0)), dt=dt, controller="mpc",
-                        settings={"mpc": settings}, rtol=KERNEL_RTOL, atol=1e-13, twin=0.0,
-                        plant="dynamic", servo_model="plant", servo_bandwidth=bandwidth)
-    trials = Trials(plan.robot.as_array()[None], np.zeros(1), x0[None],
-                    servo=np.array([[bandwidth, np.inf]]))
-    out = simulate(scenario, trials, "adaptive", record=True)
-    assert out.status[0] == Status.OK
-    assert out.trace is not None
-    np.testing.assert_allclose(out.trace[0, -1, :3], final, atol=1e-6, rtol=0)
+    np.testing.assert_allclose(_dynamic_final(plan, settings, dt, bandwidth, x0), final,
+                               atol=1e-6, rtol=0)
     goal = plan.sample(np.array([plan.duration])).theta[0]
     assert np.abs(final - goal).max() < 1e-3
 
@@ -502,16 +515,8 @@ def test_the_dynamic_mpc_reaches_the_goal_within_4_rad_s(replan, monkeypatch) ->
     dt, bandwidth, limit = 0.002, 100.0, 4.0
     x0 = _initial(replan, np.array([2e-3, -1e-3, 1.5e-3]))
     final = _lagged_referee(replan, settings, dt, bandwidth, x0, limit)
-    scenario = Scenario(replan, Gains((1.0, 1.0), (2.0, 2.0)), dt=dt, controller="mpc",
-                        settings={"mpc": settings}, rate_limit=limit, rtol=KERNEL_RTOL,
-                        atol=1e-13, twin=0.0, plant="dynamic", servo_model="plant",
-                        servo_bandwidth=bandwidth)
-    trials = Trials(replan.robot.as_array()[None], np.zeros(1), x0[None],
-                    servo=np.array([[bandwidth, np.inf]]))
-    out = simulate(scenario, trials, "adaptive", record=True)
-    assert out.status[0] == Status.OK
-    assert out.trace is not None
-    np.testing.assert_allclose(out.trace[0, -1, :3], final, atol=1e-6, rtol=0)
+    np.testing.assert_allclose(_dynamic_final(replan, settings, dt, bandwidth, x0, limit),
+                               final, atol=1e-6, rtol=0)
     goal = replan.sample(np.array([replan.duration])).theta[0]
     assert np.abs(final - goal).max() < 1e-3
     monkeypatch.setattr(mpc, "OFFSET_PASSES", 0)  # the offsets of the path with dv = 0
@@ -589,15 +594,8 @@ def test_the_dynamic_mpc_keeps_10_n_m_on_its_replan() -> None:
     x0 = _initial(replan, np.array([2e-3, -1e-3, 1.5e-3]))
     final, asked = _dynamic_referee(replan, settings, dt, bandwidth, x0, limit)
     assert asked < 1.0  # 0.40 N m
-    scenario = Scenario(replan, Gains((1.0, 1.0), (2.0, 2.0)), dt=dt, controller="mpc",
-                        settings={"mpc": settings}, rtol=KERNEL_RTOL, atol=1e-13, twin=0.0,
-                        plant="dynamic", servo_model="plant", servo_bandwidth=bandwidth)
-    trials = Trials(replan.robot.as_array()[None], np.zeros(1), x0[None],
-                    servo=np.array([[bandwidth, limit]]))
-    out = simulate(scenario, trials, "adaptive", record=True)
-    assert out.status[0] == Status.OK
-    assert out.trace is not None
-    np.testing.assert_allclose(out.trace[0, -1, :3], final, atol=1e-6, rtol=0)
+    np.testing.assert_allclose(_dynamic_final(replan, settings, dt, bandwidth, x0,
+                                              torque_limit=limit), final, atol=1e-6, rtol=0)
     goal = replan.sample(np.array([replan.duration])).theta[0]
     assert np.abs(final - goal).max() < 1e-3
     cubic = plan_from(spec)
@@ -673,16 +671,9 @@ def test_the_dynamic_mpc_of_a_chain_is_its_lagged_loop_integrated_by_scipy() -> 
     dt, bandwidth = 0.002, 100.0
     x0 = np.r_[start + np.array([2e-3, -3e-3, 1e-3, 2e-3]), np.full(n - 1, 0.3)]
     final = _lagged_chain_referee(chain_plan, settings, dt, bandwidth, x0)
-    scenario = Scenario(chain_plan, Gains((1.0,) * n, (2.0,) * n), dt=dt, controller="mpc",
-                        settings={"mpc": settings}, rtol=KERNEL_RTOL, atol=1e-13, twin=0.0,
-                        plant="dynamic", servo_model="plant", servo_bandwidth=bandwidth)
-    trials = Trials(robot.as_array()[None], np.zeros(1), x0[None],
-                    servo=np.array([[bandwidth, np.inf]]))
-    out = simulate(scenario, trials, "dop853", record=True)
-    assert out.status[0] == Status.OK
-    assert out.trace is not None
     end = chain_plan.sample(np.array([chain_plan.duration])).theta[0]
-    np.testing.assert_allclose(out.trace[0, -1, : n + 1], final, atol=1e-6, rtol=0)
+    np.testing.assert_allclose(_dynamic_final(chain_plan, settings, dt, bandwidth, x0,
+                                              integrator="dop853"), final, atol=1e-6, rtol=0)
     assert np.abs(final - end).max() < 1e-3
     samples = round(chain_plan.duration / dt) // settings.every(dt, chain_plan.duration)
     none = _lagged_chain_referee(chain_plan, settings, dt, bandwidth, x0,
@@ -774,12 +765,5 @@ def test_on_a_torque_replan_the_inner_poles_slow_and_1_n_m_is_kept() -> None:
     slow = mpc.MpcSettings(kp=(4.0, 4.0), kv=(4.0, 4.0))
     final, _ = _dynamic_referee(replan, slow, dt, bandwidth, x0, limit)
     assert np.abs(final - goal).max() < 1e-3
-    run = Scenario(replan, Gains((1.0, 1.0), (2.0, 2.0)), dt=dt, controller="mpc",
-                   settings={"mpc": slow}, rtol=KERNEL_RTOL, atol=1e-13, twin=0.0,
-                   plant="dynamic", servo_model="plant", servo_bandwidth=bandwidth,
-                   torque_replanned=True)
-    trials = Trials(replan.robot.as_array()[None], np.zeros(1), x0[None],
-                    servo=np.array([[bandwidth, limit]]))
-    out = simulate(run, trials, "adaptive", record=True)
-    assert out.status[0] == Status.OK and out.trace is not None
-    np.testing.assert_allclose(out.trace[0, -1, :3], final, atol=1e-6, rtol=0)
+    np.testing.assert_allclose(_dynamic_final(replan, slow, dt, bandwidth, x0, torque_limit=limit,
+                                              torque_replanned=True), final, atol=1e-6, rtol=0)
