@@ -142,17 +142,22 @@ def percent(low: float, high: float) -> str:
     return f"{100 * low:.3g}-{100 * high:.3g} %"
 
 
+def _cell_head(r: pd.Series, key: str) -> list[Any]:
+    """A cell's first columns in both tables: its limit (``key``), controller, the plan it
+    tracked, reached of trials, and the reached fraction with its interval."""
+    replan = "-" if pd.isna(r["replanned"]) else ("re-planned" if r["replanned"]
+                                                 else "as planned")
+    return [limit_text(r[key]), NAMES[r[CONTROLLER]], replan,
+            f"{r['reached']} of {r['trials']}",
+            f"{100 * r['fraction']:.3g} % ({percent(r['low'], r['high'])})"]
+
+
 def outcome_table(rows: pd.DataFrame) -> str:
     """The cells as a Markdown table, by outcome."""
     body = []
     for _, r in rows.iterrows():
-        replan = "-" if pd.isna(r["replanned"]) else ("re-planned" if r["replanned"]
-                                                     else "as planned")
-        body.append([limit_text(r[LIMIT]), NAMES[r[CONTROLLER]], replan,
-                     f"{r['reached']} of {r['trials']}",
-                     f"{100 * r['fraction']:.3g} % ({percent(r['low'], r['high'])})",
-                     r["collided"], r["missed"], r["lost"], r["median"],
-                     "-" if pd.isna(r["slack_trials"]) else int(r["slack_trials"]),
+        body.append([*_cell_head(r, LIMIT), r["collided"], r["missed"], r["lost"],
+                     r["median"], "-" if pd.isna(r["slack_trials"]) else int(r["slack_trials"]),
                      r["clipped_max"]])
     return table(["rate limit [rad/s]", "controller", "plan tracked", "reached",
                   "reached (95 % interval)", "collided", "missed", "lost",
@@ -165,13 +170,8 @@ def torque_table(rows: pd.DataFrame) -> str:
     outcome."""
     body = []
     for _, r in rows.iterrows():
-        replan = "-" if pd.isna(r["replanned"]) else ("re-planned" if r["replanned"]
-                                                     else "as planned")
-        body.append([limit_text(r[TORQUE]), NAMES[r[CONTROLLER]], replan,
-                     f"{r['reached']} of {r['trials']}",
-                     f"{100 * r['fraction']:.3g} % ({percent(r['low'], r['high'])})",
-                     r["missed"], r["lost"], r["singular"], r["median"], r["peak_torque"],
-                     r["torque_clipped"]])
+        body.append([*_cell_head(r, TORQUE), r["missed"], r["lost"], r["singular"],
+                     r["median"], r["peak_torque"], r["torque_clipped"]])
     return table(["torque limit [N m]", "controller", "plan tracked", "reached",
                   "reached (95 % interval)", "missed", "lost", "status singular",
                   "median final error [rad]", "median peak torque [N m]",
