@@ -12,7 +12,9 @@
   the loop calls them), with the warm start (the default) and without;
 * on the dynamic plant at a 10 N m torque limit (b = 100 rad/s): the cubic tracked as it is
   against the MPC's re-plan within the torque limit (the plan of largest margin): the torque
-  each asks, the re-plan's and the designs' seconds, seconds per trial and reached.
+  each asks, the re-plan's and the designs' seconds, seconds per trial and reached;
+* at 0.5 N m the MPC with its torque rows against without them: reached, seconds per trial
+  and per step, the designs' seconds.
 
 The issue's goals: an MPC trial at most 20x a paper-feedback trial in the same sweep; one
 step at horizon 20 at most 50 us on one core.
@@ -267,6 +269,68 @@ def torque_replan(bench: Any, count: int, repeats: int) -> dict[str, float]:
     return out
 
 
+#: The torque rows' bench: a limit where they bind (docs/physics.md, "Within the torque
+#: limit": the re-plan asks 0.325 N m).
+ROWS_LIMIT = 0.5
+
+
+def torque_rows(bench: Any, count: int, repeats: int) -> dict[str, float]:
+    """The MPC on the dynamic plant at ``ROWS_LIMIT`` (the re-plan of largest margin) with
+    its torque rows (``mpc.servo_torques``: the design a sweep makes) and without
+    (``Scenario.torque_kept`` inf, the design before them), the same ``count`` trials (th(0)
+    off by up to 2 mrad): each design's seconds, seconds per trial (best of ``repeats``),
+    reached (within 1e-3 rad at T), and one MPC step (``sample_step``, warm start) as the
+    trials call it, the mean over the maneuver's samples of 8 of them."""
+    import dataclasses
+
+    from flatcli.api import load_spec
+    from flatcli.core.loop.metrics import Status
+    from flatcli.core.loop.simulate import simulate
+    from flatcli.experiment import scenario_from, tracked_plan
+
+    spec = load_spec(None, {"track.controller": "mpc", **DYNAMIC,
+                            "plant.torque_limit": ROWS_LIMIT})
+    plan, replanned = tracked_plan(spec)
+    base = scenario_from(spec, plan, replanned)
+    trials = _trials(spec, plan, count)
+    goal = plan.sample(np.array([plan.duration])).theta[0]
+    out: dict[str, float] = {}
+    for name, kept in (("rows", base.torque_kept), ("none", float("inf"))):
+        scenario = dataclasses.replace(base, torque_kept=kept)
+        mpc._DESIGNS.clear()
+        started = time.perf_counter()
+        d = mpc.design_for(scenario)
+        design = time.perf_counter() - started
+        scenario = scenario.prepared()
+        simulate(scenario, trials.subset(slice(0, 2)))  # compiled, warm
+        best = np.inf
+        for _ in range(repeats):
+            started = time.perf_counter()
+            result = simulate(scenario, trials)
+            best = min(best, time.perf_counter() - started)
+        assert result.final is not None
+        miss = np.abs(result.final - goal).max(axis=1)
+        reached = int(np.sum((result.status == Status.OK) & (miss <= 1e-3)))
+        errors = measured_errors(scenario, spec, 8)
+        s = mpc.scratch(d)
+        _steps(d, s, errors, False, 1)
+        step = np.inf
+        for _ in range(5):
+            started = time.perf_counter()
+            _steps(d, s, errors, False, 20)
+            step = min(step, (time.perf_counter() - started) / (20 * 8 * d.samples))
+        out.update({f"{name}_design_seconds": design, f"{name}_trial_seconds": best / count,
+                    f"{name}_reached": reached, f"{name}_step_seconds": step})
+        what = "with the torque rows" if name == "rows" else "without torque rows"
+        bench.row(SECTION, f"the MPC at {ROWS_LIMIT:g} N m on the dynamic plant {what} "
+                  f"({count} trials)", f"{best / count * 1e3:.2f} ms a trial",
+                  f"{best / count / out['rows_trial_seconds']:.2f}x",
+                  f"reached {reached}/{count}",
+                  f"one step {step * 1e6:.1f} us ({mpc.rows(d)} rows at most); design "
+                  f"{design:.1f} s")
+    return out
+
+
 def run_all(bench: Any) -> None:
     quick = bench.quick
     count, pairs = (50, 3) if quick else (200, 7)
@@ -276,4 +340,5 @@ def run_all(bench: Any) -> None:
         "step_limit_4": step_time(bench, 20 if quick else 200, 4.0),
         "step_unlimited": step_time(bench, 20 if quick else 200, float("inf")),
         "torque_replan": torque_replan(bench, 20 if quick else 100, 1 if quick else 3),
+        "torque_rows": torque_rows(bench, 20 if quick else 100, 1 if quick else 3),
     }

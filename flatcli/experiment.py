@@ -401,6 +401,7 @@ def scenario_from(spec: Spec, plan: Plan, replanned: bool | None = None) -> Scen
         servo_bandwidth=spec.plant.servo_bandwidth,
         torque_replanned=bool(replanned) and math.isfinite(mpc_kept_torque(spec))
         and not math.isfinite(spec.track.rate_limit),
+        torque_kept=mpc_kept_torque(spec) if track.controller == "mpc" else math.inf,
         twin=TWIN_FACTOR if track.error_estimate == "twin" else 0.0,
         accuracy=track.accuracy,
         observe_every=track.observe_every,

@@ -20,14 +20,16 @@ At each sample k (every ``every`` output steps) the controller measures s_k and 
                s = 0 at T                            where T is within the horizon
 
 a QP in the corrections (``qp``). A constrained quantity (a joint rate, the singularity
-margin) is a function of the state and the input, linearised about the plan at each sample:
-quantity = value + slope_s . s_i + slope_v . dv_i (``Design``). Its bounds are soft: one
-slack s >= 0 widens each, at a cost ``SLACK_QUADRATIC`` s^2 / 2 + ``SLACK_LINEAR`` s, so a
-state from which the limits cannot all be kept still gets the correction that violates them
-least, and the sample is counted (``qp_infeasible``); the terminal equalities are hard,
-and imposed only while the corrections left can meet them (N r >= S with r samples to go:
-two samples for the flat law's S = 2 N errors, three for the as-built law's S = 2 N + 1
-with a servo); in the samples after that the corrections the last solved QP planned for
+margin; on the dynamic plant under a torque limit the servo's joint torques, just after each
+sample's jump of the correction and at the sample interval's end: ``servo_torques``,
+``_jump_design``) is a function of the state and the input, linearised about the plan at
+each sample: quantity = value + slope_s . s_i + slope_v . dv_i (``Design``). Its bounds are
+soft: one slack s >= 0 widens each, at a cost ``SLACK_QUADRATIC`` s^2 / 2 + ``SLACK_LINEAR``
+s, so a state from which the limits cannot all be kept still gets the correction that
+violates them least, and the sample is counted (``qp_infeasible``); the terminal equalities
+are hard, and imposed only while the corrections left can meet them (N r >= S with r samples
+to go: two samples for the flat law's S = 2 N errors, three for the as-built law's S = 2 N +
+1 with a servo); in the samples after that the corrections the last solved QP planned for
 them are held (with S equalities on fewer than S unknowns the QP has no solution: the
 as-built dynamic MPC's second-to-last sample counted as ``qp_infeasible`` before).
 
@@ -35,7 +37,10 @@ What it guarantees and what it does not: the limits hold at the predicted sample
 controller's model and the linearisation about the plan, not between samples, not for a
 plant that differs from the model, and not to the linearisation's error far from the plan
 (tests/test_mpc.py measures it); recursive feasibility is not guaranteed (the slack takes
-what cannot be met).
+what cannot be met). The torques are the servo's quasi-steady model (``servo_torques``: it
+leaves out terms of order 1/b, up to 0.023 N m of 0.5 at b = 100 rad/s, measured in
+tests/test_compose.py), and the torque at a trial's start (t = 0), where the servo's rates
+start away from the commanded ones, is not in the model (1.1 N m on a trial 5 mrad off).
 
 ``design`` tabulates everything a sample needs (numpy, once per plan: ``flat_design``);
 ``sample_step`` (compiled into the closed loop, allocating nothing) builds and solves one
@@ -83,9 +88,10 @@ DYNAMIC_INNER_KP = 16.0
 DYNAMIC_INNER_KV = 8.0
 #: On the dynamic plant, tracking a plan re-planned within the torque limit with no rate
 #: limit (``Scenario.torque_replanned``): a double pole at -2 rad/s. The torque the inner
-#: law asks to correct a trial's own errors grows with its gains, and the design does not
-#: bound it (no torque rows): the cubic's re-plan, 2 mrad errors, 100 trials a cell (seed
-#: 2003; docs/physics.md, "Within the torque limit"): at 1 N m 90 reached with the poles at
+#: law asks to correct a trial's own errors grows with its gains, which the design did not
+#: bound then (no torque rows until later on 2026-12-06: ``TORQUE_ROWS``): the cubic's
+#: re-plan, 2 mrad errors, 100 trials a cell (seed 2003; docs/physics.md, "Within the
+#: torque limit"), measured without the rows: at 1 N m 90 reached with the poles at
 #: -4 rad/s, 100 at -2; at 0.5 N m 45 and 98; from 3 to 30 N m 100 and 100. On the cubic
 #: (no limit) 100 and 99, so not there; with a rate limit the faster poles keep more
 #: (4, 6, 10 rad/s: 99, 98, 54 at -4; 75, 28, 23 at -2).
@@ -107,11 +113,16 @@ class Design(NamedTuple):
     lo, hi : (K + 1, Q) their bounds (-inf, inf: none)
     endpoint : (Q,) 1.0 for a quantity also bounded at the end of each sample interval (it
         depends on dv, so it jumps at the next sample), 0.0 for one continuous in time
-    offset : 1 if the last error state is the constant 1 that carries a known per-sample
-        offset c_k (A[k, :, -1]; weight 0, no terminal condition: ``servo_offsets``), else 0
+    offset : the error states after the S' that s(T) = 0 is about (weight 0, no terminal
+        condition): 1 if the last is the constant 1 that carries a known per-sample offset
+        c_k (A[k, :, -1]; ``servo_offsets``), 1 + N with the correction held before
+        (``held``), else 0
     warm_start : 1: each QP starts from a guessed active set (``sample_step``), 0: from
         the unconstrained minimiser (the same answer, to rounding: the QP is strictly
         convex)
+    held : N if the N error states before the constant hold the correction held over the
+        last sample (dv_k-1: the torque rows on the jumps, ``_jump_design``), which each
+        sample fills from ``Scratch.held``; else 0
     """
 
     A: Array
@@ -131,6 +142,7 @@ class Design(NamedTuple):
     every: int
     offset: int = 0
     warm_start: int = 1
+    held: int = 0
 
 
 def discretise(kp: float, kv: float, ts: float) -> tuple[Array, Array]:
@@ -188,8 +200,116 @@ def design(A: Array, B: Array, weights: Array, weight_input: float, value: Array
                   c(endpoint), int(horizon), int(samples), int(every), int(offset))
 
 
+class TorqueRows(NamedTuple):
+    """The dynamic plant's joint torques as quantities of ``flat_design`` (``servo_torques``):
+    value (K + 1, N) [N m] along the plan at the samples, slope_s (K + 1, N, 2 N) along the
+    flat law's errors (e_j, e_j') [N m / rad, N m / (rad/s)], slope_v (K + 1, N, N) along
+    the correction [N m / (rad/s^2)], each bounded within +- limit [N m] (widened to the
+    plan's own value where that is beyond); jump (K + 1, N, N) [N m / (rad/s^2)] or None:
+    the torques' jump per unit change of the correction at a sample, b Mhat[:, N] (dr_N/dv)
+    (with it the rows bound the torque just after each sample's jump and at the sample
+    interval's end: ``flat_design``)."""
+
+    value: Array
+    slope_s: Array
+    slope_v: Array
+    limit: float
+    jump: Array | None = None
+
+
+#: ``servo_torques``: the finite-difference step along each flag component [rad, rad/s,
+#: rad/s^2, rad/s^3] (central differences; the torque is smooth in the flag: truncation
+#: ~ step^2, rounding ~ 1e-16 / step relative).
+TORQUE_STEP = 1e-5
+
+
+def servo_torques(plan: Any, settings: MpcSettings, ts: float, samples: int, limit: float,
+                  bandwidth: float, jumps: bool = True) -> TorqueRows:
+    """The joint torques tau (N,) [N m] the dynamic plant's rate servo of bandwidth
+    ``bandwidth`` b [rad/s] applies between its jumps, linearised about the flat plan at the
+    K + 1 sample instants t_k = k ts [s] in the flat law's errors s = (e_j, e_j') and the
+    correction dv held over the sample; with ``jumps`` also their jump at a sample.
+
+    The servo tau = Mhat b (r - w) + chat makes the joint rates w follow the commanded r as
+    w' = b (r - w): once a jump has decayed (rate ~b), w' ~ r' and w ~ r, and tau ~ Mhat(q)
+    r' + chat(q, r), the robot's inverse dynamics (``dynamics.inverse_dynamics``, the base
+    unactuated: its row ~0) along the commanded motion. That motion is the flat map's
+    (``FlatModel.motion``: q'' by complex step along the flag's derivative) of the applied
+    flag: about the plan's y_d, with the inner law e'' = -kp e - kv e' + dv (dv held:
+    dv' = 0),
+
+        y = y_d + e,  y' = y_d' + e',  y'' = y_d'' + dv - kp e - kv e',
+        y''' = y_d''' + kp kv e + (kv^2 - kp) e' - kv dv,
+
+    so tau(s, dv) is smooth, and its slopes along (s, dv) are those along the flag
+    (central differences of ``TORQUE_STEP``) times these. What it leaves out is of order
+    1/b: on the paper's maneuver re-planned within 0.5 N m, 2.7 mrad off, the torque the
+    plant applies at the intervals' ends misses it by up to 0.023 N m at b = 100 rad/s and
+    0.003 N m at 1000 (tests/test_compose.py; a first-order lag correction, w' ~ r' -
+    r''/b, changed it by 1e-3 N m, 2026-12-06). The jump: the last joint's command r_N is
+    the flat map's th_N' of (y, y', y''), so it jumps by (dr_N/dv) (dv_k - dv_k-1)
+    (``FlatModel.flag_jacobian``; the inner joints' commands are the law's integrators:
+    continuous), and the torques by b Mhat(q)[:, N] times that (``dynamics.joint_space``).
+    The robot's dynamics are the plan's robot's (the servo's model of the nominal robot)."""
+    from flatcli.core.robots.dynamics import (
+        bias_forces,
+        inverse_dynamics,
+        joint_space,
+        make_chain,
+        mass_matrix,
+    )
+
+    n = plan.n_joints
+    robot = plan.robot
+    chain = make_chain(robot.mass, robot.inertia, robot.length, robot.com)
+    model = plan.model
+    kp, kv = _inner_gains_of(n, settings)
+    times = np.arange(samples + 1) * ts
+    flag = np.concatenate([plan.trajectory.derivative(times, order) for order in range(4)],
+                          axis=-1)  # (K + 1, 4 N): y, y', y'', y'''
+
+    class Flags:
+        """A flag (m, 4 N) as the trajectory ``FlatModel.motion`` reads: y^(order)."""
+
+        def __init__(self, flags: Array) -> None:
+            self.flags = flags
+
+        def derivative(self, t: Array, order: int) -> Array:
+            return np.ascontiguousarray(self.flags[:, order * n: (order + 1) * n])
+
+    def torque(flags: Array) -> Array:
+        q, q_dot, q_ddot = model.motion(Flags(flags), times)
+        return inverse_dynamics(chain, q, q_dot, q_ddot)[:, 1:]
+
+    value = torque(flag)
+    along = np.zeros((samples + 1, n, 4 * n))  # d tau / d flag
+    for c in range(4 * n):
+        step = np.zeros(4 * n)
+        step[c] = TORQUE_STEP
+        along[:, :, c] = (torque(flag + step) - torque(flag - step)) / (2 * TORQUE_STEP)
+    d0, d1, d2, d3 = (along[..., m * n: (m + 1) * n] for m in range(4))
+    slope_s = np.zeros((samples + 1, n, 2 * n))
+    slope_s[..., 0::2] = d0 - kp * d2 + kp * kv * d3
+    slope_s[..., 1::2] = d1 - kv * d2 + (kv * kv - kp) * d3
+    slope_v = d2 - kv * d3
+    if not jumps:
+        return TorqueRows(value, slope_s, slope_v, float(limit))
+    _, slopes = model.flag_jacobian(np.ascontiguousarray(flag[:, :3 * n].T))
+    rate = slopes[2 * n, 2 * n:, :].T  # (K + 1, N): d th_N' / d y''
+    q, q_dot, _ = model.motion(Flags(flag), times)
+    masses = mass_matrix(chain, q)
+    forces = bias_forces(chain, q, q_dot)
+    hat, chat = np.zeros((n, n)), np.zeros(n)
+    jump = np.zeros((samples + 1, n, n))
+    for k in range(samples + 1):
+        joint_space(masses[k], forces[k], hat, chat)
+        jump[k] = bandwidth * np.outer(hat[:, n - 1], rate[k])
+    return TorqueRows(value, slope_s, slope_v, float(limit), jump)
+
+
 def flat_design(model: Any, trajectory: Any, duration: float, dt: float, rate_limit: float,
-                settings: MpcSettings, offsets: Any = None) -> Design:
+                settings: MpcSettings, offsets: Any = None,
+                torques: TorqueRows | None = None) -> Design:
     """The MPC about a flat plan (module docstring): per flat output j the errors
     (e_j, e_j') under the inner law e'' = -kp e - kv e' + dv; the quantities are the joint
     rates th1'..thN' [rad/s] (bounded by the rate limit) and the signed margin [rad/s] (kept
@@ -206,6 +326,8 @@ def flat_design(model: Any, trajectory: Any, duration: float, dt: float, rate_li
     offsets : (K, 2 N) or None: a known offset c_k of the errors over each sample
         (s_k+1 = A s_k + B dv_k + c_k; ``servo_offsets``), carried by a constant error state
         1 appended last (weight 0, no terminal condition, no slope of any quantity)
+    torques : the dynamic plant's joint torques as N more quantities after the margin
+        (``servo_torques``), or None: none
     """
     n = model.n_joints
     every = settings.every(dt, duration)
@@ -247,18 +369,60 @@ def flat_design(model: Any, trajectory: Any, duration: float, dt: float, rate_li
         lo[:, n] = np.where(positive, kept, -np.inf)
         hi[:, n] = np.where(positive, np.inf, -kept)
         lo[0, n], hi[0, n] = -np.inf, np.inf  # the measured state: nothing to choose
+    if torques is not None:
+        value = np.concatenate([value, torques.value], axis=1)
+        slope_s = np.concatenate([slope_s, torques.slope_s], axis=1)
+        slope_v = np.concatenate([slope_v, torques.slope_v], axis=1)
+        lo = np.concatenate([lo, np.minimum(-torques.limit, torques.value)], axis=1)
+        hi = np.concatenate([hi, np.maximum(torques.limit, torques.value)], axis=1)
     endpoint = (np.abs(slope_v).max(axis=(0, 2)) > 0.0).astype(float)
     weights = np.full(size, settings.weight_state)
     if offsets is None:
         return design(A, B, weights, settings.weight_input, value, slope_s, slope_v, lo, hi,
                       endpoint, settings.horizon, every)
+    if torques is not None and torques.jump is not None:
+        return _jump_design(A, B, np.asarray(offsets), weights, settings, value, slope_s,
+                            slope_v, lo, hi, endpoint, every, torques.jump)
     A = np.concatenate([np.concatenate([A, np.asarray(offsets)[:, :, None]], axis=2),
                         np.zeros((samples, 1, size + 1))], axis=1)
     A[:, size, size] = 1.0
     B = np.concatenate([B, np.zeros((samples, 1, n))], axis=1)
-    slope_s = np.concatenate([slope_s, np.zeros((samples + 1, n + 1, 1))], axis=2)
+    slope_s = np.concatenate([slope_s, np.zeros((samples + 1, slope_s.shape[1], 1))], axis=2)
     return design(A, B, np.append(weights, 0.0), settings.weight_input, value, slope_s,
                   slope_v, lo, hi, endpoint, settings.horizon, every, 1)
+
+
+def _jump_design(A: Array, B: Array, offsets: Array, weights: Array, settings: MpcSettings,
+                 value: Array, slope_s: Array, slope_v: Array, lo: Array, hi: Array,
+                 endpoint: Array, every: int, jump: Array) -> Design:
+    """``flat_design``'s design with the torque rows on the jumps: the error states (the
+    2 N errors, then the correction held over the last sample dv_k-1 (N), then the
+    constant 1 of the offsets; ``Design.held``), and the last N quantities (the torques)
+    taken just after the jump at the interval's start and at its end,
+
+        tau(t_k+) = tau(s_k, dv_k-1) + J_k (dv_k - dv_k-1),   tau(t_k+1-) = tau(s_k+1, dv_k)
+
+    (tau(s, dv) the quasi-steady torque of ``servo_torques``, J its ``jump``): one
+    quantity, value + slope_s . (s, dv_k-1) + J . dv_k, whose end-of-interval row (the held
+    state then dv_k) is the quasi-steady torque."""
+    samples, size, n = B.shape
+    states = size + n + 1
+    a = np.zeros((samples, states, states))
+    a[:, :size, :size] = A
+    a[:, :size, -1] = offsets
+    a[:, -1, -1] = 1.0
+    b = np.zeros((samples, states, n))
+    b[:, :size] = B
+    for j in range(n):
+        b[:, size + j, j] = 1.0
+    along_s = np.zeros((samples + 1, value.shape[1], states))
+    along_s[:, :, :size] = slope_s
+    along_v = slope_v.copy()
+    along_s[:, -n:, size: size + n] = slope_v[:, -n:] - jump
+    along_v[:, -n:] = jump
+    return design(a, b, np.concatenate([weights, np.zeros(n + 1)]), settings.weight_input,
+                  value, along_s, along_v, lo, hi, endpoint, settings.horizon, every,
+                  n + 1)._replace(held=n)
 
 
 def servo_offsets(plan: Any, dt: float, settings: MpcSettings, bandwidth: float) -> Array:
@@ -303,7 +467,7 @@ OFFSET_TOLERANCE = 1e-7
 
 
 def tracked_offsets(plan: Any, dt: float, settings: MpcSettings, bandwidth: float,
-                    rate_limit: float) -> Array:
+                    rate_limit: float, torques: TorqueRows | None = None) -> Array:
     """The servo's offsets c_k (K, 4) on the path the MPC itself takes, for ``flat_design``:
     ``servo_offsets`` (the lag along the inner law's path with dv = 0), then passes of the
     MPC's own closed loop from the plan's start with no error (``lagged_path``: its
@@ -317,7 +481,7 @@ def tracked_offsets(plan: Any, dt: float, settings: MpcSettings, bandwidth: floa
     offsets = servo_offsets(plan, dt, settings, bandwidth)
     for _ in range(OFFSET_PASSES):
         d = flat_design(plan.model, plan.trajectory, plan.duration, dt, rate_limit, settings,
-                        offsets)
+                        offsets, torques)
         s, dv = lagged_path(plan, d, dt, settings, bandwidth, rate_limit)
         size = s.shape[1]
         a, b = d.A[:, :size, :size], d.B[:, :size, :]
@@ -630,6 +794,8 @@ def sample_step(d: Design, s: Scratch, k: int) -> None:
     terminal = states - d.offset  # the errors s(T) = 0 is about (not the constant 1)
     if d.offset != 0:
         s.s0[states - 1] = 1.0
+    for v in range(d.held):  # the correction held over the last sample (``_jump_design``)
+        s.s0[terminal + v] = s.held[v]
     remaining = d.samples - k
     if remaining * inputs < terminal:  # too few samples left to meet s(T) = 0: hold the plan
         ahead = k - int(s.valid[0]) + 1  # samples since the last QP solved (valid: its k + 1)
@@ -739,9 +905,10 @@ def extras(s: Scratch, row: Array) -> None:
 COLUMNS = ("qp_iterations", "qp_infeasible", "qp_slack_max")
 
 #: ``design_for``'s designs by what they are made of (``_design_key``), most recent last:
-#: a sweep's cells that differ only in what the design does not read (a torque limit the
-#: same re-plan keeps, a trial count, ...) share one design instead of each making it (4-9 s
-#: on the dynamic plant).
+#: a sweep's cells that differ only in what the design does not read (a torque limit on the
+#: kinematic plant, a trial count, ...) share one design instead of each making it (4-14 s
+#: on the dynamic plant; there a torque limit is read since the torque rows: each limit its
+#: own design).
 _DESIGNS: dict[bytes, Design] = {}
 DESIGNS_KEPT = 8
 
@@ -750,7 +917,8 @@ def _design_key(scenario: Any, settings: MpcSettings) -> bytes | None:
     """What a design is made of, as bytes (None: not picklable, no reuse): the plan's robot,
     trajectory, duration and model (the coefficients the controller believes), the output
     step, the rate limit, the settings (inner gains included), the plant, its servo's
-    bandwidth, the law and its weights."""
+    bandwidth, the law and its weights, the torque limit the rows keep (``_torque_kept``)
+    and ``TORQUE_ROWS``."""
     import hashlib
     import pickle
 
@@ -759,7 +927,8 @@ def _design_key(scenario: Any, settings: MpcSettings) -> bytes | None:
         blob = pickle.dumps((type(plan).__name__, plan.robot, plan.trajectory, plan.duration,
                              plan.model, getattr(plan, "coefficients", None),
                              scenario.dt, scenario.rate_limit, settings, scenario.plant,
-                             scenario.servo_bandwidth, scenario.law, scenario.lqr))
+                             scenario.servo_bandwidth, scenario.law, scenario.lqr,
+                             _torque_kept(scenario), TORQUE_ROWS))
     except Exception:  # an object that cannot be pickled: no reuse
         return None
     return hashlib.sha256(blob).digest()
@@ -792,11 +961,35 @@ def _design_for(scenario: Any, settings: MpcSettings) -> Design:
                               settings, servo)
     plan = scenario.plan
     offsets = None
+    torques = None
+    kept = _torque_kept(scenario)
+    if math.isfinite(kept):
+        every = settings.every(scenario.dt, plan.duration)
+        torques = servo_torques(plan, settings, every * scenario.dt,
+                                round(plan.duration / scenario.dt) // every, kept,
+                                scenario.servo_bandwidth, TORQUE_ROWS == "jump")
     if scenario.plant == "dynamic":
         offsets = tracked_offsets(plan, scenario.dt, settings, scenario.servo_bandwidth,
-                                  scenario.rate_limit)
+                                  scenario.rate_limit, torques)
     return flat_design(plan.model, plan.trajectory, plan.duration, scenario.dt,
-                       scenario.rate_limit, settings, offsets)
+                       scenario.rate_limit, settings, offsets, torques)
+
+
+#: The flat MPC on the dynamic plant bounds its servo's torques (``servo_torques``) where
+#: the MPC keeps a finite torque limit (``Scenario.torque_kept``): "jump" just after each
+#: sample's jump and at each interval's end (``_jump_design``), "sustained" the quasi-steady
+#: torque at each interval's start and end, "none": no torque rows (the design before
+#: 2026-12-06; for measurement).
+TORQUE_ROWS = "jump"
+
+
+def _torque_kept(scenario: Any) -> float:
+    """The torque limit the flat MPC's rows keep [N m] (``Scenario.torque_kept``): inf off
+    the dynamic plant, for the as-built law, or with ``TORQUE_ROWS`` off."""
+    kept = float(getattr(scenario, "torque_kept", math.inf))
+    if TORQUE_ROWS == "none" or scenario.plant != "dynamic" or scenario.law == "asbuilt":
+        return math.inf
+    return kept
 
 
 def inner_gains(scenario: Any) -> Gains:

@@ -194,6 +194,11 @@ class Scenario:
     torque_replanned : the MPC tracks a plan re-planned within the dynamic plant's torque
         limit (``experiment.mpc_reference``) with no rate limit: its inner gains are then
         ``mpc.TORQUE_INNER_KP``, ``TORQUE_INNER_KV``
+    torque_kept : the joint-torque limit the MPC keeps on the dynamic plant [N m]
+        (``experiment.mpc_kept_torque``: the cell's ``plant.torque_limit`` (1 -
+        ``track.mpc_backoff``); inf: none): the flat law's MPC bounds its servo's predicted
+        torques by it (``mpc.servo_torques``); each trial's plant clips at its own
+        (``Trials.servo``)
     twin : the adaptive integrator's error estimate: each trial reaching T is integrated a
         second time at its tolerances times this factor in (0, 1) (``kernels.make_batch``;
         not below ``TWIN_RTOL_FLOOR``); 0 for no estimate (``err_estimate`` null)
@@ -223,6 +228,7 @@ class Scenario:
     python: Any = None
     servo_bandwidth: float = DEFAULT_SERVO_BANDWIDTH
     torque_replanned: bool = False
+    torque_kept: float = math.inf
     twin: float = TWIN_FACTOR
     accuracy: float = DEFAULT_ACCURACY
     observe_every: int = 1
