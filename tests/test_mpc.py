@@ -373,3 +373,21 @@ def test_a_design_is_made_once_for_what_it_is_made_of() -> None:
                   scenario_of("track.rate_limit=4.0", "track.dt=0.002",
                               "robot.model=\"paper\"")):
         assert mpc.design_for(other) is not first
+
+
+def test_the_lag_runs_flag_is_the_plans_own_on_both_bases() -> None:
+    """``mpc._flag_evaluator`` (piecewise polynomials, what ``lagged_run`` asks at every
+    evaluation) against the plan's basis itself (``FlatTrajectory.flags``: scipy's B-spline
+    or the scaled monomials), at 400 random times and at the breakpoints, on a B-spline
+    curve of 12 coefficients and a polynomial one."""
+    from flatcli.core.curves.basis import BSplineBasis, FlatTrajectory, PolynomialBasis
+
+    rng = np.random.default_rng(41)
+    for basis in (BSplineBasis(12, 2.0), PolynomialBasis(7, 2.0)):
+        trajectory = FlatTrajectory(basis, rng.normal(size=(2, basis.size)))
+        flag_at = mpc._flag_evaluator(trajectory)
+        times = np.concatenate([rng.uniform(0.0, 2.0, 400), basis.breakpoints])
+        want = trajectory.flags(times)
+        got = np.array([flag_at(float(t)) for t in times])
+        scale = np.max(np.abs(want), axis=0)
+        assert np.max(np.abs(got - want) / scale) < 1e-12
