@@ -375,6 +375,43 @@ def test_a_design_is_made_once_for_what_it_is_made_of() -> None:
         assert mpc.design_for(other) is not first
 
 
+def test_the_servo_offsets_are_shared_by_torque_limits_and_are_those_with_the_rows() -> None:
+    """On the dynamic plant each torque limit has its own design (its torque rows), but the
+    servo's offsets (``tracked_offsets``, 3-10 s) are made once, without the rows, for every
+    limit (``_offsets_for``). Referee: ``tracked_offsets`` made with the rows of 0.5 N m
+    (``servo_torques``), where the QP's torque rows are closest to binding on the path with
+    no error: the same offsets."""
+    import math
+
+    from flatcli.api import load_spec
+    from flatcli.core.loop.simulate import Scenario
+    from flatcli.experiment import scenario_from, tracked_plan
+
+    mpc._DESIGNS.clear()
+    mpc._OFFSETS.clear()
+
+    def scenario_of(limit: float) -> Scenario:
+        spec = load_spec(None, ("track.controller=\"mpc\"", "plant.model=\"dynamic\"",
+                                f"plant.torque_limit={limit}"))
+        plan, replanned = tracked_plan(spec)
+        assert replanned
+        return scenario_from(spec, plan, replanned)
+
+    low, high = scenario_of(0.5), scenario_of(1.0)
+    assert mpc.design_for(low) is not mpc.design_for(high)  # each limit its own rows
+    assert len(mpc._OFFSETS) == 1  # one lag model for both
+    shared = next(iter(mpc._OFFSETS.values()))
+    settings = mpc._settings(low)
+    every = settings.every(low.dt, low.plan.duration)
+    torques = mpc.servo_torques(low.plan, settings, every * low.dt,
+                                round(low.plan.duration / low.dt) // every,
+                                low.torque_kept, low.servo_bandwidth)
+    assert math.isfinite(low.torque_kept)
+    with_rows = mpc.tracked_offsets(low.plan, low.dt, settings, low.servo_bandwidth,
+                                    low.rate_limit, torques)
+    np.testing.assert_allclose(shared, with_rows, rtol=0, atol=1e-12)
+
+
 def test_the_lag_runs_flag_is_the_plans_own_on_both_bases() -> None:
     """``mpc._flag_evaluator`` (piecewise polynomials, what ``lagged_run`` asks at every
     evaluation) against the plan's basis itself (``FlatTrajectory.flags``: scipy's B-spline
