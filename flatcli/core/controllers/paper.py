@@ -109,15 +109,15 @@ def command(law: PaperLaw, measured: Array, rates: Array, z: Array, ref: Array, 
             z_dot: Array) -> float:
     """``LawPart.command``: r = (u1, u2) [rad/s], u1' into z_dot; returns the margin."""
     cm1, sm1 = np.cos(measured[1]), np.sin(measured[1])
-    law.held[0], law.held[1] = cm1, sm1
     u1 = z[0]
     u1_dot, u2 = feedback_at(law.kc, law.gains, measured[0], measured[1], measured[2], u1,
                              cm1, sm1, ref)
     margin = sm1 * u1
     if ref.shape[0] > 6:  # a rest plan's flag: the feedback faded (``rest``)
         u1_dot, u2, margin = faded_paper(ref, u1_dot, u2, margin)
-    r[0], r[1] = u1, u2
+    law.held[0], law.held[1] = cm1, sm1  # stores after the loads: they may alias
     z_dot[0] = unwound(u1, u1_dot, law.rate_limit)
+    r[0], r[1] = u1, u2  # last: the plant reads them next
     return margin  # type: ignore[no-any-return]
 
 
