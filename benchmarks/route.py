@@ -11,7 +11,7 @@ arguments hold that value: directly (the float, a sequence, mapping or float arr
 it, a string spelling it, or a record two attribute levels down), or, for a record that holds
 it deeper (the whole spec), a function that names ``kp`` or the gains. Consecutive calls in
 one file are one stay. The route ends at the last stay before the compiled kernel runs
-(``core/loop/kernels.py``, or ``paperloop.py`` for the paper's model); the stays after it
+(``core/loop/kernels.py``); the stays after it
 write the outputs. It prints the stays, the files and the returns to a file already left.
 
 A static walk (``farm-studio walk``) follows every branch the code could take, for every
@@ -33,7 +33,7 @@ MARK = 123.456
 #: A function holding the spec that names one of these reads the gains.
 NAMES = frozenset({"kp", "track.kp", "gains", "Gains"})
 #: The route ends in the last of these files before the outputs are written.
-KERNEL_FILES = ("core/loop/kernels.py", "core/loop/paperloop.py")
+KERNEL_FILES = ("core/loop/kernels.py",)
 
 
 def holds(value: Any, depth: int = 0) -> bool:

@@ -155,7 +155,7 @@ def test_the_papers_robot_is_the_two_link_chain() -> None:
 @pytest.mark.parametrize("n", [2, 3, 6])
 def test_the_barycentric_matrix_in_python_is_the_compiled_one_to_the_bit(n: int) -> None:
     """``barycentric_matrix`` run as Python (what the paper's loop builds its nominal K
-    with, ``kernels.paper_shared``) against the compiled batch ``barycentric_matrices``,
+    with, ``controllers.paper.paper_shared``) against the compiled batch ``barycentric_matrices``,
     on 50 random chains of each size: the same IEEE operations in the same order, so the
     same bits."""
     rng = np.random.default_rng(n)

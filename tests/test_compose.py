@@ -316,7 +316,7 @@ def test_a_controller_written_in_python_runs_in_the_same_loop(plan) -> None:  # 
 def test_the_paper_law_written_in_python_is_the_compiled_one(plan, overrides) -> None:  # type: ignore[no-untyped-def]
     """docs/development.md's example (tests/example_command.py): the paper's flat law in plain
     Python, called at every evaluation through the DOP853 loop on the compiled plant, gives
-    the compiled law's trial (control.feedback in paperloop.kinematic_rhs, the same DOP853
+    the compiled law's trial (control.feedback in controllers.paper.command, the same DOP853
     loop: the referee) to 1e-9 rad; with a rate limit that clips (the plant's clip and the
     rule against wind-up compiled) and sensor noise too."""
     from example_command import PaperLaw
@@ -400,15 +400,11 @@ def test_a_new_controller_is_one_module_and_its_registration(plan, monkeypatch) 
 
     from flatcli.core.loop import simulate as simulate_module
     from flatcli.core.loop import table
-    from flatcli.core.loop.kernels import (
-        PAPER_KINEMATIC,
-        compile_kernels,
-        paper_plant,
-        paper_shared,
-    )
+    from flatcli.core.loop.kernels import compile_kernels
 
-    ops = sampled_ops(PAPER_KINEMATIC, nudge.PART)
-    kernels = compile_kernels(ops, "nudge_paper_kinematic", paper_shared, paper_plant,
+    base = table.BASE[("flat", "paper", "kinematic")]
+    ops = sampled_ops(base[0], nudge.PART)
+    kernels = compile_kernels(ops, "nudge_paper_kinematic", base[1], base[2],
                               "example_controller")
     monkeypatch.setitem(table.SAMPLED, "nudge", nudge.PART)
     monkeypatch.setitem(table.KERNELS, ("nudge", "paper", "kinematic"), kernels)
@@ -432,7 +428,7 @@ def _lagged_referee(plan, settings: mpc.MpcSettings, dt: float, bandwidth: float
     """The final angles (3,) of the flat-law MPC on a robot whose joint rates w lag the
     commanded ones r clipped at ``limit`` as a first-order servo, w' = bandwidth (sat(r) -
     w) (what the dynamic plant does when the servo's model is the plant and no torque is
-    clipped: paperloop's docstring), w(0) = sat(r(0)); the law's integrator u1 held while
+    clipped: plants.paper's docstring), w(0) = sat(r(0)); the law's integrator u1 held while
     clipped and pushed further out; the base from H = 0 at the actual rates; the law
     measures y' from its own commanded u1 (as the compiled loop does). The referee's own
     loop (the chain's maps, DOP853 at rtol 1e-11), the MPC's step at each sample on the

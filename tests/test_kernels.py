@@ -34,7 +34,8 @@ from flatcli.core.loop.table import BASE
 from flatcli.core.plants import dynamic
 
 COMBINATIONS = {
-    "paper kinematic": kernels.PAPER_KINEMATIC, "paper dynamic": kernels.PAPER_DYNAMIC,
+    "paper kinematic": BASE[("flat", "paper", "kinematic")][0],
+    "paper dynamic": BASE[("flat", "paper", "dynamic")][0],
     "chain kinematic": BASE[("flat", "chain", "kinematic")][0],
     "chain dynamic": BASE[("flat", "chain", "dynamic")][0],
     "as-built kinematic": BASE[("asbuilt", "asbuilt", "kinematic")][0],

@@ -4,8 +4,8 @@ flatcli.core.loop.base).
 
 References, none of them the code under test:
 
-* for N = 2, the paper's robot on its own compiled dynamic plant (``plant.dynamic_rhs``,
-  the three-body sums written out; tests/test_paperloop.py checks it against a sympy Lagrangian,
+* for N = 2, the paper's robot on its own compiled dynamic plant (``plants.paper.DYNAMIC``,
+  the three-body sums written out; tests/test_plants_paper.py checks it against a sympy Lagrangian,
   the link kinematics and scipy's DOP853);
 * the general-n dynamics as numpy batch functions (``dynamics.mass_matrix``,
   ``bias_forces``, ``forward_dynamics``, built with ``dynamics.make_chain``; checked against

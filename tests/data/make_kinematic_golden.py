@@ -1,7 +1,7 @@
 """Write tests/data/kinematic_golden.npz: the kinematic plant's outcomes on a few trials.
 
 Run once, at the commit named in the file (``commit``), before the dynamic plant was added
-(issue 9), so that ``tests/test_paperloop.py`` can check that the kinematic plant's results did
+(issue 9), so that ``tests/test_plants_paper.py`` can check that the kinematic plant's results did
 not change by a single bit. Regenerate it only when a change to the kinematic plant is meant
 to change its numbers (and say so in that commit):
 

@@ -158,8 +158,8 @@ def trig(law: AsbuiltLaw) -> tuple[Array, Array]:
 
 
 @jitable
-def observed(law: AsbuiltLaw, obs: Any, j: int, theta: Array, z: Array
-             ) -> tuple[float, float, float]:
+def observed(law: AsbuiltLaw, obs: Any, j: int, theta: Array, z: Array, f: Array,
+             at: int) -> tuple[float, float, float]:
     """The joint angles' squared error from the plan's y (th1..thN, the law's outputs); no
     margin, no threshold."""
     ref = obs[1]

@@ -164,7 +164,7 @@ def trig(law_: FlatLaw) -> tuple[Array, Array]:
 
 
 @jitable
-def observed(law_: FlatLaw, obs: Any, j: int, theta: Array, z: Array
+def observed(law_: FlatLaw, obs: Any, j: int, theta: Array, z: Array, f: Array, at: int
              ) -> tuple[float, float, float]:
     """The flat outputs' squared error (the controller's flat map at the true state), the
     margin |sigma| there, the singular threshold."""

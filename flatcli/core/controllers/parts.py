@@ -74,10 +74,13 @@ class LawPart:
     start_rates : start_rates(law, initial, ref, r): the commands at t = 0 a plant with rate
         states starts from (the servo in equilibrium)
     trig : trig(law) -> (cs, sn): the trigonometry of the angles it last evaluated (valid
-        where ``shares_trig``: after ``command`` without noise, after ``observed``)
-    observed : observed(law, obs, j, theta, z) -> (squared error of its outputs [rad^2],
-        margin [rad/s], singular threshold [rad/s]) at output sample j of the true state;
-        ``obs`` = (theta_ref, ref, threshold) as the kernels pass it
+        where ``shares_trig``: after ``command`` without noise, after ``observed``; the
+        paper's law: cos th1, sin th1 as floats, after ``command``)
+    observed : observed(law, obs, j, theta, z, f, at) -> (squared error of its outputs
+        [rad^2], margin [rad/s], singular threshold [rad/s]) at output sample j of the true
+        state; ``obs`` = (theta_ref, ref, threshold) as the kernels pass it; f the loop's
+        derivative there, the plant's aux values from f[at] (a law that knows its plant may
+        read them: ``paper``)
     additive : additive(law, ref, dv, out): ``out`` = ``ref`` with dv (N,) added where its
         input enters (``kernels.Ops.additive``)
     measure : measure(law, measured, rates, z, ref, s0): the errors its design is about

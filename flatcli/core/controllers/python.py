@@ -16,8 +16,8 @@ every evaluation of the right-hand side, in place of the flat law on the paper's
 kinematic plant; ``continuous``): given the measured angles theta (N + 1,) [rad], its
 integrators u (N - 1,) [rad/s] (the commanded rates of joints 1..N-1, the prolonged state of
 the flat law) and the plan's flat flag y, y', y'' (3 N,) at t, it returns their rates u_dot
-(N - 1,) [rad/s^2] and the commanded rate of joint N [rad/s]. The plant (``loop.paperloop.
-kinematic_plant``: rates clipped to the limit, the base from its momentum) and the rule
+(N - 1,) [rad/s^2] and the commanded rate of joint N [rad/s]. The plant (``plants.paper.
+KINEMATIC``: rates clipped to the limit, the base from its momentum) and the rule
 against wind-up (``control.unwound``) are compiled; each evaluation is a Python call.
 
 A sampled controller runs where the MPC of ``mpc`` runs (``loop.compose``: the inner law,

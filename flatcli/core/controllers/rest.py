@@ -4,7 +4,7 @@ At rest the linearising feedback divides by the margin (sin(th1) u1 = 0 for N = 
 ``chainflat`` for a chain): its gain on the y_N error grows as 1/t near the ends, and a
 measured state a little off the plan would be commanded without bound. So on a rest plan
 (``plan.rest.RestPlan``) the flat law (``flat.command``, and the paper's closed form in
-``loop.paperloop``) blends its commands with the plan's own:
+``paper.command``) blends its commands with the plan's own:
 
     u_j' = y_jd'' + w(t) (u_j'_fb - y_jd''),   j < N,
     th_N' = th_Nd' + w(t) (th_N'_fb - th_Nd'),

@@ -1,7 +1,9 @@
 """A base law and a plant composed into one closed loop: ``base_ops(law, plant)`` makes the
 ``kernels.Ops`` of a (law, plant) pair from their parts (``controllers.parts.LawPart``,
 ``plants.part.PlantPart``), so that each law is written once (``controllers.flat``,
-``controllers.asbuilt``) and each plant once (``plants.kinematic``, ``plants.dynamic``).
+``controllers.asbuilt``) and each plant once (``plants.kinematic``, ``plants.dynamic``); the
+paper's robot's closed form is a law and two plants too (``controllers.paper``,
+``plants.paper``).
 
 The loop's state is the plant's (the angles first) followed by the law's own states z; its
 right-hand side writes the state's derivative, the law's signed margin, then the plant's
@@ -119,7 +121,7 @@ def base_ops(law: LawPart, plant: PlantPart) -> Ops:
         for i in range(nb):
             d = x[i] - theta_ref[j, i]
             et2 += d * d
-        ey2, margin, threshold = law_observed(loop.law, obs, j, x[:nb], x[ps:nx])
+        ey2, margin, threshold = law_observed(loop.law, obs, j, x[:nb], x[ps:nx], f, nx + 1)
         cs, sn = law_trig(loop.law)
         h, h0, peak, clipped, torque, saturated = plant_observed(loop.plant, x, f, nx + 1, cs,
                                                                  sn, shares)

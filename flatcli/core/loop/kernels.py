@@ -1,9 +1,8 @@
 """The compiled closed loop: one kernel factory, one kernel per (model, plant).
 
-A closed loop is the controller's model (the paper's closed form for N = 2, ``paperloop``'s
-right-hand sides, here; or a base law's part and a chain plant's part, composed by
-``base.base_ops``) driving a plant (kinematic or dynamic). Each combination supplies the
-same few functions, its ``Ops``:
+A closed loop is a base law's part (the controller and its model: the paper's closed form for
+N = 2, a chain's, an as-built robot's) and a plant's part (kinematic or dynamic), composed by
+``base.base_ops``. Each combination supplies the same few functions, its ``Ops``:
 
 * ``make_loop(shared, trials, i, scratch)``: trial i's loop record (its plant, its H0, its
   servo; the controller's model and gains in ``shared``);
@@ -31,14 +30,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
 from flatcli.core._jit import jitable, jitable_variant, named_kernel, variant_tag
-from flatcli.core.controllers.control import Gains, add_to_accelerations
 from flatcli.core.loop.integrate import (
     WORK_ROWS,
     make_trial_integrators,
@@ -47,7 +45,6 @@ from flatcli.core.loop.integrate import (
     no_sample,
     observed,
     plan_flag,
-    record_rates,
 )
 from flatcli.core.loop.metrics import (
     ACCUMULATOR_SIZE,
@@ -55,38 +52,9 @@ from flatcli.core.loop.metrics import (
     conclude_trial,
     finish_metrics,
     observe_crossing,
-    plan_momentum_residual,
     reset_accumulator,
 )
-from flatcli.core.loop.paperloop import (
-    DYNAMIC_AUX,
-    DYNAMIC_STATE,
-    KINEMATIC_AUX,
-    KINEMATIC_STATE,
-    CommandLoop,
-    DynamicLoop,
-    Loop,
-    command_rhs,
-    dynamic_initial,
-    dynamic_rhs,
-    is_flat_plant,
-    kinematic_rhs,
-    measure_dynamic,
-    measure_kinematic,
-    observe_command,
-    observe_dynamic,
-    observe_kinematic,
-    record_dynamic,
-)
-from flatcli.core.robots.chain import barycentric_matrices, barycentric_matrix
-from flatcli.core.robots.dynamics import ThreeBody
-from flatcli.core.robots.params import (
-    Coefficients,
-    Links,
-    RobotParams,
-    constraint_coefficients,
-    momentum,
-)
+from flatcli.core.robots.chain import barycentric_matrices
 
 Array = NDArray[np.float64]
 
@@ -406,165 +374,6 @@ def make_control_single(ops: Ops) -> tuple[Callable[..., int], Callable[..., Non
     return control_start, sample_at, extras_at
 
 
-# --------------------------------------------------------------------------------------
-# The paper's robot (N = 2): the closed forms of ``plant`` (its right-hand sides)
-
-
-class PaperShared(NamedTuple):
-    """The controller of the paper's robot: its coefficients, gains (``control.PaperGains``),
-    the joint-rate limit [rad/s]; for the dynamic plant the nominal robot's three-body
-    chain (the servo's model unless ``servo_is_plant``)."""
-
-    kc: Coefficients
-    gains: Any
-    rate_limit: float
-    robot: ThreeBody
-    robot_links: Links
-    servo_is_plant: bool
-
-
-@jitable
-def _links_row(a: Array, i: int) -> Links:
-    return Links(a[i, 0], a[i, 1], a[i, 2], a[i, 3], a[i, 4], a[i, 5],
-                 a[i, 6], a[i, 7], a[i, 8], a[i, 9], a[i, 10], a[i, 11])
-
-
-@jitable
-def _coefficients_row(a: Array, i: int) -> Coefficients:
-    return Coefficients(a[i, 0], a[i, 1], a[i, 2], a[i, 3], a[i, 4], a[i, 5],
-                        a[i, 6], a[i, 7], a[i, 8], a[i, 9], a[i, 10])
-
-
-@jitable
-def _three_body(K: Array, p: Links) -> ThreeBody:
-    """The three-body chain of a plant from its barycentric matrix K (3, 3)."""
-    return ThreeBody(K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2], K[2, 2], p.i0, p.i1, p.i2)
-
-
-@jitable
-def _paper_kinematic_loop(shared: PaperShared, trials: TrialArrays, i: int,
-                          scratch: Any) -> Loop:
-    p = _links_row(trials.params, i)
-    kq = _coefficients_row(trials.plant, i)
-    return Loop(shared.kc, shared.gains, kq, p, p.m0 + p.m1 + p.m2, trials.h0[i],
-                shared.rate_limit, is_flat_plant(kq), trials.offset[i])
-
-
-@jitable
-def _paper_dynamic_loop(shared: PaperShared, trials: TrialArrays, i: int,
-                        scratch: Any) -> DynamicLoop:
-    p = _links_row(trials.params, i)
-    plant = _three_body(trials.plant[i], p)
-    servo = plant if shared.servo_is_plant else shared.robot
-    same = shared.servo_is_plant or plant == servo
-    return DynamicLoop(shared.kc, shared.gains, p, plant, servo, same, trials.h0[i],
-                       shared.rate_limit, trials.servo[i, 0], trials.servo[i, 1],
-                       trials.offset[i])
-
-
-@jitable
-def _rates_bounded(loop: Any) -> bool:
-    """The kinematic plant: the joint rates are clipped to a finite rate limit."""
-    return not math.isinf(loop.rate_limit)
-
-
-@jitable
-def _command_loop(shared: PaperShared, trials: TrialArrays, i: int, scratch: Any
-                  ) -> CommandLoop:
-    return CommandLoop(_paper_kinematic_loop(shared, trials, i, scratch), scratch)
-
-
-@jitable
-def _command_bounded(loop: CommandLoop) -> bool:
-    return _rates_bounded(loop.loop)
-
-
-@jitable
-def _rates_or_torques_bounded(loop: Any) -> bool:
-    """The dynamic plant: its servos' commands clipped to a finite rate limit, or their
-    torques to a finite torque limit (0 included: no torque at all)."""
-    return not (math.isinf(loop.rate_limit) and math.isinf(loop.torque_limit))
-
-
-@jitable
-def _copy_initial(loop: Any, initial: Array, ref0: Array, x0: Array) -> None:
-    for k in range(x0.shape[0]):
-        x0[k] = initial[k]
-
-
-@jitable
-def _paper_residual(loop: Any, trials: TrialArrays, i: int, plan_theta: Array,
-                    plan_theta_dot: Array) -> float:
-    offset = trials.offset[i]
-    links = _links_row(trials.params, i)
-    if offset == 0.0:
-        return plan_momentum_residual(plan_theta, plan_theta_dot, links, trials.h0[i])
-    residual = 0.0  # the plant's link 2 turned (``paperloop.Loop.offset``)
-    for j in range(plan_theta.shape[0]):
-        h = momentum(links, plan_theta[j, 0], plan_theta[j, 1], plan_theta[j, 2] + offset,
-                     plan_theta_dot[j, 0], plan_theta_dot[j, 1], plan_theta_dot[j, 2])
-        residual = max(residual, abs(h - trials.h0[i]))
-    return residual
-
-
-def _no_scratch(n: int) -> Any:
-    return np.zeros(1)
-
-
-@jitable
-def flat_additive(loop: Any, ref: Array, dv: Array, out: Array) -> None:
-    """The flat law's additive input (``Ops.additive``): dv added to the plan's y''
-    (``control.add_to_accelerations``)."""
-    add_to_accelerations(ref, dv, out)
-
-
-PAPER_KINEMATIC = Ops(
-    _paper_kinematic_loop, _rates_bounded, _copy_initial, kinematic_rhs, observe_kinematic,
-    record_rates, _paper_residual, lambda n: KINEMATIC_STATE, lambda n: KINEMATIC_AUX,
-    lambda n: KINEMATIC_STATE + 3, _no_scratch, additive=flat_additive,
-    measure=measure_kinematic)
-#: The paper's kinematic plant under commands a controller written in Python gives
-#: (``paperloop.command_rhs``; the reference loop writes them into the loop's scratch).
-PAPER_COMMAND = replace(PAPER_KINEMATIC, make_loop=_command_loop, bounded=_command_bounded,
-                        rhs=command_rhs, observe=observe_command,
-                        scratch=lambda n: np.zeros(n), additive=None, measure=None)
-PAPER_DYNAMIC = Ops(
-    _paper_dynamic_loop, _rates_or_torques_bounded, dynamic_initial, dynamic_rhs,
-    observe_dynamic, record_dynamic, _paper_residual, lambda n: DYNAMIC_STATE,
-    lambda n: DYNAMIC_AUX, lambda n: DYNAMIC_STATE + 3, _no_scratch, additive=flat_additive,
-    measure=measure_dynamic)
-
-
-def paper_shared(model: Any, gains: Gains, rate_limit: float, servo_is_plant: bool,
-                 robot: RobotParams) -> PaperShared:
-    """What every trial shares in the paper's closed form: its coefficients, gains, the
-    rate limit, the nominal robot (the servo's model unless ``servo_is_plant``).
-
-    K of the one robot comes from ``barycentric_matrix`` run as Python (the same IEEE
-    operations in the same order as the compiled ``barycentric_matrices``, to the bit): the
-    compiled batch form would load a kernel with numba's runtime into every sweep, 30-50 ms
-    of its start-up, for a 3 x 3 matrix."""
-    p = robot.as_array()
-    nb = p.shape[0] // 4
-    K = barycentric_matrix(p[:nb], p[2 * nb: 3 * nb], p[3 * nb:])
-    links = Links(*(float(v) for v in robot.links))
-    return PaperShared(Coefficients(*(float(v) for v in model.coefficients)), gains.paper(),
-                       float(rate_limit),
-                       ThreeBody(K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2], K[2, 2],
-                                 links.i0, links.i1, links.i2),
-                       links, servo_is_plant)
-
-
-def paper_plant(params: Array, plant: str) -> Array:
-    """Per trial, what the paper's closed form needs of the plant: its constraint
-    coefficients (the kinematic plant, (T, 11)) or its barycentric matrix (the dynamic
-    plant, (T, 3, 3))."""
-    if plant == "kinematic":
-        k = constraint_coefficients(Links(*np.asarray(params, dtype=float).T), "derived")
-        return np.ascontiguousarray(np.stack(np.broadcast_arrays(*k), axis=-1))
-    return barycentric_matrices(params)
-
-
 def chain_plant(params: Array, plant: str) -> Array:
     """Per trial, the plant's barycentric matrix (T, N + 1, N + 1)."""
     return barycentric_matrices(params)
@@ -576,7 +385,7 @@ class Kernels:
     single-trial kernels (initial state, right-hand side, observer of a trace, trace rows:
     ``make_single``; then, for a controller acting at sample instants, its start, sample and
     columns: ``make_control_single``), and how its shared record and per-trial plant arrays
-    are made (``paper_shared``, ...)."""
+    are made (a law's ``shared``, ``chain_plant``, ...)."""
 
     ops: Ops
     batch: Callable[..., None]

@@ -47,10 +47,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from flatcli.core._jit import jitable
-from flatcli.core.controllers.rest import observed_margin
-from flatcli.core.models.flatness import chart
 from flatcli.core.names import METRIC_NAMES, Metric
-from flatcli.core.robots.params import Coefficients, Links, momentum
 
 Array = NDArray[np.float64]
 
@@ -195,56 +192,9 @@ def crossings_of(acc: Array) -> int:
 
 
 @jitable
-def observe_sample(
-    acc: Array,
-    j: int,
-    th0: float,
-    th1: float,
-    th2: float,
-    u1: float,
-    c1: float,
-    s1: float,
-    rate1: float,
-    rate2: float,
-    h: float,
-    theta_ref: Array,
-    ref: Array,
-    kc: Coefficients,
-    h0: float,
-    threshold: float,
-) -> None:
-    """Fold output sample j into the running metrics.
-
-    Parameters
-    ----------
-    acc : (ACCUMULATOR_SIZE,) running metrics
-    j : sample index (t_j = j dt)
-    th0, th1, th2 : plant angles [rad]; u1 : the controller's th1' [rad/s]
-    c1, s1 : cos th1, sin th1 of the plant
-    rate1, rate2 : joint rates th1', th2' the plant applies [rad/s]
-    h : angular momentum of the plant at this sample from its full kinematics [kg m^2/s]
-    theta_ref : (n + 1, 3) plan angles on the grid [rad]
-    ref : (2 n + 1, 6) plan y1, y2, y1', y2', y1'', y2'' at half steps (row 2 j is t_j); a
-        rest plan's channels (``controllers.rest``: the margin observed is |sigma| / w)
-    kc : the controller's coefficients; h0 : the plant's H0 [kg m^2/s]
-    threshold : singularity threshold on the margin [rad/s]
-    """
-    d0 = th0 - theta_ref[j, 0]
-    d1 = th1 - theta_ref[j, 1]
-    d2 = th2 - theta_ref[j, 2]
-    et2 = d0 * d0 + d1 * d1 + d2 * d2
-    inv_A, _, _ = chart(kc, c1, s1)  # the controller's y2 = th0 - c0 th2 / A (eq. 35)
-    e1 = th1 - ref[2 * j, 0]
-    e2 = th0 - kc.c0 * th2 * inv_A - ref[2 * j, 1]
-    ey2 = e1 * e1 + e2 * e2
-    observe_errors(acc, j, et2, ey2, observed_margin(ref, j, 2, abs(s1 * u1)), h, h0,
-                   max(abs(rate1), abs(rate2)), threshold)
-
-
-@jitable
 def observe_torque(acc: Array, tau1: float, tau2: float, saturated: float) -> None:
     """Fold the joint torques of a plant with inertia at one output sample into the running
-    metrics (after ``observe_sample``); the kinematic plant never calls it, so its
+    metrics (after ``observe_errors``); the kinematic plant never calls it, so its
     ``peak_torque`` and ``torque_saturated`` stay nan.
 
     Parameters
@@ -258,26 +208,6 @@ def observe_torque(acc: Array, tau1: float, tau2: float, saturated: float) -> No
         acc[_SATURATED] = 0.0
     acc[_PEAK_TORQUE] = max(acc[_PEAK_TORQUE], abs(tau1), abs(tau2))
     acc[_SATURATED] += saturated
-
-
-@jitable
-def plan_momentum_residual(
-    plan_theta: Array, plan_theta_dot: Array, links: Links, h0: float
-) -> float:
-    """max_j |H - H0| of the plan's own samples with the plant's parameters [kg m^2/s]."""
-    residual = 0.0
-    for j in range(plan_theta.shape[0]):
-        h = momentum(
-            links,
-            plan_theta[j, 0],
-            plan_theta[j, 1],
-            plan_theta[j, 2],
-            plan_theta_dot[j, 0],
-            plan_theta_dot[j, 1],
-            plan_theta_dot[j, 2],
-        )
-        residual = max(residual, abs(h - h0))  # type: ignore[call-overload]
-    return residual
 
 
 @jitable
@@ -414,9 +344,7 @@ __all__ = [
     "finish_metrics",
     "observe_clipped",
     "observe_crossing",
-    "observe_sample",
     "observe_torque",
-    "plan_momentum_residual",
     "reset_accumulator",
 ]
 

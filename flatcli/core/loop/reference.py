@@ -70,10 +70,11 @@ def reference_trial(scenario: Any, trials: Any, kernels: Kernels, shared: Any,
 
     def commanded(t: float, ref: Array, x: Array, noise_row: Array) -> None:
         """The Python controller's commands at time t, the plan's flag ``ref`` and the
-        measured state, into the loop's scratch (``paperloop.command_rhs`` reads them)."""
+        measured state, into the law's scratch (``controllers.paper.given_command`` reads
+        them)."""
         theta = x[: n_joints + 1] + noise_row
-        buffers.scratch[:] = commands(command.command(t, theta, x[n_joints + 1: 2 * n_joints],
-                                                      ref.copy()), n_joints)
+        buffers.scratch.law[:] = commands(command.command(
+            t, theta, x[n_joints + 1: 2 * n_joints], ref.copy()), n_joints)
 
     def full(t: float, x: Array, noise_row: Array) -> Array:
         evaluations[0] += 1

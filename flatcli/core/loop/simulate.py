@@ -24,8 +24,8 @@ torque limit may differ per trial (``Trials.servo``).
 
 Every trial is integrated alone by the same compiled code, so its result does not depend on
 which other trials share the batch, the order, the worker or the executor (bit for bit).
-The compiled batch kernels are made by ``kernels`` (the paper's robot's closed forms from
-``paperloop``; N-link chains from a law's part and a plant's, ``base``); this module holds the
+The compiled batch kernels are made by ``kernels`` from a law's part and a plant's
+(``base``; the paper's robot's closed forms among them); this module holds the
 public API and chooses among them.
 """
 
@@ -56,7 +56,6 @@ from flatcli.core.loop.kernels import (
     Results,
     Settings,
     TrialArrays,
-    paper_plant,
 )
 from flatcli.core.loop.metrics import N_METRICS, Metric, Status
 from flatcli.core.loop.outcome import CLEARANCE_BATCH, Geometry, MotionClearance, motion_clearance
@@ -79,6 +78,7 @@ from flatcli.core.names import (
 )
 from flatcli.core.plan.planning import Plan
 from flatcli.core.plan.rest import RestPlan
+from flatcli.core.plants.paper import plant_arrays
 
 Array = NDArray[np.float64]
 #: The integrators that control their error (``Outcome.verified``).
@@ -597,7 +597,7 @@ class Outcome:
 
 def plant_coefficients(links: Array) -> Array:
     """(N, 11) derived constraint coefficients for (N, 12) plant parameters."""
-    return paper_plant(np.ascontiguousarray(links, dtype=float), "kinematic")
+    return plant_arrays(np.ascontiguousarray(links, dtype=float), "kinematic")
 
 
 def placements(links: Array, across: Array | None) -> tuple[Array, Array]:

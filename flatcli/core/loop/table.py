@@ -1,7 +1,7 @@
 """The table of compiled kernels, generated: one entry per (controller, model kind, plant).
 
-The base laws' combinations (``BASE``: the flat law on the paper's closed form, ``kernels``;
-the flat law on chains and the as-built law, ``controllers.flat`` and ``controllers.asbuilt``,
+The base laws' combinations (``BASE``: the flat law on the paper's closed form, on chains
+and the as-built law, ``controllers.paper``, ``controllers.flat`` and ``controllers.asbuilt``,
 each composed with the kinematic and the dynamic plant, ``plants``, by ``base.base_ops``) are
 compiled here; every controller that acts at sample instants (``SAMPLED``:
 a ``controllers.parts.SampledPart``) is composed with each of them by ``compose.sampled_ops``
@@ -13,26 +13,27 @@ this module to find one by name).
 
 from __future__ import annotations
 
-from flatcli.core.controllers import asbuilt, flat, mpc, python
+from flatcli.core.controllers import asbuilt, flat, mpc, paper, python
 from flatcli.core.controllers.parts import SampledPart
 from flatcli.core.errors import FlatcliError
-from flatcli.core.loop import kernels as paper
 from flatcli.core.loop.base import base_ops
 from flatcli.core.loop.compose import sampled_ops
 from flatcli.core.loop.kernels import Kernels, chain_plant, compile_kernels
 from flatcli.core.plants import dynamic, kinematic
+from flatcli.core.plants import paper as paper_plants
 
 #: The base laws' combinations, by (law, model kind, plant): their ``kernels.Ops``, how their
 #: shared record and per-trial plant arrays are made ("command": the commands of a controller
 #: written in Python, ``controllers.python``, given to the plant).
-#: A chain's combinations are a law's part and a plant's (``base.base_ops``): a new plant
-#: is its module (a ``plants.part.PlantPart``) and a line per law here.
+#: Each combination is a law's part and a plant's (``base.base_ops``): a new plant is its
+#: module (a ``plants.part.PlantPart``) and a line per law here.
 BASE = {
-    ("flat", "paper", "kinematic"): (paper.PAPER_KINEMATIC, paper.paper_shared,
-                                     paper.paper_plant),
-    ("command", "paper", "kinematic"): (paper.PAPER_COMMAND, paper.paper_shared,
-                                        paper.paper_plant),
-    ("flat", "paper", "dynamic"): (paper.PAPER_DYNAMIC, paper.paper_shared, paper.paper_plant),
+    ("flat", "paper", "kinematic"): (base_ops(paper.LAW, paper_plants.KINEMATIC),
+                                     paper.paper_shared, paper_plants.plant_arrays),
+    ("command", "paper", "kinematic"): (base_ops(paper.COMMAND, paper_plants.KINEMATIC),
+                                        paper.paper_shared, paper_plants.plant_arrays),
+    ("flat", "paper", "dynamic"): (base_ops(paper.LAW, paper_plants.DYNAMIC),
+                                   paper.paper_shared, paper_plants.plant_arrays),
     ("flat", "chain", "kinematic"): (base_ops(flat.LAW, kinematic.PLANT), flat.LAW.shared,
                                      chain_plant),
     ("flat", "chain", "dynamic"): (base_ops(flat.LAW, dynamic.PLANT), flat.LAW.shared,

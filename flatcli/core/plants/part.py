@@ -39,7 +39,8 @@ class PlantPart:
         rates (N + 1,) it measures in state x (empty: none))
     rates : rates(plant, x, cs, sn, given, out, at, torques): its state's derivative into
         out[:state] under the commands, its aux values into out[at:]; cs, sn (N + 1,) the
-        trigonometry of its angles (``chain.link_trig``) where ``given``; without
+        trigonometry of its angles (``chain.link_trig``; the paper's plants: cos th1, sin th1)
+        where ``given``; without
         ``torques`` (an integrator's stage) what nobody observes may be skipped
     start : start(plant, initial, r, x0): its state at t = 0 into x0[:state] from the trial's
         ``initial`` (2 N,) th(0), u(0) and the controller's commands r at t = 0

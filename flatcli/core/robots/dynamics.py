@@ -40,7 +40,7 @@ arrays (``chain_terms``, ``joint_space``, ``free_floating_accelerations``); the 
 functions at the end (``mass_matrix``, ``bias_forces``, ``inverse_dynamics``,
 ``forward_dynamics``, ``kinetic_energy``) run them, compiled, over a batch of states (H is
 ``chain.chain_momentum``'s, from the link kinematics; the tests check it against (M q')_0).
-The compiled closed loop of the three-body robot (``paperloop``) evaluates the
+The compiled closed loop of the three-body robot (``plants.paper``) evaluates the
 dynamics some 10^4 times per trial, where the loops over arrays cost six times more than the
 same sums written out with floats: ``three_body_terms`` and ``three_body_joint_space`` are
 those sums for n = 3. The tests check ``chain_terms`` and ``three_body_terms`` against each

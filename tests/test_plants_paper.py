@@ -1,4 +1,5 @@
-"""Tests of flatcli.core.loop.paperloop: the kinematic and the dynamic plant in closed loop.
+"""Tests of flatcli.core.plants.paper: the paper's kinematic and dynamic plant in closed form,
+in closed loop with the paper's law (``controllers.paper``, composed by ``loop.base``).
 
 References, none of them the code under test:
 
@@ -28,16 +29,9 @@ from numpy.typing import NDArray
 from test_dynamics import link_kinetic_energy
 
 from flatcli.core.controllers.control import Gains, feedback
+from flatcli.core.controllers.paper import paper_shared
+from flatcli.core.loop.kernels import TrialArrays
 from flatcli.core.loop.metrics import METRIC_NAMES, Metric, Status
-from flatcli.core.loop.paperloop import (
-    AUX_R2,
-    AUX_TAU1,
-    AUX_TAU2,
-    DYNAMIC_AUX,
-    DYNAMIC_STATE,
-    dynamic_loop,
-    dynamic_rhs,
-)
 from flatcli.core.loop.simulate import (
     DYNAMIC_TRACE_COLUMNS,
     TRACE_COLUMNS,
@@ -47,7 +41,9 @@ from flatcli.core.loop.simulate import (
     Trials,
     simulate,
 )
+from flatcli.core.loop.table import BASE
 from flatcli.core.plan.planning import Plan
+from flatcli.core.plants.paper import R2, TAU1, TAU2, plant_arrays
 from flatcli.core.robots.dynamics import bias_forces, make_chain, mass_matrix
 from flatcli.core.robots.params import PAPER_ROBOT, Coefficients, RobotParams, momentum
 
@@ -245,19 +241,25 @@ def test_dynamic_rhs_solves_the_equations_of_motion_and_the_servo_law(
     kc = Coefficients(*map(float, paper_plan.coefficients))
     plant = PAPER_ROBOT.with_(mass=(1.05, 0.97, 1.02), com=(0.1, 0.1, 0.004))
     ref = np.array([1.0, 1.8, 0.1, -0.07, 0.1, 0.0])
-    out = np.empty(DYNAMIC_STATE + DYNAMIC_AUX)
+    ops = BASE[("flat", "paper", "dynamic")][0]
+    out = np.empty(ops.state(2) + ops.aux(2))
+    at = ops.state(2) + 1  # the plant's aux values, after the margin
+    params = plant.as_array()[None]
     for servo_is_plant in (True, False):
+        shared = paper_shared(paper_plan.model, SWAPPED_GAINS, np.inf, servo_is_plant,
+                              PAPER_ROBOT)
         for _ in range(20):
             x = np.r_[rng.uniform(-3, 3, 3) + np.array([0, 1.5, 0]), rng.uniform(-4, 4, 3),
                       rng.uniform(0.05, 1.0)]
             bandwidth = float(rng.uniform(5, 500))
-            loop = dynamic_loop(kc, SWAPPED_GAINS.paper(), plant.links, PAPER_ROBOT.links,
-                                servo_is_plant, 0.0, np.inf, bandwidth, np.inf)
-            dynamic_rhs(loop, x, ref, np.zeros(3), out)
+            trials = TrialArrays(params, np.zeros(1), np.array([[bandwidth, np.inf]]),
+                                 np.zeros((1, 4)), plant_arrays(params, "dynamic"), np.zeros(1))
+            loop = ops.make_loop(shared, trials, 0, ops.scratch(2))
+            ops.rhs(loop, x, ref, np.zeros(3), out)
             q, qd, qdd = x[:3], x[3:6], out[3:6]
-            tau = out[[AUX_TAU1, AUX_TAU2]]
+            tau = out[[at + TAU1, at + TAU2]]
             u1_dot, u2 = feedback(kc, SWAPPED_GAINS.paper(), *x[:3], x[6], ref)
-            assert out[6] == u1_dot and out[AUX_R2] == u2
+            assert out[6] == u1_dot and out[at + R2] == u2
             np.testing.assert_array_equal(out[:3], qd)
             plant_chain = make_chain(plant.mass, plant.inertia, plant.length, plant.com)
             Q = mass_matrix(plant_chain, q) @ qdd + bias_forces(plant_chain, q, qd)
