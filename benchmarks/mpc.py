@@ -203,6 +203,29 @@ DYNAMIC = {"plant.model": "dynamic", "plant.servo_bandwidth": 100.0,
            "track.initial": [1.8, 1.0, 0.0]}
 
 
+def _best_of(scenario: Any, trials: Any, repeats: int) -> tuple[float, Any]:
+    """The best of ``repeats`` timed runs of ``trials`` [s] (after a warm, compiled run of
+    two), and the last run's Outcome."""
+    from flatcli.core.loop.simulate import simulate
+
+    simulate(scenario, trials.subset(slice(0, 2)))  # compiled, warm
+    best = np.inf
+    for _ in range(repeats):
+        started = time.perf_counter()
+        result = simulate(scenario, trials)
+        best = min(best, time.perf_counter() - started)
+    return best, result
+
+
+def _reached(result: Any, goal: Any) -> int:
+    """Trials that ended ok with every angle within 1e-3 rad of ``goal`` (N + 1,)."""
+    from flatcli.core.loop.metrics import Status
+
+    assert result.final is not None
+    miss = np.abs(result.final - goal).max(axis=1)
+    return int(np.sum((result.status == Status.OK) & (miss <= 1e-3)))
+
+
 def torque_replan(bench: Any, count: int, repeats: int) -> dict[str, float]:
     """The MPC on the dynamic plant at ``TORQUE_LIMIT``: the spec's cubic tracked as it is (as
     before the torque re-plan) against the re-plan of largest margin
@@ -214,8 +237,7 @@ def torque_replan(bench: Any, count: int, repeats: int) -> dict[str, float]:
     applied."""
     from flatcli.api import load_spec
     from flatcli.core.controllers.mpc import design_for
-    from flatcli.core.loop.metrics import Metric, Status
-    from flatcli.core.loop.simulate import simulate
+    from flatcli.core.loop.metrics import Metric
     from flatcli.experiment import (
         mpc_reference,
         peak_joint_torque,
@@ -241,16 +263,9 @@ def torque_replan(bench: Any, count: int, repeats: int) -> dict[str, float]:
         out[f"{name}_design_seconds"] = time.perf_counter() - started
         scenario = scenario.prepared()
         trials = _trials(spec, plan, count)
-        simulate(scenario, trials.subset(slice(0, 2)))  # compiled, warm
-        best = np.inf
-        for _ in range(repeats):
-            started = time.perf_counter()
-            result = simulate(scenario, trials)
-            best = min(best, time.perf_counter() - started)
-        assert result.final is not None
+        best, result = _best_of(scenario, trials, repeats)
         goal = plan.sample(np.array([plan.duration])).theta[0]
-        miss = np.abs(result.final - goal).max(axis=1)
-        reached = int(np.sum((result.status == Status.OK) & (miss <= 1e-3)))
+        reached = _reached(result, goal)
         peak = float(np.median(result.metrics[:, Metric.PEAK_TORQUE]))
         need = peak_joint_torque(spec, plan)[1]
         out.update({f"{name}_trial_seconds": best / count, f"{name}_reached": reached,
@@ -284,8 +299,6 @@ def torque_rows(bench: Any, count: int, repeats: int) -> dict[str, float]:
     import dataclasses
 
     from flatcli.api import load_spec
-    from flatcli.core.loop.metrics import Status
-    from flatcli.core.loop.simulate import simulate
     from flatcli.experiment import scenario_from, tracked_plan
 
     spec = load_spec(None, {"track.controller": "mpc", **DYNAMIC,
@@ -298,19 +311,13 @@ def torque_rows(bench: Any, count: int, repeats: int) -> dict[str, float]:
     for name, kept in (("rows", base.torque_kept), ("none", float("inf"))):
         scenario = dataclasses.replace(base, torque_kept=kept)
         mpc._DESIGNS.clear()
+        mpc._OFFSETS.clear()  # each design makes its servo offsets too
         started = time.perf_counter()
         d = mpc.design_for(scenario)
         design = time.perf_counter() - started
         scenario = scenario.prepared()
-        simulate(scenario, trials.subset(slice(0, 2)))  # compiled, warm
-        best = np.inf
-        for _ in range(repeats):
-            started = time.perf_counter()
-            result = simulate(scenario, trials)
-            best = min(best, time.perf_counter() - started)
-        assert result.final is not None
-        miss = np.abs(result.final - goal).max(axis=1)
-        reached = int(np.sum((result.status == Status.OK) & (miss <= 1e-3)))
+        best, result = _best_of(scenario, trials, repeats)
+        reached = _reached(result, goal)
         errors = measured_errors(scenario, spec, 8)
         s = mpc.scratch(d)
         _steps(d, s, errors, False, 1)
