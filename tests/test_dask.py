@@ -3,6 +3,7 @@ executor, on a LocalCluster of 2 worker processes, also when a worker is killed 
 
 from __future__ import annotations
 
+import gc
 import logging
 import os
 import signal
@@ -49,6 +50,19 @@ def assert_same_sweep(directory: Path, reference: Path) -> None:
                                       pd.read_parquet(reference / name),
                                       check_exact=True, obj=name)
     assert (directory / "summary.md").read_text() == (reference / "summary.md").read_text()
+
+
+@pytest.fixture(autouse=True)
+def _clients_finalised_on_the_main_thread() -> Iterator[None]:
+    """Dask clients a test left to the garbage collector are finalised here, on the main
+    thread, before and after each test. Finalised on an event loop's thread instead (a
+    periodic callback of an in-process worker), ``Client.__del__`` joins another loop's thread
+    and that loop hangs: test_workers_that_all_leave_mid_sweep_end_it_with_one_line hung a
+    fresh-clone CI on 2026-12-06 (py-spy: Worker.trigger_profile -> Client.__del__ ->
+    Client.close -> LoopRunner.stop -> Thread.join), after passing four runs that day."""
+    gc.collect()
+    yield
+    gc.collect()
 
 
 @pytest.fixture(scope="module")
