@@ -38,10 +38,6 @@ class SearchCheckReport:
         return self.population * (self.generations + 1)
 
     @property
-    def trials_per_candidate(self) -> int:
-        return self.sweep.layout.total if self.sweep is not None else 0
-
-    @property
     def estimate_seconds(self) -> float | None:
         """The search's wall time if every candidate is feasible [s]: its trials' CPU time
         over the workers, and each candidate's planning in the main process."""

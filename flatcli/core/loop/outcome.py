@@ -195,9 +195,10 @@ REFINE_ROUND = 64
 def sample_clearances(theta: Array, moments: Array, length: Array, shift: Array, obs: Array,
                       joints: Array, out: Array) -> None:
     """Each link's distance from each disc's surface [m] at every sample, into ``out``
-    (T, S, N + 1, K): ``joint_points`` and ``_link_clearances`` in one pass, compiled
-    (angles theta (T, S, N + 1) [rad]; moments, length (T, N + 1) [m]; shift (T,) [m]; obs
-    (K, 3) discs x, y, radius [m]; joints (N + 2, 2) scratch; nan where the angles are).
+    (T, S, N + 1, K): ``joint_points`` and ``clearance.segment_distance`` less the radii in
+    one pass, compiled (angles theta (T, S, N + 1) [rad]; moments, length (T, N + 1) [m];
+    shift (T,) [m]; obs (K, 3) discs x, y, radius [m]; joints (N + 2, 2) scratch; nan where
+    the angles are).
     The joints are placed relative to O_0 along the absolute angles, O_0 then follows from
     the same cosines and sines (one trigonometric evaluation per angle and sample)."""
     count, samples, angles = theta.shape
@@ -253,19 +254,6 @@ def interval_floors(exact: Array, move: Array, pad: Array, valid: NDArray[np.boo
                 for k in range(discs):
                     least = min(least, max(exact[t, j, a, k], exact[t, j + 1, a, k]))
             out[t, j] = least - move[t, j] - pad[t]
-
-
-def _link_clearances(points: Array, obs: Array) -> Array:
-    """(..., N + 1, K) each link's distance from each disc's surface [m] at joints points
-    (..., N + 2, 2) (``clearance.segment_distance`` less the radii, by components: the same
-    numbers, without its (..., 2) temporaries)."""
-    ax, ay = points[..., :-1, 0, None], points[..., :-1, 1, None]
-    dx, dy = points[..., 1:, 0, None] - ax, points[..., 1:, 1, None] - ay
-    cx, cy, radius = obs[:, 0], obs[:, 1], obs[:, 2]
-    length2 = dx * dx + dy * dy
-    u = np.clip(((cx - ax) * dx + (cy - ay) * dy) / np.where(length2 > 0, length2, 1.0),
-                0.0, 1.0)
-    return np.asarray(np.hypot(cx - (ax + u * dx), cy - (ay + u * dy)) - radius, dtype=float)
 
 
 def _batch_clearance(geometry: Geometry, obs: Array, theta: Array, rates: Array,
