@@ -12,6 +12,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from functools import partial
 from pathlib import Path
@@ -45,6 +46,10 @@ CELLS = "Integrators: steps and right-hand sides per trial, paper study, by cell
 ACCURACY = "Accuracy against cost (every output sample against DOP853 at rtol 1e-12)"
 ESTIMATE = "err_estimate against the true final error (DOP853 at rtol 1e-12)"
 CASES = "Accuracy by gains, plant and robot (every output sample against DOP853 at rtol 1e-12)"
+TWINS = ("The twin at looser factors on the tolerances: err_estimate against the true final "
+         "error (DOP853 at rtol 1e-12)")
+#: The twin's factors ``twin_factors`` prices (``simulate.TWIN_FACTOR`` is the default's).
+TWIN_FACTORS = (0.01, 0.1, 0.3)
 HEADERS = {
     SWEEPS: ["sweep", "adaptive", "rk4", "ratio", "note"],
     CELLS: ["cell", "grid values", "steps median", "steps p95", "rhs median", "rhs p95",
@@ -55,6 +60,8 @@ HEADERS = {
                "largest ratio"],
     CASES: ["gains", "plant", "robot", "trials", "adaptive max error [rad]",
             "rk4 1 ms max error [rad]"],
+    TWINS: ["loop", "factor", "trials", "within 3x", "smallest ratio", "median ratio",
+            "largest ratio", "rhs per trial", "over one solution"],
 }
 
 
@@ -167,6 +174,47 @@ def error_estimate(bench: Any) -> None:
                     "smallest_ratio": float(np.min(r)), "median_ratio": float(np.median(r)),
                     "largest_ratio": float(np.max(r))})
     bench.raw["error_estimate"] = raw
+
+
+def twin_factors(bench: Any) -> None:
+    """The twin on a cheaper schedule (issue 41, item 1): err_estimate at each factor of
+    ``TWIN_FACTORS`` on the tolerances against the true final error of resolved perturbed
+    trials (DOP853 at rtol 1e-12, ``reference``), and its right-hand sides against one
+    solution's (``twin = 0``), on five loops of the paper's robot."""
+    plan = PAPER_MANEUVER.cubic()
+    count = 10 if bench.quick else 30
+    loops: tuple[tuple[str, Gains, dict[str, Any]], ...] = (
+        ("printed", PRINTED, {}), ("swapped", SWAPPED, {}),
+        ("dynamic, printed", PRINTED, {"plant": "dynamic"}),
+        ("dynamic, swapped", SWAPPED, {"plant": "dynamic"}),
+        ("rate limit 0.6 rad/s", PRINTED, {"rate_limit": 0.6}))
+    end = np.array([0.0, plan.duration])
+    raw = []
+    for name, gains, options in loops:
+        trials = paper_trials(count, seed=7, spread=0.02, angle_spread=0.05)
+        base = Scenario(plan, gains, 1e-3, twin=0.0, **options).prepared()
+        refs = [reference(base, trials, i, end) for i in range(count)]
+        single = simulate(base, trials)
+        for factor in TWIN_FACTORS:
+            out = simulate(dataclasses.replace(base, twin=factor), trials, record=True)
+            assert out.trace is not None
+            kept = [i for i, ref in enumerate(refs)
+                    if ref is not None and out.status[i] in (Status.OK, Status.SINGULAR)]
+            ratios = np.array([
+                out.metrics[i, Metric.ERR_ESTIMATE]
+                / max(float(np.linalg.norm(out.trace[i, -1, :3] - ref[-1])), 1e-300)
+                for i, ref in enumerate(refs) if i in kept and ref is not None])
+            within = int(np.sum((ratios >= 1 / 3) & (ratios <= 3)))
+            # right-hand sides over the compared trials (an unresolved one has no twin)
+            rhs = float(np.median(out.metrics[kept, Metric.RHS_EVALUATIONS]))
+            one = float(np.median(single.metrics[kept, Metric.RHS_EVALUATIONS]))
+            bench.row(TWINS, name, f"{factor:g}", len(ratios), within, f"{np.min(ratios):.3g}",
+                      f"{np.median(ratios):.3g}", f"{np.max(ratios):.3g}", f"{rhs:.0f}",
+                      f"+{(rhs / one - 1) * 100:.0f} %")
+            raw.append({"loop": name, "factor": factor, "trials": len(ratios),
+                        "within_3x": within, "smallest_ratio": float(np.min(ratios)),
+                        "largest_ratio": float(np.max(ratios)), "rhs": rhs, "one": one})
+    bench.raw["twin_factors"] = raw
 
 
 def accuracy_by_case(bench: Any) -> None:

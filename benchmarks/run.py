@@ -59,6 +59,7 @@ from benchmarks.front_door import compiles as run_compiles
 from benchmarks.front_door import run_all as run_front_door
 from benchmarks.integrators import HEADERS as INTEGRATOR_HEADERS
 from benchmarks.integrators import run_all as run_integrators
+from benchmarks.integrators import twin_factors
 from benchmarks.mpc import HEADERS as MPC_HEADERS
 from benchmarks.mpc import run_all as run_mpc
 from benchmarks.outcomes import HEADERS as OUTCOME_HEADERS
@@ -89,7 +90,7 @@ SCALING = "Scaling: 2 workers, each process's own peak memory"
 #: ``OPTIONAL`` ones (run only when named: minutes each).
 SECTIONS = ("planning", "closed_loop", "sweeps", "front_door", "integrators", "chains",
             "asbuilt", "optimised", "tasks", "outcomes", "search", "mpc")
-OPTIONAL = ("compiles",)
+OPTIONAL = ("compiles", "twin_factors")
 
 
 def load() -> list[float]:
@@ -637,6 +638,7 @@ def main(argv: list[str] | None = None) -> None:
         "front_door": [partial(run_front_door, bench, sweep)],
         "compiles": [partial(run_compiles, bench)],
         "integrators": [partial(run_integrators, bench, sweep)],
+        "twin_factors": [partial(twin_factors, bench)],
         "chains": [partial(run_chains, bench)],
         "asbuilt": [partial(run_asbuilt, bench, sweep)],
         "optimised": [partial(optimised, bench), partial(optimised_ladder, bench)],
