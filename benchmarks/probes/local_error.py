@@ -11,7 +11,9 @@ rejection), on the compiled right-hand side, and estimates the global error e of
   of f over the step with ``--nodes`` nodes: the step's ends, f at the output samples inside it
   (flatcli evaluates f there for its metrics anyway: counted in one solution's cost), placed on
   a degree-7 Hermite through the last 4 step ends, and older nodes (``--lookback`` steps, span
-  < ``--span`` h, nodes >= 0.05 h apart);
+  < ``--span`` h, nodes >= 0.05 h apart); (``adaptive_trial`` observes the samples on its
+  order-4 dense output: built there, such an estimate would observe the Hermite's states
+  instead, changing those metrics in the last digits, or pay one evaluation a sample);
 * steps with fewer than ``--extra`` samples inside get f at extra points (paid) to reach it;
 * a fallback (one 7-stage Butcher RK6 step from x_n, 6 evaluations; or Richardson, two half
   steps, 11) where the quadrature has too few nodes, where |le| > ``--guard`` |embedded
