@@ -37,9 +37,11 @@ Array = NDArray[np.float64]
 
 
 @nb.njit(cache=False)
-def _weights_plain(z: Array, m: int, w: Array) -> None:
+def _weights(z: Array, m: int, w: Array, tuned: bool, inv: Array) -> None:
     """Weights w[:m] of the interpolatory rule on nodes z[:m] (in units of the step) for the
-    integral over [0, 1]: V^T w = (1, 1/2, ..., 1/m), Bjorck & Pereyra (Math. Comp. 24, 1970)."""
+    integral over [0, 1]: V^T w = (1, 1/2, ..., 1/m), Bjorck & Pereyra (Math. Comp. 24, 1970);
+    ``tuned``: multiplied by the reciprocals inv[i, j] = 1 / (z[i] - z[j]) (i > j) given,
+    else divided by the differences."""
     for k in range(m):
         w[k] = 1.0 / (k + 1)
     for k in range(m - 1):
@@ -47,22 +49,10 @@ def _weights_plain(z: Array, m: int, w: Array) -> None:
             w[i] -= z[k] * w[i - 1]
     for k in range(m - 2, -1, -1):
         for i in range(k + 1, m):
-            w[i] /= z[i] - z[i - k - 1]
-        for i in range(k, m - 1):
-            w[i] -= w[i + 1]
-
-
-@nb.njit(cache=False)
-def _weights_tuned(z: Array, m: int, w: Array, inv: Array) -> None:
-    """``_weights_plain`` with the reciprocals inv[i, j] = 1 / (z[i] - z[j]) given."""
-    for k in range(m):
-        w[k] = 1.0 / (k + 1)
-    for k in range(m - 1):
-        for i in range(m - 1, k, -1):
-            w[i] -= z[k] * w[i - 1]
-    for k in range(m - 2, -1, -1):
-        for i in range(k + 1, m):
-            w[i] *= inv[i, i - k - 1]
+            if tuned:
+                w[i] *= inv[i, i - k - 1]
+            else:
+                w[i] /= z[i] - z[i - k - 1]
         for i in range(k, m - 1):
             w[i] -= w[i + 1]
 
@@ -102,8 +92,8 @@ def _check() -> None:
         for j in range(i):
             inv[i, j] = 1.0 / (z[i] - z[j])
     w_plain, w_tuned = np.empty(10), np.empty(10)
-    _weights_plain(z, 10, w_plain)
-    _weights_tuned(z, 10, w_tuned, inv)
+    _weights(z, 10, w_plain, False, inv)
+    _weights(z, 10, w_tuned, True, inv)
     exact = np.array([1.0 / (k + 1) for k in range(10)])  # the rule integrates z^k exactly
     assert np.allclose(np.vander(z, 10, increasing=True).T @ w_plain, exact, atol=1e-9)
     assert np.allclose(w_plain, w_tuned, rtol=1e-12)
@@ -149,11 +139,8 @@ def carried_steps(steps: int, samples: int, tuned: bool, node_f: Array, xs: Arra
             for i in range(10):
                 for j in range(i):
                     inv[i, j] = 1.0 / (z[i] - z[j])
-            _weights_tuned(z, 10, w10, inv)
-            _weights_tuned(z, 8, w8, inv)
-        else:
-            _weights_plain(z, 10, w10)
-            _weights_plain(z, 8, w8)
+        _weights(z, 10, w10, tuned, inv)
+        _weights(z, 8, w8, tuned, inv)
         disagree = 0.0
         for i in range(nx):
             q10 = 0.0

@@ -19,11 +19,14 @@ Trials: ``paper_trials(30, seed=7, spread=0.02, angle_spread=0.05)`` on the loop
 within its budget and the solution's final angle error is below 1e-3 rad (swapped gains make
 some trials diverge: no estimate means anything there).
 
-Measured 2026-12-06 (within 3x / compared, estimate/true min - max, cost median): TABLES
+Measured 2026-12-06 (the table is in docs/performance.md, issue 41's item 1): the DOP853 twin
+holds 3x on every loop at 0.01x (+54..121 % of one solution's right-hand sides; the
+Dormand-Prince twin +86..174 %), and at 1x misses on the dynamic plant (23/30) and the rate
+limit (26/30); extrapolation holds it on the printed loop alone (30/30 at k = 2 and 3, +25 and
++17 %; 9-23/30 on the dynamic plant, 3-5/30 with the rate limit).
 
 k = 4 leaves the asymptotic regime on the printed loop itself (0/30: the coarse steps beyond
-the method's stability). The DOPRI5 twin at 0.01x (the default) costs +84..173 % on the same
-loops (``twin_factors``).
+the method's stability).
 
 Run from the repository root: ``python -m benchmarks.probes.twins higher-order dynamic`` or
 ``python -m benchmarks.probes.twins extrapolation printed --merge 2,3`` (10-60 s a loop).
@@ -44,7 +47,13 @@ from benchmarks.integrators import PRINTED, SWAPPED
 from benchmarks.probes.local_error import _A, _B, _C, _E
 from flatcli.core.controllers.control import Gains
 from flatcli.core.loop.metrics import Metric, Status
-from flatcli.core.loop.simulate import Scenario, closed_loop_rhs, closed_loop_start, simulate
+from flatcli.core.loop.simulate import (
+    Scenario,
+    Trials,
+    closed_loop_rhs,
+    closed_loop_start,
+    simulate,
+)
 from flatcli.core.names import DEFAULT_ATOL, DEFAULT_RTOL
 
 Array = NDArray[np.float64]
@@ -133,13 +142,19 @@ def truth(f: Rhs, duration: float, x0: Array) -> Array | None:
     return np.asarray(sol.y[:3, -1]) if sol.status == 0 else None
 
 
+def loop_trials(loop: str, count: int) -> tuple[Scenario, Trials]:
+    """The loop's scenario (no twin) and its perturbed trials."""
+    gains, options = LOOPS[loop]
+    trials = paper_trials(count, seed=7, spread=0.02, angle_spread=0.05)
+    return Scenario(PAPER_MANEUVER.cubic(), gains, 1e-3, twin=0.0,
+                    **options).prepared(), trials  # type: ignore[arg-type]
+
+
 def higher_order(loop: str, count: int, factors: list[float]) -> dict[float, list[tuple[float,
                                                                                           float]]]:
     """(estimate / true, twin's evaluations / solution's) of each compared trial, by factor."""
-    gains, options = LOOPS[loop]
-    plan = PAPER_MANEUVER.cubic()
-    trials = paper_trials(count, seed=7, spread=0.02, angle_spread=0.05)
-    scenario = Scenario(plan, gains, 1e-3, twin=0.0, **options).prepared()  # type: ignore[arg-type]
+    scenario, trials = loop_trials(loop, count)
+    duration = scenario.plan.duration
     out = simulate(scenario, trials, record=True)
     assert out.trace is not None
     found: dict[float, list[tuple[float, float]]] = {factor: [] for factor in factors}
@@ -149,7 +164,7 @@ def higher_order(loop: str, count: int, factors: list[float]) -> dict[float, lis
         rhs = closed_loop_rhs(scenario, trials, i)
         x0 = closed_loop_start(scenario, trials, i)
         with np.errstate(all="ignore"):
-            true_angles = truth(rhs, plan.duration, x0)
+            true_angles = truth(rhs, duration, x0)
             if true_angles is None:
                 continue
             solution = out.trace[i, -1, :3]
@@ -157,7 +172,7 @@ def higher_order(loop: str, count: int, factors: list[float]) -> dict[float, lis
             if not true < RESOLVED:
                 continue
             for factor in factors:
-                twin = solve_ivp(rhs, (0.0, plan.duration), x0, method="DOP853",
+                twin = solve_ivp(rhs, (0.0, duration), x0, method="DOP853",
                                  rtol=factor * DEFAULT_RTOL, atol=factor * DEFAULT_ATOL)
                 estimate = float(np.linalg.norm(solution - twin.y[:3, -1]))
                 found[factor].append((estimate / true, twin.nfev
@@ -168,10 +183,8 @@ def higher_order(loop: str, count: int, factors: list[float]) -> dict[float, lis
 def extrapolation(loop: str, count: int, merges: list[int]) -> dict[float, list[tuple[float,
                                                                                          float]]]:
     """(estimate / true, coarse run's evaluations / solution's) of each compared trial, by k."""
-    gains, options = LOOPS[loop]
-    plan = PAPER_MANEUVER.cubic()
-    trials = paper_trials(count, seed=7, spread=0.02, angle_spread=0.05)
-    scenario = Scenario(plan, gains, 1e-3, twin=0.0, **options).prepared()  # type: ignore[arg-type]
+    scenario, trials = loop_trials(loop, count)
+    duration = scenario.plan.duration
     found: dict[float, list[tuple[float, float]]] = {float(k): [] for k in merges}
     samples = scenario.times.shape[0]
     for i in range(count):
@@ -179,10 +192,10 @@ def extrapolation(loop: str, count: int, merges: list[int]) -> dict[float, list[
         x0 = closed_loop_start(scenario, trials, i)
         with np.errstate(all="ignore"):
             try:
-                solution, mesh, evaluations = adaptive(rhs, plan.duration, x0)
+                solution, mesh, evaluations = adaptive(rhs, duration, x0)
             except _OverBudgetError:
                 continue
-            true_angles = truth(rhs, plan.duration, x0) if np.all(abs(solution) < 100) else None
+            true_angles = truth(rhs, duration, x0) if np.all(abs(solution) < 100) else None
             if true_angles is None:
                 continue
             true = float(np.linalg.norm(solution[:3] - true_angles))
