@@ -83,62 +83,6 @@ def make_trials(
     return Trials(links=links, momentum=h0, initial=x, noise=noise)
 
 
-#: The suite's slowest tests on a cold numba cache (CI's ``pytest --durations``, 2026-12-06:
-#: 10-78 s each, most of it compiling a kernel family), slowest first. They run first, so
-#: that the xdist workers' last minutes are short tests rather than one long test beside an
-#: idle core. Order only: every test still runs, and a name no longer here only loses its
-#: place. Node ids with their parameters: a test's other parametrisations stay where they were,
-#: later, so that two workers do not compile one kernel family side by side.
-SLOW_FIRST: tuple[str, ...] = (
-    "tests/test_compose.py::test_the_dynamic_mpc_of_a_chain_is_its_lagged_loop_integrated_by_scipy",
-    "tests/test_reproduce.py::test_reproduce_writes_figures_tables_and_report",
-    "tests/test_asbuilt_sweep.py::test_both_pipelines_in_one_sweep_and_the_as_built_columns",
-    "tests/test_baselines.py::test_same_work_kernel_does_flatclis_work[gains0-0.02]",
-    "tests/test_compose.py::test_the_compiled_mpc_loop_is_the_sampled_loop_integrated_by_scipy[inf]",
-    "tests/test_simulate.py::test_error_estimate_is_within_the_band_of_the_true_final_error",
-    "tests/test_compose.py::test_the_dynamic_mpc_is_the_lagged_loop_integrated_by_scipy",
-    "tests/test_compose.py::test_the_reference_integrator_runs_the_sampled_loop[False]",
-    "tests/test_base.py::test_a_new_plant_is_one_module_and_its_registration",
-    "tests/test_controllers_asbuilt.py::test_flat_kernels_take_a_centre_of_mass_across_the_last_link[chain-dynamic]",
-    "tests/test_cli.py::test_a_four_link_robot_plans_tracks_and_sweeps_with_only_robot_and_plan",
-    "tests/test_controllers_asbuilt.py::test_as_built_pipeline_reaches_the_goal_from_fig4",
-    "tests/test_plants_dynamic.py::test_dop853_runs_every_chain_and_agrees_with_the_adaptive_integrator[3]",
-    "tests/test_outcome.py::test_the_rest_loops_capture_pushed_into_a_disc_collides",
-    "tests/test_compose.py::test_a_new_controller_is_one_module_and_its_registration",
-    "tests/test_owned.py::test_a_cached_kernel_loads_without_numbas_compiler_and_computes_the_same_bits",
-    "tests/test_compose.py::test_a_controller_written_in_python_runs_in_the_same_loop",
-    "tests/test_catalog.py::test_runs_lists_every_run_with_status_tags_and_key_metrics",
-    "tests/test_cli.py::test_exported_csv_files_do_not_block_force",
-    "tests/test_owned.py::test_a_warm_process_loads_no_blas_until_numba_compiles",
-    "tests/test_api.py::test_track_equals_the_cli_track",
-    "tests/test_montecarlo_runner.py::test_kill_9_at_random_moments_then_resume_gives_the_same_bytes",
-    "tests/test_compose.py::test_on_a_torque_replan_the_inner_poles_slow_and_1_n_m_is_kept",
-    "tests/test_compose.py::test_the_dynamic_mpc_keeps_10_n_m_on_its_replan",
-    "tests/test_workspace.py::test_targets_marked_out_of_reach_cannot_be_reached_at_any_sampled_attitude",
-    "tests/test_compose.py::test_the_dynamic_mpc_reaches_the_goal_within_4_rad_s",
-    "tests/test_mpc.py::test_without_limits_and_the_goal_beyond_the_horizon_there_is_no_correction",
-    "tests/test_optimize_api.py::test_chain_of_four_is_never_worse_than_its_start",
-    "tests/test_executors.py::test_a_pool_aborted_with_a_half_written_result_still_ends_the_program",
-    "tests/test_montecarlo_rerun.py::test_rerun_of_a_directory_finds_each_trials_own_cell",
-    "tests/test_designsearch_runner.py::test_a_killed_search_resumes_to_the_uninterrupted_result",
-    "tests/test_compose.py::test_the_paper_law_written_in_python_is_the_compiled_one[overrides0]",
-    "tests/test_optimize_api.py::test_chain_energy_under_per_joint_limits",
-    "tests/test_jit.py::test_every_cached_kernel_was_compiled_by_a_process_flatcli_owns[False]",
-    "tests/test_preflight.py::test_dry_run_prints_the_check_and_writes_nothing",
-    "tests/test_jit.py::test_a_damaged_cache_index_is_compiled_again_once[empty-False]",
-    "tests/test_montecarlo_chunks.py::test_a_task_sweep_with_ends_at_rest_runs_the_rest_law",
-    "tests/test_jit.py::test_a_damaged_cache_index_is_compiled_again_once[truncated-True]",
-    "tests/test_optimize_api.py::test_chain_of_four_energy_converges",
-)
-
-
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Put ``SLOW_FIRST``'s tests first, in its order; the rest keep theirs (the sort is
-    stable, and the same in every xdist worker)."""
-    rank = {name: i for i, name in enumerate(SLOW_FIRST)}
-    items.sort(key=lambda item: rank.get(item.nodeid, len(rank)))
-
-
 @pytest.fixture(scope="session", autouse=True)
 def _no_inherited_terminal_size() -> Iterator[None]:
     """The commands see no COLUMNS or LINES from the shell or the runner (pytest-xdist sets
